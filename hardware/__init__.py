@@ -1,0 +1,1 @@
+"""hardware: the real bench (serial protocol, SerialRig, emulated device, firmware)."""

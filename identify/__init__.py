@@ -1,0 +1,9 @@
+"""identify: estimators of a and b from a Recording (never from a rig)."""
+from .errors import NotIdentifiableError
+from .estimate import Estimate
+from .methods import DEFAULT_METHOD, available_methods, fit
+from .regression import fit_euler_ls, fit_zoh_ls
+from .validation import fit_percent, nrmse_fit, simulated_speed
+
+__all__ = ["NotIdentifiableError", "Estimate", "DEFAULT_METHOD", "available_methods", "fit",
+           "fit_euler_ls", "fit_zoh_ls", "fit_percent", "nrmse_fit", "simulated_speed"]

@@ -1,0 +1,33 @@
+"""The estimators by name: ``fit(recordings, method=...)`` and ``available_methods()``.
+
+Add an estimator by adding one line to ``_METHODS``; the CLI and the sweeps
+pick it up by name.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from .estimate import Estimate
+from .regression import fit_euler_ls, fit_zoh_ls
+
+__all__ = ["fit", "available_methods", "DEFAULT_METHOD"]
+
+_METHODS: dict[str, Callable[..., Estimate]] = {
+    "euler-ls": fit_euler_ls,
+    "zoh-ls": fit_zoh_ls,
+}
+
+#: The most accurate method available (``motorid identify`` without ``--method``).
+DEFAULT_METHOD = "zoh-ls"
+
+
+def available_methods() -> list[str]:
+    """Names accepted by :func:`fit`."""
+    return list(_METHODS)
+
+
+def fit(recordings, method: str = DEFAULT_METHOD, **options) -> Estimate:
+    """Identify ``a`` and ``b`` from one Recording or several (pooled) with the named method."""
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
+    return _METHODS[method](recordings, **options)

@@ -1,0 +1,160 @@
+"""One-step regressions on differenced speed: the article's method and its exact ZOH mapping.
+
+Both regress ``omega_{k+1}`` on ``(omega_k, u_k)`` (article eqs. 13-17)::
+
+    A = [[omega_0, u_0], ..., [omega_n, u_n]],  b = [omega_1, ..., omega_{n+1}],
+    x = argmin ||A x - b||  (eq. 19, solved by QR/SVD via ``lstsq``, never an explicit inverse)
+
+and differ in how ``x = (theta1, theta2)`` maps back to ``(a, b)``:
+
+* ``euler-ls`` (forward Euler, eqs. 12, 25-28): ``[a, b] = C (x - d)`` with
+  ``C = diag(-1, 1)/dt`` and ``d = [1, 0]``, i.e. ``a = (1 - theta1)/dt``, ``b = theta2/dt``.
+  On noise-free sampled speed it converges to ``a_E = (1 - exp(-a dt))/dt``,
+  ``b_E = b a_E / a``, not to ``(a, b)``.
+* ``zoh-ls`` (exact zero-order hold): ``theta1 = exp(-a dt)``, ``theta2 = (b/a)(1 - theta1)``,
+  so ``a = -ln(theta1)/dt``, ``b = a theta2 / (1 - theta1)``; requires ``0 < theta1 < 1``.
+
+Rows are built inside each gap-free segment of each recording (the speed at k is
+the backward difference of the angle, see ``motorsim.recording``), so recordings
+are pooled into one regression.  The covariance is the ordinary least-squares one,
+``s^2 (A^T A)^{-1}`` mapped to ``(a, b)`` by the Jacobian of the mapping; it
+assumes noise-free regressors, which differenced encoder speed is not (errors in
+variables), so treat it as optimistic.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from motorsim.recording import Recording
+
+from .errors import NotIdentifiableError
+from .estimate import Estimate
+from .validation import fit_percent
+
+__all__ = ["regression_rows", "least_squares", "fit_euler_ls", "fit_zoh_ls", "as_recordings"]
+
+
+def as_recordings(recordings) -> list[Recording]:
+    """Accept one Recording or a sequence of them; check they share a sample period and input unit."""
+    if isinstance(recordings, Recording):
+        recordings = [recordings]
+    recs = list(recordings)
+    if not recs:
+        raise ValueError("recordings must hold at least one Recording, got none")
+    for i, r in enumerate(recs):
+        if not isinstance(r, Recording):
+            raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
+    dts = {r.sample_period for r in recs}
+    if len(dts) > 1:
+        raise ValueError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
+    units = {r.input_unit for r in recs}
+    if len(units) > 1:
+        raise ValueError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
+    return recs
+
+
+def regression_rows(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray]:
+    """The article's ``A`` (rows ``[omega_k, u_k]``) and ``b`` (``omega_{k+1}``), pooled over segments."""
+    rows, targets = [], []
+    for rec in recordings:
+        w = rec.speed_rad_s()
+        u = rec.duty
+        # pair (w_k, u_k) -> w_{k+1} only where both speeds are defined (no gap between k and k+1)
+        ok = np.isfinite(w[:-1]) & np.isfinite(w[1:]) & (np.diff(rec.seq) == 1)
+        rows.append(np.column_stack([w[:-1][ok], u[:-1][ok]]))
+        targets.append(w[1:][ok])
+    return np.concatenate(rows), np.concatenate(targets)
+
+
+def least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``x = argmin ||A x - y||`` with its OLS covariance and the residual RMS.
+
+    Raises
+    ------
+    NotIdentifiableError
+        Fewer rows than 3, or ``A`` rank-deficient (e.g. a constant or zero input).
+    """
+    n, p = A.shape
+    if n < p + 1:
+        raise NotIdentifiableError(f"recording is too short: {n} regression rows for {p} parameters; "
+                                   "record more samples")
+    scale = np.linalg.norm(A, axis=0)
+    if np.any(scale == 0):
+        which = ["speed", "input"][int(np.flatnonzero(scale == 0)[0])] if p == 2 else "a regressor"
+        raise NotIdentifiableError(f"{which} is identically zero: the input is not persistently exciting "
+                                   "(use a sine, multisine or PRBS)")
+    x_s, _, rank, sv = np.linalg.lstsq(A / scale, y, rcond=None)
+    if rank < p or sv[-1] / sv[0] < 1e-10:
+        raise NotIdentifiableError("regressors are (nearly) collinear: the input is not persistently exciting "
+                                   "(use a sine, multisine or PRBS that moves the motor)")
+    x = x_s / scale
+    resid = y - A @ x
+    dof = max(n - p, 1)
+    s2 = float(resid @ resid) / dof
+    # cov = s^2 (A^T A)^{-1}, from the SVD of the scaled A (no explicit inverse of A^T A)
+    _, svals, vt = np.linalg.svd(A / scale, full_matrices=False)
+    inv = (vt.T / svals**2) @ vt
+    cov = s2 * inv / np.outer(scale, scale)
+    return x, cov, math.sqrt(float(resid @ resid) / n)
+
+
+def _finish(method, a, b, jac, cov_x, rms, n, recs) -> Estimate:
+    cov = jac @ cov_x @ jac.T
+    return Estimate(method=method, a=float(a), b=float(b), n_samples=int(n),
+                    sample_period=recs[0].sample_period, residual_rms=rms,
+                    fit_percent=fit_percent(float(a), float(b), recs) if a > 0 else math.nan,
+                    covariance=cov, input_unit=recs[0].input_unit)
+
+
+def fit_euler_ls(recordings) -> Estimate:
+    """The article's method, eqs. 14-28: forward-Euler regression and ``[a, b] = C (x - d)``.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled into one regression (one sample period).
+
+    Returns
+    -------
+    Estimate
+        ``method = "euler-ls"``.
+    """
+    recs = as_recordings(recordings)
+    A, y = regression_rows(recs)
+    x, cov_x, rms = least_squares(A, y)
+    dt = recs[0].sample_period
+    C = np.diag([-1.0, 1.0]) / dt          # eq. 27
+    d = np.array([1.0, 0.0])               # eq. 28
+    a, b = C @ (x - d)                     # eq. 26
+    return _finish("euler-ls", a, b, C, cov_x, rms, len(y), recs)
+
+
+def fit_zoh_ls(recordings) -> Estimate:
+    """The same regression mapped back exactly through the ZOH model.
+
+    ``a = -ln(theta1)/dt``, ``b = a theta2/(1 - theta1)``.
+
+    Raises
+    ------
+    NotIdentifiableError
+        When ``theta1`` is not in (0, 1) (no stable first-order ZOH model matches the data).
+    """
+    recs = as_recordings(recordings)
+    A, y = regression_rows(recs)
+    x, cov_x, rms = least_squares(A, y)
+    dt = recs[0].sample_period
+    t1, t2 = x
+    if not 0 < t1 < 1:
+        raise NotIdentifiableError(
+            f"zoh-ls: theta1 = {t1:.6g} is not in (0, 1), so no stable first-order model fits "
+            f"(a = -ln(theta1)/dt is undefined or negative); check the sign of the input, "
+            f"the sample period ({dt!r} s) and that the motor actually moved")
+    a = -math.log(t1) / dt
+    b = a * t2 / (1.0 - t1)
+    da1 = -1.0 / (t1 * dt)
+    jac = np.array([[da1, 0.0],
+                    [t2 * (da1 * (1 - t1) + a) / (1 - t1) ** 2, a / (1 - t1)]])
+    return _finish("zoh-ls", a, b, jac, cov_x, rms, len(y), recs)

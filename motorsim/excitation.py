@@ -1,0 +1,427 @@
+"""Excitation signals, computed exactly as the bench firmware computes them.
+
+Every excitation turns a sample count and a sample period into an integer duty
+sequence (``-duty_limit ... duty_limit``).  The arithmetic is integer-exact and is
+specified byte for byte in ``hardware/PROTOCOL.md`` ("Waveforms"): a 32-bit phase
+accumulator, a 1024-entry Q15 sine table with linear interpolation, a Galois LFSR
+for PRBS.  The simulator and the Arduino firmware therefore produce the *same*
+duty sequence, which is what lets ``SimRig`` and ``SerialRig`` share
+``rig.run(experiment)``.
+
+The sine of the article (eqs. 29-32), ``eta = A sin(omega t + alpha)``, is
+:class:`Sine`.  Its duty differs from ``round(A sin(omega k dt + alpha))`` only
+where that value lies within 0.01 duty units of a rounding tie (the
+interpolated Q15 table is within 4.8e-5 of full scale; about 0.5 % of the
+samples of a 200-amplitude sine differ by one unit), and its frequency
+is realised to within 2**-32 of a cycle per sample.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar, Sequence
+
+import numpy as np
+
+__all__ = [
+    "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
+    "sine_table", "sine_q15", "phase_increment", "parse_excitation",
+    "DUTY_LIMIT", "MAX_AMPLITUDE", "MAX_COMPONENTS", "PRBS_MASKS",
+]
+
+#: Largest duty magnitude an 8-bit PWM (Arduino ``analogWrite``) accepts.
+DUTY_LIMIT = 255
+#: Largest amplitude or offset of one component; keeps the firmware's int32 sums exact.
+MAX_AMPLITUDE = 1023
+#: Most sine components in one multisine (firmware limit).
+MAX_COMPONENTS = 4
+_TABLE_BITS = 10
+_TABLE_SIZE = 1 << _TABLE_BITS
+_TWO32 = 1 << 32
+
+#: Galois LFSR feedback masks (right shift) giving maximal-length sequences,
+#: period ``2**order - 1``; indexed by order.
+PRBS_MASKS = {
+    2: 0x3, 3: 0x6, 4: 0xC, 5: 0x14, 6: 0x30, 7: 0x60, 8: 0xB8, 9: 0x110,
+    10: 0x240, 11: 0x500, 12: 0xE08, 13: 0x1C80, 14: 0x3802, 15: 0x6000,
+    16: 0xB400,
+}
+
+
+def sine_table() -> np.ndarray:
+    """The 1024-entry Q15 sine table: ``round(32767 sin(2 pi i / 1024))``, int16."""
+    i = np.arange(_TABLE_SIZE)
+    return np.rint(32767.0 * np.sin(2.0 * np.pi * i / _TABLE_SIZE)).astype(np.int16)
+
+
+_TABLE = sine_table().astype(np.int64)
+
+
+def sine_q15(phase: np.ndarray) -> np.ndarray:
+    """Interpolated sine of a 32-bit phase (``2**32`` is one cycle), in Q15.
+
+    ``i = phase >> 22``, ``f = (phase >> 6) & 0xFFFF``,
+    ``s = T[i] + (((T[i+1 mod 1024] - T[i]) * f) >> 16)`` with an arithmetic shift.
+    """
+    phase = np.asarray(phase, dtype=np.int64) & 0xFFFFFFFF
+    i = phase >> (32 - _TABLE_BITS)
+    f = (phase >> 6) & 0xFFFF
+    y0 = _TABLE[i]
+    y1 = _TABLE[(i + 1) & (_TABLE_SIZE - 1)]
+    return y0 + (((y1 - y0) * f) >> 16)
+
+
+def phase_increment(frequency: float, sample_period: float) -> int:
+    """Phase step per sample of a sine of ``frequency`` rad/s, as a u32 (``2**32`` = 1 cycle)."""
+    return int(round(frequency * sample_period / (2.0 * math.pi) * _TWO32)) % _TWO32
+
+
+def _phase_word(phase: float) -> int:
+    return int(round(phase / (2.0 * math.pi) * _TWO32)) % _TWO32
+
+
+def _clamp(duty: np.ndarray, duty_limit: int) -> np.ndarray:
+    return np.clip(duty, -duty_limit, duty_limit).astype(np.int64)
+
+
+def _check_int(name: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise TypeError(f"{name} must be an integer, got {value!r}")
+    if not lo <= value <= hi:
+        raise ValueError(f"{name} must be in {lo}...{hi}, got {value!r}")
+    return int(value)
+
+
+def _check_real(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if positive and value <= 0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+    if nonnegative and value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value!r}")
+    return value
+
+
+def _check_common(n_samples: int, sample_period: float, duty_limit: int) -> tuple[int, float, int]:
+    n_samples = _check_int("n_samples", n_samples, 0, 2**32 - 1)
+    sample_period = _check_real("sample_period", sample_period, positive=True)
+    duty_limit = _check_int("duty_limit", duty_limit, 0, 32767)
+    return n_samples, sample_period, duty_limit
+
+
+class Excitation:
+    """Base class: an integer duty sequence generated sample by sample.
+
+    Subclasses are frozen dataclasses; :meth:`duty` is the whole contract.
+    """
+
+    kind: ClassVar[str] = ""
+
+    def duty(self, n_samples: int, sample_period: float, duty_limit: int = DUTY_LIMIT) -> np.ndarray:
+        """Duty for samples ``0 ... n_samples-1`` (int64), clamped to ``+-duty_limit``.
+
+        Parameters
+        ----------
+        n_samples : int
+            Number of samples.
+        sample_period : float
+            Nominal sample period in s (sets the phase step of sines and chirps).
+        duty_limit : int, optional
+            Clamp, default 255.
+        """
+        n, dt, lim = _check_common(n_samples, sample_period, duty_limit)
+        return _clamp(self._raw(n, dt), lim)
+
+    def _raw(self, n: int, dt: float) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        """A one-line spec that :func:`parse_excitation` reads back."""
+        raise NotImplementedError
+
+
+@dataclasses.dataclass(frozen=True)
+class Constant(Excitation):
+    """A constant duty ``level``."""
+
+    level: int = 0
+    kind: ClassVar[str] = "constant"
+
+    def __post_init__(self):
+        object.__setattr__(self, "level", _check_int("level", self.level, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+
+    def _raw(self, n, dt):
+        return np.full(n, self.level, dtype=np.int64)
+
+    def describe(self):
+        return f"constant:{self.level}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Step(Excitation):
+    """Duty ``before`` until ``at_time`` s, then ``after``.
+
+    The switch happens at sample ``round(at_time / sample_period)``.
+    """
+
+    after: int = 100
+    at_time: float = 0.0
+    before: int = 0
+    kind: ClassVar[str] = "step"
+
+    def __post_init__(self):
+        object.__setattr__(self, "after", _check_int("after", self.after, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "before", _check_int("before", self.before, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "at_time", _check_real("at_time", self.at_time, nonnegative=True))
+
+    def step_index(self, sample_period: float) -> int:
+        """Index of the first sample with duty ``after``."""
+        return int(round(self.at_time / sample_period))
+
+    def _raw(self, n, dt):
+        k = np.arange(n)
+        return np.where(k < self.step_index(dt), self.before, self.after).astype(np.int64)
+
+    def describe(self):
+        return f"step:{self.after},{self.at_time!r},{self.before}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Multisine(Excitation):
+    """Sum of sines ``offset + sum_j A_j sin(omega_j t + alpha_j)``.
+
+    Parameters
+    ----------
+    frequencies : sequence of float
+        Angular frequencies omega_j in rad/s (each below the Nyquist frequency).
+    amplitudes : sequence of int
+        Amplitudes A_j in duty units, ``|A_j| <= 1023``.
+    phases : sequence of float, optional
+        Phases alpha_j in rad, default 0.
+    offset : int, optional
+        Constant added to the sum, default 0.
+    """
+
+    frequencies: tuple = (10.0,)
+    amplitudes: tuple = (200,)
+    phases: tuple = ()
+    offset: int = 0
+    kind: ClassVar[str] = "multisine"
+
+    def __post_init__(self):
+        f = tuple(_check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
+        if not 1 <= len(f) <= MAX_COMPONENTS:
+            raise ValueError(f"frequencies must have 1...{MAX_COMPONENTS} components, got {len(f)}")
+        a = tuple(_check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
+        if len(a) == 1 and len(f) > 1:
+            a = a * len(f)
+        p = tuple(_check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
+        if not len(a) == len(p) == len(f):
+            raise ValueError(f"frequencies, amplitudes and phases must have equal lengths, "
+                             f"got {len(f)}, {len(a)} and {len(p)}")
+        object.__setattr__(self, "frequencies", f)
+        object.__setattr__(self, "amplitudes", a)
+        object.__setattr__(self, "phases", p)
+        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+
+    def components(self, sample_period: float) -> list[tuple[int, int, int]]:
+        """``(amplitude, phase0, phase_inc)`` per component, as the firmware receives them."""
+        out = []
+        for f, a, p in zip(self.frequencies, self.amplitudes, self.phases):
+            if f * sample_period >= math.pi:
+                raise ValueError(f"frequencies must be below the Nyquist frequency "
+                                 f"pi/sample_period = {math.pi / sample_period:.6g} rad/s, got {f!r}")
+            out.append((a, _phase_word(p), phase_increment(f, sample_period)))
+        return out
+
+    def _raw(self, n, dt):
+        k = np.arange(n, dtype=np.int64)
+        acc = np.zeros(n, dtype=np.int64)
+        for a, p0, inc in self.components(dt):
+            acc += a * sine_q15((p0 + k * inc) & 0xFFFFFFFF)
+        return self.offset + ((acc + 16384) >> 15)
+
+    def describe(self):
+        if len(self.frequencies) == 1:
+            return (f"sine:{self.frequencies[0]!r},{self.amplitudes[0]},{self.phases[0]!r}"
+                    + (f"@{self.offset}" if self.offset else ""))
+        parts = ";".join(f"{f!r},{a},{p!r}" for f, a, p in zip(self.frequencies, self.amplitudes, self.phases))
+        return f"multisine:{parts}" + (f"@{self.offset}" if self.offset else "")
+
+
+def Sine(frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offset: int = 0) -> Multisine:
+    """The article's sine ``eta = A sin(omega t + alpha)`` (eqs. 29-32): a one-component :class:`Multisine`.
+
+    Parameters
+    ----------
+    frequency : float
+        omega in rad/s.
+    amplitude : int
+        A in duty units, default 200 (the article's).
+    phase : float
+        alpha in rad.
+    offset : int
+        Constant duty added.
+    """
+    return Multisine((frequency,), (amplitude,), (phase,), offset)
+
+
+@dataclasses.dataclass(frozen=True)
+class Chirp(Excitation):
+    """Linear chirp from ``f0`` to ``f1`` rad/s over the whole run, amplitude ``amplitude``.
+
+    The phase step grows by a constant integer per sample, so the firmware's
+    second-order accumulator reproduces it exactly.
+    """
+
+    f0: float = 1.0
+    f1: float = 50.0
+    amplitude: int = 200
+    offset: int = 0
+    kind: ClassVar[str] = "chirp"
+
+    def __post_init__(self):
+        object.__setattr__(self, "f0", _check_real("f0", self.f0, positive=True))
+        object.__setattr__(self, "f1", _check_real("f1", self.f1, positive=True))
+        object.__setattr__(self, "amplitude", _check_int("amplitude", self.amplitude, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+
+    def words(self, n_samples: int, sample_period: float) -> tuple[int, int]:
+        """``(inc0, inc_step)``: the u32 start step and the i32 step change per sample."""
+        for name, f in (("f0", self.f0), ("f1", self.f1)):
+            if f * sample_period >= math.pi:
+                raise ValueError(f"{name} must be below the Nyquist frequency "
+                                 f"pi/sample_period = {math.pi / sample_period:.6g} rad/s, got {f!r}")
+        inc0 = phase_increment(self.f0, sample_period)
+        inc1 = phase_increment(self.f1, sample_period)
+        step = int(round((inc1 - inc0) / max(n_samples - 1, 1)))
+        return inc0, step
+
+    def _raw(self, n, dt):
+        inc0, step = self.words(n, dt)
+        k = np.arange(n, dtype=np.int64)
+        # phase_k = sum_{j<k} (inc0 + j*step) = k*inc0 + step*k(k-1)/2, modulo 2**32
+        # (uint64 wrap-around is exact modulo 2**32).
+        ku = k.astype(np.uint64)
+        tri = (ku * (ku - np.uint64(1)) // np.uint64(2)) if n else ku
+        phase = (ku * np.uint64(inc0) + tri * np.uint64(step % 2**64)) & np.uint64(0xFFFFFFFF)
+        s = sine_q15(phase.astype(np.int64))
+        return self.offset + ((self.amplitude * s + 16384) >> 15)
+
+    def describe(self):
+        return f"chirp:{self.f0!r},{self.f1!r},{self.amplitude}" + (f"@{self.offset}" if self.offset else "")
+
+
+@dataclasses.dataclass(frozen=True)
+class PRBS(Excitation):
+    """Two-level pseudo-random binary sequence from a maximal-length Galois LFSR.
+
+    Each bit is held for ``hold`` samples; bit 1 gives ``high``, bit 0 ``low``.
+    Per bit: ``out = state & 1; state >>= 1; if out: state ^= PRBS_MASKS[order]``.
+    """
+
+    high: int = 200
+    low: int = -200
+    order: int = 10
+    hold: int = 1
+    seed: int = 1
+    kind: ClassVar[str] = "prbs"
+
+    def __post_init__(self):
+        for name in ("high", "low"):
+            object.__setattr__(self, name, _check_int(name, getattr(self, name), -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "order", _check_int("order", self.order, 2, 16))
+        object.__setattr__(self, "hold", _check_int("hold", self.hold, 1, 65535))
+        object.__setattr__(self, "seed", _check_int("seed", self.seed, 1, (1 << self.order) - 1))
+
+    def bits(self, n_bits: int) -> np.ndarray:
+        """The first ``n_bits`` output bits of the LFSR (uint8)."""
+        mask = PRBS_MASKS[self.order]
+        period = (1 << self.order) - 1
+        m = min(n_bits, period)
+        out = np.empty(m, dtype=np.uint8)
+        state = self.seed
+        for i in range(m):
+            bit = state & 1
+            out[i] = bit
+            state >>= 1
+            if bit:
+                state ^= mask
+        if n_bits > period:
+            out = np.resize(out, n_bits)
+        return out
+
+    def _raw(self, n, dt):
+        n_bits = -(-n // self.hold)
+        b = np.repeat(self.bits(n_bits), self.hold)[:n]
+        return np.where(b == 1, self.high, self.low).astype(np.int64)
+
+    def describe(self):
+        return f"prbs:{self.high},{self.low},{self.order},{self.hold},{self.seed}"
+
+
+_PARSE_HELP = ("sine:FREQ[,AMP[,PHASE]]  multisine:F,A,P;F,A,P...  chirp:F0,F1[,AMP]  "
+               "prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]  step:AFTER[,AT_TIME[,BEFORE]]  constant:LEVEL")
+
+
+def _numbers(text: str, spec: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"excitation {spec!r}: expected comma-separated numbers; forms: {_PARSE_HELP}") from None
+
+
+def parse_excitation(spec: str) -> Excitation:
+    """Read an excitation from its one-line form (``sine:10,200,0.5``; see :meth:`Excitation.describe`).
+
+    Optional ``@OFFSET`` at the end of sine, multisine and chirp adds a constant duty.
+    """
+    if not isinstance(spec, str) or ":" not in spec:
+        raise ValueError(f"excitation must look like KIND:ARGS ({_PARSE_HELP}), got {spec!r}")
+    kind, _, args = spec.partition(":")
+    kind = kind.strip().lower()
+    offset = 0
+    if "@" in args:
+        args, _, off = args.partition("@")
+        offset = _numbers(off, spec)[0]
+    def ints(xs):
+        return [int(x) if float(x).is_integer() else x for x in xs]
+    if kind == "sine":
+        v = _numbers(args, spec)
+        if not 1 <= len(v) <= 3:
+            raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
+        return Sine(v[0], *ints(v[1:2]), *v[2:3], offset=ints([offset])[0])
+    if kind == "multisine":
+        comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
+        if not comps or any(not 1 <= len(c) <= 3 for c in comps):
+            raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
+        return Multisine(tuple(c[0] for c in comps),
+                         tuple(ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
+                         tuple(c[2] if len(c) > 2 else 0.0 for c in comps), ints([offset])[0])
+    if kind == "chirp":
+        v = _numbers(args, spec)
+        if not 2 <= len(v) <= 3:
+            raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
+        return Chirp(v[0], v[1], *ints(v[2:3]), offset=ints([offset])[0])
+    if kind == "prbs":
+        v = ints(_numbers(args, spec))
+        if not 2 <= len(v) <= 5:
+            raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
+        return PRBS(*v)
+    if kind == "step":
+        v = _numbers(args, spec)
+        if not 1 <= len(v) <= 3:
+            raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
+        return Step(ints(v[:1])[0], *(v[1:2]), *ints(v[2:3]))
+    if kind == "constant":
+        v = ints(_numbers(args, spec))
+        if len(v) != 1:
+            raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
+        return Constant(v[0])
+    raise ValueError(f"excitation kind must be one of sine, multisine, chirp, prbs, step, constant, got {kind!r}")

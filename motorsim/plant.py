@@ -1,0 +1,226 @@
+"""The motor: ``d omega/dt + a omega = b u`` as a python-control model, and its exact simulation.
+
+The PWM holds each duty for one sample interval, so the exact discrete model is
+the zero-order-hold (ZOH) discretisation.  The state is ``[angle, speed]``:
+angle is the integral of speed, which makes encoder counts exact functions of
+the simulated state.
+
+Over an interval of length ``h`` with constant drive ``v`` (ZOH, exact)::
+
+    e      = exp(-a h)
+    speed' = e speed + (b/a)(1 - e) v
+    angle' = angle + ((1 - e)/a) speed + (b/a)(h - (1 - e)/a) v
+
+With Coulomb friction ``c`` the speed obeys ``d omega/dt = -a omega + b v - c sign(omega) + d``
+piecewise; :func:`simulate` integrates it exactly, event by event (zero
+crossings and sticking when ``|b v + d| <= c`` at rest).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import control
+import numpy as np
+
+from .excitation import _check_int, _check_real
+
+__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Motor:
+    """A PWM-driven DC motor, ``d omega/dt + a omega = b u`` (plus optional non-idealities).
+
+    Parameters
+    ----------
+    a : float
+        Pole in 1/s, > 0.
+    b : float
+        Gain in (rad/s^2) per duty unit (per input unit), nonzero.
+    friction : float, optional
+        Coulomb friction ``c`` in rad/s^2, >= 0 (default 0): the term ``-c sign(omega)``,
+        and the motor sticks at rest while ``|b u + bias| <= c``.
+    bias : float, optional
+        Constant acceleration ``d`` in rad/s^2 (default 0), e.g. a driver offset or load.
+    dead_zone : float, optional
+        Duty magnitude below which the driver delivers nothing, >= 0 (default 0);
+        outside it the drive is ``u - sign(u) dead_zone``.
+    input_delay : int, optional
+        Whole samples between a duty being commanded and reaching the motor, >= 0.
+    """
+
+    a: float
+    b: float
+    friction: float = 0.0
+    bias: float = 0.0
+    dead_zone: float = 0.0
+    input_delay: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "a", _check_real("a", self.a, positive=True))
+        b = _check_real("b", self.b)
+        if b == 0:
+            raise ValueError(f"b must be nonzero, got {self.b!r}")
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "friction", _check_real("friction", self.friction, nonnegative=True))
+        object.__setattr__(self, "bias", _check_real("bias", self.bias))
+        object.__setattr__(self, "dead_zone", _check_real("dead_zone", self.dead_zone, nonnegative=True))
+        object.__setattr__(self, "input_delay", _check_int("input_delay", self.input_delay, 0, 10**6))
+
+    @property
+    def is_linear(self) -> bool:
+        """True when friction, bias and dead zone are all zero (delay keeps it linear)."""
+        return self.friction == 0 and self.bias == 0 and self.dead_zone == 0
+
+    @property
+    def static_gain(self) -> float:
+        """Steady-state speed per input unit, ``b / a``."""
+        return self.b / self.a
+
+    def transfer_function(self) -> control.TransferFunction:
+        """``b / (s + a)`` from duty to speed (delay and non-idealities omitted)."""
+        return control.tf([self.b], [1.0, self.a])
+
+    def state_space(self) -> control.StateSpace:
+        """States ``[angle, speed]``, input duty, outputs ``[angle, speed]`` (linear part)."""
+        A = [[0.0, 1.0], [0.0, -self.a]]
+        B = [[0.0], [self.b]]
+        return control.ss(A, B, np.eye(2), np.zeros((2, 1)),
+                          states=["angle", "speed"], inputs=["duty"], outputs=["angle", "speed"])
+
+    def discretise(self, sample_period: float) -> control.StateSpace:
+        """The exact ZOH model at ``sample_period`` s, via ``control.sample_system``."""
+        sample_period = _check_real("sample_period", sample_period, positive=True)
+        return control.sample_system(self.state_space(), sample_period, method="zoh")
+
+    def drive(self, duty: np.ndarray) -> np.ndarray:
+        """The drive ``v`` that reaches the motor: dead zone applied (delay not)."""
+        u = np.asarray(duty, dtype=float)
+        if self.dead_zone == 0:
+            return u
+        return np.where(np.abs(u) <= self.dead_zone, 0.0, u - np.sign(u) * self.dead_zone)
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """Angle (rad) and speed (rad/s) at the sample instants ``time`` (s)."""
+
+    time: np.ndarray
+    angle: np.ndarray
+    speed: np.ndarray
+
+
+def zoh_matrices(a: float, b: float, h) -> tuple:
+    """Closed-form ZOH coefficients for intervals ``h`` (scalar or array).
+
+    Returns ``(e, g, p, q)`` with ``speed' = e speed + g v`` and
+    ``angle' = angle + p speed + q v``.
+    """
+    h = np.asarray(h, dtype=float)
+    e = np.exp(-a * h)
+    one_minus = -np.expm1(-a * h)
+    g = b / a * one_minus
+    p = one_minus / a
+    q = b / a * (h - p)
+    return e, g, p, q
+
+
+def _delayed(duty: np.ndarray, delay: int, before: float) -> np.ndarray:
+    if delay == 0:
+        return duty
+    out = np.empty_like(duty)
+    out[:delay] = before
+    out[delay:] = duty[: len(duty) - delay] if delay < len(duty) else out[delay:]
+    return out
+
+
+def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_angle: float = 0.0,
+             duty_before: float = 0.0) -> Trajectory:
+    """Simulate the motor exactly under zero-order-hold duty.
+
+    Parameters
+    ----------
+    motor : Motor
+        The plant.
+    duty : array_like, shape (n,)
+        ``duty[k]`` is applied from ``time[k]`` until ``time[k+1]`` (the last one is not used).
+    time : array_like, shape (n,)
+        Strictly increasing sample instants in s (uniform or not).
+    initial_speed, initial_angle : float
+        State at ``time[0]``.
+    duty_before : float
+        Duty that was applied before ``time[0]``, fed through ``motor.input_delay``.
+
+    Returns
+    -------
+    Trajectory
+        ``angle[k]`` and ``speed[k]`` at ``time[k]``.
+    """
+    if not isinstance(motor, Motor):
+        raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")
+    u = np.asarray(duty, dtype=float)
+    t = np.asarray(time, dtype=float)
+    if u.ndim != 1 or t.shape != u.shape:
+        raise ValueError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(t))):
+        raise ValueError("duty and time must be finite")
+    h = np.diff(t)
+    if np.any(h <= 0):
+        raise ValueError("time must be strictly increasing")
+    v = motor.drive(_delayed(u, motor.input_delay, duty_before))[:-1] if len(u) else u
+    n = len(t)
+    angle = np.empty(n)
+    speed = np.empty(n)
+    if n == 0:
+        return Trajectory(t, angle, speed)
+    angle[0], speed[0] = initial_angle, initial_speed
+    if motor.friction == 0:
+        e, g, p, q = zoh_matrices(motor.a, motor.b, h)
+        drive = v + motor.bias / motor.b
+        _linear_recursion(e, g * drive, speed, initial_speed)
+        angle[1:] = initial_angle + np.cumsum(p * speed[:-1] + q * drive)
+        return Trajectory(t, angle, speed)
+    w, th = float(initial_speed), float(initial_angle)
+    for k in range(n - 1):
+        w, th = _friction_interval(motor.a, motor.b * v[k] + motor.bias, motor.friction, w, th, h[k])
+        speed[k + 1], angle[k + 1] = w, th
+    return Trajectory(t, angle, speed)
+
+
+def _linear_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float) -> None:
+    """``out[0] = x0; out[k+1] = e[k] out[k] + f[k]``, exactly, without a Python loop when e is constant."""
+    if len(e) and np.all(e == e[0]):
+        from scipy.signal import lfilter
+        out[1:], _ = lfilter([1.0], [1.0, -e[0]], f, zi=[e[0] * x0])
+        return
+    x = x0
+    for k in range(len(e)):
+        x = e[k] * x + f[k]
+        out[k + 1] = x
+
+
+def _friction_interval(a: float, force: float, c: float, w: float, th: float, h: float) -> tuple[float, float]:
+    """Exact solution over ``h`` s of ``w' = -a w + force - c sign(w)`` with sticking at rest."""
+    remaining = h
+    while remaining > 0:
+        if w == 0.0:
+            if abs(force) <= c:
+                return 0.0, th  # stuck for the rest of the interval
+            s = 1.0 if force > 0 else -1.0
+        else:
+            s = 1.0 if w > 0 else -1.0
+        target = (force - s * c) / a  # equilibrium of this branch
+        # Does the branch reach zero speed (towards the opposite sign) within `remaining`?
+        if w != 0.0 and target * s < 0:
+            t_zero = math.log((w - target) / (0.0 - target)) / a
+            if t_zero < remaining:
+                th += target * t_zero + (w - target) * (-math.expm1(-a * t_zero)) / a
+                w = 0.0
+                remaining -= t_zero
+                continue
+        em = -math.expm1(-a * remaining)
+        th += target * remaining + (w - target) * em / a
+        w = target + (w - target) * (1.0 - em)
+        return w, th
+    return w, th

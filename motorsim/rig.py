@@ -1,0 +1,156 @@
+"""One interface for the simulator and the bench: ``Rig.run(experiment) -> Recording``.
+
+An :class:`Experiment` says what to do (excitation, sample period, duration, duty
+limit); a rig does it and returns a :class:`~motorsim.recording.Recording`.
+:class:`SimRig` is the simulated bench; ``hardware.SerialRig`` is the Arduino one.
+Nothing here is simulation-specific except :class:`SimRig` itself.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+from .excitation import DUTY_LIMIT, Excitation, _check_int, _check_real
+from .plant import Motor, simulate
+from .recording import Recording
+from .sensors import Encoder
+
+__all__ = ["Experiment", "Rig", "SimRig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    """What a rig should run.
+
+    Parameters
+    ----------
+    excitation : Excitation
+        The duty waveform (generated on board by the bench firmware).
+    sample_period : float
+        Nominal sample period in s, > 0.
+    duration : float
+        Length of the run in s; the run has ``round(duration / sample_period)`` samples.
+    duty_limit : int
+        Duty clamp, 0...255 (default 255).
+    """
+
+    excitation: Excitation
+    sample_period: float = 0.005
+    duration: float = 10.0
+    duty_limit: int = DUTY_LIMIT
+
+    def __post_init__(self):
+        if not isinstance(self.excitation, Excitation):
+            raise TypeError(f"excitation must be an Excitation, got {type(self.excitation).__name__}")
+        object.__setattr__(self, "sample_period", _check_real("sample_period", self.sample_period, positive=True))
+        object.__setattr__(self, "duration", _check_real("duration", self.duration, positive=True))
+        object.__setattr__(self, "duty_limit", _check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
+        if self.n_samples < 2:
+            raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
+                             f"got {self.duration!r} s")
+        self.duty()  # validate the excitation against this sample period (Nyquist, ...)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples, ``round(duration / sample_period)``."""
+        return int(round(self.duration / self.sample_period))
+
+    def duty(self) -> np.ndarray:
+        """The duty sequence every rig applies (int64, length ``n_samples``)."""
+        return self.excitation.duty(self.n_samples, self.sample_period, self.duty_limit)
+
+    def metadata(self) -> dict[str, str]:
+        """Metadata lines describing this experiment, for the recording."""
+        return {"excitation": self.excitation.describe(), "duty_limit": str(self.duty_limit),
+                "duration": repr(self.duration)}
+
+
+@runtime_checkable
+class Rig(Protocol):
+    """Anything that runs an :class:`Experiment` and returns its :class:`Recording`."""
+
+    def run(self, experiment: Experiment) -> Recording:
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class SimRig:
+    """The simulated bench.
+
+    Parameters
+    ----------
+    motor : Motor
+        The plant (with any friction, dead zone, bias, input delay).
+    encoder : Encoder
+        Counts per revolution, offset and angle noise (default: the article's 16667-count encoder).
+    jitter : float
+        Timing jitter as a fraction of the sample period: each sample instant is
+        ``k dt + U(-jitter, jitter) dt / 2``, so intervals vary by up to ``+-jitter dt``;
+        0 <= jitter < 1 (default 0).  The recording's ``time_s`` holds the true instants.
+    drop_rate : float
+        Probability that a sample is lost on the way to the host (its row is missing,
+        ``seq`` shows the gap); 0 <= drop_rate < 1.
+    initial_speed : float
+        Speed at the first sample in rad/s.
+    rng : numpy.random.Generator, optional
+        Source of noise, jitter and drops; required when any of them is nonzero.
+    """
+
+    motor: Motor
+    encoder: Encoder = dataclasses.field(default_factory=Encoder)
+    jitter: float = 0.0
+    drop_rate: float = 0.0
+    initial_speed: float = 0.0
+    rng: np.random.Generator | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.motor, Motor):
+            raise TypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
+        if not isinstance(self.encoder, Encoder):
+            raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
+        jitter = _check_real("jitter", self.jitter, nonnegative=True)
+        if jitter >= 1:
+            raise ValueError(f"jitter must be < 1 (a fraction of the sample period), got {jitter!r}")
+        drop = _check_real("drop_rate", self.drop_rate, nonnegative=True)
+        if drop >= 1:
+            raise ValueError(f"drop_rate must be < 1, got {drop!r}")
+        object.__setattr__(self, "jitter", jitter)
+        object.__setattr__(self, "drop_rate", drop)
+        object.__setattr__(self, "initial_speed", _check_real("initial_speed", self.initial_speed))
+        needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
+        if needs_rng and not isinstance(self.rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, got {self.rng!r}")
+
+    def run(self, experiment: Experiment) -> Recording:
+        """Simulate ``experiment`` and return what the bench would record."""
+        if not isinstance(experiment, Experiment):
+            raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+        n, dt = experiment.n_samples, experiment.sample_period
+        duty = experiment.duty()
+        k = np.arange(n)
+        time = k * dt
+        if self.jitter > 0:
+            time = time + self.rng.uniform(-0.5, 0.5, n) * self.jitter * dt
+            time -= time[0]
+        traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
+        counts = self.encoder.counts(traj.angle, self.rng)
+        keep = np.ones(n, dtype=bool)
+        if self.drop_rate > 0:
+            keep[1:] = self.rng.random(n - 1) >= self.drop_rate
+        meta = {"source": "SimRig", **experiment.metadata(), **_motor_metadata(self.motor),
+                "angle_noise": repr(self.encoder.angle_noise), "jitter": repr(self.jitter),
+                "drop_rate": repr(self.drop_rate)}
+        return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
+                         seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
+
+
+def _motor_metadata(motor: Motor) -> Mapping[str, str]:
+    out = {"true_a": repr(motor.a), "true_b": repr(motor.b)}
+    for name in ("friction", "bias", "dead_zone", "input_delay"):
+        value = getattr(motor, name)
+        if value:
+            out[f"true_{name}"] = repr(value)
+    return out

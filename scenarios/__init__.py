@@ -1,0 +1,1 @@
+"""scenarios: the CLI, the article demo, sweeps, plots and benchmarks."""
