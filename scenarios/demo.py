@@ -1,0 +1,138 @@
+"""The article's section 5 on the simulated bench: four sines, every method, Table 1 with the truth.
+
+Defaults (each a flag of ``motorid demo``): a = 25 1/s, b = 3 (rad/s^2)/duty,
+sample period 5 ms, 16667 counts/rev, 10 s per run, inputs ``200 sin(omega t)``
+for omega = 10, 20, 30, 40 rad/s (article eqs. 29-32, alpha = 0), noise-free.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+from identify import NotIdentifiableError, available_methods, fit
+from identify.estimate import Estimate
+from motorsim.excitation import Sine
+from motorsim.recording import Recording, write_recording
+from motorsim.rig import Experiment, Rig
+
+__all__ = ["DemoRow", "article_experiments", "run_article", "format_table"]
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoRow:
+    """One cell block of the table: one input, one method."""
+
+    input_name: str
+    frequency: float
+    method: str
+    estimate: Estimate | None
+    error: str = ""
+
+    def relative_error(self, name: str, truth: float) -> float:
+        """``(estimate - truth) / truth`` of parameter ``name`` (nan if the fit failed)."""
+        return math.nan if self.estimate is None else self.estimate.value(name) / truth - 1.0
+
+
+def article_experiments(frequencies: Sequence[float] = (10, 20, 30, 40), amplitude: int = 200,
+                        phase: float = 0.0, sample_period: float = 0.005,
+                        duration: float = 10.0) -> list[Experiment]:
+    """The article's inputs ``eta_i = amplitude sin(omega_i t + phase)`` (eqs. 29-32)."""
+    return [Experiment(Sine(f, amplitude, phase), sample_period, duration) for f in frequencies]
+
+
+def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[str] | None = None
+                ) -> tuple[list[Recording], list[DemoRow]]:
+    """Run each experiment on ``rig`` and fit it with each method (failures are rows, not crashes)."""
+    methods = list(methods or available_methods())
+    recordings, rows = [], []
+    for i, exp in enumerate(experiments, 1):
+        rec = rig.run(exp)
+        recordings.append(rec)
+        for m in methods:
+            try:
+                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, fit(rec, method=m)))
+            except NotIdentifiableError as exc:
+                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, None, str(exc)))
+    return recordings, rows
+
+
+def format_table(rows: Sequence[DemoRow], a: float, b: float) -> str:
+    """The article's Table 1 with a truth column and each method's error."""
+    head = (f"{'input':<7} {'omega':>6} {'method':<12} {'a [1/s]':>10} {'true a':>8} {'a err %':>9} "
+            f"{'b':>9} {'true b':>7} {'b err %':>9} {'fit %':>7}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        if r.estimate is None:
+            lines.append(f"{r.input_name:<7} {r.frequency:>6g} {r.method:<12} failed: {r.error}")
+            continue
+        e = r.estimate
+        lines.append(f"{r.input_name:<7} {r.frequency:>6g} {r.method:<12} {e.a:>10.4f} {a:>8g} "
+                     f"{100 * r.relative_error('a', a):>+9.3f} {e.b:>9.5f} {b:>7g} "
+                     f"{100 * r.relative_error('b', b):>+9.3f} {e.fit_percent:>7.2f}")
+    return "\n".join(lines)
+
+
+def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
+    from .cli import add_bench_arguments
+    add_bench_arguments(parser, a=25.0, b=3.0)
+    parser.add_argument("--sample-period", type=float, default=0.005, metavar="S", help="sample period in s (default 0.005)")
+    parser.add_argument("--duration", type=float, default=10.0, metavar="T", help="seconds per run (default 10)")
+    parser.add_argument("--frequencies", default="10,20,30,40", metavar="W,W,...",
+                        help="sine frequencies in rad/s (default 10,20,30,40)")
+    parser.add_argument("--amplitude", type=int, default=200, help="sine amplitude in duty units (default 200)")
+    parser.add_argument("--phase", type=float, default=0.0, help="sine phase alpha in rad (default 0)")
+    parser.add_argument("--methods", default=None, metavar="M,M,...", help="methods to compare (default: all)")
+    parser.add_argument("--out-dir", default="demo-output", metavar="DIR",
+                        help="where the table, recordings and figures go (default demo-output)")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    from .cli import CommandError, sim_rig_from_args
+    try:
+        freqs = [float(x) for x in args.frequencies.split(",") if x.strip()]
+    except ValueError:
+        raise CommandError(f"--frequencies must be comma-separated numbers, got {args.frequencies!r}") from None
+    methods = args.methods.split(",") if args.methods else None
+    for m in methods or []:
+        if m not in available_methods():
+            raise CommandError(f"--methods must name methods among {available_methods()}, got {m!r}")
+    rig = sim_rig_from_args(args)
+    exps = article_experiments(freqs, args.amplitude, args.phase, args.sample_period, args.duration)
+    recordings, rows = run_article(rig, exps, methods)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    table = format_table(rows, args.a, args.b)
+    print(f"Article Table 1 on the simulated bench: a = {args.a:g} 1/s, b = {args.b:g} (rad/s^2)/duty, "
+          f"dt = {args.sample_period:g} s, {args.counts_per_rev} counts/rev, {args.duration:g} s per run\n")
+    print(table)
+    (out / "table.txt").write_text(table + "\n", encoding="utf-8")
+    for i, rec in enumerate(recordings, 1):
+        write_recording(rec, out / f"eta_{i}.csv")
+    summary = [{"input": r.input_name, "frequency": r.frequency, "method": r.method,
+                "error": r.error or None, **(r.estimate.to_dict() if r.estimate else {})} for r in rows]
+    (out / "table.json").write_text(json.dumps({"true_a": args.a, "true_b": args.b, "rows": summary}, indent=1),
+                                    encoding="utf-8")
+    if not args.no_plots:
+        from . import plots
+        paths = [plots.plot_run(rec, out / f"figure_{i}.png", title=f"Figure {i}: eta_{i} = "
+                                f"{args.amplitude} sin({freqs[i - 1]:g} t) and omega")
+                 for i, rec in enumerate(recordings, 1)]
+        default_rows = {r.input_name: r.estimate for r in rows if r.estimate is not None
+                        and r.method == _best_method(methods)}
+        paths.append(plots.plot_overlay(recordings, [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)],
+                                        out / "overlay.png"))
+        print("\nfigures: " + ", ".join(str(p) for p in paths))
+    print(f"table, recordings: {out / 'table.txt'}, {out / 'table.json'}, {out}/eta_*.csv")
+    return 0
+
+
+def _best_method(methods: Sequence[str] | None) -> str:
+    from identify import DEFAULT_METHOD
+    if not methods or DEFAULT_METHOD in methods:
+        return DEFAULT_METHOD
+    return methods[-1]
