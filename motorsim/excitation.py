@@ -10,9 +10,10 @@ duty sequence, which is what lets ``SimRig`` and ``SerialRig`` share
 
 The sine of the article (eqs. 29-32), ``eta = A sin(omega t + alpha)``, is
 :class:`Sine`.  Its duty differs from ``round(A sin(omega k dt + alpha))`` only
-where that value lies within 0.01 duty units of a rounding tie (the
-interpolated Q15 table is within 4.8e-5 of full scale; about 0.5 % of the
-samples of a 200-amplitude sine differ by one unit), and its frequency
+where that value lies within 0.016 duty units of a rounding tie (the
+interpolated Q15 table, divided by 32768, is within 7.7e-5 of full scale;
+0.5 % of the samples of ``200 sin(10 t + 0.3)`` at 5 ms differ by one unit),
+and its frequency
 is realised to within 2**-32 of a cycle per sample.
 """
 from __future__ import annotations

@@ -95,6 +95,9 @@ class SimRig:
         ``seq`` shows the gap); 0 <= drop_rate < 1.
     initial_speed : float
         Speed at the first sample in rad/s.
+    record_speed : bool
+        Also record the true instantaneous speed at each sample (``speed_rad_s``), as an
+        ideal tachometer would; estimators then use it instead of differenced counts.
     rng : numpy.random.Generator, optional
         Source of noise, jitter and drops; required when any of them is nonzero.
     """
@@ -104,6 +107,7 @@ class SimRig:
     jitter: float = 0.0
     drop_rate: float = 0.0
     initial_speed: float = 0.0
+    record_speed: bool = False
     rng: np.random.Generator | None = None
 
     def __post_init__(self):
@@ -143,8 +147,9 @@ class SimRig:
         meta = {"source": "SimRig", **experiment.metadata(), **_motor_metadata(self.motor),
                 "angle_noise": repr(self.encoder.angle_noise), "jitter": repr(self.jitter),
                 "drop_rate": repr(self.drop_rate)}
+        speed = traj.speed[keep] if self.record_speed else None
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
-                         seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
+                         speed=speed, seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
 
 
 def _motor_metadata(motor: Motor) -> Mapping[str, str]:

@@ -95,6 +95,8 @@ def add_bench_arguments(parser: argparse.ArgumentParser, *, a: float | None = No
     g.add_argument("--dead-zone", type=float, default=0.0, help="duty dead zone (default 0)")
     g.add_argument("--input-delay", type=int, default=0, metavar="SAMPLES", help="input delay in samples (default 0)")
     g.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+    g.add_argument("--record-speed", action="store_true",
+                   help="also record the true speed (an ideal tachometer) in a speed_rad_s column")
 
 
 def sim_rig_from_args(args: argparse.Namespace) -> SimRig:
@@ -103,7 +105,7 @@ def sim_rig_from_args(args: argparse.Namespace) -> SimRig:
                   input_delay=args.input_delay)
     encoder = Encoder(args.counts_per_rev, angle_noise=args.angle_noise)
     return SimRig(motor, encoder, jitter=args.jitter, drop_rate=args.drop_rate,
-                  rng=np.random.default_rng(args.seed))
+                  record_speed=args.record_speed, rng=np.random.default_rng(args.seed))
 
 
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:

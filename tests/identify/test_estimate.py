@@ -1,0 +1,40 @@
+import json
+import math
+
+import control
+import numpy as np
+import pytest
+
+from identify import Estimate, nrmse_fit
+
+
+def test_estimate_methods():
+    est = Estimate("zoh-ls", 25.0, 3.0, 100, 0.005, 0.1, 99.0, covariance=np.diag([0.04, 0.0009]))
+    assert est.static_gain == 0.12 and est.time_constant == 0.04
+    assert est.stderr() == {"a": pytest.approx(0.2), "b": pytest.approx(0.03)}
+    lo, hi = est.confidence_interval(0.95)["a"]
+    assert (lo, hi) == pytest.approx((25 - 1.959964 * 0.2, 25 + 1.959964 * 0.2), rel=1e-6)
+    tf = est.transfer_function()
+    assert isinstance(tf, control.TransferFunction)
+    assert control.dcgain(tf) == pytest.approx(0.12)
+    d = json.loads(json.dumps(est.to_dict()))
+    assert d["a_stderr"] == pytest.approx(0.2) and d["b_ci95"][1] == pytest.approx(3 + 1.959964 * 0.03)
+    with pytest.raises(ValueError, match="level must be in"):
+        est.confidence_interval(1.5)
+    with pytest.raises(ValueError, match="covariance must have shape"):
+        Estimate("x", 1, 1, 1, 1, 0, 0, covariance=np.eye(3))
+
+
+def test_estimate_without_covariance_reports_nan_and_null_in_json():
+    est = Estimate("x", 2.0, 1.0, 10, 0.01, 0.0, 50.0)
+    assert math.isnan(est.stderr()["a"])
+    assert est.to_dict()["a_stderr"] is None
+
+
+def test_nrmse_fit_definition():
+    y = np.array([1.0, 2.0, 3.0, 4.0])
+    assert nrmse_fit(y, y) == 100.0
+    assert nrmse_fit(y, np.full(4, y.mean())) == pytest.approx(0.0)
+    assert nrmse_fit(y, y + 1) == pytest.approx(100 * (1 - 2 / math.sqrt(5)))
+    with pytest.raises(ValueError, match="equal shapes"):
+        nrmse_fit(y, y[:3])

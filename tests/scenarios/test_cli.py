@@ -1,0 +1,68 @@
+"""The motorid command line, end to end: simulate -> file -> identify --json."""
+import json
+import math
+
+import pytest
+
+from motorsim import read_recording
+from scenarios.cli import main
+
+
+def _last_json(capsys):
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def test_simulate_then_identify_recovers_the_closed_forms(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--sample-period", "0.005", "--duration", "5",
+                 "--sine", "20,200,0.4", "--record-speed", "--out", str(out)]) == 0
+    rec = read_recording(out)
+    assert len(rec) == 1000 and rec.counts_per_rev == 16667 and rec.metadata["excitation"] == "sine:20.0,200,0.4"
+    capsys.readouterr()
+    assert main(["identify", str(out), "--method", "zoh-ls", "--json"]) == 0
+    res = _last_json(capsys)
+    assert res["method"] == "zoh-ls" and res["n_samples"] == 999  # recorded speed: every k pairs with k+1
+    assert res["a"] == pytest.approx(25, rel=1e-9) and res["b"] == pytest.approx(3, rel=1e-9)
+    assert main(["identify", str(out), "--method", "euler-ls", "--json"]) == 0
+    res = _last_json(capsys)
+    a_e = (1 - math.exp(-25 * 0.005)) / 0.005
+    assert res["a"] == pytest.approx(a_e, rel=1e-9) and res["b"] == pytest.approx(3 * a_e / 25, rel=1e-9)
+    assert {"fit_percent", "a_stderr", "b_ci95"} <= set(res)
+
+
+def test_identify_pools_several_files(tmp_path, capsys):
+    files = []
+    for f in (10, 40):
+        files.append(str(tmp_path / f"s{f}.csv"))
+        main(["simulate", "--a", "25", "--b", "3", "--duration", "2", "--sine", f"{f}", "--out", files[-1]])
+    capsys.readouterr()
+    main(["identify", *files, "--method", "zoh-ls", "--json"])
+    assert _last_json(capsys)["n_samples"] == 2 * 398
+
+
+def test_simulate_excitation_flags(tmp_path, capsys):
+    out = tmp_path / "p.csv"
+    assert main(["simulate", "--a", "10", "--b", "1", "--duration", "1", "--prbs", "120,-80,7,3",
+                 "--jitter", "0.1", "--drop-rate", "0.01", "--angle-noise", "0.001", "--seed", "4", "--out", str(out)]) == 0
+    rec = read_recording(out)
+    assert set(rec.duty.tolist()) == {120, -80} and rec.metadata["jitter"] == "0.1"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["simulate", "--a", "-1", "--b", "3", "--out", "x.csv"], "a must be > 0, got -1.0"),
+    (["simulate", "--a", "1", "--b", "3", "--sine", "10,abc", "--out", "x.csv"], "comma-separated numbers"),
+    (["simulate", "--a", "1", "--b", "3", "--sample-period", "0", "--out", "x.csv"], "sample_period must be > 0"),
+    (["identify", "does-not-exist.csv"], "does-not-exist.csv: cannot read"),
+], ids=["a", "sine", "dt", "missing-file"])
+def test_user_errors_exit_2_with_a_message_not_a_traceback(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("motorid: error: ") and message in err and "Traceback" not in err
+
+
+def test_identify_on_a_constant_input_says_why(tmp_path, capsys):
+    out = tmp_path / "c.csv"
+    main(["simulate", "--a", "25", "--b", "3", "--duration", "1", "--constant", "0", "--out", str(out)])
+    assert main(["identify", str(out), "--method", "zoh-ls"]) == 2
+    assert "not persistently exciting" in capsys.readouterr().err
