@@ -27,7 +27,21 @@ def available_methods() -> list[str]:
 
 
 def fit(recordings, method: str = DEFAULT_METHOD, **options) -> Estimate:
-    """Identify ``a`` and ``b`` from one Recording or several (pooled) with the named method."""
+    """Identify ``a`` and ``b`` with the named method.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Several recordings of the same motor are pooled into one estimate.
+    method : str
+        One of :func:`available_methods`.
+    **options
+        Passed to the method.
+
+    Returns
+    -------
+    Estimate
+    """
     if method not in _METHODS:
         raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
     return _METHODS[method](recordings, **options)

@@ -137,6 +137,16 @@ def fit_zoh_ls(recordings) -> Estimate:
 
     ``a = -ln(theta1)/dt``, ``b = a theta2/(1 - theta1)``.
 
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled into one regression (one sample period).
+
+    Returns
+    -------
+    Estimate
+        ``method = "zoh-ls"``.
+
     Raises
     ------
     NotIdentifiableError

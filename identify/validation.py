@@ -14,7 +14,13 @@ __all__ = ["nrmse_fit", "simulated_speed", "fit_percent"]
 
 
 def nrmse_fit(measured, simulated) -> float:
-    """NRMSE fit in %: ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``; nan entries are skipped."""
+    """NRMSE fit in %: ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``.
+
+    Parameters
+    ----------
+    measured, simulated : array_like
+        ``y`` and ``y_sim``, same shape; pairs with a nan in either are skipped.
+    """
     y = np.asarray(measured, dtype=float)
     ys = np.asarray(simulated, dtype=float)
     if y.shape != ys.shape:
@@ -35,6 +41,15 @@ def simulated_speed(a: float, b: float, recording: Recording, *, input_delay: in
     The model is simulated exactly (ZOH) from the measured speed at the segment's
     second sample, and its angle is differenced like the encoder's, so the result
     is the model's average speed over each interval (``nan`` where the measurement is).
+
+    Parameters
+    ----------
+    a, b : float
+        The model.
+    recording : Recording
+        Supplies the duty, the time and the measured initial speed of each segment.
+    input_delay : int
+        Samples of input delay of the model.
     """
     out = np.full(len(recording), np.nan)
     start = 0
@@ -52,7 +67,17 @@ def simulated_speed(a: float, b: float, recording: Recording, *, input_delay: in
 
 
 def fit_percent(a: float, b: float, recordings: Sequence[Recording], *, input_delay: int = 0) -> float:
-    """NRMSE fit (%) of the model's simulated speed against the measured speed, pooled."""
+    """NRMSE fit (%) of the model's simulated speed against the measured speed, pooled.
+
+    Parameters
+    ----------
+    a, b : float
+        The model.
+    recordings : sequence of Recording
+        Pooled.
+    input_delay : int
+        Samples of input delay of the model.
+    """
     meas = np.concatenate([r.speed_rad_s() for r in recordings])
     sim = np.concatenate([simulated_speed(a, b, r, input_delay=input_delay) for r in recordings])
     return nrmse_fit(meas, sim)

@@ -279,6 +279,15 @@ class Chirp(Excitation):
 
     The phase step grows by a constant integer per sample, so the firmware's
     second-order accumulator reproduces it exactly.
+
+    Parameters
+    ----------
+    f0, f1 : float
+        Start and end frequency in rad/s.
+    amplitude : int
+        Amplitude in duty units.
+    offset : int
+        Constant duty added.
     """
 
     f0: float = 1.0
@@ -325,6 +334,17 @@ class PRBS(Excitation):
 
     Each bit is held for ``hold`` samples; bit 1 gives ``high``, bit 0 ``low``.
     Per bit: ``out = state & 1; state >>= 1; if out: state ^= PRBS_MASKS[order]``.
+
+    Parameters
+    ----------
+    high, low : int
+        Duty of a 1 bit and of a 0 bit.
+    order : int
+        LFSR length, 2...16; the sequence repeats every ``2**order - 1`` bits.
+    hold : int
+        Samples per bit, >= 1.
+    seed : int
+        Initial LFSR state, 1 ... ``2**order - 1``.
     """
 
     high: int = 200
@@ -382,6 +402,11 @@ def parse_excitation(spec: str) -> Excitation:
     """Read an excitation from its one-line form (``sine:10,200,0.5``; see :meth:`Excitation.describe`).
 
     Optional ``@OFFSET`` at the end of sine, multisine and chirp adds a constant duty.
+
+    Parameters
+    ----------
+    spec : str
+        ``KIND:ARGS``, e.g. ``sine:FREQ[,AMP[,PHASE]]``, ``prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]``.
     """
     if not isinstance(spec, str) or ":" not in spec:
         raise ValueError(f"excitation must look like KIND:ARGS ({_PARSE_HELP}), got {spec!r}")

@@ -104,7 +104,17 @@ class Motor:
 
 @dataclasses.dataclass(frozen=True)
 class Trajectory:
-    """Angle (rad) and speed (rad/s) at the sample instants ``time`` (s)."""
+    """A simulated run.
+
+    Attributes
+    ----------
+    time : ndarray
+        Sample instants in s.
+    angle : ndarray
+        Angle in rad at each instant.
+    speed : ndarray
+        Speed in rad/s at each instant.
+    """
 
     time: np.ndarray
     angle: np.ndarray

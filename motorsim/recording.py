@@ -237,6 +237,13 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
     """Write ``recording`` to ``path`` in format v1, atomically (temporary file, then rename).
 
     Floats are written with ``repr``, so reading the file back gives the same numbers bit for bit.
+
+    Parameters
+    ----------
+    recording : Recording
+        What to write.
+    path : str or path-like
+        Destination; replaced if it exists.
     """
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
@@ -256,8 +263,18 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
-    """Read a format-v1 CSV file; every broken rule raises :class:`RecordingFormatError`
-    naming the file, the line and the rule."""
+    """Read a format-v1 CSV file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+
+    Raises
+    ------
+    RecordingFormatError
+        For every broken rule, naming the file, the line and the rule.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

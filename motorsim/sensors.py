@@ -54,12 +54,12 @@ class Encoder:
 
 
 def counts_to_angle(counts, counts_per_rev: int) -> np.ndarray:
-    """Angle in rad of integer ``counts`` (the offset is kept)."""
+    """Angle in rad of integer ``counts`` (the offset is kept), ``counts 2 pi / counts_per_rev``."""
     return np.asarray(counts, dtype=float) * (2.0 * math.pi / counts_per_rev)
 
 
 def backward_difference(angle, time) -> np.ndarray:
-    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])``; ``nan`` at k = 0."""
+    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])`` in rad/s; ``nan`` at k = 0 (angle in rad, time in s)."""
     angle = np.asarray(angle, dtype=float)
     time = np.asarray(time, dtype=float)
     speed = np.full(angle.shape, np.nan)
