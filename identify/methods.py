@@ -9,6 +9,7 @@ from typing import Callable
 
 from .estimate import Estimate
 from .friction import fit_output_error_friction
+from .instrumental import fit_instrumental_variables
 from .output_error import fit_output_error
 from .regression import fit_euler_ls, fit_zoh_ls
 
@@ -18,6 +19,7 @@ _METHODS: dict[str, Callable[..., Estimate]] = {
     "euler-ls": fit_euler_ls,
     "zoh-ls": fit_zoh_ls,
     "oe": fit_output_error,
+    "iv": fit_instrumental_variables,
     "oe-friction": fit_output_error_friction,
 }
 
