@@ -27,7 +27,7 @@ from motorsim.plant import Motor, simulate
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .output_error import (_check_delay, check_excitation, fit_output_error, fit_output_error_offset,
+from .output_error import (_check_delay, _fit, check_excitation, fit_output_error, fit_output_error_offset,
                            prepare_segments, select_delay)
 from .regression import as_recordings
 from .uncertainty import covariance_from_jacobian
@@ -50,6 +50,26 @@ def speed_reverses(recordings, *, rest_fraction: float = 0.02) -> bool:
         return False
     top = float(np.max(np.abs(w)))
     return bool(np.any(w > 0) and np.any(w < 0)) or bool(np.any(np.abs(w) < rest_fraction * top))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Start:
+    a: float
+    b: float
+
+
+def _sparsity(segments, n_global):
+    """Jacobian pattern: shared parameters touch every row, a segment's initial speed only its rows
+    (so finite differences perturb all initial speeds at once)."""
+    from scipy.sparse import lil_matrix
+    rows = sum(len(s.time) for s in segments)
+    pattern = lil_matrix((rows, n_global + len(segments)), dtype=int)
+    pattern[:, :n_global] = 1
+    row = 0
+    for i, seg in enumerate(segments):
+        pattern[row:row + len(seg.time), n_global + i] = 1
+        row += len(seg.time)
+    return pattern.tocsr()
 
 
 def _simulate(a, b, c, d, seg, w0, dead_zone=0.0):
@@ -100,12 +120,13 @@ def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool =
     delay = delay or 0
     if not speed_reverses(recs):
         return _no_reversal(recs, delay, fix_d)
-    start = fit_output_error(recs, delay=delay)
     segments = prepare_segments(recs, delay)
+    lin, lin_problem = _fit(recs, segments, delay, False, "analytic")
+    start = _Start(a=float(lin.x[0]), b=float(lin.x[1]))
     names = ("a", "b", "c") + (() if fix_d else ("d",)) + (("dead_zone",) if dead_zone else ())
     n_global = len(names)
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in segments])))) or 1.0
-    w0 = [s.initial_speed_guess() for s in segments]
+    w0 = list(lin_problem.initial_speeds(lin.x))
     # friction and dead zone make the cost kinked and multi-modal: start from a few
     # (c, dead zone) guesses, as fractions of b max|u| and of max|u|, and keep the best
     starts = [np.concatenate([[start.a, start.b, fc * abs(start.b) * u_scale] + ([] if fix_d else [0.0])
@@ -136,10 +157,12 @@ def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool =
     if start.b == 0:
         raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
     res = None
+    sparsity = _sparsity(segments, n_global) if len(segments) > 1 else None
     for x0 in starts:
         with np.errstate(over="ignore", invalid="ignore"):
             trial = least_squares(residuals, x0, jac="2-point", method="trf", bounds=(lower, np.inf),
-                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100)
+                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100,
+                                  jac_sparsity=sparsity)
         if res is None or trial.cost < res.cost:
             res = trial
     a, b, c, d, z = (float(v) for v in unpack(res.x))
@@ -149,7 +172,8 @@ def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool =
     n_offsets = sum(1 for s in segments if s.kind == "angle")
     dof = rows - len(res.x) - n_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
-    cov = covariance_from_jacobian(res.jac, s2, n_global)
+    jac = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
+    cov = covariance_from_jacobian(jac, s2, n_global)
     meas, sim = [], []
     for i, seg in enumerate(segments):
         out = _simulate(a, b, c, d, seg, res.x[n_global + i], z)
