@@ -179,8 +179,8 @@ def _pct(x: float) -> str:
 def _section_sines(args, rng) -> tuple[bool, list]:
     print("\n1. sines, oe vs the article's euler-ls and zoh-ls (relative error in %; n = samples)")
     print(f"{'dt ms':>5} {'cpr':>6} {'a':>4} {'f/a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  "
-          f"{'euler a':>9} {'zoh-ls a':>9}")
-    worst, worst_euler, rows = 0.0, [], []
+          f"{'euler a':>9} {'zoh-ls a':>9} {'iv a':>9} {'iv b':>9}")
+    worst, worst_euler, worst_zoh, worst_iv, rows = 0.0, [], [], [], []
     ok = True
     for dt in args.periods:
         for cpr in args.counts:
@@ -202,15 +202,22 @@ def _section_sines(args, rng) -> tuple[bool, list]:
                     ea, eb = _fit_or_nan("oe", rec, a, b)
                     ua, _ = _fit_or_nan("euler-ls", rec, a, b)
                     za, _ = _fit_or_nan("zoh-ls", rec, a, b)
+                    ia, ib = _fit_or_nan("iv", rec, a, b)
+                    worst_zoh.append(abs(za) if math.isfinite(za) else math.inf)
+                    worst_iv.append(max(abs(ia), abs(ib)) if math.isfinite(ia) else math.inf)
                     bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
                     ok &= not bad
                     worst = max(worst, abs(ea), abs(eb))
                     if math.isfinite(ua):
                         worst_euler.append(abs(ua))
                     print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {n:6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
-                          f"{_pct(ua)} {_pct(za)}" + ("   <-- above 0.1 %" if bad else ""))
+                          f"{_pct(ua)} {_pct(za)} {_pct(ia)} {_pct(ib)}" + ("   <-- above 0.1 %" if bad else ""))
     print(f"worst |oe error| {100 * worst:.4f} %  (criterion 0.1 %)   "
           f"euler-ls |a error| from {100 * min(worst_euler):.2f} % to {100 * max(worst_euler):.2f} %")
+    finite_iv = [x for x in worst_iv if math.isfinite(x)]
+    print(f"zoh-ls |a error| median {100 * float(np.median(worst_zoh)):.2f} %, failed {worst_zoh.count(math.inf)}; "
+          f"iv |error| median {100 * float(np.median(finite_iv)):.4f} %, worst {100 * max(finite_iv):.3f} %, "
+          f"failed {len(worst_iv) - len(finite_iv)} of {len(worst_iv)}")
     return ok, rows
 
 
@@ -325,6 +332,7 @@ def _section_monte_carlo(args) -> bool:
 
 def _section_timing(args) -> None:
     from identify import fit_zoh_ls
+    from identify.instrumental import fit_instrumental_variables
     from identify.output_error import fit_output_error
     from scenarios.bench import median_time
     a, b, dt, n = 25.0, 3.0, 0.005, 10_000
@@ -337,8 +345,9 @@ def _section_timing(args) -> None:
         t_an = median_time(lambda: fit_output_error(rec), args.repeats)
         t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), args.repeats)
         t_ls = median_time(lambda: fit_zoh_ls(rec), args.repeats)
+        t_iv = median_time(lambda: fit_instrumental_variables(rec), args.repeats)
         print(f"{label:>14}: oe analytic {t_an * 1e3:7.1f} ms   oe finite-difference {t_fd * 1e3:7.1f} ms   "
-              f"ratio {t_fd / t_an:5.2f} x   (zoh-ls {t_ls * 1e3:.1f} ms)")
+              f"ratio {t_fd / t_an:5.2f} x   (zoh-ls {t_ls * 1e3:.1f} ms, iv {t_iv * 1e3:.1f} ms)")
 
 
 def _generator_check(rng) -> float:
