@@ -13,7 +13,8 @@ quantisation error that is also in ``w_{k+1}`` (errors in variables), which
 biases least squares.  The instruments ``(x_k, v_k)`` replace ``w_k`` by
 ``x_k``, the model's own noise-free averaged speed under the current estimate,
 uncorrelated with the measurement error; ``iterations`` passes (Young's
-simplified refined IV without prefilters) from the ``zoh-ls`` start (Söderström & Stoica, *System Identification* (1989), ch. 8;
+simplified refined IV without prefilters) from the ``zoh-ls`` start (a log-grid
+start when ``zoh-ls`` finds no stable model) (Söderström & Stoica, *System Identification* (1989), ch. 8;
 Young, *Recursive Estimation and Time-Series Analysis* (2011), ch. 7).  It is
 not iterative-to-convergence: a fixed number of linear solves.
 
@@ -106,7 +107,7 @@ def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: 
     y = np.concatenate([w[2:] for w, _, _ in stretches])
     if len(y) < 6:
         raise NotIdentifiableError(f"recording is too short: {len(y)} IV rows for 2 coefficients; record longer")
-    a, b = _start(recs, w_now, y, stretches, h)
+    a, b = _start(recs, delay)
     for _ in range(int(iterations)):
         Phi = np.column_stack([w_now, _filtered_input(a, stretches, h)])
         Z = np.column_stack([np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in stretches]),
@@ -141,8 +142,9 @@ def _filtered_input(a, stretches, h):
     return np.concatenate([(q * u[1:-1] + (p * p - e * q) * u[:-2]) / h for _, u, _ in stretches])
 
 
-def _start(recs, w_now, y, stretches, h) -> tuple[float, float]:
-    """zoh-ls, else least squares on the same two regressors at a rough ``a``."""
+def _start(recs, delay) -> tuple[float, float]:
+    """zoh-ls, else the output-error module's robust log-grid start."""
+    from .output_error import _grid_guess, prepare_segments
     from .regression import fit_zoh_ls
     try:
         est = fit_zoh_ls(recs)
@@ -150,5 +152,7 @@ def _start(recs, w_now, y, stretches, h) -> tuple[float, float]:
             return est.a, est.b
     except NotIdentifiableError:
         pass
-    raise NotIdentifiableError("iv: the least-squares start (zoh-ls) found no stable model; "
-                               "the input is not persistently exciting or the motor did not move")
+    segments = prepare_segments(recs, delay)
+    if not segments:
+        raise NotIdentifiableError("recording is too short: no gap-free stretch of 4 samples; record longer")
+    return _grid_guess(segments)

@@ -186,56 +186,58 @@ class _Problem:
         d = x[2] if self.with_offset else 0.0
         return a, b, d
 
-    def evaluate(self, x):
+    def evaluate(self, x, jacobian: bool = True):
+        """Residuals (and, when asked, the Jacobian) at ``x``; cached for the last ``x``."""
         key = x.tobytes()
-        if key == self._key:
+        if key == self._key and (self._value[1] is not None or not jacobian):
             return self._value
         a, b, d = self.unpack(x)
         r = np.empty(self.n_rows)
-        J = np.empty((self.n_rows, self.n_global))
+        J = np.empty((self.n_rows, self.n_global)) if jacobian else None
         w0 = np.empty(len(self.segments))
         cols = [0, 1, 3] if self.with_offset else [0, 1]
         row = 0
         for i, seg in enumerate(self.segments):
             n = len(seg.time)
-            resp = zoh_response(a, b, seg.drive, seg.time, 0.0, offset=d, uniform=seg.uniform)
+            resp = zoh_response(a, b, seg.drive, seg.time, 0.0, offset=d, uniform=seg.uniform,
+                                sensitivities=jacobian)
             if seg.kind == "angle":
                 err = seg.output - resp.angle
                 s0 = resp.angle_sensitivity[:, 2]
-                g = resp.angle_sensitivity[:, cols]
-                s0a = resp.angle_initial_speed_a
                 # project out the offset (centre), then solve for the initial speed
                 err = err - err.mean()
                 s0 = s0 - s0.mean()
             else:
                 err = seg.output - resp.speed
                 s0 = resp.speed_sensitivity[:, 2]
-                g = resp.speed_sensitivity[:, cols]
-                s0a = resp.speed_initial_speed_a
             ss = float(s0 @ s0)
             w = float(s0 @ err) / ss if ss > 0 else 0.0
             w0[i] = w
-            g = g.copy()
-            g[:, 0] += w * s0a                   # a-sensitivity at the fitted initial speed
-            if seg.kind == "angle":
-                g -= g.mean(axis=0)
-            g -= np.outer(s0, (s0 @ g) / ss) if ss > 0 else 0.0
             r[row:row + n] = err - w * s0
-            J[row:row + n] = -g
+            if jacobian:
+                if seg.kind == "angle":
+                    g = resp.angle_sensitivity[:, cols]
+                    g[:, 0] += w * resp.angle_initial_speed_a   # a-sensitivity at the fitted initial speed
+                    g -= g.mean(axis=0)
+                else:
+                    g = resp.speed_sensitivity[:, cols]
+                    g[:, 0] += w * resp.speed_initial_speed_a
+                if ss > 0:
+                    g -= np.outer(s0, (s0 @ g) / ss)
+                J[row:row + n] = -g
             row += n
         self._key, self._value = key, (r, J, w0)
-        return r, J
+        return self._value
 
     def residuals(self, x):
-        return self.evaluate(x)[0]
+        return self.evaluate(x, jacobian=False)[0]
 
     def jacobian(self, x):
-        return self.evaluate(x)[1]
+        return self.evaluate(x, jacobian=True)[1]
 
     def initial_speeds(self, x) -> np.ndarray:
         """Fitted initial speed of each segment (rad/s) at ``x``."""
-        self.evaluate(x)
-        return self._value[2]
+        return self.evaluate(x, jacobian=False)[2]
 
     @property
     def n_offsets(self) -> int:
@@ -283,7 +285,7 @@ def _solve(problem: _Problem, x0: np.ndarray, jac: str):
     jac_arg = problem.jacobian if jac == "analytic" else jac
     with np.errstate(over="ignore", invalid="ignore"):
         return least_squares(problem.residuals, x0, jac=jac_arg, method="lm", x_scale="jac",
-                             xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * len(x0))
+                             xtol=1e-11, ftol=1e-11, gtol=1e-11, max_nfev=200 * len(x0))
 
 
 def select_delay(recordings, max_delay: int = MAX_AUTO_DELAY, *, with_offset: bool = False) -> int:
