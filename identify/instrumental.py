@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.optimize import root_scalar
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
@@ -65,7 +66,7 @@ def _model_average_speed(a, b, u, t):
     return out
 
 
-def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: int = 4) -> Estimate:
+def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: int = 3) -> Estimate:
     """Refined-IV estimate of ``a``, ``b`` from averaged (differenced) speed.
 
     Parameters
@@ -75,7 +76,7 @@ def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: 
     delay : int or "auto"
         Input delay in samples (``"auto"`` chooses it by output error).
     iterations : int
-        IV passes after the ``zoh-ls`` start, >= 1 (default 4).
+        IV passes after the ``zoh-ls`` start, >= 1 (default 3).
 
     Returns
     -------
@@ -108,20 +109,40 @@ def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: 
     if len(y) < 6:
         raise NotIdentifiableError(f"recording is too short: {len(y)} IV rows for 2 coefficients; record longer")
     a, b = _start(recs, delay)
-    for _ in range(int(iterations)):
-        Phi = np.column_stack([w_now, _filtered_input(a, stretches, h)])
-        Z = np.column_stack([np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in stretches]),
-                             Phi[:, 1]])
+
+    def solve(a_filter, x_inst):
+        """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``."""
+        Phi = np.column_stack([w_now, _filtered_input(a_filter, stretches, h)])
+        Z = np.column_stack([x_inst, Phi[:, 1]])
         M = Z.T @ Phi
         if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e12:
             raise NotIdentifiableError("iv: instruments and regressors are (nearly) collinear; the input is not "
                                        "persistently exciting (use a sine, multisine or PRBS)")
-        theta = np.linalg.solve(M, Z.T @ y)
+        return np.linalg.solve(M, Z.T @ y), Phi, Z, M
+
+    def a_of(theta):
         e = float(theta[0])
         if not 0 < e < 1:
             raise NotIdentifiableError(f"iv: theta1 = e = {e:.6g} is not in (0, 1), so no stable first-order "
                                        "model fits; check the sign of the input and that the motor moved")
-        a, b = -math.log(e) / h, float(theta[1])
+        return -math.log(e) / h
+
+    for _ in range(int(iterations)):
+        # instruments from the current model; then the a inside the input filter must agree with
+        # the a that the solved e implies: a one-dimensional root (plain substitution diverges
+        # for a h ~ 2 on a single sine, where e and the filter trade off)
+        x_inst = np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in stretches])
+        try:
+            root = root_scalar(lambda lg: math.log(a_of(solve(math.exp(lg), x_inst)[0])) - lg,
+                               x0=math.log(a), x1=math.log(a) + 0.01, method="secant", xtol=1e-13, maxiter=50)
+            a_new = math.exp(root.root) if root.converged else math.nan
+        except (NotIdentifiableError, ValueError, OverflowError):
+            a_new = math.nan
+        if not (math.isfinite(a_new) and a_new > 0):
+            a_new = a_of(solve(a, x_inst)[0])   # fall back to one substitution step
+        theta, Phi, Z, M = solve(a_new, x_inst)
+        a, b = a_of(theta), float(theta[1])
+    e = float(theta[0])
     resid = y - Phi @ theta
     s2 = float(resid @ resid) / max(len(y) - 2, 1)
     Minv = np.linalg.inv(M)
