@@ -37,7 +37,7 @@ from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .regression import as_recordings, fit_zoh_ls
+from .regression import as_recordings
 from .sensitivity import zoh_response
 from .uncertainty import covariance_from_jacobian
 from .validation import nrmse_fit
@@ -246,10 +246,17 @@ class _Problem:
 
 
 def _initial_guess(recs, segments, delay) -> tuple[float, float]:
+    """``zoh-ls``'s regression (without its fit score), else the log-grid start."""
+    from .regression import least_squares as ls_solve, regression_rows
     try:
-        est = fit_zoh_ls(recs)
-        if est.a > 0 and math.isfinite(est.a) and math.isfinite(est.b):
-            return est.a, est.b
+        A, y = regression_rows(recs)
+        (t1, t2), _, _ = ls_solve(A, y)
+        dt = recs[0].sample_period
+        if 0 < t1 < 1:
+            a = -math.log(t1) / dt
+            b = a * t2 / (1.0 - t1)
+            if math.isfinite(a) and math.isfinite(b) and b != 0:
+                return a, b
     except NotIdentifiableError:
         pass
     return _grid_guess(segments)
