@@ -339,6 +339,9 @@ def _fit(recs, segments, delay, with_offset, jac):
         x0[:2] = a0, b0
         res = _solve(problem, x0, jac)
         a = float(res.x[0])
+    if res.status == 0 and np.all(np.isfinite(res.x)) and a > 0:
+        raise NotIdentifiableError(f"output-error fit did not converge in {res.nfev} evaluations (last a = {a:.6g} "
+                                   "1/s): the data barely constrain the model; record longer or excite more")
     if not np.all(np.isfinite(res.x)) or not a > 0:
         theta1 = math.exp(-a * dt) if math.isfinite(a) and -a * dt < 700 else math.inf
         raise NotIdentifiableError(
