@@ -180,6 +180,84 @@ class _Problem:
         self.n_params = self.n_global
         self._key = None
         self._value = None
+        kinds = {seg.kind for seg in segments}
+        self.batched = len(segments) > 1 and len(kinds) == 1
+        if self.batched:
+            self._prepare_batch(kinds.pop())
+
+    def _prepare_batch(self, kind: str) -> None:
+        """Concatenate the segments into one virtual run, simulated in a single scan.
+
+        Between segments the virtual clock advances by the median interval with the
+        segment's last duty held: that only changes the state a segment *starts*
+        from, i.e. adds multiples of its initial-speed column and a constant to its
+        angle, which the per-segment projection removes anyway.  So the residuals and
+        the projected Jacobian equal the segment-by-segment ones (a test checks it).
+        """
+        segs = self.segments
+        self.kind = kind
+        self.lengths = np.array(self.rows)
+        self.starts = np.concatenate([[0], np.cumsum(self.lengths)[:-1]])
+        inner = [np.diff(seg.time) for seg in segs]
+        h_gap = float(np.median(np.concatenate(inner)))
+        steps = np.concatenate([np.concatenate([h, [h_gap]]) for h in inner])[:-1]
+        self.v_time = np.concatenate([[0.0], np.cumsum(steps)])
+        self.v_drive = np.concatenate([seg.drive for seg in segs])
+        self.v_output = np.concatenate([seg.output for seg in segs])
+        self.v_uniform = bool(np.all(np.abs(steps - steps[0]) <= 1e-9 * steps[0]))
+        self.v_steps = steps
+        # time since the segment's own start, and a mask of intervals inside segments
+        self.tau = np.concatenate([seg.time - seg.time[0] for seg in segs])
+        inside = np.ones(len(steps), bool)
+        inside[self.starts[1:] - 1] = False
+        self.inside = inside
+
+    def _segment_sum(self, x):
+        return np.add.reduceat(x, self.starts, axis=0)
+
+    def _per_row(self, per_segment):
+        return np.repeat(per_segment, self.lengths, axis=0)
+
+    def _evaluate_batched(self, a, b, d, jacobian: bool):
+        from .sensitivity import _phi
+        cols = [0, 1, 3] if self.with_offset else [0, 1]
+        resp = zoh_response(a, b, self.v_drive, self.v_time, 0.0, offset=d, uniform=self.v_uniform,
+                            sensitivities=jacobian)
+        s0w = np.exp(-a * self.tau)                    # initial-speed column of each segment (speed)
+        s0w_a = -self.tau * s0w
+        if self.kind == "angle":
+            h = self.v_steps
+            p1, _, d1, _ = _phi(a * h)
+            p = np.where(self.inside, h * p1, 0.0)
+            dp = np.where(self.inside, h * h * d1, 0.0)
+
+            def segmented_cumsum(f):
+                c = np.concatenate([[0.0], np.cumsum(f)])
+                return c - self._per_row(c[self.starts])
+            s0 = segmented_cumsum(p * s0w[:-1])
+            s0a = segmented_cumsum(dp * s0w[:-1] + p * s0w_a[:-1])
+            err = self.v_output - resp.angle
+            err = err - self._per_row(self._segment_sum(err) / self.lengths)
+            s0 = s0 - self._per_row(self._segment_sum(s0) / self.lengths)
+            sens = resp.angle_sensitivity
+        else:
+            s0, s0a = s0w, s0w_a
+            err = self.v_output - resp.speed
+            sens = resp.speed_sensitivity
+        ss = self._segment_sum(s0 * s0)
+        w = np.divide(self._segment_sum(s0 * err), ss, out=np.zeros_like(ss), where=ss > 0)
+        r = err - self._per_row(w) * s0
+        w_start = resp.speed[self.starts] + w             # carried-in speed plus the fitted correction
+        if not jacobian:
+            return r, None, w_start
+        g = sens[:, cols].copy()
+        g[:, 0] += self._per_row(w) * s0a
+        if self.kind == "angle":
+            g -= self._per_row(self._segment_sum(g) / self.lengths[:, None])
+        coef = np.divide(self._segment_sum(s0[:, None] * g), ss[:, None], out=np.zeros((len(ss), g.shape[1])),
+                         where=ss[:, None] > 0)
+        g -= s0[:, None] * self._per_row(coef)
+        return r, -g, w_start
 
     def unpack(self, x):
         a, b = x[0], x[1]
@@ -192,6 +270,9 @@ class _Problem:
         if key == self._key and (self._value[1] is not None or not jacobian):
             return self._value
         a, b, d = self.unpack(x)
+        if self.batched:
+            self._key, self._value = key, self._evaluate_batched(a, b, d, jacobian)
+            return self._value
         r = np.empty(self.n_rows)
         J = np.empty((self.n_rows, self.n_global)) if jacobian else None
         w0 = np.empty(len(self.segments))
