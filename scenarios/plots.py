@@ -8,7 +8,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-__all__ = ["plot_run", "plot_overlay"]
+__all__ = ["plot_run", "plot_overlay", "plot_validation"]
 
 
 def _pyplot():
@@ -52,6 +52,36 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence, path) -> 
         ax.set_xlim(rec.time[0], end)
     axes[-1, 0].set_xlabel("time [s] (first 2 s)")
     fig.suptitle("measured vs model speed")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_validation(report, estimate, path, *, title: str = "") -> Path:
+    """Validation figure: measured vs model speed, residual autocorrelation and residual-input
+    cross-correlation, each correlation with its 95 % band."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(9, 6.4), constrained_layout=True)
+    grid = fig.add_gridspec(2, 2)
+    ax = fig.add_subplot(grid[0, :])
+    ax.plot(report.time, report.measured_speed, color="0.3", lw=0.8, label="measured ω")
+    ax.plot(report.time, report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
+            label=f"{estimate.method}: a={estimate.a:.4g}, b={estimate.b:.4g}, fit {report.fit_percent:.1f} %")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("ω [rad/s]")
+    ax.legend(loc="upper right", fontsize=7)
+    ac = fig.add_subplot(grid[1, 0])
+    ac.stem(report.lags[1:], report.autocorrelation[1:], basefmt=" ")
+    ac.axhspan(-report.band, report.band, color="tab:blue", alpha=0.15, label="95 % band")
+    ac.set_title(f"residual autocorrelation (Ljung–Box p = {report.whiteness_p:.2g})", fontsize=9)
+    ac.set_xlabel("lag [samples]")
+    ac.legend(fontsize=7)
+    cc = fig.add_subplot(grid[1, 1])
+    cc.stem(report.cross_lags, report.cross_correlation, basefmt=" ")
+    cc.axhspan(-report.band, report.band, color="tab:blue", alpha=0.15)
+    cc.set_title(f"residual–input cross-correlation (p = {report.independence_p:.2g})", fontsize=9)
+    cc.set_xlabel("lag [samples]")
+    fig.suptitle(title or "validation")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
