@@ -3,7 +3,9 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .methods import DEFAULT_METHOD, available_methods, fit
 from .regression import fit_euler_ls, fit_zoh_ls
+from .uncertainty import CramerRaoBound, cramer_rao_bound
 from .validation import fit_percent, nrmse_fit, simulated_speed
 
 __all__ = ["NotIdentifiableError", "Estimate", "DEFAULT_METHOD", "available_methods", "fit",
-           "fit_euler_ls", "fit_zoh_ls", "fit_percent", "nrmse_fit", "simulated_speed"]
+           "fit_euler_ls", "fit_zoh_ls", "CramerRaoBound", "cramer_rao_bound",
+           "fit_percent", "nrmse_fit", "simulated_speed"]

@@ -1,0 +1,181 @@
+"""How well can an experiment determine a and b?  The Cramér–Rao bound of the angle output.
+
+The encoder measures the angle ``theta_k = theta_0 + f_k(a, b, omega_0)`` plus
+white noise of variance::
+
+    sigma^2 = angle_noise^2 + (2 pi / counts_per_rev)^2 / 12
+
+(Gaussian angle noise plus uniform quantisation, the latter treated as white,
+which holds when the shaft moves several counts per sample).  With ``J`` the
+sensitivities of the noise-free angle to ``(a, b, omega_0, theta_0)``, the Fisher
+information is ``J^T J / sigma^2`` and any unbiased estimator's covariance of
+``(a, b)`` is at least the ``(a, b)`` block of its inverse, i.e. the bound
+*after* the unknown initial speed and encoder offset are estimated alongside
+(nuisance parameters).  Output error on the counts (``method="oe"``) reaches
+it asymptotically; ``motorid bench accuracy`` measures how closely.
+
+Reference: Ljung, *System Identification* (2nd ed., 1999), sec. 7.4, eq. 7.91;
+Kay, *Fundamentals of Statistical Signal Processing: Estimation Theory* (1993),
+ch. 3 (nuisance parameters, p. 41).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .sensitivity import zoh_response
+
+__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian"]
+
+
+def quantisation_variance(counts_per_rev: int | None) -> float:
+    """Variance in rad^2 of a uniform quantiser of ``2 pi / counts_per_rev`` (0 for None)."""
+    if counts_per_rev is None:
+        return 0.0
+    return (2.0 * math.pi / counts_per_rev) ** 2 / 12.0
+
+
+def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: int) -> np.ndarray:
+    """``noise_variance (J^T J)^{-1}``, the leading ``keep x keep`` block, via an SVD (no explicit inverse).
+
+    Columns are scaled to unit norm first so that parameters of very different
+    size (a in 1/s, an encoder offset in rad) do not spoil the conditioning.
+    Returns a matrix of ``inf`` when ``J`` is rank-deficient.
+    """
+    J = np.asarray(jacobian, dtype=float)
+    scale = np.linalg.norm(J, axis=0)
+    if np.any(scale == 0) or not np.all(np.isfinite(J)):
+        return np.full((keep, keep), math.inf)
+    _, sv, vt = np.linalg.svd(J / scale, full_matrices=False)
+    if sv[-1] <= sv[0] * 1e-13:
+        return np.full((keep, keep), math.inf)
+    inv = (vt.T / sv**2) @ vt
+    return noise_variance * inv[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+@dataclasses.dataclass(frozen=True)
+class CramerRaoBound:
+    """Lower bound on the covariance of unbiased estimates of ``(a, b)`` for one experiment.
+
+    Attributes
+    ----------
+    covariance : ndarray, shape (2, 2)
+        Over ``param_names``; units 1/s^2, (1/s)(rad/s^2 per duty), (rad/s^2 per duty)^2.
+    param_names : tuple of str
+        ``("a", "b")``.
+    n_samples : int
+        Angle samples in the experiment.
+    a, b : float
+        The parameters the bound is evaluated at.
+    noise_std : float
+        Standard deviation of one angle sample in rad (noise and quantisation).
+    """
+
+    covariance: np.ndarray
+    n_samples: int
+    a: float
+    b: float
+    noise_std: float
+    param_names: tuple = ("a", "b")
+
+    def __post_init__(self):
+        cov = np.array(self.covariance, dtype=float)
+        cov.setflags(write=False)
+        object.__setattr__(self, "covariance", cov)
+
+    def stderr(self) -> dict[str, float]:
+        """Smallest achievable standard deviation of each parameter (same unit as it)."""
+        return {n: float(math.sqrt(max(v, 0.0))) for n, v in zip(self.param_names, np.diag(self.covariance))}
+
+    def relative_stderr(self) -> dict[str, float]:
+        """``stderr / |value|`` per parameter (dimensionless)."""
+        se = self.stderr()
+        return {"a": se["a"] / abs(self.a), "b": se["b"] / abs(self.b)}
+
+
+def _check_positive(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, *,
+                     counts_per_rev: int | None = 16667, angle_noise: float = 0.0,
+                     time: ArrayLike | None = None, initial_speed: float = 0.0) -> CramerRaoBound:
+    """Cramér–Rao bound on ``(a, b)`` from the encoder angle of one experiment.
+
+    Parameters
+    ----------
+    a : float
+        Pole in 1/s, > 0.
+    b : float
+        Gain in (rad/s^2) per duty unit, nonzero.
+    duty : array_like, shape (n,)
+        Input, ``duty[k]`` held from ``time[k]`` to ``time[k+1]``.
+    sample_period : float
+        Sample period in s, > 0 (used when ``time`` is None).
+    counts_per_rev : int or None
+        Encoder resolution; None means no quantisation.
+    angle_noise : float
+        Standard deviation in rad of Gaussian angle noise, >= 0.
+    time : array_like, shape (n,), optional
+        Sample instants in s (jittered clocks); default ``k * sample_period``.
+    initial_speed : float
+        Speed at the first sample in rad/s (estimated as a nuisance parameter).
+
+    Returns
+    -------
+    CramerRaoBound
+
+    Raises
+    ------
+    ValueError
+        On a bad argument, or when the noise variance is zero (the bound is 0).
+
+    Notes
+    -----
+    The bound is ``sigma^2 [(J^T J)^{-1}]_{ab}`` with ``J`` the analytic sensitivities
+    of the ZOH angle to ``(a, b, omega_0, theta_0)`` (:mod:`identify.sensitivity`).
+    A constant or zero duty gives an infinite bound (``a`` and ``b`` are not separable).
+    """
+    a = _check_positive("a", a)
+    if isinstance(b, bool) or not isinstance(b, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(b) or b == 0:
+        raise ValueError(f"b must be a finite nonzero number, got {b!r}")
+    sample_period = _check_positive("sample_period", sample_period)
+    u = np.asarray(duty, dtype=float)
+    if u.ndim != 1 or len(u) < 5:
+        raise ValueError(f"duty must be 1-D with at least 5 samples, got shape {u.shape}")
+    if not np.all(np.isfinite(u)):
+        raise ValueError("duty must be finite")
+    if counts_per_rev is not None:
+        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, (int, np.integer)) \
+                or counts_per_rev <= 0:
+            raise ValueError(f"counts_per_rev must be a positive integer or None, got {counts_per_rev!r}")
+    if isinstance(angle_noise, bool) or not isinstance(angle_noise, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(angle_noise) or angle_noise < 0:
+        raise ValueError(f"angle_noise must be a finite number >= 0 rad, got {angle_noise!r}")
+    if not math.isfinite(initial_speed):
+        raise ValueError(f"initial_speed must be finite, got {initial_speed!r}")
+    if time is None:
+        t = np.arange(len(u)) * sample_period
+        uniform = True
+    else:
+        t = np.asarray(time, dtype=float)
+        if t.shape != u.shape:
+            raise ValueError(f"time must have the shape of duty {u.shape}, got {t.shape}")
+        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+            raise ValueError("time must be finite and strictly increasing")
+        uniform = None
+    variance = angle_noise ** 2 + quantisation_variance(counts_per_rev)
+    if variance == 0:
+        raise ValueError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
+                         "give the noise or the encoder resolution")
+    resp = zoh_response(a, float(b), u, t, float(initial_speed), uniform=uniform)
+    J = np.column_stack([resp.angle_sensitivity, np.ones(len(u))])
+    cov = covariance_from_jacobian(J, variance, 2)
+    return CramerRaoBound(covariance=cov, n_samples=len(u), a=a, b=float(b), noise_std=math.sqrt(variance))

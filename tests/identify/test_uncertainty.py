@@ -1,0 +1,84 @@
+"""Cramér–Rao bound: checked against python-control's own simulation and against Monte Carlo."""
+import math
+
+import control
+import numpy as np
+import pytest
+
+from identify import cramer_rao_bound
+from identify.uncertainty import quantisation_variance
+
+
+def _duty(n, dt, freq=10.0):
+    return np.round(200 * np.sin(freq * np.arange(n) * dt))
+
+
+def _reference_bound(a, b, duty, dt, w0, variance):
+    """Fisher information from python-control's forced_response and central differences."""
+    def angle(pa, pb, pw):
+        sys = control.sample_system(control.ss([[0, 1], [0, -pa]], [[0], [pb]], [[1, 0]], [[0]]), dt, "zoh")
+        return control.forced_response(sys, U=duty, X0=[0.0, pw]).outputs
+    cols = []
+    for i, step in enumerate((1e-5 * a, 1e-5 * abs(b), 1e-3)):
+        d = np.zeros(3)
+        d[i] = step
+        cols.append((angle(a + d[0], b + d[1], w0 + d[2]) - angle(a - d[0], b - d[1], w0 - d[2])) / (2 * step))
+    J = np.column_stack([*cols, np.ones(len(duty))])
+    return variance * np.linalg.inv(J.T @ J)[:2, :2]
+
+
+@pytest.mark.parametrize("a, b, dt, w0", [(25.0, 3.0, 0.005, 0.0), (4.0, 0.5, 0.001, 7.0), (90.0, 2.0, 0.02, -3.0)],
+                         ids=["article", "slow-fast-sampling", "fast-pole-slow-sampling"])
+def test_bound_matches_python_control_sensitivities(a, b, dt, w0):
+    duty = _duty(2000, dt, freq=0.7 * a)
+    crb = cramer_rao_bound(a, b, duty, dt, counts_per_rev=4096, angle_noise=1e-3, initial_speed=w0)
+    ref = _reference_bound(a, b, duty, dt, w0, 1e-6 + quantisation_variance(4096))
+    # central differences with relative step 1e-5 are accurate to ~1e-8; inversion amplifies by cond(J^T J)
+    np.testing.assert_allclose(crb.covariance, ref, rtol=1e-4)
+    assert crb.n_samples == 2000 and crb.param_names == ("a", "b")
+    assert crb.stderr()["a"] == pytest.approx(math.sqrt(ref[0, 0]), rel=1e-4)
+
+
+def test_bound_scales_with_noise_variance_and_record_length():
+    duty = _duty(4000, 0.005)
+    one = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=None, angle_noise=1e-3)
+    two = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=None, angle_noise=2e-3)
+    np.testing.assert_allclose(two.covariance, 4 * one.covariance, rtol=1e-12)  # exactly linear in sigma^2
+    long = cramer_rao_bound(25.0, 3.0, np.tile(duty, 4), 0.005, counts_per_rev=None, angle_noise=1e-3)
+    # 4x the data of a periodic input: variance ~ 1/4 (not exact: transient and nuisance parameters)
+    ratio = long.covariance[0, 0] / one.covariance[0, 0]
+    assert 0.2 < ratio < 0.3
+
+
+def test_jittered_time_gives_a_nearby_bound():
+    rng = np.random.default_rng(0)
+    dt, n = 0.005, 3000
+    duty = _duty(n, dt)
+    t = np.arange(n) * dt + rng.uniform(-0.05, 0.05, n) * dt
+    base = cramer_rao_bound(25.0, 3.0, duty, dt)
+    jit = cramer_rao_bound(25.0, 3.0, duty, dt, time=t)
+    # +-5 % jitter changes the information by a few percent at most
+    np.testing.assert_allclose(jit.stderr()["a"], base.stderr()["a"], rtol=0.05)
+
+
+def test_input_that_does_not_excite_gives_no_finite_bound():
+    # at steady state under a constant duty only b/a shows: a and b cannot be separated
+    steady = cramer_rao_bound(25.0, 3.0, np.full(500, 100.0), 0.005, initial_speed=3.0 * 100 / 25)
+    assert not math.isfinite(steady.stderr()["a"]) or steady.relative_stderr()["a"] > 1e3
+    # a zero duty from rest: the angle does not depend on a or b at all
+    assert not math.isfinite(cramer_rao_bound(25.0, 3.0, np.zeros(500), 0.005).stderr()["b"])
+    # whereas a step from rest does identify both
+    assert cramer_rao_bound(25.0, 3.0, np.full(500, 100.0), 0.005).relative_stderr()["a"] < 1e-3
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(a=-1.0), "a must"), (dict(b=0.0), "b must"), (dict(sample_period=0.0), "sample_period"),
+    (dict(counts_per_rev=0), "counts_per_rev"), (dict(angle_noise=-1.0), "angle_noise"),
+    (dict(counts_per_rev=None), "noise-free"), (dict(duty=[1.0, 2.0]), "duty"),
+    (dict(time=np.zeros(100)), "time"),
+], ids=["a", "b", "sample_period", "counts_per_rev", "angle_noise", "zero-noise", "short", "time"])
+def test_bad_arguments_name_the_parameter(kwargs, match):
+    args = dict(a=25.0, b=3.0, duty=_duty(100, 0.005), sample_period=0.005)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        cramer_rao_bound(args.pop("a"), args.pop("b"), args.pop("duty"), args.pop("sample_period"), **args)
