@@ -436,11 +436,15 @@ def format_sweep_table(scenario: Scenario, rows: Sequence[dict]) -> str:
         f" {'method':<10} {'a mean ± std':>22} {'a bias %':>9} {'CRB a':>8} "
         f"{'b mean ± std':>22} {'b bias %':>9} {'CRB b':>8} {'fail':>5}")
     lines = [head, "-" * len(head)]
+
+    def num(v, spec):
+        return "-" if math.isnan(v) else format(v, spec)
     for r in rows:
         lines.append(" ".join(f"{cell(r[c]):>{w}}" for c, w in zip(cols, widths))
-                     + f" {r['method']:<10} {r['mean_a']:>11.4f} ± {r['std_a']:<8.2g} {r['bias_a_pct']:>+9.3f}"
-                     f" {r['crb_a']:>8.2g} {r['mean_b']:>11.5f} ± {r['std_b']:<8.2g} {r['bias_b_pct']:>+9.3f}"
-                     f" {r['crb_b']:>8.2g} {int(r['failures']):>5d}")
+                     + f" {r['method']:<10} {num(r['mean_a'], '.4f'):>11} ± {num(r['std_a'], '.2g'):<8}"
+                     f" {num(r['bias_a_pct'], '+.3f'):>9} {num(r['crb_a'], '.2g'):>8}"
+                     f" {num(r['mean_b'], '.5f'):>11} ± {num(r['std_b'], '.2g'):<8}"
+                     f" {num(r['bias_b_pct'], '+.3f'):>9} {num(r['crb_b'], '.2g'):>8} {int(r['failures']):>5d}")
     return "\n".join(lines)
 
 
