@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Callable
 
 from .estimate import Estimate
+from .output_error import fit_output_error
 from .regression import fit_euler_ls, fit_zoh_ls
 
 __all__ = ["fit", "available_methods", "DEFAULT_METHOD"]
@@ -15,10 +16,11 @@ __all__ = ["fit", "available_methods", "DEFAULT_METHOD"]
 _METHODS: dict[str, Callable[..., Estimate]] = {
     "euler-ls": fit_euler_ls,
     "zoh-ls": fit_zoh_ls,
+    "oe": fit_output_error,
 }
 
 #: The most accurate method available (``motorid identify`` without ``--method``).
-DEFAULT_METHOD = "zoh-ls"
+DEFAULT_METHOD = "oe"
 
 
 def available_methods() -> list[str]:

@@ -111,18 +111,23 @@ class Response:
     ----------
     angle, speed : ndarray, shape (n,)
         rad (relative to the first sample) and rad/s.
-    angle_sensitivity, speed_sensitivity : ndarray, shape (n, 3)
-        Derivatives with respect to ``(a, b, initial_speed)``.
+    angle_sensitivity, speed_sensitivity : ndarray, shape (n, 4)
+        Derivatives with respect to ``(a, b, initial_speed, offset)``.
+    angle_initial_speed_a, speed_initial_speed_a : ndarray, shape (n,)
+        Derivative of the ``initial_speed`` column with respect to ``a`` (the response
+        is linear in the initial speed, so this is all variable projection needs).
     """
 
     angle: np.ndarray
     speed: np.ndarray
     angle_sensitivity: np.ndarray
     speed_sensitivity: np.ndarray
+    angle_initial_speed_a: np.ndarray
+    speed_initial_speed_a: np.ndarray
 
 
 def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
-                 uniform: bool | None = None) -> Response:
+                 offset: float = 0.0, uniform: bool | None = None) -> Response:
     """Exact ZOH response of ``d omega/dt = -a omega + b v`` and its sensitivities.
 
     Parameters
@@ -137,12 +142,15 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
         Strictly increasing sample instants in s.
     initial_speed : float
         Speed at ``time[0]`` in rad/s.
+    offset : float
+        Constant acceleration ``d`` in rad/s^2: ``d omega/dt = -a omega + b v + d``.
     uniform : bool, optional
         Whether ``time`` is uniformly spaced (detected when None).
 
     Returns
     -------
     Response
+        Sensitivity columns ``(a, b, initial_speed, offset)``.
     """
     v = np.asarray(drive, dtype=float)[:-1]
     t = np.asarray(time, dtype=float)
@@ -158,21 +166,29 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     dp = h * h * d1             # dp/da
     dq = h ** 3 * d2            # dq/da
     e_pow = np.exp(-np.concatenate([[0.0], np.cumsum(x)]))  # E_k = prod_{j<k} e_j
-    # speed per unit b (zero initial speed): w_b[k+1] = e w_b[k] + p v
-    w_b = _scan(x, (p * v)[:, None], np.zeros(1), uniform)[:, 0]
-    speed = b * w_b + initial_speed * e_pow
-    # d speed / d a: forcing (de/da) w + b (dp/da) v, de/da = -h e
+    # speed per unit b and per unit offset (zero initial speed): w[k+1] = e w[k] + p v
+    w_bd = _scan(x, np.column_stack([p * v, p]), np.zeros(2), uniform)
+    w_b, w_d = w_bd[:, 0], w_bd[:, 1]
+    speed = b * w_b + offset * w_d + initial_speed * e_pow
+    force = b * v + offset
+    # d speed / d a: forcing (de/da) w + (dp/da) force, de/da = -h e
     e = np.exp(-x)
-    w_a = _scan(x, (-h * e * speed[:-1] + b * dp * v)[:, None], np.zeros(1), uniform)[:, 0]
+    w_a = _scan(x, (-h * e * speed[:-1] + dp * force)[:, None], np.zeros(1), uniform)[:, 0]
     n = len(t)
     angle = np.zeros(n)
     th_a = np.zeros(n)
     th_b = np.zeros(n)
     th_0 = np.zeros(n)
-    angle[1:] = np.cumsum(p * speed[:-1] + b * q * v)
-    th_a[1:] = np.cumsum(p * w_a[:-1] + dp * speed[:-1] + b * dq * v)
+    th_d = np.zeros(n)
+    angle[1:] = np.cumsum(p * speed[:-1] + q * force)
+    th_a[1:] = np.cumsum(p * w_a[:-1] + dp * speed[:-1] + dq * force)
     th_b[1:] = np.cumsum(p * w_b[:-1] + q * v)
     th_0[1:] = np.cumsum(p * e_pow[:-1])
+    th_d[1:] = np.cumsum(p * w_d[:-1] + q)
+    e_pow_a = -(t - t[0]) * e_pow
+    th_0a = np.zeros(n)
+    th_0a[1:] = np.cumsum(dp * e_pow[:-1] + p * e_pow_a[:-1])
     return Response(angle=angle, speed=speed,
-                    angle_sensitivity=np.column_stack([th_a, th_b, th_0]),
-                    speed_sensitivity=np.column_stack([w_a, w_b, e_pow]))
+                    angle_sensitivity=np.column_stack([th_a, th_b, th_0, th_d]),
+                    speed_sensitivity=np.column_stack([w_a, w_b, e_pow, w_d]),
+                    angle_initial_speed_a=th_0a, speed_initial_speed_a=e_pow_a)

@@ -176,6 +176,6 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
         raise ValueError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
                          "give the noise or the encoder resolution")
     resp = zoh_response(a, float(b), u, t, float(initial_speed), uniform=uniform)
-    J = np.column_stack([resp.angle_sensitivity, np.ones(len(u))])
+    J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
     cov = covariance_from_jacobian(J, variance, 2)
     return CramerRaoBound(covariance=cov, n_samples=len(u), a=a, b=float(b), noise_std=math.sqrt(variance))

@@ -1,0 +1,380 @@
+"""``motorid bench accuracy``: do the estimators reach the truth?  (issue 3 acceptance)
+
+Recordings come from an integrator that is *not* the estimators' model: classical
+Runge–Kutta 4 with fine sub-steps (``a delta <= 0.02`` per sub-step), the duty
+held over each (possibly jittered) sample interval, integer duty, floored counts.
+With Coulomb friction the sub-steps freeze the sign of the speed and clamp at a
+zero crossing (sticking while ``|b u + d| <= c``).  ``motorsim.simulate`` is used
+only to *report* how far the generator is from the exact ZOH solution.
+
+Sections (each prints a table):
+
+Each run has at least ``--samples`` samples and four periods of its lowest
+frequency, and is lengthened until the Cramér–Rao bound of a and b is at most
+0.025 % (the ``CRB`` column, relative), so that the 0.1 % criterion is a test of
+the estimator (4 bounds of margin), not of an experiment too short to carry it.
+
+1. sines over sample periods 1, 2, 5, 10, 20 ms, 1200/4096/16667 counts/rev,
+   a = 4, 25, 90 1/s, sine frequency 0.3a, a, 2a (only below Nyquist):
+   ``oe`` relative errors, next to the article's ``euler-ls`` and ``zoh-ls``;
+2. multisines with +-10 % timing jitter, and with 1 % dropped samples;
+3. Coulomb friction and a dead zone: ``oe-friction`` against ``oe``;
+4. Monte Carlo with angle noise: ``oe``'s spread and bias against the Cramér–Rao bound;
+5. the time of one ``oe`` fit of a 10 000-sample recording, analytic Jacobian
+   against finite differences (``jac="2-point"``), measured in the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from typing import Sequence
+
+import numpy as np
+
+from motorsim.excitation import Multisine, Sine
+from motorsim.recording import Recording
+
+__all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording"]
+
+_STATIC_GAIN = 0.12   # b / a in (rad/s)/duty, the article's 3/25
+_SUBSTEP_AD = 0.02    # a * delta per RK4 sub-step: local error ~ (a delta)^5/120 ~ 3e-11
+
+
+def rk4_angle(a: float, b: float, duty: np.ndarray, time_s: np.ndarray, *, initial_speed: float = 0.0) -> np.ndarray:
+    """Angle in rad at ``time_s`` by RK4 sub-steps of ``[angle, speed, duty]' = A [angle, speed, duty]``.
+
+    One RK4 step of a linear system is the matrix polynomial
+    ``R = I + dA + (dA)^2/2 + (dA)^3/6 + (dA)^4/24``; ``m`` sub-steps per interval
+    give ``R^m`` (an approximation of ``expm(A h)`` of order 4, not the closed form).
+    """
+    h = np.diff(time_s)
+    m = max(4, int(math.ceil(a * float(h.max()) / _SUBSTEP_AD)))
+    A = np.array([[0.0, 1.0, 0.0], [0.0, -a, b], [0.0, 0.0, 0.0]])
+    d = (h / m)[:, None, None]
+    Ad = d * A
+    R = np.eye(3) + Ad + Ad @ Ad / 2 + Ad @ Ad @ Ad / 6 + Ad @ Ad @ Ad @ Ad / 24
+    phi = np.linalg.matrix_power(R, m)          # (n-1, 3, 3)
+    n = len(time_s)
+    angle = np.zeros(n)
+    th, w = 0.0, float(initial_speed)
+    p00, p01, p02 = phi[:, 0, 0], phi[:, 0, 1], phi[:, 0, 2]
+    p11, p12 = phi[:, 1, 1], phi[:, 1, 2]
+    for k in range(n - 1):
+        u = duty[k]
+        th, w = p00[k] * th + p01[k] * w + p02[k] * u, p11[k] * w + p12[k] * u
+        angle[k + 1] = th
+    return angle
+
+
+def rk4_friction_angle(a: float, b: float, c: float, d: float, duty: np.ndarray, time_s: np.ndarray, *,
+                       dead_zone: float = 0.0, substeps: int = 64) -> np.ndarray:
+    """Angle of ``w' = -a w + b v - c sign(w) + d`` (v: duty through the dead zone) by sub-stepped RK4.
+
+    ``duty`` may be 2-D ``(n, cases)`` to integrate several runs at once.  At rest the
+    motor sticks while ``|b v + d| <= c``; a sub-step that would cross zero speed ends
+    at zero (first-order error in the sub-step, ``h / substeps``).
+    """
+    u = np.asarray(duty, float)
+    if u.ndim == 1:
+        u = u[:, None]
+    v = np.where(np.abs(u) <= dead_zone, 0.0, u - np.sign(u) * dead_zone)
+    n, cases = u.shape
+    th = np.zeros(cases)
+    w = np.zeros(cases)
+    out = np.zeros((n, cases))
+    for k in range(n - 1):
+        dt = (time_s[k + 1] - time_s[k]) / substeps
+        force = b * v[k] + d
+        for _ in range(substeps):
+            moving = w != 0
+            s = np.where(moving, np.sign(w), np.sign(force))
+            stuck = ~moving & (np.abs(force) <= c)
+            f = force - c * s
+
+            def rhs(x):
+                return -a * x + f
+            k1 = rhs(w)
+            k2 = rhs(w + dt / 2 * k1)
+            k3 = rhs(w + dt / 2 * k2)
+            k4 = rhs(w + dt * k3)
+            w_new = w + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            crossed = moving & (np.sign(w_new) != s)
+            w_new = np.where(crossed | stuck, 0.0, w_new)
+            th = th + dt * (w + w_new) / 2
+            w = w_new
+        out[k + 1] = th
+    return out if np.ndim(duty) == 2 else out[:, 0]
+
+
+def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, sample_period: float,
+                   counts_per_rev: int, *, rng: np.random.Generator | None = None, drop_rate: float = 0.0,
+                   angle_noise: float = 0.0) -> Recording:
+    """Floored counts (optional noise and dropped rows) as a Recording."""
+    noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if angle_noise else 0.0)
+    counts = np.floor(noisy * counts_per_rev / (2 * math.pi)).astype(np.int64) + 1000
+    keep = np.ones(len(angle), bool)
+    if drop_rate:
+        keep[1:] = rng.random(len(angle) - 1) >= drop_rate
+    return Recording(time=time_s[keep], duty=duty[keep], sample_period=sample_period, counts=counts[keep],
+                     seq=np.flatnonzero(keep), counts_per_rev=counts_per_rev)
+
+
+def _clock(n: int, dt: float, jitter: float, rng: np.random.Generator) -> np.ndarray:
+    t = np.arange(n) * dt
+    if jitter:
+        t = t + rng.uniform(-0.5, 0.5, n) * jitter * dt
+        t -= t[0]
+    return t
+
+
+def _n_samples(dt: float, lowest_freq: float, minimum: int) -> int:
+    return max(minimum, int(math.ceil(4 * 2 * math.pi / lowest_freq / dt)))
+
+
+def _sized(a: float, b: float, make_duty, dt: float, cpr: int, n0: int, target: float, cap: int) -> tuple[int, float]:
+    """Samples needed for the Cramér–Rao bound of a and b to fall to ``target`` (relative), and that bound.
+
+    The bound falls as ``1/sqrt(n)``; experiments whose information is too thin at
+    ``n0`` are lengthened (up to ``cap``) so that the 0.1 % criterion tests the
+    estimator, not the experiment.
+    """
+    from identify import cramer_rao_bound
+    rel = cramer_rao_bound(a, b, make_duty(n0), dt, counts_per_rev=cpr).relative_stderr()
+    worst = max(rel.values())
+    n = n0 if worst <= target else min(cap, int(math.ceil(n0 * (worst / target) ** 2)))
+    return n, worst * math.sqrt(n0 / n)
+
+
+def _rel(est, a, b) -> tuple[float, float]:
+    return est.a / a - 1.0, est.b / b - 1.0
+
+
+def _fit_or_nan(method, rec, a, b, **kw):
+    from identify import NotIdentifiableError, fit
+    try:
+        return _rel(fit(rec, method=method, **kw), a, b)
+    except NotIdentifiableError:
+        return math.nan, math.nan
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:+9.4f}" if math.isfinite(x) else "      n/a"
+
+
+def _section_sines(args, rng) -> tuple[bool, list]:
+    print("\n1. sines, oe vs the article's euler-ls and zoh-ls (relative error in %; n = samples)")
+    print(f"{'dt ms':>5} {'cpr':>6} {'a':>4} {'f/a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  "
+          f"{'euler a':>9} {'zoh-ls a':>9}")
+    worst, worst_euler, rows = 0.0, [], []
+    ok = True
+    for dt in args.periods:
+        for cpr in args.counts:
+            for a in args.poles:
+                b = _STATIC_GAIN * a
+                for ratio in args.ratios:
+                    f = ratio * a
+                    if f * dt >= 0.9 * math.pi:
+                        rows.append((dt, cpr, a, ratio, "above 0.9 Nyquist"))
+                        print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g}      -  (sine above 0.9 x Nyquist, skipped)")
+                        continue
+                    exc = Sine(f, 200, 0.3)
+                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                                    _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
+                    t = _clock(n, dt, 0.0, rng)
+                    duty = exc.duty(n, dt).astype(float)
+                    angle = rk4_angle(a, b, duty, t)
+                    rec = make_recording(angle, duty, t, dt, cpr)
+                    ea, eb = _fit_or_nan("oe", rec, a, b)
+                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+                    za, _ = _fit_or_nan("zoh-ls", rec, a, b)
+                    bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
+                    ok &= not bad
+                    worst = max(worst, abs(ea), abs(eb))
+                    if math.isfinite(ua):
+                        worst_euler.append(abs(ua))
+                    print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {n:6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
+                          f"{_pct(ua)} {_pct(za)}" + ("   <-- above 0.1 %" if bad else ""))
+    print(f"worst |oe error| {100 * worst:.4f} %  (criterion 0.1 %)   "
+          f"euler-ls |a error| from {100 * min(worst_euler):.2f} % to {100 * max(worst_euler):.2f} %")
+    return ok, rows
+
+
+def _section_multisine(args, rng) -> bool:
+    print("\n2. multisines (0.3a, a, 2a below Nyquist), 16667/1200 counts: jitter +-10 % and 1 % dropped samples")
+    print(f"{'case':>8} {'dt ms':>5} {'cpr':>6} {'a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  {'euler a':>9}")
+    ok = True
+    worst = {"jitter": 0.0, "drops": 0.0}
+    for case, jitter, drop, limit in (("jitter", 0.1, 0.0, 1e-3), ("drops", 0.0, 0.01, 5e-3)):
+        for dt in args.periods:
+            for cpr in (1200, 16667):
+                for a in args.poles:
+                    b = _STATIC_GAIN * a
+                    freqs = [r * a for r in (0.3, 1.0, 2.0) if r * a * dt < 0.9 * math.pi]
+                    if not freqs:
+                        continue
+                    exc = Multisine(tuple(freqs), (200 // len(freqs) + 20,) * len(freqs),
+                                    tuple(0.7 * i for i in range(len(freqs))))
+                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                                    _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
+                    t = _clock(n, dt, jitter, rng)
+                    duty = exc.duty(n, dt).astype(float)
+                    angle = rk4_angle(a, b, duty, t)
+                    rec = make_recording(angle, duty, t, dt, cpr, rng=rng, drop_rate=drop)
+                    ea, eb = _fit_or_nan("oe", rec, a, b)
+                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+                    bad = not (abs(ea) <= limit and abs(eb) <= limit)
+                    ok &= not bad
+                    worst[case] = max(worst[case], abs(ea), abs(eb))
+                    print(f"{case:>8} {dt * 1e3:5g} {cpr:6d} {a:4g} {len(rec):6d} {100 * crb:7.4f}  "
+                          f"{_pct(ea)} {_pct(eb)}  {_pct(ua)}"
+                          + (f"   <-- above {100 * limit:g} %" if bad else ""))
+    print(f"worst |oe error|: jitter {100 * worst['jitter']:.4f} % (criterion 0.1 %), "
+          f"1 % drops {100 * worst['drops']:.4f} % (criterion 0.5 %)")
+    return ok
+
+
+def _section_friction(args, rng) -> bool:
+    from identify import available_methods
+    if "oe-friction" not in available_methods():
+        print("\n3. friction: oe-friction not available in this build")
+        return True
+    print("\n3. Coulomb friction c (and a dead zone), 5 ms, 4096 counts: oe-friction vs oe (relative error in %)")
+    print(f"{'a':>4} {'c':>6} {'dz':>4} {'input':>10}  {'oe-fr a':>9} {'oe-fr b':>9}  {'oe a':>9} {'oe b':>9}"
+          f"  {'c est':>8}")
+    dt, cpr, n = 0.005, 4096, args.friction_samples
+    t = np.arange(n) * dt
+    cases = []
+    for a in (10.0, 25.0):
+        b = _STATIC_GAIN * a
+        for c_rel, dz in ((0.25, 0.0), (0.25, 10.0)):
+            for label, duty in (("sine a", Sine(a, 200, 0.3).duty(n, dt)),
+                                ("sine 0.3a", Sine(0.3 * a, 200, 0.3).duty(n, dt))):
+                cases.append((a, b, c_rel * b * 100, dz, label, duty.astype(float)))
+    ok = True
+    worst_fr, worst_oe = 0.0, 0.0
+    # integrate the cases with the same a together (vectorised over cases)
+    for a in sorted({c[0] for c in cases}):
+        group = [c for c in cases if c[0] == a]
+        for c_val, dz in sorted({(c[2], c[3]) for c in group}):
+            sub = [g for g in group if (g[2], g[3]) == (c_val, dz)]
+            angles = rk4_friction_angle(a, sub[0][1], c_val, 0.0, np.column_stack([g[5] for g in sub]), t,
+                                        dead_zone=dz)
+            for j, (a_, b_, c_, dz_, label, duty) in enumerate(sub):
+                rec = make_recording(angles[:, j], duty, t, dt, cpr)
+                from identify import fit
+                fr = fit(rec, method="oe-friction")
+                fa, fb = _rel(fr, a_, b_)
+                oa, ob = _fit_or_nan("oe", rec, a_, b_)
+                bad = not (abs(fa) <= 0.02 and abs(fb) <= 0.02)
+                ok &= not bad
+                worst_fr = max(worst_fr, abs(fa), abs(fb))
+                worst_oe = max(worst_oe, abs(oa), abs(ob)) if math.isfinite(oa) else worst_oe
+                print(f"{a_:4g} {c_:6.2f} {dz_:4g} {label:>10}  {_pct(fa)} {_pct(fb)}  {_pct(oa)} {_pct(ob)}"
+                      f"  {fr.extra.get('c', math.nan):8.3f}" + ("   <-- above 2 %" if bad else ""))
+    print(f"worst |error|: oe-friction {100 * worst_fr:.3f} % (criterion 2 %), oe {100 * worst_oe:.2f} %")
+    return ok
+
+
+def _section_monte_carlo(args) -> bool:
+    from identify import NotIdentifiableError, cramer_rao_bound, fit
+    a, b, dt, cpr, noise = 25.0, 3.0, 0.005, 16667, args.noise
+    n = args.samples
+    duty = Multisine((0.3 * a, a, 2 * a), (90, 90, 90), (0.0, 0.7, 1.4)).duty(n, dt).astype(float)
+    t = np.arange(n) * dt
+    angle = rk4_angle(a, b, duty, t)
+    crb = cramer_rao_bound(a, b, duty, dt, counts_per_rev=cpr, angle_noise=noise).stderr()
+    est = []
+    for child in np.random.SeedSequence(args.seed).spawn(args.runs):
+        rng = np.random.default_rng(child)
+        try:
+            e = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
+            est.append((e.a, e.b, e.stderr()["a"], e.stderr()["b"]))
+        except NotIdentifiableError:
+            pass
+    e = np.array(est)
+    sd = e[:, :2].std(axis=0, ddof=1)
+    bias = e[:, :2].mean(axis=0) - (a, b)
+    rep = e[:, 2:].mean(axis=0)
+    print(f"\n4. Monte Carlo: {len(e)} runs, a={a:g}, b={b:g}, dt={dt * 1e3:g} ms, {cpr} counts/rev, "
+          f"angle noise {noise:g} rad, n={n}, multisine")
+    print(f"{'':>4} {'std':>11} {'CRB':>11} {'std/CRB':>8} {'bias':>11} {'bias/std':>8} {'mean stderr':>11}")
+    ok = True
+    for i, name in enumerate(("a", "b")):
+        ratio = sd[i] / crb[name]
+        br = abs(bias[i]) / sd[i]
+        ok &= ratio <= 1.3 and br < 1.0
+        print(f"{name:>4} {sd[i]:11.4g} {crb[name]:11.4g} {ratio:8.3f} {bias[i]:+11.3g} {br:8.3f} {rep[i]:11.4g}")
+    print("criteria: std within 1.3 x CRB, |bias| below one std")
+    return ok
+
+
+def _section_timing(args) -> None:
+    from identify import fit_zoh_ls
+    from identify.output_error import fit_output_error
+    from scenarios.bench import median_time
+    a, b, dt, n = 25.0, 3.0, 0.005, 10_000
+    rng = np.random.default_rng(args.seed)
+    duty = Sine(10.0, 200).duty(n, dt).astype(float)
+    print(f"\n5. time of one fit, {n} samples (median of {args.repeats})")
+    for label, jitter in (("uniform clock", 0.0), ("10 % jitter", 0.1)):
+        t = _clock(n, dt, jitter, rng)
+        rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667)
+        t_an = median_time(lambda: fit_output_error(rec), args.repeats)
+        t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), args.repeats)
+        t_ls = median_time(lambda: fit_zoh_ls(rec), args.repeats)
+        print(f"{label:>14}: oe analytic {t_an * 1e3:7.1f} ms   oe finite-difference {t_fd * 1e3:7.1f} ms   "
+              f"ratio {t_fd / t_an:5.2f} x   (zoh-ls {t_ls * 1e3:.1f} ms)")
+
+
+def _generator_check(rng) -> float:
+    """Largest relative difference of the RK4 generator from the exact ZOH solution (jittered clock)."""
+    from motorsim.plant import Motor, simulate
+    worst = 0.0
+    for a, dt in ((4.0, 0.001), (90.0, 0.02)):
+        n = 2000
+        t = _clock(n, dt, 0.1, rng)
+        duty = Sine(min(a, 0.8 * math.pi / dt), 200).duty(n, dt).astype(float)
+        ours = rk4_angle(a, _STATIC_GAIN * a, duty, t)
+        exact = simulate(Motor(a, _STATIC_GAIN * a), duty, t).angle
+        worst = max(worst, float(np.max(np.abs(ours - exact)) / np.max(np.abs(exact))))
+    return worst
+
+
+def bench_accuracy(argv: Sequence[str]) -> int:
+    """Run the accuracy benchmark; exit status 0 when every criterion holds."""
+    p = argparse.ArgumentParser(prog="motorid bench accuracy", description=__doc__.split("\n\n")[0])
+    p.add_argument("--periods", type=lambda s: [float(x) / 1e3 for x in s.split(",")],
+                   default=[0.001, 0.002, 0.005, 0.01, 0.02], help="sample periods in ms, comma-separated")
+    p.add_argument("--counts", type=lambda s: [int(x) for x in s.split(",")], default=[1200, 4096, 16667])
+    p.add_argument("--poles", type=lambda s: [float(x) for x in s.split(",")], default=[4.0, 25.0, 90.0])
+    p.add_argument("--ratios", type=lambda s: [float(x) for x in s.split(",")], default=[0.3, 1.0, 2.0],
+                   help="sine frequency / a")
+    p.add_argument("--samples", type=int, default=10_000, help="minimum samples per recording")
+    p.add_argument("--crb-target", type=float, default=2.5e-4,
+                   help="lengthen a run until its relative CRB of a and b is at most this (default 0.025 %%)")
+    p.add_argument("--max-samples", type=int, default=100_000)
+    p.add_argument("--friction-samples", type=int, default=4000)
+    p.add_argument("--runs", type=int, default=200, help="Monte Carlo runs")
+    p.add_argument("--noise", type=float, default=2e-3, help="Monte Carlo angle noise, rad")
+    p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None)
+    args = p.parse_args(list(argv))
+    rng = np.random.default_rng(args.seed)
+    t0 = time.perf_counter()
+    print(f"generator: RK4 sub-steps (a*delta <= {_SUBSTEP_AD}); largest relative difference from the exact "
+          f"ZOH angle {_generator_check(rng):.1e}")
+    ok = True
+    if args.only in (None, "sines"):
+        ok &= _section_sines(args, rng)[0]
+    if args.only in (None, "multisine"):
+        ok &= _section_multisine(args, rng)
+    if args.only in (None, "friction"):
+        ok &= _section_friction(args, rng)
+    if args.only in (None, "montecarlo"):
+        ok &= _section_monte_carlo(args)
+    if args.only in (None, "timing"):
+        _section_timing(args)
+    print(f"\n{'all criteria hold' if ok else 'SOME CRITERIA FAIL'}  ({time.perf_counter() - t0:.0f} s)")
+    return 0 if ok else 1

@@ -1,0 +1,14 @@
+"""Shared fixtures of the identify tests: the independent reference integrators."""
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def reference():
+    """The module ``reference_data.py`` beside this file (loaded by path)."""
+    spec = importlib.util.spec_from_file_location("identify_reference_data", Path(__file__).with_name("reference_data.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
