@@ -164,7 +164,7 @@ def test_cli_sweep_lists_runs_and_plots(small, tmp_path, capsys):
     out = tmp_path / "cli"
     assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repeats", "2"]) == 0
     text = capsys.readouterr().out
-    assert "8 points x 2 methods x 2 repetitions" in text
+    assert f"8 points x {len(identify.available_methods())} methods x 2 repetitions" in text
     rows = read_sweep_csv(out / "sweep.csv")
     assert {r["repetitions"] for r in rows} == {2.0}
     for png in ("bias_vs_frequency.png", "heatmap_bias_a.png", "heatmap_bias_b.png"):
