@@ -178,3 +178,34 @@ def test_cli_sweep_errors_are_messages(tmp_path, capsys):
     assert "--workers must be >= 1" in capsys.readouterr().err
     assert main(["sweep"]) == 2
     assert "sweep needs a scenario" in capsys.readouterr().err
+
+
+def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order():
+    # Bounded memory: the sweep never submits more than `window` points ahead of the one it writes.
+    import concurrent.futures
+    from scenarios import sweep
+
+    class Recorder(concurrent.futures.Executor):
+        def __init__(self):
+            self.pending = self.most = 0
+            self.order = []
+
+        def submit(self, fn, *args):
+            fut = concurrent.futures.Future()
+            self.pending += 1
+            self.most = max(self.most, self.pending)
+            self.order.append(args[0])
+            fut.set_result(args[0])
+            original = fut.result
+
+            def result(timeout=None):
+                self.pending -= 1
+                return original(timeout)
+            fut.result = result
+            return fut
+
+    ex = Recorder()
+    jobs = [(i, (), 1, 0) for i in range(20)]
+    got = list(sweep._in_order(ex, jobs, window=3))
+    assert got == list(range(20)) and ex.order == list(range(20))
+    assert ex.most == 3
