@@ -61,11 +61,14 @@ def _series_key(row: dict, others: Sequence[str]) -> str:
     return ", ".join(f"{c}={row[c]:g}" if isinstance(row[c], float) else f"{c}={row[c]}" for c in others)
 
 
-def plot_sweep_frequency(rows: Sequence[dict], path, *, others: Sequence[str] = (), title: str = "") -> Path:
+def plot_sweep_frequency(rows: Sequence[dict], path, *, others: Sequence[str] = (), title: str = "",
+                         x: str = "frequency") -> Path:
     """Bias (line) and spread (band, +-1 std) in % of the truth against sine frequency, per estimator.
 
     ``rows`` are sweep CSV rows (``scenarios.sweep.read_sweep_csv``); one line per value of the
-    columns ``others`` (the other grid axes).  Rows with no successful fit are left out.
+    columns ``others`` (the other grid axes).  ``x`` is the column on the horizontal axis
+    (default ``frequency``; logarithmic when its values span more than a factor of 30).
+    Rows with no successful fit leave a gap.
     """
     plt = _pyplot()
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -75,8 +78,8 @@ def plot_sweep_frequency(rows: Sequence[dict], path, *, others: Sequence[str] = 
         mine = [r for r in rows if r["method"] == method]
         series = dict.fromkeys(_series_key(r, others) for r in mine)
         for key in series:
-            pts = sorted((r for r in mine if _series_key(r, others) == key), key=lambda r: r["frequency"])
-            f = np.array([r["frequency"] for r in pts])
+            pts = sorted((r for r in mine if _series_key(r, others) == key), key=lambda r: r[x])
+            f = np.array([r[x] for r in pts])
             for i, name in enumerate(("a", "b")):
                 truth = np.array([r[f"true_{name}"] for r in pts])
                 bias = np.array([r[f"bias_{name}_pct"] for r in pts])
@@ -90,10 +93,14 @@ def plot_sweep_frequency(rows: Sequence[dict], path, *, others: Sequence[str] = 
             ax.set_ylabel(f"bias of {name} [%]  (band: ±1 std)")
             ax.set_title(f"{method}: {name}")
             ax.grid(alpha=0.3)
-        axes[1, j].set_xlabel("sine frequency ω [rad/s]")
+        axes[1, j].set_xlabel("sine frequency ω [rad/s]" if x == "frequency" else x)
+        xs = [r[x] for r in mine if r[x] > 0]
+        if xs and max(xs) > 30 * min(xs):
+            for i in range(2):
+                axes[i, j].set_xscale("log")
         if others:
             axes[0, j].legend(fontsize=6)
-    fig.suptitle(title or "bias and spread against frequency")
+    fig.suptitle(title or f"bias and spread against {x}")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)

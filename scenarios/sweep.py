@@ -21,6 +21,7 @@ from ``SeedSequence(seed, spawn_key=(i, r))``, which is
 """
 from __future__ import annotations
 
+import argparse
 import collections
 import concurrent.futures
 import csv
@@ -400,8 +401,8 @@ def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
 
 
 def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
-    """The PNGs of a sweep: bias and spread against frequency (when frequency is a grid axis)
-    and heatmaps of |bias| of a and b over the first two numeric grid axes (other axes held at
+    """The PNGs of a sweep: bias and spread against frequency (or, when frequency is not a grid
+    axis, against the first numeric axis) and heatmaps of |bias| of a and b over the first two numeric grid axes (other axes held at
     their first value)."""
     from . import plots
     out = Path(out_dir)
@@ -409,10 +410,11 @@ def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | o
     columns = list(dict.fromkeys(axis_column(a) for a in scenario.axes))
     numeric = [c for c in columns if c != "excitation"]
     paths = []
-    if "frequency" in numeric:
-        others = [c for c in columns if c != "frequency"]
-        paths.append(plots.plot_sweep_frequency(rows, out / "bias_vs_frequency.png", others=others,
-                                                title=f"{scenario.name}: bias and spread against frequency"))
+    if numeric:
+        x = "frequency" if "frequency" in numeric else numeric[0]
+        others = [c for c in columns if c != x]
+        paths.append(plots.plot_sweep_frequency(rows, out / f"bias_vs_{x}.png", others=others, x=x,
+                                                title=f"{scenario.name}: bias and spread against {x}"))
     if len(numeric) >= 2:
         x, y = numeric[0], numeric[1]
         fixed = {c: rows[0][c] for c in columns if c not in (x, y)}
@@ -448,7 +450,7 @@ def format_sweep_table(scenario: Scenario, rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def add_sweep_arguments(parser) -> None:
+def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid sweep``."""
     parser.add_argument("scenario", nargs="?", metavar="NAME|FILE.toml",
                         help="a built-in scenario (see --list) or a scenario file")
@@ -466,7 +468,7 @@ def add_sweep_arguments(parser) -> None:
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
 
-def run_sweep(args) -> int:
+def run_sweep(args: argparse.Namespace) -> int:
     """``motorid sweep``: the CLI glue around :func:`run_scenario`."""
     from .cli import CommandError
     from .scenario import builtin_scenarios, load_scenario
