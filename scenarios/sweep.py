@@ -208,6 +208,15 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
     -------
     PointResult
     """
+    from identify import available_methods
+    if not isinstance(point, GridPoint):
+        raise TypeError(f"point must be a GridPoint, got {type(point).__name__}")
+    if isinstance(repetitions, bool) or not isinstance(repetitions, int) or repetitions < 1:
+        raise ValueError(f"repetitions must be an integer >= 1, got {repetitions!r}")
+    methods = list(methods)
+    unknown = [m for m in methods if m not in available_methods()]
+    if not methods or unknown:
+        raise ValueError(f"methods must be a non-empty list of names among {available_methods()}, got {methods!r}")
     s = point.setting
     exp = s.experiment()
     duty = exp.duty()
@@ -230,7 +239,7 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
             counts = encoder_counts_batch(np.broadcast_to(angle, (hi - lo, n)), s.counts_per_rev,
                                           s.angle_noise, rngs)
             fits = fit_batch(batched_methods, speed_batch(counts, s.counts_per_rev, s.sample_period),
-                             duty, s.sample_period)
+                             duty, s.sample_period) if batched_methods else {}
             for m, f in fits.items():
                 a[m][lo:hi], b[m][lo:hi] = f.a, f.b
                 why[m][lo:hi] = f.failure

@@ -209,3 +209,15 @@ def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order(
     got = list(sweep._in_order(ex, jobs, window=3))
     assert got == list(range(20)) and ex.order == list(range(20))
     assert ex.most == 3
+
+
+def test_run_point_checks_its_arguments(small):
+    point = next(small.points())
+    with pytest.raises(ValueError, match="repetitions must be an integer >= 1"):
+        run_point(point, ["zoh-ls"], 0, 1)
+    with pytest.raises(ValueError, match="methods must be a non-empty list"):
+        run_point(point, ["nope"], 2, 1)
+    with pytest.raises(TypeError, match="point must be a GridPoint"):
+        run_point(point.setting, ["zoh-ls"], 2, 1)
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        run_scenario(small, "unused", workers=0)
