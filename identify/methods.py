@@ -8,6 +8,8 @@ from __future__ import annotations
 from typing import Callable
 
 from .estimate import Estimate
+from .friction import fit_output_error_friction
+from .instrumental import fit_instrumental_variables
 from .output_error import fit_output_error
 from .regression import fit_euler_ls, fit_zoh_ls
 
@@ -17,6 +19,8 @@ _METHODS: dict[str, Callable[..., Estimate]] = {
     "euler-ls": fit_euler_ls,
     "zoh-ls": fit_zoh_ls,
     "oe": fit_output_error,
+    "iv": fit_instrumental_variables,
+    "oe-friction": fit_output_error_friction,
 }
 
 #: The most accurate method available (``motorid identify`` without ``--method``).

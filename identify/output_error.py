@@ -43,7 +43,7 @@ from .uncertainty import covariance_from_jacobian
 from .validation import nrmse_fit
 
 __all__ = ["fit_output_error", "fit_output_error_offset", "prepare_segments", "Segment",
-           "check_excitation", "select_delay", "model_output", "MAX_AUTO_DELAY"]
+           "check_excitation", "select_delay", "model_output", "model_residuals", "MAX_AUTO_DELAY"]
 
 #: Largest input delay in samples that ``delay="auto"`` tries.
 MAX_AUTO_DELAY = 10
@@ -436,34 +436,76 @@ def _fit_method(method, recordings, *, delay, jac, with_offset) -> Estimate:
     return _finish(method, recs, res, problem, delay or 0, names)
 
 
+def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
+    """The estimate's native output (angle or speed) on one segment, initial state fitted."""
+    d = float(estimate.extra.get("d", 0.0))
+    c = float(estimate.extra.get("c", 0.0))
+    zone = float(estimate.extra.get("dead_zone", 0.0))
+    n = len(seg.time)
+    if c > 0 or zone > 0:
+        # friction model: not linear in the initial speed, so fit it (one parameter) from the data's guess
+        from motorsim.plant import Motor, simulate
+        motor = Motor(estimate.a, estimate.b, friction=c, bias=d, dead_zone=zone)
+
+        def run(w0):
+            traj = simulate(motor, seg.drive, seg.time, initial_speed=float(w0[0]))
+            if seg.kind == "angle":
+                return traj.angle + float(np.mean(seg.output - traj.angle))
+            return traj.speed
+        w0 = least_squares(lambda w: seg.output - run(w), [seg.initial_speed_guess()], xtol=1e-10).x
+        return run(w0)
+    resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, offset=d, uniform=seg.uniform)
+    if seg.kind == "angle":
+        A = np.column_stack([resp.angle_sensitivity[:, 2], np.ones(n)])
+        coef, *_ = np.linalg.lstsq(A, seg.output - resp.angle, rcond=None)
+        return resp.angle + A @ coef
+    s0 = resp.speed_sensitivity[:, 2]
+    return resp.speed + float(s0 @ (seg.output - resp.speed) / (s0 @ s0)) * s0
+
+
 def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """The estimate's output on ``recording`` with each segment's initial state fitted.
+    """The estimate's speed on ``recording`` with each segment's initial state fitted.
 
     Returns ``(measured, simulated)`` speed in rad/s, aligned row by row (``nan``
     where undefined): for angle recordings both are the average speed over each
     interval (differenced angle), for speed-only recordings the speed itself.
     Held-out validation uses this: the initial speed and offset of the test data
-    are unknown, and (with ``a``, ``b``, ``d`` fixed) the model is linear in them,
-    so they are solved exactly by least squares.
+    are unknown, and (with ``a``, ``b``, ``d`` fixed) the linear model is linear in
+    them, so they are solved exactly by least squares (the friction model starts
+    from the measured speed instead).
     """
     delay = int(estimate.extra.get("input_delay", 0))
-    d = float(estimate.extra.get("d", 0.0))
     n = len(recording)
     meas = np.full(n, np.nan)
     sim = np.full(n, np.nan)
     for seg in prepare_segments([recording], delay):
-        resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, offset=d, uniform=seg.uniform)
+        model = _segment_model(estimate, seg)
         if seg.kind == "angle":
-            A = np.column_stack([resp.angle_sensitivity[:, 2], np.ones(len(seg.time))])
-            coef, *_ = np.linalg.lstsq(A, seg.output - resp.angle, rcond=None)
-            model = resp.angle + A @ coef
             rows = slice(seg.start + 1, seg.start + len(seg.time))
             meas[rows] = np.diff(seg.output) / np.diff(seg.time)
             sim[rows] = np.diff(model) / np.diff(seg.time)
         else:
-            s0 = resp.speed_sensitivity[:, 2]
-            w0 = float(s0 @ (seg.output - resp.speed) / (s0 @ s0))
             rows = slice(seg.start, seg.start + len(seg.time))
             meas[rows] = seg.output
-            sim[rows] = resp.speed + w0 * s0
+            sim[rows] = model
     return meas, sim
+
+
+def model_residuals(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, np.ndarray, str]:
+    """Residuals in the recording's native output, the input aligned with them, and their unit.
+
+    Angle recordings give angle residuals in rad (what the encoder measures; the
+    differenced speed would add a lag-one correlation of its own), speed-only
+    recordings speed residuals in rad/s.  Segments are concatenated.
+    """
+    delay = int(estimate.extra.get("input_delay", 0))
+    res, inp, kinds = [], [], set()
+    for seg in prepare_segments([recording], delay):
+        res.append(seg.output - _segment_model(estimate, seg))
+        inp.append(seg.drive)
+        kinds.add(seg.kind)
+    if not res:
+        raise NotIdentifiableError("recording is too short to validate: no gap-free stretch of "
+                                   f"{_MIN_SEGMENT + delay} samples")
+    unit = "rad" if kinds == {"angle"} else ("rad/s" if kinds == {"speed"} else "mixed")
+    return np.concatenate(res), np.concatenate(inp), unit

@@ -72,8 +72,9 @@ def rk4_friction_angle(a: float, b: float, c: float, d: float, duty: np.ndarray,
     """Angle of ``w' = -a w + b v - c sign(w) + d`` (v: duty through the dead zone) by sub-stepped RK4.
 
     ``duty`` may be 2-D ``(n, cases)`` to integrate several runs at once.  At rest the
-    motor sticks while ``|b v + d| <= c``; a sub-step that would cross zero speed ends
-    at zero (first-order error in the sub-step, ``h / substeps``).
+    motor sticks while ``|b v + d| <= c``; in a sub-step that crosses zero speed the
+    crossing is located by linear interpolation and the rest of the sub-step restarts
+    from rest (stuck, or on the other branch).
     """
     u = np.asarray(duty, float)
     if u.ndim == 1:
@@ -90,21 +91,34 @@ def rk4_friction_angle(a: float, b: float, c: float, d: float, duty: np.ndarray,
             moving = w != 0
             s = np.where(moving, np.sign(w), np.sign(force))
             stuck = ~moving & (np.abs(force) <= c)
-            f = force - c * s
-
-            def rhs(x):
-                return -a * x + f
-            k1 = rhs(w)
-            k2 = rhs(w + dt / 2 * k1)
-            k3 = rhs(w + dt / 2 * k2)
-            k4 = rhs(w + dt * k3)
-            w_new = w + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            w_new, dth = _rk4_branch(a, force - c * s, w, dt)
             crossed = moving & (np.sign(w_new) != s)
-            w_new = np.where(crossed | stuck, 0.0, w_new)
-            th = th + dt * (w + w_new) / 2
-            w = w_new
+            if np.any(crossed):
+                # the speed reaches zero inside the sub-step: locate it (linear interpolation),
+                # then restart from rest for the remainder, stuck or on the other branch
+                frac = np.where(crossed, w / np.where(crossed, w - w_new, 1.0), 1.0)
+                rest = (1.0 - frac) * dt
+                s2 = np.sign(force)
+                free = np.abs(force) > c
+                w_rest, th_rest = _rk4_branch(a, force - c * s2, np.zeros_like(w), rest)
+                w_new = np.where(crossed, np.where(free, w_rest, 0.0), w_new)
+                dth = np.where(crossed, frac * dt * w / 2 + np.where(free, th_rest, 0.0), dth)
+            w = np.where(stuck, 0.0, w_new)
+            th = th + np.where(stuck, 0.0, dth)
         out[k + 1] = th
     return out if np.ndim(duty) == 2 else out[:, 0]
+
+
+def _rk4_branch(a, f, w, dt):
+    """One RK4 step of ``[angle, speed]' = [speed, -a speed + f]``: (new speed, angle increment)."""
+    k1 = -a * w + f
+    w2 = w + dt / 2 * k1
+    k2 = -a * w2 + f
+    w3 = w + dt / 2 * k2
+    k3 = -a * w3 + f
+    w4 = w + dt * k3
+    k4 = -a * w4 + f
+    return w + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), dt / 6 * (w + 2 * w2 + 2 * w3 + w4)
 
 
 def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, sample_period: float,

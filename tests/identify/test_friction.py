@@ -1,0 +1,59 @@
+"""``oe-friction``: Coulomb friction, offset and dead zone recovered where the linear fit drifts."""
+import numpy as np
+import pytest
+
+from identify import fit
+from identify.friction import fit_output_error_friction, speed_reverses
+from motorsim.plant import Motor, simulate
+from motorsim.recording import Recording
+
+# The friction model is simulated exactly (motorsim.simulate, event by event) and the fit uses
+# a finite-difference Jacobian; on noise-free angles the fit stops within ~1e-6 relative.
+CLOSE = 1e-5
+
+
+def _run(motor, freq=20.0, n=1200, dt=0.005, amp=200.0, offset=0.0):
+    t = np.arange(n) * dt
+    duty = offset + np.round(amp * np.sin(freq * t + 0.3))
+    traj = simulate(motor, duty, t)
+    return Recording(time=t, duty=duty, sample_period=dt, angle=traj.angle + 1.0)
+
+
+def test_friction_and_offset_are_recovered_where_oe_drifts():
+    motor = Motor(25.0, 3.0, friction=60.0, bias=-20.0)
+    rec = _run(motor)
+    est = fit_output_error_friction(rec, dead_zone=False)
+    assert est.a == pytest.approx(25.0, rel=CLOSE) and est.b == pytest.approx(3.0, rel=CLOSE)
+    assert est.extra["c"] == pytest.approx(60.0, rel=CLOSE)
+    assert est.extra["d"] == pytest.approx(-20.0, rel=CLOSE)
+    assert est.param_names == ("a", "b", "c", "d") and est.covariance.shape == (4, 4)
+    linear = fit(rec, method="oe")
+    assert abs(linear.a / 25.0 - 1) > 0.05  # the linear model is far off (measured ~ +20 %)
+
+
+def test_dead_zone_is_recovered():
+    motor = Motor(25.0, 3.0, friction=40.0, dead_zone=12.0)
+    est = fit_output_error_friction(_run(motor, freq=25.0), fix_d=True)
+    assert est.a == pytest.approx(25.0, rel=CLOSE) and est.b == pytest.approx(3.0, rel=CLOSE)
+    assert est.extra["dead_zone"] == pytest.approx(12.0, rel=CLOSE)
+    assert est.param_names == ("a", "b", "c", "dead_zone") and est.extra["d"] == 0.0
+
+
+def test_motor_that_never_reverses_reports_the_net_offset():
+    motor = Motor(15.0, 1.5, friction=30.0, bias=10.0)
+    rec = _run(motor, freq=8.0, amp=60.0, offset=150.0)
+    assert not speed_reverses(rec)
+    with pytest.warns(UserWarning, match="indistinguishable from the offset d"):
+        est = fit_output_error_friction(rec)
+    # with omega > 0 throughout, -c sign(omega) + d = d - c = -20 rad/s^2
+    assert est.extra["c"] == 0.0 and est.extra["d"] == pytest.approx(-20.0, rel=1e-8)
+    assert est.a == pytest.approx(15.0, rel=1e-8) and est.b == pytest.approx(1.5, rel=1e-8)
+    assert est.method == "oe-friction" and est.param_names == ("a", "b", "d")
+
+
+def test_bad_options_name_the_parameter():
+    rec = _run(Motor(25.0, 3.0))
+    with pytest.raises(TypeError, match="fix_d"):
+        fit_output_error_friction(rec, fix_d="yes")
+    with pytest.raises(TypeError, match="dead_zone"):
+        fit_output_error_friction(rec, dead_zone=1)

@@ -1,0 +1,59 @@
+"""Real data: the UNDCMotor remote lab's PRBS and step runs (MIT licence, tests/data/undcmotor/).
+
+The lab measured the static gain independently (steady speed at 13 constant
+inputs): K = 159.86 (deg/s)/V with an offset of -32.41 deg/s.  A model
+``d omega/dt = -a omega + b u + d`` has the static map ``omega = (b/a) u + d/a``,
+so ``b/a`` (converted to deg/s per V) is the number to compare with K.
+"""
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identify import fit
+from identify.output_error import model_output
+from identify.validation import nrmse_fit
+from motorsim.recording import Recording
+
+DATA = Path(__file__).parents[1] / "data" / "undcmotor"
+K_STATIC = 159.86  # (deg/s)/V, DCmotor_static_pars.csv
+
+
+def load_undc(name: str) -> Recording:
+    """A lab CSV (t in s, u in V, y in deg/s) as a Recording: speed in rad/s, input unit V."""
+    t, u, y = np.loadtxt(DATA / name, delimiter=",", skiprows=1, unpack=True)
+    return Recording(time=t, duty=u, sample_period=0.02, speed=np.deg2rad(y),
+                     metadata={"input_unit": "V", "source": f"UNDCMotor {name}"})
+
+
+@pytest.fixture(scope="module")
+def prbs_fit():
+    rec = load_undc("DCmotor_prbs_open_exp.csv")
+    with warnings.catch_warnings():
+        # the motor never reverses, so c merges into d; oe-friction says so in a warning
+        warnings.simplefilter("ignore", UserWarning)
+        return fit(rec, method="oe-friction", delay="auto")
+
+
+def test_prbs_fit_and_static_gain_match_the_lab(prbs_fit):
+    est = prbs_fit
+    gain = math.degrees(est.static_gain)
+    assert est.fit_percent >= 90.0                      # issue 3 acceptance: at least 90 % NRMSE fit
+    assert abs(gain / K_STATIC - 1) < 0.05              # and b/a within 5 % of the static K
+    assert est.extra["input_delay"] == 1.0              # the lab's own model has one sample (0.02 s)
+    assert est.extra["d"] < 0                           # the static map's offset is negative
+    se = est.stderr()
+    assert se["a"] > 0 and se["b"] > 0
+
+
+def test_model_predicts_the_held_out_step_run(prbs_fit):
+    meas, sim = model_output(prbs_fit, load_undc("DCmotor_step_open_exp.csv"))
+    assert nrmse_fit(meas, sim) > 85.0
+
+
+def test_linear_model_without_offset_is_worse_on_real_data(prbs_fit):
+    plain = fit(load_undc("DCmotor_prbs_open_exp.csv"), method="oe", delay="auto")
+    assert plain.fit_percent < prbs_fit.fit_percent
+    assert abs(math.degrees(plain.static_gain) / K_STATIC - 1) > abs(math.degrees(prbs_fit.static_gain) / K_STATIC - 1)

@@ -1,0 +1,57 @@
+"""Held-out validation: NRMSE fit and the residual whiteness / independence tests."""
+import math
+
+import numpy as np
+import pytest
+
+from identify import fit, validate
+from identify.validation import autocorrelation, cross_correlation
+from motorsim.plant import Motor, simulate
+from motorsim.recording import Recording
+
+
+def test_correlations_have_their_defining_properties():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=4000)
+    r = autocorrelation(x, 20)
+    assert r[0] == pytest.approx(1.0, rel=1e-12)
+    # white noise: ~5 % of lags outside +-1.96/sqrt(N); 20 lags, allow up to 3
+    assert np.sum(np.abs(r[1:]) > 1.96 / math.sqrt(len(x))) <= 3
+    # a copy delayed by 3 samples correlates fully at lag +3
+    c = cross_correlation(np.roll(x, 3), x, 5)
+    assert np.argmax(c) == 5 + 3 and c[5 + 3] == pytest.approx(1.0, abs=0.01)
+
+
+def _noisy_run(motor, duty, dt, rng, noise=1e-3):
+    t = np.arange(len(duty)) * dt
+    angle = simulate(motor, duty, t).angle + rng.normal(0, noise, len(duty))
+    return Recording(time=t, duty=duty, sample_period=dt, angle=angle)
+
+
+def test_right_model_passes_and_wrong_model_fails_on_held_out_data():
+    rng = np.random.default_rng(4)
+    dt, n = 0.005, 3000
+    t = np.arange(n) * dt
+    train_duty = np.round(200 * np.sin(10 * t))
+    test_duty = np.round(90 * np.sin(7 * t) + 90 * np.sin(31 * t + 1))
+    linear = Motor(25.0, 3.0)
+    rep = validate(fit(_noisy_run(linear, train_duty, dt, rng)), _noisy_run(linear, test_duty, dt, rng))
+    # white Gaussian angle noise: whiteness and independence are not rejected (seeded)
+    assert rep.is_white(0.01) and rep.independence_p > 0.01
+    assert rep.fit_percent > 90 and rep.residual_unit == "rad"
+    assert len(rep.lags) == 26 and rep.band == pytest.approx(1.96 / math.sqrt(len(rep.residual)))
+    # the same linear fit on a motor with friction: residuals are coloured and the fit drops
+    stiff = Motor(25.0, 3.0, friction=60.0)
+    wrong = validate(fit(_noisy_run(stiff, train_duty, dt, rng)), _noisy_run(stiff, test_duty, dt, rng))
+    assert not wrong.is_white(0.01) and wrong.fit_percent < rep.fit_percent
+    assert set(rep.summary()) >= {"validation_fit_percent", "whiteness_p", "independence_p"}
+
+
+def test_bad_arguments():
+    rec = _noisy_run(Motor(25.0, 3.0), np.round(200 * np.sin(10 * np.arange(500) * 0.005)), 0.005,
+                     np.random.default_rng(0))
+    est = fit(rec)
+    with pytest.raises(ValueError, match="max_lag"):
+        validate(est, rec, max_lag=0)
+    with pytest.raises(TypeError, match="recording"):
+        validate(est, "run.csv")
