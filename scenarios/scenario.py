@@ -216,6 +216,10 @@ class Scenario:
         """The same scenario with another number of repetitions."""
         return dataclasses.replace(self, repetitions=_check_count("repetitions", repetitions))
 
+    def with_methods(self, methods) -> "Scenario":
+        """The same scenario comparing other estimators (``"all"`` or a sequence of names)."""
+        return dataclasses.replace(self, methods=_check_methods(methods))
+
     def points(self) -> Iterator[GridPoint]:
         """The grid points, lazily, in row-major order over the axes."""
         names = self.axes
@@ -233,6 +237,18 @@ def _check_count(name: str, value, lo: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < lo:
         raise ScenarioError(f"{name} must be an integer >= {lo}, got {value!r}")
     return value
+
+
+def _check_methods(methods) -> tuple[str, ...]:
+    from identify import available_methods
+    if methods == "all":
+        return tuple(available_methods())
+    if isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not methods:
+        raise ScenarioError(f"methods must be \"all\" or a non-empty list of names, got {methods!r}")
+    for m in methods:
+        if m not in available_methods():
+            raise ScenarioError(f"methods must name estimators among {available_methods()}, got {m!r}")
+    return tuple(methods)
 
 
 def _setting(values: Mapping) -> Setting:
@@ -269,8 +285,6 @@ def _setting(values: Mapping) -> Setting:
 
 def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario:
     """Build and validate a :class:`Scenario` from parsed TOML (see the module docstring)."""
-    from identify import available_methods
-
     def fail(msg):
         raise ScenarioError(f"{source}: {msg}")
 
@@ -299,15 +313,8 @@ def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario
             fail(f"grid axis {axis!r} must be a non-empty list of values, got {values!r}")
         base.pop(axis, None)
         grid.append((axis, tuple(values)))
-    methods = data.get("methods", "all")
-    if methods == "all":
-        methods = available_methods()
-    if isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not methods:
-        fail(f"methods must be \"all\" or a non-empty list of names, got {methods!r}")
-    for m in methods:
-        if m not in available_methods():
-            fail(f"methods must name estimators among {available_methods()}, got {m!r}")
     try:
+        methods = _check_methods(data.get("methods", "all"))
         reps = _check_count("repetitions", data.get("repetitions", 10))
         seed = _check_count("seed", data.get("seed", 0), lo=0)
     except ScenarioError as exc:

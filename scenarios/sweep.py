@@ -470,6 +470,8 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
                         help="worker processes (default: all cores; 1 runs in this process)")
     parser.add_argument("--repeats", type=int, default=None, metavar="N",
                         help="Monte Carlo repetitions per grid point (default: the scenario's)")
+    parser.add_argument("--methods", default=None, metavar="all|M,M,...",
+                        help="estimators to compare instead of the scenario's (e.g. all, or oe,oe-friction)")
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run on a Dask cluster (scheduler address, or 'local' for a LocalCluster of "
                              "--workers processes); needs motorid[dask]")
@@ -492,6 +494,9 @@ def run_sweep(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.repeats is not None:
         scenario = scenario.with_repetitions(args.repeats)
+    if args.methods is not None:
+        scenario = scenario.with_methods("all" if args.methods == "all"
+                                         else [m.strip() for m in args.methods.split(",") if m.strip()])
     out = Path(args.out or Path("sweep-output") / scenario.name)
     client = cluster = None
     executor = None

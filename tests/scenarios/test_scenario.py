@@ -77,8 +77,13 @@ def test_unknown_scenario_name_lists_the_builtins(tmp_path):
         load_scenario(bad)
 
 
-def test_with_repetitions_validates():
+def test_with_repetitions_and_methods_validate():
+    import identify
     s = load_scenario("article")
+    assert s.with_methods("all").methods == tuple(identify.available_methods())
+    assert s.with_methods(["oe"]).methods == ("oe",)
+    with pytest.raises(ScenarioError, match="methods must"):
+        s.with_methods([])
     assert s.with_repetitions(7).repetitions == 7
     with pytest.raises(ScenarioError, match="repetitions"):
         s.with_repetitions(0)

@@ -164,11 +164,13 @@ def test_cli_sweep_lists_runs_and_plots(small, tmp_path, capsys):
     toml = tmp_path / "small.toml"
     toml.write_text(SMALL, encoding="utf-8")
     out = tmp_path / "cli"
-    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repeats", "2"]) == 0
+    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repeats", "2",
+                 "--methods", "zoh-ls,oe"]) == 0
     text = capsys.readouterr().out
-    assert "8 points x 3 methods x 2 repetitions" in text
+    assert "8 points x 2 methods x 2 repetitions" in text
     rows = read_sweep_csv(out / "sweep.csv")
     assert {r["repetitions"] for r in rows} == {2.0}
+    assert [r["method"] for r in rows[:2]] == ["zoh-ls", "oe"]
     for png in ("bias_vs_frequency.png", "heatmap_bias_a.png", "heatmap_bias_b.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -180,6 +182,8 @@ def test_cli_sweep_errors_are_messages(tmp_path, capsys):
     assert "--workers must be >= 1" in capsys.readouterr().err
     assert main(["sweep"]) == 2
     assert "sweep needs a scenario" in capsys.readouterr().err
+    assert main(["sweep", "article", "--methods", "zoh-ls,nope", "--out", str(tmp_path)]) == 2
+    assert "methods must name estimators" in capsys.readouterr().err
 
 
 def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order():
