@@ -18,6 +18,8 @@ __all__ = ["bench_simulate", "median_time"]
 _BENCHMARKS = {
     "simulate": ("scenarios.bench:bench_simulate",
                  "motorsim.simulate against control.forced_response of the same ZOH model"),
+    "sweep": ("scenarios.batch:bench_sweep",
+              "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
     "accuracy": ("scenarios.benchmarks_accuracy:bench_accuracy",
                  "oe/oe-friction against the truth on an independent integrator, Monte Carlo vs the "
                  "Cramér–Rao bound, oe fit time vs a finite-difference Jacobian"),

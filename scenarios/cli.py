@@ -34,6 +34,8 @@ _COMMANDS = {
     "identify": ("scenarios.cli", "identify a and b from recordings"),
     "demo": ("scenarios.demo", "the article's section 5 on the simulated bench"),
     "bench": ("scenarios.bench", "speed and accuracy benchmarks"),
+    "sweep": ("scenarios.sweep", "sweep scenarios: grid x estimators x Monte Carlo repetitions"),
+    "design": ("scenarios.design", "recommend the sine that minimises the Cramér-Rao bound of a and b"),
 }
 
 

@@ -8,7 +8,8 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-__all__ = ["plot_run", "plot_overlay", "plot_validation"]
+__all__ = ["plot_run", "plot_overlay", "plot_validation", "plot_sweep_frequency", "plot_sweep_heatmap",
+           "plot_design"]
 
 
 def _pyplot():
@@ -52,6 +53,120 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence, path) -> 
         ax.set_xlim(rec.time[0], end)
     axes[-1, 0].set_xlabel("time [s] (first 2 s)")
     fig.suptitle("measured vs model speed")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def _series_key(row: dict, others: Sequence[str]) -> str:
+    return ", ".join(f"{c}={row[c]:g}" if isinstance(row[c], float) else f"{c}={row[c]}" for c in others)
+
+
+def plot_sweep_frequency(rows: Sequence[dict], path, *, others: Sequence[str] = (), title: str = "",
+                         x: str = "frequency") -> Path:
+    """Bias (line) and spread (band, +-1 std) in % of the truth against sine frequency, per estimator.
+
+    ``rows`` are sweep CSV rows (``scenarios.sweep.read_sweep_csv``); one line per value of the
+    columns ``others`` (the other grid axes).  ``x`` is the column on the horizontal axis
+    (default ``frequency``; logarithmic when its values span more than a factor of 30).
+    Rows with no successful fit leave a gap.
+    """
+    plt = _pyplot()
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    fig, axes = plt.subplots(2, len(methods), figsize=(4.2 * len(methods), 6), sharex=True,
+                             constrained_layout=True, squeeze=False)
+    for j, method in enumerate(methods):
+        mine = [r for r in rows if r["method"] == method]
+        series = dict.fromkeys(_series_key(r, others) for r in mine)
+        for key in series:
+            pts = sorted((r for r in mine if _series_key(r, others) == key), key=lambda r: r[x])
+            f = np.array([r[x] for r in pts])
+            for i, name in enumerate(("a", "b")):
+                truth = np.array([r[f"true_{name}"] for r in pts])
+                bias = np.array([r[f"bias_{name}_pct"] for r in pts])
+                spread = 100 * np.array([r[f"std_{name}"] for r in pts]) / np.abs(truth)
+                spread = np.nan_to_num(spread)
+                line, = axes[i, j].plot(f, bias, marker="o", ms=3, lw=1, label=key or None)
+                axes[i, j].fill_between(f, bias - spread, bias + spread, color=line.get_color(), alpha=0.2)
+        for i, name in enumerate(("a", "b")):
+            ax = axes[i, j]
+            ax.axhline(0, color="0.5", lw=0.6)
+            ax.set_ylabel(f"bias of {name} [%]  (band: ±1 std)")
+            ax.set_title(f"{method}: {name}")
+            ax.grid(alpha=0.3)
+        axes[1, j].set_xlabel("sine frequency ω [rad/s]" if x == "frequency" else x)
+        xs = [r[x] for r in mine if r[x] > 0]
+        if xs and max(xs) > 30 * min(xs):
+            for i in range(2):
+                axes[i, j].set_xscale("log")
+        if others:
+            axes[0, j].legend(fontsize=6)
+    fig.suptitle(title or f"bias and spread against {x}")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_sweep_heatmap(rows: Sequence[dict], x: str, y: str, path, *, value: str = "bias_a_pct",
+                       title: str = "") -> Path:
+    """|``value``| over the grid axes ``x`` and ``y`` (CSV columns), one panel per estimator.
+
+    Cells without a successful fit are grey and marked "fail"; each cell shows its value.
+    """
+    plt = _pyplot()
+    from matplotlib.colors import LogNorm
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    xs = sorted({r[x] for r in rows})
+    ys = sorted({r[y] for r in rows})
+    grids = {}
+    for m in methods:
+        z = np.full((len(ys), len(xs)), np.nan)
+        for r in rows:
+            if r["method"] == m:
+                z[ys.index(r[y]), xs.index(r[x])] = abs(r[value])
+        grids[m] = z
+    finite = np.concatenate([z[np.isfinite(z) & (z > 0)] for z in grids.values()])
+    norm = LogNorm(vmin=finite.min(), vmax=finite.max()) if len(finite) else None
+    fig, axes = plt.subplots(1, len(methods), figsize=(4.6 * len(methods), 3.9), constrained_layout=True,
+                             squeeze=False)
+    for ax, m in zip(axes[0], methods):
+        z = grids[m]
+        ax.set_facecolor("0.8")
+        im = ax.imshow(np.where(z > 0, z, np.nan), origin="lower", aspect="auto", cmap="viridis", norm=norm)
+        for (i, k), v in np.ndenumerate(z):
+            ax.text(k, i, "fail" if not np.isfinite(v) else f"{v:.2g}", ha="center", va="center", fontsize=6,
+                    color="k" if not np.isfinite(v) else "w")
+        ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs], rotation=45, fontsize=7)
+        ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys], fontsize=7)
+        ax.set_xlabel(x)
+        ax.set_ylabel(y)
+        ax.set_title(m)
+    fig.colorbar(im, ax=axes[0, -1], label=f"|{value}|")
+    fig.suptitle(title or f"|{value}| over {x} × {y}")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_design(frequencies, stderr_a, stderr_b, path, *, marks: Sequence[tuple[float, str]] = (),
+                title: str = "") -> Path:
+    """Predicted (Cramér-Rao) standard errors of a and b, in %, against sine frequency.
+
+    ``marks`` are ``(frequency, label)`` pairs drawn as vertical lines (the recommendation,
+    the article's frequencies).
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    ax.loglog(frequencies, stderr_a, label="a", color="tab:blue")
+    ax.loglog(frequencies, stderr_b, label="b", color="tab:red")
+    for f, label in marks:
+        ax.axvline(f, color="0.4", lw=0.7, ls="--")
+        ax.text(f, ax.get_ylim()[1], label, rotation=90, va="top", ha="right", fontsize=7)
+    ax.set_xlabel("sine frequency ω [rad/s]")
+    ax.set_ylabel("predicted standard error [% of value]")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    ax.set_title(title or "Cramér–Rao standard error against frequency")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)

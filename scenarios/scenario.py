@@ -1,0 +1,362 @@
+"""Scenario definitions: a motor, a bench, an excitation, grids over any of them, estimators, repetitions.
+
+A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
+
+    name = "article"
+    description = "The article's four sines, with Monte Carlo spread"
+    seed = 2026
+    repetitions = 50
+    methods = "all"                 # or a list of names from identify.available_methods()
+
+    [motor]                         # Motor: a, b, friction, bias, dead_zone, input_delay
+    a = 25.0
+    b = 3.0
+
+    [bench]                         # sample_period, counts_per_rev, angle_noise, jitter,
+    sample_period = 0.005           # drop_rate, duration, duty_limit, initial_speed
+    counts_per_rev = 16667
+    duration = 10.0
+
+    [excitation]                    # a sine (frequency rad/s, amplitude, phase rad, offset)
+    frequency = 10.0                # or spec = "prbs:200,-200,10" (any motorsim excitation)
+    amplitude = 200
+
+    [grid]                          # "section.key" = [values]: the Cartesian product is swept
+    "excitation.frequency" = [10, 20, 30, 40]
+    "bench.angle_noise" = [0.0, 2e-4]
+
+Every grid point is a complete :class:`Setting`.  Unknown keys, sections or grid
+axes are errors that name the key.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import os
+import sys
+from importlib import resources
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+
+from motorsim.excitation import Excitation, Sine, parse_excitation
+from motorsim.plant import Motor
+from motorsim.rig import Experiment, SimRig
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+__all__ = ["Setting", "GridPoint", "Scenario", "load_scenario", "builtin_scenarios", "ScenarioError",
+           "SETTING_KEYS", "scenario_from_dict"]
+
+
+class ScenarioError(ValueError):
+    """A scenario file or definition breaks a rule (the message names the key)."""
+
+
+#: section -> keys a scenario may set (and sweep as ``"section.key"``).
+SETTING_KEYS: dict[str, tuple[str, ...]] = {
+    "motor": ("a", "b", "friction", "bias", "dead_zone", "input_delay"),
+    "bench": ("sample_period", "counts_per_rev", "angle_noise", "jitter", "drop_rate", "duration",
+              "duty_limit", "initial_speed"),
+    "excitation": ("spec", "frequency", "amplitude", "phase", "offset"),
+}
+_TOP_KEYS = ("name", "description", "seed", "repetitions", "methods", "motor", "bench", "excitation", "grid")
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """Everything that defines one simulated experiment (one grid point).
+
+    Parameters
+    ----------
+    a, b, friction, bias, dead_zone, input_delay
+        The :class:`~motorsim.plant.Motor` (1/s, (rad/s^2)/duty, rad/s^2, rad/s^2, duty, samples).
+    sample_period : float
+        s.
+    counts_per_rev : int
+        Encoder resolution.
+    angle_noise : float
+        Standard deviation of the angle noise before the encoder floors it, rad.
+    jitter, drop_rate : float
+        Timing jitter (fraction of the sample period) and probability of a lost sample.
+    duration : float
+        s per run.
+    duty_limit : int
+        Duty clamp.
+    initial_speed : float
+        rad/s at the first sample.
+    excitation : str
+        The excitation in :func:`motorsim.excitation.parse_excitation` form (``sine:10,200,0``).
+    """
+
+    a: float = 25.0
+    b: float = 3.0
+    friction: float = 0.0
+    bias: float = 0.0
+    dead_zone: float = 0.0
+    input_delay: int = 0
+    sample_period: float = 0.005
+    counts_per_rev: int = DEFAULT_COUNTS_PER_REV
+    angle_noise: float = 0.0
+    jitter: float = 0.0
+    drop_rate: float = 0.0
+    duration: float = 10.0
+    duty_limit: int = 255
+    initial_speed: float = 0.0
+    excitation: str = "sine:10.0,200,0.0"
+
+    def __post_init__(self):
+        # Validate by building every object once; their messages name the parameter.
+        self.sim_rig(np.random.default_rng(0) if self.needs_rng else None)
+        self.experiment()
+
+    @property
+    def needs_rng(self) -> bool:
+        """True when runs differ (noise, jitter or drops), so repetitions are Monte Carlo draws."""
+        return self.angle_noise > 0 or self.jitter > 0 or self.drop_rate > 0
+
+    def motor(self) -> Motor:
+        """The plant."""
+        return Motor(self.a, self.b, friction=self.friction, bias=self.bias, dead_zone=self.dead_zone,
+                     input_delay=self.input_delay)
+
+    def encoder(self) -> Encoder:
+        """The encoder (offset 0)."""
+        return Encoder(self.counts_per_rev, angle_noise=self.angle_noise)
+
+    def excitation_object(self) -> Excitation:
+        """The excitation."""
+        return parse_excitation(self.excitation)
+
+    def experiment(self) -> Experiment:
+        """The :class:`~motorsim.rig.Experiment` every repetition runs."""
+        return Experiment(self.excitation_object(), self.sample_period, self.duration, self.duty_limit)
+
+    def sim_rig(self, rng) -> SimRig:
+        """The simulated bench of this setting with the generator ``rng``."""
+        return SimRig(self.motor(), self.encoder(), jitter=self.jitter, drop_rate=self.drop_rate,
+                      initial_speed=self.initial_speed, rng=rng)
+
+    @property
+    def frequency(self) -> float:
+        """Frequency in rad/s of a single sine, else nan."""
+        exc = self.excitation_object()
+        freqs = getattr(exc, "frequencies", ())
+        return float(freqs[0]) if len(freqs) == 1 else math.nan
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per run."""
+        return self.experiment().n_samples
+
+
+@dataclasses.dataclass(frozen=True)
+class GridPoint:
+    """One point of a scenario's grid.
+
+    Attributes
+    ----------
+    index : int
+        Position in the grid (row-major over the axes in file order); also its seed index.
+    values : tuple of (str, value)
+        The grid axes' values at this point, e.g. ``(("excitation.frequency", 10.0),)``.
+    setting : Setting
+        The complete setting.
+    """
+
+    index: int
+    values: tuple
+    setting: Setting
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """A sweep: a base setting, grid axes, the estimators, repetitions and a seed.
+
+    Attributes
+    ----------
+    name, description : str
+    base : Mapping of str to value
+        ``"section.key" -> value`` for every key given outside the grid.
+    grid : tuple of (str, tuple)
+        Axes in file order, each ``("section.key", values)``.
+    methods : tuple of str
+        Estimator names (``identify.available_methods()`` when the file says ``"all"``).
+    repetitions : int
+        Monte Carlo repetitions per grid point, >= 1.
+    seed : int
+        Root of ``numpy.random.SeedSequence``, >= 0.
+    """
+
+    name: str
+    description: str
+    base: Mapping
+    grid: tuple
+    methods: tuple
+    repetitions: int
+    seed: int
+
+    @property
+    def n_points(self) -> int:
+        """Number of grid points."""
+        return math.prod(len(v) for _, v in self.grid)
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """Grid axis names (``"section.key"``)."""
+        return tuple(k for k, _ in self.grid)
+
+    def with_repetitions(self, repetitions: int) -> "Scenario":
+        """The same scenario with another number of repetitions."""
+        return dataclasses.replace(self, repetitions=_check_count("repetitions", repetitions))
+
+    def with_methods(self, methods) -> "Scenario":
+        """The same scenario comparing other estimators (``"all"`` or a sequence of names)."""
+        return dataclasses.replace(self, methods=_check_methods(methods))
+
+    def points(self) -> Iterator[GridPoint]:
+        """The grid points, lazily, in row-major order over the axes."""
+        names = self.axes
+        for i, combo in enumerate(itertools.product(*(v for _, v in self.grid))):
+            values = dict(self.base)
+            values.update(zip(names, combo))
+            yield GridPoint(i, tuple(zip(names, combo)), _setting(values))
+
+    def total_samples(self) -> int:
+        """Samples simulated by the whole sweep."""
+        return sum(p.setting.n_samples for p in self.points()) * self.repetitions
+
+
+def _check_count(name: str, value, lo: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise ScenarioError(f"{name} must be an integer >= {lo}, got {value!r}")
+    return value
+
+
+def _check_methods(methods) -> tuple[str, ...]:
+    from identify import available_methods
+    if methods == "all":
+        return tuple(available_methods())
+    if isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not methods:
+        raise ScenarioError(f"methods must be \"all\" or a non-empty list of names, got {methods!r}")
+    for m in methods:
+        if m not in available_methods():
+            raise ScenarioError(f"methods must name estimators among {available_methods()}, got {m!r}")
+    return tuple(methods)
+
+
+def _setting(values: Mapping) -> Setting:
+    """Build a Setting from ``"section.key" -> value``; a sine's fields become its spec."""
+    kw = {}
+    sine = {"frequency": 10.0, "amplitude": 200, "phase": 0.0, "offset": 0}
+    has_sine_keys = False
+    spec = None
+    for key, value in values.items():
+        section, _, name = key.partition(".")
+        if section == "excitation":
+            if name == "spec":
+                spec = value
+            else:
+                sine[name] = value
+                has_sine_keys = True
+        else:
+            kw[name] = value
+    if spec is not None and has_sine_keys:
+        raise ScenarioError("excitation must give either spec or sine fields (frequency, amplitude, phase, "
+                            f"offset), not both; got spec = {spec!r} and {sorted(k for k in sine)}")
+    if spec is None:
+        try:
+            spec = Sine(sine["frequency"], sine["amplitude"], sine["phase"], sine["offset"]).describe()
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"excitation: {exc}") from None
+    kw["excitation"] = spec
+    try:
+        return Setting(**kw)
+    except (TypeError, ValueError) as exc:
+        where = ", ".join(f"{k} = {v!r}" for k, v in values.items() if not k.startswith("excitation"))
+        raise ScenarioError(f"{exc} (in the setting {where})") from None
+
+
+def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario:
+    """Build and validate a :class:`Scenario` from parsed TOML (see the module docstring)."""
+    def fail(msg):
+        raise ScenarioError(f"{source}: {msg}")
+
+    for key in data:
+        if key not in _TOP_KEYS:
+            fail(f"unknown key {key!r}; allowed: {list(_TOP_KEYS)}")
+    base: dict = {}
+    for section, keys in SETTING_KEYS.items():
+        table = data.get(section, {})
+        if not isinstance(table, Mapping):
+            fail(f"[{section}] must be a table, got {table!r}")
+        for k, v in table.items():
+            if k not in keys:
+                fail(f"unknown key {section}.{k}; allowed: {list(keys)}")
+            base[f"{section}.{k}"] = v
+    grid_table = data.get("grid", {})
+    if not isinstance(grid_table, Mapping):
+        fail(f"[grid] must be a table, got {grid_table!r}")
+    grid = []
+    for axis, values in grid_table.items():
+        section, _, k = axis.partition(".")
+        if k not in SETTING_KEYS.get(section, ()):
+            fail(f"grid axis {axis!r} must be section.key with a key of "
+                 + "; ".join(f"[{s}] {list(ks)}" for s, ks in SETTING_KEYS.items()))
+        if isinstance(values, (str, bytes)) or not isinstance(values, (list, tuple)) or not values:
+            fail(f"grid axis {axis!r} must be a non-empty list of values, got {values!r}")
+        base.pop(axis, None)
+        grid.append((axis, tuple(values)))
+    try:
+        methods = _check_methods(data.get("methods", "all"))
+        reps = _check_count("repetitions", data.get("repetitions", 10))
+        seed = _check_count("seed", data.get("seed", 0), lo=0)
+    except ScenarioError as exc:
+        fail(str(exc))
+    scenario = Scenario(name=str(data.get("name", Path(source).stem)), description=str(data.get("description", "")),
+                        base=base, grid=tuple(grid), methods=tuple(methods), repetitions=reps, seed=seed)
+    try:
+        for _ in scenario.points():  # validate every point now, not hours into the sweep
+            pass
+    except ScenarioError as exc:
+        fail(str(exc))
+    return scenario
+
+
+def _builtin_dir():
+    return resources.files("scenarios").joinpath("builtin")
+
+
+def builtin_scenarios() -> dict[str, str]:
+    """Built-in scenario names and their one-line descriptions."""
+    out = {}
+    for entry in sorted(_builtin_dir().iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".toml"):
+            data = tomllib.loads(entry.read_text(encoding="utf-8"))
+            out[entry.name[:-5]] = str(data.get("description", ""))
+    return out
+
+
+def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
+    """A built-in scenario by name (``article``, ...) or a TOML file by path."""
+    text = str(name_or_path)
+    builtin = _builtin_dir().joinpath(f"{text}.toml")
+    if not text.endswith(".toml") and builtin.is_file():
+        source, raw = f"builtin:{text}", builtin.read_text(encoding="utf-8")
+    else:
+        path = Path(text)
+        if not path.is_file():
+            raise ScenarioError(f"scenario must be a built-in name {sorted(builtin_scenarios())} or an existing "
+                                f".toml file, got {text!r}")
+        source, raw = str(path), path.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(raw)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
+    return scenario_from_dict(data, source=source)

@@ -1,0 +1,64 @@
+"""Experiment design: the recommendation minimises the Cramér-Rao criterion it reports."""
+import json
+
+import numpy as np
+import pytest
+
+from identify.uncertainty import cramer_rao_bound
+from motorsim import Sine
+from scenarios.cli import main
+from scenarios.design import design_sine, predicted_stderr
+
+
+@pytest.fixture(scope="module")
+def design():
+    return design_sine(25.0, 3.0, 0.005, counts_per_rev=1024, angle_noise=1e-3, duration=4.0, n_frequencies=16)
+
+
+def test_prediction_is_the_bound_of_the_bench_sine():
+    p = predicted_stderr(25.0, 3.0, 20.0, 150, 0.005, 2.0, counts_per_rev=1024, angle_noise=1e-3)
+    ref = cramer_rao_bound(25.0, 3.0, Sine(20.0, 150).duty(400, 0.005), 0.005, counts_per_rev=1024,
+                           angle_noise=1e-3).stderr()
+    assert (p.stderr_a, p.stderr_b) == (ref["a"], ref["b"])
+
+
+def test_recommendation_beats_every_scanned_sine_and_the_articles(design):
+    best = design.best.criterion
+    assert all(best <= p.criterion for p in (*design.scan, *design.amplitudes, *design.article))
+    freqs = [p.frequency for p in design.scan]
+    assert freqs == sorted(freqs)
+    assert freqs[0] == pytest.approx(2 * 2 * np.pi / 4.0) and freqs[-1] == pytest.approx(0.8 * np.pi / 0.005)
+    assert [p.frequency for p in design.article] == [10.0, 20.0, 30.0, 40.0]
+
+
+def test_largest_amplitude_wins_because_the_bound_scales_as_one_over_amplitude(design):
+    # Fixed noise, linear model: the standard errors scale as 1/A (to the integer rounding
+    # of the duty, well under 1 % at these amplitudes).
+    by_amp = {p.amplitude: p for p in design.amplitudes}
+    assert design.best.amplitude == 255 == max(by_amp)
+    lo, hi = by_amp[min(by_amp)], by_amp[255]
+    assert lo.stderr_a / hi.stderr_a == pytest.approx(255 / lo.amplitude, rel=0.01)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"sample_period": 0.0}, "sample_period"), ({"a": -1.0}, "a must be > 0"), ({"b": 0.0}, "b must be nonzero"),
+    ({"duration": 0.05}, "duration"), ({"duty_limit": 300}, "duty_limit"), ({"angle_noise": -1.0}, "angle_noise"),
+], ids=["sample-period", "a", "b", "duration", "duty-limit", "noise"])
+def test_bad_input_names_the_parameter(kwargs, match):
+    args = dict(a=25.0, b=3.0, sample_period=0.005)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        design_sine(**args)
+
+
+def test_cli_design_prints_the_comparison_and_writes_json_and_png(tmp_path, capsys):
+    out = tmp_path / "d"
+    assert main(["design", "--a", "25", "--b", "3", "--sample-period", "0.005", "--counts-per-rev", "1024",
+                 "--noise", "1e-3", "--duration", "4", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "recommended:" in text and "200 sin(40 t)" in text
+    data = json.loads((out / "design.json").read_text(encoding="utf-8"))
+    assert data["best"]["amplitude"] == 255
+    assert (out / "design.png").read_bytes()[:4] == b"\x89PNG"
+    assert main(["design", "--a", "25", "--b", "3", "--sample-period", "-1", "--counts-per-rev", "1024"]) == 2
+    assert "sample_period" in capsys.readouterr().err
