@@ -25,6 +25,7 @@ the same counts.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from typing import Callable
@@ -34,7 +35,7 @@ from scipy.signal import lfilter
 
 from motorsim.plant import Motor, _delayed, zoh_matrices
 
-__all__ = ["BatchFits", "BATCHED_METHODS", "simulate_batch", "encoder_counts_batch", "speed_batch",
+__all__ = ["MethodOutcome", "BATCHED_METHODS", "simulate_batch", "encoder_counts_batch", "speed_batch",
            "regression_batch", "fit_batch", "is_batchable", "bench_sweep"]
 
 
@@ -143,17 +144,17 @@ def speed_batch(counts: np.ndarray, counts_per_rev: int, sample_period: float) -
 
 
 @dataclasses.dataclass(frozen=True)
-class BatchFits:
-    """Per-repetition results of one batched estimator.
+class MethodOutcome:
+    """One estimator's results over the repetitions of one grid point.
 
     Attributes
     ----------
     method : str
         Estimator name.
     a, b : ndarray, shape (repetitions,)
-        Estimates (``nan`` where the fit failed).
+        Estimates, ``nan`` where the fit failed.
     failure : tuple of str
-        Empty string where the fit succeeded, else the reason it failed.
+        ``''`` where the fit succeeded, else why it failed.
     """
 
     method: str
@@ -163,8 +164,26 @@ class BatchFits:
 
     @property
     def n_failed(self) -> int:
-        """How many repetitions failed."""
+        """Failed repetitions."""
         return sum(1 for f in self.failure if f)
+
+    def failure_summary(self, top: int = 3) -> str:
+        """The most common reasons with their counts, ``reason (n) | ...``."""
+        counts = collections.Counter(f for f in self.failure if f)
+        return " | ".join(f"{reason} ({n})" for reason, n in counts.most_common(top))
+
+    def statistics(self, name: str, truth: float) -> dict[str, float]:
+        """Mean, bias in % of ``truth``, standard deviation (ddof 1) and RMSE of parameter ``name``."""
+        x = getattr(self, name)
+        x = x[np.isfinite(x)]
+        if len(x) == 0:
+            return {"mean": math.nan, "bias_pct": math.nan, "std": math.nan, "rmse": math.nan}
+        # Deviations from the first value first, so identical repetitions give a std of exactly 0.
+        d = x - x[0]
+        mean = float(x[0] + np.mean(d))
+        return {"mean": mean, "bias_pct": 100.0 * (mean - truth) / truth,
+                "std": float(np.std(d, ddof=1)) if len(x) > 1 else math.nan,
+                "rmse": float(np.sqrt(np.mean((x - truth) ** 2)))}
 
 
 def regression_batch(speed: np.ndarray, duty: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
@@ -250,7 +269,7 @@ BATCHED_METHODS: dict[str, Callable] = {
 }
 
 
-def fit_batch(methods, speed: np.ndarray, duty: np.ndarray, sample_period: float) -> dict[str, BatchFits]:
+def fit_batch(methods, speed: np.ndarray, duty: np.ndarray, sample_period: float) -> dict[str, MethodOutcome]:
     """Fit every row with each batched method in ``methods`` (one shared regression).
 
     Parameters
@@ -271,7 +290,7 @@ def fit_batch(methods, speed: np.ndarray, duty: np.ndarray, sample_period: float
     out = {}
     for m in methods:
         a, b, reasons = BATCHED_METHODS[m](theta1, theta2, sample_period, failure)
-        out[m] = BatchFits(m, a, b, tuple(reasons))
+        out[m] = MethodOutcome(m, a, b, tuple(reasons))
     return out
 
 

@@ -40,7 +40,8 @@ from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from motorsim.recording import Recording
 
-from .batch import BATCHED_METHODS, encoder_counts_batch, fit_batch, is_batchable, simulate_batch, speed_batch
+from .batch import (BATCHED_METHODS, MethodOutcome, encoder_counts_batch, fit_batch, is_batchable,
+                    simulate_batch, speed_batch)
 from .progress import ProgressBar
 from .scenario import GridPoint, Scenario, Setting
 
@@ -74,48 +75,6 @@ def axis_column(axis: str) -> str:
 def repetition_seed(seed: int, point: int, repetition: int) -> np.random.SeedSequence:
     """The seed of one repetition: ``SeedSequence(seed).spawn(...)[point].spawn(...)[repetition]``."""
     return np.random.SeedSequence(seed, spawn_key=(point, repetition))
-
-
-@dataclasses.dataclass(frozen=True)
-class MethodOutcome:
-    """One estimator's results over the repetitions of one grid point.
-
-    Attributes
-    ----------
-    method : str
-    a, b : ndarray, shape (repetitions,)
-        Estimates, ``nan`` where the fit failed.
-    failure : tuple of str
-        ``''`` where the fit succeeded, else why it failed.
-    """
-
-    method: str
-    a: np.ndarray
-    b: np.ndarray
-    failure: tuple
-
-    @property
-    def n_failed(self) -> int:
-        """Failed repetitions."""
-        return sum(1 for f in self.failure if f)
-
-    def failure_summary(self, top: int = 3) -> str:
-        """The most common reasons with their counts, ``reason (n) | ...``."""
-        counts = collections.Counter(f for f in self.failure if f)
-        return " | ".join(f"{reason} ({n})" for reason, n in counts.most_common(top))
-
-    def statistics(self, name: str, truth: float) -> dict[str, float]:
-        """Mean, bias in % of ``truth``, standard deviation (ddof 1) and RMSE of parameter ``name``."""
-        x = getattr(self, name)
-        x = x[np.isfinite(x)]
-        if len(x) == 0:
-            return {"mean": math.nan, "bias_pct": math.nan, "std": math.nan, "rmse": math.nan}
-        # Deviations from the first value first, so identical repetitions give a std of exactly 0.
-        d = x - x[0]
-        mean = float(x[0] + np.mean(d))
-        return {"mean": mean, "bias_pct": 100.0 * (mean - truth) / truth,
-                "std": float(np.std(d, ddof=1)) if len(x) > 1 else math.nan,
-                "rmse": float(np.sqrt(np.mean((x - truth) ** 2)))}
 
 
 @dataclasses.dataclass(frozen=True)
