@@ -124,7 +124,11 @@ class SerialRig:
         return self.port if isinstance(self.port, str) else str(getattr(self.port, "name", "<port object>"))
 
     def open(self) -> None:
-        """Open the port and shake hands (HELLO every 0.2 s until HELLO_ACK); idempotent."""
+        """Open the port and shake hands (HELLO every 0.2 s until HELLO_ACK); idempotent.
+
+        A device still running an earlier session's experiment NAKs HELLO as BUSY; it is
+        sent STOP and asked again.
+        """
         if self._port is not None:
             return
         stack = contextlib.ExitStack()
@@ -188,6 +192,9 @@ class SerialRig:
                     P.check_version(msg.version)
                     self.device = msg
                     return
+                if isinstance(msg, P.Nak) and msg.refused_type == P.MsgType.HELLO and msg.reason == P.NakReason.BUSY:
+                    self._write(P.Stop())   # a run left over from an earlier session: stop it, then retry
+                    next_hello = time.monotonic()
             if time.monotonic() - start > self.hello_timeout:
                 raise RigTimeoutError(
                     f"the device on {self.port_name} never answered HELLO ({sent} sent over "

@@ -289,3 +289,17 @@ def test_fake_url_opens_a_running_device():
 def test_serial_rig_rejects_bad_settings_naming_them(kwargs, name):
     with pytest.raises(ValueError, match=name):
         SerialRig("loop://", **kwargs)
+
+
+def test_a_run_left_over_from_an_earlier_session_is_stopped_at_hello():
+    # An earlier host started a long run without a watchdog and vanished; the new host's HELLO is
+    # NAKed BUSY, so it sends STOP and shakes hands.
+    with _fake(speed=1.0) as dev:
+        with serial.Serial(dev.port_name, timeout=0.05) as port:
+            for seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
+                port.write(P.encode_message(msg, seq))
+            _wait_for(lambda: dev.runs_started == 1, "the first session's run")
+        with SerialRig(dev.port_name) as rig:
+            assert rig.device is not None
+            assert dev.stops_received == 1 and dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
+            assert len(rig.run(Experiment(Sine(10.0), 0.005, 0.1))) == 20
