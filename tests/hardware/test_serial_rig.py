@@ -241,13 +241,17 @@ def test_the_fake_device_answers_busy_and_unknown_types():
         for seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
             port.write(P.encode_message(msg, seq))
         port.write(P.encode_frame(0x30, 4))
-        port.write(P.encode_message(P.Stop(), 5))
+        port.write(P.encode_frame(P.MsgType.WAVE, 5, b"\x07\x00"))
+        port.write(P.encode_frame(P.MsgType.STOP, 6, b"\x00"))
+        port.write(P.encode_message(P.Stop(), 7))
         got = []
         deadline = time.monotonic() + 2.0
         while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
             got += [m for _, m in reader.feed(port.read(256))]
     assert P.Nak(P.MsgType.HELLO, 3, P.NakReason.BUSY) in got
     assert P.Nak(0x30, 4, P.NakReason.UNKNOWN_TYPE) in got
+    assert P.Nak(P.MsgType.WAVE, 5, P.NakReason.BAD_VALUE) in got
+    assert P.Nak(P.MsgType.STOP, 6, P.NakReason.BAD_LENGTH) in got
     assert got[-1].reason == P.EndReason.STOPPED_BY_HOST
 
 
