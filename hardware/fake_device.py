@@ -195,8 +195,10 @@ class FakeDevice:
     def __enter__(self) -> "FakeDevice":
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
         self.close()
+        if self.error is not None and exc_type is None:
+            raise RuntimeError(f"the fake device's thread failed: {self.error!r}") from self.error
 
     # -------------------------------------------------------------- the firmware
     def _main(self) -> None:
