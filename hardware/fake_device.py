@@ -19,6 +19,8 @@ What it emulates, as the firmware does it
   (``samples_dropped``, FAULT 2 the first time), never overwritten.
 - Absolute encoder counts from boot; END with the device's counters.
 
+POSIX only (Linux, macOS): it needs ``os.openpty``.
+
 Time: ``speed`` scales the device clock against the wall clock (1 = real time);
 ``speed=0`` ticks as fast as the host reads, losslessly (for tests).
 
@@ -32,15 +34,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
-import fcntl
 import math
 import os
 import select
 import sys
-import termios
 import threading
 import time
-import tty
 import urllib.parse
 from typing import Iterator
 
@@ -177,6 +176,7 @@ class FakeDevice:
         """Open the pty and start the device thread; returns ``self``."""
         if self._thread is not None:
             raise RuntimeError("this FakeDevice is already started")
+        import tty   # POSIX only: imported here so that `import hardware` works on Windows
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
         tty.setraw(self._slave)
@@ -398,6 +398,8 @@ class FakeDevice:
 
     def _unread_bytes(self) -> int:
         """Bytes written to the pty that the host has not read yet (FIONREAD on the slave end)."""
+        import fcntl
+        import termios
         try:
             buf = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
         except OSError:
