@@ -229,6 +229,7 @@ class FakeDevice:
             self._drain_input(discard=True)
         self._send(P.Boot(self.faults.version, 1))
         self._last_rx = time.monotonic()
+        loop_end = time.monotonic()
         while not self._stop_event.is_set() and not self._link_down:
             now = time.monotonic()
             timeout = 0.02
@@ -240,12 +241,18 @@ class FakeDevice:
                 r, w, _ = select.select([self._master], wlist, [], timeout)
             except (OSError, ValueError):
                 return
+            # Time this thread was not running (the emulator starved of CPU, not the host silent)
+            # does not count towards the host-silence watchdog: a real device never stalls like that.
+            stalled = (time.monotonic() - loop_end) - timeout
+            if stalled > 0.05:
+                self._last_rx += stalled
             if r:
                 self._drain_input()
             if self._running:
                 self._ticks(time.monotonic())
             self._flush()
             self._check_watchdog(time.monotonic())
+            loop_end = time.monotonic()
 
     def _drain_input(self, discard: bool = False) -> None:
         try:

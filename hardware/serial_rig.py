@@ -279,10 +279,15 @@ class SerialRig:
             self._command(P.Start())
             hb_interval = self.watchdog_ms / 4000 if self.watchdog_ms else None
             next_hb = time.monotonic() + (hb_interval or 0)
-            last_rx = time.monotonic()
+            last_rx = loop_end = time.monotonic()
             while run.end is None:
                 msgs = self._read()
                 now = time.monotonic()
+                # An iteration far longer than a read timeout means this process was not running
+                # (or a callback was slow): that is not the device's silence.
+                if now - loop_end > 0.25:
+                    last_rx += now - loop_end - _READ_TIMEOUT
+                loop_end = now
                 if msgs:
                     last_rx = now
                     run.accept(msgs, on_sample)
@@ -295,6 +300,7 @@ class SerialRig:
                 if hb_interval is not None and now >= next_hb and run.end is None:
                     self._write(P.Heartbeat())
                     next_hb = now + hb_interval
+                loop_end = time.monotonic()
             ended = True
             rec = run.recording(self, complete=True)
             problems = run.check()
