@@ -76,3 +76,11 @@ def test_an_unavailable_port_scheme_is_a_clear_error(tmp_path, capsys, monkeypat
     monkeypatch.setitem(ports._SCHEMES, "avr-sim", "hardware.no_such_module:open_it")
     status, _ = _live(tmp_path, "avr-sim://uno", "--duration", "1")
     assert status == 2 and "avr-sim:// is not available" in capsys.readouterr().err
+
+
+def test_plot_without_a_display_updates_a_png_next_to_the_recording(tmp_path, monkeypatch):
+    for var in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(var, raising=False)
+    status, out = _live(tmp_path, "fake://?speed=0", "--duration", "1", "--plot")
+    png = tmp_path / "run.csv.live.png"
+    assert status == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
