@@ -302,13 +302,12 @@ class SerialRig:
                     next_hb = now + hb_interval
                 loop_end = time.monotonic()
             ended = True
-            rec = run.recording(self, complete=True)
-            problems = run.check()
             if run.end.reason != P.EndReason.COMPLETE:
                 raise DeviceFaultError(f"the device ended the run early: {run.describe_end()}")
+            problems = run.check()
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
-            return rec
+            return run.recording(self, complete=True)
         except Exception as exc:
             if isinstance(exc, RigError) and exc.recording is None:
                 exc.with_recording(run.recording(self, complete=False, reason=str(exc)) if run.n else None)
