@@ -1,9 +1,8 @@
 """``motorid live`` on the emulated Arduino: results, incremental recording, faults, Ctrl-C."""
 from __future__ import annotations
 
-import json
-import threading
 import _thread
+import json
 
 import pytest
 
@@ -53,16 +52,21 @@ def test_a_fault_mid_run_leaves_a_valid_incomplete_recording(tmp_path, capsys):
     assert "RigDisconnectedError" in rec.metadata["incomplete_reason"]
 
 
-def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys):
-    timer = threading.Timer(0.6, _thread.interrupt_main)
-    timer.start()
-    try:
-        status, out = _live(tmp_path, "fake://?speed=1", "--duration", "5")
-    finally:
-        timer.cancel()
+def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys, monkeypatch):
+    # Ctrl-C arrives as an asynchronous KeyboardInterrupt in the main thread; send it (as the
+    # terminal would) once sample 100 has arrived.
+    from identify.recursive import RunningEstimator
+    add = RunningEstimator.add
+
+    def add_then_interrupt(self, seq, *args):
+        add(self, seq, *args)
+        if seq == 100:
+            _thread.interrupt_main()
+    monkeypatch.setattr(RunningEstimator, "add", add_then_interrupt)
+    status, out = _live(tmp_path, "fake://?speed=1", "--duration", "5")
     assert status == 130
     rec = read_recording(out)
-    assert 10 < len(rec) < 1000 and rec.metadata["complete"] == "false"
+    assert 100 < len(rec) < 1000 and rec.metadata["complete"] == "false"
     assert rec.metadata["incomplete_reason"] == "interrupted (Ctrl-C)"
 
 
