@@ -83,7 +83,7 @@ class LivePlot:
         self._rad_per_count = None
         self._t, self._u, self._w = [], [], []
         self._prev = None
-        self._estimate = None
+        self._running = None
         if self.window:
             plt.ion()
         self.fig, self.ax = plt.subplots(figsize=(8, 3.6), constrained_layout=True)
@@ -98,8 +98,8 @@ class LivePlot:
         self.ax2.set_ylabel("ω [rad/s]", color="tab:red")
         self._counts_per_rev = None
 
-    def add(self, sample, estimate, counts_per_rev: int | None = None) -> None:
-        """Add one sample (``seq, time_s, duty, counts``) and the current running estimate."""
+    def add(self, sample, running, counts_per_rev: int | None = None) -> None:
+        """Add one sample (``seq, time_s, duty, counts``); ``running.estimate()`` is asked at redraws."""
         rad = 2 * math.pi / (counts_per_rev or 16667)
         w = math.nan
         if self._prev is not None and sample.seq == self._prev.seq + 1:
@@ -108,7 +108,7 @@ class LivePlot:
         self._t.append(sample.time_s)
         self._u.append(sample.duty)
         self._w.append(w)
-        self._estimate = estimate
+        self._running = running
         if time.monotonic() >= self._next:
             self._draw()
 
@@ -121,9 +121,9 @@ class LivePlot:
             lo, hi = min(finite), max(finite)
             pad = 0.05 * (hi - lo) or 1.0
             self.ax2.set_ylim(lo - pad, hi + pad)
-        e = self._estimate
+        e = self._running.estimate() if self._running is not None else None
         if e is not None and e.ready:
-            self.ax.set_title(f"running {e.model} RLS: a ≈ {e.a:.4g} 1/s, b ≈ {e.b:.4g}  ({e.n_rows} rows)")
+            self.ax.set_title(f"running {e.model}: a ≈ {e.a:.4g} 1/s, b ≈ {e.b:.4g}  ({e.n_rows} rows)")
         if self.window:
             self.fig.canvas.draw_idle()
             self._plt.pause(0.001)
