@@ -85,7 +85,7 @@ def run_live(args: argparse.Namespace) -> int:
     plot = None
     if args.plot:
         from .plots import LivePlot
-        plot = LivePlot(experiment, fallback_path=f"{args.out}.live.png")
+        plot = LivePlot(experiment, counts_per_rev=args.counts_per_rev, fallback_path=f"{args.out}.live.png")
     writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
                              metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
 
@@ -94,7 +94,7 @@ def run_live(args: argparse.Namespace) -> int:
         running.add(s.seq, s.time_s, s.duty, s.counts)
         progress.show(s.seq, running)
         if plot is not None:
-            plot.add(s, running, args.counts_per_rev)
+            plot.add(s, running)
 
     try:
         with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,

@@ -69,8 +69,9 @@ class LivePlot:
     ``interval`` s so plotting never holds up the serial reader for long.
     """
 
-    def __init__(self, experiment, *, fallback_path, interval: float = 0.5):
+    def __init__(self, experiment, *, counts_per_rev: int, fallback_path, interval: float = 0.5):
         import matplotlib
+        self._rad_per_count = 2 * math.pi / counts_per_rev
         self.window = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
                            or sys.platform in ("win32", "darwin"))
         if not self.window:
@@ -80,7 +81,6 @@ class LivePlot:
         self._path = Path(fallback_path)
         self._interval = float(interval) if self.window else max(float(interval), 1.0)   # PNGs are slow
         self._next = 0.0
-        self._rad_per_count = None
         self._t, self._u, self._w = [], [], []
         self._prev = None
         self._running = None
@@ -96,11 +96,10 @@ class LivePlot:
         self.ax.set_xlabel("time [s]")
         self.ax.set_ylabel("duty η", color="tab:blue")
         self.ax2.set_ylabel("ω [rad/s]", color="tab:red")
-        self._counts_per_rev = None
 
-    def add(self, sample, running, counts_per_rev: int | None = None) -> None:
+    def add(self, sample, running) -> None:
         """Add one sample (``seq, time_s, duty, counts``); ``running.estimate()`` is asked at redraws."""
-        rad = 2 * math.pi / (counts_per_rev or 16667)
+        rad = self._rad_per_count
         w = math.nan
         if self._prev is not None and sample.seq == self._prev.seq + 1:
             w = (sample.counts - self._prev.counts) * rad / (sample.time_s - self._prev.time_s)
