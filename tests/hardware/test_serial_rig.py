@@ -234,6 +234,19 @@ def test_a_duty_other_than_the_waves_is_caught(monkeypatch):
         rig.run(EXPERIMENT)
 
 
+def test_the_fake_device_counts_an_overlong_frame_once_and_resynchronises():
+    reader = P.FrameReader()
+    with _fake() as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
+        port.write(b"\x01" * 70)
+        time.sleep(0.05)
+        port.write(b"\x01" * 70 + b"\x00" + P.encode_message(P.Hello(), 0))
+        got = []
+        deadline = time.monotonic() + 2.0
+        while not any(isinstance(m, P.HelloAck) for m in got) and time.monotonic() < deadline:
+            got += [m for _, m in reader.feed(port.read(256))]
+        assert any(isinstance(m, P.HelloAck) for m in got) and dev.rx_errors == 1
+
+
 def test_the_fake_device_answers_busy_and_unknown_types():
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
