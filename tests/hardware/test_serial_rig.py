@@ -366,3 +366,10 @@ def test_a_lost_start_ack_still_starts_the_run_once(experiment, speed):
     assert len(rec) == experiment.n_samples and not rec.has_gaps
     # the lost ACK is one frame lost on the link, so the host's count shows it
     assert rec.metadata["host_link_frames_lost"] == "1"
+
+
+def test_a_sample_rate_the_line_cannot_carry_is_refused_before_anything_is_sent():
+    # 1 kHz of 21-byte frames is 210 000 baud: more than 115 200 can carry, so drops would be certain.
+    with pytest.raises(ValueError, match=r"210000 baud.*baudrate 115200"):
+        SerialRig("loop://", 115_200).run(Experiment(Sine(10.0), 0.001, 1.0))
+    assert SerialRig("loop://", 250_000).line_load(0.002) == pytest.approx(0.42)   # the README's 42 %
