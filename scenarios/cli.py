@@ -36,6 +36,7 @@ _COMMANDS = {
     "bench": ("scenarios.bench", "speed and accuracy benchmarks"),
     "sweep": ("scenarios.sweep", "sweep scenarios: grid x estimators x Monte Carlo repetitions"),
     "design": ("scenarios.design", "recommend the sine that minimises the Cramér-Rao bound of a and b"),
+    "live": ("scenarios.live", "run an experiment on the bench (or 'fake://'), record it live, identify"),
 }
 
 
