@@ -1,0 +1,668 @@
+"""The bench wire protocol, version 1: pure encode/decode, COBS, CRC, and the device's duty arithmetic.
+
+This module is the executable form of ``hardware/PROTOCOL.md`` (read that first):
+bytes in, values out, no I/O and no clock.  A frame on the wire is
+``COBS(type u8 | seq u8 | payload | crc u16) 0x00``, little-endian, with
+CRC-16/CCITT-FALSE over ``type|seq|payload``.
+
+Messages are small immutable named tuples (one class per type, fixed fields):
+they are created at up to 2 000 per second per direction and decoded at well
+over 100 000 per second by :class:`FrameReader`, which is why they are not
+frozen dataclasses (whose ``__init__`` costs several times more).
+
+:func:`expand` reproduces the firmware's duty sequence from a decoded WAVE
+(integers only); :func:`wave_for` and :func:`config_for` build the WAVE and
+CONFIG that make a device run a :class:`~motorsim.rig.Experiment`, and
+``expand(wave_for(e), e.n_samples, e.duty_limit) == e.duty()``.
+"""
+from __future__ import annotations
+
+import binascii
+import enum
+import struct
+from typing import NamedTuple, Union
+
+import numpy as np
+
+from motorsim.excitation import (PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step, sine_q15,
+                                 MAX_AMPLITUDE, MAX_COMPONENTS)
+from motorsim.rig import Experiment
+
+from .errors import FrameError, ProtocolError, ProtocolVersionError
+
+__all__ = [
+    "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason", "FaultCode",
+    "WaveKind", "SampleFlag", "Hello", "Config", "Start", "Stop", "Heartbeat", "HelloAck", "Ack", "Nak",
+    "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
+    "WavePrbs", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
+    "decode_frame", "encode_message", "decode_message", "FrameReader", "expand", "wave_for",
+    "config_for", "check_version", "FrameError", "ProtocolError", "ProtocolVersionError",
+]
+
+#: Version of this protocol; the host refuses a device that reports another.
+PROTOCOL_VERSION = 1
+#: Longest payload of any frame, bytes.
+MAX_PAYLOAD = 60
+#: Longest encoded frame (without its delimiter) a receiver accepts, bytes.
+MAX_ENCODED = 66
+_MIN_BODY = 4
+
+
+class MsgType(enum.IntEnum):
+    """Frame types: host to device 0x01-0x3F, device to host 0x80-0xBF."""
+
+    HELLO = 0x01
+    CONFIG = 0x02
+    WAVE = 0x03
+    START = 0x04
+    STOP = 0x05
+    HEARTBEAT = 0x06
+    HELLO_ACK = 0x81
+    ACK = 0x82
+    NAK = 0x83
+    SAMPLE = 0x84
+    END = 0x85
+    FAULT = 0x86
+    BOOT = 0x87
+
+
+class NakReason(enum.IntEnum):
+    """Why the device refused a command (NAK ``reason``)."""
+
+    BUSY = 1
+    BAD_LENGTH = 2
+    BAD_VALUE = 3
+    NOT_CONFIGURED = 4
+    UNKNOWN_TYPE = 5
+
+
+class EndReason(enum.IntEnum):
+    """Why a run ended (END ``reason``)."""
+
+    COMPLETE = 0
+    STOPPED_BY_HOST = 1
+    HOST_SILENCE = 2
+    DEVICE_FAULT = 3
+
+
+class FaultCode(enum.IntEnum):
+    """FAULT ``code``."""
+
+    HOST_SILENCE = 1
+    QUEUE_OVERFLOW = 2
+    ENCODER_ERROR_RATE = 3
+
+
+class WaveKind(enum.IntEnum):
+    """WAVE ``kind``."""
+
+    CONSTANT = 0
+    STEP = 1
+    MULTISINE = 2
+    CHIRP = 3
+    PRBS = 4
+
+
+class SampleFlag(enum.IntFlag):
+    """SAMPLE ``flags`` bits."""
+
+    ENCODER_ERROR = 1
+    TICK_LATE = 2
+
+
+# ---------------------------------------------------------------- messages
+class Hello(NamedTuple):
+    """HELLO (0x01): the host's protocol version."""
+
+    version: int = PROTOCOL_VERSION
+
+
+class Config(NamedTuple):
+    """CONFIG (0x02): sample period in µs, samples, duty clamp, quadrature decoding (1, 2, 4), watchdog in ms (0 off)."""
+
+    sample_period_us: int
+    n_samples: int
+    duty_limit: int
+    decoding: int
+    watchdog_ms: int
+
+
+class Start(NamedTuple):
+    """START (0x04)."""
+
+
+class Stop(NamedTuple):
+    """STOP (0x05)."""
+
+
+class Heartbeat(NamedTuple):
+    """HEARTBEAT (0x06): refreshes the device's host-silence watchdog; never answered."""
+
+
+class HelloAck(NamedTuple):
+    """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot, max payload, board name."""
+
+    version: int
+    firmware_version: int
+    f_cpu_hz: int
+    reset_cause: int
+    max_payload: int
+    board: str
+
+
+class Ack(NamedTuple):
+    """ACK (0x82): the type and seq of the accepted frame."""
+
+    acked_type: int
+    acked_seq: int
+
+
+class Nak(NamedTuple):
+    """NAK (0x83): the type and seq of the refused frame and a :class:`NakReason`."""
+
+    refused_type: int
+    refused_seq: int
+    reason: int
+
+
+class Sample(NamedTuple):
+    """SAMPLE (0x84): sample index, device time in µs (wrapping u32), absolute encoder count, duty, flags."""
+
+    index: int
+    time_us: int
+    counts: int
+    duty: int
+    flags: int
+
+
+class End(NamedTuple):
+    """END (0x85): an :class:`EndReason` and the device's counters for the run."""
+
+    reason: int
+    samples_sent: int
+    samples_dropped: int
+    encoder_errors: int
+    rx_errors: int
+    tick_overruns: int
+
+
+class Fault(NamedTuple):
+    """FAULT (0x86): a :class:`FaultCode` and the sample index at which it happened."""
+
+    code: int
+    index: int
+
+
+class Boot(NamedTuple):
+    """BOOT (0x87): sent once after every reset."""
+
+    version: int
+    reset_cause: int
+
+
+class WaveConstant(NamedTuple):
+    """WAVE kind 0: duty ``level``."""
+
+    level: int
+
+
+class WaveStep(NamedTuple):
+    """WAVE kind 1: ``before`` for k < ``step_index``, else ``after``."""
+
+    before: int
+    after: int
+    step_index: int
+
+
+class WaveMultisine(NamedTuple):
+    """WAVE kind 2: ``offset`` and 1-4 components ``(amplitude, phase0, phase_inc)``."""
+
+    offset: int
+    components: tuple
+
+
+class WaveChirp(NamedTuple):
+    """WAVE kind 3: ``offset``, ``amplitude``, start phase, start phase step, step change per sample."""
+
+    offset: int
+    amplitude: int
+    phase0: int
+    inc0: int
+    inc_step: int
+
+
+class WavePrbs(NamedTuple):
+    """WAVE kind 4: Galois LFSR of ``order`` from ``seed``, each bit held ``hold`` samples."""
+
+    low: int
+    high: int
+    order: int
+    seed: int
+    hold: int
+
+
+Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs]
+Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave]
+
+# type -> (class, struct) for the fixed-length messages
+_FIXED = {
+    MsgType.HELLO: (Hello, struct.Struct("<B")),
+    MsgType.CONFIG: (Config, struct.Struct("<IIhBH")),
+    MsgType.START: (Start, struct.Struct("<")),
+    MsgType.STOP: (Stop, struct.Struct("<")),
+    MsgType.HEARTBEAT: (Heartbeat, struct.Struct("<")),
+    MsgType.HELLO_ACK: (HelloAck, struct.Struct("<BHIBB8s")),
+    MsgType.ACK: (Ack, struct.Struct("<BB")),
+    MsgType.NAK: (Nak, struct.Struct("<BBB")),
+    MsgType.SAMPLE: (Sample, struct.Struct("<IIihB")),
+    MsgType.END: (End, struct.Struct("<BIIIHH")),
+    MsgType.FAULT: (Fault, struct.Struct("<BI")),
+    MsgType.BOOT: (Boot, struct.Struct("<BB")),
+}
+_TYPE_OF = {cls: t for t, (cls, _) in _FIXED.items()}
+_WAVE_KIND = {WaveConstant: WaveKind.CONSTANT, WaveStep: WaveKind.STEP, WaveMultisine: WaveKind.MULTISINE,
+              WaveChirp: WaveKind.CHIRP, WavePrbs: WaveKind.PRBS}
+_WAVE_FIXED = {
+    WaveKind.CONSTANT: (WaveConstant, struct.Struct("<h")),
+    WaveKind.STEP: (WaveStep, struct.Struct("<hhI")),
+    WaveKind.CHIRP: (WaveChirp, struct.Struct("<hhIIi")),
+    WaveKind.PRBS: (WavePrbs, struct.Struct("<hhBHH")),
+}
+_MS_HEAD = struct.Struct("<hB")
+_MS_COMPONENT = struct.Struct("<hII")
+_SAMPLE_STRUCT = _FIXED[MsgType.SAMPLE][1]
+_SAMPLE_BODY = 2 + _SAMPLE_STRUCT.size + 2
+
+
+# ---------------------------------------------------------------- CRC and COBS
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, not reflected, no final xor) of ``data``."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing (Cheshire & Baker 1999): ``data`` with no 0x00 left in it.
+
+    The delimiter is not appended.
+    """
+    out = bytearray()
+    segments = bytes(data).split(b"\x00")
+    last = len(segments) - 1
+    for s, segment in enumerate(segments):
+        full = False
+        while len(segment) >= 254:
+            out.append(0xFF)
+            out += segment[:254]
+            segment = segment[254:]
+            full = True
+        if s == last and full and not segment:
+            break   # a final 0xFF block needs no closing code
+        out.append(len(segment) + 1)
+        out += segment
+    return bytes(out)
+
+
+def cobs_decode(encoded: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode` (no delimiter).
+
+    Raises
+    ------
+    FrameError
+        A 0x00 inside ``encoded``, or a block that runs past its end.
+    """
+    if b"\x00" in encoded:
+        raise FrameError("COBS data must not contain 0x00")
+    out = bytearray()
+    i, n = 0, len(encoded)
+    while i < n:
+        code = encoded[i]
+        j = i + code
+        if j > n:
+            raise FrameError(f"COBS block at byte {i} (code {code}) runs past the end of the {n}-byte frame")
+        out += encoded[i + 1:j]
+        if code != 0xFF and j < n:
+            out.append(0)
+        i = j
+    return bytes(out)
+
+
+# ---------------------------------------------------------------- frames and messages
+def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
+    """One frame as sent on the wire: ``COBS(type | seq | payload | crc) 0x00``.
+
+    Raises
+    ------
+    ValueError
+        ``msg_type`` or ``seq`` outside 0...255, or ``payload`` longer than :data:`MAX_PAYLOAD`.
+    """
+    if not 0 <= msg_type <= 255:
+        raise ValueError(f"msg_type must be in 0...255, got {msg_type!r}")
+    if not 0 <= seq <= 255:
+        raise ValueError(f"seq must be in 0...255, got {seq!r}")
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"payload must be at most {MAX_PAYLOAD} bytes, got {len(payload)}")
+    body = bytes((msg_type, seq)) + bytes(payload)
+    return cobs_encode(body + crc16(body).to_bytes(2, "little")) + b"\x00"
+
+
+def decode_frame(encoded: bytes) -> tuple[int, int, bytes]:
+    """``(type, seq, payload)`` of one encoded frame (without its 0x00), CRC checked.
+
+    Raises
+    ------
+    FrameError
+        Too long, bad COBS, body shorter than 4 bytes, or CRC mismatch.
+    """
+    if len(encoded) > MAX_ENCODED:
+        raise FrameError(f"encoded frame must be at most {MAX_ENCODED} bytes, got {len(encoded)}")
+    body = cobs_decode(encoded)
+    if len(body) < _MIN_BODY:
+        raise FrameError(f"frame body must be at least {_MIN_BODY} bytes, got {len(body)}")
+    crc = body[-2] | (body[-1] << 8)
+    if binascii.crc_hqx(body[:-2], 0xFFFF) != crc:
+        raise FrameError(f"CRC mismatch: frame says {crc:#06x}, data gives {crc16(body[:-2]):#06x}")
+    return body[0], body[1], body[2:-2]
+
+
+def encode_message(msg: Message, seq: int) -> bytes:
+    """The wire bytes (COBS frame and delimiter) of ``msg`` with link sequence number ``seq``."""
+    cls = type(msg)
+    if cls in _WAVE_KIND:
+        return encode_frame(MsgType.WAVE, seq, _wave_payload(msg))
+    if cls not in _TYPE_OF:
+        raise TypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), got {cls.__name__}")
+    t = _TYPE_OF[cls]
+    fields = tuple(msg)
+    if cls is HelloAck:
+        board = msg.board.encode("ascii")
+        if len(board) > 8:
+            raise ValueError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
+        fields = fields[:-1] + (board.ljust(8, b"\x00"),)
+    try:
+        payload = _FIXED[t][1].pack(*fields)
+    except struct.error as exc:
+        raise ValueError(f"{cls.__name__} field out of range: {exc} (got {msg!r})") from None
+    return encode_frame(t, seq, payload)
+
+
+def _wave_payload(wave: Wave) -> bytes:
+    kind = _WAVE_KIND[type(wave)]
+    try:
+        if kind == WaveKind.MULTISINE:
+            comps = tuple(wave.components)
+            if not 1 <= len(comps) <= MAX_COMPONENTS:
+                raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
+            return (bytes((kind,)) + _MS_HEAD.pack(wave.offset, len(comps))
+                    + b"".join(_MS_COMPONENT.pack(*c) for c in comps))
+        return bytes((kind,)) + _WAVE_FIXED[kind][1].pack(*wave)
+    except struct.error as exc:
+        raise ValueError(f"{type(wave).__name__} field out of range: {exc} (got {wave!r})") from None
+
+
+def decode_message(msg_type: int, payload: bytes) -> Message:
+    """The message of a decoded frame.
+
+    Raises
+    ------
+    FrameError
+        Unknown type, or a payload length the type (or WAVE kind) does not allow.
+    """
+    entry = _FIXED.get(msg_type)
+    if entry is None:
+        if msg_type == MsgType.WAVE:
+            return _decode_wave(payload)
+        raise FrameError(f"unknown frame type {msg_type:#04x}")
+    cls, st = entry
+    if len(payload) != st.size:
+        raise FrameError(f"{cls.__name__} payload must be {st.size} bytes, got {len(payload)}")
+    fields = st.unpack(payload)
+    if cls is HelloAck:
+        fields = fields[:-1] + (fields[-1].rstrip(b"\x00").decode("ascii", "replace"),)
+    return cls._make(fields)
+
+
+def _decode_wave(payload: bytes) -> Wave:
+    if not payload:
+        raise FrameError("WAVE payload must hold at least the kind byte, got 0 bytes")
+    kind, rest = payload[0], payload[1:]
+    if kind == WaveKind.MULTISINE:
+        if len(rest) < _MS_HEAD.size:
+            raise FrameError(f"WAVE multisine payload must be 3 + 10 n bytes after the kind, got {len(rest)}")
+        offset, n = _MS_HEAD.unpack_from(rest)
+        if not 1 <= n <= MAX_COMPONENTS:
+            raise FrameError(f"WAVE multisine n must be in 1...{MAX_COMPONENTS}, got {n}")
+        if len(rest) != _MS_HEAD.size + n * _MS_COMPONENT.size:
+            raise FrameError(f"WAVE multisine with n = {n} must have {_MS_HEAD.size + n * _MS_COMPONENT.size} "
+                             f"bytes after the kind, got {len(rest)}")
+        comps = tuple(_MS_COMPONENT.unpack_from(rest, _MS_HEAD.size + j * _MS_COMPONENT.size) for j in range(n))
+        return WaveMultisine(offset, comps)
+    entry = _WAVE_FIXED.get(kind)
+    if entry is None:
+        raise FrameError(f"unknown WAVE kind {kind}")
+    cls, st = entry
+    if len(rest) != st.size:
+        raise FrameError(f"WAVE {cls.__name__} must have {st.size} bytes after the kind, got {len(rest)}")
+    return cls._make(st.unpack(rest))
+
+
+class FrameReader:
+    """Incremental frame reader: feed it bytes as they arrive, get ``(seq, message)`` pairs.
+
+    Every invalid frame is dropped and counted in :attr:`rx_errors` (never raised),
+    and the reader resynchronises at the next 0x00; zero-length frames are
+    ignored.  Bytes beyond :data:`MAX_ENCODED` without a delimiter are discarded
+    up to the next 0x00 and counted once.  Memory is bounded by ``MAX_ENCODED``
+    plus one read.
+
+    Attributes
+    ----------
+    rx_errors : int
+        Invalid frames seen so far.
+    last_error : str
+        Description of the most recent invalid frame ("" if none).
+    """
+
+    __slots__ = ("_pending", "_discarding", "rx_errors", "last_error")
+
+    def __init__(self) -> None:
+        self._pending = b""
+        self._discarding = False
+        self.rx_errors = 0
+        self.last_error = ""
+
+    def feed(self, data: bytes) -> list[tuple[int, Message]]:
+        """Consume ``data`` (any length, any split) and return the complete valid frames in it."""
+        parts = (self._pending + bytes(data)).split(b"\x00")
+        tail = parts.pop()
+        out = []
+        append = out.append
+        if self._discarding and parts:
+            parts[0] = b""   # the overlong frame ends at this delimiter
+            self._discarding = False
+        sample_cls = Sample
+        unpack = _SAMPLE_STRUCT.unpack_from
+        crc = binascii.crc_hqx
+        for part in parts:
+            if not part:
+                continue
+            try:
+                if len(part) > MAX_ENCODED:
+                    raise FrameError(f"encoded frame must be at most {MAX_ENCODED} bytes, got {len(part)}")
+                body = cobs_decode(part)
+                if len(body) < _MIN_BODY:
+                    raise FrameError(f"frame body must be at least {_MIN_BODY} bytes, got {len(body)}")
+                if crc(body[:-2], 0xFFFF) != body[-2] | (body[-1] << 8):
+                    raise FrameError("CRC mismatch")
+                if body[0] == 0x84 and len(body) == _SAMPLE_BODY:   # fast path for SAMPLE
+                    append((body[1], sample_cls._make(unpack(body, 2))))
+                else:
+                    append((body[1], decode_message(body[0], body[2:-2])))
+            except FrameError as exc:
+                self.rx_errors += 1
+                self.last_error = str(exc)
+        if self._discarding:
+            tail = b""
+        elif len(tail) > MAX_ENCODED:
+            self.rx_errors += 1
+            self.last_error = f"more than {MAX_ENCODED} bytes without a delimiter"
+            self._discarding = True
+            tail = b""
+        self._pending = tail
+        return out
+
+
+# ---------------------------------------------------------------- versions
+def check_version(device_version: int, host_version: int = PROTOCOL_VERSION) -> None:
+    """Raise :class:`ProtocolVersionError` naming both versions unless they are equal."""
+    if device_version != host_version:
+        raise ProtocolVersionError(f"device speaks protocol version {device_version}, this host speaks "
+                                   f"version {host_version}; update the firmware or the host so they match")
+
+
+# ---------------------------------------------------------------- the device's duty arithmetic
+def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
+    """The duty sequence a device computes from ``wave`` for samples ``0 ... n_samples-1`` (int64).
+
+    Integer arithmetic exactly as ``hardware/PROTOCOL.md`` ("Waveforms") specifies it,
+    from the WAVE fields alone, then clamped to ``+-duty_limit``.
+
+    Parameters
+    ----------
+    wave : WaveConstant, WaveStep, WaveMultisine, WaveChirp or WavePrbs
+        Decoded WAVE parameters.
+    n_samples : int
+        Number of samples, >= 0.
+    duty_limit : int
+        Clamp, 0...255.
+    """
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 0:
+        raise ValueError(f"n_samples must be an integer >= 0, got {n_samples!r}")
+    if isinstance(duty_limit, bool) or not isinstance(duty_limit, (int, np.integer)) or not 0 <= duty_limit <= 255:
+        raise ValueError(f"duty_limit must be an integer in 0...255, got {duty_limit!r}")
+    n = int(n_samples)
+    k = np.arange(n, dtype=np.uint64)
+    mask32 = np.uint64(0xFFFFFFFF)
+    if isinstance(wave, WaveConstant):
+        raw = np.full(n, wave.level, dtype=np.int64)
+    elif isinstance(wave, WaveStep):
+        raw = np.where(np.arange(n) < wave.step_index, wave.before, wave.after).astype(np.int64)
+    elif isinstance(wave, WaveMultisine):
+        acc = np.zeros(n, dtype=np.int64)
+        for amplitude, phase0, inc in wave.components:
+            phase = (np.uint64(phase0) + k * np.uint64(inc)) & mask32
+            acc += amplitude * sine_q15(phase.astype(np.int64))
+        raw = wave.offset + ((acc + 16384) >> 15)
+    elif isinstance(wave, WaveChirp):
+        # the device does phase += inc; inc += inc_step after each sample, so
+        # phase_k = phase0 + k inc0 + inc_step k (k - 1) / 2  (mod 2**32; uint64 wraps mod 2**64)
+        tri = k * (k - np.uint64(1)) // np.uint64(2) if n else k
+        phase = (np.uint64(wave.phase0) + k * np.uint64(wave.inc0)
+                 + tri * np.uint64(wave.inc_step % 2**64)) & mask32
+        raw = wave.offset + ((wave.amplitude * sine_q15(phase.astype(np.int64)) + 16384) >> 15)
+    elif isinstance(wave, WavePrbs):
+        if wave.order not in PRBS_MASKS:
+            raise ValueError(f"PRBS order must be in 2...16, got {wave.order!r}")
+        if not 0 < wave.seed < (1 << wave.order):
+            raise ValueError(f"PRBS seed must be in 1...{(1 << wave.order) - 1}, got {wave.seed!r}")
+        if wave.hold < 1:
+            raise ValueError(f"PRBS hold must be >= 1, got {wave.hold!r}")
+        n_bits = -(-n // wave.hold)
+        period = (1 << wave.order) - 1
+        bits = np.empty(min(n_bits, period), dtype=np.uint8)
+        state, feedback = wave.seed, PRBS_MASKS[wave.order]
+        for i in range(len(bits)):
+            out = state & 1
+            bits[i] = out
+            state >>= 1
+            if out:
+                state ^= feedback
+        if n_bits > period:
+            bits = np.resize(bits, n_bits)
+        raw = np.where(np.repeat(bits, wave.hold)[:n] == 1, wave.high, wave.low).astype(np.int64)
+    else:
+        raise TypeError(f"wave must be a WAVE message (WaveConstant, ..., WavePrbs), got {type(wave).__name__}")
+    return np.clip(raw, -duty_limit, duty_limit).astype(np.int64)
+
+
+def wave_for(experiment: Experiment) -> Wave:
+    """The WAVE that makes a device generate ``experiment``'s duty sequence.
+
+    Raises
+    ------
+    ValueError
+        The excitation is of a kind the protocol cannot carry.
+    """
+    if not isinstance(experiment, Experiment):
+        raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+    ex, dt, n = experiment.excitation, experiment.sample_period, experiment.n_samples
+    if isinstance(ex, Constant):
+        return WaveConstant(ex.level)
+    if isinstance(ex, Step):
+        return WaveStep(ex.before, ex.after, ex.step_index(dt))
+    if isinstance(ex, Multisine):
+        return WaveMultisine(ex.offset, tuple(ex.components(dt)))
+    if isinstance(ex, Chirp):
+        inc0, step = ex.words(n, dt)
+        return WaveChirp(ex.offset, ex.amplitude, 0, inc0, step)
+    if isinstance(ex, PRBS):
+        return WavePrbs(ex.low, ex.high, ex.order, ex.seed, ex.hold)
+    raise ValueError(f"excitation must be one the device can generate (constant, step, sine, multisine, "
+                     f"chirp, prbs), got {type(ex).__name__}")
+
+
+def config_for(experiment: Experiment, *, decoding: int = 4, watchdog_ms: int = 500) -> Config:
+    """The CONFIG of ``experiment`` (sample period rounded to whole µs, which must be exact to 1 ns).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        What to run.
+    decoding : {1, 2, 4}
+        Quadrature decoding of the encoder.
+    watchdog_ms : int
+        Host-silence watchdog in ms; 0 disables it, else 50...60 000.
+    """
+    if not isinstance(experiment, Experiment):
+        raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+    period_us = round(experiment.sample_period * 1e6)
+    if abs(period_us * 1e-6 - experiment.sample_period) > 1e-9 or not 100 <= period_us <= 1_000_000:
+        raise ValueError(f"sample_period must be a whole number of microseconds in 100...1 000 000 µs "
+                         f"for the bench, got {experiment.sample_period!r} s")
+    if decoding not in (1, 2, 4):
+        raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
+    if not (watchdog_ms == 0 or 50 <= watchdog_ms <= 60_000):
+        raise ValueError(f"watchdog_ms must be 0 (off) or in 50...60 000 ms, got {watchdog_ms!r}")
+    if experiment.n_samples > 0xFFFFFFFF:
+        raise ValueError(f"duration gives {experiment.n_samples} samples, more than a u32 holds")
+    return Config(period_us, experiment.n_samples, experiment.duty_limit, decoding, watchdog_ms)
+
+
+def _check_wave_ranges(wave: Wave) -> list[str]:
+    """Problems a device would NAK with BAD_VALUE (amplitudes beyond +-1023, bad PRBS fields)."""
+    bad = []
+    def amp(name, x):
+        if abs(x) > MAX_AMPLITUDE:
+            bad.append(f"{name} must satisfy |x| <= {MAX_AMPLITUDE}, got {x}")
+    if isinstance(wave, WaveConstant):
+        amp("level", wave.level)
+    elif isinstance(wave, WaveStep):
+        amp("before", wave.before)
+        amp("after", wave.after)
+    elif isinstance(wave, WaveMultisine):
+        amp("offset", wave.offset)
+        for a, _, _ in wave.components:
+            amp("amplitude", a)
+    elif isinstance(wave, WaveChirp):
+        amp("offset", wave.offset)
+        amp("amplitude", wave.amplitude)
+    elif isinstance(wave, WavePrbs):
+        amp("low", wave.low)
+        amp("high", wave.high)
+        if wave.order not in PRBS_MASKS:
+            bad.append(f"order must be in 2...16, got {wave.order}")
+        elif not 0 < wave.seed < (1 << wave.order):
+            bad.append(f"seed must be in 1...2**order - 1, got {wave.seed}")
+        if wave.hold < 1:
+            bad.append(f"hold must be >= 1, got {wave.hold}")
+    return bad
+
