@@ -202,10 +202,20 @@ struct Response {
 // Encoder (pin-change ISR)
 volatile int32_t enc_count = 0;
 volatile uint32_t enc_errors = 0;
-volatile uint8_t enc_state = 0;      // last (A << 1 | B)
+volatile uint8_t enc_previous = 0;   // last (A << 1 | B), shifted left by 2
 volatile uint8_t enc_decoding = 4;
-// 4x decoding: delta for (previous << 2 | current); 2 marks an illegal transition (both changed).
-const int8_t QUADRATURE[16] = {0, -1, +1, 2, +1, 0, 2, -1, -1, 2, 0, +1, 2, +1, -1, 0};
+// Decoding tables indexed by (previous << 2 | current), current = A << 1 | B: +1/-1 count,
+// 0 nothing, 2 an illegal transition. x4: every edge of A and B; both changing at once is
+// illegal. x2 and x1 interrupt on A only: A must have changed (else an edge pair was missed);
+// x2 counts both A edges, x1 only rising ones; B gives the direction.
+#define ILLEGAL 2
+const int8_t DECODE_X4[16] PROGMEM = {0, -1, +1, ILLEGAL, +1, 0, ILLEGAL, -1,
+                                      -1, ILLEGAL, 0, +1, ILLEGAL, +1, -1, 0};
+const int8_t DECODE_X2[16] PROGMEM = {ILLEGAL, ILLEGAL, +1, -1, ILLEGAL, ILLEGAL, +1, -1,
+                                      -1, +1, ILLEGAL, ILLEGAL, -1, +1, ILLEGAL, ILLEGAL};
+const int8_t DECODE_X1[16] PROGMEM = {ILLEGAL, ILLEGAL, +1, -1, ILLEGAL, ILLEGAL, +1, -1,
+                                      0, 0, ILLEGAL, ILLEGAL, 0, 0, ILLEGAL, ILLEGAL};
+int8_t decode_table[16];             // the active table, in RAM for a fast lookup
 
 // Sample clock (Timer 1 ISR)
 volatile uint8_t running = 0;
@@ -216,6 +226,7 @@ volatile uint16_t tick_overruns = 0;
 volatile uint32_t samples_dropped = 0;
 volatile uint32_t errors_at_last_sample = 0;
 volatile uint32_t errors_at_start = 0;
+volatile uint32_t errors_at_stop = 0;
 volatile uint8_t fault_code = 0;      // pending FAULT frame (0: none)
 volatile uint32_t fault_index = 0;
 volatile uint8_t end_pending = 0;
@@ -307,34 +318,37 @@ static void setup_bridge(void) {
 // ---------------------------------------------------------------------------------------------
 // Encoder: pin-change interrupt, register-level.
 
+static inline uint8_t encoder_pins(void) __attribute__((always_inline));
 static inline uint8_t encoder_pins(void) {
   uint8_t pins = ENC_PIN_REG;
-  return ((pins & ENC_A_MASK) ? 2 : 0) | ((pins & ENC_B_MASK) ? 1 : 0);
+  uint8_t now = 0;
+  if (pins & ENC_A_MASK) now |= 2;
+  if (pins & ENC_B_MASK) now |= 1;
+  return now;
 }
 
 ISR(ENC_PCINT_vect) {
   uint8_t now = encoder_pins();
-  uint8_t before = enc_state;
-  enc_state = now;
-  if (enc_decoding == 4) {
-    int8_t d = QUADRATURE[(before << 2) | now];
-    if (d == 2) enc_errors++;
-    else enc_count += d;
-  } else {
-    // Only A interrupts: each A edge is +-1 (x2), or only rising A edges (x1).
-    uint8_t a_now = now >> 1;
-    if (a_now == (before >> 1)) enc_errors++;   // A edge pair missed (or a glitch)
-    else if (enc_decoding == 2 || a_now) enc_count += (a_now ^ (now & 1)) ? 1 : -1;
+  int8_t d = decode_table[enc_previous | now];
+  enc_previous = now << 2;
+  if (d == 0) return;
+  if (d == ILLEGAL) {
+    enc_errors++;
+    return;
   }
+  if (d > 0) enc_count++;
+  else enc_count--;
 }
 
-// Enable the pin-change interrupt for the pins the decoding mode needs.
+// Select the decoding table and the pins that interrupt (x4: A and B; x2, x1: A only).
 static void setup_encoder(uint8_t decoding) {
+  const int8_t *table = decoding == 4 ? DECODE_X4 : decoding == 2 ? DECODE_X2 : DECODE_X1;
   uint8_t sreg = SREG;
   cli();
+  for (uint8_t i = 0; i < 16; i++) decode_table[i] = pgm_read_byte(&table[i]);
   enc_decoding = decoding;
   ENC_PCMSK = decoding == 4 ? (ENC_A_MASK | ENC_B_MASK) : ENC_A_MASK;
-  enc_state = encoder_pins();
+  enc_previous = encoder_pins() << 2;
   PCIFR = _BV(ENC_PCIE);
   PCICR |= _BV(ENC_PCIE);
   SREG = sreg;
@@ -422,6 +436,7 @@ static void stop_run(uint8_t reason) {
   timer_stop();
   if (running) {
     running = 0;
+    errors_at_stop = enc_errors;
     end_reason = reason;
     end_pending = 1;
   }
@@ -465,7 +480,10 @@ ISR(TIMER1_COMPA_vect) {
   // 2. apply the duty computed during the previous tick
   int16_t duty = next_duty;
   apply_duty(duty);
-  // 3. queue the sample, or drop and count it
+  // The rest runs with interrupts on (the encoder may preempt it) and this interrupt off.
+  TIMSK1 = 0;
+  sei();
+  // 3. queue the sample, or drop and count it (only this ISR writes the queue head)
   uint8_t flags = tick_late;
   tick_late = 0;
   uint32_t new_errors = errors - errors_at_last_sample;
@@ -490,14 +508,13 @@ ISR(TIMER1_COMPA_vect) {
   }
   tick_index++;
   if (new_errors > 255) {
+    cli();
     fault_code = FAULT_ENCODER;
     fault_index = tick_index - 1;
     stop_run(END_FAULT);
     return;
   }
-  // 4. compute the next duty with interrupts on (the encoder may preempt) but this one off
-  TIMSK1 = 0;
-  sei();
+  // 4. compute the next duty
   int16_t upcoming = wave_next();
   cli();
   next_duty = upcoming;
@@ -838,7 +855,7 @@ static void transmit(void) {
     uint16_t overruns;
     cli();
     dropped = samples_dropped;
-    errors = enc_errors - errors_at_start;
+    errors = errors_at_stop - errors_at_start;
     overruns = tick_overruns;
     sei();
     uint8_t *q = p;

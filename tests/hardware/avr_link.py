@@ -1,0 +1,112 @@
+"""Test helper: drive the emulated firmware frame by frame (below ``SerialRig``).
+
+The byte-level tests (corrupted frames, overload, the encoder ceiling) need to send exactly
+the frames they want and see every frame that comes back, which ``SerialRig`` rightly hides.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import serial
+
+from hardware import protocol as P
+
+__all__ = ["DeviceLink", "RunResult"]
+
+
+@dataclasses.dataclass
+class RunResult:
+    """Every frame of one run, split by kind."""
+
+    samples: list
+    faults: list
+    end: "P.End | None"
+    others: list
+    seqs: list
+
+
+class DeviceLink:
+    """Send messages to a device on an open port and collect what it sends back."""
+
+    def __init__(self, port: serial.Serial):
+        self.port = port
+        self.reader = P.FrameReader()
+        self.seq = 0
+        self.received: list = []   # (seq, message) in arrival order
+
+    def send(self, msg) -> int:
+        """Send ``msg`` with the next sequence number; returns that number."""
+        seq = self.seq
+        self.port.write(P.encode_message(msg, seq))
+        self.seq = (seq + 1) & 0xFF
+        return seq
+
+    def send_raw(self, data: bytes) -> None:
+        """Write ``data`` as is (a corrupted frame, a lone delimiter, ...)."""
+        self.port.write(data)
+
+    def poll(self) -> list:
+        """Read what is waiting and return the new ``(seq, message)`` pairs."""
+        new = self.reader.feed(self.port.read(max(1, self.port.in_waiting)))
+        self.received += new
+        return new
+
+    def wait_for(self, kind, timeout: float = 3.0, heartbeat: float | None = None):
+        """The first new message of type ``kind`` within ``timeout`` s of wall time, else None."""
+        deadline = time.monotonic() + timeout
+        last_beat = 0.0
+        while time.monotonic() < deadline:
+            if heartbeat and time.monotonic() - last_beat > heartbeat:
+                self.send(P.Heartbeat())
+                last_beat = time.monotonic()
+            for _, msg in self.poll():
+                if isinstance(msg, kind):
+                    return msg
+        return None
+
+    def hello(self, timeout: float = 3.0):
+        """HELLO until HELLO_ACK (as a host does after opening the port)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.send(P.Hello())
+            ack = self.wait_for(P.HelloAck, timeout=0.2)
+            if ack is not None:
+                return ack
+        raise TimeoutError("no HELLO_ACK")
+
+    def command(self, msg, timeout: float = 2.0):
+        """Send ``msg`` and return its ACK or NAK."""
+        seq = self.send(msg)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for _, reply in self.poll():
+                if isinstance(reply, (P.Ack, P.Nak)) and reply[1] == seq:
+                    return reply
+        raise TimeoutError(f"no ACK/NAK for {msg!r}")
+
+    def run(self, config, wave, *, timeout: float = 20.0, heartbeat: float | None = 0.05,
+            on_sample=None) -> RunResult:
+        """CONFIG, WAVE, START, then collect until END (HEARTBEAT every ``heartbeat`` s)."""
+        for msg in (config, wave, P.Start()):
+            reply = self.command(msg)
+            if not isinstance(reply, P.Ack):
+                raise RuntimeError(f"{msg!r} refused: {reply!r}")
+        start = len(self.received)
+        deadline = time.monotonic() + timeout
+        last_beat = time.monotonic()
+        end = None
+        while end is None and time.monotonic() < deadline:
+            if heartbeat and time.monotonic() - last_beat > heartbeat:
+                self.send(P.Heartbeat())
+                last_beat = time.monotonic()
+            for _, msg in self.poll():
+                if isinstance(msg, P.End):
+                    end = msg
+                elif isinstance(msg, P.Sample) and on_sample is not None:
+                    on_sample(self, msg)
+        got = self.received[start:]
+        return RunResult(samples=[m for _, m in got if isinstance(m, P.Sample)],
+                         faults=[m for _, m in got if isinstance(m, P.Fault)], end=end,
+                         others=[m for _, m in got if not isinstance(m, (P.Sample, P.Fault, P.End))],
+                         seqs=[s for s, _ in got])
