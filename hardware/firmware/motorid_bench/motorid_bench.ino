@@ -348,8 +348,8 @@ static void setup_encoder(uint8_t decoding) {
   for (uint8_t i = 0; i < 16; i++) decode_table[i] = pgm_read_byte(&table[i]);
   enc_decoding = decoding;
   ENC_PCMSK = decoding == 4 ? (ENC_A_MASK | ENC_B_MASK) : ENC_A_MASK;
+  PCIFR = _BV(ENC_PCIE);               // clear first: an edge after the read below interrupts
   enc_previous = encoder_pins() << 2;
-  PCIFR = _BV(ENC_PCIE);
   PCICR |= _BV(ENC_PCIE);
   SREG = sreg;
 }
@@ -442,12 +442,18 @@ static void stop_run(uint8_t reason) {
   }
 }
 
-static void timer_start(uint32_t period_us) {
+// Split the period into Timer 1 sub-intervals. Called with interrupts on: the 32-bit
+// divisions take ~80 us, too long to hold off the encoder.
+static void timer_plan(uint32_t period_us) {
   uint32_t ticks = period_us * (F_CPU / 1000000UL / 8);
   uint8_t m = (ticks + 65535UL) / 65536UL;
   sub_count = m;
   sub_len_q = ticks / m - 1;            // OCR value for a sub-interval of q ticks
   sub_long = ticks % m;                 // the first sub_long sub-intervals last q + 1
+}
+
+// Start the sample clock planned by timer_plan(). Interrupts must be off.
+static void timer_start(void) {
   sub_pos = 0;
   TCCR1A = 0;
   TCCR1B = 0;
@@ -680,6 +686,7 @@ static void start_run(void) {
   setup_encoder(cfg.decoding);
   wave_reset();
   int16_t first = wave_next();
+  timer_plan(cfg.sample_period_us);
   cli();
   queue_head = queue_tail = 0;
   tick_index = 0;
@@ -692,7 +699,7 @@ static void start_run(void) {
   overflow_reported = 0;
   end_pending = 0;
   running = 1;
-  timer_start(cfg.sample_period_us);
+  timer_start();
   sei();
   samples_sent = 0;
   rx_errors = 0;

@@ -1,4 +1,4 @@
-"""Test helper: drive the emulated firmware frame by frame (below ``SerialRig``).
+"""Drive a bench device frame by frame, below ``SerialRig`` (tests and benchmarks).
 
 The byte-level tests (corrupted frames, overload, the encoder ceiling) need to send exactly
 the frames they want and see every frame that comes back, which ``SerialRig`` rightly hides.
@@ -88,11 +88,11 @@ class DeviceLink:
     def run(self, config, wave, *, timeout: float = 20.0, heartbeat: float | None = 0.05,
             on_sample=None) -> RunResult:
         """CONFIG, WAVE, START, then collect until END (HEARTBEAT every ``heartbeat`` s)."""
+        start = len(self.received)
         for msg in (config, wave, P.Start()):
             reply = self.command(msg)
             if not isinstance(reply, P.Ack):
                 raise RuntimeError(f"{msg!r} refused: {reply!r}")
-        start = len(self.received)
         deadline = time.monotonic() + timeout
         last_beat = time.monotonic()
         end = None
