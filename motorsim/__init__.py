@@ -2,13 +2,13 @@
 from .excitation import (DUTY_LIMIT, PRBS, Chirp, Constant, Excitation, Multisine, Sine, Step,
                          parse_excitation)
 from .plant import Motor, Trajectory, simulate
-from .recording import Recording, RecordingFormatError, read_recording, write_recording
+from .recording import Recording, RecordingFormatError, RecordingWriter, read_recording, write_recording
 from .rig import Experiment, Rig, SimRig
 from .sensors import DEFAULT_COUNTS_PER_REV, Encoder, backward_difference, counts_to_angle
 
 __all__ = [
     "DUTY_LIMIT", "PRBS", "Chirp", "Constant", "Excitation", "Multisine", "Sine", "Step",
     "parse_excitation", "Motor", "Trajectory", "simulate", "Recording", "RecordingFormatError",
-    "read_recording", "write_recording", "Experiment", "Rig", "SimRig", "DEFAULT_COUNTS_PER_REV",
+    "read_recording", "write_recording", "RecordingWriter", "Experiment", "Rig", "SimRig", "DEFAULT_COUNTS_PER_REV",
     "Encoder", "backward_difference", "counts_to_angle",
 ]

@@ -30,6 +30,7 @@ import io
 import math
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from .sensors import backward_difference, counts_to_angle
 
-__all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording",
+__all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
            "FORMAT_HEADER", "COLUMNS"]
 
 FORMAT_HEADER = "# motorid recording v1"
@@ -253,6 +254,153 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
             os.unlink(tmp)
         raise
     return path
+
+
+def _replace_atomically(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class RecordingWriter:
+    """Write a recording (format v1) row by row while it is being measured; a context manager.
+
+    Rows go to ``PATH.partial`` as they arrive (whole lines, flushed at least every
+    ``flush_interval`` s), so the partial file is always a readable format-v1 file whose
+    metadata say ``complete: false``.  :meth:`close` then atomically writes ``PATH``
+    with the final metadata, ``complete: true`` or ``complete: false`` and
+    ``incomplete_reason``, and removes the partial file.  Leaving the ``with`` block by
+    an exception (including Ctrl-C) closes it as incomplete, naming the exception.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final file.
+    sample_period : float
+        Nominal sample period in s.
+    counts_per_rev : int
+        Encoder counts per revolution (rows carry ``counts``).
+    metadata : mapping of str to str, optional
+        Metadata known at the start (more can be given to :meth:`close`).
+    flush_interval : float, optional
+        Longest time in s rows wait in memory, default 0.25.
+    """
+
+    _COLS = ["seq", "time_s", "duty", "counts"]
+
+    def __init__(self, path: str | os.PathLike, sample_period: float, counts_per_rev: int, *,
+                 metadata: Mapping[str, str] | None = None, flush_interval: float = 0.25):
+        self.path = Path(path)
+        self.partial_path = self.path.with_name(self.path.name + ".partial")
+        if not self.path.parent.is_dir():
+            raise ValueError(f"path must be in an existing directory, got {str(path)!r}")
+        self._meta = {str(k): str(v) for k, v in (metadata or {}).items()}
+        self._sample_period = sample_period
+        self._counts_per_rev = counts_per_rev
+        self._probe(np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), {})
+        self._flush_interval = float(flush_interval)
+        self._rows: list[tuple[int, float, int, int]] = []
+        self._last: tuple[int, float, int, int] | None = None
+        self._file = None
+        self._header_lines = 0
+        self._last_flush = time.monotonic()
+        self.n_rows = 0
+        self.closed = False
+
+    def _probe(self, time_s, duty, counts, seq, extra) -> Recording:
+        return Recording(time=time_s, duty=duty, sample_period=self._sample_period, counts=counts, seq=seq,
+                         counts_per_rev=self._counts_per_rev, metadata={**self._meta, **extra})
+
+    def append(self, seq: int, time_s: float, duty: int, counts: int) -> None:
+        """Add one row (``seq`` and ``time_s`` strictly increasing)."""
+        if self.closed:
+            raise ValueError(f"this RecordingWriter for {self.path} is closed")
+        row = (int(seq), float(time_s), int(duty), int(counts))
+        last = self._rows[-1] if self._rows else self._last
+        if last is not None and (row[0] <= last[0] or row[1] <= last[1]):
+            raise ValueError(f"seq and time_s must be strictly increasing, got seq {row[0]} at {row[1]!r} s "
+                             f"after seq {last[0]} at {last[1]!r} s")
+        self._rows.append(row)
+        if time.monotonic() - self._last_flush >= self._flush_interval:
+            self.flush()
+
+    def _batch(self, rows, extra) -> Recording:
+        seq, t, duty, counts = (np.array(c) for c in zip(*rows))
+        return self._probe(t, duty.astype(np.int64), counts.astype(np.int64), seq.astype(np.int64), extra)
+
+    def flush(self) -> None:
+        """Write the buffered rows to the partial file (whole lines, then flush)."""
+        self._last_flush = time.monotonic()
+        if not self._rows:
+            return
+        batch = self._batch(self._rows, {})
+        lines = list(_format_rows(batch, self._COLS))
+        if self._file is None:
+            header = _metadata_lines(self._batch(self._rows[:1], {
+                "complete": "false", "incomplete_reason": "still recording (partial file)"})) + [",".join(self._COLS)]
+            self._header_lines = len(header)
+            self._file = open(self.partial_path, "w", encoding="utf-8", newline="")
+            lines = header + lines
+        self._file.write("\n".join(lines) + "\n")
+        self._file.flush()
+        self.n_rows += len(self._rows)
+        self._last = self._rows[-1]
+        self._rows = []
+
+    def close(self, complete: bool = True, reason: str = "", metadata: Mapping[str, str] | None = None
+              ) -> Path | None:
+        """Write the final file atomically and remove the partial one.
+
+        Parameters
+        ----------
+        complete : bool
+            Whether the run finished (metadata ``complete: true``/``false``).
+        reason : str
+            Why it did not (metadata ``incomplete_reason``), when ``complete`` is False.
+        metadata : mapping, optional
+            Metadata to add or override (e.g. the rig's counters).
+
+        Returns
+        -------
+        pathlib.Path or None
+            The final file, or None when no row was ever appended (nothing is written).
+        """
+        if self.closed:
+            return self.path if self.n_rows else None
+        self.flush()
+        self.closed = True
+        if self._file is None:
+            return None
+        self._file.close()
+        if metadata:
+            self._meta.update({str(k): str(v) for k, v in metadata.items()})
+        extra = {"complete": "true" if complete else "false"}
+        self._meta.pop("incomplete_reason", None)
+        if not complete:
+            extra["incomplete_reason"] = " ".join(str(reason or "unknown").split())
+        header = _metadata_lines(self._batch([self._last], extra)) + [",".join(self._COLS)]
+        with open(self.partial_path, encoding="utf-8") as f:
+            body = f.read().split("\n")[self._header_lines:]
+        _replace_atomically(self.path, "\n".join(header + body))
+        os.unlink(self.partial_path)
+        return self.path
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close(True)
+        elif exc_type is KeyboardInterrupt:
+            self.close(False, "interrupted (Ctrl-C)")
+        else:
+            self.close(False, f"{exc_type.__name__}: {exc}")
 
 
 def read_recording(path: str | os.PathLike) -> Recording:

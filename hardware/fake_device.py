@@ -1,0 +1,505 @@
+"""An emulated bench Arduino: speaks ``hardware/PROTOCOL.md`` over a pseudo-terminal, drives a simulated motor.
+
+:class:`FakeDevice` opens a pty pair (``os.openpty``, both ends raw), runs the
+firmware's behaviour in a background thread on the master end, and offers the
+slave end's path (:attr:`FakeDevice.port_name`) to anything that opens serial
+ports: ``serial.Serial(dev.port_name)``, :class:`~hardware.serial_rig.SerialRig`,
+or ``motorid live --port 'fake://?a=25&b=3'`` (see :func:`open_fake`).
+
+What it emulates, as the firmware does it
+-----------------------------------------
+- BOOT after (optional) time in the bootloader; HELLO -> HELLO_ACK; CONFIG, WAVE,
+  START answered by ACK or NAK with the documented reasons and ranges; STOP;
+  HEARTBEAT; the host-silence watchdog (FAULT 1, END 2).
+- The clock and the waveform on the device: tick ``k`` snapshots the encoder,
+  computes ``duty_k`` from the WAVE with :func:`hardware.protocol.expand`'s
+  integer arithmetic, holds it for one period while the motor is simulated
+  exactly (``motorsim.simulate`` over that interval), and queues a SAMPLE.
+- A bounded transmit queue: a sample that finds it full is dropped and counted
+  (``samples_dropped``, FAULT 2 the first time), never overwritten.
+- Absolute encoder counts from boot; END with the device's counters.
+
+Time: ``speed`` scales the device clock against the wall clock (1 = real time);
+``speed=0`` ticks as fast as the host reads, losslessly (for tests).
+
+Fault injection (:class:`FaultPlan`) acts on the device-to-host SAMPLE frames
+(bit flips, frames lost on the link, garbage bytes) and on the device itself
+(queue drops, going silent, disconnecting, a watchdog trip, never answering
+HELLO, another protocol version, time in the bootloader).
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import errno
+import math
+import os
+import select
+import threading
+import time
+import tty
+import urllib.parse
+from typing import Iterator
+
+import numpy as np
+
+from motorsim.excitation import _check_int, _check_real
+from motorsim.plant import Motor, simulate
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
+
+from . import protocol as P
+
+__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url"]
+
+_SAMPLE_WIRE = 21
+
+
+@dataclasses.dataclass(frozen=True)
+class FaultPlan:
+    """Faults the emulated device injects (all off by default).
+
+    Parameters
+    ----------
+    flip_rate : float
+        Probability that a SAMPLE frame has one random bit flipped on the wire.
+    drop_rate : float
+        Probability that a SAMPLE frame is lost on the link (its ``seq`` is used up).
+    garbage_rate : float
+        Probability that 1-8 random bytes and a 0x00 are sent before a SAMPLE frame.
+    queue_drop_rate : float
+        Probability that a sample is dropped on the device as if its queue were full
+        (counted in END ``samples_dropped``).
+    stall_at : int or None
+        Sample index from which the device transmits nothing more (it keeps receiving,
+        so a STOP still stops the motor).
+    disconnect_at : int or None
+        Sample index at which the device closes the link (the host sees the port fail).
+    watchdog_trip_at : int or None
+        Sample index at which the device acts as if the host had gone silent.
+    mute : bool
+        Never answer anything (a board without the firmware).
+    version : int
+        Protocol version reported in HELLO_ACK and BOOT.
+    boot_delay : float
+        Seconds in the "bootloader" after start, ignoring input, before BOOT.
+    """
+
+    flip_rate: float = 0.0
+    drop_rate: float = 0.0
+    garbage_rate: float = 0.0
+    queue_drop_rate: float = 0.0
+    stall_at: int | None = None
+    disconnect_at: int | None = None
+    watchdog_trip_at: int | None = None
+    mute: bool = False
+    version: int = P.PROTOCOL_VERSION
+    boot_delay: float = 0.0
+
+    def __post_init__(self):
+        for name in ("flip_rate", "drop_rate", "garbage_rate", "queue_drop_rate"):
+            v = _check_real(name, getattr(self, name), nonnegative=True)
+            if v >= 1:
+                raise ValueError(f"{name} must be a probability in [0, 1), got {v!r}")
+            object.__setattr__(self, name, v)
+        for name in ("stall_at", "disconnect_at", "watchdog_trip_at"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _check_int(name, getattr(self, name), 0, 2**32 - 1))
+        object.__setattr__(self, "version", _check_int("version", self.version, 0, 255))
+        object.__setattr__(self, "boot_delay", _check_real("boot_delay", self.boot_delay, nonnegative=True))
+        object.__setattr__(self, "mute", bool(self.mute))
+
+
+class FakeDevice:
+    """The emulated bench firmware on a pty; a context manager (``with FakeDevice(...) as dev``).
+
+    Parameters
+    ----------
+    motor : Motor
+        The simulated motor (any friction, bias, dead zone, input delay).
+    encoder : Encoder, optional
+        Counts per revolution (after the configured decoding), boot offset and angle noise.
+    faults : FaultPlan, optional
+        Faults to inject.
+    speed : float, optional
+        Device time per wall-clock time (1 = real time, default); 0 = as fast as the host reads.
+    queue_size : int, optional
+        Transmit queue in SAMPLE frames (default 16).
+    rng : numpy.random.Generator, optional
+        Source of angle noise and injected faults; default ``default_rng(0)``.
+
+    Attributes (read them from tests; they are updated by the device thread)
+    ----------
+    duty : int
+        Duty applied to the motor now.
+    stops_received : int
+        STOP frames received.
+    runs_started : int
+        Runs started by START.
+    last_end : hardware.protocol.End or None
+        The last END sent (or that would have been sent).
+    """
+
+    def __init__(self, motor: Motor, encoder: Encoder | None = None, faults: FaultPlan | None = None, *,
+                 speed: float = 1.0, queue_size: int = 16, rng: np.random.Generator | None = None):
+        if not isinstance(motor, Motor):
+            raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")
+        self.motor = motor
+        self.encoder = encoder if encoder is not None else Encoder()
+        if not isinstance(self.encoder, Encoder):
+            raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
+        self.faults = faults if faults is not None else FaultPlan()
+        if not isinstance(self.faults, FaultPlan):
+            raise TypeError(f"faults must be a FaultPlan, got {type(self.faults).__name__}")
+        self.speed = _check_real("speed", speed, nonnegative=True)
+        self.queue_size = _check_int("queue_size", queue_size, 1, 10_000)
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        if not isinstance(self.rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
+        self._motor0 = dataclasses.replace(motor, input_delay=0)
+        self.duty = 0
+        self.stops_received = 0
+        self.runs_started = 0
+        self.last_end: P.End | None = None
+        self.rx_errors = 0
+        self._master = self._slave = -1
+        self.port_name = ""
+        self._thread: threading.Thread | None = None
+        self._stop_event = threading.Event()
+        self.error: BaseException | None = None
+
+    # -------------------------------------------------------------- lifecycle
+    def start(self) -> "FakeDevice":
+        """Open the pty and start the device thread; returns ``self``."""
+        if self._thread is not None:
+            raise RuntimeError("this FakeDevice is already started")
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._master)
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.port_name = os.ttyname(self._slave)
+        self._thread = threading.Thread(target=self._main, name="motorid-fake-device", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the device thread and close the pty."""
+        self._stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = -1
+
+    def __enter__(self) -> "FakeDevice":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -------------------------------------------------------------- the firmware
+    def _main(self) -> None:
+        try:
+            self._run_firmware()
+        except BaseException as exc:  # surfaced to tests through .error
+            self.error = exc
+
+    def _run_firmware(self) -> None:
+        self._out = bytearray()
+        self._queued_samples = 0
+        self._tx_seq = 0
+        self._rx_pending = b""
+        self._config: P.Config | None = None
+        self._wave = None
+        self._running = False
+        self._link_down = False
+        self._silent = False
+        self._angle, self._speed_rad_s = 0.0, 0.0
+        self._idle_since = time.monotonic()
+        if self.faults.boot_delay:
+            self._stop_event.wait(self.faults.boot_delay)
+            self._drain_input(discard=True)
+        self._send(P.Boot(self.faults.version, 1))
+        self._last_rx = time.monotonic()
+        while not self._stop_event.is_set() and not self._link_down:
+            now = time.monotonic()
+            timeout = 0.02
+            if self._running:
+                timeout = 0.0 if self.speed == 0 else max(0.0, min(timeout, self._next_tick - now))
+            wlist = [self._master] if self._out else []
+            try:
+                r, w, _ = select.select([self._master], wlist, [], timeout)
+            except (OSError, ValueError):
+                return
+            if r:
+                self._drain_input()
+            if self._running:
+                self._ticks(time.monotonic())
+            self._flush()
+            self._check_watchdog(time.monotonic())
+
+    def _drain_input(self, discard: bool = False) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:   # the host closed its end; wait for it to reopen
+                time.sleep(0.01)
+                return
+            raise
+        if discard or self.faults.mute:
+            return
+        parts = (self._rx_pending + data).split(b"\x00")
+        self._rx_pending = parts.pop()
+        if len(self._rx_pending) > P.MAX_ENCODED:
+            self._rx_pending = b""
+            self.rx_errors += 1
+        for part in parts:
+            if part:
+                self._receive(part)
+
+    def _receive(self, encoded: bytes) -> None:
+        try:
+            msg_type, seq, payload = P.decode_frame(encoded)
+        except P.FrameError:
+            self.rx_errors += 1
+            return
+        self._last_rx = time.monotonic()   # any CRC-valid frame refreshes the watchdog
+        try:
+            msg = P.decode_message(msg_type, payload)
+        except P.FrameError:
+            self.rx_errors += 1
+            known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
+            self._send(P.Nak(msg_type, seq, P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE))
+            return
+        if isinstance(msg, P.Heartbeat):
+            return
+        if isinstance(msg, P.Stop):
+            self.stops_received += 1
+            self.duty = 0
+            self._send(P.Ack(msg_type, seq))
+            if self._running:
+                self._end(P.EndReason.STOPPED_BY_HOST)
+            return
+        if self._running:
+            self._send(P.Nak(msg_type, seq, P.NakReason.BUSY))
+            return
+        if isinstance(msg, P.Hello):
+            self._send(P.HelloAck(self.faults.version, 0x0100, 16_000_000, 1, P.MAX_PAYLOAD, "fake"))
+        elif isinstance(msg, P.Config):
+            ok = (100 <= msg.sample_period_us <= 1_000_000 and msg.n_samples >= 1 and 0 <= msg.duty_limit <= 255
+                  and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
+            if ok:
+                self._config = msg
+            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+        elif msg_type == P.MsgType.WAVE:
+            ok = not P._check_wave_ranges(msg)
+            if ok:
+                self._wave = msg
+            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+        elif isinstance(msg, P.Start):
+            if self._config is None or self._wave is None:
+                self._send(P.Nak(msg_type, seq, P.NakReason.NOT_CONFIGURED))
+            else:
+                self._send(P.Ack(msg_type, seq))
+                self._start_run()
+        else:   # a device-to-host type sent to the device
+            self._send(P.Nak(msg_type, seq, P.NakReason.UNKNOWN_TYPE))
+
+    def _start_run(self) -> None:
+        cfg = self._config
+        self._duty_seq = P.expand(self._wave, cfg.n_samples, cfg.duty_limit) if cfg.n_samples <= 10**8 else None
+        self._dt = cfg.sample_period_us * 1e-6
+        # the motor coasted with duty 0 since the last run
+        idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
+        if idle > 0:
+            self._advance_motor(0.0, idle)
+        self._delay_line = [0] * self.motor.input_delay
+        self._k = 0
+        self._t0_us = int(self.rng.integers(0, 2**32))   # micros() is wherever it is
+        self._counters = dict(sent=0, dropped=0, encoder_errors=0, overruns=0)
+        self._overflow_reported = False
+        self._next_tick = time.monotonic()
+        self._running = True
+        self.runs_started += 1
+
+    def _advance_motor(self, drive: float, h: float) -> None:
+        traj = simulate(self._motor0, [drive, drive], [0.0, h], initial_speed=self._speed_rad_s,
+                        initial_angle=self._angle)
+        self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
+
+    def _ticks(self, now: float) -> None:
+        cfg = self._config
+        while self._running:
+            if self.speed == 0:
+                if self._queued_samples >= self.queue_size:
+                    return          # unpaced: wait for the host to read (lossless)
+            elif now < self._next_tick:
+                return
+            k = self._k
+            f = self.faults
+            if f.disconnect_at is not None and k >= f.disconnect_at:
+                self._disconnect()
+                return
+            if f.watchdog_trip_at is not None and k >= f.watchdog_trip_at:
+                self._watchdog_trip()
+                return
+            if f.stall_at is not None and k >= f.stall_at:
+                self._silent = True
+            counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
+            duty = int(self._duty_seq[k])
+            self.duty = duty
+            if self._delay_line:
+                self._delay_line.append(duty)
+                drive = self._delay_line.pop(0)
+            else:
+                drive = duty
+            self._advance_motor(float(drive), self._dt)
+            time_us = (self._t0_us + k * cfg.sample_period_us) & 0xFFFFFFFF
+            sample = P.Sample(k, time_us, counts, duty, 0)
+            if self._queued_samples >= self.queue_size or self.rng.random() < f.queue_drop_rate:
+                self._counters["dropped"] += 1
+                if not self._overflow_reported:
+                    self._overflow_reported = True
+                    self._send(P.Fault(P.FaultCode.QUEUE_OVERFLOW, k))
+            else:
+                self._send_sample(sample)
+            self._k += 1
+            self._next_tick += self._dt / self.speed if self.speed else 0.0
+            if self._k >= cfg.n_samples:
+                self.duty = 0
+                self._end(P.EndReason.COMPLETE)
+
+    def _send_sample(self, sample: P.Sample) -> None:
+        f, rng = self.faults, self.rng
+        wire = P.encode_message(sample, self._tx_seq)
+        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        self._counters["sent"] += 1
+        if f.garbage_rate and rng.random() < f.garbage_rate:
+            self._emit(bytes(rng.integers(1, 256, int(rng.integers(1, 9)), dtype=np.uint8)) + b"\x00")
+        if f.drop_rate and rng.random() < f.drop_rate:
+            return
+        if f.flip_rate and rng.random() < f.flip_rate:
+            bad = bytearray(wire)
+            i = int(rng.integers(0, len(wire) - 1))
+            bad[i] ^= 1 << int(rng.integers(0, 8))
+            wire = bytes(bad)
+        self._emit(wire, sample=True)
+
+    def _end(self, reason: int) -> None:
+        c = self._counters
+        self._running = False
+        self.duty = 0
+        self._idle_since = time.monotonic()
+        end = P.End(int(reason), c["sent"], c["dropped"], c["encoder_errors"], min(self.rx_errors, 0xFFFF),
+                    c["overruns"])
+        self.last_end = end
+        self._send(end)
+
+    def _watchdog_trip(self) -> None:
+        self.duty = 0
+        self._send(P.Fault(P.FaultCode.HOST_SILENCE, self._k))
+        self._end(P.EndReason.HOST_SILENCE)
+
+    def _check_watchdog(self, now: float) -> None:
+        if self._running and self._config.watchdog_ms and now - self._last_rx > self._config.watchdog_ms / 1000:
+            self._watchdog_trip()
+
+    def _disconnect(self) -> None:
+        self.duty = 0
+        self._running = False
+        self._link_down = True
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._master = self._slave = -1
+
+    # -------------------------------------------------------------- transmit
+    def _send(self, msg) -> None:
+        self._emit(P.encode_message(msg, self._tx_seq))
+        self._tx_seq = (self._tx_seq + 1) & 0xFF
+
+    def _emit(self, wire: bytes, sample: bool = False) -> None:
+        if self._silent or self.faults.mute:
+            return
+        self._out += wire
+        if sample:
+            self._queued_samples += 1
+        self._flush()
+
+    def _flush(self) -> None:
+        if not self._out or self._master < 0:
+            return
+        try:
+            n = os.write(self._master, self._out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return
+            raise
+        del self._out[:n]
+        self._queued_samples = min(self._queued_samples, math.ceil(len(self._out) / _SAMPLE_WIRE))
+
+
+def parse_fake_url(url: str) -> FakeDevice:
+    """A (not yet started) :class:`FakeDevice` from ``fake://?a=25&b=3&...``.
+
+    Query keys: ``a``, ``b`` (motor, defaults 25 and 3), ``friction``, ``bias``, ``dead_zone``,
+    ``input_delay``, ``cpr`` (counts per revolution, default 16667), ``offset`` (count at boot),
+    ``noise`` (angle noise in rad), ``seed``, ``speed``, ``queue``, and every
+    :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+    """
+    parsed = urllib.parse.urlsplit(url)
+    if parsed.scheme != "fake":
+        raise ValueError(f"url must start with fake://, got {url!r}")
+    query = dict(urllib.parse.parse_qsl(parsed.query, keep_blank_values=True))
+    motor_keys = {"a": float, "b": float, "friction": float, "bias": float, "dead_zone": float, "input_delay": int}
+    fault_fields = {f.name: f.type for f in dataclasses.fields(FaultPlan)}
+    other = {"cpr", "offset", "noise", "seed", "speed", "queue"}
+    unknown = set(query) - set(motor_keys) - set(fault_fields) - other
+    if unknown:
+        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: "
+                         f"{sorted(set(motor_keys) | set(fault_fields) | other)}")
+
+    def num(key, kind, default=None):
+        if key not in query:
+            return default
+        try:
+            return kind(float(query[key])) if kind is int else kind(query[key])
+        except ValueError:
+            raise ValueError(f"fake:// url key {key} must be a number, got {query[key]!r}") from None
+
+    motor = Motor(num("a", float, 25.0), num("b", float, 3.0), friction=num("friction", float, 0.0),
+                  bias=num("bias", float, 0.0), dead_zone=num("dead_zone", float, 0.0),
+                  input_delay=num("input_delay", int, 0))
+    encoder = Encoder(num("cpr", int, DEFAULT_COUNTS_PER_REV), num("offset", int, 0), num("noise", float, 0.0))
+    faults = {}
+    for key in fault_fields:
+        if key in query:
+            kind = bool if key == "mute" else (int if key in ("stall_at", "disconnect_at", "watchdog_trip_at",
+                                                               "version") else float)
+            faults[key] = query[key].lower() in ("1", "true", "yes") if kind is bool else num(key, kind)
+    return FakeDevice(motor, encoder, FaultPlan(**faults), speed=num("speed", float, 1.0),
+                      queue_size=num("queue", int, 16), rng=np.random.default_rng(num("seed", int, 0)))
+
+
+@contextlib.contextmanager
+def open_fake(url: str, baudrate: int, timeout: float) -> Iterator:
+    """Start the fake device described by ``url`` and yield an open ``serial.Serial`` on its pty.
+
+    The port has an extra attribute ``fake_device`` (the running :class:`FakeDevice`).
+    ``baudrate`` is set on the pty but, as with USB serial, does not limit its speed.
+    """
+    import serial
+
+    device = parse_fake_url(url)
+    with device:
+        port = serial.Serial(device.port_name, baudrate=baudrate, timeout=timeout)
+        port.fake_device = device
+        try:
+            yield port
+        finally:
+            port.close()

@@ -1,0 +1,76 @@
+"""Opening a port by name: device paths, pyserial URLs, and motorid's own schemes.
+
+``fake://?a=25&b=3`` starts the emulated Arduino (:mod:`hardware.fake_device`);
+``avr-sim://...`` runs the real firmware in an AVR simulator (``hardware/sim``).
+Anything else (``/dev/ttyACM0``, ``COM3``, ``loop://``, ``socket://host:port``,
+``rfc2217://...``) goes to :func:`serial.serial_for_url`.
+"""
+from __future__ import annotations
+
+import contextlib
+import importlib
+from typing import Iterator
+
+from .errors import RigDisconnectedError
+
+__all__ = ["open_port", "available_schemes"]
+
+#: scheme -> "module:function"; the function is a context manager
+#: ``open_X(url: str, baudrate: int, timeout: float)`` yielding an open pyserial-compatible port.
+_SCHEMES = {
+    "fake": "hardware.fake_device:open_fake",
+    "avr-sim": "hardware.sim.launcher:open_avr_sim",
+}
+
+
+def available_schemes() -> list[str]:
+    """motorid's own URL schemes (pyserial's are accepted too)."""
+    return list(_SCHEMES)
+
+
+@contextlib.contextmanager
+def open_port(url: str, baudrate: int, timeout: float) -> Iterator:
+    """Open ``url`` as a serial port and close it afterwards.
+
+    Parameters
+    ----------
+    url : str
+        A device path, a pyserial URL, or ``fake://...`` / ``avr-sim://...``.
+    baudrate : int
+        Line rate in baud.
+    timeout : float
+        Read timeout of the port in s.
+
+    Raises
+    ------
+    ValueError
+        A motorid scheme whose module is not available.
+    RigDisconnectedError
+        The port cannot be opened.
+    """
+    if not isinstance(url, str) or not url:
+        raise ValueError(f"port must be a non-empty string (a device path or URL), got {url!r}")
+    scheme = url.partition("://")[0] if "://" in url else ""
+    if scheme in _SCHEMES:
+        module_name, _, func = _SCHEMES[scheme].partition(":")
+        try:
+            opener = getattr(importlib.import_module(module_name), func)
+        except (ImportError, AttributeError) as exc:
+            raise ValueError(f"port scheme {scheme}:// is not available in this installation "
+                             f"({module_name}:{func} cannot be loaded: {exc})") from None
+        with opener(url, baudrate, timeout) as port:
+            yield port
+        return
+    import serial
+
+    try:
+        port = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
+    except ValueError as exc:   # pyserial: unknown URL scheme or bad settings
+        raise ValueError(f"port {url!r} cannot be used: {exc} (motorid's own schemes: "
+                         f"{', '.join(s + '://' for s in _SCHEMES)})") from None
+    except (serial.SerialException, OSError) as exc:
+        raise RigDisconnectedError(f"cannot open port {url!r}: {exc}") from None
+    try:
+        yield port
+    finally:
+        port.close()

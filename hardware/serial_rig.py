@@ -1,0 +1,429 @@
+"""``SerialRig``: the real bench (or the emulated one) behind ``Rig.run(experiment) -> Recording``.
+
+The host uploads the experiment (CONFIG, WAVE), sends START and then only reads
+SAMPLEs, sending a HEARTBEAT every ``watchdog_ms / 4``; the clock and the
+waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
+
+- a SAMPLE lost on the link or dropped by the device leaves a gap in the
+  recording's ``seq`` (its sample index), and is counted in the metadata;
+- every SAMPLE's duty is checked against :func:`hardware.protocol.expand` of the
+  WAVE sent, and END's counters against what arrived (:class:`RigCheckError`);
+- the device going silent (:class:`RigTimeoutError`), the port failing
+  (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
+  device fault (:class:`DeviceFaultError`) raise with the samples received so far
+  attached as ``exc.recording``;
+- STOP is sent from ``finally`` whenever a run is left early, including Ctrl-C.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from motorsim.recording import Recording
+from motorsim.rig import Experiment
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+
+from . import protocol as P
+from .errors import (DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError,
+                     RigTimeoutError)
+from .ports import open_port
+
+__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
+
+#: Seconds between HELLOs while waiting for the device to boot (PROTOCOL.md).
+HELLO_INTERVAL = 0.2
+_READ_TIMEOUT = 0.02
+
+
+class RecordedSample(NamedTuple):
+    """One row as it arrives: sample index, time in s from the run's start, duty, encoder counts."""
+
+    seq: int
+    time_s: float
+    duty: int
+    counts: int
+
+
+class SerialRig:
+    """The bench over a serial port, a context manager; implements ``motorsim.rig.Rig``.
+
+    Parameters
+    ----------
+    port : str or serial port object
+        A device path (``/dev/ttyACM0``), a pyserial URL (``loop://``, ``socket://...``),
+        ``fake://?a=25&b=3`` (the emulated device), ``avr-sim://...``; or an already open
+        pyserial-compatible object (``read``, ``write``, ``in_waiting``), which is not closed.
+    baudrate : int
+        Line rate, default 250 000 (115 200 is the safe choice at <= 250 Hz).
+    counts_per_rev : int
+        Encoder counts per revolution after decoding (the device does not know it).
+    decoding : {1, 2, 4}
+        Quadrature decoding the device applies.
+    watchdog_ms : int
+        Device's host-silence watchdog in ms (0 off, else 50...60 000); HEARTBEAT every quarter of it.
+    timeout : float
+        Seconds of silence from the device during a run before :class:`RigTimeoutError`.
+    hello_timeout : float
+        Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
+    command_timeout : float
+        Seconds to wait for the ACK of CONFIG, WAVE, START (each is sent up to 3 times).
+    """
+
+    def __init__(self, port, baudrate: int = 250_000, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+                 decoding: int = 4, watchdog_ms: int = 500, timeout: float = 1.0, hello_timeout: float = 5.0,
+                 command_timeout: float = 0.5):
+        if isinstance(port, str):
+            if not port:
+                raise ValueError("port must be a device path or URL, got ''")
+        elif not all(hasattr(port, a) for a in ("read", "write")):
+            raise TypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
+        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+            raise ValueError(f"baudrate must be a positive integer, got {baudrate!r}")
+        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
+            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        if decoding not in (1, 2, 4):
+            raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
+        if not (watchdog_ms == 0 or (isinstance(watchdog_ms, int) and 50 <= watchdog_ms <= 60_000)):
+            raise ValueError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
+        for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
+                            ("command_timeout", command_timeout)):
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a number of seconds > 0, got {value!r}")
+        self.port = port
+        self.baudrate = baudrate
+        self.counts_per_rev = counts_per_rev
+        self.decoding = decoding
+        self.watchdog_ms = watchdog_ms
+        self.timeout = float(timeout)
+        self.hello_timeout = float(hello_timeout)
+        self.command_timeout = float(command_timeout)
+        self._stack: contextlib.ExitStack | None = None
+        self._port = None
+        self._reader = P.FrameReader()
+        self._tx_seq = 0
+        self._rx_seq: int | None = None
+        self._link_lost = 0
+        self._boot: P.Boot | None = None
+        self.device: P.HelloAck | None = None
+
+    # -------------------------------------------------------------- connection
+    def __enter__(self) -> "SerialRig":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def port_name(self) -> str:
+        """The port as given (its URL or the object's ``name``)."""
+        return self.port if isinstance(self.port, str) else str(getattr(self.port, "name", "<port object>"))
+
+    def open(self) -> None:
+        """Open the port and shake hands (HELLO every 0.2 s until HELLO_ACK); idempotent."""
+        if self._port is not None:
+            return
+        stack = contextlib.ExitStack()
+        try:
+            if isinstance(self.port, str):
+                self._port = stack.enter_context(open_port(self.port, self.baudrate, _READ_TIMEOUT))
+            else:
+                self._port = self.port
+            self._stack = stack
+            self._handshake()
+        except BaseException:
+            self._port = None
+            self._stack = None
+            stack.close()
+            raise
+
+    def close(self) -> None:
+        """Close the port (if this rig opened it)."""
+        stack, self._stack, self._port = self._stack, None, None
+        if stack is not None:
+            stack.close()
+
+    def _write(self, msg) -> int:
+        seq = self._tx_seq
+        try:
+            self._port.write(P.encode_message(msg, seq))
+        except Exception as exc:   # pyserial raises SerialException / OSError / portNotOpenError
+            raise RigDisconnectedError(f"writing to {self.port_name} failed: {exc}") from None
+        self._tx_seq = (seq + 1) & 0xFF
+        return seq
+
+    def _read(self) -> list:
+        port = self._port
+        try:
+            waiting = getattr(port, "in_waiting", 0)
+            data = port.read(max(1, min(waiting, 65536)))
+        except Exception as exc:
+            raise RigDisconnectedError(f"reading from {self.port_name} failed: {exc}") from None
+        if not data:
+            return []
+        frames = self._reader.feed(data)
+        for seq, msg in frames:
+            if isinstance(msg, P.Boot):
+                self._boot = msg
+            elif self._rx_seq is not None:
+                self._link_lost += (seq - self._rx_seq - 1) & 0xFF
+            self._rx_seq = seq
+        return [msg for _, msg in frames]
+
+    def _handshake(self) -> None:
+        start = time.monotonic()
+        next_hello, sent = start, 0
+        while True:
+            now = time.monotonic()
+            if now >= next_hello:
+                self._write(P.Hello(P.PROTOCOL_VERSION))
+                sent += 1
+                next_hello = now + HELLO_INTERVAL
+            for msg in self._read():
+                if isinstance(msg, P.HelloAck):
+                    P.check_version(msg.version)
+                    self.device = msg
+                    return
+            if time.monotonic() - start > self.hello_timeout:
+                raise RigTimeoutError(
+                    f"the device on {self.port_name} never answered HELLO ({sent} sent over "
+                    f"{self.hello_timeout:g} s): check the port, the baud rate ({self.baudrate}) and that "
+                    f"the motorid firmware (protocol version {P.PROTOCOL_VERSION}) is flashed")
+
+    def _command(self, msg, started: Callable[[list], bool] | None = None) -> list:
+        """Send ``msg`` until ACKed (3 tries); returns other messages received meanwhile."""
+        msg_type = P.MsgType.WAVE if type(msg).__name__.startswith("Wave") else P._TYPE_OF[type(msg)]
+        others = []
+        for _ in range(3):
+            seq = self._write(msg)
+            deadline = time.monotonic() + self.command_timeout
+            while time.monotonic() < deadline:
+                replies = self._read()
+                for i, reply in enumerate(replies):
+                    if isinstance(reply, P.Ack) and reply.acked_seq == seq and reply.acked_type == msg_type:
+                        return others + replies[i + 1:]
+                    if isinstance(reply, P.Nak) and reply.refused_seq == seq and reply.refused_type == msg_type:
+                        try:
+                            reason = P.NakReason(reply.reason).name
+                        except ValueError:
+                            reason = f"reason {reply.reason}"
+                        raise DeviceRefusedError(f"the device refused {P.MsgType(msg_type).name} {msg!r}: {reason}")
+                    others.append(reply)
+                if started is not None and started(others):
+                    return others      # START's ACK was lost but samples are arriving
+        raise RigTimeoutError(f"the device on {self.port_name} did not acknowledge {P.MsgType(msg_type).name} "
+                              f"(3 tries, {self.command_timeout:g} s each)")
+
+    # -------------------------------------------------------------- the run
+    def run(self, experiment: Experiment, *, on_sample: Callable[[RecordedSample], None] | None = None
+            ) -> Recording:
+        """Run ``experiment`` on the device and return its recording.
+
+        Parameters
+        ----------
+        experiment : Experiment
+            What to run; its sample period must be a whole number of µs (100 µs...1 s).
+        on_sample : callable, optional
+            Called with each :class:`RecordedSample` as it arrives (incremental recording,
+            running estimates, progress); an exception in it ends the run (STOP is sent).
+
+        Returns
+        -------
+        Recording
+            ``seq`` is the device's sample index (gaps are lost samples); ``time`` is the
+            device's clock from the run's start; metadata hold the device's END counters
+            (``device_*``), the host's (``host_*``) and ``complete: true``.
+        """
+        if not isinstance(experiment, Experiment):
+            raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+        config = P.config_for(experiment, decoding=self.decoding, watchdog_ms=self.watchdog_ms)
+        wave = P.wave_for(experiment)
+        expected = experiment.duty()
+        self.open()
+        run = _RunState(experiment, expected, self)
+        started = ended = False
+        try:
+            self._command(config)
+            self._command(wave)
+            run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
+            early = self._command(P.Start(), started=lambda msgs: any(isinstance(m, P.Sample) for m in msgs))
+            started = True
+            run.accept(early, on_sample)
+            hb_interval = self.watchdog_ms / 4000 if self.watchdog_ms else None
+            next_hb = time.monotonic() + (hb_interval or 0)
+            last_rx = time.monotonic()
+            while run.end is None:
+                msgs = self._read()
+                now = time.monotonic()
+                if msgs:
+                    last_rx = now
+                    run.accept(msgs, on_sample)
+                elif now - last_rx > self.timeout:
+                    raise RigTimeoutError(f"the device on {self.port_name} went silent for {self.timeout:g} s "
+                                          f"after sample {run.last_index}")
+                if run.boot is not None:
+                    raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
+                                           f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
+                if hb_interval is not None and now >= next_hb and run.end is None:
+                    self._write(P.Heartbeat())
+                    next_hb = now + hb_interval
+            ended = True
+            rec = run.recording(self, complete=True)
+            problems = run.check()
+            if run.end.reason != P.EndReason.COMPLETE:
+                raise DeviceFaultError(f"the device ended the run early: {run.describe_end()}")
+            if problems:
+                raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
+            return rec
+        except Exception as exc:
+            if isinstance(exc, RigError) and exc.recording is None:
+                exc.with_recording(run.recording(self, complete=False, reason=str(exc)) if run.n else None)
+            raise
+        finally:
+            if started and not ended and self._port is not None:
+                with contextlib.suppress(Exception):
+                    self._write(P.Stop())
+                    flush = getattr(self._port, "flush", None)
+                    if flush is not None:
+                        flush()
+
+
+class _RunState:
+    """What one run has received (private to SerialRig.run)."""
+
+    def __init__(self, experiment: Experiment, expected: np.ndarray, rig: "SerialRig"):
+        self._rig = rig
+        self.experiment = experiment
+        self.expected = expected
+        self.dt = experiment.sample_period
+        self.seq: list[int] = []
+        self.time: list[float] = []
+        self.duty: list[int] = []
+        self.counts: list[int] = []
+        self.end: P.End | None = None
+        self.fault: P.Fault | None = None
+        self.boot: P.Boot | None = None
+        self.duty_mismatches = 0
+        self.first_mismatch = ""
+        self.out_of_order = 0
+        self.encoder_flags = 0
+        self.late_flags = 0
+        self.last_index = -1
+        self.rx0, self.lost0 = rig._reader.rx_errors, rig._link_lost
+        self._first_us = self._prev_us = self._unwrapped = 0
+
+    @property
+    def n(self) -> int:
+        return len(self.seq)
+
+    @property
+    def host_rx_errors(self) -> int:
+        return self._rig._reader.rx_errors - self.rx0
+
+    @property
+    def link_lost(self) -> int:
+        return self._rig._link_lost - self.lost0
+
+    def accept(self, msgs: list, on_sample) -> None:
+        n_expected = len(self.expected)
+        for msg in msgs:
+            if type(msg) is P.Sample:
+                k = msg.index
+                if k <= self.last_index or k >= n_expected:
+                    self.out_of_order += 1
+                    continue
+                if not self.seq:
+                    self._first_us = self._prev_us = msg.time_us
+                    self._unwrapped = 0
+                    t = k * self.dt
+                    self._t_offset = t
+                else:
+                    self._unwrapped += (msg.time_us - self._prev_us) & 0xFFFFFFFF
+                    self._prev_us = msg.time_us
+                    t = self._t_offset + self._unwrapped * 1e-6
+                if msg.duty != self.expected[k]:
+                    if not self.duty_mismatches:
+                        self.first_mismatch = f"sample {k}: device applied {msg.duty}, expected {self.expected[k]}"
+                    self.duty_mismatches += 1
+                self.encoder_flags += msg.flags & 1
+                self.late_flags += (msg.flags >> 1) & 1
+                self.last_index = k
+                self.seq.append(k)
+                self.time.append(t)
+                self.duty.append(msg.duty)
+                self.counts.append(msg.counts)
+                if on_sample is not None:
+                    on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+            elif type(msg) is P.End:
+                self.end = msg
+                return
+            elif type(msg) is P.Fault:
+                self.fault = msg
+            elif type(msg) is P.Boot:
+                self.boot = msg
+                return
+
+    def describe_end(self) -> str:
+        out = []
+        if self.end is not None:
+            try:
+                out.append(f"END {P.EndReason(self.end.reason).name}")
+            except ValueError:
+                out.append(f"END reason {self.end.reason}")
+        if self.fault is not None:
+            try:
+                name = P.FaultCode(self.fault.code).name
+            except ValueError:
+                name = f"code {self.fault.code}"
+            out.append(f"FAULT {name} at sample {self.fault.index}")
+        return ", ".join(out) + f"; {self.n} samples received"
+
+    def check(self) -> list[str]:
+        """END against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
+        e, problems = self.end, []
+        if self.duty_mismatches:
+            problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's "
+                            f"(first: {self.first_mismatch})")
+        if self.out_of_order:
+            problems.append(f"{self.out_of_order} samples arrived out of order or beyond n_samples")
+        if self.n > e.samples_sent:
+            problems.append(f"received {self.n} samples but the device sent {e.samples_sent}")
+        elif e.samples_sent - self.n > self.link_lost:
+            problems.append(f"the device sent {e.samples_sent} samples, {self.n} arrived, but the link "
+                            f"sequence shows only {self.link_lost} frames lost")
+        ticks = e.samples_sent + e.samples_dropped
+        if e.reason == P.EndReason.COMPLETE and ticks != len(self.expected):
+            problems.append(f"END says {ticks} ticks (sent {e.samples_sent} + dropped {e.samples_dropped}), "
+                            f"the experiment has {len(self.expected)}")
+        if self.seq and self.seq[-1] >= ticks:
+            problems.append(f"sample {self.seq[-1]} arrived but END counts only {ticks} ticks")
+        return problems
+
+    def recording(self, rig: SerialRig, *, complete: bool, reason: str = "") -> Recording:
+        meta = {"source": "SerialRig", **self.experiment.metadata(), "port": rig.port_name,
+                "baudrate": str(rig.baudrate), "protocol_version": str(P.PROTOCOL_VERSION),
+                "complete": "true" if complete else "false"}
+        if reason:
+            meta["incomplete_reason"] = " ".join(reason.split())
+        if rig.device is not None:
+            d = rig.device
+            meta.update(board=d.board or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
+                        f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
+        meta.update(samples_expected=str(len(self.expected)), samples_received=str(self.n),
+                    host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
+                    host_duty_mismatches=str(self.duty_mismatches), flagged_encoder_errors=str(self.encoder_flags),
+                    flagged_late_ticks=str(self.late_flags))
+        if self.end is not None:
+            e = self.end
+            meta.update(device_end_reason=str(e.reason), device_samples_sent=str(e.samples_sent),
+                        device_samples_dropped=str(e.samples_dropped), device_encoder_errors=str(e.encoder_errors),
+                        device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
+        if self.fault is not None:
+            meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.index))
+        return Recording(time=np.array(self.time), duty=np.array(self.duty, dtype=np.int64),
+                         sample_period=self.dt, counts=np.array(self.counts, dtype=np.int64),
+                         seq=np.array(self.seq, dtype=np.int64), counts_per_rev=rig.counts_per_rev, metadata=meta)

@@ -1,0 +1,170 @@
+"""Recursive least squares: a running estimate of a and b while the samples arrive.
+
+:class:`RecursiveLeastSquares` is the textbook recursion (Ljung 1999, *System
+Identification*, 2nd ed., eqs. 11.19-11.20, pp. 365-366; Åström & Wittenmark,
+*Adaptive Control*, 2nd ed., Thm. 2.3): for a regressor ``phi`` and target ``y``,
+
+    K     = P phi / (lambda + phi^T P phi)
+    theta = theta + K (y - phi^T theta)
+    P     = (P - K phi^T P) / lambda
+
+which, with ``lambda = 1`` and ``P0 = delta^-1 I``, equals the batch least-squares
+solution of the rows seen so far regularised by ``delta ||theta||^2``.
+
+:class:`RunningEstimator` feeds it from incoming encoder samples (sample index,
+time, duty, counts), with speed as the backward difference of the angle, as the
+batch estimators do, and never pairs samples across a gap in the index.  Two
+regressions are offered:
+
+- ``"zoh-ls"``: ``omega_{k+1}`` on ``(omega_k, u_k)`` mapped back exactly as
+  :func:`identify.regression.fit_zoh_ls` does (the two agree to rounding on the
+  same recording); biased on differenced encoder speed;
+- ``"zoh-avg"`` (default): the exact model of the *differenced* speed
+  ``v_k = (theta_k - theta_{k-1}) / h`` under ZOH, which is second order in
+  the input::
+
+      v_{k+1} = e v_k + beta1 u_k + beta0 u_{k-1},  e = exp(-a h),
+      beta1 = q / h,  beta0 = (p g - q e) / h   (p, q, g as in motorsim.plant),
+
+  so ``a = -ln(e)/h`` and ``b = a (beta1 + beta0) / (1 - e)`` (the static gain
+  ``(beta1 + beta0)/(1 - e) = b/a``).  On noise-free samples it recovers a and b
+  exactly; only the encoder's quantisation is left.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+__all__ = ["RecursiveLeastSquares", "RunningEstimator", "RunningEstimate", "RUNNING_MODELS"]
+
+#: Regressions :class:`RunningEstimator` offers.
+RUNNING_MODELS = ("zoh-avg", "zoh-ls")
+
+
+class RecursiveLeastSquares:
+    """Recursive least squares for ``y = phi^T theta``, updated one row at a time.
+
+    Parameters
+    ----------
+    n_params : int
+        Length of ``theta``.
+    forgetting : float
+        ``lambda`` in (0, 1]; 1 (default) weights every row equally.
+    initial_covariance : float
+        ``P0 = initial_covariance I``; large means a vague start (default 1e8).
+    """
+
+    def __init__(self, n_params: int, *, forgetting: float = 1.0, initial_covariance: float = 1e8):
+        if isinstance(n_params, bool) or not isinstance(n_params, int) or n_params < 1:
+            raise ValueError(f"n_params must be a positive integer, got {n_params!r}")
+        if not (isinstance(forgetting, (int, float)) and 0 < forgetting <= 1):
+            raise ValueError(f"forgetting must be in (0, 1], got {forgetting!r}")
+        if not (isinstance(initial_covariance, (int, float)) and math.isfinite(initial_covariance)
+                and initial_covariance > 0):
+            raise ValueError(f"initial_covariance must be a finite number > 0, got {initial_covariance!r}")
+        self._theta = np.zeros(n_params)
+        self._P = np.eye(n_params) * float(initial_covariance)
+        self._lambda = float(forgetting)
+        self.n_updates = 0
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The current estimate (a copy)."""
+        return self._theta.copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """The current ``P`` (a copy); times the noise variance it is theta's covariance."""
+        return self._P.copy()
+
+    def update(self, phi, y: float) -> None:
+        """Take one row: regressor ``phi`` (length ``n_params``) and target ``y``."""
+        phi = np.asarray(phi, dtype=float)
+        if phi.shape != self._theta.shape:
+            raise ValueError(f"phi must have shape {self._theta.shape}, got {phi.shape}")
+        if not (np.all(np.isfinite(phi)) and math.isfinite(y)):
+            raise ValueError(f"phi and y must be finite, got {phi!r} and {y!r}")
+        Pphi = self._P @ phi
+        gain = Pphi / (self._lambda + phi @ Pphi)
+        self._theta += gain * (y - phi @ self._theta)
+        P = (self._P - np.outer(gain, Pphi)) / self._lambda
+        self._P = 0.5 * (P + P.T)     # keep it symmetric against rounding
+        self.n_updates += 1
+
+
+@dataclasses.dataclass(frozen=True)
+class RunningEstimate:
+    """A running estimate: ``a`` in 1/s and ``b`` in (rad/s^2)/duty (nan until identifiable), rows used."""
+
+    model: str
+    a: float
+    b: float
+    n_rows: int
+
+    @property
+    def ready(self) -> bool:
+        """True when a and b are finite."""
+        return math.isfinite(self.a) and math.isfinite(self.b)
+
+    def to_dict(self) -> dict:
+        """Plain types for JSON."""
+        return {"model": self.model, "a": self.a if self.ready else None, "b": self.b if self.ready else None,
+                "n_rows": self.n_rows}
+
+
+class RunningEstimator:
+    """Running estimate of a and b from samples as they arrive.
+
+    Parameters
+    ----------
+    sample_period : float
+        Nominal sample period h in s (the ZOH mapping uses it).
+    counts_per_rev : int
+        Encoder counts per revolution.
+    model : {"zoh-avg", "zoh-ls"}
+        The regression (see the module docstring); default ``"zoh-avg"``.
+    forgetting : float
+        RLS forgetting factor in (0, 1], default 1.
+    """
+
+    def __init__(self, sample_period: float, counts_per_rev: int, *, model: str = "zoh-avg",
+                 forgetting: float = 1.0):
+        if not (isinstance(sample_period, (int, float)) and math.isfinite(sample_period) and sample_period > 0):
+            raise ValueError(f"sample_period must be a number > 0 s, got {sample_period!r}")
+        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
+            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        if model not in RUNNING_MODELS:
+            raise ValueError(f"model must be one of {list(RUNNING_MODELS)}, got {model!r}")
+        self.model = model
+        self._h = float(sample_period)
+        self._rad_per_count = 2.0 * math.pi / counts_per_rev
+        self._rls = RecursiveLeastSquares(3 if model == "zoh-avg" else 2, forgetting=forgetting)
+        self._hist: list[tuple[int, float, float, float]] = []   # (seq, time, angle, duty), consecutive seqs
+
+    def add(self, seq: int, time_s: float, duty: float, counts: int) -> None:
+        """Take one sample; rows are formed only from consecutive sample indices."""
+        angle = counts * self._rad_per_count
+        if self._hist and seq != self._hist[-1][0] + 1:
+            self._hist = []
+        self._hist.append((seq, time_s, angle, float(duty)))
+        if len(self._hist) > 4:
+            del self._hist[0]
+        hist = self._hist
+        speed = [(hist[i][2] - hist[i - 1][2]) / (hist[i][1] - hist[i - 1][1]) for i in range(1, len(hist))]
+        # speed[j] is the speed at hist[j+1]; the newest is the target
+        if self.model == "zoh-ls" and len(hist) >= 3:
+            self._rls.update([speed[-2], hist[-2][3]], speed[-1])
+        elif self.model == "zoh-avg" and len(hist) >= 4:
+            self._rls.update([speed[-2], hist[-2][3], hist[-3][3]], speed[-1])
+
+    def estimate(self) -> RunningEstimate:
+        """a and b from the current parameters (nan while ``e`` is not in (0, 1))."""
+        theta, n = self._rls.theta, self._rls.n_updates
+        e = theta[0]
+        if n < len(theta) + 1 or not 0 < e < 1:
+            return RunningEstimate(self.model, math.nan, math.nan, n)
+        a = -math.log(e) / self._h
+        b = a * float(np.sum(theta[1:])) / (1.0 - e)
+        return RunningEstimate(self.model, float(a), float(b), n)

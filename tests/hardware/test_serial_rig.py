@@ -1,0 +1,291 @@
+"""SerialRig against the emulated device: the contract with SimRig, and every fault with a clear outcome."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from hardware import protocol as P
+from hardware.errors import (DeviceFaultError, DeviceRefusedError, ProtocolVersionError, RigCheckError,
+                             RigDisconnectedError, RigTimeoutError)
+from hardware.fake_device import FakeDevice, FaultPlan
+from hardware.ports import open_port
+from hardware.serial_rig import SerialRig
+from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, Sine, SimRig, Step
+
+MOTOR = Motor(25.0, 3.0)
+EXPERIMENT = Experiment(Sine(10.0), 0.005, 2.0)      # 400 samples
+
+
+def _fake(faults=None, *, speed=0.0, motor=MOTOR, seed=1, **kw):
+    return FakeDevice(motor, Encoder(), faults, speed=speed, rng=np.random.default_rng(seed), **kw)
+
+
+def _wait_for(predicate, what, limit=3.0):
+    deadline = time.monotonic() + limit
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.005)
+
+
+# ------------------------------------------------------------------ the contract: SimRig == SerialRig
+_CONTRACT = [Experiment(Sine(10.0), 0.005, 2.0),
+             Experiment(Multisine((10.0, 20.0, 30.0, 40.0), (80, 60, 40, 30), (0.0, 1.0, 2.0, 3.0)), 0.002, 1.0, 200),
+             Experiment(Chirp(2.0, 200.0, 220), 0.001, 1.0),
+             Experiment(PRBS(180, -180, 9, 4, 3), 0.005, 2.0),
+             Experiment(Step(150, 0.4, -30), 0.0025, 1.0)]
+
+
+@pytest.mark.parametrize("motor", [MOTOR, Motor(8.0, 0.9, friction=4.0, bias=-1.0, dead_zone=12.0, input_delay=2)],
+                         ids=["linear", "friction-deadzone-delay"])
+@pytest.mark.parametrize("experiment", _CONTRACT, ids=[e.excitation.describe() for e in _CONTRACT])
+def test_contract_serial_rig_on_the_emulated_device_records_what_simrig_simulates(experiment, motor):
+    sim = SimRig(motor).run(experiment)
+    with _fake(motor=motor) as dev, SerialRig(dev.port_name) as rig:
+        assert isinstance(rig, Rig)
+        rec = rig.run(experiment)
+    assert dev.error is None
+    # the same duty sequence, exactly; no sample lost; the device's clock gives k dt to 1 µs
+    assert np.array_equal(rec.seq, sim.seq) and np.array_equal(rec.duty, sim.duty)
+    assert np.allclose(rec.time, sim.time, rtol=0, atol=1e-9)
+    # Counts within one count: both integrate the same exact ZOH model, SimRig over the whole run
+    # (lfilter + cumsum), the device interval by interval, so the angles differ by float rounding
+    # (~1e-12 rad), which moves floor() only for an angle that close to a count boundary.
+    assert np.max(np.abs(rec.counts - sim.counts)) <= 1
+    assert rec.counts_per_rev == sim.counts_per_rev
+    assert rec.metadata["complete"] == "true" and rec.metadata["device_samples_sent"] == str(len(sim))
+
+
+def test_contract_holds_in_real_time_with_heartbeats():
+    # Paced at 4x real time for 1 s of device time with a 100 ms watchdog: heartbeats must keep it alive.
+    exp = Experiment(Sine(20.0), 0.002, 1.0)
+    sim = SimRig(MOTOR).run(exp)
+    with _fake(speed=4.0) as dev, SerialRig(dev.port_name, watchdog_ms=100) as rig:
+        rec = rig.run(exp)
+    assert np.array_equal(rec.duty, sim.duty) and np.max(np.abs(rec.counts - sim.counts)) <= 1
+    assert rec.metadata["device_end_reason"] == "0"
+
+
+# ------------------------------------------------------------------ faults on the link: nothing corrupted passes
+def _clean():
+    return SimRig(MOTOR).run(EXPERIMENT)
+
+
+def _assert_rows_are_true(rec, clean):
+    """Every row that arrived is exactly the clean row of the same index (nothing corrupted got through)."""
+    idx = rec.seq
+    assert np.array_equal(rec.duty, clean.duty[idx])
+    assert np.max(np.abs(rec.counts - clean.counts[idx])) <= 1       # tolerance: see the contract test
+
+
+def test_garbage_before_and_between_frames_loses_nothing():
+    with _fake(FaultPlan(garbage_rate=0.3)) as dev, SerialRig(dev.port_name) as rig:
+        rec = rig.run(EXPERIMENT)
+    assert not rec.has_gaps and len(rec) == EXPERIMENT.n_samples
+    assert int(rec.metadata["host_rx_errors"]) > 50     # ~120 garbage runs expected, each one error
+    _assert_rows_are_true(rec, _clean())
+
+
+def test_flipped_bits_are_all_detected_counted_and_shown_as_gaps():
+    with _fake(FaultPlan(flip_rate=0.15), seed=3) as dev, SerialRig(dev.port_name) as rig:
+        rec = rig.run(EXPERIMENT)
+    missing = EXPERIMENT.n_samples - len(rec)
+    assert missing > 20                                 # ~60 flips expected at this rate
+    assert int(rec.metadata["host_rx_errors"]) >= missing
+    assert int(rec.metadata["host_link_frames_lost"]) == missing
+    assert rec.metadata["device_samples_sent"] == str(EXPERIMENT.n_samples)
+    _assert_rows_are_true(rec, _clean())
+
+
+def test_dropped_frames_are_counted_as_seq_gaps_matching_end_totals():
+    with _fake(FaultPlan(drop_rate=0.1, queue_drop_rate=0.05), seed=4) as dev, SerialRig(dev.port_name) as rig:
+        rec = rig.run(EXPERIMENT)
+    m = rec.metadata
+    lost_on_link, dropped_on_device = int(m["host_link_frames_lost"]), int(m["device_samples_dropped"])
+    assert lost_on_link > 10 and dropped_on_device > 5
+    # received + lost on the link + dropped by the device = ticks elapsed (PROTOCOL.md, END check)
+    assert len(rec) + lost_on_link + dropped_on_device == EXPERIMENT.n_samples
+    assert int(m["device_samples_sent"]) == len(rec) + lost_on_link
+    assert np.sum(np.diff(rec.seq) - 1) + rec.seq[0] + (EXPERIMENT.n_samples - 1 - rec.seq[-1]) \
+        == lost_on_link + dropped_on_device
+    assert m["device_fault_code"] == str(int(P.FaultCode.QUEUE_OVERFLOW))
+    _assert_rows_are_true(rec, _clean())
+
+
+class _OneByteAtATime:
+    """A port whose every read returns at most one byte (a frame split across many reads)."""
+
+    def __init__(self, port):
+        self._port = port
+        self.name = port.name
+        self.reads = 0
+
+    in_waiting = 0
+
+    def read(self, size=1):
+        self.reads += 1
+        return self._port.read(1)
+
+    def write(self, data):
+        return self._port.write(data)
+
+
+def test_a_frame_split_across_reads_one_byte_at_a_time():
+    exp = Experiment(Sine(10.0), 0.005, 0.5)
+    with _fake() as dev, serial.Serial(dev.port_name, timeout=0.02) as port:
+        slow = _OneByteAtATime(port)
+        rec = SerialRig(slow).run(exp)
+    assert len(rec) == exp.n_samples and not rec.has_gaps
+    assert slow.reads >= 21 * exp.n_samples
+    assert np.array_equal(rec.duty, exp.duty())
+
+
+# ------------------------------------------------------------------ the device fails: error, motor stopped, data kept
+def test_device_going_silent_times_out_stops_the_motor_and_keeps_the_partial_recording():
+    with _fake(FaultPlan(stall_at=120), speed=2.0) as dev:
+        with SerialRig(dev.port_name, timeout=0.3) as rig, pytest.raises(RigTimeoutError, match="silent") as err:
+            rig.run(EXPERIMENT)
+        _wait_for(lambda: dev.stops_received == 1, "the STOP from the host")
+        assert dev.duty == 0 and dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
+    rec = err.value.recording
+    assert rec.metadata["complete"] == "false" and "silent" in rec.metadata["incomplete_reason"]
+    assert np.array_equal(rec.seq, np.arange(120))
+    _assert_rows_are_true(rec, _clean())
+
+
+def test_disconnect_mid_run_raises_and_keeps_what_arrived():
+    with _fake(FaultPlan(disconnect_at=150), speed=5.0) as dev:
+        with SerialRig(dev.port_name) as rig, pytest.raises(RigDisconnectedError) as err:
+            rig.run(EXPERIMENT)
+    rec = err.value.recording
+    assert rec is not None and 0 < len(rec) <= 150 and rec.metadata["complete"] == "false"
+    assert np.array_equal(rec.seq, np.arange(len(rec)))
+    _assert_rows_are_true(rec, _clean())
+
+
+def test_injected_watchdog_trip_is_a_device_fault_with_the_partial_recording():
+    with _fake(FaultPlan(watchdog_trip_at=200)) as dev, SerialRig(dev.port_name) as rig:
+        with pytest.raises(DeviceFaultError, match="HOST_SILENCE at sample 200") as err:
+            rig.run(EXPERIMENT)
+        assert dev.duty == 0
+    rec = err.value.recording
+    assert len(rec) == 200 and rec.metadata["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
+
+
+def test_the_device_watchdog_stops_a_host_that_goes_silent():
+    # Speak the protocol by hand and never send a HEARTBEAT: the device must stop on its own.
+    reader = P.FrameReader()
+    with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
+        for seq, msg in enumerate([P.Config(5000, 100_000, 255, 4, 100), P.WaveConstant(120), P.Start()]):
+            port.write(P.encode_message(msg, seq))
+        got = []
+        deadline = time.monotonic() + 3.0
+        while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
+            got += [m for _, m in reader.feed(port.read(256))]
+        assert P.Fault(P.FaultCode.HOST_SILENCE, got[-2].index) in got
+        assert got[-1].reason == P.EndReason.HOST_SILENCE and dev.duty == 0
+        # 100 ms of silence at 5 ms per sample: about 20 samples, never the whole 100 000
+        assert 5 < got[-1].samples_sent < 100
+
+
+def test_ctrl_c_during_a_run_sends_stop_and_propagates():
+    def interrupt(sample):
+        if sample.seq == 50:
+            raise KeyboardInterrupt
+    with _fake(speed=2.0) as dev:
+        with SerialRig(dev.port_name) as rig, pytest.raises(KeyboardInterrupt):
+            rig.run(EXPERIMENT, on_sample=interrupt)
+        _wait_for(lambda: dev.last_end is not None, "END after the STOP")
+        assert dev.stops_received == 1 and dev.duty == 0
+        assert dev.last_end.reason == P.EndReason.STOPPED_BY_HOST and dev.last_end.samples_sent < 400
+
+
+# ------------------------------------------------------------------ handshake
+def test_wrong_protocol_version_is_refused_naming_both_versions():
+    with _fake(FaultPlan(version=2)) as dev, pytest.raises(ProtocolVersionError, match=r"version 2.*version 1"):
+        SerialRig(dev.port_name).open()
+
+
+def test_a_device_that_never_answers_hello_times_out_after_retries():
+    with _fake(FaultPlan(mute=True)) as dev, pytest.raises(RigTimeoutError, match=r"never answered HELLO \([3-9] sent"):
+        SerialRig(dev.port_name, hello_timeout=0.7).open()
+
+
+def test_hello_is_retried_while_the_board_sits_in_its_bootloader():
+    with _fake(FaultPlan(boot_delay=0.5)) as dev, SerialRig(dev.port_name) as rig:
+        assert rig.device.board == "fake" and rig.device.version == P.PROTOCOL_VERSION
+        assert len(rig.run(Experiment(Sine(10.0), 0.005, 0.2))) == 40
+
+
+def test_nak_is_raised_with_its_reason():
+    with _fake() as dev, SerialRig(dev.port_name) as rig:
+        with pytest.raises(DeviceRefusedError, match="BAD_VALUE"):
+            rig._command(P.Config(50, 10, 255, 4, 0))          # sample period below 100 µs
+        with pytest.raises(DeviceRefusedError, match="NOT_CONFIGURED"):
+            rig._command(P.Start())
+
+
+def test_a_duty_other_than_the_waves_is_caught(monkeypatch):
+    real = P.expand
+    monkeypatch.setattr(P, "expand", lambda wave, n, lim: real(wave, n, lim) + (np.arange(n) == 77))
+    with _fake() as dev, SerialRig(dev.port_name) as rig, pytest.raises(RigCheckError, match="sample 77"):
+        rig.run(EXPERIMENT)
+
+
+def test_the_fake_device_answers_busy_and_unknown_types():
+    reader = P.FrameReader()
+    with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
+        for seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
+            port.write(P.encode_message(msg, seq))
+        port.write(P.encode_frame(0x30, 4))
+        port.write(P.encode_message(P.Stop(), 5))
+        got = []
+        deadline = time.monotonic() + 2.0
+        while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
+            got += [m for _, m in reader.feed(port.read(256))]
+    assert P.Nak(P.MsgType.HELLO, 3, P.NakReason.BUSY) in got
+    assert P.Nak(0x30, 4, P.NakReason.UNKNOWN_TYPE) in got
+    assert got[-1].reason == P.EndReason.STOPPED_BY_HOST
+
+
+# ------------------------------------------------------------------ ports
+def test_pyserial_urls_work_and_a_loopback_never_answers_hello():
+    with pytest.raises(RigTimeoutError, match="never answered HELLO"):
+        SerialRig("loop://", hello_timeout=0.3).open()
+
+
+def test_unknown_and_unavailable_schemes_are_clear_errors(monkeypatch):
+    with pytest.raises(ValueError, match="nosuch"):
+        with open_port("nosuch://x", 250000, 0.1):
+            pass
+    import hardware.ports as ports
+    monkeypatch.setitem(ports._SCHEMES, "avr-sim", "hardware.no_such_module:open_it")
+    with pytest.raises(ValueError, match="avr-sim:// is not available"):
+        with open_port("avr-sim://x", 250000, 0.1):
+            pass
+    with pytest.raises(RigDisconnectedError, match="cannot open port"):
+        with open_port("/dev/motorid-no-such-port", 250000, 0.1):
+            pass
+
+
+def test_fake_url_opens_a_running_device():
+    with open_port("fake://?a=10&b=2&cpr=1000&speed=0", 250000, 0.02) as port:
+        dev = port.fake_device
+        assert dev.motor == Motor(10.0, 2.0) and dev.encoder.counts_per_rev == 1000
+        rec = SerialRig(port, counts_per_rev=1000).run(Experiment(Sine(10.0), 0.005, 0.5))
+    assert len(rec) == 100
+    with pytest.raises(ValueError, match="unknown keys"):
+        with open_port("fake://?a=1&colour=red", 250000, 0.02):
+            pass
+
+
+@pytest.mark.parametrize("kwargs, name", [({"baudrate": 0}, "baudrate"), ({"decoding": 3}, "decoding"),
+                                          ({"watchdog_ms": 10}, "watchdog_ms"), ({"timeout": -1.0}, "timeout"),
+                                          ({"counts_per_rev": 0}, "counts_per_rev")],
+                         ids=["baudrate", "decoding", "watchdog", "timeout", "cpr"])
+def test_serial_rig_rejects_bad_settings_naming_them(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        SerialRig("loop://", **kwargs)
