@@ -71,7 +71,7 @@ def test_boot_and_hello_report_protocol_version_clock_and_power_on_reset(sine_ru
     boot, hello, _, _ = sine_run
     assert boot is not None and boot.version == P.PROTOCOL_VERSION
     assert hello.version == P.PROTOCOL_VERSION
-    assert hello.firmware_version == 1
+    assert hello.firmware_version == 0x0100   # 1.0 (major << 8 | minor)
     assert hello.f_cpu_hz == 16_000_000
     assert hello.max_payload == P.MAX_PAYLOAD
     assert hello.board == "uno"

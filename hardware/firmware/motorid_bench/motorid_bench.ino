@@ -23,7 +23,7 @@
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
 #define PROTOCOL_VERSION 1
-#define FIRMWARE_VERSION 1
+#define FIRMWARE_VERSION 0x0100  // major << 8 | minor: 1.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -628,7 +628,7 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len) {
       if (len < 3) return NAK_BAD_LENGTH;
       w.level_a = get_u16(p);
       w.n = p[2];
-      if (w.n < 1 || w.n > MAX_COMPONENTS) return len == 3 + 10 * w.n ? NAK_BAD_VALUE : NAK_BAD_LENGTH;
+      if (w.n < 1 || w.n > MAX_COMPONENTS) return NAK_BAD_LENGTH;  // n fixes the length
       if (len != 3 + 10 * w.n) return NAK_BAD_LENGTH;
       if (!level_ok(w.level_a)) return NAK_BAD_VALUE;
       for (uint8_t j = 0; j < w.n; j++) {
@@ -660,7 +660,7 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len) {
       if (w.n < 16 && w.seed >= (1U << w.n)) return NAK_BAD_VALUE;
       break;
     default:
-      return NAK_BAD_VALUE;
+      return NAK_BAD_LENGTH;  // an unknown kind implies no length (PROTOCOL.md, "Framing")
   }
   wave = w;
   return 0;
@@ -765,8 +765,7 @@ static void receive_frame(void) {
   uint16_t crc = get_u16(body + n - 2);
   if (crc16(body, n - 2) != crc) { rx_errors++; return; }
   uint8_t type = body[0];
-  uint8_t known = type >= T_HELLO && type <= T_HEARTBEAT;
-  if (known) last_rx_ms = millis();
+  last_rx_ms = millis();  // any CRC-valid frame shows the host is alive
   handle_frame(type, body[1], body + 2, n - 4);
 }
 
