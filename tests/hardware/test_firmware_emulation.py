@@ -1,11 +1,14 @@
 """The bench firmware, compiled for the Uno and run byte for byte under simavr (``avr-sim://``).
 
 Each test starts the harness (``hardware/sim/motorid_avr_sim.c``) with a motor, opens its
-pseudo-terminal and talks protocol v1 to the real firmware. Emulated time is capped at wall
-time, so every run costs its duration in wall time: the runs are short (0.5-3 s).
+pseudo-terminal and talks protocol v1 to the real firmware: through the real ``SerialRig``
+where a host would, frame by frame (``DeviceLink``) where the test needs exact bytes.
+Emulated time is capped at wall time, so every run costs its duration in wall time: the
+runs are short (0.5-3 s).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from urllib.parse import urlencode
@@ -17,6 +20,8 @@ from scipy.optimize import least_squares
 import identify
 from hardware.sim.device_link import DeviceLink
 from hardware import protocol as P
+from hardware.errors import DeviceFaultError
+from hardware.serial_rig import SerialRig
 from hardware.sim.launcher import build, open_avr_sim
 from motorsim import Constant, Experiment, Recording, Sine
 
@@ -37,14 +42,20 @@ def built():
     return build()
 
 
+@contextlib.contextmanager
+def _rig(**query):
+    """A SerialRig on the emulated firmware, and the port (whose harness reports the motor)."""
+    with _open(**query) as port:
+        with SerialRig(port, 250000, counts_per_rev=COUNTS_PER_REV, watchdog_ms=200) as rig:
+            yield rig, port
+
+
 @pytest.fixture(scope="module")
 def sine_run(built):
-    with _open() as port:
-        link = DeviceLink(port)
-        boot = link.wait_for(P.Boot, timeout=2.0)
-        hello = link.hello()
-        result = link.run(P.config_for(SINE, watchdog_ms=500), P.wave_for(SINE))
-    return boot, hello, result, port.avr_simulation.stats
+    with _rig() as (rig, port):
+        recording = rig.run(SINE)
+        device = rig.device
+    return device, recording
 
 
 def _fit_output_error(counts: np.ndarray, duty: np.ndarray, h: float, counts_per_rev: float):
@@ -67,49 +78,52 @@ def _fit_output_error(counts: np.ndarray, duty: np.ndarray, h: float, counts_per
 
 
 # ------------------------------------------------------------------ HELLO and BOOT
-def test_boot_and_hello_report_protocol_version_clock_and_power_on_reset(sine_run):
-    boot, hello, _, _ = sine_run
+def test_hello_ack_reports_protocol_version_clock_and_power_on_reset(sine_run):
+    device, _ = sine_run
+    assert device.version == P.PROTOCOL_VERSION
+    assert device.firmware_version == 0x0100   # 1.0 (major << 8 | minor)
+    assert device.f_cpu_hz == 16_000_000
+    assert device.max_payload == P.MAX_PAYLOAD
+    assert device.board == "uno"
+    assert device.reset_cause & 1, "the harness starts the AVR from power-on (MCUSR.PORF)"
+
+
+def test_boot_frame_comes_first_with_the_reset_cause(built):
+    with _open() as port:
+        link = DeviceLink(port)
+        boot = link.wait_for(P.Boot, timeout=2.0)
+        hello = link.hello()
     assert boot is not None and boot.version == P.PROTOCOL_VERSION
-    assert hello.version == P.PROTOCOL_VERSION
-    assert hello.firmware_version == 0x0100   # 1.0 (major << 8 | minor)
-    assert hello.f_cpu_hz == 16_000_000
-    assert hello.max_payload == P.MAX_PAYLOAD
-    assert hello.board == "uno"
-    assert hello.reset_cause & 1, "the harness starts the AVR from power-on (MCUSR.PORF)"
-    assert boot.reset_cause == hello.reset_cause
+    assert link.received[0][1] == boot and link.received[0][0] == 0, "BOOT is the first frame after reset"
+    assert boot.reset_cause == hello.reset_cause == 1
 
 
 # ------------------------------------------------------------------ the sine run
 def test_sine_run_has_no_drops_and_its_duty_equals_expand(sine_run):
-    _, _, run, _ = sine_run
+    _, rec = sine_run
     n = SINE.n_samples
-    assert run.end is not None and run.end.reason == P.EndReason.COMPLETE
-    assert run.end.samples_dropped == 0 and run.end.tick_overruns == 0 and run.end.rx_errors == 0
-    assert run.end.samples_sent == n == len(run.samples)
-    assert [s.index for s in run.samples] == list(range(n))
-    assert all(np.diff(run.seqs) % 256 == 1), "no frame lost on the link"
-    duty = np.array([s.duty for s in run.samples])
-    np.testing.assert_array_equal(duty, P.expand(P.wave_for(SINE), n, SINE.duty_limit))
-    np.testing.assert_array_equal(duty, SINE.duty())
+    meta = rec.metadata
+    assert meta["complete"] == "true" and meta["device_end_reason"] == "0"
+    assert meta["device_samples_dropped"] == "0" and meta["host_link_frames_lost"] == "0"
+    assert meta["device_tick_overruns"] == "0" and meta["device_rx_errors"] == "0"
+    assert meta["device_encoder_errors"] == "0"
+    np.testing.assert_array_equal(rec.seq, np.arange(n))
+    np.testing.assert_array_equal(rec.duty, P.expand(P.wave_for(SINE), n, SINE.duty_limit))
+    np.testing.assert_array_equal(rec.duty, SINE.duty())
     # The Timer 1 clock is exact; micros() has 4 us steps and the snapshot waits for any
     # interrupt already running (UART, encoder: under 10 us each), hence +-16 us.
-    period = np.diff(np.array([s.time_us for s in run.samples], dtype=np.int64)) % 2**32
-    assert np.all(np.abs(period - 2000) <= 16)
-    assert run.end.encoder_errors == 0
+    assert np.all(np.abs(np.diff(rec.time) - SINE.sample_period) <= 16e-6)
 
 
 def test_sine_run_identifies_the_harness_motor_within_one_percent(sine_run):
-    _, _, run, _ = sine_run
-    counts = np.array([s.counts for s in run.samples], dtype=float)
-    duty = np.array([s.duty for s in run.samples], dtype=float)
+    _, rec = sine_run
+    counts = rec.counts.astype(float)
     h = SINE.sample_period
     if "oe" in identify.available_methods():
-        rec = Recording(time=np.arange(len(counts)) * h, duty=duty, sample_period=h,
-                        counts=counts.astype(np.int64), counts_per_rev=COUNTS_PER_REV)
         est = identify.fit(rec, method="oe")
         a, b = est.a, est.b
     else:
-        a, b = _fit_output_error(counts, duty, h, COUNTS_PER_REV)
+        a, b = _fit_output_error(counts, rec.duty, h, COUNTS_PER_REV)
     # Truth is the harness's a, b. Left over: the few us between the count snapshot and the
     # duty write, and count quantisation; measured 0.05 %, the issue asks for 1 %.
     assert a == pytest.approx(A, rel=0.01)
@@ -127,7 +141,24 @@ def _settle_then_stop(port) -> float:
     return port.avr_simulation.stop()["speed_rad_s"]
 
 
-def test_stop_mid_run_ends_the_run_and_stops_the_motor(built):
+class _HostGivesUp(Exception):
+    pass
+
+
+def test_stop_mid_run_stops_the_motor(built):
+    def give_up(sample):
+        if sample.seq == 200:
+            raise _HostGivesUp   # SerialRig sends STOP when a run is left early
+
+    with _rig() as (rig, port):
+        with pytest.raises(_HostGivesUp):
+            rig.run(Experiment(Constant(150), sample_period=0.002, duration=2.0), on_sample=give_up)
+        speed = _settle_then_stop(port)
+    # Running at ~18 rad/s when stopped; after 9 time constants at duty 0 it is at rest.
+    assert abs(speed) < 1e-3 * STEADY_SPEED
+
+
+def test_stop_is_acked_and_ends_the_run_with_reason_stopped(built):
     with _open() as port:
         link = DeviceLink(port)
         link.hello()
@@ -137,28 +168,30 @@ def test_stop_mid_run_ends_the_run_and_stops_the_motor(built):
                 link.send(P.Stop())
 
         run = link.run(STEADY, P.WaveConstant(150), on_sample=stop_after_200)
-        speed = _settle_then_stop(port)
     assert run.end is not None and run.end.reason == P.EndReason.STOPPED_BY_HOST
     assert 200 < len(run.samples) < STEADY.n_samples
     assert run.end.samples_sent == len(run.samples)
     assert any(isinstance(m, P.Ack) and m.acked_type == P.MsgType.STOP for m in run.others)
-    # Running at ~18 rad/s when stopped; after 9 time constants at duty 0 it is at rest.
-    assert run.samples[-1].counts - run.samples[-101].counts > 0.5 * STEADY_SPEED * 0.2 * COUNTS_PER_REV / (2 * math.pi)
-    assert abs(speed) < 1e-3 * STEADY_SPEED
+    moved = run.samples[-1].counts - run.samples[-101].counts   # over the last 0.2 s
+    assert moved > 0.5 * STEADY_SPEED * 0.2 * COUNTS_PER_REV / (2 * math.pi)
 
 
 def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built):
-    with _open() as port:
-        link = DeviceLink(port)
-        link.hello()
-        run = link.run(STEADY._replace(watchdog_ms=200), P.WaveConstant(150), heartbeat=None)
+    def hang(sample):
+        if sample.seq == 50:
+            time.sleep(0.5)   # the host stops sending HEARTBEATs (watchdog 200 ms)
+
+    with _rig() as (rig, port):
+        with pytest.raises(DeviceFaultError, match="HOST_SILENCE") as info:
+            rig.run(Experiment(Constant(150), sample_period=0.002, duration=2.0), on_sample=hang)
         speed = _settle_then_stop(port)
-    assert run.end is not None and run.end.reason == P.EndReason.HOST_SILENCE
-    assert [f.code for f in run.faults] == [P.FaultCode.HOST_SILENCE]
-    # 200 ms after START at 2 ms per sample: index 100, give or take the millis() step and
-    # the loop() pass that notices it.
-    assert 98 <= run.faults[0].index <= 104
-    assert len(run.samples) == run.end.samples_sent == run.faults[0].index
+    meta = info.value.recording.metadata
+    assert meta["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
+    assert meta["device_fault_code"] == str(int(P.FaultCode.HOST_SILENCE))
+    # The last HEARTBEAT went out at most 50 ms (watchdog / 4) before sample 50; the device
+    # trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus a ms of millis() steps.
+    assert 50 + 75 <= int(meta["device_fault_index"]) <= 50 + 101
+    assert int(meta["samples_received"]) == int(meta["device_fault_index"])
     assert abs(speed) < 1e-3 * STEADY_SPEED
 
 
@@ -212,23 +245,21 @@ def test_unknown_type_and_wrong_length_are_naked(built):
 # ------------------------------------------------------------------ overload
 def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
     # 2000 samples/s x 21 bytes = 42 000 B/s on a 25 000 B/s line (250 000 baud, 8N1).
-    n = 1000
-    with _open() as port:
-        link = DeviceLink(port)
-        link.hello()
-        run = link.run(P.Config(500, n, 255, 4, 500), P.WaveConstant(0))
-    end = run.end
-    assert end is not None and end.reason == P.EndReason.COMPLETE
-    assert end.samples_dropped > 0
-    assert all(np.diff(run.seqs) % 256 == 1), "the link itself lost nothing"
-    assert end.samples_sent == len(run.samples)
-    assert len(run.samples) + end.samples_dropped == n
-    indices = np.array([s.index for s in run.samples])
-    assert np.all(np.diff(indices) > 0)
-    assert int(np.sum(np.diff(indices) - 1)) + indices[0] + (n - 1 - indices[-1]) == end.samples_dropped
-    assert [f.code for f in run.faults] == [P.FaultCode.QUEUE_OVERFLOW]
-    first_gap = next(k for k, i in enumerate(indices) if i != k)
-    assert run.faults[0].index == first_gap
+    experiment = Experiment(Constant(0), sample_period=0.0005, duration=0.5)
+    n = experiment.n_samples
+    with _rig() as (rig, _):
+        rec = rig.run(experiment)
+    meta = rec.metadata
+    dropped = int(meta["device_samples_dropped"])
+    assert meta["device_end_reason"] == "0" and dropped > 0
+    assert meta["host_link_frames_lost"] == "0", "the link itself lost nothing"
+    assert int(meta["device_samples_sent"]) == len(rec.seq)
+    assert len(rec.seq) + dropped == n
+    gaps = int(np.sum(np.diff(rec.seq) - 1)) + rec.seq[0] + (n - 1 - rec.seq[-1])
+    assert gaps == dropped, "every dropped sample is a gap in seq"
+    assert meta["device_fault_code"] == str(int(P.FaultCode.QUEUE_OVERFLOW))
+    first_gap = next(k for k, i in enumerate(rec.seq) if i != k)
+    assert int(meta["device_fault_index"]) == first_gap
 
 
 # ------------------------------------------------------------------ encoder
