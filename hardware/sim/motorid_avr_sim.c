@@ -13,7 +13,7 @@
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
  * at each sub-step from the firmware's registers, because simavr 1.6 does not emulate the PWM
  * waveform on the pin: u = +-OCR2A (pin 11, Timer 2) with the sign from the DIR pin (8), or
- * from IN1/IN2 (8/7). A PWM pin that is not an output (during reset) reads as 0, as the
+ * from IN1/IN2 (8/9). A PWM pin that is not an output (during reset) reads as 0, as the
  * pull-down on the real board makes it. The encoder A/B inputs (pins 2/3) get one quadrature
  * edge per sub-step at most, when the shaft angle crosses a count boundary, so edges are spaced
  * as the motor turns them (to 1 us) up to 1 M counts/s.
@@ -53,6 +53,7 @@
 #define REG_PINB 0x23
 #define REG_DDRB 0x24
 #define REG_PORTB 0x25
+#define REG_PIND 0x29
 #define REG_PORTD 0x2B
 #define REG_DDRD 0x2A
 #define REG_MCUSR 0x54
@@ -62,7 +63,7 @@
 
 #define PWM_BIT 3       /* pin 11 = PB3 (OC2A) */
 #define DIR_BIT 0       /* pin 8 = PB0: DIR, or IN1 */
-#define IN2_BIT 7       /* pin 7 = PD7 */
+#define IN2_BIT 1       /* pin 9 = PB1 */
 #define ENC_A_PIN 2     /* PD2 */
 #define ENC_B_PIN 3     /* PD3 */
 
@@ -99,7 +100,7 @@ static double drive(const harness_t *s) {
     else magnitude = (d[REG_PORTB] & (1 << PWM_BIT)) ? 255.0 : 0.0;
     int dir = (d[REG_PORTB] >> DIR_BIT) & 1;
     if (s->driver == DRIVER_DIR_PWM) return dir ? magnitude : -magnitude;
-    int in2 = (d[REG_PORTD] >> IN2_BIT) & 1;
+    int in2 = (d[REG_PORTB] >> IN2_BIT) & 1;
     if (dir == in2) return 0.0;                               /* brake or coast */
     return dir ? magnitude : -magnitude;
 }
@@ -146,6 +147,12 @@ static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *pa
         s->edges++;
         set_encoder_pins(s);
     }
+    /* simavr 1.6 copies every PORTD write onto the pin IRQs, so the firmware enabling its
+       pull-ups (or writing another PORTD pin) overrides what the encoder drives: put the
+       encoder's levels back. */
+    uint8_t pind = s->avr->data[REG_PIND];
+    if (((pind >> ENC_A_PIN) & 1) != s->last_a) avr_raise_irq(s->enc_a, s->last_a);
+    if (((pind >> ENC_B_PIN) & 1) != s->last_b) avr_raise_irq(s->enc_b, s->last_b);
     return when + s->substep;
 }
 

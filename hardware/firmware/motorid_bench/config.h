@@ -27,7 +27,7 @@
 #define PIN_IN1 8
 #endif
 #ifndef PIN_IN2          // DRIVER_IN1_IN2 only
-#define PIN_IN2 7
+#define PIN_IN2 9
 #endif
 // Encoder A and B: any two pins of the same port (0-7, 8-13 or A0-A5 = 14-19); they are
 // decoded by a pin-change interrupt reading the port register directly.
