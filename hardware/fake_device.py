@@ -195,8 +195,10 @@ class FakeDevice:
     def __enter__(self) -> "FakeDevice":
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
         self.close()
+        if self.error is not None and exc_type is None:
+            raise RuntimeError(f"the fake device's thread failed: {self.error!r}") from self.error
 
     # -------------------------------------------------------------- the firmware
     def _main(self) -> None:
@@ -266,14 +268,21 @@ class FakeDevice:
         except P.FrameError:
             self.rx_errors += 1
             return
-        self._last_rx = time.monotonic()   # any CRC-valid frame refreshes the watchdog
         try:
             msg = P.decode_message(msg_type, payload)
+            if msg_type >= 0x40:
+                raise P.FrameError(f"type {msg_type:#04x} is not a host-to-device type")
         except P.FrameError:
             self.rx_errors += 1
             known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
-            self._send(P.Nak(msg_type, seq, P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE))
+            reason = P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE
+            if msg_type == P.MsgType.WAVE and payload and (
+                    payload[0] not in P.WaveKind._value2member_map_
+                    or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):
+                reason = P.NakReason.BAD_VALUE
+            self._send(P.Nak(msg_type, seq, reason))
             return
+        self._last_rx = time.monotonic()   # any valid frame refreshes the watchdog
         if isinstance(msg, P.Heartbeat):
             return
         if isinstance(msg, P.Stop):
@@ -305,8 +314,6 @@ class FakeDevice:
             else:
                 self._send(P.Ack(msg_type, seq))
                 self._start_run()
-        else:   # a device-to-host type sent to the device
-            self._send(P.Nak(msg_type, seq, P.NakReason.UNKNOWN_TYPE))
 
     def _start_run(self) -> None:
         cfg = self._config

@@ -108,6 +108,7 @@ class SerialRig:
         self._rx_seq: int | None = None
         self._link_lost = 0
         self._boot: P.Boot | None = None
+        self._backlog: list = []
         self.device: P.HelloAck | None = None
 
     # -------------------------------------------------------------- connection
@@ -124,7 +125,11 @@ class SerialRig:
         return self.port if isinstance(self.port, str) else str(getattr(self.port, "name", "<port object>"))
 
     def open(self) -> None:
-        """Open the port and shake hands (HELLO every 0.2 s until HELLO_ACK); idempotent."""
+        """Open the port and shake hands (HELLO every 0.2 s until HELLO_ACK); idempotent.
+
+        A device still running an earlier session's experiment NAKs HELLO as BUSY; it is
+        sent STOP and asked again.
+        """
         if self._port is not None:
             return
         stack = contextlib.ExitStack()
@@ -157,6 +162,9 @@ class SerialRig:
         return seq
 
     def _read(self) -> list:
+        if self._backlog:
+            out, self._backlog = self._backlog, []
+            return out
         port = self._port
         try:
             waiting = getattr(port, "in_waiting", 0)
@@ -183,38 +191,55 @@ class SerialRig:
                 self._write(P.Hello(P.PROTOCOL_VERSION))
                 sent += 1
                 next_hello = now + HELLO_INTERVAL
-            for msg in self._read():
+            msgs = self._read()
+            for i, msg in enumerate(msgs):
                 if isinstance(msg, P.HelloAck):
                     P.check_version(msg.version)
                     self.device = msg
+                    self._backlog = msgs[i + 1:]
                     return
+                if isinstance(msg, P.Nak) and msg.refused_type == P.MsgType.HELLO and msg.reason == P.NakReason.BUSY:
+                    self._write(P.Stop())   # a run left over from an earlier session: stop it, then retry
+                    next_hello = time.monotonic()
             if time.monotonic() - start > self.hello_timeout:
                 raise RigTimeoutError(
                     f"the device on {self.port_name} never answered HELLO ({sent} sent over "
                     f"{self.hello_timeout:g} s): check the port, the baud rate ({self.baudrate}) and that "
                     f"the motorid firmware (protocol version {P.PROTOCOL_VERSION}) is flashed")
 
-    def _command(self, msg, started: Callable[[list], bool] | None = None) -> list:
-        """Send ``msg`` until ACKed (3 tries); returns other messages received meanwhile."""
+    def _command(self, msg) -> None:
+        """Send ``msg`` until ACKed (3 tries, ``command_timeout`` each); NAK raises.
+
+        For START, frames of the run that arrive with or before its ACK are kept for the
+        run loop, and samples arriving (or a retry NAKed BUSY) show that a START whose ACK
+        was lost did start the run.
+        """
         msg_type = P.MsgType.WAVE if type(msg).__name__.startswith("Wave") else P._TYPE_OF[type(msg)]
-        others = []
-        for _ in range(3):
+        is_start = msg_type == P.MsgType.START
+        run_frames: list = []
+        for attempt in range(3):
             seq = self._write(msg)
             deadline = time.monotonic() + self.command_timeout
             while time.monotonic() < deadline:
                 replies = self._read()
                 for i, reply in enumerate(replies):
                     if isinstance(reply, P.Ack) and reply.acked_seq == seq and reply.acked_type == msg_type:
-                        return others + replies[i + 1:]
+                        self._backlog = run_frames + replies[i + 1:]
+                        return
                     if isinstance(reply, P.Nak) and reply.refused_seq == seq and reply.refused_type == msg_type:
+                        if is_start and attempt > 0 and reply.reason == P.NakReason.BUSY:
+                            self._backlog = run_frames + replies[i + 1:]
+                            return     # the first START did start the run; its ACK was lost
                         try:
                             reason = P.NakReason(reply.reason).name
                         except ValueError:
                             reason = f"reason {reply.reason}"
                         raise DeviceRefusedError(f"the device refused {P.MsgType(msg_type).name} {msg!r}: {reason}")
-                    others.append(reply)
-                if started is not None and started(others):
-                    return others      # START's ACK was lost but samples are arriving
+                    if is_start and isinstance(reply, (P.Sample, P.End, P.Fault)):
+                        run_frames.append(reply)
+                if is_start and any(isinstance(m, P.Sample) for m in run_frames):
+                    self._backlog = run_frames
+                    return             # START's ACK was lost but samples are arriving
         raise RigTimeoutError(f"the device on {self.port_name} did not acknowledge {P.MsgType(msg_type).name} "
                               f"(3 tries, {self.command_timeout:g} s each)")
 
@@ -250,9 +275,8 @@ class SerialRig:
             self._command(config)
             self._command(wave)
             run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
-            early = self._command(P.Start(), started=lambda msgs: any(isinstance(m, P.Sample) for m in msgs))
-            started = True
-            run.accept(early, on_sample)
+            started = True             # from here on, leaving early sends STOP
+            self._command(P.Start())
             hb_interval = self.watchdog_ms / 4000 if self.watchdog_ms else None
             next_hb = time.monotonic() + (hb_interval or 0)
             last_rx = time.monotonic()

@@ -34,6 +34,7 @@ _COMMANDS = {
     "identify": ("scenarios.cli", "identify a and b from recordings"),
     "demo": ("scenarios.demo", "the article's section 5 on the simulated bench"),
     "bench": ("scenarios.bench", "speed and accuracy benchmarks"),
+    "live": ("scenarios.live", "run an experiment on the bench (or 'fake://'), record it live, identify"),
 }
 
 

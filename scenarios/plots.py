@@ -1,6 +1,10 @@
 """All plotting (matplotlib, Agg backend, imported only here)."""
 from __future__ import annotations
 
+import math
+import os
+import sys
+import time
 from pathlib import Path
 from typing import Sequence
 
@@ -8,7 +12,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-__all__ = ["plot_run", "plot_overlay"]
+__all__ = ["plot_run", "plot_overlay", "LivePlot"]
 
 
 def _pyplot():
@@ -55,3 +59,79 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence, path) -> 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+class LivePlot:
+    """Duty and speed of a bench run as the samples arrive, with the running estimate in the title.
+
+    Opens a matplotlib window when a display is available; otherwise (a headless
+    machine) it redraws ``fallback_path`` (PNG, Agg) instead.  Redraws at most every
+    ``interval`` s so plotting never holds up the serial reader for long.
+    """
+
+    def __init__(self, experiment, *, fallback_path, interval: float = 0.5):
+        import matplotlib
+        self.window = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+                           or sys.platform in ("win32", "darwin"))
+        if not self.window:
+            matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        self._plt = plt
+        self._path = Path(fallback_path)
+        self._interval = float(interval)
+        self._next = 0.0
+        self._rad_per_count = None
+        self._t, self._u, self._w = [], [], []
+        self._prev = None
+        self._estimate = None
+        if self.window:
+            plt.ion()
+        self.fig, self.ax = plt.subplots(figsize=(8, 3.6), constrained_layout=True)
+        self.ax2 = self.ax.twinx()
+        (self._duty_line,) = self.ax.step([], [], where="post", color="tab:blue", lw=0.8)
+        (self._speed_line,) = self.ax2.plot([], [], color="tab:red", lw=0.8)
+        self.ax.set_xlim(0, experiment.duration)
+        lim = max(experiment.duty_limit, 1)
+        self.ax.set_ylim(-1.05 * lim, 1.05 * lim)
+        self.ax.set_xlabel("time [s]")
+        self.ax.set_ylabel("duty η", color="tab:blue")
+        self.ax2.set_ylabel("ω [rad/s]", color="tab:red")
+        self._counts_per_rev = None
+
+    def add(self, sample, estimate, counts_per_rev: int | None = None) -> None:
+        """Add one sample (``seq, time_s, duty, counts``) and the current running estimate."""
+        rad = 2 * math.pi / (counts_per_rev or 16667)
+        w = math.nan
+        if self._prev is not None and sample.seq == self._prev.seq + 1:
+            w = (sample.counts - self._prev.counts) * rad / (sample.time_s - self._prev.time_s)
+        self._prev = sample
+        self._t.append(sample.time_s)
+        self._u.append(sample.duty)
+        self._w.append(w)
+        self._estimate = estimate
+        if time.monotonic() >= self._next:
+            self._draw()
+
+    def _draw(self) -> None:
+        self._next = time.monotonic() + self._interval
+        self._duty_line.set_data(self._t, self._u)
+        self._speed_line.set_data(self._t, self._w)
+        finite = [x for x in self._w if math.isfinite(x)]
+        if finite:
+            lo, hi = min(finite), max(finite)
+            pad = 0.05 * (hi - lo) or 1.0
+            self.ax2.set_ylim(lo - pad, hi + pad)
+        e = self._estimate
+        if e is not None and e.ready:
+            self.ax.set_title(f"running {e.model} RLS: a ≈ {e.a:.4g} 1/s, b ≈ {e.b:.4g}  ({e.n_rows} rows)")
+        if self.window:
+            self.fig.canvas.draw_idle()
+            self._plt.pause(0.001)
+        else:
+            self.fig.savefig(self._path, dpi=100)
+
+    def close(self) -> None:
+        """Final redraw; the window stays open until the user closes it (non-blocking here)."""
+        self._draw()
+        if not self.window:
+            self._plt.close(self.fig)

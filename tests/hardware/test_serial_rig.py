@@ -241,13 +241,17 @@ def test_the_fake_device_answers_busy_and_unknown_types():
         for seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
             port.write(P.encode_message(msg, seq))
         port.write(P.encode_frame(0x30, 4))
-        port.write(P.encode_message(P.Stop(), 5))
+        port.write(P.encode_frame(P.MsgType.WAVE, 5, b"\x07\x00"))
+        port.write(P.encode_frame(P.MsgType.STOP, 6, b"\x00"))
+        port.write(P.encode_message(P.Stop(), 7))
         got = []
         deadline = time.monotonic() + 2.0
         while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
             got += [m for _, m in reader.feed(port.read(256))]
     assert P.Nak(P.MsgType.HELLO, 3, P.NakReason.BUSY) in got
     assert P.Nak(0x30, 4, P.NakReason.UNKNOWN_TYPE) in got
+    assert P.Nak(P.MsgType.WAVE, 5, P.NakReason.BAD_VALUE) in got
+    assert P.Nak(P.MsgType.STOP, 6, P.NakReason.BAD_LENGTH) in got
     assert got[-1].reason == P.EndReason.STOPPED_BY_HOST
 
 
@@ -289,3 +293,17 @@ def test_fake_url_opens_a_running_device():
 def test_serial_rig_rejects_bad_settings_naming_them(kwargs, name):
     with pytest.raises(ValueError, match=name):
         SerialRig("loop://", **kwargs)
+
+
+def test_a_run_left_over_from_an_earlier_session_is_stopped_at_hello():
+    # An earlier host started a long run without a watchdog and vanished; the new host's HELLO is
+    # NAKed BUSY, so it sends STOP and shakes hands.
+    with _fake(speed=1.0) as dev:
+        with serial.Serial(dev.port_name, timeout=0.05) as port:
+            for seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
+                port.write(P.encode_message(msg, seq))
+            _wait_for(lambda: dev.runs_started == 1, "the first session's run")
+        with SerialRig(dev.port_name) as rig:
+            assert rig.device is not None
+            assert dev.stops_received == 1 and dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
+            assert len(rig.run(Experiment(Sine(10.0), 0.005, 0.1))) == 20

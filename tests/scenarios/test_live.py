@@ -1,0 +1,78 @@
+"""``motorid live`` on the emulated Arduino: results, incremental recording, faults, Ctrl-C."""
+from __future__ import annotations
+
+import json
+import threading
+import _thread
+
+import pytest
+
+from identify import available_methods
+from motorsim import read_recording
+from scenarios.cli import main
+
+
+def _live(tmp_path, url, *extra, name="run.csv"):
+    out = tmp_path / name
+    return main(["live", "--port", url, "--out", str(out), "--quiet", *extra]), out
+
+
+@pytest.mark.skipif("oe" not in available_methods(),
+                    reason="the 1 % acceptance is for the best estimator, oe (issue 3), not merged here yet")
+def test_acceptance_live_fake_run_recovers_a_and_b_within_one_percent(tmp_path, capsys):
+    status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0", "--duration", "10", "--json")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["method"] == "oe"
+    assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
+
+
+def test_live_writes_the_recording_and_prints_estimates_as_json(tmp_path, capsys):
+    status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0", "--duration", "4", "--prbs", "200,-200,9,3",
+                        "--json", "--method", "zoh-ls")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rec = read_recording(out)
+    assert len(rec) == 800 == result["samples_received"] and not rec.has_gaps
+    assert rec.metadata["complete"] == "true" and rec.metadata["device_samples_sent"] == "800"
+    assert not (tmp_path / "run.csv.partial").exists()
+    # The running zoh-avg RLS models the differenced encoder speed exactly; on this noise-free PRBS
+    # only the 16667-count quantisation is left (measured 0.1 % on a): 1 % is a loose bound.
+    run = result["running_estimate"]
+    assert run["model"] == "zoh-avg"
+    assert run["a"] == pytest.approx(25.0, rel=0.01) and run["b"] == pytest.approx(3.0, rel=0.01)
+
+
+def test_a_fault_mid_run_leaves_a_valid_incomplete_recording(tmp_path, capsys):
+    status, out = _live(tmp_path, "fake://?speed=0&disconnect_at=150", "--duration", "2")
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "complete: false" in err and str(out) in err
+    rec = read_recording(out)
+    assert 0 < len(rec) <= 150 and rec.metadata["complete"] == "false"
+    assert "RigDisconnectedError" in rec.metadata["incomplete_reason"]
+
+
+def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys):
+    timer = threading.Timer(0.6, _thread.interrupt_main)
+    timer.start()
+    try:
+        status, out = _live(tmp_path, "fake://?speed=1", "--duration", "5")
+    finally:
+        timer.cancel()
+    assert status == 130
+    rec = read_recording(out)
+    assert 10 < len(rec) < 1000 and rec.metadata["complete"] == "false"
+    assert rec.metadata["incomplete_reason"] == "interrupted (Ctrl-C)"
+
+
+def test_a_wrong_protocol_version_is_a_clear_error(tmp_path, capsys):
+    status, out = _live(tmp_path, "fake://?version=3", "--duration", "1")
+    assert status == 2 and "version 3" in capsys.readouterr().err and not out.exists()
+
+
+def test_an_unavailable_port_scheme_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    import hardware.ports as ports
+    monkeypatch.setitem(ports._SCHEMES, "avr-sim", "hardware.no_such_module:open_it")
+    status, _ = _live(tmp_path, "avr-sim://uno", "--duration", "1")
+    assert status == 2 and "avr-sim:// is not available" in capsys.readouterr().err
