@@ -136,7 +136,10 @@ STEADY_SPEED = B / A * 150                 # rad/s under duty 150
 
 
 def _settle_then_stop(port) -> float:
-    time.sleep(0.5)   # >= 0.35 s emulated (emulation runs at 0.7-1x wall time): 9 time constants
+    # Emulation runs at 0.5-1x wall time on a loaded machine (never faster: it is capped), so
+    # 1 s of wall time is >= 0.2 s emulated, 5 time constants (1/a = 40 ms): duty 0 leaves
+    # < 1 % of the speed; a duty still applied would leave all of it.
+    time.sleep(1.0)
     port.close()
     return port.avr_simulation.stop()["speed_rad_s"]
 
@@ -154,8 +157,8 @@ def test_stop_mid_run_stops_the_motor(built):
         with pytest.raises(_HostGivesUp):
             rig.run(Experiment(Constant(150), sample_period=0.002, duration=2.0), on_sample=give_up)
         speed = _settle_then_stop(port)
-    # Running at ~18 rad/s when stopped; after 9 time constants at duty 0 it is at rest.
-    assert abs(speed) < 1e-3 * STEADY_SPEED
+    # Running at ~18 rad/s when stopped.
+    assert abs(speed) < 1e-2 * STEADY_SPEED
 
 
 def test_stop_is_acked_and_ends_the_run_with_reason_stopped(built):
@@ -188,11 +191,12 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
     meta = info.value.recording.metadata
     assert meta["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
     assert meta["device_fault_code"] == str(int(P.FaultCode.HOST_SILENCE))
-    # The last HEARTBEAT went out at most 50 ms (watchdog / 4) before sample 50; the device
-    # trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus a ms of millis() steps.
-    assert 50 + 75 <= int(meta["device_fault_index"]) <= 50 + 101
+    # The last HEARTBEAT went out at most 50 ms (watchdog / 4) before the host read sample 50;
+    # the device trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus the host's lag
+    # behind the device when it read sample 50 (it reads in batches: allow 50 ms).
+    assert 50 + 75 <= int(meta["device_fault_index"]) <= 50 + 125
     assert int(meta["samples_received"]) == int(meta["device_fault_index"])
-    assert abs(speed) < 1e-3 * STEADY_SPEED
+    assert abs(speed) < 1e-2 * STEADY_SPEED
 
 
 # ------------------------------------------------------------------ corrupted frames
@@ -238,6 +242,11 @@ def test_unknown_type_and_wrong_length_are_naked(built):
         link.seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
         assert nak == P.Nak(P.MsgType.CONFIG, seq, P.NakReason.BAD_LENGTH)
+        seq = link.seq
+        link.send_raw(P.encode_frame(P.MsgType.WAVE, seq, b"\x09\x00\x00"))   # unknown kind
+        link.seq += 1
+        nak = link.wait_for(P.Nak, timeout=1.0)
+        assert nak == P.Nak(P.MsgType.WAVE, seq, P.NakReason.BAD_VALUE)
         assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.seq - 1, P.NakReason.BAD_VALUE)
         assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.seq - 1, P.NakReason.NOT_CONFIGURED)
 

@@ -603,8 +603,12 @@ static void respond(uint8_t type, uint8_t ref_type, uint8_t ref_seq, uint8_t rea
 
 static uint8_t level_ok(int16_t x) { return x >= -MAX_LEVEL && x <= MAX_LEVEL; }
 
-// Validate and store a WAVE payload; returns 0 or a NAK reason.
-static uint8_t parse_wave(const uint8_t *p, uint8_t len) {
+// An invalid WAVE (its length cannot be checked: unknown kind, multisine n outside 1...4) that
+// PROTOCOL.md says to NAK with BAD_VALUE; like BAD_LENGTH it is counted in rx_errors.
+#define INVALID_BAD_VALUE (0x80 | NAK_BAD_VALUE)
+
+// Validate and store a WAVE payload; returns 0, a NAK reason, or INVALID_BAD_VALUE.
+static uint8_t parse_wave(const uint8_t *p, uint8_t len, uint8_t check_only) {
   if (len < 1) return NAK_BAD_LENGTH;
   Wave w;
   memset(&w, 0, sizeof(w));
@@ -628,7 +632,7 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len) {
       if (len < 3) return NAK_BAD_LENGTH;
       w.level_a = get_u16(p);
       w.n = p[2];
-      if (w.n < 1 || w.n > MAX_COMPONENTS) return NAK_BAD_LENGTH;  // n fixes the length
+      if (w.n < 1 || w.n > MAX_COMPONENTS) return INVALID_BAD_VALUE;
       if (len != 3 + 10 * w.n) return NAK_BAD_LENGTH;
       if (!level_ok(w.level_a)) return NAK_BAD_VALUE;
       for (uint8_t j = 0; j < w.n; j++) {
@@ -660,9 +664,9 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len) {
       if (w.n < 16 && w.seed >= (1U << w.n)) return NAK_BAD_VALUE;
       break;
     default:
-      return NAK_BAD_LENGTH;  // an unknown kind implies no length (PROTOCOL.md, "Framing")
+      return INVALID_BAD_VALUE;
   }
-  wave = w;
+  if (!check_only) wave = w;
   return 0;
 }
 
@@ -706,16 +710,21 @@ static void start_run(void) {
   last_rx_ms = millis();
 }
 
+// Only valid frames (known type, right length) show the host is alive (PROTOCOL.md).
+static void host_alive(void) { last_rx_ms = millis(); }
+
 static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t len) {
   uint8_t busy = running;
   switch (type) {
     case T_HELLO:
       if (len != 1) break;
+      host_alive();
       if (busy) respond(T_NAK, type, seq, NAK_BUSY);
       else respond(T_HELLO_ACK, type, seq, 0);
       return;
     case T_CONFIG: {
       if (len != 13) break;
+      host_alive();
       if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
       uint8_t r = parse_config(p);
       if (r) respond(T_NAK, type, seq, r);
@@ -723,15 +732,22 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       return;
     }
     case T_WAVE: {
-      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
-      uint8_t r = parse_wave(p, len);
+      uint8_t r = parse_wave(p, len, busy);
       if (r == NAK_BAD_LENGTH) break;
+      if (r == INVALID_BAD_VALUE) {
+        rx_errors++;
+        respond(T_NAK, type, seq, NAK_BAD_VALUE);
+        return;
+      }
+      host_alive();
+      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
       if (r) respond(T_NAK, type, seq, r);
       else { have_wave = 1; respond(T_ACK, type, seq, 0); }
       return;
     }
     case T_START:
       if (len != 0) break;
+      host_alive();
       if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
       if (!have_config || !have_wave) { respond(T_NAK, type, seq, NAK_NOT_CONFIGURED); return; }
       respond(T_ACK, type, seq, 0);
@@ -739,6 +755,7 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       return;
     case T_STOP:
       if (len != 0) break;
+      host_alive();
       cli();
       stop_run(END_STOPPED);
       sei();
@@ -746,8 +763,9 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       return;
     case T_HEARTBEAT:
       if (len != 0) break;
+      host_alive();
       return;
-    default:
+    default:  // unknown, or a device-to-host type
       rx_errors++;
       respond(T_NAK, type, seq, NAK_UNKNOWN_TYPE);
       return;
@@ -765,7 +783,6 @@ static void receive_frame(void) {
   uint16_t crc = get_u16(body + n - 2);
   if (crc16(body, n - 2) != crc) { rx_errors++; return; }
   uint8_t type = body[0];
-  last_rx_ms = millis();  // any CRC-valid frame shows the host is alive
   handle_frame(type, body[1], body + 2, n - 4);
 }
 
