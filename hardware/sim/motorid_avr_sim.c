@@ -57,6 +57,8 @@
 #define REG_PORTD 0x2B
 #define REG_DDRD 0x2A
 #define REG_MCUSR 0x54
+#define REG_SPL 0x5D
+#define REG_SPH 0x5E
 #define REG_TCCR2A 0xB0
 #define REG_OCR2A 0xB3
 #define BIT_COM2A1 7
@@ -83,6 +85,7 @@ typedef struct harness {
     int last_a, last_b;
     uint64_t edges;
     uint64_t resets;
+    uint16_t min_sp;     /* lowest stack pointer seen (sampled every sub-step) */
 } harness_t;
 
 static volatile sig_atomic_t stop_requested = 0;
@@ -150,6 +153,8 @@ static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *pa
     /* simavr 1.6 copies every PORTD write onto the pin IRQs, so the firmware enabling its
        pull-ups (or writing another PORTD pin) overrides what the encoder drives: put the
        encoder's levels back. */
+    uint16_t sp = s->avr->data[REG_SPL] | (s->avr->data[REG_SPH] << 8);
+    if (sp < s->min_sp && sp > 0x100) s->min_sp = sp;
     uint8_t pind = s->avr->data[REG_PIND];
     if (((pind >> ENC_A_PIN) & 1) != s->last_a) avr_raise_irq(s->enc_a, s->last_a);
     if (((pind >> ENC_B_PIN) & 1) != s->last_b) avr_raise_irq(s->enc_b, s->last_b);
@@ -188,6 +193,7 @@ int main(int argc, char **argv) {
     s.b = 3.0;
     s.counts_per_rev = 16667.0;
     s.substep = 16;
+    s.min_sp = 0x8FF;
     double speed_cap = 1.0;
     static const struct option options[] = {
         {"a", required_argument, 0, 'a'},          {"b", required_argument, 0, 'b'},
@@ -281,9 +287,10 @@ int main(int argc, char **argv) {
     }
     double wall = wall_seconds() - wall0;
     double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
-    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f state=%d\n",
+    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
+           "stack_bytes=%d state=%d\n",
            emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s.emitted,
-           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, state);
+           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, 0x8FF - s.min_sp, state);
     fflush(stdout);
     /* Not uart_pty_stop(): in simavr 1.6 it can wait forever for its thread (seen about one
        time in six). Exiting closes the pty and ends the thread. */

@@ -561,7 +561,6 @@ static int16_t cobs_decode(const uint8_t *in, uint8_t n, uint8_t *out) {
 // Send one frame if the serial transmit buffer has room; returns 1 if sent.
 static uint8_t send_frame(uint8_t type, const uint8_t *payload, uint8_t len) {
   uint8_t body[MAX_BODY];
-  uint8_t out[MAX_ENCODED + 1];
   if (Serial.availableForWrite() < len + 4 + 3) return 0;
   body[0] = type;
   body[1] = tx_seq;
@@ -569,21 +568,18 @@ static uint8_t send_frame(uint8_t type, const uint8_t *payload, uint8_t len) {
   uint16_t crc = crc16(body, len + 2);
   put_u16(body + 2 + len, crc);
   uint8_t blen = len + 4;
-  // COBS encode
-  uint8_t code_pos = 0, o = 1, code = 1;
-  for (uint8_t i = 0; i < blen; i++) {
-    if (body[i] == 0) {
-      out[code_pos] = code;
-      code_pos = o++;
-      code = 1;
-    } else {
-      out[o++] = body[i];
-      code++;
-    }
+  // COBS, written block by block (no second buffer on the stack): each block is the bytes up
+  // to the next zero, preceded by their count + 1. A body is at most 64 bytes < 254.
+  uint8_t i = 0;
+  for (;;) {
+    uint8_t j = i;
+    while (j < blen && body[j] != 0) j++;
+    Serial.write((uint8_t)(j - i + 1));
+    Serial.write(body + i, j - i);
+    if (j == blen) break;
+    i = j + 1;
   }
-  out[code_pos] = code;
-  out[o++] = 0;
-  Serial.write(out, o);
+  Serial.write((uint8_t)0);
   tx_seq++;
   return 1;
 }
