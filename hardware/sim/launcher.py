@@ -14,7 +14,7 @@ URL query keys (all optional):
 ``encoder_rate``
     Turn the encoder at this many counts/s whatever the duty (measures the encoder ceiling).
 ``driver``
-    ``dir-pwm`` (default) or ``in1-in2``: which H-bridge wiring the firmware was built for.
+    ``dir-pwm`` (default) or ``in1-in2``: the H-bridge wiring (the firmware is built to match).
 ``speed``
     Largest ratio of emulated to wall-clock time (default 1.0; 0 runs free).  The host's
     heartbeats follow the wall clock and the firmware's host-silence watchdog counts emulated
@@ -22,8 +22,9 @@ URL query keys (all optional):
 ``substep_cycles``
     CPU cycles per motor integration step (default 16, i.e. 1 us).
 
-The firmware's baud rate is fixed when it is compiled; a ``baudrate`` other than 250000 uses
-a firmware built with ``-DBAUD_RATE=<baudrate>`` in ``hardware/firmware/build/baud<baudrate>/``.
+The firmware's baud rate and H-bridge type are fixed when it is compiled: a ``baudrate`` other
+than 250000 or ``driver=in1-in2`` use a firmware built with ``-DBAUD_RATE=...`` /
+``-DDRIVER_TYPE=DRIVER_IN1_IN2`` in ``hardware/firmware/build/<variant>/``.
 """
 from __future__ import annotations
 
@@ -134,13 +135,29 @@ def _check_baudrate(baudrate: int) -> int:
     return baudrate
 
 
-def firmware_elf(baudrate: int = DEFAULT_BAUDRATE) -> Path:
-    """Path of the firmware ELF built for ``baudrate``."""
+_DRIVERS = {"dir-pwm": "DRIVER_DIR_PWM", "in1-in2": "DRIVER_IN1_IN2"}
+
+
+def _variant(baudrate: int, driver: str) -> tuple[str, list[str]]:
+    """Build sub-directory and -D flags of a firmware variant ("" for the default build)."""
     _check_baudrate(baudrate)
-    build = REPO_ROOT / "hardware" / "firmware" / "build"
+    if driver not in _DRIVERS:
+        raise ValueError(f"driver must be one of {sorted(_DRIVERS)}, got {driver!r}")
+    parts, defs = [], []
     if baudrate != DEFAULT_BAUDRATE:
-        build = build / f"baud{baudrate}"
-    return build / "motorid_bench.elf"
+        parts.append(f"baud{baudrate}")
+        defs.append(f"-DBAUD_RATE={baudrate}")
+    if driver != "dir-pwm":
+        parts.append(driver)
+        defs.append(f"-DDRIVER_TYPE={_DRIVERS[driver]}")
+    return "-".join(parts), defs
+
+
+def firmware_elf(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> Path:
+    """Path of the firmware ELF built for ``baudrate`` and the H-bridge ``driver``."""
+    sub, _ = _variant(baudrate, driver)
+    build = REPO_ROOT / "hardware" / "firmware" / "build"
+    return (build / sub if sub else build) / "motorid_bench.elf"
 
 
 def _stale(target: Path, sources: list[Path]) -> bool:
@@ -150,14 +167,15 @@ def _stale(target: Path, sources: list[Path]) -> bool:
     return any(src.stat().st_mtime > built for src in sources)
 
 
-def build(baudrate: int = DEFAULT_BAUDRATE) -> tuple[Path, Path]:
-    """Build the firmware (for ``baudrate``) and the harness when missing or stale.
+def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Path, Path]:
+    """Build the firmware (for ``baudrate`` and ``driver``) and the harness when missing or stale.
 
     Returns
     -------
     (elf, harness) : tuple of Path
     """
-    elf = firmware_elf(baudrate)
+    sub, defs = _variant(baudrate, driver)
+    elf = firmware_elf(baudrate, driver)
     if not (REPO_ROOT / "hardware" / "avr.mk").exists():
         raise FileNotFoundError(f"avr-sim needs the motorid source tree (hardware/avr.mk) under {REPO_ROOT}")
     targets = []
@@ -167,9 +185,8 @@ def build(baudrate: int = DEFAULT_BAUDRATE) -> tuple[Path, Path]:
         targets.append("avr-sim")
     if targets:
         cmd = ["make", "--no-print-directory", "-s", "-C", str(REPO_ROOT), *targets]
-        if baudrate != DEFAULT_BAUDRATE:
-            cmd += [f"FIRMWARE_BUILD={elf.parent.relative_to(REPO_ROOT)}",
-                    f"FIRMWARE_DEFS=-DBAUD_RATE={baudrate}"]
+        if sub:
+            cmd += [f"FIRMWARE_BUILD={elf.parent.relative_to(REPO_ROOT)}", f"FIRMWARE_DEFS={' '.join(defs)}"]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(f"building the AVR firmware/harness failed ({' '.join(cmd)}):\n"
@@ -203,7 +220,7 @@ class AvrSimulation:
 
     def start(self) -> str:
         """Build if needed, start the harness and return its pty path."""
-        elf, harness = build(self.baudrate)
+        elf, harness = build(self.baudrate, self.options.driver)
         self._process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
                                          stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                          stderr=subprocess.PIPE, text=True)

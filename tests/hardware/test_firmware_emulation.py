@@ -310,3 +310,16 @@ def test_emulated_firmware_and_pure_python_device_agree_to_one_count(sine_run):
     # 25 k counts/s of this run, so the counts differ by at most one (at a floor boundary).
     assert np.max(np.abs(avr.counts - fake.counts)) <= 1
     assert np.max(np.abs(fake.counts)) > 1000, "the motor really turned"
+
+
+# ------------------------------------------------------------------ the IN1/IN2 H-bridge build
+def test_in1_in2_driver_build_turns_the_motor_both_ways(built):
+    experiment = Experiment(Constant(-150), sample_period=0.002, duration=0.4)
+    with _open(driver="in1-in2") as port:
+        with SerialRig(port, 250000, counts_per_rev=COUNTS_PER_REV) as rig:
+            rec = rig.run(experiment)
+    # From rest under duty -150: speed -18 (1 - exp(-25 t)) rad/s; exact solution at 0.4 s.
+    t = rec.time[-1] - rec.time[0]
+    angle = -STEADY_SPEED * (t - (1 - math.exp(-A * t)) / A)
+    expected = angle * COUNTS_PER_REV / (2 * math.pi)
+    assert rec.counts[-1] - rec.counts[0] == pytest.approx(expected, abs=2)

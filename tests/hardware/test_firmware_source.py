@@ -61,5 +61,6 @@ def test_avr_sim_url_reads_the_motor_and_rejects_unknown_keys():
 def test_firmware_builds_exist_per_baud_rate_only_for_rates_the_uno_can_make():
     assert launcher.firmware_elf(250000).parent.name == "build"
     assert launcher.firmware_elf(115200).parent.name == "baud115200"
+    assert launcher.firmware_elf(500000, "in1-in2").parent.name == "baud500000-in1-in2"
     with pytest.raises(ValueError, match="baudrate must be one of"):
         launcher.firmware_elf(300000)
