@@ -47,7 +47,17 @@ def _run(query: dict, config: P.Config, wave, baudrate: int = 250000):
 
 def link_capacity(baudrates=(115200, 250000, 500000), rates=(250, 500, 1000, 2000),
                   duration: float = 1.0) -> list[dict]:
-    """Samples dropped at each baud rate and sample rate (a 1 s sine run each)."""
+    """Samples dropped at each baud rate and sample rate (one sine run each).
+
+    Parameters
+    ----------
+    baudrates : sequence of int
+        Firmware builds to try.
+    rates : sequence of int
+        Sample rates in Hz.
+    duration : float
+        Seconds per run.
+    """
     rows = []
     for baud in baudrates:
         build(baud)
@@ -76,7 +86,16 @@ def _encoder_ok(rate: float, decoding: int, duration: float = 1.0) -> tuple[bool
 
 def encoder_ceiling(decodings=(4, 2, 1), start: float = 40_000, step: float = 10_000,
                     stop: float = 300_000) -> list[dict]:
-    """Highest 4x edge rate (counts/s) counted exactly with no error, per decoding (500 Hz run)."""
+    """Highest 4x edge rate (counts/s) counted exactly with no error, per decoding (500 Hz run).
+
+    Parameters
+    ----------
+    decodings : sequence of {1, 2, 4}
+        Quadrature decodings to measure.
+    start, step, stop : float
+        Edge rates tried, in x4 counts/s: ``start, start + step, ...`` up to ``stop`` or the
+        first failure.
+    """
     rows = []
     for decoding in decodings:
         best, first_bad = None, None
@@ -98,7 +117,13 @@ def encoder_ceiling(decodings=(4, 2, 1), start: float = 40_000, step: float = 10
 
 
 def emulation_speed(duration: float = 2.0) -> list[dict]:
-    """Emulated seconds per wall second, running free (speed=0), idle link and a 500 Hz sine."""
+    """Emulated seconds per wall second, running free (speed=0), during a 500 Hz sine run.
+
+    Parameters
+    ----------
+    duration : float
+        Seconds of emulated run per case.
+    """
     rows = []
     for label, query in (("500 Hz sine, motor at ~25 k counts/s", {"a": 25, "b": 3, "speed": 0}),
                          ("500 Hz, encoder at 60 k counts/s", {"encoder_rate": 60000, "speed": 0})):
@@ -110,6 +135,7 @@ def emulation_speed(duration: float = 2.0) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append")
     args = parser.parse_args(argv)

@@ -17,7 +17,21 @@ __all__ = ["DeviceLink", "RunResult"]
 
 @dataclasses.dataclass
 class RunResult:
-    """Every frame of one run, split by kind."""
+    """Every frame of one run, split by kind.
+
+    Attributes
+    ----------
+    samples : list of Sample
+        SAMPLE frames in arrival order.
+    faults : list of Fault
+        FAULT frames.
+    end : End or None
+        The END frame (None if the run timed out).
+    others : list
+        Every other message (ACK, NAK, ...).
+    seqs : list of int
+        Link sequence number of every frame received, in order.
+    """
 
     samples: list
     faults: list
@@ -27,7 +41,13 @@ class RunResult:
 
 
 class DeviceLink:
-    """Send messages to a device on an open port and collect what it sends back."""
+    """Send messages to a device on an open port and collect what it sends back.
+
+    Parameters
+    ----------
+    port : serial.Serial
+        An open port (``timeout`` short, e.g. 0.02 s: reads poll).
+    """
 
     def __init__(self, port: serial.Serial):
         self.port = port
@@ -53,7 +73,10 @@ class DeviceLink:
         return new
 
     def wait_for(self, kind, timeout: float = 3.0, heartbeat: float | None = None):
-        """The first new message of type ``kind`` within ``timeout`` s of wall time, else None."""
+        """The first new message of type ``kind`` within ``timeout`` s of wall time, else None.
+
+        Sends a HEARTBEAT every ``heartbeat`` s meanwhile (None: none).
+        """
         deadline = time.monotonic() + timeout
         last_beat = 0.0
         while time.monotonic() < deadline:
@@ -66,7 +89,7 @@ class DeviceLink:
         return None
 
     def hello(self, timeout: float = 3.0):
-        """HELLO until HELLO_ACK (as a host does after opening the port)."""
+        """HELLO every 0.2 s until HELLO_ACK (as a host does), for at most ``timeout`` s."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self.send(P.Hello())
@@ -76,7 +99,7 @@ class DeviceLink:
         raise TimeoutError("no HELLO_ACK")
 
     def command(self, msg, timeout: float = 2.0):
-        """Send ``msg`` and return its ACK or NAK."""
+        """Send ``msg`` and return its ACK or NAK (within ``timeout`` s, else TimeoutError)."""
         seq = self.send(msg)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -87,7 +110,21 @@ class DeviceLink:
 
     def run(self, config, wave, *, timeout: float = 20.0, heartbeat: float | None = 0.05,
             on_sample=None) -> RunResult:
-        """CONFIG, WAVE, START, then collect until END (HEARTBEAT every ``heartbeat`` s)."""
+        """CONFIG, WAVE, START, then collect until END.
+
+        Parameters
+        ----------
+        config : Config
+            The CONFIG message.
+        wave : Wave
+            The WAVE message.
+        timeout : float
+            Wall-clock seconds to wait for END.
+        heartbeat : float or None
+            Seconds between HEARTBEATs (None sends none, to test the device's watchdog).
+        on_sample : callable, optional
+            ``on_sample(link, sample)`` for each SAMPLE as it arrives (e.g. to send STOP).
+        """
         start = len(self.received)
         for msg in (config, wave, P.Start()):
             reply = self.command(msg)

@@ -61,7 +61,25 @@ _STOP_TIMEOUT = 5.0
 
 @dataclasses.dataclass(frozen=True)
 class HarnessOptions:
-    """The harness's motor and encoder (see the module docstring for each field)."""
+    """The harness's motor and encoder.
+
+    Parameters
+    ----------
+    a, b : float
+        Motor ``d omega/dt + a omega = b u`` in 1/s and (rad/s^2) per duty unit.
+    friction : float
+        Coulomb friction in rad/s^2 (>= 0).
+    counts_per_rev : float
+        Encoder counts per revolution with x4 decoding.
+    encoder_rate : float
+        If nonzero, the encoder turns at this many x4 counts/s whatever the duty.
+    driver : {"dir-pwm", "in1-in2"}
+        H-bridge wiring; the firmware is built to match.
+    speed : float
+        Largest ratio of emulated to wall-clock time (0 runs free).
+    substep_cycles : int
+        CPU cycles per motor integration step (16 = 1 us).
+    """
 
     a: float = 25.0
     b: float = 3.0
@@ -100,7 +118,12 @@ class HarnessOptions:
 
 
 def parse_avr_sim_url(url: str) -> HarnessOptions:
-    """Read :class:`HarnessOptions` from ``avr-sim://?a=25&b=3...``.
+    """Read :class:`HarnessOptions` from a URL such as ``avr-sim://?a=25&b=3``.
+
+    Parameters
+    ----------
+    url : str
+        ``avr-sim://`` and a query of :class:`HarnessOptions` fields (``-`` may stand for ``_``).
 
     Raises
     ------
@@ -154,7 +177,15 @@ def _variant(baudrate: int, driver: str) -> tuple[str, list[str]]:
 
 
 def firmware_elf(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> Path:
-    """Path of the firmware ELF built for ``baudrate`` and the H-bridge ``driver``."""
+    """Path of the firmware ELF built for ``baudrate`` and the H-bridge ``driver``.
+
+    Parameters
+    ----------
+    baudrate : int
+        One of :data:`SUPPORTED_BAUDRATES`.
+    driver : {"dir-pwm", "in1-in2"}
+        H-bridge type the firmware is built for.
+    """
     sub, _ = _variant(baudrate, driver)
     build = REPO_ROOT / "hardware" / "firmware" / "build"
     return (build / sub if sub else build) / "motorid_bench.elf"
@@ -169,6 +200,16 @@ def _stale(target: Path, sources: list[Path]) -> bool:
 
 def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Path, Path]:
     """Build the firmware (for ``baudrate`` and ``driver``) and the harness when missing or stale.
+
+    Runs ``make firmware avr-sim`` in the repository, which apt-installs the Debian packages
+    when they are missing.
+
+    Parameters
+    ----------
+    baudrate : int
+        One of :data:`SUPPORTED_BAUDRATES`.
+    driver : {"dir-pwm", "in1-in2"}
+        H-bridge type the firmware is built for.
 
     Returns
     -------
