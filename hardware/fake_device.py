@@ -19,6 +19,8 @@ What it emulates, as the firmware does it
   (``samples_dropped``, FAULT 2 the first time), never overwritten.
 - Absolute encoder counts from boot; END with the device's counters.
 
+POSIX only (Linux, macOS): it needs ``os.openpty``.
+
 Time: ``speed`` scales the device clock against the wall clock (1 = real time);
 ``speed=0`` ticks as fast as the host reads, losslessly (for tests).
 
@@ -35,16 +37,16 @@ import errno
 import math
 import os
 import select
+import sys
 import threading
 import time
-import tty
 import urllib.parse
 from typing import Iterator
 
 import numpy as np
 
 from motorsim.excitation import _check_int, _check_real
-from motorsim.plant import Motor, simulate
+from motorsim.plant import Motor, simulate, zoh_matrices
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
 
 from . import protocol as P
@@ -73,7 +75,8 @@ class FaultPlan:
         Sample index from which the device transmits nothing more (it keeps receiving,
         so a STOP still stops the motor).
     disconnect_at : int or None
-        Sample index at which the device closes the link (the host sees the port fail).
+        Sample index at which the device closes the link (the host sees the port fail), once the
+        host has read the samples before it.
     watchdog_trip_at : int or None
         Sample index at which the device acts as if the host had gone silent.
     mute : bool
@@ -156,6 +159,7 @@ class FakeDevice:
         if not isinstance(self.rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
+        self._zoh = None
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -172,6 +176,7 @@ class FakeDevice:
         """Open the pty and start the device thread; returns ``self``."""
         if self._thread is not None:
             raise RuntimeError("this FakeDevice is already started")
+        import tty   # POSIX only: imported here so that `import hardware` works on Windows
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
         tty.setraw(self._slave)
@@ -228,7 +233,8 @@ class FakeDevice:
             now = time.monotonic()
             timeout = 0.02
             if self._running:
-                timeout = 0.0 if self.speed == 0 else max(0.0, min(timeout, self._next_tick - now))
+                # unpaced: poll the host's reading every 0.5 ms rather than spin (the host needs the GIL)
+                timeout = 0.0005 if self.speed == 0 else max(0.0, min(timeout, self._next_tick - now))
             wlist = [self._master] if self._out else []
             try:
                 r, w, _ = select.select([self._master], wlist, [], timeout)
@@ -332,16 +338,27 @@ class FakeDevice:
         self._running = True
         self.runs_started += 1
 
-    def _advance_motor(self, drive: float, h: float) -> None:
-        traj = simulate(self._motor0, [drive, drive], [0.0, h], initial_speed=self._speed_rad_s,
-                        initial_angle=self._angle)
+    def _advance_motor(self, duty: float, h: float) -> None:
+        """Hold ``duty`` for ``h`` s: the exact ZOH step (motorsim.plant's formulas), or
+        ``motorsim.simulate`` over the interval when there is Coulomb friction."""
+        m = self._motor0
+        if m.friction == 0:
+            if self._zoh is None or self._zoh[0] != h:
+                self._zoh = (h, *(float(x) for x in zoh_matrices(m.a, m.b, h)))
+            _, e, g, p, q = self._zoh
+            v = float(m.drive(np.array([duty]))[0]) + m.bias / m.b
+            w = self._speed_rad_s
+            self._angle += p * w + q * v
+            self._speed_rad_s = e * w + g * v
+            return
+        traj = simulate(m, [duty, duty], [0.0, h], initial_speed=self._speed_rad_s, initial_angle=self._angle)
         self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
 
     def _ticks(self, now: float) -> None:
         cfg = self._config
         while self._running:
             if self.speed == 0:
-                if self._queued_samples >= self.queue_size:
+                if self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE:
                     return          # unpaced: wait for the host to read (lossless)
             elif now < self._next_tick:
                 return
@@ -379,6 +396,16 @@ class FakeDevice:
                 self.duty = 0
                 self._end(P.EndReason.COMPLETE)
 
+    def _unread_bytes(self) -> int:
+        """Bytes written to the pty that the host has not read yet (FIONREAD on the slave end)."""
+        import fcntl
+        import termios
+        try:
+            buf = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+        except OSError:
+            return 0
+        return int.from_bytes(buf, sys.byteorder)
+
     def _send_sample(self, sample: P.Sample) -> None:
         f, rng = self.faults, self.rng
         wire = P.encode_message(sample, self._tx_seq)
@@ -415,6 +442,15 @@ class FakeDevice:
             self._watchdog_trip()
 
     def _disconnect(self) -> None:
+        # Let the host read what was sent before the disconnect (up to 1 s), so that the
+        # fault is exactly "the link ends after sample disconnect_at - 1".
+        deadline = time.monotonic() + 1.0
+        while self._out and time.monotonic() < deadline:
+            self._flush()
+            time.sleep(0.001)
+        time.sleep(0.02)       # bytes in the pty's flip buffer reach the host's queue
+        while self._unread_bytes() > 0 and time.monotonic() < deadline:
+            time.sleep(0.002)
         self.duty = 0
         self._running = False
         self._link_down = True

@@ -81,6 +81,14 @@ def test_every_message_round_trips_with_the_documented_length(msg):
     assert P.decode_message(t, payload) == msg
 
 
+def test_wave_payload_spans_3_to_44_bytes():
+    # kind byte + CONSTANT's level (3) up to kind + offset + n + 4 x 10 for a four-sine multisine (44)
+    comps = ((1, 2, 3),) * 4
+    lengths = [len(P.decode_frame(P.encode_message(w, 0)[:-1])[2])
+               for w in (P.WaveConstant(1), P.WaveMultisine(0, comps))]
+    assert lengths == [3, 44] and 44 <= P.MAX_PAYLOAD
+
+
 def test_sample_frame_is_21_bytes_on_the_wire_as_documented():
     assert len(P.encode_message(P.Sample(1, 2, 3, 4, 0), 0)) == 21
 
