@@ -23,7 +23,7 @@ from hardware import protocol as P
 from hardware.errors import DeviceFaultError
 from hardware.serial_rig import SerialRig
 from hardware.sim.launcher import build, open_avr_sim
-from motorsim import Constant, Experiment, Recording, Sine
+from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Recording, Sine, Step
 
 A, B, COUNTS_PER_REV = 25.0, 3.0, 16667
 # 20 rad/s, amplitude 100: the speed swings +-9.4 rad/s (25 k counts/s, well under the
@@ -128,6 +128,22 @@ def test_sine_run_identifies_the_harness_motor_within_one_percent(sine_run):
     # duty write, and count quantisation; measured 0.05 %, the issue asks for 1 %.
     assert a == pytest.approx(A, rel=0.01)
     assert b == pytest.approx(B, rel=0.01)
+
+
+def test_every_waveform_kind_matches_the_host_bit_for_bit(built):
+    experiments = [
+        Experiment(Multisine((5.0, 40.0, 150.0, 700.0), (300, 250, 200, 150), (0.3, 1.0, 2.0, 3.0), offset=-20),
+                   sample_period=0.001, duration=0.3, duty_limit=200),      # 4 components, clamped
+        Experiment(Chirp(2.0, 900.0, 255, offset=10), sample_period=0.001, duration=0.3),
+        Experiment(PRBS(180, -160, order=7, hold=3, seed=5), sample_period=0.001, duration=0.3),
+        Experiment(Step(-90, 0.1, 60), sample_period=0.001, duration=0.3),
+        Experiment(Constant(-1023), sample_period=0.001, duration=0.1, duty_limit=37),
+    ]
+    with _rig() as (rig, _):
+        for experiment in experiments:
+            rec = rig.run(experiment)   # SerialRig also checks each duty against expand() on arrival
+            np.testing.assert_array_equal(rec.duty, experiment.duty(), err_msg=experiment.excitation.describe())
+            assert rec.metadata["host_duty_mismatches"] == "0"
 
 
 # ------------------------------------------------------------------ STOP and watchdog
