@@ -33,6 +33,7 @@ import dataclasses
 import math
 import os
 import select
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -285,6 +286,16 @@ class AvrSimulation:
                 self.stop()
                 raise RuntimeError(f"motorid-avr-sim exited before opening its pty: {err.strip()}")
             text += chunk
+
+    def hang_firmware(self) -> None:
+        """Make the firmware hang (an endless loop, interrupts on), as a bug in ``loop()`` would.
+
+        The AVR watchdog, no longer fed, resets the chip; the firmware boots again and sends
+        BOOT with ``reset_cause`` bit 3.
+        """
+        if self._process is None or self._process.poll() is not None:
+            raise RuntimeError("the harness is not running")
+        self._process.send_signal(signal.SIGUSR1)
 
     def stop(self) -> Mapping[str, float]:
         """Stop the harness (SIGTERM, then SIGKILL) and return its final statistics."""

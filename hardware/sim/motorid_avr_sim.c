@@ -7,7 +7,8 @@
  *                   [--speed 1.0] [--substep-cycles 16]
  *
  * Prints "PTY <path>" on stdout once the pseudo-terminal exists, then runs until SIGTERM or
- * SIGINT, and prints one "STATS ..." line on stdout when it stops.
+ * SIGINT, and prints one "STATS ..." line on stdout when it stops. SIGUSR1 hangs the firmware
+ * (an endless loop with interrupts on) to test the AVR watchdog.
  *
  * The motor  d omega/dt = -a omega + b u - c sign(omega)  is integrated exactly (zero-order
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
@@ -89,10 +90,26 @@ typedef struct harness {
 } harness_t;
 
 static volatile sig_atomic_t stop_requested = 0;
+static volatile sig_atomic_t hang_requested = 0;
 
 static void on_signal(int sig) {
     (void)sig;
     stop_requested = 1;
+}
+
+static void on_hang(int sig) {
+    (void)sig;
+    hang_requested = 1;
+}
+
+/* Test hook (SIGUSR1): send the CPU into "rjmp ." at the top of the application flash with
+   interrupts left on, as a firmware bug that hangs loop() would. Interrupts keep running; the
+   AVR watchdog, no longer fed, resets the chip. */
+#define HANG_ADDRESS 0x7000
+static void hang_firmware(avr_t *avr) {
+    avr->flash[HANG_ADDRESS] = 0xFF;       /* rjmp .-2 = 0xCFFF, little-endian */
+    avr->flash[HANG_ADDRESS + 1] = 0xCF;
+    avr->pc = HANG_ADDRESS;
 }
 
 static double drive(const harness_t *s) {
@@ -262,6 +279,7 @@ int main(int argc, char **argv) {
     signal(SIGTERM, on_signal);
     signal(SIGINT, on_signal);
     signal(SIGHUP, on_signal);
+    signal(SIGUSR1, on_hang);
 
     avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
     double wall0 = wall_seconds();
@@ -270,6 +288,10 @@ int main(int argc, char **argv) {
     uint32_t n = 0;
     while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
         state = avr_run(s.avr);
+        if (hang_requested) {
+            hang_requested = 0;
+            hang_firmware(s.avr);
+        }
         if (++n < 4096) continue;
         n = 0;
         if (!avr_cycle_timer_status(s.avr, motor_step, &s)) {   /* cleared by an AVR reset */

@@ -215,6 +215,23 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
     assert abs(speed) < 1e-2 * STEADY_SPEED
 
 
+def test_a_hung_loop_is_reset_by_the_avr_watchdog_and_the_harness_keeps_running(built):
+    with _rig() as (rig, port):
+        sim = port.avr_simulation
+
+        def hang_at_100(sample):
+            if sample.seq == 100:
+                sim.hang_firmware()   # loop() stops; interrupts (and the sample clock) go on
+
+        with pytest.raises(DeviceFaultError, match="reset during the run") as info:
+            rig.run(Experiment(Constant(150), sample_period=0.002, duration=4.0), on_sample=hang_at_100)
+        assert "0x08" in str(info.value), "BOOT reports the watchdog reset (MCUSR.WDRF)"
+        assert int(info.value.recording.metadata["samples_received"]) >= 100
+        speed = _settle_then_stop(port)
+    assert sim.stats["resets"] >= 1, "the harness re-registered its motor after the reset"
+    assert abs(speed) < 1e-2 * STEADY_SPEED, "the reset left the PWM pin floating: pulled down, off"
+
+
 # ------------------------------------------------------------------ corrupted frames
 def test_corrupted_frames_are_refused_and_counted_and_the_link_recovers(built):
     with _open() as port:
