@@ -464,7 +464,11 @@ static void timer_start(void) {
   TCCR1B = _BV(WGM12) | _BV(CS11);      // CTC on OCR1A, clk/8
 }
 
-ISR(TIMER1_COMPA_vect) {
+// ISR_NOBLOCK: interrupts are back on from the first instruction, so the encoder interrupt is
+// never held off by this one for more than the few cycles of the snapshot below. This
+// interrupt cannot re-enter: the next compare is a whole period (>= 100 us) away, and it masks
+// itself before the long part.
+ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
   if (sub_count > 1) {
     sub_pos++;
     if (sub_pos < sub_count) {
@@ -474,21 +478,22 @@ ISR(TIMER1_COMPA_vect) {
     sub_pos = 0;
     OCR1A = sub_len_q + (sub_long ? 1 : 0);
   }
-  // 1. snapshot
-  int32_t counts = enc_count;
-  uint32_t now_us = micros();
-  uint32_t errors = enc_errors;
   if (!running) return;
+  TIMSK1 = 0;
+  // 1. snapshot, atomically
+  cli();
+  int32_t counts = enc_count;
+  uint32_t errors = enc_errors;
+  uint32_t now_us = micros();
+  sei();
   if (tick_index >= cfg.n_samples) {   // one period after the last sample: done
+    cli();
     stop_run(END_COMPLETE);
     return;
   }
   // 2. apply the duty computed during the previous tick
   int16_t duty = next_duty;
   apply_duty(duty);
-  // The rest runs with interrupts on (the encoder may preempt it) and this interrupt off.
-  TIMSK1 = 0;
-  sei();
   // 3. queue the sample, or drop and count it (only this ISR writes the queue head)
   uint8_t flags = tick_late;
   tick_late = 0;
