@@ -80,7 +80,7 @@ def _encoder_ok(rate: float, decoding: int, duration: float = 1.0) -> tuple[bool
     t = np.array([s.time_us for s in run.samples], dtype=float) * 1e-6
     expected = rate * decoding / 4 * (t[-1] - t[0])
     deficit = expected - (counts[-1] - counts[0])
-    ok = run.end.encoder_errors == 0 and abs(deficit) <= 1 + abs(rate) * decoding / 4 * 32e-6
+    ok = run.end.encoder_errors == 0 and abs(deficit) <= 1 + abs(rate) * decoding / 4 * 24e-6
     return ok, run.end.encoder_errors, deficit
 
 

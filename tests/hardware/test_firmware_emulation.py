@@ -110,9 +110,10 @@ def test_sine_run_has_no_drops_and_its_duty_equals_expand(sine_run):
     np.testing.assert_array_equal(rec.seq, np.arange(n))
     np.testing.assert_array_equal(rec.duty, P.expand(P.wave_for(SINE), n, SINE.duty_limit))
     np.testing.assert_array_equal(rec.duty, SINE.duty())
-    # The Timer 1 clock is exact; micros() has 4 us steps and the snapshot waits for any
-    # interrupt already running (UART, encoder: under 10 us each), hence +-16 us.
-    assert np.all(np.abs(np.diff(rec.time) - SINE.sample_period) <= 16e-6)
+    # The Timer 1 clock is exact, but micros() has 4 us steps and the snapshot can wait for a
+    # UART and an encoder interrupt (the sample interrupt lets them in): up to ~12 us late,
+    # so one interval is off by at most 24 us (measured: 12 us).
+    assert np.all(np.abs(np.diff(rec.time) - SINE.sample_period) <= 24e-6)
 
 
 def test_sine_run_identifies_the_harness_motor_within_one_percent(sine_run):
@@ -316,8 +317,8 @@ def test_encoder_counts_exactly_below_the_ceiling(built, decoding):
     counts = np.array([s.counts for s in run.samples])
     t = np.array([s.time_us for s in run.samples]) * 1e-6
     expected = rate * decoding / 4 * (t[-1] - t[0])
-    # Exact up to the quantisation of both ends (1 count) and the +-16 us snapshot jitter.
-    assert abs((counts[-1] - counts[0]) - expected) <= 1 + abs(rate) * decoding / 4 * 32e-6
+    # Exact up to the quantisation of both ends (1 count) and the snapshot jitter (<= 24 us).
+    assert abs((counts[-1] - counts[0]) - expected) <= 1 + abs(rate) * decoding / 4 * 24e-6
     assert not any(s.flags & P.SampleFlag.ENCODER_ERROR for s in run.samples)
 
 
