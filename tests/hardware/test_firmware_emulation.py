@@ -308,7 +308,7 @@ def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
 # ------------------------------------------------------------------ encoder
 @pytest.mark.parametrize("decoding", [4, 2, 1], ids=["x4", "x2", "x1"])
 def test_encoder_counts_exactly_below_the_ceiling(built, decoding):
-    rate = -40_000.0   # 4x counts/s, backwards; the measured x4 ceiling is 80 k counts/s
+    rate = -40_000.0   # 4x counts/s, backwards; the measured x4 ceiling is 90-100 k counts/s
     with _open(encoder_rate=rate) as port:
         link = DeviceLink(port)
         link.hello()
@@ -323,7 +323,7 @@ def test_encoder_counts_exactly_below_the_ceiling(built, decoding):
 
 
 def test_encoder_beyond_the_ceiling_reports_errors(built):
-    # 120 k counts/s x4 is past the ceiling: edges are missed, and END says so.
+    # 120 k counts/s x4 is past the ceiling (90-100 k): edges are missed, and END says so.
     with _open(encoder_rate=120_000) as port:
         link = DeviceLink(port)
         link.hello(timeout=5.0)
