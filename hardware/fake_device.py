@@ -229,6 +229,7 @@ class FakeDevice:
             self._drain_input(discard=True)
         self._send(P.Boot(self.faults.version, 1))
         self._last_rx = time.monotonic()
+        loop_end = time.monotonic()
         while not self._stop_event.is_set() and not self._link_down:
             now = time.monotonic()
             timeout = 0.02
@@ -245,7 +246,15 @@ class FakeDevice:
             if self._running:
                 self._ticks(time.monotonic())
             self._flush()
-            self._check_watchdog(time.monotonic())
+            # Time this thread was not running (the emulator starved of CPU, not the host silent)
+            # does not count towards the host-silence watchdog: a real device's loop never takes
+            # more than its wait plus a few ms.
+            now = time.monotonic()
+            stalled = (now - loop_end) - timeout - 0.02
+            if stalled > 0:
+                self._last_rx += stalled
+            self._check_watchdog(now)
+            loop_end = time.monotonic()
 
     def _drain_input(self, discard: bool = False) -> None:
         try:
@@ -444,13 +453,21 @@ class FakeDevice:
     def _disconnect(self) -> None:
         # Let the host read what was sent before the disconnect (up to 1 s), so that the
         # fault is exactly "the link ends after sample disconnect_at - 1".
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + 3.0
         while self._out and time.monotonic() < deadline:
             self._flush()
             time.sleep(0.001)
-        time.sleep(0.02)       # bytes in the pty's flip buffer reach the host's queue
-        while self._unread_bytes() > 0 and time.monotonic() < deadline:
-            time.sleep(0.002)
+        # The kernel moves written bytes to the host's queue asynchronously (the pty's flip
+        # buffer), so wait until the queue has stayed empty for 100 ms.
+        empty_since = None
+        while time.monotonic() < deadline:
+            if self._unread_bytes() > 0:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = time.monotonic()
+            elif time.monotonic() - empty_since > 0.1:
+                break
+            time.sleep(0.005)
         self.duty = 0
         self._running = False
         self._link_down = True

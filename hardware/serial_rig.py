@@ -1,7 +1,8 @@
 """``SerialRig``: the real bench (or the emulated one) behind ``Rig.run(experiment) -> Recording``.
 
 The host uploads the experiment (CONFIG, WAVE), sends START and then only reads
-SAMPLEs, sending a HEARTBEAT every ``watchdog_ms / 4``; the clock and the
+SAMPLEs, while a background thread sends a HEARTBEAT every ``watchdog_ms / 4`` (so
+a slow callback cannot trip the device's watchdog); the clock and the
 waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
 
 - a SAMPLE lost on the link or dropped by the device leaves a gap in the
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 import time
 from typing import Callable, NamedTuple
 
@@ -109,6 +111,7 @@ class SerialRig:
         self._link_lost = 0
         self._boot: P.Boot | None = None
         self._backlog: list = []
+        self._write_lock = threading.Lock()
         self.device: P.HelloAck | None = None
 
     # -------------------------------------------------------------- connection
@@ -153,13 +156,14 @@ class SerialRig:
             stack.close()
 
     def _write(self, msg) -> int:
-        seq = self._tx_seq
-        try:
-            self._port.write(P.encode_message(msg, seq))
-        except Exception as exc:   # pyserial raises SerialException / OSError / portNotOpenError
-            raise RigDisconnectedError(f"writing to {self.port_name} failed: {exc}") from None
-        self._tx_seq = (seq + 1) & 0xFF
-        return seq
+        with self._write_lock:     # the heartbeat thread writes too
+            seq = self._tx_seq
+            try:
+                self._port.write(P.encode_message(msg, seq))
+            except Exception as exc:   # pyserial raises SerialException / OSError / portNotOpenError
+                raise RigDisconnectedError(f"writing to {self.port_name} failed: {exc}") from None
+            self._tx_seq = (seq + 1) & 0xFF
+            return seq
 
     def _read(self) -> list:
         if self._backlog:
@@ -243,6 +247,28 @@ class SerialRig:
         raise RigTimeoutError(f"the device on {self.port_name} did not acknowledge {P.MsgType(msg_type).name} "
                               f"(3 tries, {self.command_timeout:g} s each)")
 
+    def _receive_run(self, run: "_RunState", on_sample) -> None:
+        """Read the run's frames until END; silence longer than ``timeout`` raises."""
+        last_rx = loop_end = time.monotonic()
+        while run.end is None:
+            msgs = self._read()
+            now = time.monotonic()
+            # An iteration far longer than a read timeout means this process was not running
+            # (or a callback was slow): that is not the device's silence.
+            if now - loop_end > 0.25:
+                last_rx += now - loop_end - _READ_TIMEOUT
+            loop_end = now
+            if msgs:
+                last_rx = now
+                run.accept(msgs, on_sample)
+            elif now - last_rx > self.timeout:
+                raise RigTimeoutError(f"the device on {self.port_name} went silent for {self.timeout:g} s "
+                                      f"after sample {run.last_index}")
+            if run.boot is not None:
+                raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
+                                       f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
+            loop_end = time.monotonic()
+
     # -------------------------------------------------------------- the run
     def run(self, experiment: Experiment, *, on_sample: Callable[[RecordedSample], None] | None = None
             ) -> Recording:
@@ -277,32 +303,15 @@ class SerialRig:
             run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
-            hb_interval = self.watchdog_ms / 4000 if self.watchdog_ms else None
-            next_hb = time.monotonic() + (hb_interval or 0)
-            last_rx = time.monotonic()
-            while run.end is None:
-                msgs = self._read()
-                now = time.monotonic()
-                if msgs:
-                    last_rx = now
-                    run.accept(msgs, on_sample)
-                elif now - last_rx > self.timeout:
-                    raise RigTimeoutError(f"the device on {self.port_name} went silent for {self.timeout:g} s "
-                                          f"after sample {run.last_index}")
-                if run.boot is not None:
-                    raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
-                                           f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
-                if hb_interval is not None and now >= next_hb and run.end is None:
-                    self._write(P.Heartbeat())
-                    next_hb = now + hb_interval
+            with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms else None):
+                self._receive_run(run, on_sample)
             ended = True
-            rec = run.recording(self, complete=True)
-            problems = run.check()
             if run.end.reason != P.EndReason.COMPLETE:
                 raise DeviceFaultError(f"the device ended the run early: {run.describe_end()}")
+            problems = run.check()
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
-            return rec
+            return run.recording(self, complete=True)
         except Exception as exc:
             if isinstance(exc, RigError) and exc.recording is None:
                 exc.with_recording(run.recording(self, complete=False, reason=str(exc)) if run.n else None)
@@ -314,6 +323,38 @@ class SerialRig:
                     flush = getattr(self._port, "flush", None)
                     if flush is not None:
                         flush()
+
+
+class _Heartbeats:
+    """HEARTBEAT every ``interval`` s from a background thread while a run is read.
+
+    A slow ``on_sample`` callback (a plot redraw on a busy laptop) must not starve the
+    device's host-silence watchdog; a dead or killed host process still stops the
+    heartbeats, and every run ends by itself after ``n_samples`` anyway.
+    """
+
+    def __init__(self, rig: SerialRig, interval: float | None):
+        self._rig, self._interval = rig, interval
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> "_Heartbeats":
+        if self._interval:
+            self._thread = threading.Thread(target=self._loop, name="motorid-heartbeat", daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self._interval):
+            try:
+                self._rig._write(P.Heartbeat())
+            except RigDisconnectedError:
+                return      # the reading thread sees the failure too and raises it
 
 
 class _RunState:

@@ -78,7 +78,7 @@ class LivePlot:
         import matplotlib.pyplot as plt
         self._plt = plt
         self._path = Path(fallback_path)
-        self._interval = float(interval)
+        self._interval = float(interval) if self.window else max(float(interval), 1.0)   # PNGs are slow
         self._next = 0.0
         self._rad_per_count = None
         self._t, self._u, self._w = [], [], []

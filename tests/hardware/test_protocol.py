@@ -220,6 +220,30 @@ def test_fuzz_reader_never_raises_never_grows_and_recovers(chunks, sizes):
     assert reader.feed(b"\x00" + P.encode_message(marker, 9)) == [(9, marker)]
 
 
+def _reference_decode(part: bytes):
+    try:
+        t, seq, payload = P.decode_frame(part)
+        return [(seq, P.decode_message(t, payload))]
+    except FrameError:
+        return []
+
+
+def _edited_frame(sample, seq, where, value):
+    frame = bytearray(P.encode_message(sample, seq)[:-1])
+    if where is not None:
+        frame[where % len(frame)] = value
+    return bytes(frame)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.one_of(st.binary(min_size=1, max_size=70).map(lambda b: b.replace(b"\x00", b"\x01")),
+                 st.builds(_edited_frame, _sample_st, st.integers(0, 255), st.none() | st.integers(0, 19),
+                           st.integers(1, 255))))
+def test_reader_accepts_exactly_what_decode_frame_and_decode_message_accept(part):
+    # The reader's inlined COBS fast path against the plain functions, on random and on valid frames.
+    assert P.FrameReader().feed(part + b"\x00") == _reference_decode(part)
+
+
 # ------------------------------------------------------------------ expand() is the device's arithmetic
 _EXCITATIONS = [Constant(-120), Constant(400), Step(150, 0.3, -40), Sine(10.0), Sine(37.0, 300, 1.2, 20),
                 Multisine((10.0, 20.0, 30.0, 40.0), (100, 60, -40, 30), (0.1, 0.2, 0.3, 0.4), 10),

@@ -1,9 +1,8 @@
 """``motorid live`` on the emulated Arduino: results, incremental recording, faults, Ctrl-C."""
 from __future__ import annotations
 
-import json
-import threading
 import _thread
+import json
 
 import pytest
 
@@ -53,16 +52,21 @@ def test_a_fault_mid_run_leaves_a_valid_incomplete_recording(tmp_path, capsys):
     assert "RigDisconnectedError" in rec.metadata["incomplete_reason"]
 
 
-def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys):
-    timer = threading.Timer(0.6, _thread.interrupt_main)
-    timer.start()
-    try:
-        status, out = _live(tmp_path, "fake://?speed=1", "--duration", "5")
-    finally:
-        timer.cancel()
+def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys, monkeypatch):
+    # Ctrl-C arrives as an asynchronous KeyboardInterrupt in the main thread; send it (as the
+    # terminal would) once sample 100 has arrived.
+    from identify.recursive import RunningEstimator
+    add = RunningEstimator.add
+
+    def add_then_interrupt(self, seq, *args):
+        add(self, seq, *args)
+        if seq == 100:
+            _thread.interrupt_main()
+    monkeypatch.setattr(RunningEstimator, "add", add_then_interrupt)
+    status, out = _live(tmp_path, "fake://?speed=1", "--duration", "5")
     assert status == 130
     rec = read_recording(out)
-    assert 10 < len(rec) < 1000 and rec.metadata["complete"] == "false"
+    assert 100 < len(rec) < 1000 and rec.metadata["complete"] == "false"
     assert rec.metadata["incomplete_reason"] == "interrupted (Ctrl-C)"
 
 
@@ -76,3 +80,11 @@ def test_an_unavailable_port_scheme_is_a_clear_error(tmp_path, capsys, monkeypat
     monkeypatch.setitem(ports._SCHEMES, "avr-sim", "hardware.no_such_module:open_it")
     status, _ = _live(tmp_path, "avr-sim://uno", "--duration", "1")
     assert status == 2 and "avr-sim:// is not available" in capsys.readouterr().err
+
+
+def test_plot_without_a_display_updates_a_png_next_to_the_recording(tmp_path, monkeypatch):
+    for var in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(var, raising=False)
+    status, out = _live(tmp_path, "fake://?speed=0", "--duration", "1", "--plot")
+    png = tmp_path / "run.csv.live.png"
+    assert status == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
