@@ -196,20 +196,39 @@ def test_stop_is_acked_and_ends_the_run_with_reason_stopped(built):
     assert moved > 0.5 * STEADY_SPEED * 0.2 * COUNTS_PER_REV / (2 * math.pi)
 
 
-def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built):
-    def hang(sample):
-        if sample.seq == 50:
-            time.sleep(0.5)   # the host stops sending HEARTBEATs (watchdog 200 ms)
+class _HostLink:
+    """The port as SerialRig sees it, with a switch that stops the host's frames arriving."""
 
-    with _rig() as (rig, port):
-        with pytest.raises(DeviceFaultError, match="HOST_SILENCE") as info:
-            rig.run(Experiment(Constant(150), sample_period=0.002, duration=2.0), on_sample=hang)
+    def __init__(self, port):
+        self._port = port
+        self.silent = False
+
+    def write(self, data):
+        return len(data) if self.silent else self._port.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._port, name)
+
+
+def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built):
+    # SerialRig sends HEARTBEATs from a thread, so a slow host does not trip the watchdog; a
+    # host that dies or loses its transmit line does: from sample 50 nothing reaches the device.
+    with _open() as port:
+        link = _HostLink(port)
+
+        def go_silent(sample):
+            if sample.seq == 50:
+                link.silent = True
+
+        with SerialRig(link, 250000, counts_per_rev=COUNTS_PER_REV, watchdog_ms=200) as rig:
+            with pytest.raises(DeviceFaultError, match="HOST_SILENCE") as info:
+                rig.run(Experiment(Constant(150), sample_period=0.002, duration=2.0), on_sample=go_silent)
         speed = _settle_then_stop(port)
     meta = info.value.recording.metadata
     assert meta["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
     assert meta["device_fault_code"] == str(int(P.FaultCode.HOST_SILENCE))
-    # The last HEARTBEAT went out at most 50 ms (watchdog / 4) before the host read sample 50;
-    # the device trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus the host's lag
+    # The last HEARTBEAT got through at most 50 ms (watchdog / 4) before the host read sample
+    # 50; the device trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus the host's lag
     # behind the device when it read sample 50 (it reads in batches: allow 50 ms).
     assert 50 + 75 <= int(meta["device_fault_index"]) <= 50 + 125
     assert int(meta["samples_received"]) == int(meta["device_fault_index"])
