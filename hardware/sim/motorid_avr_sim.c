@@ -288,7 +288,8 @@ int main(int argc, char **argv) {
     uint32_t n = 0;
     while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
         state = avr_run(s.avr);
-        if (hang_requested) {
+        if (hang_requested && s.avr->sreg[S_I]) {   /* not inside an interrupt: simavr
+                                                        ends a run on "rjmp ." with I clear */
             hang_requested = 0;
             hang_firmware(s.avr);
         }
