@@ -810,6 +810,10 @@ static void receive_byte(uint8_t b) {
 static void transmit(void) {
   uint8_t p[17];
   if (boot_pending) {
+    // A lone 0x00 first: if the reset cut a frame short, the host drops that partial frame
+    // here instead of gluing it to BOOT (zero-length frames are ignored).
+    if (Serial.availableForWrite() < 2 + 4 + 3 + 1) return;
+    Serial.write((uint8_t)0);
     p[0] = PROTOCOL_VERSION;
     p[1] = reset_cause;
     if (send_frame(T_BOOT, p, 2)) boot_pending = 0;
