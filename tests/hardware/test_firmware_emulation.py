@@ -178,16 +178,24 @@ def test_stop_mid_run_stops_the_motor(built):
     assert abs(speed) < 1e-2 * STEADY_SPEED
 
 
-def test_stop_is_acked_and_ends_the_run_with_reason_stopped(built):
+def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
     with _open() as port:
         link = DeviceLink(port)
         link.hello()
+        busy_seqs = []
 
-        def stop_after_200(link, sample):
+        def meddle_then_stop(link, sample):
+            if sample.index == 50:
+                busy_seqs.extend(link.send(m) for m in (P.Hello(), STEADY, P.WaveConstant(0), P.Start()))
             if sample.index == 200:
                 link.send(P.Stop())
 
-        run = link.run(STEADY, P.WaveConstant(150), on_sample=stop_after_200)
+        run = link.run(STEADY, P.WaveConstant(150), on_sample=meddle_then_stop)
+    naks = [m for m in run.others if isinstance(m, P.Nak)]
+    assert [(n.refused_type, n.refused_seq, n.reason) for n in naks] == [
+        (t, seq, P.NakReason.BUSY) for t, seq in zip((P.MsgType.HELLO, P.MsgType.CONFIG, P.MsgType.WAVE,
+                                                       P.MsgType.START), busy_seqs)]
+    assert {s.duty for s in run.samples} == {150}, "the running experiment was not touched"
     assert run.end is not None and run.end.reason == P.EndReason.STOPPED_BY_HOST
     assert 200 < len(run.samples) < STEADY.n_samples
     assert run.end.samples_sent == len(run.samples)
