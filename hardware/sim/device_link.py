@@ -89,12 +89,20 @@ class DeviceLink:
         return None
 
     def hello(self, timeout: float = 3.0):
-        """HELLO every 0.2 s until HELLO_ACK (as a host does), for at most ``timeout`` s."""
+        """HELLO every 0.2 s until HELLO_ACK (as a host does), for at most ``timeout`` s.
+
+        Every HELLO sent is answered: the answers to the extra ones are awaited (0.5 s at most)
+        and consumed here, so that none is mistaken later for the answer to something else.
+        """
         deadline = time.monotonic() + timeout
+        sent = 0
         while time.monotonic() < deadline:
             self.send(P.Hello())
+            sent += 1
             ack = self.wait_for(P.HelloAck, timeout=0.2)
             if ack is not None:
+                for _ in range(sent - 1):
+                    self.wait_for(P.HelloAck, timeout=0.5)
                 return ack
         raise TimeoutError("no HELLO_ACK")
 
