@@ -69,7 +69,7 @@ $(FIRMWARE_BUILD)/motorid_bench.hex: $(FIRMWARE_ELF)
 
 $(SIM_BIN): hardware/sim/motorid_avr_sim.c
 	mkdir -p $(SIM_BUILD)
-	cc -O2 -Wall -std=gnu11 $$(pkg-config --cflags simavr simavrparts) $< -o $@ \
-	  $$(pkg-config --libs simavr simavrparts) -lelf -lutil -lpthread -lm
+	cc -O2 -Wall -std=gnu11 $$(pkg-config --cflags simavr) $< -o $@ \
+	  $$(pkg-config --libs simavr) -lelf -lutil -lm
 
 test: firmware avr-sim

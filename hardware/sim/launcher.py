@@ -21,6 +21,9 @@ URL query keys (all optional):
     time, so capping emulation at real time keeps the watchdog honest.
 ``substep_cycles``
     CPU cycles per motor integration step (default 16, i.e. 1 us).
+``boot_delay``
+    The AVR starts when the host opens the pty (an Uno resets when its port is opened), this
+    many seconds later (default 0.05), so the host's open cannot flush the BOOT frame.
 
 The firmware's baud rate and H-bridge type are fixed when it is compiled: a ``baudrate`` other
 than 250000 or ``driver=in1-in2`` use a firmware built with ``-DBAUD_RATE=...`` /
@@ -80,6 +83,9 @@ class HarnessOptions:
         Largest ratio of emulated to wall-clock time (0 runs free).
     substep_cycles : int
         CPU cycles per motor integration step (16 = 1 us).
+    boot_delay : float
+        Seconds between the host opening the pty and the AVR starting (0...10), as an Uno
+        boots when its port is opened.
     """
 
     a: float = 25.0
@@ -90,9 +96,10 @@ class HarnessOptions:
     driver: str = "dir-pwm"
     speed: float = 1.0
     substep_cycles: int = 16
+    boot_delay: float = 0.05
 
     def __post_init__(self):
-        for name in ("a", "b", "friction", "counts_per_rev", "encoder_rate", "speed"):
+        for name in ("a", "b", "friction", "counts_per_rev", "encoder_rate", "speed", "boot_delay"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
@@ -104,6 +111,8 @@ class HarnessOptions:
             raise ValueError(f"counts_per_rev must be > 0, got {self.counts_per_rev!r}")
         if self.speed < 0:
             raise ValueError(f"speed must be >= 0 (0 runs free), got {self.speed!r}")
+        if not 0 <= self.boot_delay <= 10:
+            raise ValueError(f"boot_delay must be in 0...10 s, got {self.boot_delay!r}")
         if self.driver not in ("dir-pwm", "in1-in2"):
             raise ValueError(f"driver must be 'dir-pwm' or 'in1-in2', got {self.driver!r}")
         if not 1 <= int(self.substep_cycles) <= 16000 or int(self.substep_cycles) != self.substep_cycles:
@@ -115,7 +124,8 @@ class HarnessOptions:
                 "--friction", repr(float(self.friction)),
                 "--counts-per-rev", repr(float(self.counts_per_rev)),
                 "--encoder-rate", repr(float(self.encoder_rate)), "--driver", self.driver,
-                "--speed", repr(float(self.speed)), "--substep-cycles", str(int(self.substep_cycles))]
+                "--speed", repr(float(self.speed)), "--substep-cycles", str(int(self.substep_cycles)),
+                "--boot-delay", repr(float(self.boot_delay))]
 
 
 def parse_avr_sim_url(url: str) -> HarnessOptions:

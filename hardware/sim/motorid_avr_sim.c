@@ -4,9 +4,10 @@
  *
  *   motorid-avr-sim FIRMWARE.elf [--a 25] [--b 3] [--friction 0] [--counts-per-rev 16667]
  *                   [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2]
- *                   [--speed 1.0] [--substep-cycles 16]
+ *                   [--speed 1.0] [--substep-cycles 16] [--boot-delay 0.05]
  *
- * Prints "PTY <path>" on stdout once the pseudo-terminal exists, then runs until SIGTERM or
+ * Prints "PTY <path>" on stdout once the pseudo-terminal exists, starts the AVR when the host
+ * opens it (after --boot-delay s, as an Uno resets when its port is opened), runs until SIGTERM or
  * SIGINT, and prints one "STATS ..." line on stdout when it stops. SIGUSR1 hangs the firmware
  * (an endless loop with interrupts on) to test the AVR watchdog.
  *
@@ -32,6 +33,11 @@
  * An AVR reset (the hardware watchdog, or a jump to 0) clears simavr's cycle timers: the main
  * loop checks every few thousand instructions that the motor timer is still registered and
  * registers it again if not.
+ *
+ * The UART bridge is the harness's own, single-threaded: bytes from the AVR are queued and
+ * written to the pty without blocking, bytes from the host are fed to the UART as its XON/XOFF
+ * allows, and while more than 4 kB wait for a busy host the emulation pauses, so nothing is
+ * lost. (simavr's uart_pty part drops output when the host lags, and can hang on exit.)
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -44,11 +50,16 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <termios.h>
+
 #include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
 #include <simavr/sim_elf.h>
 #include <simavr/sim_irq.h>
-#include <simavr/parts/uart_pty.h>
 
 /* ATmega328P data-space addresses */
 #define REG_PINB 0x23
@@ -87,6 +98,7 @@ typedef struct harness {
     uint64_t edges;
     uint64_t resets;
     uint16_t min_sp;     /* lowest stack pointer seen (sampled every sub-step) */
+    uint64_t flow_pauses; /* 0.2 ms waits for the host to take the AVR's output */
 } harness_t;
 
 static volatile sig_atomic_t stop_requested = 0;
@@ -178,6 +190,94 @@ static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *pa
     return when + s->substep;
 }
 
+/* ---- UART0 <-> pseudo-terminal, single-threaded and lossless ---------------------------
+   (simavr's uart_pty part drops output when the host reads slowly and its thread can hang on
+   exit, so the harness bridges the UART itself.) */
+#define OUT_RING 65536
+typedef struct bridge {
+    int master, slave;
+    char slave_name[128];
+    uint8_t out[OUT_RING];      /* AVR -> host, not yet written to the pty */
+    size_t out_read, out_write;
+    uint8_t in[4096];           /* host -> AVR, not yet accepted by the UART */
+    size_t in_len, in_pos;
+    int xoff;
+    avr_irq_t *uart_input;
+    uint64_t overflows;
+} bridge_t;
+
+static size_t bridge_pending(const bridge_t *b) { return (b->out_write - b->out_read) & (OUT_RING - 1); }
+
+static void bridge_feed(bridge_t *b) {
+    while (!b->xoff && b->in_pos < b->in_len) avr_raise_irq(b->uart_input, b->in[b->in_pos++]);
+}
+
+static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq;
+    if (bridge_pending(b) == OUT_RING - 1) { b->overflows++; return; }
+    b->out[b->out_write] = (uint8_t)value;
+    b->out_write = (b->out_write + 1) & (OUT_RING - 1);
+}
+
+static void on_uart_xon(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq; (void)value;
+    b->xoff = 0;
+    bridge_feed(b);
+}
+
+static void on_uart_xoff(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq; (void)value;
+    b->xoff = 1;
+}
+
+static int bridge_open(bridge_t *b, avr_t *avr) {
+    memset(b, 0, sizeof(*b));
+    b->xoff = 1;   /* until the UART says XON: bytes sent before the receiver is on are lost */
+    if (openpty(&b->master, &b->slave, b->slave_name, NULL, NULL) < 0) return -1;
+    struct termios tio;
+    tcgetattr(b->slave, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(b->slave, TCSANOW, &tio);
+    close(b->slave);   /* so that the master sees POLLHUP until the host opens the port */
+    b->slave = -1;
+    fcntl(b->master, F_SETFL, fcntl(b->master, F_GETFL) | O_NONBLOCK);
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);   /* binary; never usleep */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    b->uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_output, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_uart_xon, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_uart_xoff, b);
+    return 0;
+}
+
+/* Block until the host opens the pseudo-terminal (or a stop is requested). */
+static void bridge_wait_for_host(bridge_t *b) {
+    while (!stop_requested) {
+        struct pollfd pfd = {b->master, POLLIN, 0};
+        if (poll(&pfd, 1, 10) >= 0 && !(pfd.revents & POLLHUP)) return;
+    }
+}
+
+/* Move bytes both ways without blocking. */
+static void bridge_poll(bridge_t *b) {
+    while (bridge_pending(b)) {
+        size_t n = b->out_write >= b->out_read ? b->out_write - b->out_read : OUT_RING - b->out_read;
+        ssize_t done = write(b->master, b->out + b->out_read, n);
+        if (done <= 0) break;                               /* EAGAIN: the host is behind */
+        b->out_read = (b->out_read + (size_t)done) & (OUT_RING - 1);
+    }
+    if (b->in_pos == b->in_len) {
+        ssize_t got = read(b->master, b->in, sizeof(b->in));
+        if (got > 0) { b->in_len = (size_t)got; b->in_pos = 0; }
+    }
+    bridge_feed(b);
+}
+
 static double wall_seconds(void) {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -188,7 +288,7 @@ static void usage(const char *argv0) {
     fprintf(stderr,
             "usage: %s FIRMWARE.elf [--a A] [--b B] [--friction C] [--counts-per-rev N]\n"
             "          [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2] [--speed X]\n"
-            "          [--substep-cycles N]\n",
+            "          [--substep-cycles N] [--boot-delay S]\n",
             argv0);
 }
 
@@ -212,11 +312,13 @@ int main(int argc, char **argv) {
     s.substep = 16;
     s.min_sp = 0x8FF;
     double speed_cap = 1.0;
+    double boot_delay = 0.05;
     static const struct option options[] = {
         {"a", required_argument, 0, 'a'},          {"b", required_argument, 0, 'b'},
         {"friction", required_argument, 0, 'f'},   {"counts-per-rev", required_argument, 0, 'n'},
         {"encoder-rate", required_argument, 0, 'r'}, {"driver", required_argument, 0, 'd'},
         {"speed", required_argument, 0, 's'},      {"substep-cycles", required_argument, 0, 'c'},
+        {"boot-delay", required_argument, 0, 'w'},
         {0, 0, 0, 0}};
     int opt;
     while ((opt = getopt_long(argc, argv, "", options, NULL)) != -1) {
@@ -228,6 +330,7 @@ int main(int argc, char **argv) {
             case 'r': s.encoder_rate = parse_number("encoder-rate", optarg); break;
             case 's': speed_cap = parse_number("speed", optarg); break;
             case 'c': s.substep = (uint32_t)parse_number("substep-cycles", optarg); break;
+            case 'w': boot_delay = parse_number("boot-delay", optarg); break;
             case 'd':
                 if (!strcmp(optarg, "dir-pwm")) s.driver = DRIVER_DIR_PWM;
                 else if (!strcmp(optarg, "in1-in2")) s.driver = DRIVER_IN1_IN2;
@@ -244,6 +347,7 @@ int main(int argc, char **argv) {
     if (s.friction < 0) { fprintf(stderr, "motorid-avr-sim: --friction must be >= 0, got %g\n", s.friction); return 2; }
     if (!(s.counts_per_rev > 0)) { fprintf(stderr, "motorid-avr-sim: --counts-per-rev must be > 0, got %g\n", s.counts_per_rev); return 2; }
     if (s.substep < 1 || s.substep > 16000) { fprintf(stderr, "motorid-avr-sim: --substep-cycles must be 1...16000, got %u\n", s.substep); return 2; }
+    if (boot_delay < 0 || boot_delay > 10) { fprintf(stderr, "motorid-avr-sim: --boot-delay must be 0...10 s, got %g\n", boot_delay); return 2; }
     if (speed_cap < 0) { fprintf(stderr, "motorid-avr-sim: --speed must be >= 0, got %g\n", speed_cap); return 2; }
 
     elf_firmware_t fw;
@@ -269,17 +373,27 @@ int main(int argc, char **argv) {
     avr_raise_irq(s.enc_a, 0);
     avr_raise_irq(s.enc_b, 0);
 
-    uart_pty_t pty;
-    memset(&pty, 0, sizeof(pty));
-    uart_pty_init(s.avr, &pty);
-    uart_pty_connect(&pty, '0');
-    printf("PTY %s\n", pty.pty.slavename);
+    static bridge_t pty;   /* static: 70 kB */
+    if (bridge_open(&pty, s.avr) != 0) {
+        fprintf(stderr, "motorid-avr-sim: cannot open a pseudo-terminal: %s\n", strerror(errno));
+        return 1;
+    }
+    printf("PTY %s\n", pty.slave_name);
     fflush(stdout);
 
     signal(SIGTERM, on_signal);
     signal(SIGINT, on_signal);
     signal(SIGHUP, on_signal);
     signal(SIGUSR1, on_hang);
+
+    /* A real Uno boots when the host opens the port (DTR reset) and then sits ~1 s in its
+       bootloader; the emulated one starts when the host opens the pty, after --boot-delay
+       (default 50 ms), so its BOOT frame cannot be flushed by the host's own open(). */
+    bridge_wait_for_host(&pty);
+    if (boot_delay > 0) {
+        struct timespec ts = {(time_t)boot_delay, (long)((boot_delay - (time_t)boot_delay) * 1e9)};
+        nanosleep(&ts, NULL);
+    }
 
     avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
     double wall0 = wall_seconds();
@@ -295,6 +409,16 @@ int main(int argc, char **argv) {
         }
         if (++n < 4096) continue;
         n = 0;
+        /* Flow control towards the host: while more than 4 kB of the AVR's output wait for a
+           busy host, the emulation pauses. Nothing is lost and the firmware's own (emulated)
+           timing is untouched; a real USB-serial link has large host buffers instead. */
+        bridge_poll(&pty);
+        while (!stop_requested && bridge_pending(&pty) > 4096) {
+            struct timespec ts = {0, 200000};
+            nanosleep(&ts, NULL);
+            s.flow_pauses++;
+            bridge_poll(&pty);
+        }
         if (!avr_cycle_timer_status(s.avr, motor_step, &s)) {   /* cleared by an AVR reset */
             s.resets++;
             avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
@@ -311,11 +435,11 @@ int main(int argc, char **argv) {
     double wall = wall_seconds() - wall0;
     double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
     printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
-           "stack_bytes=%d state=%d\n",
+           "stack_bytes=%d flow_pauses=%llu state=%d\n",
            emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s.emitted,
-           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, 0x8FF - s.min_sp, state);
+           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, 0x8FF - s.min_sp,
+           (unsigned long long)s.flow_pauses, state);
     fflush(stdout);
-    /* Not uart_pty_stop(): in simavr 1.6 it can wait forever for its thread (seen about one
-       time in six). Exiting closes the pty and ends the thread. */
+    bridge_poll(&pty);
     _exit(state == cpu_Crashed ? 1 : 0);
 }
