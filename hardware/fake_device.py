@@ -217,6 +217,7 @@ class FakeDevice:
         self._queued_samples = 0
         self._tx_seq = 0
         self._rx_pending = b""
+        self._rx_discarding = False
         self._config: P.Config | None = None
         self._wave = None
         self._running = False
@@ -270,8 +271,14 @@ class FakeDevice:
             return
         parts = (self._rx_pending + data).split(b"\x00")
         self._rx_pending = parts.pop()
-        if len(self._rx_pending) > P.MAX_ENCODED:
+        if self._rx_discarding and parts:
+            parts[0] = b""                    # the overlong frame ends at this delimiter
+            self._rx_discarding = False
+        if self._rx_discarding:
             self._rx_pending = b""
+        elif len(self._rx_pending) > P.MAX_ENCODED:   # discard up to the next 0x00, one error
+            self._rx_pending = b""
+            self._rx_discarding = True
             self.rx_errors += 1
         for part in parts:
             if part:

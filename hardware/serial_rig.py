@@ -39,6 +39,7 @@ __all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
 #: Seconds between HELLOs while waiting for the device to boot (PROTOCOL.md).
 HELLO_INTERVAL = 0.2
 _READ_TIMEOUT = 0.02
+_SAMPLE_BITS = 21 * 10      # a SAMPLE frame on the wire: 21 bytes of 10 bits (8N1)
 
 
 class RecordedSample(NamedTuple):
@@ -270,6 +271,10 @@ class SerialRig:
             loop_end = time.monotonic()
 
     # -------------------------------------------------------------- the run
+    def line_load(self, sample_period: float) -> float:
+        """Fraction of the line the SAMPLE frames take at ``sample_period`` s (21 bytes, 8N1 = 210 bits each)."""
+        return _SAMPLE_BITS / sample_period / self.baudrate
+
     def run(self, experiment: Experiment, *, on_sample: Callable[[RecordedSample], None] | None = None
             ) -> Recording:
         """Run ``experiment`` on the device and return its recording.
@@ -291,6 +296,12 @@ class SerialRig:
         """
         if not isinstance(experiment, Experiment):
             raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+        load = self.line_load(experiment.sample_period)
+        if load > 1:
+            raise ValueError(f"sample_period {experiment.sample_period!r} s needs "
+                             f"{_SAMPLE_BITS / experiment.sample_period:.0f} baud for the SAMPLE frames alone, more "
+                             f"than baudrate {self.baudrate}; use a longer sample period or a faster line "
+                             f"(250 000 baud up to 500 Hz, 500 000 at 1 kHz)")
         config = P.config_for(experiment, decoding=self.decoding, watchdog_ms=self.watchdog_ms)
         wave = P.wave_for(experiment)
         expected = experiment.duty()
@@ -470,7 +481,8 @@ class _RunState:
 
     def recording(self, rig: SerialRig, *, complete: bool, reason: str = "") -> Recording:
         meta = {"source": "SerialRig", **self.experiment.metadata(), "port": rig.port_name,
-                "baudrate": str(rig.baudrate), "protocol_version": str(P.PROTOCOL_VERSION),
+                "baudrate": str(rig.baudrate), "line_load": f"{rig.line_load(self.dt):.3f}",
+                "protocol_version": str(P.PROTOCOL_VERSION),
                 "complete": "true" if complete else "false"}
         if reason:
             meta["incomplete_reason"] = " ".join(reason.split())

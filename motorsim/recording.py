@@ -234,28 +234,6 @@ def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | No
         yield ",".join(fmt[c](float(data[c][k]) if c not in _INT_COLUMNS else data[c][k]) for c in cols)
 
 
-def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
-    """Write ``recording`` to ``path`` in format v1, atomically (temporary file, then rename).
-
-    Floats are written with ``repr``, so reading the file back gives the same numbers bit for bit.
-    """
-    if not isinstance(recording, Recording):
-        raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
-    path = Path(path)
-    cols = _columns(recording)
-    text = "\n".join([*_metadata_lines(recording), ",".join(cols), *_format_rows(recording, cols)]) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 def _replace_atomically(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     try:
@@ -266,6 +244,20 @@ def _replace_atomically(path: Path, text: str) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
+    """Write ``recording`` to ``path`` in format v1, atomically (temporary file, then rename).
+
+    Floats are written with ``repr``, so reading the file back gives the same numbers bit for bit.
+    """
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+    path = Path(path)
+    cols = _columns(recording)
+    text = "\n".join([*_metadata_lines(recording), ",".join(cols), *_format_rows(recording, cols)]) + "\n"
+    _replace_atomically(path, text)
+    return path
 
 
 class RecordingWriter:

@@ -55,11 +55,12 @@ class _Progress:
         self.enabled = enabled and n_samples > 0
         self._next = 0.0
 
-    def show(self, k: int, estimate, force: bool = False) -> None:
+    def show(self, k: int, running, force: bool = False) -> None:
         now = time.monotonic()
         if not self.enabled or (now < self._next and not force):
             return
         self._next = now + 0.25
+        estimate = running.estimate()
         est = (f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
                if estimate.ready else "estimate: waiting for data")
         print(f"\r  {k + 1:>7}/{self.n} samples ({100 * (k + 1) / self.n:5.1f} %)  {est}   ",
@@ -84,16 +85,16 @@ def run_live(args: argparse.Namespace) -> int:
     plot = None
     if args.plot:
         from .plots import LivePlot
-        plot = LivePlot(experiment, fallback_path=f"{args.out}.live.png")
+        plot = LivePlot(experiment, counts_per_rev=args.counts_per_rev, fallback_path=f"{args.out}.live.png")
     writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
                              metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
 
     def on_sample(s) -> None:
         writer.append(s.seq, s.time_s, s.duty, s.counts)
         running.add(s.seq, s.time_s, s.duty, s.counts)
-        progress.show(s.seq, running.estimate())
+        progress.show(s.seq, running)
         if plot is not None:
-            plot.add(s, running.estimate(), args.counts_per_rev)
+            plot.add(s, running)
 
     try:
         with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
@@ -116,7 +117,7 @@ def run_live(args: argparse.Namespace) -> int:
     finally:
         if plot is not None:
             plot.close()
-    progress.show(experiment.n_samples - 1, running.estimate(), force=True)
+    progress.show(experiment.n_samples - 1, running, force=True)
     progress.done()
     path = writer.close(True, metadata=recording.metadata)
     estimate = fit(recording, method=args.method)
@@ -127,7 +128,8 @@ def run_live(args: argparse.Namespace) -> int:
     print(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:
-        print(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model} RLS, {run_est.n_rows} rows)")
+        print(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model}, {run_est.n_rows} rows, "
+              f"the estimate shown during the run)")
     if args.json:
         out = {**estimate.to_dict(), "running_estimate": run_est.to_dict(), "recording": str(path),
                "samples_received": len(recording), "samples_expected": experiment.n_samples,

@@ -69,8 +69,9 @@ class LivePlot:
     ``interval`` s so plotting never holds up the serial reader for long.
     """
 
-    def __init__(self, experiment, *, fallback_path, interval: float = 0.5):
+    def __init__(self, experiment, *, counts_per_rev: int, fallback_path, interval: float = 0.5):
         import matplotlib
+        self._rad_per_count = 2 * math.pi / counts_per_rev
         self.window = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
                            or sys.platform in ("win32", "darwin"))
         if not self.window:
@@ -80,10 +81,9 @@ class LivePlot:
         self._path = Path(fallback_path)
         self._interval = float(interval) if self.window else max(float(interval), 1.0)   # PNGs are slow
         self._next = 0.0
-        self._rad_per_count = None
         self._t, self._u, self._w = [], [], []
         self._prev = None
-        self._estimate = None
+        self._running = None
         if self.window:
             plt.ion()
         self.fig, self.ax = plt.subplots(figsize=(8, 3.6), constrained_layout=True)
@@ -96,11 +96,10 @@ class LivePlot:
         self.ax.set_xlabel("time [s]")
         self.ax.set_ylabel("duty η", color="tab:blue")
         self.ax2.set_ylabel("ω [rad/s]", color="tab:red")
-        self._counts_per_rev = None
 
-    def add(self, sample, estimate, counts_per_rev: int | None = None) -> None:
-        """Add one sample (``seq, time_s, duty, counts``) and the current running estimate."""
-        rad = 2 * math.pi / (counts_per_rev or 16667)
+    def add(self, sample, running) -> None:
+        """Add one sample (``seq, time_s, duty, counts``); ``running.estimate()`` is asked at redraws."""
+        rad = self._rad_per_count
         w = math.nan
         if self._prev is not None and sample.seq == self._prev.seq + 1:
             w = (sample.counts - self._prev.counts) * rad / (sample.time_s - self._prev.time_s)
@@ -108,7 +107,7 @@ class LivePlot:
         self._t.append(sample.time_s)
         self._u.append(sample.duty)
         self._w.append(w)
-        self._estimate = estimate
+        self._running = running
         if time.monotonic() >= self._next:
             self._draw()
 
@@ -121,9 +120,9 @@ class LivePlot:
             lo, hi = min(finite), max(finite)
             pad = 0.05 * (hi - lo) or 1.0
             self.ax2.set_ylim(lo - pad, hi + pad)
-        e = self._estimate
+        e = self._running.estimate() if self._running is not None else None
         if e is not None and e.ready:
-            self.ax.set_title(f"running {e.model} RLS: a ≈ {e.a:.4g} 1/s, b ≈ {e.b:.4g}  ({e.n_rows} rows)")
+            self.ax.set_title(f"running {e.model}: a ≈ {e.a:.4g} 1/s, b ≈ {e.b:.4g}  ({e.n_rows} rows)")
         if self.window:
             self.fig.canvas.draw_idle()
             self._plt.pause(0.001)

@@ -40,6 +40,7 @@ def test_cobs_matches_the_published_examples(raw, encoded):
     assert P.cobs_decode(encoded) == raw
 
 
+@settings(deadline=None)   # no per-example time limit: the shared machine stalls processes at times
 @given(st.binary(max_size=600))
 def test_cobs_round_trips_and_removes_every_zero(data):
     enc = P.cobs_encode(data)

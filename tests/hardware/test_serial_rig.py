@@ -234,6 +234,19 @@ def test_a_duty_other_than_the_waves_is_caught(monkeypatch):
         rig.run(EXPERIMENT)
 
 
+def test_the_fake_device_counts_an_overlong_frame_once_and_resynchronises():
+    reader = P.FrameReader()
+    with _fake() as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
+        port.write(b"\x01" * 70)
+        time.sleep(0.05)
+        port.write(b"\x01" * 70 + b"\x00" + P.encode_message(P.Hello(), 0))
+        got = []
+        deadline = time.monotonic() + 2.0
+        while not any(isinstance(m, P.HelloAck) for m in got) and time.monotonic() < deadline:
+            got += [m for _, m in reader.feed(port.read(256))]
+        assert any(isinstance(m, P.HelloAck) for m in got) and dev.rx_errors == 1
+
+
 def test_the_fake_device_answers_busy_and_unknown_types():
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
@@ -353,3 +366,10 @@ def test_a_lost_start_ack_still_starts_the_run_once(experiment, speed):
     assert len(rec) == experiment.n_samples and not rec.has_gaps
     # the lost ACK is one frame lost on the link, so the host's count shows it
     assert rec.metadata["host_link_frames_lost"] == "1"
+
+
+def test_a_sample_rate_the_line_cannot_carry_is_refused_before_anything_is_sent():
+    # 1 kHz of 21-byte frames is 210 000 baud: more than 115 200 can carry, so drops would be certain.
+    with pytest.raises(ValueError, match=r"210000 baud.*baudrate 115200"):
+        SerialRig("loop://", 115_200).run(Experiment(Sine(10.0), 0.001, 1.0))
+    assert SerialRig("loop://", 250_000).line_load(0.002) == pytest.approx(0.42)   # the README's 42 %
