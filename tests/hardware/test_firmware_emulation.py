@@ -315,21 +315,34 @@ def test_unknown_type_and_wrong_length_are_naked(built):
 # ------------------------------------------------------------------ overload
 def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
     # 2000 samples/s x 21 bytes = 42 000 B/s on a 25 000 B/s line (250 000 baud, 8N1).
-    experiment = Experiment(Constant(0), sample_period=0.0005, duration=0.5)
-    n = experiment.n_samples
+    # SerialRig refuses such a rate up front, so the device is driven frame by frame.
+    n = 1000
+    with _open() as port:
+        link = DeviceLink(port)
+        link.hello()
+        run = link.run(P.Config(500, n, 255, 4, 500), P.WaveConstant(0))
+    end = run.end
+    assert end is not None and end.reason == P.EndReason.COMPLETE
+    assert end.samples_dropped > 0
+    assert all(np.diff(run.seqs) % 256 == 1), "the link itself lost nothing"
+    assert end.samples_sent == len(run.samples)
+    assert len(run.samples) + end.samples_dropped == n
+    indices = np.array([s.index for s in run.samples])
+    assert np.all(np.diff(indices) > 0)
+    gaps = int(np.sum(np.diff(indices) - 1)) + indices[0] + (n - 1 - indices[-1])
+    assert gaps == end.samples_dropped, "every dropped sample is a gap in the indices"
+    assert [f.code for f in run.faults] == [P.FaultCode.QUEUE_OVERFLOW]
+    first_gap = next(k for k, i in enumerate(indices) if i != k)
+    assert run.faults[0].index == first_gap
+
+
+def test_serial_rig_refuses_a_rate_the_line_cannot_carry_before_starting(built):
+    # The host's side of the same overload: SerialRig says so up front; the device never runs.
     with _rig() as (rig, _):
-        rec = rig.run(experiment)
-    meta = rec.metadata
-    dropped = int(meta["device_samples_dropped"])
-    assert meta["device_end_reason"] == "0" and dropped > 0
-    assert meta["host_link_frames_lost"] == "0", "the link itself lost nothing"
-    assert int(meta["device_samples_sent"]) == len(rec.seq)
-    assert len(rec.seq) + dropped == n
-    gaps = int(np.sum(np.diff(rec.seq) - 1)) + rec.seq[0] + (n - 1 - rec.seq[-1])
-    assert gaps == dropped, "every dropped sample is a gap in seq"
-    assert meta["device_fault_code"] == str(int(P.FaultCode.QUEUE_OVERFLOW))
-    first_gap = next(k for k, i in enumerate(rec.seq) if i != k)
-    assert int(meta["device_fault_index"]) == first_gap
+        with pytest.raises(ValueError, match="sample_period 0.0005 s needs 420000 baud"):
+            rig.run(Experiment(Constant(0), sample_period=0.0005, duration=0.5))
+        rec = rig.run(Experiment(Constant(0), sample_period=0.002, duration=0.2))   # still usable
+    assert rec.metadata["device_samples_dropped"] == "0" and len(rec.seq) == 100
 
 
 # ------------------------------------------------------------------ encoder
