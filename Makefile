@@ -24,3 +24,7 @@ test: $(STAMP)
 
 clean:
 	rm -rf $(VENV) demo-output build *.egg-info .pytest_cache
+	rm -rf hardware/firmware/build hardware/sim/build
+
+# Firmware build and AVR emulation (issue 6): firmware, avr-sim, firmware-deps; `test` needs them.
+include hardware/avr.mk

@@ -1,0 +1,1 @@
+"""The Arduino sketch (``motorid_bench/``) and the generator of its sine table."""

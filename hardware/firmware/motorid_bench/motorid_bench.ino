@@ -1,0 +1,927 @@
+// motorid bench firmware for an Arduino Uno (ATmega328P, 16 MHz).
+//
+// Implements hardware/PROTOCOL.md (protocol version 1) exactly: COBS frames with CRC-16,
+// CONFIG/WAVE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
+//
+// Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt snapshots the
+// encoder count and micros(), applies the duty computed during the previous tick, queues the
+// SAMPLE, then computes the next duty with interrupts re-enabled (the encoder may preempt it).
+// loop() only parses received bytes and sends at most one frame per pass.
+// The encoder is decoded by a pin-change interrupt that reads the port register directly.
+// Wiring, flashing and measured figures: hardware/firmware/README.md.
+
+#include <Arduino.h>
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/pgmspace.h>
+#include <avr/wdt.h>
+#include <util/crc16.h>
+
+#include "config.h"
+#include "sine_table.h"
+
+// ---------------------------------------------------------------------------------------------
+// Protocol constants (hardware/PROTOCOL.md)
+#define PROTOCOL_VERSION 1
+#define FIRMWARE_VERSION 0x0100  // major << 8 | minor: 1.0
+#define MAX_PAYLOAD 60
+#define MAX_BODY (MAX_PAYLOAD + 4)
+#define MAX_ENCODED (MAX_BODY + 2)
+
+#define T_HELLO 0x01
+#define T_CONFIG 0x02
+#define T_WAVE 0x03
+#define T_START 0x04
+#define T_STOP 0x05
+#define T_HEARTBEAT 0x06
+#define T_HELLO_ACK 0x81
+#define T_ACK 0x82
+#define T_NAK 0x83
+#define T_SAMPLE 0x84
+#define T_END 0x85
+#define T_FAULT 0x86
+#define T_BOOT 0x87
+
+#define NAK_BUSY 1
+#define NAK_BAD_LENGTH 2
+#define NAK_BAD_VALUE 3
+#define NAK_NOT_CONFIGURED 4
+#define NAK_UNKNOWN_TYPE 5
+
+#define END_COMPLETE 0
+#define END_STOPPED 1
+#define END_WATCHDOG 2
+#define END_FAULT 3
+
+#define FAULT_HOST_SILENCE 1
+#define FAULT_QUEUE_OVERFLOW 2
+#define FAULT_ENCODER 3
+
+#define WAVE_CONSTANT 0
+#define WAVE_STEP 1
+#define WAVE_MULTISINE 2
+#define WAVE_CHIRP 3
+#define WAVE_PRBS 4
+#define MAX_COMPONENTS 4
+#define MAX_LEVEL 1023
+
+#define FLAG_ENCODER_ERROR 0x01
+#define FLAG_LATE 0x02
+
+// ---------------------------------------------------------------------------------------------
+// Pin mapping resolved at compile time (register-level I/O in the interrupts)
+#if PIN_ENC_A <= 7
+#define ENC_PCINT_vect PCINT2_vect
+#define ENC_PIN_REG PIND
+#define ENC_PCMSK PCMSK2
+#define ENC_PCIE PCIE2
+#define ENC_A_BIT (PIN_ENC_A)
+#elif PIN_ENC_A <= 13
+#define ENC_PCINT_vect PCINT0_vect
+#define ENC_PIN_REG PINB
+#define ENC_PCMSK PCMSK0
+#define ENC_PCIE PCIE0
+#define ENC_A_BIT (PIN_ENC_A - 8)
+#elif PIN_ENC_A <= 19
+#define ENC_PCINT_vect PCINT1_vect
+#define ENC_PIN_REG PINC
+#define ENC_PCMSK PCMSK1
+#define ENC_PCIE PCIE1
+#define ENC_A_BIT (PIN_ENC_A - 14)
+#else
+#error "PIN_ENC_A must be 0..19"
+#endif
+#if (PIN_ENC_A <= 7) != (PIN_ENC_B <= 7) || (PIN_ENC_A >= 14) != (PIN_ENC_B >= 14)
+#error "PIN_ENC_A and PIN_ENC_B must be on the same port (0-7, 8-13 or 14-19)"
+#endif
+#define ENC_B_BIT (PIN_ENC_B <= 7 ? PIN_ENC_B : PIN_ENC_B <= 13 ? PIN_ENC_B - 8 : PIN_ENC_B - 14)
+#define ENC_A_MASK (1 << ENC_A_BIT)
+#define ENC_B_MASK (1 << ENC_B_BIT)
+
+#if PIN_PWM == 11
+#define PWM_OCR OCR2A
+#define PWM_COM_BITS _BV(COM2A1)
+#elif PIN_PWM == 3
+#define PWM_OCR OCR2B
+#define PWM_COM_BITS _BV(COM2B1)
+#else
+#error "PIN_PWM must be 11 (OC2A) or 3 (OC2B): Timer 2 drives the PWM"
+#endif
+#if PIN_PWM == PIN_ENC_A || PIN_PWM == PIN_ENC_B
+#error "PIN_PWM must not be an encoder pin"
+#endif
+
+#if PWM_PRESCALER == 1
+#define PWM_CS_BITS _BV(CS20)
+#elif PWM_PRESCALER == 8
+#define PWM_CS_BITS _BV(CS21)
+#elif PWM_PRESCALER == 64
+#define PWM_CS_BITS _BV(CS22)
+#else
+#error "PWM_PRESCALER must be 1, 8 or 64"
+#endif
+
+#if DRIVER_TYPE != DRIVER_DIR_PWM && DRIVER_TYPE != DRIVER_IN1_IN2
+#error "DRIVER_TYPE must be DRIVER_DIR_PWM or DRIVER_IN1_IN2"
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Reset cause: MCUSR read before anything clears it. Optiboot clears MCUSR itself and passes
+// its old value in r2, so r2 is the fallback when MCUSR reads 0.
+uint8_t boot_mcusr __attribute__((section(".noinit")));
+uint8_t boot_r2 __attribute__((section(".noinit")));
+uint8_t reset_cause;  // set in setup()
+void capture_reset_cause(void) __attribute__((naked, used, section(".init3")));
+void capture_reset_cause(void) {
+  __asm__ __volatile__("sts boot_r2, r2");
+  boot_mcusr = MCUSR;
+  MCUSR = 0;
+  wdt_disable();  // after a watchdog reset the watchdog stays armed at 15 ms
+}
+
+// ---------------------------------------------------------------------------------------------
+// Types
+
+struct Sample {
+  uint32_t index;
+  uint32_t time_us;
+  int32_t counts;
+  int16_t duty;
+  uint8_t flags;
+};
+
+struct Config {
+  uint32_t sample_period_us;
+  uint32_t n_samples;
+  int16_t duty_limit;
+  uint8_t decoding;
+  uint16_t watchdog_ms;
+};
+
+struct Component {
+  int16_t amplitude;
+  uint32_t phase0;
+  uint32_t phase_inc;
+};
+
+struct Wave {
+  uint8_t kind;
+  int16_t level_a;      // CONSTANT level, STEP before, MULTISINE/CHIRP offset, PRBS low
+  int16_t level_b;      // STEP after, CHIRP amplitude, PRBS high
+  uint32_t word_a;      // STEP step_index, CHIRP phase0
+  uint32_t word_b;      // CHIRP inc0
+  int32_t word_c;       // CHIRP inc_step
+  uint8_t n;            // MULTISINE components, PRBS order
+  uint16_t seed;        // PRBS
+  uint16_t hold;        // PRBS
+  Component comp[MAX_COMPONENTS];
+};
+
+// Running state of the waveform generator (reset at START).
+struct WaveState {
+  uint32_t k;
+  uint32_t phase[MAX_COMPONENTS];
+  uint32_t inc;
+  uint16_t lfsr;
+  uint16_t hold_left;
+  uint8_t bit;
+};
+
+struct Response {
+  uint8_t type;       // T_ACK, T_NAK or T_HELLO_ACK
+  uint8_t ref_type;
+  uint8_t ref_seq;
+  uint8_t reason;
+};
+
+#define RESPONSE_QUEUE_LEN 8
+
+// ---------------------------------------------------------------------------------------------
+// State shared with interrupts (volatile) and loop-only state.
+
+// Encoder (pin-change ISR)
+volatile int32_t enc_count = 0;
+volatile uint32_t enc_errors = 0;
+volatile uint8_t enc_previous = 0;   // last (A << 1 | B), shifted left by 2
+volatile uint8_t enc_decoding = 4;
+// Decoding tables indexed by (previous << 2 | current), current = A << 1 | B: +1/-1 count,
+// 0 nothing, 2 an illegal transition. x4: every edge of A and B; both changing at once is
+// illegal. x2 and x1 interrupt on A only: A must have changed (else an edge pair was missed);
+// x2 counts both A edges, x1 only rising ones; B gives the direction.
+#define ILLEGAL 2
+const int8_t DECODE_X4[16] PROGMEM = {0, -1, +1, ILLEGAL, +1, 0, ILLEGAL, -1,
+                                      -1, ILLEGAL, 0, +1, ILLEGAL, +1, -1, 0};
+const int8_t DECODE_X2[16] PROGMEM = {ILLEGAL, ILLEGAL, +1, -1, ILLEGAL, ILLEGAL, +1, -1,
+                                      -1, +1, ILLEGAL, ILLEGAL, -1, +1, ILLEGAL, ILLEGAL};
+const int8_t DECODE_X1[16] PROGMEM = {ILLEGAL, ILLEGAL, +1, -1, ILLEGAL, ILLEGAL, +1, -1,
+                                      0, 0, ILLEGAL, ILLEGAL, 0, 0, ILLEGAL, ILLEGAL};
+int8_t decode_table[16];             // the active table, in RAM for a fast lookup
+
+// Sample clock (Timer 1 ISR)
+volatile uint8_t running = 0;
+volatile uint32_t tick_index = 0;
+volatile int16_t next_duty = 0;
+volatile uint8_t tick_late = 0;
+volatile uint16_t tick_overruns = 0;
+volatile uint32_t samples_dropped = 0;
+volatile uint32_t errors_at_last_sample = 0;
+volatile uint32_t errors_at_start = 0;
+volatile uint32_t errors_at_stop = 0;
+volatile uint8_t fault_code = 0;      // pending FAULT frame (0: none)
+volatile uint32_t fault_index = 0;
+volatile uint8_t end_pending = 0;
+volatile uint8_t end_reason = 0;
+volatile uint8_t overflow_reported = 0;
+uint16_t sub_len_q = 0;               // sample period split into sub-intervals of Timer 1
+uint8_t sub_count = 1, sub_long = 0, sub_pos = 0;
+
+// Sample queue: written by the Timer 1 ISR, read by loop().
+Sample queue[SAMPLE_QUEUE_LEN];
+volatile uint8_t queue_head = 0;      // next slot to write (ISR)
+volatile uint8_t queue_tail = 0;      // next slot to read (loop)
+
+// Experiment
+Config cfg;
+Wave wave;
+WaveState ws;
+uint8_t have_config = 0, have_wave = 0;
+
+// Link (loop only)
+uint8_t rx_buf[MAX_ENCODED];
+uint8_t rx_len = 0;
+uint8_t rx_discarding = 0;
+uint16_t rx_errors = 0;
+uint8_t tx_seq = 0;
+uint32_t samples_sent = 0;
+uint32_t last_rx_ms = 0;
+uint8_t boot_pending = 1;
+Response responses[RESPONSE_QUEUE_LEN];
+uint8_t resp_head = 0, resp_tail = 0;
+
+volatile uint8_t *dir_port;           // direction output(s), resolved once in setup()
+uint8_t dir_mask;
+#if DRIVER_TYPE == DRIVER_IN1_IN2
+volatile uint8_t *in2_port;
+uint8_t in2_mask;
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Little-endian helpers
+
+static uint16_t get_u16(const uint8_t *p) { return (uint16_t)p[0] | ((uint16_t)p[1] << 8); }
+static uint32_t get_u32(const uint8_t *p) {
+  return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+}
+static uint8_t *put_u16(uint8_t *p, uint16_t v) { p[0] = v; p[1] = v >> 8; return p + 2; }
+static uint8_t *put_u32(uint8_t *p, uint32_t v) {
+  p[0] = v; p[1] = v >> 8; p[2] = v >> 16; p[3] = v >> 24; return p + 4;
+}
+
+// ---------------------------------------------------------------------------------------------
+// H-bridge
+
+// Apply a signed duty (|duty| <= 255). Interrupts must be off (ISR or cli()).
+static inline void apply_duty(int16_t duty) {
+  uint8_t forward = duty >= 0;
+  uint8_t magnitude = forward ? duty : -duty;
+  uint8_t level = forward ? DIR_FORWARD_LEVEL : !DIR_FORWARD_LEVEL;
+  if (level) *dir_port |= dir_mask; else *dir_port &= ~dir_mask;
+#if DRIVER_TYPE == DRIVER_IN1_IN2
+  if (level) *in2_port &= ~in2_mask; else *in2_port |= in2_mask;
+#endif
+  PWM_OCR = magnitude;
+}
+
+static void setup_bridge(void) {
+  PWM_OCR = 0;
+  pinMode(PIN_PWM, OUTPUT);
+#if DRIVER_TYPE == DRIVER_DIR_PWM
+  pinMode(PIN_DIR, OUTPUT);
+  dir_port = portOutputRegister(digitalPinToPort(PIN_DIR));
+  dir_mask = digitalPinToBitMask(PIN_DIR);
+#else
+  pinMode(PIN_IN1, OUTPUT);
+  pinMode(PIN_IN2, OUTPUT);
+  dir_port = portOutputRegister(digitalPinToPort(PIN_IN1));
+  dir_mask = digitalPinToBitMask(PIN_IN1);
+  in2_port = portOutputRegister(digitalPinToPort(PIN_IN2));
+  in2_mask = digitalPinToBitMask(PIN_IN2);
+#endif
+  // Timer 2: phase-correct 8-bit PWM; OCR = 0 is a steady low, OCR = 255 a steady high.
+  TCCR2A = PWM_COM_BITS | _BV(WGM20);
+  TCCR2B = PWM_CS_BITS;
+  cli();
+  apply_duty(0);
+  sei();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Encoder: pin-change interrupt, register-level.
+
+static inline uint8_t encoder_pins(void) __attribute__((always_inline));
+static inline uint8_t encoder_pins(void) {
+  uint8_t pins = ENC_PIN_REG;
+  uint8_t now = 0;
+  if (pins & ENC_A_MASK) now |= 2;
+  if (pins & ENC_B_MASK) now |= 1;
+  return now;
+}
+
+ISR(ENC_PCINT_vect) {
+  uint8_t now = encoder_pins();
+  int8_t d = decode_table[enc_previous | now];
+  enc_previous = now << 2;
+  if (d == 0) return;
+  if (d == ILLEGAL) {
+    enc_errors++;
+    return;
+  }
+  if (d > 0) enc_count++;
+  else enc_count--;
+}
+
+// Select the decoding table and the pins that interrupt (x4: A and B; x2, x1: A only).
+static void setup_encoder(uint8_t decoding) {
+  const int8_t *table = decoding == 4 ? DECODE_X4 : decoding == 2 ? DECODE_X2 : DECODE_X1;
+  uint8_t sreg = SREG;
+  cli();
+  for (uint8_t i = 0; i < 16; i++) decode_table[i] = pgm_read_byte(&table[i]);
+  enc_decoding = decoding;
+  ENC_PCMSK = decoding == 4 ? (ENC_A_MASK | ENC_B_MASK) : ENC_A_MASK;
+  PCIFR = _BV(ENC_PCIE);               // clear first: an edge after the read below interrupts
+  enc_previous = encoder_pins() << 2;
+  PCICR |= _BV(ENC_PCIE);
+  SREG = sreg;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Waveform generator (PROTOCOL.md "Waveforms"; motorsim/excitation.py is the reference).
+
+static int16_t sine_q15(uint32_t phase) {
+  uint16_t i = phase >> 22;
+  uint16_t f = (phase >> 6) & 0xFFFF;
+  int16_t y0 = pgm_read_word(&SINE_TABLE[i]);
+  int16_t y1 = pgm_read_word(&SINE_TABLE[(i + 1) & (SINE_TABLE_SIZE - 1)]);
+  return y0 + (int16_t)(((int32_t)(y1 - y0) * (int32_t)f) >> 16);
+}
+
+static const uint16_t PRBS_MASK[17] PROGMEM = {
+    0, 0, 0x3, 0x6, 0xC, 0x14, 0x30, 0x60, 0xB8, 0x110, 0x240, 0x500, 0xE08, 0x1C80,
+    0x3802, 0x6000, 0xB400};
+
+static void wave_reset(void) {
+  ws.k = 0;
+  for (uint8_t j = 0; j < MAX_COMPONENTS; j++) ws.phase[j] = wave.comp[j].phase0;
+  ws.phase[0] = wave.kind == WAVE_CHIRP ? wave.word_a : ws.phase[0];
+  ws.inc = wave.word_b;
+  ws.lfsr = wave.seed;
+  ws.hold_left = 0;
+  ws.bit = 0;
+}
+
+// Duty for sample ws.k (before clamping), then advance to ws.k + 1.
+static int32_t wave_next(void) {
+  int32_t duty;
+  switch (wave.kind) {
+    case WAVE_STEP:
+      duty = ws.k < wave.word_a ? wave.level_a : wave.level_b;
+      break;
+    case WAVE_MULTISINE: {
+      int32_t acc = 0;
+      for (uint8_t j = 0; j < wave.n; j++) {
+        acc += (int32_t)wave.comp[j].amplitude * sine_q15(ws.phase[j]);
+        ws.phase[j] += wave.comp[j].phase_inc;
+      }
+      duty = wave.level_a + ((acc + 16384) >> 15);
+      break;
+    }
+    case WAVE_CHIRP:
+      duty = wave.level_a + (((int32_t)wave.level_b * sine_q15(ws.phase[0]) + 16384) >> 15);
+      ws.phase[0] += ws.inc;
+      ws.inc += (uint32_t)wave.word_c;
+      break;
+    case WAVE_PRBS:
+      if (ws.hold_left == 0) {
+        uint8_t out = ws.lfsr & 1;
+        ws.lfsr >>= 1;
+        if (out) ws.lfsr ^= pgm_read_word(&PRBS_MASK[wave.n]);
+        ws.bit = out;
+        ws.hold_left = wave.hold;
+      }
+      ws.hold_left--;
+      duty = ws.bit ? wave.level_b : wave.level_a;
+      break;
+    default:  // WAVE_CONSTANT
+      duty = wave.level_a;
+      break;
+  }
+  ws.k++;
+  if (duty > cfg.duty_limit) duty = cfg.duty_limit;
+  if (duty < -cfg.duty_limit) duty = -cfg.duty_limit;
+  return duty;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sample clock: Timer 1, CTC, prescaler 8 (0.5 us). Periods above 32.768 ms are split into
+// sub_count sub-intervals (sub_long of length q + 1, the rest q) so every tick stays exact.
+
+static void timer_stop(void) {
+  TIMSK1 = 0;
+  TCCR1B = 0;
+}
+
+// Stop the run with duty 0. Interrupts must be off.
+static void stop_run(uint8_t reason) {
+  apply_duty(0);
+  timer_stop();
+  if (running) {
+    running = 0;
+    errors_at_stop = enc_errors;
+    end_reason = reason;
+    end_pending = 1;
+  }
+}
+
+// Split the period into Timer 1 sub-intervals. Called with interrupts on: the 32-bit
+// divisions take ~80 us, too long to hold off the encoder.
+static void timer_plan(uint32_t period_us) {
+  uint32_t ticks = period_us * (F_CPU / 1000000UL / 8);
+  uint8_t m = (ticks + 65535UL) / 65536UL;
+  sub_count = m;
+  sub_len_q = ticks / m - 1;            // OCR value for a sub-interval of q ticks
+  sub_long = ticks % m;                 // the first sub_long sub-intervals last q + 1
+}
+
+// Start the sample clock planned by timer_plan(). Interrupts must be off.
+static void timer_start(void) {
+  sub_pos = 0;
+  TCCR1A = 0;
+  TCCR1B = 0;
+  TCNT1 = 0;
+  OCR1A = sub_len_q + (sub_long ? 1 : 0);
+  TIFR1 = _BV(OCF1A);
+  TIMSK1 = _BV(OCIE1A);
+  TCCR1B = _BV(WGM12) | _BV(CS11);      // CTC on OCR1A, clk/8
+}
+
+// ISR_NOBLOCK: interrupts are back on from the first instruction, so the encoder interrupt is
+// never held off by this one for more than the few cycles of the snapshot below. This
+// interrupt cannot re-enter: the next compare is a whole period (>= 100 us) away, and it masks
+// itself before the long part.
+ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
+  if (sub_count > 1) {
+    sub_pos++;
+    if (sub_pos < sub_count) {
+      OCR1A = sub_len_q + (sub_pos < sub_long ? 1 : 0);
+      return;
+    }
+    sub_pos = 0;
+    OCR1A = sub_len_q + (sub_long ? 1 : 0);
+  }
+  if (!running) return;
+  TIMSK1 = 0;
+  // 1. snapshot, atomically
+  cli();
+  int32_t counts = enc_count;
+  uint32_t errors = enc_errors;
+  uint32_t now_us = micros();
+  sei();
+  if (tick_index >= cfg.n_samples) {   // one period after the last sample: done
+    cli();
+    stop_run(END_COMPLETE);
+    return;
+  }
+  // 2. apply the duty computed during the previous tick
+  int16_t duty = next_duty;
+  apply_duty(duty);
+  // 3. queue the sample, or drop and count it (only this ISR writes the queue head)
+  uint8_t flags = tick_late;
+  tick_late = 0;
+  uint32_t new_errors = errors - errors_at_last_sample;
+  errors_at_last_sample = errors;
+  if (new_errors) flags |= FLAG_ENCODER_ERROR;
+  uint8_t head = queue_head;
+  uint8_t next = head + 1 == SAMPLE_QUEUE_LEN ? 0 : head + 1;
+  if (next == queue_tail) {
+    samples_dropped++;
+    if (!overflow_reported) {
+      overflow_reported = 1;
+      if (!fault_code) { fault_code = FAULT_QUEUE_OVERFLOW; fault_index = tick_index; }
+    }
+  } else {
+    Sample *s = &queue[head];
+    s->index = tick_index;
+    s->time_us = now_us;
+    s->counts = counts;
+    s->duty = duty;
+    s->flags = flags;
+    queue_head = next;
+  }
+  tick_index++;
+  if (new_errors > 255) {
+    cli();
+    fault_code = FAULT_ENCODER;
+    fault_index = tick_index - 1;
+    stop_run(END_FAULT);
+    return;
+  }
+  // 4. compute the next duty
+  int16_t upcoming = wave_next();
+  cli();
+  next_duty = upcoming;
+  if (sub_count == 1 && (TIFR1 & _BV(OCF1A))) {  // the next tick is already due: it is late
+    tick_late = FLAG_LATE;
+    if (tick_overruns != 0xFFFF) tick_overruns++;
+  }
+  if (running) TIMSK1 = _BV(OCIE1A);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Framing: COBS + CRC-16/CCITT-FALSE (little-endian on the wire).
+
+static uint16_t crc16(const uint8_t *data, uint8_t len) {
+  uint16_t crc = 0xFFFF;
+  for (uint8_t i = 0; i < len; i++) crc = _crc_xmodem_update(crc, data[i]);
+  return crc;
+}
+
+// Decode COBS in[0..n) into out; returns the body length, or -1 if malformed.
+static int16_t cobs_decode(const uint8_t *in, uint8_t n, uint8_t *out) {
+  uint8_t i = 0, o = 0;
+  while (i < n) {
+    uint8_t code = in[i++];
+    if (code == 0) return -1;
+    for (uint8_t j = 1; j < code; j++) {
+      if (i >= n || o >= MAX_BODY) return -1;
+      out[o++] = in[i++];
+    }
+    if (code != 0xFF && i < n) {
+      if (o >= MAX_BODY) return -1;
+      out[o++] = 0;
+    }
+  }
+  return o;
+}
+
+// Send one frame if the serial transmit buffer has room; returns 1 if sent.
+static uint8_t send_frame(uint8_t type, const uint8_t *payload, uint8_t len) {
+  uint8_t body[MAX_BODY];
+  if (Serial.availableForWrite() < len + 4 + 3) return 0;
+  body[0] = type;
+  body[1] = tx_seq;
+  for (uint8_t i = 0; i < len; i++) body[2 + i] = payload[i];
+  uint16_t crc = crc16(body, len + 2);
+  put_u16(body + 2 + len, crc);
+  uint8_t blen = len + 4;
+  // COBS, written block by block (no second buffer on the stack): each block is the bytes up
+  // to the next zero, preceded by their count + 1. A body is at most 64 bytes < 254.
+  uint8_t i = 0;
+  for (;;) {
+    uint8_t j = i;
+    while (j < blen && body[j] != 0) j++;
+    Serial.write((uint8_t)(j - i + 1));
+    Serial.write(body + i, j - i);
+    if (j == blen) break;
+    i = j + 1;
+  }
+  Serial.write((uint8_t)0);
+  tx_seq++;
+  return 1;
+}
+
+static void respond(uint8_t type, uint8_t ref_type, uint8_t ref_seq, uint8_t reason) {
+  uint8_t next = (resp_head + 1) % RESPONSE_QUEUE_LEN;
+  if (next == resp_tail) return;  // the host sent 8 commands without reading: it will time out
+  responses[resp_head].type = type;
+  responses[resp_head].ref_type = ref_type;
+  responses[resp_head].ref_seq = ref_seq;
+  responses[resp_head].reason = reason;
+  resp_head = next;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Commands
+
+static uint8_t level_ok(int16_t x) { return x >= -MAX_LEVEL && x <= MAX_LEVEL; }
+
+// An invalid WAVE (its length cannot be checked: unknown kind, multisine n outside 1...4) that
+// PROTOCOL.md says to NAK with BAD_VALUE; like BAD_LENGTH it is counted in rx_errors.
+#define INVALID_BAD_VALUE (0x80 | NAK_BAD_VALUE)
+
+// Validate and store a WAVE payload; returns 0, a NAK reason, or INVALID_BAD_VALUE.
+static uint8_t parse_wave(const uint8_t *p, uint8_t len, uint8_t check_only) {
+  if (len < 1) return NAK_BAD_LENGTH;
+  Wave w;
+  memset(&w, 0, sizeof(w));
+  w.kind = p[0];
+  p++;
+  len--;
+  switch (w.kind) {
+    case WAVE_CONSTANT:
+      if (len != 2) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      if (!level_ok(w.level_a)) return NAK_BAD_VALUE;
+      break;
+    case WAVE_STEP:
+      if (len != 8) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      w.level_b = get_u16(p + 2);
+      w.word_a = get_u32(p + 4);
+      if (!level_ok(w.level_a) || !level_ok(w.level_b)) return NAK_BAD_VALUE;
+      break;
+    case WAVE_MULTISINE:
+      if (len < 3) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      w.n = p[2];
+      if (w.n < 1 || w.n > MAX_COMPONENTS) return INVALID_BAD_VALUE;
+      if (len != 3 + 10 * w.n) return NAK_BAD_LENGTH;
+      if (!level_ok(w.level_a)) return NAK_BAD_VALUE;
+      for (uint8_t j = 0; j < w.n; j++) {
+        const uint8_t *c = p + 3 + 10 * j;
+        w.comp[j].amplitude = get_u16(c);
+        w.comp[j].phase0 = get_u32(c + 2);
+        w.comp[j].phase_inc = get_u32(c + 6);
+        if (!level_ok(w.comp[j].amplitude)) return NAK_BAD_VALUE;
+      }
+      break;
+    case WAVE_CHIRP:
+      if (len != 16) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      w.level_b = get_u16(p + 2);
+      w.word_a = get_u32(p + 4);
+      w.word_b = get_u32(p + 8);
+      w.word_c = (int32_t)get_u32(p + 12);
+      if (!level_ok(w.level_a) || !level_ok(w.level_b)) return NAK_BAD_VALUE;
+      break;
+    case WAVE_PRBS:
+      if (len != 9) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      w.level_b = get_u16(p + 2);
+      w.n = p[4];
+      w.seed = get_u16(p + 5);
+      w.hold = get_u16(p + 7);
+      if (!level_ok(w.level_a) || !level_ok(w.level_b)) return NAK_BAD_VALUE;
+      if (w.n < 2 || w.n > 16 || w.hold < 1 || w.seed == 0) return NAK_BAD_VALUE;
+      if (w.n < 16 && w.seed >= (1U << w.n)) return NAK_BAD_VALUE;
+      break;
+    default:
+      return INVALID_BAD_VALUE;
+  }
+  if (!check_only) wave = w;
+  return 0;
+}
+
+static uint8_t parse_config(const uint8_t *p) {
+  Config c;
+  c.sample_period_us = get_u32(p);
+  c.n_samples = get_u32(p + 4);
+  c.duty_limit = (int16_t)get_u16(p + 8);
+  c.decoding = p[10];
+  c.watchdog_ms = get_u16(p + 11);
+  if (c.sample_period_us < 100 || c.sample_period_us > 1000000UL) return NAK_BAD_VALUE;
+  if (c.n_samples < 1) return NAK_BAD_VALUE;
+  if (c.duty_limit < 0 || c.duty_limit > 255) return NAK_BAD_VALUE;
+  if (c.decoding != 1 && c.decoding != 2 && c.decoding != 4) return NAK_BAD_VALUE;
+  if (c.watchdog_ms != 0 && (c.watchdog_ms < 50 || c.watchdog_ms > 60000U)) return NAK_BAD_VALUE;
+  cfg = c;
+  return 0;
+}
+
+static void start_run(void) {
+  setup_encoder(cfg.decoding);
+  wave_reset();
+  int16_t first = wave_next();
+  timer_plan(cfg.sample_period_us);
+  cli();
+  queue_head = queue_tail = 0;
+  tick_index = 0;
+  next_duty = first;
+  tick_late = 0;
+  tick_overruns = 0;
+  samples_dropped = 0;
+  errors_at_start = errors_at_last_sample = enc_errors;
+  fault_code = 0;
+  overflow_reported = 0;
+  end_pending = 0;
+  running = 1;
+  timer_start();
+  sei();
+  samples_sent = 0;
+  rx_errors = 0;
+  last_rx_ms = millis();
+}
+
+// Only valid frames (known type, right length) show the host is alive (PROTOCOL.md).
+static void host_alive(void) { last_rx_ms = millis(); }
+
+static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t len) {
+  uint8_t busy = running;
+  switch (type) {
+    case T_HELLO:
+      if (len != 1) break;
+      host_alive();
+      if (busy) respond(T_NAK, type, seq, NAK_BUSY);
+      else respond(T_HELLO_ACK, type, seq, 0);
+      return;
+    case T_CONFIG: {
+      if (len != 13) break;
+      host_alive();
+      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
+      uint8_t r = parse_config(p);
+      if (r) respond(T_NAK, type, seq, r);
+      else { have_config = 1; respond(T_ACK, type, seq, 0); }
+      return;
+    }
+    case T_WAVE: {
+      uint8_t r = parse_wave(p, len, busy);
+      if (r == NAK_BAD_LENGTH) break;
+      if (r == INVALID_BAD_VALUE) {
+        rx_errors++;
+        respond(T_NAK, type, seq, NAK_BAD_VALUE);
+        return;
+      }
+      host_alive();
+      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
+      if (r) respond(T_NAK, type, seq, r);
+      else { have_wave = 1; respond(T_ACK, type, seq, 0); }
+      return;
+    }
+    case T_START:
+      if (len != 0) break;
+      host_alive();
+      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
+      if (!have_config || !have_wave) { respond(T_NAK, type, seq, NAK_NOT_CONFIGURED); return; }
+      respond(T_ACK, type, seq, 0);
+      start_run();
+      return;
+    case T_STOP:
+      if (len != 0) break;
+      host_alive();
+      cli();
+      stop_run(END_STOPPED);
+      sei();
+      respond(T_ACK, type, seq, 0);
+      return;
+    case T_HEARTBEAT:
+      if (len != 0) break;
+      host_alive();
+      return;
+    default:  // unknown, or a device-to-host type
+      rx_errors++;
+      respond(T_NAK, type, seq, NAK_UNKNOWN_TYPE);
+      return;
+  }
+  // A known type with the wrong payload length.
+  rx_errors++;
+  respond(T_NAK, type, seq, NAK_BAD_LENGTH);
+}
+
+// A complete frame (delimiter excluded) has arrived in rx_buf.
+static void receive_frame(void) {
+  uint8_t body[MAX_BODY];
+  int16_t n = cobs_decode(rx_buf, rx_len, body);
+  if (n < 4) { rx_errors++; return; }
+  uint16_t crc = get_u16(body + n - 2);
+  if (crc16(body, n - 2) != crc) { rx_errors++; return; }
+  uint8_t type = body[0];
+  handle_frame(type, body[1], body + 2, n - 4);
+}
+
+static void receive_byte(uint8_t b) {
+  if (b == 0) {
+    if (!rx_discarding && rx_len > 0) receive_frame();
+    rx_len = 0;
+    rx_discarding = 0;
+    return;
+  }
+  if (rx_discarding) return;
+  if (rx_len >= MAX_ENCODED) {
+    rx_errors++;
+    rx_discarding = 1;
+    rx_len = 0;
+    return;
+  }
+  rx_buf[rx_len++] = b;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Transmit: at most one frame per loop() pass, in priority order.
+
+static void transmit(void) {
+  uint8_t p[17];
+  if (boot_pending) {
+    // A lone 0x00 first: if the reset cut a frame short, the host drops that partial frame
+    // here instead of gluing it to BOOT (zero-length frames are ignored).
+    if (Serial.availableForWrite() < 2 + 4 + 3 + 1) return;
+    Serial.write((uint8_t)0);
+    p[0] = PROTOCOL_VERSION;
+    p[1] = reset_cause;
+    if (send_frame(T_BOOT, p, 2)) boot_pending = 0;
+    return;
+  }
+  if (resp_tail != resp_head) {
+    Response *r = &responses[resp_tail];
+    uint8_t ok;
+    if (r->type == T_HELLO_ACK) {
+      uint8_t *q = p;
+      *q++ = PROTOCOL_VERSION;
+      q = put_u16(q, FIRMWARE_VERSION);
+      q = put_u32(q, F_CPU);
+      *q++ = reset_cause;
+      *q++ = MAX_PAYLOAD;
+      const char *name = BOARD_NAME;
+      for (uint8_t i = 0; i < 8; i++) {
+        *q++ = *name ? *name : 0;
+        if (*name) name++;
+      }
+      ok = send_frame(T_HELLO_ACK, p, 17);
+    } else if (r->type == T_ACK) {
+      p[0] = r->ref_type;
+      p[1] = r->ref_seq;
+      ok = send_frame(T_ACK, p, 2);
+    } else {
+      p[0] = r->ref_type;
+      p[1] = r->ref_seq;
+      p[2] = r->reason;
+      ok = send_frame(T_NAK, p, 3);
+    }
+    if (ok) resp_tail = (resp_tail + 1) % RESPONSE_QUEUE_LEN;
+    return;
+  }
+  uint8_t code;
+  uint32_t index;
+  cli();
+  code = fault_code;
+  index = fault_index;
+  sei();
+  if (code) {
+    p[0] = code;
+    put_u32(p + 1, index);
+    if (send_frame(T_FAULT, p, 5)) {
+      cli();
+      if (fault_code == code && fault_index == index) fault_code = 0;
+      sei();
+    }
+    return;
+  }
+  if (queue_tail != queue_head) {
+    Sample *s = &queue[queue_tail];
+    uint8_t *q = p;
+    q = put_u32(q, s->index);
+    q = put_u32(q, s->time_us);
+    q = put_u32(q, (uint32_t)s->counts);
+    q = put_u16(q, (uint16_t)s->duty);
+    *q = s->flags;
+    if (send_frame(T_SAMPLE, p, 15)) {
+      samples_sent++;
+      queue_tail = queue_tail + 1 == SAMPLE_QUEUE_LEN ? 0 : queue_tail + 1;
+    }
+    return;
+  }
+  if (end_pending && !running) {
+    uint32_t dropped, errors;
+    uint16_t overruns;
+    cli();
+    dropped = samples_dropped;
+    errors = errors_at_stop - errors_at_start;
+    overruns = tick_overruns;
+    sei();
+    uint8_t *q = p;
+    *q++ = end_reason;
+    q = put_u32(q, samples_sent);
+    q = put_u32(q, dropped);
+    q = put_u32(q, errors);
+    q = put_u16(q, rx_errors);
+    put_u16(q, overruns);
+    if (send_frame(T_END, p, 17)) end_pending = 0;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+
+void setup() {
+  reset_cause = boot_mcusr ? boot_mcusr : boot_r2;
+  setup_bridge();  // first: duty 0 before anything else can take time
+  pinMode(PIN_ENC_A, INPUT_PULLUP);
+  pinMode(PIN_ENC_B, INPUT_PULLUP);
+  setup_encoder(4);
+  Serial.begin(BAUD_RATE);
+  wdt_enable(WDTO_250MS);  // fed only from loop(): a stuck loop resets the board (pins float)
+}
+
+void loop() {
+  wdt_reset();
+  // Receive: bounded number of bytes per pass.
+  for (uint8_t n = 0; n < 32 && Serial.available() > 0; n++) receive_byte((uint8_t)Serial.read());
+  // Host-silence watchdog (emulated or real time alike: millis() counts device time).
+  if (running && cfg.watchdog_ms && (uint32_t)(millis() - last_rx_ms) > cfg.watchdog_ms) {
+    cli();
+    if (running) {
+      stop_run(END_WATCHDOG);
+      fault_code = FAULT_HOST_SILENCE;
+      fault_index = tick_index;
+    }
+    sei();
+  }
+  transmit();
+}

@@ -1,0 +1,167 @@
+"""Measure the firmware under emulation: size, sample rates per baud rate, encoder ceiling, speed.
+
+Run from the repository root (it builds what it needs)::
+
+    python -m hardware.sim.bench_firmware            # everything, ~3 min
+    python -m hardware.sim.bench_firmware --only encoder
+
+Prints Markdown tables (the figures in ``hardware/firmware/README.md`` come from here).
+Every figure is measured under simavr, which is cycle-counted but not cycle-exact for every
+peripheral; treat the encoder ceiling as a guide for the real board, not a guarantee.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+from urllib.parse import urlencode
+
+import numpy as np
+
+from hardware import protocol as P
+from hardware.sim.device_link import DeviceLink
+from hardware.sim.launcher import build, open_avr_sim
+
+__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "main"]
+
+_FLASH, _RAM = 32768, 2048
+
+
+def firmware_size() -> dict[str, int]:
+    """Flash and RAM bytes of the default build (``avr-size``)."""
+    elf, _ = build()
+    out = subprocess.run(["avr-size", "-C", "--mcu=atmega328p", str(elf)], capture_output=True,
+                         text=True, check=True).stdout
+    program = int(re.search(r"Program:\s+(\d+)", out).group(1))
+    data = int(re.search(r"Data:\s+(\d+)", out).group(1))
+    return {"flash": program, "ram": data}
+
+
+def _run(query: dict, config: P.Config, wave, baudrate: int = 250000):
+    with open_avr_sim("avr-sim://?" + urlencode(query), baudrate, 0.02) as port:
+        link = DeviceLink(port)
+        link.hello(timeout=5.0)
+        result = link.run(config, wave, timeout=60.0)
+    return result, port.avr_simulation.stats
+
+
+def link_capacity(baudrates=(115200, 250000, 500000), rates=(250, 500, 1000, 2000),
+                  duration: float = 1.0) -> list[dict]:
+    """Samples dropped at each baud rate and sample rate (one sine run each).
+
+    Parameters
+    ----------
+    baudrates : sequence of int
+        Firmware builds to try.
+    rates : sequence of int
+        Sample rates in Hz.
+    duration : float
+        Seconds per run.
+    """
+    rows = []
+    for baud in baudrates:
+        build(baud)
+        for rate in rates:
+            period_us = round(1e6 / rate)
+            n = int(duration * rate)
+            inc = round(20.0 * period_us * 1e-6 / (2 * np.pi) * 2**32) % 2**32
+            run, _ = _run({"a": 25, "b": 3}, P.Config(period_us, n, 255, 4, 500),
+                          P.WaveMultisine(0, ((100, 0, inc),)), baud)
+            rows.append({"baudrate": baud, "rate_hz": rate, "samples": n,
+                         "dropped": run.end.samples_dropped, "late": run.end.tick_overruns,
+                         "load": rate * 21 * 10 / baud})
+    return rows
+
+
+def _encoder_ok(rate: float, decoding: int, duration: float = 1.0) -> tuple[bool, int, float]:
+    n = int(duration * 500)
+    run, _ = _run({"encoder_rate": rate}, P.Config(2000, n, 255, decoding, 500), P.WaveConstant(0))
+    counts = np.array([s.counts for s in run.samples], dtype=float)
+    t = np.array([s.time_us for s in run.samples], dtype=float) * 1e-6
+    expected = rate * decoding / 4 * (t[-1] - t[0])
+    deficit = expected - (counts[-1] - counts[0])
+    ok = run.end.encoder_errors == 0 and abs(deficit) <= 1 + abs(rate) * decoding / 4 * 24e-6
+    return ok, run.end.encoder_errors, deficit
+
+
+def encoder_ceiling(decodings=(4, 2, 1), start: float = 40_000, step: float = 10_000,
+                    stop: float = 300_000) -> list[dict]:
+    """Highest 4x edge rate (counts/s) counted exactly with no error, per decoding (500 Hz run).
+
+    Parameters
+    ----------
+    decodings : sequence of {1, 2, 4}
+        Quadrature decodings to measure.
+    start, step, stop : float
+        Edge rates tried, in x4 counts/s: ``start, start + step, ...`` up to ``stop`` or the
+        first failure.
+    """
+    rows = []
+    for decoding in decodings:
+        best, first_bad = None, None
+        rate = start
+        while rate <= stop:
+            try:
+                ok, errors, deficit = _encoder_ok(rate, decoding)
+            except (TimeoutError, RuntimeError):      # the CPU is starved: no reply at all
+                ok, errors, deficit = False, -1, float("nan")
+            if not ok:
+                first_bad = (rate, errors, deficit)
+                break
+            best = rate
+            rate += step
+        rows.append({"decoding": decoding, "ceiling_4x_counts_s": best,
+                     "ceiling_decoded_counts_s": best * decoding / 4 if best else None,
+                     "first_failure": first_bad})
+    return rows
+
+
+def emulation_speed(duration: float = 2.0) -> list[dict]:
+    """Emulated seconds per wall second, running free (speed=0), during a 500 Hz sine run.
+
+    Parameters
+    ----------
+    duration : float
+        Seconds of emulated run per case.
+    """
+    rows = []
+    for label, query in (("500 Hz sine, motor at ~25 k counts/s", {"a": 25, "b": 3, "speed": 0}),
+                         ("500 Hz, encoder at 60 k counts/s", {"encoder_rate": 60000, "speed": 0})):
+        inc = round(20.0 * 0.002 / (2 * np.pi) * 2**32) % 2**32
+        _, stats = _run(query, P.Config(2000, int(duration * 500), 255, 4, 500),
+                        P.WaveMultisine(0, ((100, 0, inc),)))
+        rows.append({"case": label, "ratio": stats["ratio"]})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append")
+    args = parser.parse_args(argv)
+    only = set(args.only or ["size", "link", "encoder", "speed"])
+    if "size" in only:
+        s = firmware_size()
+        print(f"flash {s['flash']} B ({100 * s['flash'] / _FLASH:.1f} % of {_FLASH}), "
+              f"RAM {s['ram']} B ({100 * s['ram'] / _RAM:.1f} % of {_RAM})\n")
+    if "link" in only:
+        print("| baud | rate (Hz) | samples | dropped | late ticks | line load |\n|---|---|---|---|---|---|")
+        for r in link_capacity():
+            print(f"| {r['baudrate']} | {r['rate_hz']} | {r['samples']} | {r['dropped']} | {r['late']} "
+                  f"| {100 * r['load']:.0f} % |", flush=True)
+        print()
+    if "encoder" in only:
+        print("| decoding | ceiling (4x counts/s) | decoded counts/s | first failure (rate, errors, deficit) |\n"
+              "|---|---|---|---|")
+        for r in encoder_ceiling():
+            print(f"| x{r['decoding']} | {r['ceiling_4x_counts_s']} | {r['ceiling_decoded_counts_s']} "
+                  f"| {r['first_failure']} |", flush=True)
+        print()
+    if "speed" in only:
+        print("| case | emulated s per wall s |\n|---|---|")
+        for r in emulation_speed():
+            print(f"| {r['case']} | {r['ratio']:.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

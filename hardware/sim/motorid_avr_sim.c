@@ -1,0 +1,445 @@
+/*
+ * motorid-avr-sim: run the bench firmware (an ATmega328P ELF) in simavr, with a simulated
+ * DC motor and quadrature encoder wired to it and UART0 bridged to a pseudo-terminal.
+ *
+ *   motorid-avr-sim FIRMWARE.elf [--a 25] [--b 3] [--friction 0] [--counts-per-rev 16667]
+ *                   [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2]
+ *                   [--speed 1.0] [--substep-cycles 16] [--boot-delay 0.05]
+ *
+ * Prints "PTY <path>" on stdout once the pseudo-terminal exists, starts the AVR when the host
+ * opens it (after --boot-delay s, as an Uno resets when its port is opened), runs until SIGTERM or
+ * SIGINT, and prints one "STATS ..." line on stdout when it stops. SIGUSR1 hangs the firmware
+ * (an endless loop with interrupts on) to test the AVR watchdog.
+ *
+ * The motor  d omega/dt = -a omega + b u - c sign(omega)  is integrated exactly (zero-order
+ * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
+ * at each sub-step from the firmware's registers, because simavr 1.6 does not emulate the PWM
+ * waveform on the pin: u = +-OCR2A (pin 11, Timer 2) with the sign from the DIR pin (8), or
+ * from IN1/IN2 (8/9). A PWM pin that is not an output (during reset) reads as 0, as the
+ * pull-down on the real board makes it. The encoder A/B inputs (pins 2/3) get one quadrature
+ * edge per sub-step at most, when the shaft angle crosses a count boundary, so edges are spaced
+ * as the motor turns them (to 1 us) up to 1 M counts/s.
+ *
+ * --encoder-rate R ignores the motor and turns the encoder at exactly R counts/s (4x counts):
+ * that is how the firmware's encoder ceiling is measured.
+ *
+ * Time: simavr runs free, faster than real time on a desktop. The host times its HEARTBEATs on
+ * the wall clock while the firmware's host-silence watchdog counts emulated time, so an
+ * emulation running more than 4x faster than the wall clock would starve the watchdog. --speed
+ * caps emulated time at that multiple of the wall clock (default 1.0: emulated time never runs
+ * ahead of real time, so wall-clock heartbeats arrive at least as often as on a real board);
+ * --speed 0 runs free.
+ *
+ * An AVR reset (the hardware watchdog, or a jump to 0) clears simavr's cycle timers: the main
+ * loop checks every few thousand instructions that the motor timer is still registered and
+ * registers it again if not.
+ *
+ * The UART bridge is the harness's own, single-threaded: bytes from the AVR are queued and
+ * written to the pty without blocking, bytes from the host are fed to the UART as its XON/XOFF
+ * allows, and while more than 4 kB wait for a busy host the emulation pauses, so nothing is
+ * lost. (simavr's uart_pty part drops output when the host lags, and can hang on exit.)
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <termios.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_irq.h>
+
+/* ATmega328P data-space addresses */
+#define REG_PINB 0x23
+#define REG_DDRB 0x24
+#define REG_PORTB 0x25
+#define REG_PIND 0x29
+#define REG_PORTD 0x2B
+#define REG_DDRD 0x2A
+#define REG_MCUSR 0x54
+#define REG_SPL 0x5D
+#define REG_SPH 0x5E
+#define REG_TCCR2A 0xB0
+#define REG_OCR2A 0xB3
+#define BIT_COM2A1 7
+
+#define PWM_BIT 3       /* pin 11 = PB3 (OC2A) */
+#define DIR_BIT 0       /* pin 8 = PB0: DIR, or IN1 */
+#define IN2_BIT 1       /* pin 9 = PB1 */
+#define ENC_A_PIN 2     /* PD2 */
+#define ENC_B_PIN 3     /* PD3 */
+
+enum driver { DRIVER_DIR_PWM, DRIVER_IN1_IN2 };
+
+typedef struct harness {
+    avr_t *avr;
+    avr_irq_t *enc_a, *enc_b;
+    enum driver driver;
+    double a, b, friction, counts_per_rev, encoder_rate;
+    uint32_t substep;
+    /* exact ZOH coefficients over one sub-step, precomputed */
+    double h, e, one_minus_e_over_a, h_minus_over_a;
+    double speed;        /* rad/s */
+    double position;     /* shaft angle in counts (4x) */
+    int64_t emitted;     /* count the A/B pins currently show */
+    int last_a, last_b;
+    uint64_t edges;
+    uint64_t resets;
+    uint16_t min_sp;     /* lowest stack pointer seen (sampled every sub-step) */
+    uint64_t flow_pauses; /* 0.2 ms waits for the host to take the AVR's output */
+} harness_t;
+
+static volatile sig_atomic_t stop_requested = 0;
+static volatile sig_atomic_t hang_requested = 0;
+
+static void on_signal(int sig) {
+    (void)sig;
+    stop_requested = 1;
+}
+
+static void on_hang(int sig) {
+    (void)sig;
+    hang_requested = 1;
+}
+
+/* Test hook (SIGUSR1): send the CPU into "rjmp ." at the top of the application flash with
+   interrupts left on, as a firmware bug that hangs loop() would. Interrupts keep running; the
+   AVR watchdog, no longer fed, resets the chip. */
+#define HANG_ADDRESS 0x7000
+static void hang_firmware(avr_t *avr) {
+    avr->flash[HANG_ADDRESS] = 0xFF;       /* rjmp .-2 = 0xCFFF, little-endian */
+    avr->flash[HANG_ADDRESS + 1] = 0xCF;
+    avr->pc = HANG_ADDRESS;
+}
+
+static double drive(const harness_t *s) {
+    const uint8_t *d = s->avr->data;
+    if (!(d[REG_DDRB] & (1 << PWM_BIT))) return 0.0;          /* floating: pull-down */
+    double magnitude;
+    if (d[REG_TCCR2A] & (1 << BIT_COM2A1)) magnitude = d[REG_OCR2A];
+    else magnitude = (d[REG_PORTB] & (1 << PWM_BIT)) ? 255.0 : 0.0;
+    int dir = (d[REG_PORTB] >> DIR_BIT) & 1;
+    if (s->driver == DRIVER_DIR_PWM) return dir ? magnitude : -magnitude;
+    int in2 = (d[REG_PORTB] >> IN2_BIT) & 1;
+    if (dir == in2) return 0.0;                               /* brake or coast */
+    return dir ? magnitude : -magnitude;
+}
+
+static void set_encoder_pins(harness_t *s) {
+    static const int A[4] = {0, 1, 1, 0}, B[4] = {0, 0, 1, 1};
+    int q = (int)(s->emitted & 3);
+    if (A[q] != s->last_a) { s->last_a = A[q]; avr_raise_irq(s->enc_a, A[q]); }
+    if (B[q] != s->last_b) { s->last_b = B[q]; avr_raise_irq(s->enc_b, B[q]); }
+}
+
+static void integrate(harness_t *s) {
+    const double to_counts = s->counts_per_rev / (2.0 * M_PI);
+    if (s->encoder_rate != 0.0) {
+        s->position += s->encoder_rate * s->h;
+        return;
+    }
+    double u = drive(s);
+    double force = s->b * u;
+    double w = s->speed;
+    if (s->friction > 0.0) {
+        if (w == 0.0 && fabs(force) <= s->friction) return;   /* stuck */
+        double sign = w != 0.0 ? (w > 0 ? 1.0 : -1.0) : (force > 0 ? 1.0 : -1.0);
+        force -= s->friction * sign;
+    }
+    double target = force / s->a;                             /* steady state of this step */
+    double w_next = s->e * w + target * (1.0 - s->e);
+    double angle = s->one_minus_e_over_a * w + target * s->h_minus_over_a;
+    if (s->friction > 0.0 && w != 0.0 && (w_next > 0) != (w > 0)) {
+        /* speed crosses zero inside the sub-step: stop there (friction holds it if it can) */
+        w_next = 0.0;
+    }
+    s->speed = w_next;
+    s->position += angle * to_counts;
+}
+
+static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *param) {
+    harness_t *s = param;
+    (void)avr;
+    integrate(s);
+    int64_t target = (int64_t)floor(s->position);
+    if (target != s->emitted) {
+        s->emitted += target > s->emitted ? 1 : -1;           /* one edge per sub-step */
+        s->edges++;
+        set_encoder_pins(s);
+    }
+    /* simavr 1.6 copies every PORTD write onto the pin IRQs, so the firmware enabling its
+       pull-ups (or writing another PORTD pin) overrides what the encoder drives: put the
+       encoder's levels back. */
+    uint16_t sp = s->avr->data[REG_SPL] | (s->avr->data[REG_SPH] << 8);
+    if (sp < s->min_sp && sp > 0x100) s->min_sp = sp;
+    uint8_t pind = s->avr->data[REG_PIND];
+    if (((pind >> ENC_A_PIN) & 1) != s->last_a) avr_raise_irq(s->enc_a, s->last_a);
+    if (((pind >> ENC_B_PIN) & 1) != s->last_b) avr_raise_irq(s->enc_b, s->last_b);
+    return when + s->substep;
+}
+
+/* ---- UART0 <-> pseudo-terminal, single-threaded and lossless ---------------------------
+   (simavr's uart_pty part drops output when the host reads slowly and its thread can hang on
+   exit, so the harness bridges the UART itself.) */
+#define OUT_RING 65536
+typedef struct bridge {
+    int master, slave;
+    char slave_name[128];
+    uint8_t out[OUT_RING];      /* AVR -> host, not yet written to the pty */
+    size_t out_read, out_write;
+    uint8_t in[4096];           /* host -> AVR, not yet accepted by the UART */
+    size_t in_len, in_pos;
+    int xoff;
+    avr_irq_t *uart_input;
+    uint64_t overflows;
+} bridge_t;
+
+static size_t bridge_pending(const bridge_t *b) { return (b->out_write - b->out_read) & (OUT_RING - 1); }
+
+static void bridge_feed(bridge_t *b) {
+    while (!b->xoff && b->in_pos < b->in_len) avr_raise_irq(b->uart_input, b->in[b->in_pos++]);
+}
+
+static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq;
+    if (bridge_pending(b) == OUT_RING - 1) { b->overflows++; return; }
+    b->out[b->out_write] = (uint8_t)value;
+    b->out_write = (b->out_write + 1) & (OUT_RING - 1);
+}
+
+static void on_uart_xon(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq; (void)value;
+    b->xoff = 0;
+    bridge_feed(b);
+}
+
+static void on_uart_xoff(struct avr_irq_t *irq, uint32_t value, void *param) {
+    bridge_t *b = param;
+    (void)irq; (void)value;
+    b->xoff = 1;
+}
+
+static int bridge_open(bridge_t *b, avr_t *avr) {
+    memset(b, 0, sizeof(*b));
+    b->xoff = 1;   /* until the UART says XON: bytes sent before the receiver is on are lost */
+    if (openpty(&b->master, &b->slave, b->slave_name, NULL, NULL) < 0) return -1;
+    struct termios tio;
+    tcgetattr(b->slave, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(b->slave, TCSANOW, &tio);
+    close(b->slave);   /* so that the master sees POLLHUP until the host opens the port */
+    b->slave = -1;
+    fcntl(b->master, F_SETFL, fcntl(b->master, F_GETFL) | O_NONBLOCK);
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);   /* binary; never usleep */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    b->uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_output, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_uart_xon, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_uart_xoff, b);
+    return 0;
+}
+
+/* Block until the host opens the pseudo-terminal (or a stop is requested). */
+static void bridge_wait_for_host(bridge_t *b) {
+    while (!stop_requested) {
+        struct pollfd pfd = {b->master, POLLIN, 0};
+        if (poll(&pfd, 1, 10) >= 0 && !(pfd.revents & POLLHUP)) return;
+    }
+}
+
+/* Move bytes both ways without blocking. */
+static void bridge_poll(bridge_t *b) {
+    while (bridge_pending(b)) {
+        size_t n = b->out_write >= b->out_read ? b->out_write - b->out_read : OUT_RING - b->out_read;
+        ssize_t done = write(b->master, b->out + b->out_read, n);
+        if (done <= 0) break;                               /* EAGAIN: the host is behind */
+        b->out_read = (b->out_read + (size_t)done) & (OUT_RING - 1);
+    }
+    if (b->in_pos == b->in_len) {
+        ssize_t got = read(b->master, b->in, sizeof(b->in));
+        if (got > 0) { b->in_len = (size_t)got; b->in_pos = 0; }
+    }
+    bridge_feed(b);
+}
+
+static double wall_seconds(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void usage(const char *argv0) {
+    fprintf(stderr,
+            "usage: %s FIRMWARE.elf [--a A] [--b B] [--friction C] [--counts-per-rev N]\n"
+            "          [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2] [--speed X]\n"
+            "          [--substep-cycles N] [--boot-delay S]\n",
+            argv0);
+}
+
+static double parse_number(const char *name, const char *text) {
+    char *end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (errno || end == text || *end || !isfinite(v)) {
+        fprintf(stderr, "motorid-avr-sim: --%s must be a number, got '%s'\n", name, text);
+        exit(2);
+    }
+    return v;
+}
+
+int main(int argc, char **argv) {
+    harness_t s;
+    memset(&s, 0, sizeof(s));
+    s.a = 25.0;
+    s.b = 3.0;
+    s.counts_per_rev = 16667.0;
+    s.substep = 16;
+    s.min_sp = 0x8FF;
+    double speed_cap = 1.0;
+    double boot_delay = 0.05;
+    static const struct option options[] = {
+        {"a", required_argument, 0, 'a'},          {"b", required_argument, 0, 'b'},
+        {"friction", required_argument, 0, 'f'},   {"counts-per-rev", required_argument, 0, 'n'},
+        {"encoder-rate", required_argument, 0, 'r'}, {"driver", required_argument, 0, 'd'},
+        {"speed", required_argument, 0, 's'},      {"substep-cycles", required_argument, 0, 'c'},
+        {"boot-delay", required_argument, 0, 'w'},
+        {0, 0, 0, 0}};
+    int opt;
+    while ((opt = getopt_long(argc, argv, "", options, NULL)) != -1) {
+        switch (opt) {
+            case 'a': s.a = parse_number("a", optarg); break;
+            case 'b': s.b = parse_number("b", optarg); break;
+            case 'f': s.friction = parse_number("friction", optarg); break;
+            case 'n': s.counts_per_rev = parse_number("counts-per-rev", optarg); break;
+            case 'r': s.encoder_rate = parse_number("encoder-rate", optarg); break;
+            case 's': speed_cap = parse_number("speed", optarg); break;
+            case 'c': s.substep = (uint32_t)parse_number("substep-cycles", optarg); break;
+            case 'w': boot_delay = parse_number("boot-delay", optarg); break;
+            case 'd':
+                if (!strcmp(optarg, "dir-pwm")) s.driver = DRIVER_DIR_PWM;
+                else if (!strcmp(optarg, "in1-in2")) s.driver = DRIVER_IN1_IN2;
+                else {
+                    fprintf(stderr, "motorid-avr-sim: --driver must be dir-pwm or in1-in2, got '%s'\n", optarg);
+                    return 2;
+                }
+                break;
+            default: usage(argv[0]); return 2;
+        }
+    }
+    if (optind != argc - 1) { usage(argv[0]); return 2; }
+    if (!(s.a > 0)) { fprintf(stderr, "motorid-avr-sim: --a must be > 0, got %g\n", s.a); return 2; }
+    if (s.friction < 0) { fprintf(stderr, "motorid-avr-sim: --friction must be >= 0, got %g\n", s.friction); return 2; }
+    if (!(s.counts_per_rev > 0)) { fprintf(stderr, "motorid-avr-sim: --counts-per-rev must be > 0, got %g\n", s.counts_per_rev); return 2; }
+    if (s.substep < 1 || s.substep > 16000) { fprintf(stderr, "motorid-avr-sim: --substep-cycles must be 1...16000, got %u\n", s.substep); return 2; }
+    if (boot_delay < 0 || boot_delay > 10) { fprintf(stderr, "motorid-avr-sim: --boot-delay must be 0...10 s, got %g\n", boot_delay); return 2; }
+    if (speed_cap < 0) { fprintf(stderr, "motorid-avr-sim: --speed must be >= 0, got %g\n", speed_cap); return 2; }
+
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof(fw));
+    if (elf_read_firmware(argv[optind], &fw) != 0) {
+        fprintf(stderr, "motorid-avr-sim: cannot read firmware '%s'\n", argv[optind]);
+        return 1;
+    }
+    s.avr = avr_make_mcu_by_name("atmega328p");
+    if (!s.avr) { fprintf(stderr, "motorid-avr-sim: simavr has no atmega328p\n"); return 1; }
+    avr_init(s.avr);
+    s.avr->frequency = 16000000;
+    avr_load_firmware(s.avr, &fw);
+    s.avr->log = LOG_ERROR;
+    s.avr->data[REG_MCUSR] |= 1;   /* power-on reset */
+
+    s.h = s.substep / (double)s.avr->frequency;
+    s.e = exp(-s.a * s.h);
+    s.one_minus_e_over_a = (1.0 - s.e) / s.a;
+    s.h_minus_over_a = s.h - s.one_minus_e_over_a;
+    s.enc_a = avr_io_getirq(s.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
+    s.enc_b = avr_io_getirq(s.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
+    avr_raise_irq(s.enc_a, 0);
+    avr_raise_irq(s.enc_b, 0);
+
+    static bridge_t pty;   /* static: 70 kB */
+    if (bridge_open(&pty, s.avr) != 0) {
+        fprintf(stderr, "motorid-avr-sim: cannot open a pseudo-terminal: %s\n", strerror(errno));
+        return 1;
+    }
+    printf("PTY %s\n", pty.slave_name);
+    fflush(stdout);
+
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGHUP, on_signal);
+    signal(SIGUSR1, on_hang);
+
+    /* A real Uno boots when the host opens the port (DTR reset) and then sits ~1 s in its
+       bootloader; the emulated one starts when the host opens the pty, after --boot-delay
+       (default 50 ms), so its BOOT frame cannot be flushed by the host's own open(). */
+    bridge_wait_for_host(&pty);
+    if (boot_delay > 0) {
+        struct timespec ts = {(time_t)boot_delay, (long)((boot_delay - (time_t)boot_delay) * 1e9)};
+        nanosleep(&ts, NULL);
+    }
+
+    avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
+    double wall0 = wall_seconds();
+    avr_cycle_count_t cycle0 = s.avr->cycle;
+    int state = cpu_Running;
+    uint32_t n = 0;
+    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+        state = avr_run(s.avr);
+        if (hang_requested && s.avr->sreg[S_I]) {   /* not inside an interrupt: simavr
+                                                        ends a run on "rjmp ." with I clear */
+            hang_requested = 0;
+            hang_firmware(s.avr);
+        }
+        if (++n < 4096) continue;
+        n = 0;
+        /* Flow control towards the host: while more than 4 kB of the AVR's output wait for a
+           busy host, the emulation pauses. Nothing is lost and the firmware's own (emulated)
+           timing is untouched; a real USB-serial link has large host buffers instead. */
+        bridge_poll(&pty);
+        while (!stop_requested && bridge_pending(&pty) > 4096) {
+            struct timespec ts = {0, 200000};
+            nanosleep(&ts, NULL);
+            s.flow_pauses++;
+            bridge_poll(&pty);
+        }
+        if (!avr_cycle_timer_status(s.avr, motor_step, &s)) {   /* cleared by an AVR reset */
+            s.resets++;
+            avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
+        }
+        if (speed_cap > 0) {
+            double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
+            double ahead = emulated / speed_cap - (wall_seconds() - wall0);
+            if (ahead > 0.002) {
+                struct timespec ts = {0, (long)(ahead * 1e9)};
+                nanosleep(&ts, NULL);
+            }
+        }
+    }
+    double wall = wall_seconds() - wall0;
+    double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
+    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
+           "stack_bytes=%d flow_pauses=%llu state=%d\n",
+           emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s.emitted,
+           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, 0x8FF - s.min_sp,
+           (unsigned long long)s.flow_pauses, state);
+    fflush(stdout);
+    bridge_poll(&pty);
+    _exit(state == cpu_Crashed ? 1 : 0);
+}
