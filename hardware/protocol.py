@@ -24,8 +24,8 @@ from typing import NamedTuple, Union
 
 import numpy as np
 
-from motorsim.excitation import (PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step, sine_q15,
-                                 MAX_AMPLITUDE, MAX_COMPONENTS)
+from motorsim.excitation import (MAX_AMPLITUDE, MAX_COMPONENTS, PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step,
+                                 chirp_duty, multisine_duty, prbs_bits)
 from motorsim.rig import Experiment
 
 from .errors import FrameError, ProtocolError, ProtocolVersionError
@@ -552,25 +552,14 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
     if isinstance(duty_limit, bool) or not isinstance(duty_limit, (int, np.integer)) or not 0 <= duty_limit <= 255:
         raise ValueError(f"duty_limit must be an integer in 0...255, got {duty_limit!r}")
     n = int(n_samples)
-    k = np.arange(n, dtype=np.uint64)
-    mask32 = np.uint64(0xFFFFFFFF)
     if isinstance(wave, WaveConstant):
         raw = np.full(n, wave.level, dtype=np.int64)
     elif isinstance(wave, WaveStep):
         raw = np.where(np.arange(n) < wave.step_index, wave.before, wave.after).astype(np.int64)
     elif isinstance(wave, WaveMultisine):
-        acc = np.zeros(n, dtype=np.int64)
-        for amplitude, phase0, inc in wave.components:
-            phase = (np.uint64(phase0) + k * np.uint64(inc)) & mask32
-            acc += amplitude * sine_q15(phase.astype(np.int64))
-        raw = wave.offset + ((acc + 16384) >> 15)
+        raw = multisine_duty(wave.components, wave.offset, n)
     elif isinstance(wave, WaveChirp):
-        # the device does phase += inc; inc += inc_step after each sample, so
-        # phase_k = phase0 + k inc0 + inc_step k (k - 1) / 2  (mod 2**32; uint64 wraps mod 2**64)
-        tri = k * (k - np.uint64(1)) // np.uint64(2) if n else k
-        phase = (np.uint64(wave.phase0) + k * np.uint64(wave.inc0)
-                 + tri * np.uint64(wave.inc_step % 2**64)) & mask32
-        raw = wave.offset + ((wave.amplitude * sine_q15(phase.astype(np.int64)) + 16384) >> 15)
+        raw = chirp_duty(wave.offset, wave.amplitude, wave.phase0, wave.inc0, wave.inc_step, n)
     elif isinstance(wave, WavePrbs):
         if wave.order not in PRBS_MASKS:
             raise ValueError(f"PRBS order must be in 2...16, got {wave.order!r}")
@@ -578,18 +567,7 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
             raise ValueError(f"PRBS seed must be in 1...{(1 << wave.order) - 1}, got {wave.seed!r}")
         if wave.hold < 1:
             raise ValueError(f"PRBS hold must be >= 1, got {wave.hold!r}")
-        n_bits = -(-n // wave.hold)
-        period = (1 << wave.order) - 1
-        bits = np.empty(min(n_bits, period), dtype=np.uint8)
-        state, feedback = wave.seed, PRBS_MASKS[wave.order]
-        for i in range(len(bits)):
-            out = state & 1
-            bits[i] = out
-            state >>= 1
-            if out:
-                state ^= feedback
-        if n_bits > period:
-            bits = np.resize(bits, n_bits)
+        bits = prbs_bits(wave.order, wave.seed, -(-n // wave.hold))
         raw = np.where(np.repeat(bits, wave.hold)[:n] == 1, wave.high, wave.low).astype(np.int64)
     else:
         raise TypeError(f"wave must be a WAVE message (WaveConstant, ..., WavePrbs), got {type(wave).__name__}")

@@ -26,7 +26,8 @@ import numpy as np
 
 __all__ = [
     "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
-    "sine_table", "sine_q15", "phase_increment", "parse_excitation",
+    "sine_table", "sine_q15", "phase_increment", "multisine_duty", "chirp_duty", "prbs_bits",
+    "parse_excitation",
     "DUTY_LIMIT", "MAX_AMPLITUDE", "MAX_COMPONENTS", "PRBS_MASKS",
 ]
 
@@ -75,6 +76,80 @@ def sine_q15(phase: np.ndarray) -> np.ndarray:
 def phase_increment(frequency: float, sample_period: float) -> int:
     """Phase step per sample of a sine of ``frequency`` rad/s, as a u32 (``2**32`` = 1 cycle)."""
     return int(round(frequency * sample_period / (2.0 * math.pi) * _TWO32)) % _TWO32
+
+
+def multisine_duty(components, offset: int, n_samples: int) -> np.ndarray:
+    """Unclamped MULTISINE duty from its wire words (``hardware/PROTOCOL.md``).
+
+    ``duty_k = offset + ((sum_j amplitude_j sine_q15(phase0_j + k phase_inc_j)) + 16384) >> 15``.
+
+    Parameters
+    ----------
+    components : sequence of (int, int, int)
+        ``(amplitude, phase0, phase_inc)`` per sine; phases are u32 words (``2**32`` = 1 cycle).
+    offset : int
+        Constant duty added.
+    n_samples : int
+        Number of samples.
+    """
+    k = np.arange(n_samples, dtype=np.uint64)
+    acc = np.zeros(n_samples, dtype=np.int64)
+    for amplitude, phase0, inc in components:
+        phase = (np.uint64(phase0) + k * np.uint64(inc)) & np.uint64(0xFFFFFFFF)
+        acc += int(amplitude) * sine_q15(phase.astype(np.int64))
+    return int(offset) + ((acc + 16384) >> 15)
+
+
+def chirp_duty(offset: int, amplitude: int, phase0: int, inc0: int, inc_step: int, n_samples: int) -> np.ndarray:
+    """Unclamped CHIRP duty from its wire words (``hardware/PROTOCOL.md``).
+
+    The device keeps ``phase += inc; inc += inc_step`` after each sample, so
+    ``phase_k = phase0 + k inc0 + inc_step k (k - 1) / 2`` (mod ``2**32``; uint64
+    arithmetic wraps modulo ``2**64``, which is exact modulo ``2**32``).
+
+    Parameters
+    ----------
+    offset, amplitude : int
+        Duty offset and amplitude.
+    phase0, inc0 : int
+        u32 start phase and start phase step.
+    inc_step : int
+        i32 change of the phase step per sample.
+    n_samples : int
+        Number of samples.
+    """
+    k = np.arange(n_samples, dtype=np.uint64)
+    tri = k * (k - np.uint64(1)) // np.uint64(2) if n_samples else k
+    phase = (np.uint64(phase0) + k * np.uint64(inc0) + tri * np.uint64(int(inc_step) % 2**64)) \
+        & np.uint64(0xFFFFFFFF)
+    return int(offset) + ((int(amplitude) * sine_q15(phase.astype(np.int64)) + 16384) >> 15)
+
+
+def prbs_bits(order: int, seed: int, n_bits: int) -> np.ndarray:
+    """The first ``n_bits`` output bits (uint8) of the Galois LFSR of ``hardware/PROTOCOL.md``.
+
+    Per bit: ``out = state & 1; state >>= 1; if out: state ^= PRBS_MASKS[order]``.
+
+    Parameters
+    ----------
+    order : int
+        LFSR length, a key of :data:`PRBS_MASKS`.
+    seed : int
+        Initial state, 1 ... ``2**order - 1``.
+    n_bits : int
+        Number of bits; the sequence repeats every ``2**order - 1``.
+    """
+    mask = PRBS_MASKS[order]
+    period = (1 << order) - 1
+    out = np.empty(min(n_bits, period), dtype=np.uint8)
+    state = seed
+    for i in range(len(out)):
+        bit = state & 1
+        out[i] = bit
+        state >>= 1
+        if bit:
+            state ^= mask
+    return np.resize(out, n_bits) if n_bits > period else out
 
 
 def _phase_word(phase: float) -> int:
@@ -242,11 +317,7 @@ class Multisine(Excitation):
         return out
 
     def _raw(self, n, dt):
-        k = np.arange(n, dtype=np.int64)
-        acc = np.zeros(n, dtype=np.int64)
-        for a, p0, inc in self.components(dt):
-            acc += a * sine_q15((p0 + k * inc) & 0xFFFFFFFF)
-        return self.offset + ((acc + 16384) >> 15)
+        return multisine_duty(self.components(dt), self.offset, n)
 
     def describe(self):
         if len(self.frequencies) == 1:
@@ -315,14 +386,7 @@ class Chirp(Excitation):
 
     def _raw(self, n, dt):
         inc0, step = self.words(n, dt)
-        k = np.arange(n, dtype=np.int64)
-        # phase_k = sum_{j<k} (inc0 + j*step) = k*inc0 + step*k(k-1)/2, modulo 2**32
-        # (uint64 wrap-around is exact modulo 2**32).
-        ku = k.astype(np.uint64)
-        tri = (ku * (ku - np.uint64(1)) // np.uint64(2)) if n else ku
-        phase = (ku * np.uint64(inc0) + tri * np.uint64(step % 2**64)) & np.uint64(0xFFFFFFFF)
-        s = sine_q15(phase.astype(np.int64))
-        return self.offset + ((self.amplitude * s + 16384) >> 15)
+        return chirp_duty(self.offset, self.amplitude, 0, inc0, step, n)
 
     def describe(self):
         return f"chirp:{self.f0!r},{self.f1!r},{self.amplitude}" + (f"@{self.offset}" if self.offset else "")
@@ -362,21 +426,8 @@ class PRBS(Excitation):
         object.__setattr__(self, "seed", _check_int("seed", self.seed, 1, (1 << self.order) - 1))
 
     def bits(self, n_bits: int) -> np.ndarray:
-        """The first ``n_bits`` output bits of the LFSR (uint8)."""
-        mask = PRBS_MASKS[self.order]
-        period = (1 << self.order) - 1
-        m = min(n_bits, period)
-        out = np.empty(m, dtype=np.uint8)
-        state = self.seed
-        for i in range(m):
-            bit = state & 1
-            out[i] = bit
-            state >>= 1
-            if bit:
-                state ^= mask
-        if n_bits > period:
-            out = np.resize(out, n_bits)
-        return out
+        """The first ``n_bits`` output bits of the LFSR (uint8); see :func:`prbs_bits`."""
+        return prbs_bits(self.order, self.seed, n_bits)
 
     def _raw(self, n, dt):
         n_bits = -(-n // self.hold)
