@@ -25,6 +25,8 @@ _BENCHMARKS = {
                  "Cramér–Rao bound, oe fit time vs a finite-difference Jacobian"),
     "serial": ("scenarios.bench_serial:bench_serial",
                "frames decoded/s by the host reader vs the 200 000/s goal; 60 s at 1 kHz through the pty"),
+    "firmware": ("hardware.sim.bench_firmware:main",
+                 "the Arduino firmware under simavr: size, sample rates per baud, encoder ceiling, speed"),
 }
 
 

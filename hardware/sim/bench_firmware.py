@@ -2,8 +2,8 @@
 
 Run from the repository root (it builds what it needs)::
 
-    python -m hardware.sim.bench_firmware            # everything, ~3 min
-    python -m hardware.sim.bench_firmware --only encoder
+    motorid bench firmware                  # everything, ~3 min
+    motorid bench firmware --only encoder   # (or python -m hardware.sim.bench_firmware)
 
 Prints Markdown tables (the figures in ``hardware/firmware/README.md`` come from here).
 Every figure is measured under simavr, which is cycle-counted but not cycle-exact for every
@@ -134,9 +134,15 @@ def emulation_speed(duration: float = 2.0) -> list[dict]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``)."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int:
+    """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``); returns 0.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        ``--only size|link|encoder|speed`` (repeatable).
+    """
+    parser = argparse.ArgumentParser(prog="motorid bench firmware", description=__doc__.splitlines()[0])
     parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append")
     args = parser.parse_args(argv)
     only = set(args.only or ["size", "link", "encoder", "speed"])
@@ -161,7 +167,8 @@ def main(argv: list[str] | None = None) -> None:
         print("| case | emulated s per wall s |\n|---|---|")
         for r in emulation_speed():
             print(f"| {r['case']} | {r['ratio']:.2f} |", flush=True)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
