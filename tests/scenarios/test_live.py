@@ -6,7 +6,6 @@ import json
 
 import pytest
 
-from identify import available_methods
 from motorsim import read_recording
 from scenarios.cli import main
 
@@ -16,14 +15,25 @@ def _live(tmp_path, url, *extra, name="run.csv"):
     return main(["live", "--port", url, "--out", str(out), "--quiet", *extra]), out
 
 
-@pytest.mark.skipif("oe" not in available_methods(),
-                    reason="the 1 % acceptance is for the best estimator, oe (issue 3), not merged here yet")
 def test_acceptance_live_fake_run_recovers_a_and_b_within_one_percent(tmp_path, capsys):
     status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0", "--duration", "10", "--json")
     assert status == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result["method"] == "oe"
     assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
+
+
+def test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent(tmp_path, capsys):
+    # The whole chain a user runs: CLI -> SerialRig -> pty -> simavr running the real firmware ELF.
+    # oe measured -0.036 % / -0.021 % here (the emulated bench's 4 us micros() and interrupt timing
+    # are outside oe's noise model, so its own stderr is smaller than that); 1 % is the issue's bound.
+    status, out = _live(tmp_path, "avr-sim://?a=25&b=3", "--sine", "20,100", "--duration", "3", "--json")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["method"] == "oe" and result["samples_received"] == 600
+    assert result["link_frames_lost"] == 0 and result["device_samples_dropped"] == 0
+    assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
+    assert read_recording(out).metadata["complete"] == "true"
 
 
 def test_live_writes_the_recording_and_prints_estimates_as_json(tmp_path, capsys):
