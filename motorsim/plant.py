@@ -24,6 +24,7 @@ import control
 import numpy as np
 
 from .excitation import _check_int, _check_real
+from .knobs import knob
 
 __all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices"]
 
@@ -50,12 +51,12 @@ class Motor:
         Whole samples between a duty being commanded and reaching the motor, >= 0.
     """
 
-    a: float
-    b: float
-    friction: float = 0.0
-    bias: float = 0.0
-    dead_zone: float = 0.0
-    input_delay: int = 0
+    a: float = knob(unit="1/s", help="pole a of d omega/dt + a omega = b u, > 0")
+    b: float = knob(unit="(rad/s^2)/duty", help="gain b of d omega/dt + a omega = b u, nonzero")
+    friction: float = knob(0.0, unit="rad/s^2", help="Coulomb friction c, >= 0")
+    bias: float = knob(0.0, unit="rad/s^2", help="constant acceleration d (driver offset, load)")
+    dead_zone: float = knob(0.0, unit="duty", help="duty magnitude the driver does not deliver, >= 0")
+    input_delay: int = knob(0, unit="samples", help="whole samples between command and motor, >= 0")
 
     def __post_init__(self):
         object.__setattr__(self, "a", _check_real("a", self.a, positive=True))

@@ -14,11 +14,12 @@ from typing import Mapping, Protocol, runtime_checkable
 import numpy as np
 
 from .excitation import DUTY_LIMIT, Excitation, _check_int, _check_real
+from .knobs import Knob, knob, knobs_of
 from .plant import Motor, simulate
 from .recording import Recording
 from .sensors import Encoder
 
-__all__ = ["Experiment", "Rig", "SimRig"]
+__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,9 +39,9 @@ class Experiment:
     """
 
     excitation: Excitation
-    sample_period: float = 0.005
-    duration: float = 10.0
-    duty_limit: int = DUTY_LIMIT
+    sample_period: float = knob(0.005, unit="s", help="nominal sample period, > 0")
+    duration: float = knob(10.0, unit="s", help="length of the run")
+    duty_limit: int = knob(DUTY_LIMIT, unit="duty", help="duty clamp, 0...255")
 
     def __post_init__(self):
         if not isinstance(self.excitation, Excitation):
@@ -104,10 +105,10 @@ class SimRig:
 
     motor: Motor
     encoder: Encoder = dataclasses.field(default_factory=Encoder)
-    jitter: float = 0.0
-    drop_rate: float = 0.0
-    initial_speed: float = 0.0
-    record_speed: bool = False
+    jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1")
+    drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1")
+    initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample")
+    record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)")
     rng: np.random.Generator | None = None
 
     def __post_init__(self):
@@ -158,4 +159,16 @@ def _motor_metadata(motor: Motor) -> Mapping[str, str]:
         value = getattr(motor, name)
         if value:
             out[f"true_{name}"] = repr(value)
+    return out
+
+
+def bench_knobs() -> tuple[Knob, ...]:
+    """Every bench knob: the fields of Motor, Encoder, SimRig and Experiment declared with ``knob``.
+
+    Names are unique across the four classes; see :mod:`motorsim.knobs`.
+    """
+    out = knobs_of(Motor) + knobs_of(Encoder) + knobs_of(SimRig) + knobs_of(Experiment)
+    names = [k.name for k in out]
+    if len(set(names)) != len(names):  # pragma: no cover - a programming error caught by the tests
+        raise RuntimeError(f"bench knob names must be unique, got {names}")
     return out

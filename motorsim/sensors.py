@@ -1,6 +1,6 @@
 """The encoder: counts from angle, and speed by backward difference (as the article does).
 
-``counts = floor((angle + noise) * counts_per_rev / (2 pi)) + offset``.  Differencing
+``counts = floor((angle + noise) * counts_per_rev / (2 pi)) + count_offset``.  Differencing
 counts gives the *average* speed over the last sample interval, quantised to
 ``2 pi / (counts_per_rev dt)`` rad/s.
 """
@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .excitation import _check_int, _check_real
+from .knobs import knob
 
 __all__ = ["Encoder", "counts_to_angle", "backward_difference", "DEFAULT_COUNTS_PER_REV"]
 
@@ -27,20 +28,21 @@ class Encoder:
     ----------
     counts_per_rev : int
         Counts per revolution (after quadrature decoding), default 16667.
-    offset : int
+    count_offset : int
         Count reported at angle 0 (encoders start anywhere), default 0.
     angle_noise : float
         Standard deviation in rad of Gaussian noise added to the angle before
         flooring, default 0 (noise-free, but still quantised).
     """
 
-    counts_per_rev: int = DEFAULT_COUNTS_PER_REV
-    offset: int = 0
-    angle_noise: float = 0.0
+    counts_per_rev: int = knob(DEFAULT_COUNTS_PER_REV, unit="counts/rev",
+                               help="encoder counts per revolution after quadrature decoding")
+    count_offset: int = knob(0, unit="counts", help="count reported at angle 0")
+    angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it")
 
     def __post_init__(self):
         object.__setattr__(self, "counts_per_rev", _check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
-        object.__setattr__(self, "offset", _check_int("offset", self.offset, -(2**62), 2**62))
+        object.__setattr__(self, "count_offset", _check_int("count_offset", self.count_offset, -(2**62), 2**62))
         object.__setattr__(self, "angle_noise", _check_real("angle_noise", self.angle_noise, nonnegative=True))
 
     def counts(self, angle, rng: np.random.Generator | None = None) -> np.ndarray:
@@ -50,7 +52,7 @@ class Encoder:
             if not isinstance(rng, np.random.Generator):
                 raise TypeError(f"rng must be a numpy.random.Generator when angle_noise > 0, got {rng!r}")
             angle = angle + rng.normal(0.0, self.angle_noise, angle.shape)
-        return np.floor(angle * (self.counts_per_rev / (2.0 * math.pi))).astype(np.int64) + self.offset
+        return np.floor(angle * (self.counts_per_rev / (2.0 * math.pi))).astype(np.int64) + self.count_offset
 
 
 def counts_to_angle(counts, counts_per_rev: int) -> np.ndarray:

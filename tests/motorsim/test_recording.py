@@ -7,7 +7,7 @@ from motorsim.sensors import Encoder
 
 
 def _sim(**kw):
-    rig = SimRig(Motor(25.0, 3.0), Encoder(16667, offset=-123, angle_noise=1e-4), jitter=0.1, drop_rate=0.05,
+    rig = SimRig(Motor(25.0, 3.0), Encoder(16667, count_offset=-123, angle_noise=1e-4), jitter=0.1, drop_rate=0.05,
                  rng=np.random.default_rng(7), **kw)
     return rig.run(Experiment(Sine(20.0), 0.005, 1.0))
 

@@ -7,7 +7,7 @@ from motorsim import Encoder, backward_difference, counts_to_angle
 
 
 def test_counts_are_the_floor_of_the_angle_in_counts_plus_offset():
-    enc = Encoder(counts_per_rev=1000, offset=7)
+    enc = Encoder(counts_per_rev=1000, count_offset=7)
     angle = np.array([0.0, 2 * math.pi / 1000 * 0.999, 2 * math.pi / 1000, -1e-12, 2 * math.pi])
     assert enc.counts(angle).tolist() == [7, 7, 8, 6, 1007]
 

@@ -1,0 +1,89 @@
+"""Argument checks shared by every package: one message format, one rule per check.
+
+Each check returns the value converted to a plain Python type, or raises
+``TypeError`` (wrong kind) / ``ValueError`` (wrong value) with a message that
+names the parameter, the rule and the value received, e.g.
+``"sample_period must be > 0, got -1.0"``.  Booleans are never accepted as numbers.
+
+Examples
+--------
+>>> check_int("order", 7, lo=2, hi=31)
+7
+>>> check_real("sample_period", 0.005, positive=True)
+0.005
+>>> check_real("sample_period", 0, positive=True)
+Traceback (most recent call last):
+...
+ValueError: sample_period must be > 0, got 0.0
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Collection
+
+import numpy as np
+
+__all__ = ["check_int", "check_real", "check_bool", "check_choice", "is_int", "is_real"]
+
+
+def is_int(value: Any) -> bool:
+    """True for an int or numpy integer (not a bool)."""
+    return not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, np.integer))
+
+
+def is_real(value: Any) -> bool:
+    """True for an int, float or numpy number (not a bool)."""
+    return not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+
+
+def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None, *,
+              allow_integral_float: bool = True) -> int:
+    """``value`` as an int in ``lo ... hi`` (either bound may be None).
+
+    An integral float (``3.0``) is accepted unless ``allow_integral_float`` is False.
+    """
+    if not is_int(value):
+        if allow_integral_float and isinstance(value, (float, np.floating)) and math.isfinite(value) \
+                and float(value).is_integer():
+            value = int(value)
+        else:
+            raise TypeError(f"{name} must be an integer, got {value!r}")
+    value = int(value)
+    if lo is not None and hi is not None and not lo <= value <= hi:
+        raise ValueError(f"{name} must be in {lo}...{hi}, got {value!r}")
+    if lo is not None and value < lo:
+        raise ValueError(f"{name} must be >= {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ValueError(f"{name} must be <= {hi}, got {value!r}")
+    return value
+
+
+def check_real(name: str, value: Any, *, positive: bool = False, nonnegative: bool = False,
+               finite: bool = True, below: float | None = None) -> float:
+    """``value`` as a float; optionally > 0, >= 0, finite (default) and < ``below``."""
+    if not is_real(value):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    value = float(value)
+    if finite and not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if positive and not value > 0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+    if nonnegative and not value >= 0:
+        raise ValueError(f"{name} must be >= 0, got {value!r}")
+    if below is not None and not value < below:
+        raise ValueError(f"{name} must be < {below!r}, got {value!r}")
+    return value
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """``value`` as a bool (only ``True``/``False`` and numpy bools are accepted)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_choice(name: str, value: Any, choices: Collection[Any]) -> Any:
+    """``value`` if it is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
+    return value
