@@ -9,7 +9,7 @@ import control
 import numpy as np
 from scipy import stats
 
-__all__ = ["Estimate"]
+__all__ = ["Estimate", "json_ready"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -114,4 +114,21 @@ class Estimate:
         for name in self.param_names:
             out[f"{name}_stderr"] = se[name]
             out[f"{name}_ci95"] = list(ci[name])
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+        return json_ready(out)
+
+
+def json_ready(value):
+    """``value`` with every non-finite float (nan, inf) replaced by None, recursively.
+
+    JSON has no nan; ``json.dumps`` would write the invalid token ``NaN``.
+
+    >>> json_ready({"a": float("nan"), "b": [1.0, float("inf")]})
+    {'a': None, 'b': [1.0, None]}
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    return value

@@ -43,7 +43,7 @@ def speed_reverses(recordings, *, rest_fraction: float = 0.02) -> bool:
     """Whether the speed changes sign or comes near rest (``|omega| < rest_fraction max|omega|``) anywhere."""
     speeds = []
     for r in as_recordings(recordings):
-        w = r.speed_rad_s()
+        w = r.measured_speed()
         speeds.append(w[np.isfinite(w)])
     w = np.concatenate(speeds)
     if len(w) == 0:

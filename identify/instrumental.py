@@ -42,7 +42,7 @@ def _rows(recs, delay):
     """Per gap-free stretch: (w, u, time) with the delayed input."""
     out = []
     for rec in recs:
-        w_all = rec.speed_rad_s()
+        w_all = rec.measured_speed()
         start = 0
         for seg in rec.segments():
             n = len(seg)

@@ -103,7 +103,7 @@ def prepare_segments(recordings: Sequence[Recording], delay: int = 0, skip: int 
     out = []
     for i, rec in enumerate(recordings):
         row = 0
-        angle_all = rec.angle_rad()
+        angle_all = rec.measured_angle()
         for seg in rec.segments():
             n = len(seg)
             first = max(delay, skip)
@@ -142,7 +142,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
         raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
                                    "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
     for i, r in enumerate(recordings):
-        ang = r.angle_rad()
+        ang = r.measured_angle()
         y = ang if ang is not None else r.speed
         if np.all(y == y[0]):
             what = "encoder count" if r.counts is not None else ("angle" if ang is not None else "speed")

@@ -60,7 +60,7 @@ def regression_rows(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.nda
     """The article's ``A`` (rows ``[omega_k, u_k]``) and ``b`` (``omega_{k+1}``), pooled over segments."""
     rows, targets = [], []
     for rec in recordings:
-        w = rec.speed_rad_s()
+        w = rec.measured_speed()
         u = rec.duty
         # pair (w_k, u_k) -> w_{k+1} only where both speeds are defined (no gap between k and k+1)
         ok = np.isfinite(w[:-1]) & np.isfinite(w[1:]) & (np.diff(rec.seq) == 1)

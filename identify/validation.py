@@ -67,7 +67,7 @@ def simulated_speed(a: float, b: float, recording: Recording, *, input_delay: in
     for seg in recording.segments():
         n = len(seg)
         if motor is not None and n >= 3:
-            measured = seg.speed_rad_s()
+            measured = seg.measured_speed()
             traj = simulate(motor, seg.duty[1:], seg.time[1:], initial_speed=float(measured[1]),
                             duty_before=float(seg.duty[0]))
             out[start + 2:start + n] = backward_difference(traj.angle, seg.time[1:])[1:] \
@@ -88,7 +88,7 @@ def fit_percent(a: float, b: float, recordings: Sequence[Recording], *, input_de
     input_delay : int
         Samples of input delay of the model.
     """
-    meas = np.concatenate([r.speed_rad_s() for r in recordings])
+    meas = np.concatenate([r.measured_speed() for r in recordings])
     sim = np.concatenate([simulated_speed(a, b, r, input_delay=input_delay) for r in recordings])
     return nrmse_fit(meas, sim)
 

@@ -26,7 +26,7 @@ import numpy as np
 from .excitation import _check_int, _check_real
 from .knobs import knob
 
-__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices"]
+__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,7 +137,8 @@ def zoh_matrices(a: float, b: float, h) -> tuple:
     return e, g, p, q
 
 
-def _delayed(duty: np.ndarray, delay: int, before: float) -> np.ndarray:
+def delayed_duty(duty: np.ndarray, delay: int, before: float) -> np.ndarray:
+    """``duty`` shifted ``delay`` samples later, the first ``delay`` samples held at ``before``."""
     if delay == 0:
         return duty
     out = np.empty_like(duty)
@@ -179,7 +180,7 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     h = np.diff(t)
     if np.any(h <= 0):
         raise ValueError("time must be strictly increasing")
-    v = motor.drive(_delayed(u, motor.input_delay, duty_before))[:-1] if len(u) else u
+    v = motor.drive(delayed_duty(u, motor.input_delay, duty_before))[:-1] if len(u) else u
     n = len(t)
     angle = np.empty(n)
     speed = np.empty(n)

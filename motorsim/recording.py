@@ -160,7 +160,7 @@ class Recording:
         """What ``duty`` is measured in (metadata ``input_unit``, default ``duty``)."""
         return self.metadata.get("input_unit", "duty")
 
-    def angle_rad(self) -> np.ndarray | None:
+    def measured_angle(self) -> np.ndarray | None:
         """Angle in rad: the ``angle`` column, else counts converted, else None."""
         if self.angle is not None:
             return self.angle
@@ -168,7 +168,7 @@ class Recording:
             return counts_to_angle(self.counts, self.counts_per_rev)
         return None
 
-    def speed_rad_s(self) -> np.ndarray:
+    def measured_speed(self) -> np.ndarray:
         """Speed in rad/s: the ``speed`` column, else the backward difference of the angle.
 
         The difference is ``nan`` at the first sample and wherever ``seq`` has a gap
@@ -176,7 +176,7 @@ class Recording:
         """
         if self.speed is not None:
             return self.speed
-        speed = backward_difference(self.angle_rad(), self.time)
+        speed = backward_difference(self.measured_angle(), self.time)
         speed[1:][np.diff(self.seq) != 1] = np.nan
         return speed
 

@@ -19,7 +19,7 @@ from .plant import Motor, simulate
 from .recording import Recording
 from .sensors import Encoder
 
-__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs"]
+__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,10 +136,7 @@ class SimRig:
         n, dt = experiment.n_samples, experiment.sample_period
         duty = experiment.duty()
         k = np.arange(n)
-        time = k * dt
-        if self.jitter > 0:
-            time = time + self.rng.uniform(-0.5, 0.5, n) * self.jitter * dt
-            time -= time[0]
+        time = jittered_times(n, dt, self.jitter, self.rng)
         traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
         counts = self.encoder.counts(traj.angle, self.rng)
         keep = np.ones(n, dtype=bool)
@@ -172,3 +169,18 @@ def bench_knobs() -> tuple[Knob, ...]:
     if len(set(names)) != len(names):  # pragma: no cover - a programming error caught by the tests
         raise RuntimeError(f"bench knob names must be unique, got {names}")
     return out
+
+
+def jittered_times(n_samples: int, sample_period: float, jitter: float,
+                   rng: np.random.Generator | None) -> np.ndarray:
+    """Sample instants ``k dt + U(-jitter, jitter) dt / 2``, shifted so the first is 0 (s).
+
+    ``rng`` may be None when ``jitter`` is 0.
+    """
+    t = np.arange(n_samples) * sample_period
+    if jitter:
+        if rng is None:
+            raise TypeError("rng must be a numpy.random.Generator when jitter > 0, got None")
+        t = t + rng.uniform(-0.5, 0.5, n_samples) * jitter * sample_period
+        t -= t[0]
+    return t

@@ -33,7 +33,7 @@ from typing import Callable
 import numpy as np
 from scipy.signal import lfilter
 
-from motorsim.plant import Motor, _delayed, zoh_matrices
+from motorsim.plant import Motor, delayed_duty, zoh_matrices
 
 __all__ = ["MethodOutcome", "BATCHED_METHODS", "simulate_batch", "encoder_counts_batch", "speed_batch",
            "regression_batch", "fit_batch", "is_batchable", "bench_sweep"]
@@ -81,7 +81,7 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
                          f"got {u.shape}")
     if motor.input_delay or motor.dead_zone:
         u2 = np.atleast_2d(u)
-        u = np.stack([motor.drive(_delayed(row, motor.input_delay, 0.0)) for row in u2]).reshape(u.shape)
+        u = np.stack([motor.drive(delayed_duty(row, motor.input_delay, 0.0)) for row in u2]).reshape(u.shape)
     e, g, _, _ = (float(x) for x in zoh_matrices(motor.a, motor.b, sample_period))
     v = u[..., :-1]
     speed = np.empty(u.shape)

@@ -33,6 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from motorsim.excitation import Multisine, Sine
+from motorsim.rig import jittered_times
 from motorsim.recording import Recording
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
@@ -134,14 +135,6 @@ def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, samp
                      seq=np.flatnonzero(keep), counts_per_rev=counts_per_rev)
 
 
-def _clock(n: int, dt: float, jitter: float, rng: np.random.Generator) -> np.ndarray:
-    t = np.arange(n) * dt
-    if jitter:
-        t = t + rng.uniform(-0.5, 0.5, n) * jitter * dt
-        t -= t[0]
-    return t
-
-
 def _n_samples(dt: float, lowest_freq: float, minimum: int) -> int:
     return max(minimum, int(math.ceil(4 * 2 * math.pi / lowest_freq / dt)))
 
@@ -195,7 +188,7 @@ def _section_sines(args, rng) -> tuple[bool, list]:
                     exc = Sine(f, 200, 0.3)
                     n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
                                     _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
-                    t = _clock(n, dt, 0.0, rng)
+                    t = jittered_times(n, dt, 0.0, rng)
                     duty = exc.duty(n, dt).astype(float)
                     angle = rk4_angle(a, b, duty, t)
                     rec = make_recording(angle, duty, t, dt, cpr)
@@ -238,7 +231,7 @@ def _section_multisine(args, rng) -> bool:
                                     tuple(0.7 * i for i in range(len(freqs))))
                     n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
                                     _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
-                    t = _clock(n, dt, jitter, rng)
+                    t = jittered_times(n, dt, jitter, rng)
                     duty = exc.duty(n, dt).astype(float)
                     angle = rk4_angle(a, b, duty, t)
                     rec = make_recording(angle, duty, t, dt, cpr, rng=rng, drop_rate=drop)
@@ -337,7 +330,7 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
 
     from identify import fit_zoh_ls
     from identify.sensitivity import zoh_response
-    y = recording.angle_rad()
+    y = recording.measured_angle()
     t, u = recording.time, recording.duty
     start = fit_zoh_ls(recording)
 
@@ -361,7 +354,7 @@ def _section_timing(args) -> None:
           "finite-difference Jacobian (a) on the projected problem, (b) on all of a, b, omega0, theta0")
     for label, jitter, drop in (("uniform clock", 0.0, 0.0), ("10 % jitter", 0.1, 0.0),
                                 ("1 % drops", 0.1, 0.01)):
-        t = _clock(n, dt, jitter, rng)
+        t = jittered_times(n, dt, jitter, rng)
         rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667, rng=rng, drop_rate=drop)
         t_an = median_time(lambda: fit_output_error(rec), args.repeats)
         t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), args.repeats)
@@ -385,7 +378,7 @@ def _generator_check(rng) -> float:
     worst = 0.0
     for a, dt in ((4.0, 0.001), (90.0, 0.02)):
         n = 2000
-        t = _clock(n, dt, 0.1, rng)
+        t = jittered_times(n, dt, 0.1, rng)
         duty = Sine(min(a, 0.8 * math.pi / dt), 200).duty(n, dt).astype(float)
         ours = rk4_angle(a, _STATIC_GAIN * a, duty, t)
         exact = simulate(Motor(a, _STATIC_GAIN * a), duty, t).angle

@@ -155,6 +155,7 @@ def run_identify(args: argparse.Namespace) -> int:
     import inspect
 
     from identify import fit, validate
+    from identify.estimate import json_ready
     from identify.methods import _METHODS
     recs = [read_recording(f) for f in args.files]
     accepted = inspect.signature(_METHODS[args.method]).parameters
@@ -180,7 +181,7 @@ def run_identify(args: argparse.Namespace) -> int:
         path = plot_validation(report, est, args.report, title=f"{est.method} on {where}")
         print(f"report      {path}")
     if args.json:
-        print(json.dumps({k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in out.items()}))
+        print(json.dumps(json_ready(out)))
     return 0
 
 

@@ -31,7 +31,7 @@ def plot_run(recording: Recording, path, *, title: str = "") -> Path:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("duty η", color="tab:blue")
     ax2 = ax.twinx()
-    ax2.plot(recording.time, recording.speed_rad_s(), color="tab:red", lw=0.8, label="ω")
+    ax2.plot(recording.time, recording.measured_speed(), color="tab:red", lw=0.8, label="ω")
     ax2.set_ylabel("ω [rad/s]", color="tab:red")
     ax.set_title(title)
     fig.savefig(path, dpi=110)
@@ -46,7 +46,7 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence, path) -> 
     n = len(recordings)
     fig, axes = plt.subplots(n, 1, figsize=(8, 2.2 * n), sharex=False, constrained_layout=True, squeeze=False)
     for ax, rec, est in zip(axes[:, 0], recordings, estimates):
-        ax.plot(rec.time, rec.speed_rad_s(), color="0.3", lw=0.8, label="measured ω")
+        ax.plot(rec.time, rec.measured_speed(), color="0.3", lw=0.8, label="measured ω")
         if est is not None:
             sim = simulated_speed(est.a, est.b, rec, input_delay=int(est.extra.get("input_delay", 0)))
             ax.plot(rec.time, sim, color="tab:orange", lw=0.8, ls="--",

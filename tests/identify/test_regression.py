@@ -40,7 +40,7 @@ def test_euler_ls_equals_its_closed_form(a, b, dt, ex):
 def test_articles_eq26_by_hand():
     """[a, b] = C((A^T A)^{-1} A^T b - d), C = diag(-1, 1)/dt, d = [1, 0] — literally."""
     rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(20.0), 0.005, 2.0))
-    w = rec.speed_rad_s()
+    w = rec.measured_speed()
     A = np.column_stack([w[1:-1], rec.duty[1:-1]])
     bvec = w[2:]
     x = np.linalg.inv(A.T @ A) @ A.T @ bvec
@@ -57,7 +57,7 @@ def test_pooled_fit_equals_the_stacked_regression():
     # the stacked problem solved independently: normal equations summed over recordings
     AtA, Atb = np.zeros((2, 2)), np.zeros(2)
     for r in recs:
-        w = r.speed_rad_s()
+        w = r.measured_speed()
         A = np.column_stack([w[1:-1], r.duty[1:-1]])
         AtA += A.T @ A
         Atb += A.T @ w[2:]

@@ -37,7 +37,7 @@ def test_reading_accepts_aliases_any_column_order_and_keeps_unknown_keys(tmp_pat
     assert rec.sample_period == 0.01 and rec.counts_per_rev == 400
     assert rec.metadata["operator"] == "Ryo"
     assert rec.duty.tolist() == [1.5, -2.25, 0.0] and rec.seq.tolist() == [0, 1, 2]
-    np.testing.assert_allclose(rec.speed_rad_s()[1:], np.array([4, 3]) * 2 * np.pi / 400 / 0.01)
+    np.testing.assert_allclose(rec.measured_speed()[1:], np.array([4, 3]) * 2 * np.pi / 400 / 0.01)
 
 
 def test_speed_only_recording_without_sample_period_uses_the_median_interval(tmp_path):
@@ -50,7 +50,7 @@ def test_speed_only_recording_without_sample_period_uses_the_median_interval(tmp
 def test_gaps_split_segments_and_break_differences():
     rec = Recording(time=[0, 1, 2, 4, 5], duty=[0] * 5, sample_period=1.0, angle=[0, 1, 3, 7, 8], seq=[0, 1, 2, 4, 5])
     assert [s.seq.tolist() for s in rec.segments()] == [[0, 1, 2], [4, 5]]
-    np.testing.assert_array_equal(rec.speed_rad_s(), [np.nan, 1, 2, np.nan, 1])
+    np.testing.assert_array_equal(rec.measured_speed(), [np.nan, 1, 2, np.nan, 1])
 
 
 BAD = {
