@@ -37,8 +37,10 @@ class Estimate:
         Covariance of the parameters named in ``param_names``.
     param_names : tuple of str
         Order of the parameters in ``covariance``; starts with ``"a", "b"``.
-    extra : mapping of str to float
-        Further parameters (e.g. ``c`` friction, ``d`` offset, ``input_delay`` in samples).
+    extra : mapping of str to float or int
+        Further parameters: ``friction`` (Coulomb friction ``c``) and ``bias`` (constant
+        acceleration ``d``) in rad/s^2, ``dead_zone`` in input units, ``input_delay``
+        in samples (an int).
     residual_unit : str
         Unit of ``residual_rms``.
     input_unit : str
@@ -53,8 +55,8 @@ class Estimate:
     residual_rms: float
     fit_percent: float
     covariance: np.ndarray | None = None
-    param_names: tuple = ("a", "b")
-    extra: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    param_names: tuple[str, ...] = ("a", "b")
+    extra: Mapping[str, float | int] = dataclasses.field(default_factory=dict)
     residual_unit: str = "rad/s"
     input_unit: str = "duty"
 
@@ -77,7 +79,7 @@ class Estimate:
         """``1 / a`` in s."""
         return 1.0 / self.a
 
-    def value(self, name: str) -> float:
+    def value(self, name: str) -> float | int:
         """The estimate of parameter ``name`` (``a``, ``b`` or a key of ``extra``)."""
         if name in ("a", "b"):
             return getattr(self, name)
@@ -92,7 +94,26 @@ class Estimate:
         return {n: float(math.sqrt(max(v, 0.0))) for n, v in zip(self.param_names, np.diag(self.covariance))}
 
     def confidence_interval(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
-        """Two-sided normal-approximation interval per parameter, ``value +- z sigma``."""
+        """Two-sided normal-approximation interval per parameter, ``value +- z sigma``.
+
+        Parameters
+        ----------
+        level : float
+            Coverage, in (0, 1) (default 0.95).
+
+        Returns
+        -------
+        dict of str to (float, float)
+            ``(low, high)`` per name in ``param_names``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> est = Estimate(method="oe", a=25.0, b=3.0, n_samples=1000, sample_period=0.005,
+        ...                residual_rms=1e-4, fit_percent=99.9, covariance=np.diag([0.01, 1e-4]))
+        >>> {name: (round(lo, 3), round(hi, 3)) for name, (lo, hi) in est.confidence_interval(0.95).items()}
+        {'a': (24.804, 25.196), 'b': (2.98, 3.02)}
+        """
         if not 0 < level < 1:
             raise ValueError(f"level must be in (0, 1), got {level!r}")
         z = stats.norm.ppf(0.5 + level / 2)

@@ -1,5 +1,8 @@
 """``oe-friction``: output error of ``d omega/dt = -a omega + b u - c sign(omega) + d``.
 
+In the code (and in :class:`~identify.estimate.Estimate`) the friction ``c`` is
+named ``friction`` and the constant acceleration ``d`` is named ``bias``.
+
 Real motors have Coulomb friction ``c`` and a duty dead zone; fitted with the
 linear model their ``a`` and ``b`` drift with the input's frequency and
 amplitude.  This fit simulates the friction model exactly, event by event
@@ -7,7 +10,8 @@ amplitude.  This fit simulates the friction model exactly, event by event
 ``motorsim.plant.simulate``), against the encoder angle, with the same
 segments, offsets and initial speeds as :mod:`identify.output_error`.  The
 simulation has kinks at the events, so the Jacobian is by finite differences
-(trust-region reflective, ``a > 0`` and ``c >= 0`` as bounds).
+(trust-region reflective, ``a > 0``, ``c >= 0`` and dead zone ``>= 0`` as bounds),
+started from the linear output-error fit and a few friction guesses.
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
@@ -21,17 +25,19 @@ import math
 import warnings
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
+from scipy.sparse import csr_matrix, lil_matrix
 
+from motorsim.checks import check_bool
 from motorsim.plant import Motor, simulate
+from motorsim.recording import Recording
 
+from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .output_error import (_check_delay, _fit, check_excitation, fit_output_error, fit_output_error_offset,
-                           prepare_segments, select_delay)
-from .regression import as_recordings
+from .output_error import fit_output_error, select_delay, solve_output_error
 from .uncertainty import covariance_from_jacobian
-from .validation import nrmse_fit
+from .validation import segment_fit_percent
 
 __all__ = ["fit_output_error_friction", "speed_reverses"]
 
@@ -39,8 +45,16 @@ __all__ = ["fit_output_error_friction", "speed_reverses"]
 _STARTS = ((0.05, 0.0), (0.2, 0.0), (0.05, 0.05), (0.2, 0.1))
 
 
-def speed_reverses(recordings, *, rest_fraction: float = 0.02) -> bool:
-    """Whether the speed changes sign or comes near rest (``|omega| < rest_fraction max|omega|``) anywhere."""
+def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
+    """Whether the speed changes sign or comes near rest (``|omega| < rest_fraction max|omega|``) anywhere.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        The runs.
+    rest_fraction : float
+        Share of the largest speed below which the motor counts as at rest.
+    """
     speeds = []
     for r in as_recordings(recordings):
         w = r.measured_speed()
@@ -52,44 +66,87 @@ def speed_reverses(recordings, *, rest_fraction: float = 0.02) -> bool:
     return bool(np.any(w > 0) and np.any(w < 0)) or bool(np.any(np.abs(w) < rest_fraction * top))
 
 
-@dataclasses.dataclass(frozen=True)
-class _Start:
-    a: float
-    b: float
+class _FrictionProblem:
+    """Residuals of the friction model on pooled segments.
+
+    The parameter vector holds the shared parameters ``names`` (``a``, ``b``,
+    ``friction``, then ``bias`` and ``dead_zone`` when fitted) followed by each
+    segment's initial speed; each angle segment's offset is projected out (centred).
+    """
+
+    def __init__(self, segments: list[Segment], names: tuple[str, ...]):
+        self.segments = segments
+        self.names = names
+        self.n_global = len(names)
+        self.n_rows = sum(len(s.time) for s in segments)
+
+    def unpack(self, x: np.ndarray) -> tuple[float, float, float, float, float]:
+        """``(a, b, friction, bias, dead_zone)`` from ``x`` (0 for what is not fitted)."""
+        named = dict(zip(self.names, x[:self.n_global]))
+        return named["a"], named["b"], named["friction"], named.get("bias", 0.0), named.get("dead_zone", 0.0)
+
+    def outputs(self, x: np.ndarray) -> list[np.ndarray]:
+        """The model's angle or speed (as each segment) at ``x``."""
+        a, b, friction, bias, zone = self.unpack(x)
+        motor = _motor(a, b, friction, bias, zone)
+        return [_simulate(motor, seg, x[self.n_global + i]) for i, seg in enumerate(self.segments)]
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Measured minus model output, angle segments centred, segments concatenated."""
+        a, b, friction, bias, zone = self.unpack(x)
+        out = np.empty(self.n_rows)
+        row = 0
+        for i, seg in enumerate(self.segments):
+            n = len(seg.time)
+            r = seg.output - _simulate(_motor(a, b, friction, bias, zone), seg, x[self.n_global + i])
+            out[row:row + n] = r - r.mean() if seg.kind == "angle" else r
+            row += n
+        return out
+
+    def lower_bounds(self) -> np.ndarray:
+        """``a > 0``, ``friction >= 0``, ``dead_zone >= 0``; the rest free."""
+        lower = np.full(self.n_global + len(self.segments), -np.inf)
+        lower[0] = 1e-9
+        lower[2] = 0.0
+        if "dead_zone" in self.names:
+            lower[self.n_global - 1] = 0.0
+        return lower
+
+    def sparsity(self) -> csr_matrix | None:
+        """Jacobian pattern: shared parameters touch every row, a segment's initial speed only its rows
+        (so finite differences perturb all initial speeds at once); None for one segment."""
+        if len(self.segments) <= 1:
+            return None
+        pattern = lil_matrix((self.n_rows, self.n_global + len(self.segments)), dtype=int)
+        pattern[:, :self.n_global] = 1
+        row = 0
+        for i, seg in enumerate(self.segments):
+            pattern[row:row + len(seg.time), self.n_global + i] = 1
+            row += len(seg.time)
+        return pattern.tocsr()
 
 
-def _sparsity(segments, n_global):
-    """Jacobian pattern: shared parameters touch every row, a segment's initial speed only its rows
-    (so finite differences perturb all initial speeds at once)."""
-    from scipy.sparse import lil_matrix
-    rows = sum(len(s.time) for s in segments)
-    pattern = lil_matrix((rows, n_global + len(segments)), dtype=int)
-    pattern[:, :n_global] = 1
-    row = 0
-    for i, seg in enumerate(segments):
-        pattern[row:row + len(seg.time), n_global + i] = 1
-        row += len(seg.time)
-    return pattern.tocsr()
+def _motor(a, b, friction, bias, dead_zone) -> Motor:
+    return Motor(a, b, friction=friction, bias=bias, dead_zone=dead_zone)
 
 
-def _simulate(a, b, c, d, seg, w0, dead_zone=0.0):
-    motor = Motor(a, b, friction=c, bias=d, dead_zone=dead_zone)
-    traj = simulate(motor, seg.drive, seg.time, initial_speed=w0)
+def _simulate(motor: Motor, seg: Segment, initial_speed) -> np.ndarray:
+    traj = simulate(motor, seg.drive, seg.time, initial_speed=initial_speed)
     return traj.angle if seg.kind == "angle" else traj.speed
 
 
-def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool = False,
-                              dead_zone: bool = True) -> Estimate:
-    """Fit ``a``, ``b``, Coulomb friction ``c``, offset ``d`` and a duty dead zone by output error.
+def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+                              fix_bias: bool = False, dead_zone: bool = True) -> Estimate:
+    """Fit ``a``, ``b``, Coulomb friction ``c``, bias ``d`` and a duty dead zone by output error.
 
     Parameters
     ----------
     recordings : Recording or sequence of Recording
         Pooled, as for ``oe``.
-    delay : int or "auto"
+    input_delay : int or "auto"
         Input delay in samples (``"auto"``: chosen with the linear model).
-    fix_d : bool
-        Hold ``d = 0`` (no offset).
+    fix_bias : bool
+        Hold the bias ``d = 0``.
     dead_zone : bool
         Also fit a dead zone ``z >= 0`` in input units: the motor receives
         ``u - sign(u) z`` when ``|u| > z``, else nothing (default True).
@@ -97,11 +154,11 @@ def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool =
     Returns
     -------
     Estimate
-        ``method = "oe-friction"``; ``extra["c"]`` and ``extra["d"]`` in rad/s^2,
-        ``extra["dead_zone"]`` in input units; covariance over
-        ``("a", "b", "c", "d", "dead_zone")`` less what is fixed (``d`` with
-        ``fix_d``, ``dead_zone`` when not fitted; only ``a, b, d`` when the speed
-        never reverses).
+        ``method = "oe-friction"``; ``extra["friction"]`` and ``extra["bias"]`` in
+        rad/s^2, ``extra["dead_zone"]`` in input units, ``extra["input_delay"]`` in
+        samples; covariance over ``("a", "b", "friction", "bias", "dead_zone")`` less
+        what is fixed (``bias`` with ``fix_bias``, ``dead_zone`` when not fitted;
+        only ``a, b, bias`` when the speed never reverses).
 
     Raises
     ------
@@ -109,97 +166,78 @@ def fit_output_error_friction(recordings, *, delay: int | str = 0, fix_d: bool =
         As for ``oe``, or when the fit lands on ``a <= 0``.
     """
     recs = as_recordings(recordings)
-    delay = _check_delay(delay)
-    if not isinstance(fix_d, bool):
-        raise TypeError(f"fix_d must be a bool, got {fix_d!r}")
-    if not isinstance(dead_zone, bool):
-        raise TypeError(f"dead_zone must be a bool, got {dead_zone!r}")
-    check_excitation(recs, 3 + (not fix_d) + dead_zone)
-    if delay == "auto":
-        delay = select_delay(recs)
-    delay = delay or 0
+    input_delay = check_input_delay(input_delay)
+    fix_bias = check_bool("fix_bias", fix_bias)
+    dead_zone = check_bool("dead_zone", dead_zone)
+    check_excitation(recs, 3 + (not fix_bias) + dead_zone)
+    delay = select_delay(recs) if input_delay == "auto" else int(input_delay)
     if not speed_reverses(recs):
-        return _no_reversal(recs, delay, fix_d)
+        return _no_reversal(recs, delay, fix_bias)
     segments = prepare_segments(recs, delay)
-    lin, lin_problem = _fit(recs, segments, delay, False, "analytic")
-    start = _Start(a=float(lin.x[0]), b=float(lin.x[1]))
-    names = ("a", "b", "c") + (() if fix_d else ("d",)) + (("dead_zone",) if dead_zone else ())
-    n_global = len(names)
-    u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in segments])))) or 1.0
-    w0 = list(lin_problem.initial_speeds(lin.x))
-    # friction and dead zone make the cost kinked and multi-modal: start from a few
-    # (c, dead zone) guesses, as fractions of b max|u| and of max|u|, and keep the best
-    starts = [np.concatenate([[start.a, start.b, fc * abs(start.b) * u_scale] + ([] if fix_d else [0.0])
-                              + ([fz * u_scale] if dead_zone else []), w0])
-              for fc, fz in _STARTS[: (len(_STARTS) if dead_zone else 2)]]
-    rows = sum(len(s.time) for s in segments)
-
-    def unpack(x):
-        named = dict(zip(names, x[:n_global]))
-        return named["a"], named["b"], named["c"], named.get("d", 0.0), named.get("dead_zone", 0.0)
-
-    def residuals(x):
-        a, b, c, d, z = unpack(x)
-        out = np.empty(rows)
-        row = 0
-        for i, seg in enumerate(segments):
-            n = len(seg.time)
-            r = seg.output - _simulate(a, b, c, d, seg, x[n_global + i], z)
-            out[row:row + n] = r - r.mean() if seg.kind == "angle" else r
-            row += n
-        return out
-
-    lower = np.full(len(starts[0]), -np.inf)
-    lower[0] = 1e-9
-    lower[2] = 0.0
-    if dead_zone:
-        lower[n_global - 1] = 0.0
-    if start.b == 0:
-        raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
-    res = None
-    sparsity = _sparsity(segments, n_global) if len(segments) > 1 else None
-    for x0 in starts:
-        with np.errstate(over="ignore", invalid="ignore"):
-            trial = least_squares(residuals, x0, jac="2-point", method="trf", bounds=(lower, np.inf),
-                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100,
-                                  jac_sparsity=sparsity)
-        if res is None or trial.cost < res.cost:
-            res = trial
-    a, b, c, d, z = (float(v) for v in unpack(res.x))
+    names = ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
+    problem = _FrictionProblem(segments, names)
+    res = _best_of_starts(problem, _starts(recs, problem, delay))
+    a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
     if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
         raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
                                    "check the sign of the input and that the motor moved")
-    n_offsets = sum(1 for s in segments if s.kind == "angle")
-    dof = rows - len(res.x) - n_offsets
+    n_angle_offsets = sum(1 for s in segments if s.kind == "angle")
+    dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
     jac = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
-    cov = covariance_from_jacobian(jac, s2, n_global)
-    meas, sim = [], []
-    for i, seg in enumerate(segments):
-        out = _simulate(a, b, c, d, seg, res.x[n_global + i], z)
-        if seg.kind == "angle":
-            meas.append(np.diff(seg.output) / np.diff(seg.time))
-            sim.append(np.diff(out) / np.diff(seg.time))
-        else:
-            meas.append(seg.output)
-            sim.append(out)
-    kinds = {s.kind for s in segments}
-    return Estimate(method="oe-friction", a=a, b=b, n_samples=rows, sample_period=recs[0].sample_period,
-                    residual_rms=math.sqrt(float(res.fun @ res.fun) / rows),
-                    fit_percent=nrmse_fit(np.concatenate(meas), np.concatenate(sim)), covariance=cov,
-                    param_names=names, extra={"c": c, "d": d, "dead_zone": z, "input_delay": float(delay)},
-                    residual_unit="rad" if kinds == {"angle"} else "rad/s", input_unit=recs[0].input_unit)
+    return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
+                    residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
+                    fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
+                    covariance=covariance_from_jacobian(jac, s2, problem.n_global), param_names=names,
+                    extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
+                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
 
 
-def _no_reversal(recs, delay, fix_d) -> Estimate:
-    if fix_d:
+def _starts(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> list[np.ndarray]:
+    """Starting vectors: the linear output-error fit with a few (friction, dead zone) guesses.
+
+    Friction and dead zone make the cost kinked and multi-modal, so the guesses are
+    fractions of ``b max|u|`` and of ``max|u|`` (:data:`_STARTS`).
+    """
+    lin = solve_output_error(recs, problem.segments, input_delay)
+    a0, b0 = float(lin.result.x[0]), float(lin.result.x[1])
+    if b0 == 0:
+        raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
+    u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
+    w0 = list(lin.initial_speeds())
+    fit_bias = "bias" in problem.names
+    dead_zone = "dead_zone" in problem.names
+    return [np.concatenate([[a0, b0, fc * abs(b0) * u_scale] + ([0.0] if fit_bias else [])
+                            + ([fz * u_scale] if dead_zone else []), w0])
+            for fc, fz in _STARTS[: (len(_STARTS) if dead_zone else 2)]]
+
+
+def _best_of_starts(problem: _FrictionProblem, starts: list[np.ndarray]) -> OptimizeResult:
+    """Trust-region reflective from each start; the lowest cost wins (the first on a tie)."""
+    lower = problem.lower_bounds()
+    sparsity = problem.sparsity()
+    best: OptimizeResult | None = None
+    for x0 in starts:
+        with np.errstate(over="ignore", invalid="ignore"):
+            trial = least_squares(problem.residuals, x0, jac="2-point", method="trf", bounds=(lower, np.inf),
+                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100,
+                                  jac_sparsity=sparsity)
+        if best is None or trial.cost < best.cost:
+            best = trial
+    if best is None:
+        raise ValueError("starts must hold at least one vector, got none")
+    return best
+
+
+def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:
+    if fix_bias:
         warnings.warn("oe-friction: the speed never reverses or rests, so Coulomb friction c acts as a constant; "
-                      "with d fixed at 0 it cannot be separated from b u: fitting the linear model (c = 0)",
+                      "with the bias d fixed at 0 it cannot be separated from b u: fitting the linear model (c = 0)",
                       UserWarning, stacklevel=3)
-        est = fit_output_error(recs, delay=delay)
-        return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "c": 0.0, "d": 0.0})
+        est = fit_output_error(recs, input_delay=input_delay)
+        return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "friction": 0.0, "bias": 0.0})
     warnings.warn("oe-friction: the speed never reverses or comes to rest, so Coulomb friction c is a constant "
-                  "indistinguishable from the offset d: reporting c = 0 and d as the net constant acceleration "
+                  "indistinguishable from the bias d: reporting c = 0 and d as the net constant acceleration "
                   "(d - c sign(omega))", UserWarning, stacklevel=3)
-    est = fit_output_error_offset(recs, delay=delay)
-    return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "c": 0.0})
+    est = fit_output_error(recs, input_delay=input_delay, fit_bias=True)
+    return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "friction": 0.0})

@@ -23,22 +23,29 @@ speed-only recordings the speed column is used as the averages.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 from scipy.optimize import root_scalar
 
+from motorsim.checks import check_int
+from motorsim.recording import Recording
+
+from .data import as_recordings, check_excitation, check_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .output_error import _check_delay, check_excitation, select_delay
-from .regression import as_recordings
+from .output_error import select_delay
 from .sensitivity import zoh_response
+from .start import initial_guess, regression_guess
 from .validation import fit_percent
 
 __all__ = ["fit_instrumental_variables"]
 
+Stretch = tuple[np.ndarray, np.ndarray, np.ndarray]
 
-def _rows(recs, delay):
+
+def _rows(recs: list[Recording], delay: int) -> list[Stretch]:
     """Per gap-free stretch: (w, u, time) with the delayed input."""
     out = []
     for rec in recs:
@@ -58,7 +65,7 @@ def _rows(recs, delay):
     return out
 
 
-def _model_average_speed(a, b, u, t):
+def _model_average_speed(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     resp = zoh_response(a, b, u, t, 0.0)
     out = np.empty(len(t))
     out[0] = 0.0
@@ -66,14 +73,81 @@ def _model_average_speed(a, b, u, t):
     return out
 
 
-def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: int = 3) -> Estimate:
+@dataclasses.dataclass(frozen=True)
+class _IvSolution:
+    """One IV solve: ``theta = (e, b)``, the regressors ``Phi``, instruments ``Z`` and ``M = Z^T Phi``."""
+
+    theta: np.ndarray
+    Phi: np.ndarray
+    Z: np.ndarray
+    M: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class _IvRegression:
+    """The rows of ``w_{k+1} = e w_k + b v_k`` over every stretch: regressor speed, target, sample period."""
+
+    stretches: list[Stretch]
+    w_now: np.ndarray
+    y: np.ndarray
+    h: float
+
+    @classmethod
+    def from_stretches(cls, stretches: list[Stretch], h: float) -> _IvRegression:
+        return cls(stretches, np.concatenate([w[1:-1] for w, _, _ in stretches]),
+                   np.concatenate([w[2:] for w, _, _ in stretches]), h)
+
+    def instruments(self, a: float, b: float) -> np.ndarray:
+        """The model's own noise-free averaged speed under ``(a, b)``, row-aligned with ``w_now``."""
+        return np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in self.stretches])
+
+    def solve(self, a_filter: float, x_inst: np.ndarray) -> _IvSolution:
+        """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``."""
+        Phi = np.column_stack([self.w_now, _filtered_input(a_filter, self.stretches, self.h)])
+        Z = np.column_stack([x_inst, Phi[:, 1]])
+        M = Z.T @ Phi
+        if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e12:
+            raise NotIdentifiableError("iv: instruments and regressors are (nearly) collinear; the input is not "
+                                       "persistently exciting (use a sine, multisine or PRBS)")
+        return _IvSolution(np.linalg.solve(M, Z.T @ self.y), Phi, Z, M)
+
+    def pole(self, theta: np.ndarray) -> float:
+        """``a = -ln(e) / h`` from ``theta = (e, b)``; refuses ``e`` outside (0, 1)."""
+        e = float(theta[0])
+        if not 0 < e < 1:
+            raise NotIdentifiableError(f"iv: theta1 = e = {e:.6g} is not in (0, 1), so no stable first-order "
+                                       "model fits; check the sign of the input and that the motor moved")
+        return -math.log(e) / self.h
+
+    def iterate(self, a: float, b: float) -> _IvSolution:
+        """One IV pass from the model ``(a, b)``.
+
+        Instruments from the current model; then the ``a`` inside the input filter
+        must agree with the ``a`` that the solved ``e`` implies: a one-dimensional
+        root (plain substitution diverges for ``a h ~ 2`` on a single sine, where
+        ``e`` and the filter trade off).
+        """
+        x_inst = self.instruments(a, b)
+        try:
+            root = root_scalar(lambda lg: math.log(self.pole(self.solve(math.exp(lg), x_inst).theta)) - lg,
+                               x0=math.log(a), x1=math.log(a) + 0.01, method="secant", xtol=1e-13, maxiter=50)
+            a_new = math.exp(root.root) if root.converged else math.nan
+        except (NotIdentifiableError, ValueError, OverflowError):
+            a_new = math.nan
+        if not (math.isfinite(a_new) and a_new > 0):
+            a_new = self.pole(self.solve(a, x_inst).theta)   # fall back to one substitution step
+        return self.solve(a_new, x_inst)
+
+
+def fit_instrumental_variables(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+                               iterations: int = 3) -> Estimate:
     """Refined-IV estimate of ``a``, ``b`` from averaged (differenced) speed.
 
     Parameters
     ----------
     recordings : Recording or sequence of Recording
         Pooled over gap-free segments.
-    delay : int or "auto"
+    input_delay : int or "auto"
         Input delay in samples (``"auto"`` chooses it by output error).
     iterations : int
         IV passes after the ``zoh-ls`` start, >= 1 (default 3).
@@ -85,7 +159,7 @@ def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: 
         ``s^2 (Z^T Phi)^{-1} Z^T Z (Z^T Phi)^{-T}``, mapped to ``(a, b)`` (``v``'s
         dependence on ``a`` neglected); it treats
         the equation error as white, which differenced quantisation is not, so
-        it is indicative only.
+        it is indicative only.  ``extra["input_delay"]`` in samples.
 
     Raises
     ------
@@ -93,87 +167,46 @@ def fit_instrumental_variables(recordings, *, delay: int | str = 0, iterations: 
         As for ``oe``, or when the estimate gives ``e = exp(-a h)`` outside (0, 1).
     """
     recs = as_recordings(recordings)
-    delay = _check_delay(delay)
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
-        raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+    input_delay = check_input_delay(input_delay)
+    iterations = check_int("iterations", iterations, lo=1, allow_integral_float=False)
     check_excitation(recs, 3)
-    if delay == "auto":
-        delay = select_delay(recs)
-    delay = delay or 0
+    delay = select_delay(recs) if input_delay == "auto" else int(input_delay)
     stretches = _rows(recs, delay)
     if not stretches:
         raise NotIdentifiableError("recording is too short: no gap-free stretch of 4 samples; record longer")
     h = recs[0].sample_period
-    w_now = np.concatenate([w[1:-1] for w, _, _ in stretches])
-    y = np.concatenate([w[2:] for w, _, _ in stretches])
-    if len(y) < 6:
-        raise NotIdentifiableError(f"recording is too short: {len(y)} IV rows for 2 coefficients; record longer")
-    a, b = _start(recs, delay)
+    regression = _IvRegression.from_stretches(stretches, h)
+    if len(regression.y) < 6:
+        raise NotIdentifiableError(f"recording is too short: {len(regression.y)} IV rows for 2 coefficients; "
+                                   "record longer")
+    guess = regression_guess(recs)
+    a, b = guess if guess is not None else initial_guess(recs, prepare_segments(recs, delay))
+    for _ in range(iterations):
+        sol = regression.iterate(a, b)
+        a, b = regression.pole(sol.theta), float(sol.theta[1])
+    return _estimate(regression, sol, a, b, recs, delay)
 
-    def solve(a_filter, x_inst):
-        """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``."""
-        Phi = np.column_stack([w_now, _filtered_input(a_filter, stretches, h)])
-        Z = np.column_stack([x_inst, Phi[:, 1]])
-        M = Z.T @ Phi
-        if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e12:
-            raise NotIdentifiableError("iv: instruments and regressors are (nearly) collinear; the input is not "
-                                       "persistently exciting (use a sine, multisine or PRBS)")
-        return np.linalg.solve(M, Z.T @ y), Phi, Z, M
 
-    def a_of(theta):
-        e = float(theta[0])
-        if not 0 < e < 1:
-            raise NotIdentifiableError(f"iv: theta1 = e = {e:.6g} is not in (0, 1), so no stable first-order "
-                                       "model fits; check the sign of the input and that the motor moved")
-        return -math.log(e) / h
-
-    for _ in range(int(iterations)):
-        # instruments from the current model; then the a inside the input filter must agree with
-        # the a that the solved e implies: a one-dimensional root (plain substitution diverges
-        # for a h ~ 2 on a single sine, where e and the filter trade off)
-        x_inst = np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in stretches])
-        try:
-            root = root_scalar(lambda lg: math.log(a_of(solve(math.exp(lg), x_inst)[0])) - lg,
-                               x0=math.log(a), x1=math.log(a) + 0.01, method="secant", xtol=1e-13, maxiter=50)
-            a_new = math.exp(root.root) if root.converged else math.nan
-        except (NotIdentifiableError, ValueError, OverflowError):
-            a_new = math.nan
-        if not (math.isfinite(a_new) and a_new > 0):
-            a_new = a_of(solve(a, x_inst)[0])   # fall back to one substitution step
-        theta, Phi, Z, M = solve(a_new, x_inst)
-        a, b = a_of(theta), float(theta[1])
-    e = float(theta[0])
-    resid = y - Phi @ theta
+def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, recs: list[Recording],
+              delay: int) -> Estimate:
+    """The estimate with the IV covariance (see :func:`fit_instrumental_variables`)."""
+    h, y = regression.h, regression.y
+    e = float(sol.theta[0])
+    resid = y - sol.Phi @ sol.theta
     s2 = float(resid @ resid) / max(len(y) - 2, 1)
-    Minv = np.linalg.inv(M)
-    cov_theta = s2 * Minv @ (Z.T @ Z) @ Minv.T
+    Minv = np.linalg.inv(sol.M)
+    cov_theta = s2 * Minv @ (sol.Z.T @ sol.Z) @ Minv.T
     jac = np.array([[-1.0 / (e * h), 0.0], [0.0, 1.0]])
     cov = jac @ cov_theta @ jac.T
     return Estimate(method="iv", a=a, b=b, n_samples=len(y), sample_period=h,
                     residual_rms=math.sqrt(float(resid @ resid) / len(y)),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), covariance=cov,
-                    extra={"input_delay": float(delay)}, input_unit=recs[0].input_unit)
+                    extra={"input_delay": delay}, input_unit=recs[0].input_unit)
 
 
-def _filtered_input(a, stretches, h):
+def _filtered_input(a: float, stretches: list[Stretch], h: float) -> np.ndarray:
     """``(q u_k + (p^2 - e q) u_{k-1}) / h`` per row: the input term per unit ``b``."""
     e = math.exp(-a * h)
     p = -math.expm1(-a * h) / a
     q = (h - p) / a
     return np.concatenate([(q * u[1:-1] + (p * p - e * q) * u[:-2]) / h for _, u, _ in stretches])
-
-
-def _start(recs, delay) -> tuple[float, float]:
-    """zoh-ls, else the output-error module's robust log-grid start."""
-    from .output_error import _grid_guess, prepare_segments
-    from .regression import fit_zoh_ls
-    try:
-        est = fit_zoh_ls(recs)
-        if est.a > 0 and math.isfinite(est.b):
-            return est.a, est.b
-    except NotIdentifiableError:
-        pass
-    segments = prepare_segments(recs, delay)
-    if not segments:
-        raise NotIdentifiableError("recording is too short: no gap-free stretch of 4 samples; record longer")
-    return _grid_guess(segments)

@@ -30,30 +30,12 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from .data import as_recordings
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .validation import fit_percent
 
-__all__ = ["regression_rows", "least_squares", "fit_euler_ls", "fit_zoh_ls", "as_recordings"]
-
-
-def as_recordings(recordings) -> list[Recording]:
-    """Accept one Recording or a sequence of them; check they share a sample period and input unit."""
-    if isinstance(recordings, Recording):
-        recordings = [recordings]
-    recs = list(recordings)
-    if not recs:
-        raise ValueError("recordings must hold at least one Recording, got none")
-    for i, r in enumerate(recs):
-        if not isinstance(r, Recording):
-            raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
-    dts = {r.sample_period for r in recs}
-    if len(dts) > 1:
-        raise ValueError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
-    units = {r.input_unit for r in recs}
-    if len(units) > 1:
-        raise ValueError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
-    return recs
+__all__ = ["regression_rows", "solve_least_squares", "fit_euler_ls", "fit_zoh_ls"]
 
 
 def regression_rows(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray]:
@@ -69,7 +51,7 @@ def regression_rows(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.nda
     return np.concatenate(rows), np.concatenate(targets)
 
 
-def least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def solve_least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """``x = argmin ||A x - y||`` with its OLS covariance and the residual RMS.
 
     Raises
@@ -124,7 +106,7 @@ def fit_euler_ls(recordings) -> Estimate:
     """
     recs = as_recordings(recordings)
     A, y = regression_rows(recs)
-    x, cov_x, rms = least_squares(A, y)
+    x, cov_x, rms = solve_least_squares(A, y)
     dt = recs[0].sample_period
     C = np.diag([-1.0, 1.0]) / dt          # eq. 27
     d = np.array([1.0, 0.0])               # eq. 28
@@ -154,7 +136,7 @@ def fit_zoh_ls(recordings) -> Estimate:
     """
     recs = as_recordings(recordings)
     A, y = regression_rows(recs)
-    x, cov_x, rms = least_squares(A, y)
+    x, cov_x, rms = solve_least_squares(A, y)
     dt = recs[0].sample_period
     t1, t2 = x
     if not 0 < t1 < 1:

@@ -29,15 +29,26 @@ import math
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["Response", "zoh_response"]
+__all__ = ["Response", "zoh_response", "phi_functions"]
 
 _SERIES_BELOW = 0.05  # power series below; above, the closed forms lose < 1e-13 to cancellation
 _SERIES_TERMS = 8     # 0.05**8 / 10! < 1e-16: series truncation below rounding
 _BLOCK_EXPONENT = 200.0  # keep exp() of partial sums far from overflow in the blocked scan
 
 
-def _phi(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``phi1, phi2`` and their derivatives with respect to ``x``, elementwise."""
+def phi_functions(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``phi1, phi2`` and their derivatives with respect to ``x``, elementwise.
+
+    Parameters
+    ----------
+    x : ndarray
+        ``a h`` per interval (dimensionless).
+
+    Returns
+    -------
+    phi1, phi2, dphi1, dphi2 : ndarray
+        Same shape as ``x`` (see the module docstring).
+    """
     x = np.asarray(x, dtype=float)
     p1 = np.empty_like(x)
     p2 = np.empty_like(x)
@@ -112,7 +123,7 @@ class Response:
     angle, speed : ndarray, shape (n,)
         rad (relative to the first sample) and rad/s.
     angle_sensitivity, speed_sensitivity : ndarray, shape (n, 4)
-        Derivatives with respect to ``(a, b, initial_speed, offset)``.
+        Derivatives with respect to ``(a, b, initial_speed, bias)``.
     angle_initial_speed_a, speed_initial_speed_a : ndarray, shape (n,)
         Derivative of the ``initial_speed`` column with respect to ``a`` (the response
         is linear in the initial speed, so this is all variable projection needs).
@@ -127,7 +138,7 @@ class Response:
 
 
 def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
-                 offset: float = 0.0, uniform: bool | None = None, sensitivities: bool = True) -> Response:
+                 bias: float = 0.0, uniform: bool | None = None, sensitivities: bool = True) -> Response:
     """Exact ZOH response of ``d omega/dt = -a omega + b v`` and its sensitivities.
 
     Parameters
@@ -142,7 +153,7 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
         Strictly increasing sample instants in s.
     initial_speed : float
         Speed at ``time[0]`` in rad/s.
-    offset : float
+    bias : float
         Constant acceleration ``d`` in rad/s^2: ``d omega/dt = -a omega + b v + d``.
     uniform : bool, optional
         Whether ``time`` is uniformly spaced (detected when None).
@@ -153,7 +164,7 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     Returns
     -------
     Response
-        Sensitivity columns ``(a, b, initial_speed, offset)``.
+        Sensitivity columns ``(a, b, initial_speed, bias)``.
     """
     v = np.asarray(drive, dtype=float)[:-1]
     t = np.asarray(time, dtype=float)
@@ -164,10 +175,10 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
         # one interval length: evaluate the coefficients once, as scalars
         h = h[0]
         x_all = np.full(len(t) - 1, a * h)
-        phis = [float(f[0]) for f in _phi(np.array([a * h]))]
+        phis = [float(f[0]) for f in phi_functions(np.array([a * h]))]
     else:
         x_all = a * h
-        phis = _phi(x_all)
+        phis = phi_functions(x_all)
     p1, p2, d1, d2 = phis
     x = x_all
     p = h * p1                  # (1 - e)/a
@@ -177,21 +188,22 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     n = len(t)
     tau = a * (t - t[0]) if uniform else np.concatenate([[0.0], np.cumsum(x)])
     e_pow = np.exp(-tau)        # E_k = prod_{j<k} e_j
-    # speed per unit b and per unit offset (zero initial speed): w[k+1] = e w[k] + p v
-    if offset == 0 and not sensitivities:
+    # speed per unit b and per unit bias (zero initial speed): w[k+1] = e w[k] + p v
+    if bias == 0 and not sensitivities:
         w_b = _scan(x, (p * v)[:, None], np.zeros(1), uniform)[:, 0]
         w_d = np.zeros(n)
     else:
         w_bd = _scan(x, np.column_stack([p * v, np.broadcast_to(p, v.shape)]), np.zeros(2), uniform)
         w_b, w_d = w_bd[:, 0], w_bd[:, 1]
-    speed = b * w_b + offset * w_d + initial_speed * e_pow
-    force = b * v + offset
+    speed = b * w_b + bias * w_d + initial_speed * e_pow
+    force = b * v + bias
     angle = np.zeros(n)
     angle[1:] = np.cumsum(p * speed[:-1] + q * force)
     th_0 = np.zeros(n)
     th_0[1:] = np.cumsum(p * e_pow[:-1])
     if not sensitivities:
-        return Response(angle=angle, speed=speed, angle_sensitivity=np.column_stack([th_0 * np.nan, th_0 * np.nan, th_0]),
+        return Response(angle=angle, speed=speed,
+                        angle_sensitivity=np.column_stack([th_0 * np.nan, th_0 * np.nan, th_0]),
                         speed_sensitivity=np.column_stack([e_pow * np.nan, e_pow * np.nan, e_pow]),
                         angle_initial_speed_a=th_0 * np.nan, speed_initial_speed_a=e_pow * np.nan)
     # d speed / d a: forcing (de/da) w + (dp/da) force, de/da = -h e

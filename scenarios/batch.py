@@ -14,7 +14,7 @@ Every repetition is a row of a 2-D array ``(repetitions, n_samples)``:
   with ``(omega_k, u_k)``) are solved row by row with a two-column QR in closed
   form (modified Gram-Schmidt: ``r11 = |w|``, ``r12 = w.u / r11``,
   ``u' = u - (r12/r11) w``, ``r22 = |u'|``), which is as accurate as the
-  ``lstsq`` of :func:`identify.regression.least_squares`.
+  ``lstsq`` of :func:`identify.regression.solve_least_squares`.
 
 Only linear settings are batchable: no Coulomb friction, no bias, no timing
 jitter and no dropped samples (dead zone and input delay are static maps of
@@ -217,7 +217,7 @@ def regression_batch(speed: np.ndarray, duty: np.ndarray) -> tuple[np.ndarray, n
         r22 = np.sqrt(np.einsum("ij,ij->i", u_perp, u_perp))
         theta2 = np.einsum("ij,ij->i", u_perp, y) / r22**2
         theta1 = (np.einsum("ij,ij->i", w, y) / r11 - r12 * theta2) / r11
-    # The same rules as identify.regression.least_squares: zero columns and a relative
+    # The same rules as identify.regression.solve_least_squares: zero columns and a relative
     # condition below 1e-10 (singular values of the column-scaled A, here of its R factor
     # [[1, r12/|u|], [0, r22/|u|]]) are not identifiable.
     scale_u = np.sqrt(uu)

@@ -285,7 +285,7 @@ def _section_friction(args, rng) -> bool:
                 worst_fr = max(worst_fr, abs(fa), abs(fb))
                 worst_oe = max(worst_oe, abs(oa), abs(ob)) if math.isfinite(oa) else worst_oe
                 print(f"{a_:4g} {c_:6.2f} {dz_:4g} {label:>10}  {_pct(fa)} {_pct(fb)}  {_pct(oa)} {_pct(ob)}"
-                      f"  {fr.extra.get('c', math.nan):8.3f}" + ("   <-- above 2 %" if bad else ""))
+                      f"  {fr.extra.get('friction', math.nan):8.3f}" + ("   <-- above 2 %" if bad else ""))
     print(f"worst |error|: oe-friction {100 * worst_fr:.3f} % (criterion 2 %), oe {100 * worst_oe:.2f} %")
     return ok
 

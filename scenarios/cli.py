@@ -156,11 +156,12 @@ def run_identify(args: argparse.Namespace) -> int:
 
     from identify import fit, validate
     from identify.estimate import json_ready
-    from identify.methods import _METHODS
+    from identify.methods import method_function
     recs = [read_recording(f) for f in args.files]
-    accepted = inspect.signature(_METHODS[args.method]).parameters
+    accepted = inspect.signature(method_function(args.method)).parameters
     options = {}
-    for flag, name, value, unset in (("--delay", "delay", args.delay, None), ("--fix-d", "fix_d", args.fix_d, False)):
+    for flag, name, value, unset in (("--delay", "input_delay", args.delay, None),
+                                     ("--fix-d", "fix_bias", args.fix_d, False)):
         if value is not unset:
             if name not in accepted:
                 raise CommandError(f"{flag} is not supported by method {args.method!r}")

@@ -24,36 +24,36 @@ def test_friction_and_offset_are_recovered_where_oe_drifts():
     rec = _run(motor)
     est = fit_output_error_friction(rec, dead_zone=False)
     assert est.a == pytest.approx(25.0, rel=CLOSE) and est.b == pytest.approx(3.0, rel=CLOSE)
-    assert est.extra["c"] == pytest.approx(60.0, rel=CLOSE)
-    assert est.extra["d"] == pytest.approx(-20.0, rel=CLOSE)
-    assert est.param_names == ("a", "b", "c", "d") and est.covariance.shape == (4, 4)
+    assert est.extra["friction"] == pytest.approx(60.0, rel=CLOSE)
+    assert est.extra["bias"] == pytest.approx(-20.0, rel=CLOSE)
+    assert est.param_names == ("a", "b", "friction", "bias") and est.covariance.shape == (4, 4)
     linear = fit(rec, method="oe")
     assert abs(linear.a / 25.0 - 1) > 0.05  # the linear model is far off (measured ~ +20 %)
 
 
 def test_dead_zone_is_recovered():
     motor = Motor(25.0, 3.0, friction=40.0, dead_zone=12.0)
-    est = fit_output_error_friction(_run(motor, freq=25.0), fix_d=True)
+    est = fit_output_error_friction(_run(motor, freq=25.0), fix_bias=True)
     assert est.a == pytest.approx(25.0, rel=CLOSE) and est.b == pytest.approx(3.0, rel=CLOSE)
     assert est.extra["dead_zone"] == pytest.approx(12.0, rel=CLOSE)
-    assert est.param_names == ("a", "b", "c", "dead_zone") and est.extra["d"] == 0.0
+    assert est.param_names == ("a", "b", "friction", "dead_zone") and est.extra["bias"] == 0.0
 
 
 def test_motor_that_never_reverses_reports_the_net_offset():
     motor = Motor(15.0, 1.5, friction=30.0, bias=10.0)
     rec = _run(motor, freq=8.0, amp=60.0, offset=150.0)
     assert not speed_reverses(rec)
-    with pytest.warns(UserWarning, match="indistinguishable from the offset d"):
+    with pytest.warns(UserWarning, match="indistinguishable from the bias d"):
         est = fit_output_error_friction(rec)
     # with omega > 0 throughout, -c sign(omega) + d = d - c = -20 rad/s^2
-    assert est.extra["c"] == 0.0 and est.extra["d"] == pytest.approx(-20.0, rel=1e-8)
+    assert est.extra["friction"] == 0.0 and est.extra["bias"] == pytest.approx(-20.0, rel=1e-8)
     assert est.a == pytest.approx(15.0, rel=1e-8) and est.b == pytest.approx(1.5, rel=1e-8)
-    assert est.method == "oe-friction" and est.param_names == ("a", "b", "d")
+    assert est.method == "oe-friction" and est.param_names == ("a", "b", "bias")
 
 
 def test_bad_options_name_the_parameter():
     rec = _run(Motor(25.0, 3.0))
-    with pytest.raises(TypeError, match="fix_d"):
-        fit_output_error_friction(rec, fix_d="yes")
+    with pytest.raises(TypeError, match="fix_bias"):
+        fit_output_error_friction(rec, fix_bias="yes")
     with pytest.raises(TypeError, match="dead_zone"):
         fit_output_error_friction(rec, dead_zone=1)

@@ -40,8 +40,8 @@ def test_delay_and_iterations_are_checked():
     rec = Recording(time=t, duty=_sine(t, 10.0), sample_period=0.005, angle=np.cumsum(np.ones(300)))
     with pytest.raises(ValueError, match="iterations"):
         fit_instrumental_variables(rec, iterations=0)
-    with pytest.raises(ValueError, match="delay"):
-        fit_instrumental_variables(rec, delay=-2)
+    with pytest.raises(ValueError, match="input_delay"):
+        fit_instrumental_variables(rec, input_delay=-2)
 
 
 def test_constant_input_is_refused():

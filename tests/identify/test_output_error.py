@@ -1,11 +1,11 @@
 """Output error (``oe``): exact on noise-free data from independent integrators, honest on noisy data."""
-import math
 
 import numpy as np
 import pytest
 
 from identify import NotIdentifiableError, cramer_rao_bound, fit
-from identify.output_error import fit_output_error, fit_output_error_offset, model_output, select_delay
+from identify.output_error import fit_output_error, select_delay
+from identify.validation import model_output
 from motorsim.recording import Recording
 
 # Noise-free data from expm / python-control agree with the closed-form ZOH model to ~1e-13;
@@ -96,15 +96,16 @@ def test_speed_only_recording_is_fitted_against_speed(reference):
     assert est.residual_unit == "rad/s"
 
 
-def test_offset_variant_recovers_a_constant_acceleration(reference):
+def test_bias_variant_recovers_a_constant_acceleration(reference):
     dt, n = 0.01, 1500
     t = np.arange(n) * dt
     duty = 100 + _sine(t, 8.0, amp=60)
     _, speed = (reference.expm_trajectory(15.0, 1.5, duty, t, initial_speed=5.0, bias=-40.0))
-    est = fit_output_error_offset(Recording(time=t, duty=duty, sample_period=dt, speed=speed))
+    est = fit_output_error(Recording(time=t, duty=duty, sample_period=dt, speed=speed), fit_bias=True)
     assert est.a == pytest.approx(15.0, rel=EXACT) and est.b == pytest.approx(1.5, rel=EXACT)
-    assert est.extra["d"] == pytest.approx(-40.0, rel=EXACT)
-    assert est.param_names == ("a", "b", "d") and est.covariance.shape == (3, 3)
+    assert est.extra["bias"] == pytest.approx(-40.0, rel=EXACT)
+    assert est.param_names == ("a", "b", "bias") and est.covariance.shape == (3, 3)
+    assert est.method == "oe" and est.extra["input_delay"] == 0
 
 
 def test_quantised_counts_land_within_their_standard_errors_near_the_bound(reference):
@@ -134,7 +135,7 @@ def test_delay_auto_finds_the_input_delay(reference, true_delay):
     angle, _ = reference.control_trajectory(25.0, 3.0, applied, dt)
     rec = _angle_recording(angle, duty, t, dt)
     assert select_delay(rec) == true_delay
-    est = fit_output_error(rec, delay="auto")
+    est = fit_output_error(rec, input_delay="auto")
     assert est.extra["input_delay"] == true_delay
     assert est.a == pytest.approx(25.0, rel=EXACT) and est.b == pytest.approx(3.0, rel=EXACT)
 
@@ -187,8 +188,9 @@ def test_saturated_duty_warns(reference):
     assert est.a == pytest.approx(25.0, rel=EXACT)
 
 
-@pytest.mark.parametrize("kwargs, match", [(dict(delay=-1), "delay"), (dict(delay="soon"), "delay"),
-                                           (dict(jac="exact"), "jac")], ids=["negative", "word", "jac"])
+@pytest.mark.parametrize("kwargs, match", [(dict(input_delay=-1), "input_delay"),
+                                           (dict(input_delay="soon"), "input_delay"), (dict(jac="exact"), "jac")],
+                         ids=["negative", "word", "jac"])
 def test_bad_options_name_the_parameter(reference, kwargs, match):
     with pytest.raises(ValueError, match=match):
         fit_output_error(_rec(_sine(np.arange(100) * 0.005, 10.0), np.arange(100.0)), **kwargs)
@@ -201,7 +203,8 @@ def test_oe_is_the_default_method():
 
 @pytest.mark.parametrize("kind", ["angle", "speed"])
 def test_one_scan_over_all_segments_equals_segment_by_segment(reference, kind):
-    from identify.output_error import _Problem, prepare_segments
+    from identify.data import prepare_segments
+    from identify.output_error import OutputErrorProblem
     rng = np.random.default_rng(5)
     dt, n = 0.005, 2000
     t = np.arange(n) * dt + rng.uniform(-0.05, 0.05, n) * dt
@@ -212,7 +215,7 @@ def test_one_scan_over_all_segments_equals_segment_by_segment(reference, kind):
     column = dict(angle=angle[keep]) if kind == "angle" else dict(speed=speed[keep])
     rec = Recording(time=t[keep], duty=duty[keep], sample_period=dt, seq=np.flatnonzero(keep), **column)
     segments = prepare_segments([rec])
-    batched, looped = _Problem(segments, True), _Problem(segments, True)
+    batched, looped = OutputErrorProblem(segments, True), OutputErrorProblem(segments, True)
     looped.batched = False
     assert batched.batched and len(segments) > 20
     x = np.array([22.0, 3.3, 4.0])  # away from the optimum, so residuals are large

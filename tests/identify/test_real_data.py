@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify.output_error import model_output
-from identify.validation import nrmse_fit
+from identify.validation import model_output, nrmse_fit
 from motorsim.recording import Recording
 
 DATA = Path(__file__).parents[1] / "data" / "undcmotor"
@@ -34,16 +33,16 @@ def prbs_fit():
     with warnings.catch_warnings():
         # the motor never reverses, so c merges into d; oe-friction says so in a warning
         warnings.simplefilter("ignore", UserWarning)
-        return fit(rec, method="oe-friction", delay="auto")
+        return fit(rec, method="oe-friction", input_delay="auto")
 
 
 def test_prbs_fit_and_static_gain_match_the_lab(prbs_fit):
     est = prbs_fit
     gain = math.degrees(est.static_gain)
-    assert est.fit_percent >= 90.0                      # issue 3 acceptance: at least 90 % NRMSE fit
+    assert est.fit_percent >= 90.0                      # at least 90 % NRMSE fit
     assert abs(gain / K_STATIC - 1) < 0.05              # and b/a within 5 % of the static K
-    assert est.extra["input_delay"] == 1.0              # the lab's own model has one sample (0.02 s)
-    assert est.extra["d"] < 0                           # the static map's offset is negative
+    assert est.extra["input_delay"] == 1                # the lab's own model has one sample (0.02 s)
+    assert est.extra["bias"] < 0                        # the static map's offset is negative
     se = est.stderr()
     assert se["a"] > 0 and se["b"] > 0
 
@@ -54,6 +53,6 @@ def test_model_predicts_the_held_out_step_run(prbs_fit):
 
 
 def test_linear_model_without_offset_is_worse_on_real_data(prbs_fit):
-    plain = fit(load_undc("DCmotor_prbs_open_exp.csv"), method="oe", delay="auto")
+    plain = fit(load_undc("DCmotor_prbs_open_exp.csv"), method="oe", input_delay="auto")
     assert plain.fit_percent < prbs_fit.fit_percent
     assert abs(math.degrees(plain.static_gain) / K_STATIC - 1) > abs(math.degrees(prbs_fit.static_gain) / K_STATIC - 1)

@@ -8,7 +8,7 @@ import pytest
 
 from identify import fit_zoh_ls
 from identify.recursive import RecursiveLeastSquares, RunningEstimator
-from motorsim import PRBS, Encoder, Experiment, Motor, Sine, SimRig
+from motorsim import PRBS, Encoder, Experiment, Motor, SimRig, Sine
 
 
 def _feed(est, rec):
@@ -57,7 +57,8 @@ def test_running_zoh_avg_is_exact_on_a_fine_encoder():
     assert est.a == pytest.approx(25.0, rel=1e-5) and est.b == pytest.approx(3.0, rel=1e-5)
 
 
-@pytest.mark.parametrize("excitation", [Sine(10.0), Sine(40.0), PRBS(200, -200, 9, 3)], ids=["sine10", "sine40", "prbs"])
+@pytest.mark.parametrize("excitation", [Sine(10.0), Sine(40.0), PRBS(200, -200, 9, 3)],
+                         ids=["sine10", "sine40", "prbs"])
 def test_running_zoh_avg_reaches_the_truth_on_the_articles_encoder(excitation):
     # 16 667 counts/rev at 5 ms quantise the speed to 0.075 rad/s; fitted in (a, b) the exact
     # averaged-speed model is left with a quantisation bias of 0.01-0.03 % here (the same as a batch

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from identify import NotIdentifiableError, fit, fit_euler_ls, fit_zoh_ls
-from identify.regression import least_squares
-from motorsim import Constant, Experiment, Motor, PRBS, Recording, SimRig, Sine, simulate
+from identify.regression import solve_least_squares
+from motorsim import PRBS, Constant, Experiment, Motor, Recording, SimRig, Sine, simulate
 
 RTOL = 1e-9  # noise-free: both regressions are exact up to rounding
 
@@ -17,8 +17,8 @@ def _sampled_speed_recording(a, b, dt, excitation, n=2000, w0=0.0):
     return Recording(time=t, duty=u, sample_period=dt, speed=simulate(Motor(a, b), u, t, initial_speed=w0).speed)
 
 
-CASES = [(25.0, 3.0, 0.005, Sine(10.0)), (4.0, 0.5, 0.02, Sine(3.0, 255, 1.0)), (90.0, 12.0, 0.001, PRBS(200, -100, 11)),
-         (40.0, -2.0, 0.01, Sine(30.0, 150))]
+CASES = [(25.0, 3.0, 0.005, Sine(10.0)), (4.0, 0.5, 0.02, Sine(3.0, 255, 1.0)),
+         (90.0, 12.0, 0.001, PRBS(200, -100, 11)), (40.0, -2.0, 0.01, Sine(30.0, 150))]
 IDS = ["article", "slow", "fast-prbs", "negative-b"]
 
 
@@ -85,7 +85,7 @@ def test_covariance_is_the_delta_method_of_the_ols_covariance(method):
     # finite-difference Jacobian of the mapping (theta1, theta2) -> (a, b) around the LS solution
     from identify.regression import regression_rows
     A, y = regression_rows([noisy])
-    x, cov_x, _ = least_squares(A, y)
+    x, cov_x, _ = solve_least_squares(A, y)
     dt = 0.005
 
     def mapping(t):
@@ -103,7 +103,7 @@ def test_ols_covariance_matches_the_textbook_formula():
     rng = np.random.default_rng(5)
     A = rng.normal(size=(200, 2))
     y = A @ [0.9, 0.1] + rng.normal(0, 0.1, 200)
-    x, cov, rms = least_squares(A, y)
+    x, cov, rms = solve_least_squares(A, y)
     r = y - A @ x
     np.testing.assert_allclose(cov, (r @ r) / 198 * np.linalg.inv(A.T @ A), rtol=1e-10)
     assert rms == pytest.approx(math.sqrt(r @ r / 200))

@@ -19,7 +19,7 @@ IDS = ["article", "slow-jittered", "fast-jittered", "a-near-zero"]
 @pytest.mark.parametrize("a, dt, jitter", CASES, ids=IDS)
 def test_response_matches_motorsim(a, dt, jitter):
     t, u = _case(a, dt, jitter)
-    ours = zoh_response(a, 3.0, u, t, 4.0, offset=5.0)
+    ours = zoh_response(a, 3.0, u, t, 4.0, bias=5.0)
     ref = simulate(Motor(a, 3.0, bias=5.0), u, t, initial_speed=4.0)
     # both exact: agreement to rounding over 1500 steps
     np.testing.assert_allclose(ours.angle, ref.angle, rtol=0, atol=1e-11 * np.max(np.abs(ref.angle)))
@@ -29,15 +29,15 @@ def test_response_matches_motorsim(a, dt, jitter):
 @pytest.mark.parametrize("a, dt, jitter", CASES, ids=IDS)
 def test_sensitivities_match_central_differences(a, dt, jitter):
     t, u = _case(a, dt, jitter)
-    base = dict(a=a, b=3.0, initial_speed=4.0, offset=5.0)
-    resp = zoh_response(a, 3.0, u, t, 4.0, offset=5.0)
+    base = dict(a=a, b=3.0, initial_speed=4.0, bias=5.0)
+    resp = zoh_response(a, 3.0, u, t, 4.0, bias=5.0)
     for col, (name, step) in enumerate((("a", 1e-6 * max(a, 1.0)), ("b", 3e-6), ("initial_speed", 1e-4),
-                                        ("offset", 1e-3))):
+                                        ("bias", 1e-3))):
         hi, lo = dict(base), dict(base)
         hi[name] += step
         lo[name] -= step
-        r_hi = zoh_response(hi["a"], hi["b"], u, t, hi["initial_speed"], offset=hi["offset"])
-        r_lo = zoh_response(lo["a"], lo["b"], u, t, lo["initial_speed"], offset=lo["offset"])
+        r_hi = zoh_response(hi["a"], hi["b"], u, t, hi["initial_speed"], bias=hi["bias"])
+        r_lo = zoh_response(lo["a"], lo["b"], u, t, lo["initial_speed"], bias=lo["bias"])
         fd = (r_hi.angle - r_lo.angle) / (2 * step)
         # central differences: truncation ~ step^2, rounding ~ 1e-16 / step; 1e-5 covers both
         np.testing.assert_allclose(resp.angle_sensitivity[:, col], fd, rtol=0, atol=1e-5 * np.max(np.abs(fd)))

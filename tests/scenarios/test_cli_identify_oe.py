@@ -39,7 +39,7 @@ def test_friction_flags_reach_the_estimator(runs, capsys):
     capsys.readouterr()
     assert main(["identify", str(test), "--method", "oe-friction", "--fix-d", "--delay", "0", "--json"]) == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert data["d"] == 0.0 and "c_stderr" in data and "d_stderr" not in data
+    assert data["bias"] == 0.0 and "friction_stderr" in data and "bias_stderr" not in data
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
+from identify.design import design_sine, predicted_stderr
 from identify.uncertainty import cramer_rao_bound
 from motorsim import Sine
 from scenarios.cli import main
-from scenarios.design import design_sine, predicted_stderr
 
 
 @pytest.fixture(scope="module")

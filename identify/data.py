@@ -1,0 +1,218 @@
+"""Recordings made ready for the estimators: pooling, gap-free segments, excitation checks.
+
+Every estimator starts here: :func:`as_recordings` accepts one recording or
+several of the same motor, :func:`check_input_delay` the ``input_delay`` option,
+:func:`check_excitation` refuses data that cannot determine ``a`` and ``b`` (and
+says what to record instead), and :func:`prepare_segments` cuts the recordings at
+dropped samples into :class:`Segment` objects holding the delayed duty and the
+measured angle (or speed).
+"""
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from typing import Any, Sequence
+
+import numpy as np
+
+from motorsim.checks import check_int
+from motorsim.recording import Recording
+
+from .errors import NotIdentifiableError
+
+__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "Segment",
+           "MIN_SEGMENT_SAMPLES", "residual_unit"]
+
+#: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
+MIN_SEGMENT_SAMPLES = 4
+_SATURATION_SHARE = 0.5   # warn when the duty sits at its limit for more than this share
+
+
+def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording]:
+    """Accept one Recording or a sequence of them; check they share a sample period and input unit.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Runs of one motor, to be pooled.
+
+    Returns
+    -------
+    list of Recording
+    """
+    if isinstance(recordings, Recording):
+        recordings = [recordings]
+    recs = list(recordings)
+    if not recs:
+        raise ValueError("recordings must hold at least one Recording, got none")
+    for i, r in enumerate(recs):
+        if not isinstance(r, Recording):
+            raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
+    dts = {r.sample_period for r in recs}
+    if len(dts) > 1:
+        raise ValueError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
+    units = {r.input_unit for r in recs}
+    if len(units) > 1:
+        raise ValueError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
+    return recs
+
+
+def check_input_delay(input_delay: Any) -> int | str:
+    """The ``input_delay`` option of an estimator: ``"auto"`` or an integer >= 0 (samples).
+
+    Parameters
+    ----------
+    input_delay : int or "auto"
+        The value to check.
+
+    Returns
+    -------
+    int or "auto"
+    """
+    if isinstance(input_delay, str):
+        if input_delay != "auto":
+            raise ValueError(f"input_delay must be 'auto' or an integer >= 0 samples, got {input_delay!r}")
+        return input_delay
+    return check_int("input_delay", input_delay, lo=0, allow_integral_float=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class Segment:
+    """One gap-free stretch of a recording, ready for a model.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n,)
+        Sample instants in s.
+    drive : ndarray, shape (n,)
+        Input reaching the motor (delayed duty), held from ``time[k]`` to ``time[k+1]``.
+    output : ndarray, shape (n,)
+        Measured angle in rad (``kind == "angle"``) or speed in rad/s.
+    kind : str
+        ``"angle"`` or ``"speed"``.
+    uniform : bool
+        Whether ``time`` is uniformly spaced.
+    recording : int
+        Index of the recording the segment comes from.
+    start : int
+        Row of the recording where the segment starts.
+    """
+
+    time: np.ndarray
+    drive: np.ndarray
+    output: np.ndarray
+    kind: str
+    uniform: bool
+    recording: int
+    start: int
+
+    def initial_speed_guess(self) -> float:
+        """Speed near the first sample from the data (rad/s)."""
+        if self.kind == "speed":
+            return float(self.output[0])
+        m = min(3, len(self.time) - 1)
+        return float((self.output[m] - self.output[0]) / (self.time[m] - self.time[0]))
+
+
+def residual_unit(segments: Sequence[Segment]) -> str:
+    """``"rad"`` when every segment holds angle, ``"rad/s"`` when every one holds speed, else ``"mixed"``."""
+    kinds = {s.kind for s in segments}
+    return "rad" if kinds == {"angle"} else ("rad/s" if kinds == {"speed"} else "mixed")
+
+
+def _is_uniform(t: np.ndarray) -> bool:
+    h = np.diff(t)
+    return len(h) > 0 and bool(np.all(np.abs(h - h[0]) <= 1e-9 * h[0]))
+
+
+def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0) -> list[Segment]:
+    """Split recordings at gaps into segments, delaying the duty by ``input_delay`` samples.
+
+    Within a segment the duty ``input_delay`` samples earlier is unknown for the
+    first ``input_delay`` rows, so each segment starts at row ``max(input_delay, skip)``;
+    segments shorter than :data:`MIN_SEGMENT_SAMPLES` are left out.
+
+    Parameters
+    ----------
+    recordings : sequence of Recording
+        The runs, already checked by :func:`as_recordings`.
+    input_delay : int
+        Input delay in samples, >= 0.
+    skip : int
+        Rows to leave out at the start of every segment (at least ``input_delay`` are).
+
+    Returns
+    -------
+    list of Segment
+    """
+    out = []
+    for i, rec in enumerate(recordings):
+        row = 0
+        angle_all = rec.measured_angle()
+        for seg in rec.segments():
+            n = len(seg)
+            first = max(input_delay, skip)
+            if n - first >= MIN_SEGMENT_SAMPLES:
+                sl = slice(first, n)
+                drive = seg.duty[first - input_delay:n - input_delay] if input_delay else seg.duty[sl]
+                if angle_all is not None:
+                    output, kind = angle_all[row:row + n][sl], "angle"
+                else:
+                    output, kind = seg.speed[sl], "speed"
+                t = seg.time[sl]
+                if kind == "speed" and not np.all(np.isfinite(output)):
+                    raise ValueError(f"recordings[{i}] has non-finite speed values")
+                out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
+                                   kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
+            row += n
+    return out
+
+
+def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
+    """Raise :class:`NotIdentifiableError` (or warn) when the data cannot determine the parameters.
+
+    Checks, in order: enough samples, a duty that changes, an encoder that moves,
+    and (warning only) a duty saturated for most of the run.
+
+    Parameters
+    ----------
+    recordings : sequence of Recording
+        The runs, already checked by :func:`as_recordings`.
+    n_params : int
+        Parameters the estimator fits (sets the shortest acceptable record).
+    """
+    total = sum(len(r) for r in recordings)
+    if total < 3 * n_params + 4:
+        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
+                                   f"record at least {3 * n_params + 4} (a few time constants) samples")
+    duty = np.concatenate([r.duty for r in recordings])
+    if np.all(duty == 0):
+        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
+                                   "use a sine, multisine or PRBS")
+    if np.all(duty == duty[0]):
+        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
+                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    for i, r in enumerate(recordings):
+        _check_moves(i, r)
+        _warn_saturation(i, r)
+
+
+def _check_moves(i: int, r: Recording) -> None:
+    ang = r.measured_angle()
+    y = ang if ang is not None else r.speed
+    if np.all(y == y[0]):
+        what = "encoder count" if r.counts is not None else ("angle" if ang is not None else "speed")
+        raise NotIdentifiableError(f"recordings[{i}]: the {what} never changes (stuck at {y[0]:g}): the "
+                                   "encoder is stuck or the motor did not move; check the wiring and "
+                                   "that the duty exceeds the motor's dead zone")
+
+
+def _warn_saturation(i: int, r: Recording) -> None:
+    if r.input_unit != "duty":
+        return
+    limit = float(r.metadata.get("duty_limit", 255))
+    share = float(np.mean(np.abs(r.duty) >= limit)) if limit > 0 else 0.0
+    if share > _SATURATION_SHARE:
+        warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
+                      "the samples; the motor sees a square wave and the estimate rests on few "
+                      "transitions: lower the amplitude", UserWarning, stacklevel=4)

@@ -1,0 +1,203 @@
+"""Experiment design: the sine that pins down a and b best, from rough guesses of them.
+
+For a sine ``A sin(omega t)`` held by the PWM, :func:`identify.uncertainty.cramer_rao_bound`
+gives the smallest covariance any unbiased estimator of ``(a, b)`` can reach from the
+encoder angle (noise and quantisation).  :func:`design_sine` scans the frequency on a
+logarithmic grid from two cycles per run to 0.8 of the Nyquist frequency, refines
+around the best, and picks the amplitude: the criterion is the sum of the squared
+relative standard errors,
+
+    J(omega, A) = (se_a / a)^2 + (se_b / b)^2,
+
+and with noise that does not depend on the signal the bound scales as ``1/A^2``, so
+the largest amplitude within the duty limit wins (checked, not assumed: every
+amplitude on a short list is evaluated at the best frequency).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from motorsim.checks import check_int, check_real
+from motorsim.excitation import Sine
+from motorsim.rig import Experiment
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+
+from .uncertainty import cramer_rao_bound
+
+__all__ = ["SineDesign", "DesignPoint", "design_sine", "predicted_stderr", "ARTICLE_FREQUENCIES",
+           "ARTICLE_AMPLITUDE"]
+
+#: The article's four sine frequencies in rad/s (eqs. 29-32), amplitude 200.
+ARTICLE_FREQUENCIES = (10.0, 20.0, 30.0, 40.0)
+#: The article's sine amplitude in duty units.
+ARTICLE_AMPLITUDE = 200
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignPoint:
+    """Predicted standard errors of one sine experiment.
+
+    Attributes
+    ----------
+    frequency : float
+        rad/s.
+    amplitude : int
+        Duty units.
+    stderr_a, stderr_b : float
+        Cramér-Rao standard errors (1/s and (rad/s^2)/duty).
+    a, b : float
+        The guesses they are evaluated at.
+    """
+
+    frequency: float
+    amplitude: int
+    stderr_a: float
+    stderr_b: float
+    a: float
+    b: float
+
+    @property
+    def relative_stderr(self) -> dict[str, float]:
+        """``stderr / |value|`` of a and b."""
+        return {"a": self.stderr_a / abs(self.a), "b": self.stderr_b / abs(self.b)}
+
+    @property
+    def criterion(self) -> float:
+        """``(se_a/a)^2 + (se_b/b)^2`` (dimensionless; smaller is better)."""
+        r = self.relative_stderr
+        return r["a"] ** 2 + r["b"] ** 2
+
+
+@dataclasses.dataclass(frozen=True)
+class SineDesign:
+    """The result of :func:`design_sine`.
+
+    Attributes
+    ----------
+    best : DesignPoint
+        The recommended frequency and amplitude.
+    scan : tuple of DesignPoint
+        Every frequency evaluated at the best amplitude, sorted by frequency.
+    amplitudes : tuple of DesignPoint
+        Every amplitude evaluated at the best frequency.
+    article : tuple of DesignPoint
+        The article's four sines (200 sin(omega t), omega = 10...40 rad/s) for comparison.
+    sample_period, duration, counts_per_rev, angle_noise, duty_limit
+        The bench the design is for.
+    """
+
+    best: DesignPoint
+    scan: tuple
+    amplitudes: tuple
+    article: tuple
+    sample_period: float
+    duration: float
+    counts_per_rev: int
+    angle_noise: float
+    duty_limit: int
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        return {"best": dataclasses.asdict(self.best), "article": [dataclasses.asdict(p) for p in self.article],
+                "amplitudes": [dataclasses.asdict(p) for p in self.amplitudes],
+                "scan": [dataclasses.asdict(p) for p in self.scan], "sample_period": self.sample_period,
+                "duration": self.duration, "counts_per_rev": self.counts_per_rev,
+                "angle_noise": self.angle_noise, "duty_limit": self.duty_limit}
+
+
+def predicted_stderr(a: float, b: float, frequency: float, amplitude: int, sample_period: float,
+                     duration: float, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV, angle_noise: float = 0.0,
+                     duty_limit: int = 255) -> DesignPoint:
+    """Cramér-Rao standard errors of ``(a, b)`` for the bench's sine ``amplitude sin(frequency t)``.
+
+    The duty is the integer sequence the firmware applies (:func:`motorsim.excitation.Sine`).
+
+    Parameters
+    ----------
+    a, b : float
+        The pole (1/s) and gain ((rad/s^2)/duty) the bound is evaluated at.
+    frequency : float
+        rad/s.
+    amplitude : int
+        Duty units.
+    sample_period, duration : float
+        s.
+    counts_per_rev : int
+        Encoder resolution.
+    angle_noise : float
+        Standard deviation of the angle noise in rad.
+    duty_limit : int
+        Largest duty magnitude.
+    """
+    exp = Experiment(Sine(frequency, amplitude), sample_period, duration, duty_limit)
+    bound = cramer_rao_bound(a, b, exp.duty(), sample_period, counts_per_rev=counts_per_rev,
+                             angle_noise=angle_noise)
+    se = bound.stderr()
+    return DesignPoint(float(frequency), int(amplitude), se["a"], se["b"], float(a), float(b))
+
+
+def design_sine(a: float, b: float, sample_period: float, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+                angle_noise: float = 0.0, duration: float = 10.0, duty_limit: int = 255,
+                n_frequencies: int = 48) -> SineDesign:
+    """Recommend the sine frequency and amplitude that minimise the Cramér-Rao bound of a and b.
+
+    Parameters
+    ----------
+    a, b : float
+        Rough guesses of the pole (1/s, > 0) and gain ((rad/s^2)/duty, nonzero).
+    sample_period : float
+        s, > 0.
+    counts_per_rev : int
+        Encoder resolution.
+    angle_noise : float
+        Standard deviation of the angle noise in rad, >= 0.
+    duration : float
+        Length of the run in s.
+    duty_limit : int
+        Largest duty magnitude, 1...255.
+    n_frequencies : int
+        Points of the logarithmic frequency scan, >= 8.
+
+    Returns
+    -------
+    SineDesign
+    """
+    a = check_real("a", a, positive=True)
+    b = check_real("b", b)
+    if b == 0:
+        raise ValueError(f"b must be nonzero, got {b!r}")
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    duration = check_real("duration", duration, positive=True)
+    angle_noise = check_real("angle_noise", angle_noise, nonnegative=True)
+    duty_limit = check_int("duty_limit", duty_limit, 1, 255)
+    counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, 2**31 - 1)
+    n_frequencies = check_int("n_frequencies", n_frequencies, 8, 10_000)
+    if duration / sample_period < 20:
+        raise ValueError(f"duration must cover at least 20 samples of {sample_period!r} s, got {duration!r} s")
+    lo = 2 * 2 * math.pi / duration               # two cycles per run
+    hi = 0.8 * math.pi / sample_period            # 0.8 of the Nyquist frequency
+    if lo >= hi:
+        raise ValueError(f"duration {duration!r} s is too short for sample_period {sample_period!r} s: "
+                         "no sine fits two cycles below the Nyquist frequency")
+
+    def at(f, amp):
+        return predicted_stderr(a, b, f, amp, sample_period, duration, counts_per_rev=counts_per_rev,
+                                angle_noise=angle_noise, duty_limit=duty_limit)
+
+    grid = np.geomspace(lo, hi, n_frequencies)
+    scan = [at(f, duty_limit) for f in grid]
+    k = int(np.argmin([p.criterion for p in scan]))
+    # refine between the neighbours of the best grid frequency
+    fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 17)[1:-1]
+    scan += [at(f, duty_limit) for f in fine]
+    scan.sort(key=lambda p: p.frequency)
+    best_f = min(scan, key=lambda p: p.criterion).frequency
+    amps = sorted({duty_limit, *(int(round(duty_limit * x)) for x in (0.25, 0.5, 0.75))} - {0})
+    amplitudes = [at(best_f, amp) for amp in amps]
+    best = min(amplitudes, key=lambda p: p.criterion)
+    article = [at(f, min(ARTICLE_AMPLITUDE, duty_limit)) for f in ARTICLE_FREQUENCIES if f < math.pi / sample_period]
+    return SineDesign(best, tuple(scan), tuple(amplitudes), tuple(article), sample_period, duration,
+                      counts_per_rev, angle_noise, duty_limit)
