@@ -125,6 +125,16 @@ def _is_uniform(t: np.ndarray) -> bool:
     return len(h) > 0 and bool(np.all(np.abs(h - h[0]) <= 1e-9 * h[0]))
 
 
+def _measured_output(rec: Recording) -> tuple[np.ndarray, str]:
+    """The measured angle (``"angle"``) when the recording has one, else its speed (``"speed"``)."""
+    angle = rec.measured_angle()
+    if angle is not None:
+        return angle, "angle"
+    if rec.speed is None:   # a Recording always holds angle, counts or speed
+        raise ValueError("recording holds neither angle, counts nor speed")
+    return rec.speed, "speed"
+
+
 def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0) -> list[Segment]:
     """Split recordings at gaps into segments, delaying the duty by ``input_delay`` samples.
 
@@ -148,17 +158,14 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
     out = []
     for i, rec in enumerate(recordings):
         row = 0
-        angle_all = rec.measured_angle()
+        output_all, kind = _measured_output(rec)
         for seg in rec.segments():
             n = len(seg)
             first = max(input_delay, skip)
             if n - first >= MIN_SEGMENT_SAMPLES:
                 sl = slice(first, n)
                 drive = seg.duty[first - input_delay:n - input_delay] if input_delay else seg.duty[sl]
-                if angle_all is not None:
-                    output, kind = angle_all[row:row + n][sl], "angle"
-                else:
-                    output, kind = seg.speed[sl], "speed"
+                output = output_all[row:row + n][sl]
                 t = seg.time[sl]
                 if kind == "speed" and not np.all(np.isfinite(output)):
                     raise ValueError(f"recordings[{i}] has non-finite speed values")
@@ -198,10 +205,9 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
 
 
 def _check_moves(i: int, r: Recording) -> None:
-    ang = r.measured_angle()
-    y = ang if ang is not None else r.speed
+    y, kind = _measured_output(r)
     if np.all(y == y[0]):
-        what = "encoder count" if r.counts is not None else ("angle" if ang is not None else "speed")
+        what = "encoder count" if r.counts is not None else kind
         raise NotIdentifiableError(f"recordings[{i}]: the {what} never changes (stuck at {y[0]:g}): the "
                                    "encoder is stuck or the motor did not move; check the wiring and "
                                    "that the duty exceeds the motor's dead zone")

@@ -111,8 +111,10 @@ class Estimate:
         >>> import numpy as np
         >>> est = Estimate(method="oe", a=25.0, b=3.0, n_samples=1000, sample_period=0.005,
         ...                residual_rms=1e-4, fit_percent=99.9, covariance=np.diag([0.01, 1e-4]))
-        >>> {name: (round(lo, 3), round(hi, 3)) for name, (lo, hi) in est.confidence_interval(0.95).items()}
-        {'a': (24.804, 25.196), 'b': (2.98, 3.02)}
+        >>> for name, (low, high) in est.confidence_interval(0.95).items():
+        ...     print(f"{name}: [{low:.3f}, {high:.3f}]")
+        a: [24.804, 25.196]
+        b: [2.980, 3.020]
         """
         if not 0 < level < 1:
             raise ValueError(f"level must be in (0, 1), got {level!r}")

@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from motorsim.checks import check_int, check_real
 from motorsim.plant import zoh_matrices
 
 __all__ = ["RecursiveLeastSquares", "RunningEstimator", "RunningEstimate", "RUNNING_MODELS"]
@@ -59,13 +60,11 @@ class RecursiveLeastSquares:
     """
 
     def __init__(self, n_params: int, *, forgetting: float = 1.0, initial_covariance: float = 1e8):
-        if isinstance(n_params, bool) or not isinstance(n_params, int) or n_params < 1:
-            raise ValueError(f"n_params must be a positive integer, got {n_params!r}")
-        if not (isinstance(forgetting, (int, float)) and 0 < forgetting <= 1):
+        n_params = check_int("n_params", n_params, lo=1, allow_integral_float=False)
+        forgetting = check_real("forgetting", forgetting, positive=True)
+        if forgetting > 1:
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting!r}")
-        if not (isinstance(initial_covariance, (int, float)) and math.isfinite(initial_covariance)
-                and initial_covariance > 0):
-            raise ValueError(f"initial_covariance must be a finite number > 0, got {initial_covariance!r}")
+        initial_covariance = check_real("initial_covariance", initial_covariance, positive=True)
         self._theta = np.zeros(n_params)
         self._P = np.eye(n_params) * float(initial_covariance)
         self._lambda = float(forgetting)
@@ -146,10 +145,8 @@ class RunningEstimator:
 
     def __init__(self, sample_period: float, counts_per_rev: int, *, model: str = "zoh-avg",
                  forgetting: float = 1.0):
-        if not (isinstance(sample_period, (int, float)) and math.isfinite(sample_period) and sample_period > 0):
-            raise ValueError(f"sample_period must be a number > 0 s, got {sample_period!r}")
-        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
-            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        sample_period = check_real("sample_period", sample_period, positive=True)
+        counts_per_rev = check_int("counts_per_rev", counts_per_rev, lo=1, allow_integral_float=False)
         if model not in RUNNING_MODELS:
             raise ValueError(f"model must be one of {list(RUNNING_MODELS)}, got {model!r}")
         self.model = model

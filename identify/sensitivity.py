@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Sequence
 
 import numpy as np
 from scipy.signal import lfilter
@@ -175,7 +176,7 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
         # one interval length: evaluate the coefficients once, as scalars
         h = h[0]
         x_all = np.full(len(t) - 1, a * h)
-        phis = [float(f[0]) for f in phi_functions(np.array([a * h]))]
+        phis: Sequence[float | np.ndarray] = [float(f[0]) for f in phi_functions(np.array([a * h]))]
     else:
         x_all = a * h
         phis = phi_functions(x_all)

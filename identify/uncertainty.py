@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motorsim.checks import check_int, check_real
+
 from .sensitivity import zoh_response
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian"]
@@ -96,13 +98,6 @@ class CramerRaoBound:
         return {"a": se["a"] / abs(self.a), "b": se["b"] / abs(self.b)}
 
 
-def _check_positive(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return float(value)
-
-
 def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, *,
                      counts_per_rev: int | None = 16667, angle_noise: float = 0.0,
                      time: ArrayLike | None = None, initial_speed: float = 0.0) -> CramerRaoBound:
@@ -142,25 +137,20 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
     of the ZOH angle to ``(a, b, omega_0, theta_0)`` (:mod:`identify.sensitivity`).
     A constant or zero duty gives an infinite bound (``a`` and ``b`` are not separable).
     """
-    a = _check_positive("a", a)
-    if isinstance(b, bool) or not isinstance(b, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(b) or b == 0:
-        raise ValueError(f"b must be a finite nonzero number, got {b!r}")
-    sample_period = _check_positive("sample_period", sample_period)
+    a = check_real("a", a, positive=True)
+    b = check_real("b", b)
+    if b == 0:
+        raise ValueError(f"b must be nonzero, got {b!r}")
+    sample_period = check_real("sample_period", sample_period, positive=True)
     u = np.asarray(duty, dtype=float)
     if u.ndim != 1 or len(u) < 5:
         raise ValueError(f"duty must be 1-D with at least 5 samples, got shape {u.shape}")
     if not np.all(np.isfinite(u)):
         raise ValueError("duty must be finite")
     if counts_per_rev is not None:
-        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, (int, np.integer)) \
-                or counts_per_rev <= 0:
-            raise ValueError(f"counts_per_rev must be a positive integer or None, got {counts_per_rev!r}")
-    if isinstance(angle_noise, bool) or not isinstance(angle_noise, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(angle_noise) or angle_noise < 0:
-        raise ValueError(f"angle_noise must be a finite number >= 0 rad, got {angle_noise!r}")
-    if not math.isfinite(initial_speed):
-        raise ValueError(f"initial_speed must be finite, got {initial_speed!r}")
+        counts_per_rev = check_int("counts_per_rev", counts_per_rev, lo=1, allow_integral_float=False)
+    angle_noise = check_real("angle_noise", angle_noise, nonnegative=True)
+    initial_speed = check_real("initial_speed", initial_speed)
     if time is None:
         t = np.arange(len(u)) * sample_period
         uniform = True

@@ -1,9 +1,11 @@
-"""Recordings made by integrators that are not the estimators' own closed form.
+"""Reference trajectories from integrators that are not the estimators' own closed form.
 
 ``expm_trajectory`` steps ``[angle, speed, 1]`` with ``scipy.linalg.expm`` of the
-augmented matrix over each (possibly jittered) interval; ``control_trajectory``
-uses python-control's ZOH discretisation and ``forced_response`` (uniform time).
-Loaded by path (``--import-mode=importlib``) with ``load_reference()`` in the tests.
+augmented matrix over each (possibly jittered) interval, with an optional constant
+acceleration ``bias``; ``control_trajectory`` uses python-control's ZOH
+discretisation and ``forced_response`` (uniform time); ``quantised_recording``
+floors an angle to encoder counts and wraps it in a Recording.  The tests get this
+module from the ``reference`` fixture (``conftest.py``), which loads it by path.
 """
 import math
 
