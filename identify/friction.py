@@ -15,7 +15,7 @@ started from the linear output-error fit and a few friction guesses.
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
-acceleration as ``d`` (linear model with offset, analytic Jacobian), sets
+acceleration as ``d`` (linear model with bias, analytic Jacobian), sets
 ``c = 0`` and says so in a warning.
 """
 from __future__ import annotations

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.signal import lfilter
@@ -138,6 +138,28 @@ class Response:
     speed_initial_speed_a: np.ndarray
 
 
+def _interval_coefficients(a: float, t: np.ndarray, uniform: bool) -> tuple[Any, np.ndarray, Any, Any, Any, Any]:
+    """``h``, ``x = a h``, ``p``, ``q``, ``dp/da`` and ``dq/da`` of every interval (module docstring).
+
+    On a uniform clock the coefficients are evaluated once, as scalars (``x`` is
+    still one entry per interval).
+    """
+    h = np.diff(t)
+    if uniform and len(h):
+        h = h[0]
+        x = np.full(len(t) - 1, a * h)
+        phis: Sequence[float | np.ndarray] = [float(f[0]) for f in phi_functions(np.array([a * h]))]
+    else:
+        x = a * h
+        phis = phi_functions(x)
+    p1, p2, d1, d2 = phis
+    p = h * p1                  # (1 - e)/a
+    q = h * h * p2              # (h - p)/a ; angle gain of the drive is b q
+    dp = h * h * d1             # dp/da
+    dq = h ** 3 * d2            # dq/da
+    return h, x, p, q, dp, dq
+
+
 def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
                  bias: float = 0.0, uniform: bool | None = None, sensitivities: bool = True) -> Response:
     """Exact ZOH response of ``d omega/dt = -a omega + b v`` and its sensitivities.
@@ -169,23 +191,10 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     """
     v = np.asarray(drive, dtype=float)[:-1]
     t = np.asarray(time, dtype=float)
-    h = np.diff(t)
     if uniform is None:
-        uniform = len(h) > 0 and bool(np.all(np.abs(h - h[0]) <= 1e-12 * abs(h[0])))
-    if uniform and len(h):
-        # one interval length: evaluate the coefficients once, as scalars
-        h = h[0]
-        x_all = np.full(len(t) - 1, a * h)
-        phis: Sequence[float | np.ndarray] = [float(f[0]) for f in phi_functions(np.array([a * h]))]
-    else:
-        x_all = a * h
-        phis = phi_functions(x_all)
-    p1, p2, d1, d2 = phis
-    x = x_all
-    p = h * p1                  # (1 - e)/a
-    q = h * h * p2              # (h - p)/a ; angle gain of the drive is b q
-    dp = h * h * d1             # dp/da
-    dq = h ** 3 * d2            # dq/da
+        steps = np.diff(t)
+        uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= 1e-12 * abs(steps[0])))
+    h, x, p, q, dp, dq = _interval_coefficients(a, t, uniform)
     n = len(t)
     tau = a * (t - t[0]) if uniform else np.concatenate([[0.0], np.cumsum(x)])
     e_pow = np.exp(-tau)        # E_k = prod_{j<k} e_j
