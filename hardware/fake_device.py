@@ -45,7 +45,7 @@ from typing import Iterator
 
 import numpy as np
 
-from motorsim.excitation import _check_int, _check_real
+from motorsim.checks import check_int, check_real
 from motorsim.plant import Motor, simulate, zoh_matrices
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
 
@@ -100,15 +100,15 @@ class FaultPlan:
 
     def __post_init__(self):
         for name in ("flip_rate", "drop_rate", "garbage_rate", "queue_drop_rate"):
-            v = _check_real(name, getattr(self, name), nonnegative=True)
+            v = check_real(name, getattr(self, name), nonnegative=True)
             if v >= 1:
                 raise ValueError(f"{name} must be a probability in [0, 1), got {v!r}")
             object.__setattr__(self, name, v)
         for name in ("stall_at", "disconnect_at", "watchdog_trip_at"):
             if getattr(self, name) is not None:
-                object.__setattr__(self, name, _check_int(name, getattr(self, name), 0, 2**32 - 1))
-        object.__setattr__(self, "version", _check_int("version", self.version, 0, 255))
-        object.__setattr__(self, "boot_delay", _check_real("boot_delay", self.boot_delay, nonnegative=True))
+                object.__setattr__(self, name, check_int(name, getattr(self, name), 0, 2**32 - 1))
+        object.__setattr__(self, "version", check_int("version", self.version, 0, 255))
+        object.__setattr__(self, "boot_delay", check_real("boot_delay", self.boot_delay, nonnegative=True))
         object.__setattr__(self, "mute", bool(self.mute))
 
 
@@ -153,8 +153,8 @@ class FakeDevice:
         self.faults = faults if faults is not None else FaultPlan()
         if not isinstance(self.faults, FaultPlan):
             raise TypeError(f"faults must be a FaultPlan, got {type(self.faults).__name__}")
-        self.speed = _check_real("speed", speed, nonnegative=True)
-        self.queue_size = _check_int("queue_size", queue_size, 1, 10_000)
+        self.speed = check_real("speed", speed, nonnegative=True)
+        self.queue_size = check_int("queue_size", queue_size, 1, 10_000)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         if not isinstance(self.rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")

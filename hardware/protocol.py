@@ -24,6 +24,7 @@ from typing import NamedTuple, Union
 
 import numpy as np
 
+from motorsim.checks import check_int
 from motorsim.excitation import (MAX_AMPLITUDE, MAX_COMPONENTS, PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step,
                                  chirp_duty, multisine_duty, prbs_bits)
 from motorsim.rig import Experiment
@@ -547,11 +548,8 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
     duty_limit : int
         Clamp, 0...255.
     """
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 0:
-        raise ValueError(f"n_samples must be an integer >= 0, got {n_samples!r}")
-    if isinstance(duty_limit, bool) or not isinstance(duty_limit, (int, np.integer)) or not 0 <= duty_limit <= 255:
-        raise ValueError(f"duty_limit must be an integer in 0...255, got {duty_limit!r}")
-    n = int(n_samples)
+    n = check_int("n_samples", n_samples, 0, allow_integral_float=False)
+    duty_limit = check_int("duty_limit", duty_limit, 0, 255, allow_integral_float=False)
     if isinstance(wave, WaveConstant):
         raw = np.full(n, wave.level, dtype=np.int64)
     elif isinstance(wave, WaveStep):

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import threading
 import time
 from typing import Callable
 
 import numpy as np
 
+from motorsim.checks import check_int, check_real
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -98,18 +98,15 @@ class SerialRig:
                 raise ValueError("port must be a device path or URL, got ''")
         elif not all(hasattr(port, a) for a in ("read", "write")):
             raise TypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
-        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
-            raise ValueError(f"baudrate must be a positive integer, got {baudrate!r}")
-        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
-            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
+        counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
             raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
         if not (watchdog_ms == 0 or (isinstance(watchdog_ms, int) and 50 <= watchdog_ms <= 60_000)):
             raise ValueError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
         for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
                             ("command_timeout", command_timeout)):
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a number of seconds > 0, got {value!r}")
+            check_real(name, value, positive=True)
         self.port = port
         self.baudrate = baudrate
         self.counts_per_rev = counts_per_rev

@@ -24,6 +24,8 @@ from typing import ClassVar, Sequence
 
 import numpy as np
 
+from .checks import check_int, check_real
+
 __all__ = [
     "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
     "sine_table", "sine_q15", "phase_increment", "multisine_duty", "chirp_duty", "prbs_bits",
@@ -160,34 +162,10 @@ def _clamp(duty: np.ndarray, duty_limit: int) -> np.ndarray:
     return np.clip(duty, -duty_limit, duty_limit).astype(np.int64)
 
 
-def _check_int(name: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise TypeError(f"{name} must be an integer, got {value!r}")
-    if not lo <= value <= hi:
-        raise ValueError(f"{name} must be in {lo}...{hi}, got {value!r}")
-    return int(value)
-
-
-def _check_real(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if positive and value <= 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
-    if nonnegative and value < 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-    return value
-
-
 def _check_common(n_samples: int, sample_period: float, duty_limit: int) -> tuple[int, float, int]:
-    n_samples = _check_int("n_samples", n_samples, 0, 2**32 - 1)
-    sample_period = _check_real("sample_period", sample_period, positive=True)
-    duty_limit = _check_int("duty_limit", duty_limit, 0, 32767)
+    n_samples = check_int("n_samples", n_samples, 0, 2**32 - 1)
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    duty_limit = check_int("duty_limit", duty_limit, 0, 32767)
     return n_samples, sample_period, duty_limit
 
 
@@ -230,7 +208,7 @@ class Constant(Excitation):
     kind: ClassVar[str] = "constant"
 
     def __post_init__(self):
-        object.__setattr__(self, "level", _check_int("level", self.level, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "level", check_int("level", self.level, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def _raw(self, n, dt):
         return np.full(n, self.level, dtype=np.int64)
@@ -252,9 +230,9 @@ class Step(Excitation):
     kind: ClassVar[str] = "step"
 
     def __post_init__(self):
-        object.__setattr__(self, "after", _check_int("after", self.after, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "before", _check_int("before", self.before, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "at_time", _check_real("at_time", self.at_time, nonnegative=True))
+        object.__setattr__(self, "after", check_int("after", self.after, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "before", check_int("before", self.before, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "at_time", check_real("at_time", self.at_time, nonnegative=True))
 
     def step_index(self, sample_period: float) -> int:
         """Index of the first sample with duty ``after``."""
@@ -291,20 +269,20 @@ class Multisine(Excitation):
     kind: ClassVar[str] = "multisine"
 
     def __post_init__(self):
-        f = tuple(_check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
+        f = tuple(check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
         if not 1 <= len(f) <= MAX_COMPONENTS:
             raise ValueError(f"frequencies must have 1...{MAX_COMPONENTS} components, got {len(f)}")
-        a = tuple(_check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
+        a = tuple(check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
         if len(a) == 1 and len(f) > 1:
             a = a * len(f)
-        p = tuple(_check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
+        p = tuple(check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
         if not len(a) == len(p) == len(f):
             raise ValueError(f"frequencies, amplitudes and phases must have equal lengths, "
                              f"got {len(f)}, {len(a)} and {len(p)}")
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "amplitudes", a)
         object.__setattr__(self, "phases", p)
-        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def components(self, sample_period: float) -> list[tuple[int, int, int]]:
         """``(amplitude, phase0, phase_inc)`` per component, as the firmware receives them."""
@@ -368,10 +346,10 @@ class Chirp(Excitation):
     kind: ClassVar[str] = "chirp"
 
     def __post_init__(self):
-        object.__setattr__(self, "f0", _check_real("f0", self.f0, positive=True))
-        object.__setattr__(self, "f1", _check_real("f1", self.f1, positive=True))
-        object.__setattr__(self, "amplitude", _check_int("amplitude", self.amplitude, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "f0", check_real("f0", self.f0, positive=True))
+        object.__setattr__(self, "f1", check_real("f1", self.f1, positive=True))
+        object.__setattr__(self, "amplitude", check_int("amplitude", self.amplitude, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def words(self, n_samples: int, sample_period: float) -> tuple[int, int]:
         """``(inc0, inc_step)``: the u32 start step and the i32 step change per sample."""
@@ -420,10 +398,10 @@ class PRBS(Excitation):
 
     def __post_init__(self):
         for name in ("high", "low"):
-            object.__setattr__(self, name, _check_int(name, getattr(self, name), -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "order", _check_int("order", self.order, 2, 16))
-        object.__setattr__(self, "hold", _check_int("hold", self.hold, 1, 65535))
-        object.__setattr__(self, "seed", _check_int("seed", self.seed, 1, (1 << self.order) - 1))
+            object.__setattr__(self, name, check_int(name, getattr(self, name), -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "order", check_int("order", self.order, 2, 16))
+        object.__setattr__(self, "hold", check_int("hold", self.hold, 1, 65535))
+        object.__setattr__(self, "seed", check_int("seed", self.seed, 1, (1 << self.order) - 1))
 
     def bits(self, n_bits: int) -> np.ndarray:
         """The first ``n_bits`` output bits of the LFSR (uint8); see :func:`prbs_bits`."""

@@ -13,7 +13,8 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-from .excitation import DUTY_LIMIT, Excitation, _check_int, _check_real
+from .checks import check_int, check_real
+from .excitation import DUTY_LIMIT, Excitation
 from .knobs import Knob, knob, knobs_of
 from .plant import Motor, simulate
 from .recording import Recording
@@ -46,9 +47,9 @@ class Experiment:
     def __post_init__(self):
         if not isinstance(self.excitation, Excitation):
             raise TypeError(f"excitation must be an Excitation, got {type(self.excitation).__name__}")
-        object.__setattr__(self, "sample_period", _check_real("sample_period", self.sample_period, positive=True))
-        object.__setattr__(self, "duration", _check_real("duration", self.duration, positive=True))
-        object.__setattr__(self, "duty_limit", _check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
+        object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
+        object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
+        object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
         if self.n_samples < 2:
             raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
                              f"got {self.duration!r} s")
@@ -116,15 +117,15 @@ class SimRig:
             raise TypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
         if not isinstance(self.encoder, Encoder):
             raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
-        jitter = _check_real("jitter", self.jitter, nonnegative=True)
+        jitter = check_real("jitter", self.jitter, nonnegative=True)
         if jitter >= 1:
             raise ValueError(f"jitter must be < 1 (a fraction of the sample period), got {jitter!r}")
-        drop = _check_real("drop_rate", self.drop_rate, nonnegative=True)
+        drop = check_real("drop_rate", self.drop_rate, nonnegative=True)
         if drop >= 1:
             raise ValueError(f"drop_rate must be < 1, got {drop!r}")
         object.__setattr__(self, "jitter", jitter)
         object.__setattr__(self, "drop_rate", drop)
-        object.__setattr__(self, "initial_speed", _check_real("initial_speed", self.initial_speed))
+        object.__setattr__(self, "initial_speed", check_real("initial_speed", self.initial_speed))
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, got {self.rng!r}")

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .excitation import _check_int, _check_real
+from .checks import check_int, check_real
 from .knobs import knob
 
 __all__ = ["Encoder", "counts_to_angle", "backward_difference", "DEFAULT_COUNTS_PER_REV"]
@@ -41,9 +41,9 @@ class Encoder:
     angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it")
 
     def __post_init__(self):
-        object.__setattr__(self, "counts_per_rev", _check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
-        object.__setattr__(self, "count_offset", _check_int("count_offset", self.count_offset, -(2**62), 2**62))
-        object.__setattr__(self, "angle_noise", _check_real("angle_noise", self.angle_noise, nonnegative=True))
+        object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
+        object.__setattr__(self, "count_offset", check_int("count_offset", self.count_offset, -(2**62), 2**62))
+        object.__setattr__(self, "angle_noise", check_real("angle_noise", self.angle_noise, nonnegative=True))
 
     def counts(self, angle, rng: np.random.Generator | None = None) -> np.ndarray:
         """Integer counts (int64) for ``angle`` in rad; ``rng`` is required when noise > 0."""

@@ -25,7 +25,8 @@ from typing import Sequence
 import numpy as np
 
 from identify.uncertainty import cramer_rao_bound
-from motorsim.excitation import Sine, _check_int, _check_real
+from motorsim.checks import check_int as _check_int, check_real as _check_real
+from motorsim.excitation import Sine
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 

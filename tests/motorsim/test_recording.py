@@ -99,7 +99,7 @@ def test_unreadable_and_non_utf8_files(tmp_path):
     (dict(time=[0, 1], duty=[0, 0], sample_period=1.0), "at least one of counts, angle, speed"),
     (dict(time=[0, 1], duty=[0, 0], sample_period=1.0, counts=[0, 1]), "counts_per_rev must be a positive integer"),
     (dict(time=[0, 1], duty=[0], sample_period=1.0, angle=[0, 1]), "duty must have the same length as time"),
-    (dict(time=[0, 1], duty=[0, 0], sample_period=-1.0, angle=[0, 1]), "sample_period must be a finite number > 0"),
+    (dict(time=[0, 1], duty=[0, 0], sample_period=-1.0, angle=[0, 1]), "sample_period must be > 0"),
     (dict(time=[1, 0], duty=[0, 0], sample_period=1.0, angle=[0, 1]), "time must be strictly increasing"),
     (dict(time=[0, 1], duty=[0, np.inf], sample_period=1.0, angle=[0, 1]), "duty must be finite"),
     (dict(time=[0, 1], duty=[0, 0], sample_period=1.0, counts=[0, 1.5], counts_per_rev=4), "counts must hold integers"),
