@@ -215,9 +215,8 @@ class FakeDevice:
     def _run_firmware(self) -> None:
         self._out = bytearray()
         self._queued_samples = 0
-        self._tx_seq = 0
-        self._rx_pending = b""
-        self._rx_discarding = False
+        self._tx_frame_seq = 0
+        self._splitter = P.FrameSplitter()
         self._config: P.Config | None = None
         self._wave = None
         self._running = False
@@ -269,24 +268,17 @@ class FakeDevice:
             raise
         if discard or self.faults.mute:
             return
-        parts = (self._rx_pending + data).split(b"\x00")
-        self._rx_pending = parts.pop()
-        if self._rx_discarding and parts:
-            parts[0] = b""                    # the overlong frame ends at this delimiter
-            self._rx_discarding = False
-        if self._rx_discarding:
-            self._rx_pending = b""
-        elif len(self._rx_pending) > P.MAX_ENCODED:   # discard up to the next 0x00, one error
-            self._rx_pending = b""
-            self._rx_discarding = True
+        parts, overflow = self._splitter.split(data)
+        if overflow:      # an overlong frame, discarded up to the next 0x00: one error
             self.rx_errors += 1
         for part in parts:
             if part:
                 self._receive(part)
 
     def _receive(self, encoded: bytes) -> None:
+        """Act on one encoded frame as the firmware does: answer it, or count it as an error."""
         try:
-            msg_type, seq, payload = P.decode_frame(encoded)
+            msg_type, frame_seq, payload = P.decode_frame(encoded)
         except P.FrameError:
             self.rx_errors += 1
             return
@@ -296,13 +288,7 @@ class FakeDevice:
                 raise P.FrameError(f"type {msg_type:#04x} is not a host-to-device type")
         except P.FrameError:
             self.rx_errors += 1
-            known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
-            reason = P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE
-            if msg_type == P.MsgType.WAVE and payload and (
-                    payload[0] not in P.WaveKind._value2member_map_
-                    or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):
-                reason = P.NakReason.BAD_VALUE
-            self._send(P.Nak(msg_type, seq, reason))
+            self._send(P.Nak(msg_type, frame_seq, _nak_reason(msg_type, payload)))
             return
         self._last_rx = time.monotonic()   # any valid frame refreshes the watchdog
         if isinstance(msg, P.Heartbeat):
@@ -310,31 +296,37 @@ class FakeDevice:
         if isinstance(msg, P.Stop):
             self.stops_received += 1
             self.duty = 0
-            self._send(P.Ack(msg_type, seq))
+            self._send(P.Ack(msg_type, frame_seq))
             if self._running:
                 self._end(P.EndReason.STOPPED_BY_HOST)
             return
         if self._running:
-            self._send(P.Nak(msg_type, seq, P.NakReason.BUSY))
+            self._send(P.Nak(msg_type, frame_seq, P.NakReason.BUSY))
             return
+        self._answer_idle(msg, msg_type, frame_seq)
+
+    def _answer_idle(self, msg, msg_type: int, frame_seq: int) -> None:
+        """HELLO, CONFIG, WAVE or START while no run is going on."""
+        def ack_if(ok: bool) -> None:
+            self._send(P.Ack(msg_type, frame_seq) if ok else P.Nak(msg_type, frame_seq, P.NakReason.BAD_VALUE))
+
         if isinstance(msg, P.Hello):
             self._send(P.HelloAck(self.faults.version, 0x0100, 16_000_000, 1, P.MAX_PAYLOAD, "fake"))
         elif isinstance(msg, P.Config):
-            ok = (100 <= msg.sample_period_us <= 1_000_000 and msg.n_samples >= 1 and 0 <= msg.duty_limit <= 255
-                  and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
+            ok = _config_ok(msg)
             if ok:
                 self._config = msg
-            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+            ack_if(ok)
         elif msg_type == P.MsgType.WAVE:
-            ok = not P._check_wave_ranges(msg)
+            ok = not P.wave_range_problems(msg)
             if ok:
                 self._wave = msg
-            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+            ack_if(ok)
         elif isinstance(msg, P.Start):
             if self._config is None or self._wave is None:
-                self._send(P.Nak(msg_type, seq, P.NakReason.NOT_CONFIGURED))
+                self._send(P.Nak(msg_type, frame_seq, P.NakReason.NOT_CONFIGURED))
             else:
-                self._send(P.Ack(msg_type, seq))
+                self._send(P.Ack(msg_type, frame_seq))
                 self._start_run()
 
     def _start_run(self) -> None:
@@ -424,8 +416,8 @@ class FakeDevice:
 
     def _send_sample(self, sample: P.Sample) -> None:
         f, rng = self.faults, self.rng
-        wire = P.encode_message(sample, self._tx_seq)
-        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        wire = P.encode_message(sample, self._tx_frame_seq)
+        self._tx_frame_seq = (self._tx_frame_seq + 1) & 0xFF
         self._counters["sent"] += 1
         if f.garbage_rate and rng.random() < f.garbage_rate:
             self._emit(bytes(rng.integers(1, 256, int(rng.integers(1, 9)), dtype=np.uint8)) + b"\x00")
@@ -485,8 +477,8 @@ class FakeDevice:
 
     # -------------------------------------------------------------- transmit
     def _send(self, msg) -> None:
-        self._emit(P.encode_message(msg, self._tx_seq))
-        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        self._emit(P.encode_message(msg, self._tx_frame_seq))
+        self._tx_frame_seq = (self._tx_frame_seq + 1) & 0xFF
 
     def _emit(self, wire: bytes, sample: bool = False) -> None:
         if self._silent or self.faults.mute:
@@ -509,6 +501,22 @@ class FakeDevice:
             raise
         del self._out[:n]
         self._queued_samples = min(self._queued_samples, math.ceil(len(self._out) / _SAMPLE_WIRE))
+
+
+def _nak_reason(msg_type: int, payload: bytes) -> int:
+    """Why the firmware NAKs a frame whose COBS and CRC are good but whose message is not."""
+    known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
+    if msg_type == P.MsgType.WAVE and payload and (
+            payload[0] not in P.WaveKind._value2member_map_
+            or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):
+        return P.NakReason.BAD_VALUE
+    return P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE
+
+
+def _config_ok(msg: P.Config) -> bool:
+    """The CONFIG ranges of PROTOCOL.md."""
+    return (100 <= msg.sample_period_us <= 1_000_000 and msg.n_samples >= 1 and 0 <= msg.duty_limit <= 255
+            and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
 
 
 def parse_fake_url(url: str) -> FakeDevice:

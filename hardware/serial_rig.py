@@ -118,8 +118,8 @@ class SerialRig:
         self._stack: contextlib.ExitStack | None = None
         self._port = None
         self._reader = P.FrameReader()
-        self._tx_seq = 0
-        self._rx_seq: int | None = None
+        self._tx_frame_seq = 0
+        self._rx_frame_seq: int | None = None
         self._link_lost = 0
         self._boot: P.Boot | None = None
         self._backlog: list = []
@@ -168,14 +168,15 @@ class SerialRig:
             stack.close()
 
     def _write(self, msg) -> int:
+        """Send ``msg``; returns its frame_seq."""
         with self._write_lock:     # the heartbeat thread writes too
-            seq = self._tx_seq
+            frame_seq = self._tx_frame_seq
             try:
-                self._port.write(P.encode_message(msg, seq))
+                self._port.write(P.encode_message(msg, frame_seq))
             except Exception as exc:   # pyserial raises SerialException / OSError / portNotOpenError
                 raise RigDisconnectedError(f"writing to {self.port_name} failed: {exc}") from None
-            self._tx_seq = (seq + 1) & 0xFF
-            return seq
+            self._tx_frame_seq = (frame_seq + 1) & 0xFF
+            return frame_seq
 
     def _read(self) -> list:
         if self._backlog:
@@ -190,12 +191,12 @@ class SerialRig:
         if not data:
             return []
         frames = self._reader.feed(data)
-        for seq, msg in frames:
+        for frame_seq, msg in frames:
             if isinstance(msg, P.Boot):
                 self._boot = msg
-            elif self._rx_seq is not None:
-                self._link_lost += (seq - self._rx_seq - 1) & 0xFF
-            self._rx_seq = seq
+            elif self._rx_frame_seq is not None:
+                self._link_lost += (frame_seq - self._rx_frame_seq - 1) & 0xFF
+            self._rx_frame_seq = frame_seq
         return [msg for _, msg in frames]
 
     def _handshake(self) -> None:
@@ -230,19 +231,19 @@ class SerialRig:
         run loop, and samples arriving (or a retry NAKed BUSY) show that a START whose ACK
         was lost did start the run.
         """
-        msg_type = P.MsgType.WAVE if type(msg).__name__.startswith("Wave") else P._TYPE_OF[type(msg)]
+        msg_type = P.msg_type_of(msg)
         is_start = msg_type == P.MsgType.START
         run_frames: list = []
         for attempt in range(3):
-            seq = self._write(msg)
+            frame_seq = self._write(msg)
             deadline = time.monotonic() + self.command_timeout
             while time.monotonic() < deadline:
                 replies = self._read()
                 for i, reply in enumerate(replies):
-                    if isinstance(reply, P.Ack) and reply.acked_seq == seq and reply.acked_type == msg_type:
+                    if isinstance(reply, P.Ack) and reply.acked_frame_seq == frame_seq and reply.acked_type == msg_type:
                         self._backlog = run_frames + replies[i + 1:]
                         return
-                    if isinstance(reply, P.Nak) and reply.refused_seq == seq and reply.refused_type == msg_type:
+                    if isinstance(reply, P.Nak) and reply.refused_frame_seq == frame_seq and reply.refused_type == msg_type:
                         if is_start and attempt > 0 and reply.reason == P.NakReason.BUSY:
                             self._backlog = run_frames + replies[i + 1:]
                             return     # the first START did start the run; its ACK was lost

@@ -305,7 +305,7 @@ class Multisine(Excitation):
         return f"multisine:{parts}" + (f"@{self.offset}" if self.offset else "")
 
 
-def Sine(frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offset: int = 0) -> Multisine:
+class Sine(Multisine):
     """The article's sine ``eta = A sin(omega t + alpha)`` (eqs. 29-32): a one-component :class:`Multisine`.
 
     Parameters
@@ -318,8 +318,40 @@ def Sine(frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offs
         alpha in rad.
     offset : int
         Constant duty added.
+
+    Examples
+    --------
+    >>> s = Sine(10, 200)
+    >>> s.describe()
+    'sine:10.0,200,0.0'
+    >>> s.duty(4, 0.005).tolist()
+    [0, 10, 20, 30]
     """
-    return Multisine((frequency,), (amplitude,), (phase,), offset)
+
+    def __init__(self, frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offset: int = 0):
+        super().__init__((frequency,), (amplitude,), (phase,), offset)
+
+    @property
+    def frequency(self) -> float:
+        """omega in rad/s."""
+        return self.frequencies[0]
+
+    @property
+    def amplitude(self) -> int:
+        """A in duty units."""
+        return self.amplitudes[0]
+
+    @property
+    def phase(self) -> float:
+        """alpha in rad."""
+        return self.phases[0]
+
+    def __repr__(self) -> str:
+        return (f"Sine(frequency={self.frequency!r}, amplitude={self.amplitude!r}, phase={self.phase!r}, "
+                f"offset={self.offset!r})")
+
+    def __reduce__(self):
+        return (Sine, (self.frequency, self.amplitude, self.phase, self.offset))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -427,6 +459,60 @@ def _numbers(text: str, spec: str) -> list[float]:
         raise ValueError(f"excitation {spec!r}: expected comma-separated numbers; forms: {_PARSE_HELP}") from None
 
 
+def _ints(values: Sequence[float]) -> list:
+    """Integral floats as ints (the checks of the excitation then refuse the rest)."""
+    return [int(x) if float(x).is_integer() else x for x in values]
+
+
+def _parse_sine(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 1 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
+    return Sine(v[0], *_ints(v[1:2]), *v[2:3], offset=_ints([offset])[0])
+
+
+def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
+    comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
+    if not comps or any(not 1 <= len(c) <= 3 for c in comps):
+        raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
+    return Multisine(tuple(c[0] for c in comps),
+                     tuple(_ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
+                     tuple(c[2] if len(c) > 2 else 0.0 for c in comps), _ints([offset])[0])
+
+
+def _parse_chirp(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 2 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
+    return Chirp(v[0], v[1], *_ints(v[2:3]), offset=_ints([offset])[0])
+
+
+def _parse_prbs(args: str, spec: str, offset: float) -> Excitation:
+    v = _ints(_numbers(args, spec))
+    if not 2 <= len(v) <= 5:
+        raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
+    return PRBS(*v)
+
+
+def _parse_step(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 1 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
+    return Step(_ints(v[:1])[0], *(v[1:2]), *_ints(v[2:3]))
+
+
+def _parse_constant(args: str, spec: str, offset: float) -> Excitation:
+    v = _ints(_numbers(args, spec))
+    if len(v) != 1:
+        raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
+    return Constant(v[0])
+
+
+#: kind -> reader of ``ARGS`` (with the ``@OFFSET`` already split off).
+_PARSERS = {"sine": _parse_sine, "multisine": _parse_multisine, "chirp": _parse_chirp, "prbs": _parse_prbs,
+            "step": _parse_step, "constant": _parse_constant}
+
+
 def parse_excitation(spec: str) -> Excitation:
     """Read an excitation from its one-line form (``sine:10,200,0.5``; see :meth:`Excitation.describe`).
 
@@ -436,47 +522,22 @@ def parse_excitation(spec: str) -> Excitation:
     ----------
     spec : str
         ``KIND:ARGS``, e.g. ``sine:FREQ[,AMP[,PHASE]]``, ``prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]``.
+
+    Examples
+    --------
+    >>> parse_excitation("sine:10,200")
+    Sine(frequency=10.0, amplitude=200, phase=0.0, offset=0)
+    >>> parse_excitation("prbs:200,-200,9,3").describe()
+    'prbs:200,-200,9,3,1'
     """
     if not isinstance(spec, str) or ":" not in spec:
         raise ValueError(f"excitation must look like KIND:ARGS ({_PARSE_HELP}), got {spec!r}")
     kind, _, args = spec.partition(":")
     kind = kind.strip().lower()
-    offset = 0
+    offset = 0.0
     if "@" in args:
         args, _, off = args.partition("@")
         offset = _numbers(off, spec)[0]
-    def ints(xs):
-        return [int(x) if float(x).is_integer() else x for x in xs]
-    if kind == "sine":
-        v = _numbers(args, spec)
-        if not 1 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
-        return Sine(v[0], *ints(v[1:2]), *v[2:3], offset=ints([offset])[0])
-    if kind == "multisine":
-        comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
-        if not comps or any(not 1 <= len(c) <= 3 for c in comps):
-            raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
-        return Multisine(tuple(c[0] for c in comps),
-                         tuple(ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
-                         tuple(c[2] if len(c) > 2 else 0.0 for c in comps), ints([offset])[0])
-    if kind == "chirp":
-        v = _numbers(args, spec)
-        if not 2 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
-        return Chirp(v[0], v[1], *ints(v[2:3]), offset=ints([offset])[0])
-    if kind == "prbs":
-        v = ints(_numbers(args, spec))
-        if not 2 <= len(v) <= 5:
-            raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
-        return PRBS(*v)
-    if kind == "step":
-        v = _numbers(args, spec)
-        if not 1 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
-        return Step(ints(v[:1])[0], *(v[1:2]), *ints(v[2:3]))
-    if kind == "constant":
-        v = ints(_numbers(args, spec))
-        if len(v) != 1:
-            raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
-        return Constant(v[0])
-    raise ValueError(f"excitation kind must be one of sine, multisine, chirp, prbs, step, constant, got {kind!r}")
+    if kind not in _PARSERS:
+        raise ValueError(f"excitation kind must be one of {', '.join(_PARSERS)}, got {kind!r}")
+    return _PARSERS[kind](args, spec, offset)

@@ -192,8 +192,8 @@ def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
 
         run = link.run(STEADY, P.WaveConstant(150), on_sample=meddle_then_stop)
     naks = [m for m in run.others if isinstance(m, P.Nak)]
-    assert [(n.refused_type, n.refused_seq, n.reason) for n in naks] == [
-        (t, seq, P.NakReason.BUSY) for t, seq in zip((P.MsgType.HELLO, P.MsgType.CONFIG, P.MsgType.WAVE,
+    assert [(n.refused_type, n.refused_frame_seq, n.reason) for n in naks] == [
+        (t, frame_seq, P.NakReason.BUSY) for t, frame_seq in zip((P.MsgType.HELLO, P.MsgType.CONFIG, P.MsgType.WAVE,
                                                        P.MsgType.START), busy_seqs)]
     assert {s.duty for s in run.samples} == {150}, "the running experiment was not touched"
     assert run.end is not None and run.end.reason == P.EndReason.STOPPED_BY_HOST
@@ -277,7 +277,7 @@ def test_corrupted_frames_are_refused_and_counted_and_the_link_recovers(built):
             if sample.index in (50, 100) and sample.index not in injected:
                 injected.append(sample.index)
                 if sample.index == 50:
-                    bad = bytearray(P.encode_message(P.Heartbeat(), link.seq))
+                    bad = bytearray(P.encode_message(P.Heartbeat(), link.frame_seq))
                     bad[1] ^= 0xFF
                     link.send_raw(bytes(bad))             # bad CRC
                 else:
@@ -293,23 +293,23 @@ def test_unknown_type_and_wrong_length_are_naked(built):
     with _open() as port:
         link = DeviceLink(port)
         link.hello()
-        seq = link.seq
-        link.send_raw(P.encode_frame(0x3F, seq, b""))
-        link.seq += 1
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(0x3F, frame_seq, b""))
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(0x3F, seq, P.NakReason.UNKNOWN_TYPE)
-        seq = link.seq
-        link.send_raw(P.encode_frame(P.MsgType.CONFIG, seq, b"\x00" * 12))
-        link.seq += 1
+        assert nak == P.Nak(0x3F, frame_seq, P.NakReason.UNKNOWN_TYPE)
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(P.MsgType.CONFIG, frame_seq, b"\x00" * 12))
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(P.MsgType.CONFIG, seq, P.NakReason.BAD_LENGTH)
-        seq = link.seq
-        link.send_raw(P.encode_frame(P.MsgType.WAVE, seq, b"\x09\x00\x00"))   # unknown kind
-        link.seq += 1
+        assert nak == P.Nak(P.MsgType.CONFIG, frame_seq, P.NakReason.BAD_LENGTH)
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(P.MsgType.WAVE, frame_seq, b"\x09\x00\x00"))   # unknown kind
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(P.MsgType.WAVE, seq, P.NakReason.BAD_VALUE)
-        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.seq - 1, P.NakReason.BAD_VALUE)
-        assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.seq - 1, P.NakReason.NOT_CONFIGURED)
+        assert nak == P.Nak(P.MsgType.WAVE, frame_seq, P.NakReason.BAD_VALUE)
+        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.frame_seq - 1, P.NakReason.BAD_VALUE)
+        assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.frame_seq - 1, P.NakReason.NOT_CONFIGURED)
 
 
 # ------------------------------------------------------------------ overload
@@ -324,7 +324,7 @@ def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
     end = run.end
     assert end is not None and end.reason == P.EndReason.COMPLETE
     assert end.samples_dropped > 0
-    assert all(np.diff(run.seqs) % 256 == 1), "the link itself lost nothing"
+    assert all(np.diff(run.frame_seqs) % 256 == 1), "the link itself lost nothing"
     assert end.samples_sent == len(run.samples)
     assert len(run.samples) + end.samples_dropped == n
     indices = np.array([s.index for s in run.samples])

@@ -178,8 +178,8 @@ def test_the_device_watchdog_stops_a_host_that_goes_silent():
     # Speak the protocol by hand and never send a HEARTBEAT: the device must stop on its own.
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
-        for seq, msg in enumerate([P.Config(5000, 100_000, 255, 4, 100), P.WaveConstant(120), P.Start()]):
-            port.write(P.encode_message(msg, seq))
+        for frame_seq, msg in enumerate([P.Config(5000, 100_000, 255, 4, 100), P.WaveConstant(120), P.Start()]):
+            port.write(P.encode_message(msg, frame_seq))
         got = []
         deadline = time.monotonic() + 3.0
         while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
@@ -250,8 +250,8 @@ def test_the_fake_device_counts_an_overlong_frame_once_and_resynchronises():
 def test_the_fake_device_answers_busy_and_unknown_types():
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
-        for seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
-            port.write(P.encode_message(msg, seq))
+        for frame_seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
+            port.write(P.encode_message(msg, frame_seq))
         port.write(P.encode_frame(0x30, 4))
         port.write(P.encode_frame(P.MsgType.WAVE, 5, b"\x07\x00"))
         port.write(P.encode_frame(P.MsgType.STOP, 6, b"\x00"))
@@ -312,8 +312,8 @@ def test_a_run_left_over_from_an_earlier_session_is_stopped_at_hello():
     # NAKed BUSY, so it sends STOP and shakes hands.
     with _fake(speed=1.0) as dev:
         with serial.Serial(dev.port_name, timeout=0.05) as port:
-            for seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
-                port.write(P.encode_message(msg, seq))
+            for frame_seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
+                port.write(P.encode_message(msg, frame_seq))
             _wait_for(lambda: dev.runs_started == 1, "the first session's run")
         with SerialRig(dev.port_name) as rig:
             assert rig.device is not None
