@@ -45,13 +45,15 @@ from typing import Iterator
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import check_bool, check_int, check_real
+from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, simulate, zoh_matrices
-from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
+from motorsim.rig import bench_knobs
+from motorsim.sensors import Encoder
 
 from . import protocol as P
 
-__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url"]
+__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url", "url_keys"]
 
 _SAMPLE_WIRE = 21
 
@@ -87,16 +89,17 @@ class FaultPlan:
         Seconds in the "bootloader" after start, ignoring input, before BOOT.
     """
 
-    flip_rate: float = 0.0
-    drop_rate: float = 0.0
-    garbage_rate: float = 0.0
-    queue_drop_rate: float = 0.0
-    stall_at: int | None = None
-    disconnect_at: int | None = None
-    watchdog_trip_at: int | None = None
-    mute: bool = False
-    version: int = P.PROTOCOL_VERSION
-    boot_delay: float = 0.0
+    flip_rate: float = knob(0.0, unit="", help="probability that a SAMPLE frame has one bit flipped")
+    drop_rate: float = knob(0.0, unit="", help="probability that a SAMPLE frame is lost on the link")
+    garbage_rate: float = knob(0.0, unit="", help="probability of random bytes before a SAMPLE frame")
+    queue_drop_rate: float = knob(0.0, unit="", help="probability that the device drops a sample")
+    stall_at: int | None = knob(None, kind=int, unit="samples", help="sample from which the device sends nothing")
+    disconnect_at: int | None = knob(None, kind=int, unit="samples", help="sample at which the link closes")
+    watchdog_trip_at: int | None = knob(None, kind=int, unit="samples",
+                                        help="sample at which the host-silence watchdog trips")
+    mute: bool = knob(False, unit="", help="never answer (a board without the firmware)")
+    version: int = knob(P.PROTOCOL_VERSION, unit="", help="protocol version the device reports")
+    boot_delay: float = knob(0.0, unit="s", help="time in the bootloader before BOOT")
 
     def __post_init__(self):
         for name in ("flip_rate", "drop_rate", "garbage_rate", "queue_drop_rate"):
@@ -109,7 +112,7 @@ class FaultPlan:
                 object.__setattr__(self, name, check_int(name, getattr(self, name), 0, 2**32 - 1))
         object.__setattr__(self, "version", check_int("version", self.version, 0, 255))
         object.__setattr__(self, "boot_delay", check_real("boot_delay", self.boot_delay, nonnegative=True))
-        object.__setattr__(self, "mute", bool(self.mute))
+        object.__setattr__(self, "mute", check_bool("mute", self.mute))
 
 
 class FakeDevice:
@@ -519,46 +522,72 @@ def _config_ok(msg: P.Config) -> bool:
             and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
 
 
+#: Defaults of the fake device's motor (``Motor`` itself has none for ``a`` and ``b``).
+_MOTOR_DEFAULTS = {"a": 25.0, "b": 3.0}
+#: Keys of the emulated device itself (not bench knobs, not faults).
+_DEVICE_KNOBS = (
+    Knob("seed", FakeDevice, int, 0, "", "seed of the angle noise and of the injected faults"),
+    Knob("speed", FakeDevice, float, 1.0, "", "device time per wall-clock time (0: as fast as the host reads)"),
+    Knob("queue", FakeDevice, int, 16, "SAMPLE frames", "transmit queue length"),
+)
+#: Keys earlier versions accepted, and their names now.
+_RENAMED_KEYS = {"cpr": "counts_per_rev", "noise": "angle_noise", "offset": "count_offset"}
+
+
+def _url_knobs() -> tuple[Knob, ...]:
+    bench = tuple(k for k in bench_knobs() if k.owner in (Motor, Encoder))
+    return bench + _DEVICE_KNOBS + knobs_of(FaultPlan)
+
+
+def url_keys() -> tuple[str, ...]:
+    """The query keys of ``fake://``: the motor's and encoder's bench knobs, the device's
+    (``seed``, ``speed``, ``queue``) and the :class:`FaultPlan` fields.
+
+    Examples
+    --------
+    >>> url_keys()[:9]
+    ('a', 'b', 'friction', 'bias', 'dead_zone', 'input_delay', 'counts_per_rev', 'count_offset', 'angle_noise')
+    """
+    return tuple(k.name for k in _url_knobs())
+
+
 def parse_fake_url(url: str) -> FakeDevice:
     """A (not yet started) :class:`FakeDevice` from ``fake://?a=25&b=3&...``.
 
-    Query keys: ``a``, ``b`` (motor, defaults 25 and 3), ``friction``, ``bias``, ``dead_zone``,
-    ``input_delay``, ``cpr`` (counts per revolution, default 16667), ``offset`` (count at boot),
-    ``noise`` (angle noise in rad), ``seed``, ``speed``, ``queue``, and every
-    :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+    Query keys (:func:`url_keys`): the bench knobs of ``Motor`` (``a``, ``b``, defaults 25 and 3;
+    ``friction``, ``bias``, ``dead_zone``, ``input_delay``) and ``Encoder`` (``counts_per_rev``,
+    ``count_offset``, ``angle_noise``) under their own names; ``seed``, ``speed``, ``queue``;
+    and every :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+
+    Examples
+    --------
+    >>> device = parse_fake_url("fake://?a=30&b=2&counts_per_rev=2000&speed=0")
+    >>> device.motor.a, device.encoder.counts_per_rev, device.speed
+    (30.0, 2000, 0.0)
     """
     parsed = urllib.parse.urlsplit(url)
     if parsed.scheme != "fake":
         raise ValueError(f"url must start with fake://, got {url!r}")
     query = dict(urllib.parse.parse_qsl(parsed.query, keep_blank_values=True))
-    motor_keys = {"a": float, "b": float, "friction": float, "bias": float, "dead_zone": float, "input_delay": int}
-    fault_fields = {f.name: f.type for f in dataclasses.fields(FaultPlan)}
-    other = {"cpr", "offset", "noise", "seed", "speed", "queue"}
-    unknown = set(query) - set(motor_keys) - set(fault_fields) - other
+    for old, new in _RENAMED_KEYS.items():
+        if old in query:
+            raise ValueError(f"fake:// url key {old!r} is now called {new!r}")
+    knobs = {k.name: k for k in _url_knobs()}
+    unknown = set(query) - set(knobs)
     if unknown:
-        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: "
-                         f"{sorted(set(motor_keys) | set(fault_fields) | other)}")
+        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: {sorted(knobs)}")
+    try:
+        values = {name: knobs[name].parse(text) for name, text in query.items()}
+    except ValueError as exc:
+        raise ValueError(f"fake:// url key {exc}") from None
 
-    def num(key, kind, default=None):
-        if key not in query:
-            return default
-        try:
-            return kind(float(query[key])) if kind is int else kind(query[key])
-        except ValueError:
-            raise ValueError(f"fake:// url key {key} must be a number, got {query[key]!r}") from None
+    def fields_of(cls: type) -> dict:
+        return {k.name: values[k.name] for k in knobs_of(cls) if k.name in values}
 
-    motor = Motor(num("a", float, 25.0), num("b", float, 3.0), friction=num("friction", float, 0.0),
-                  bias=num("bias", float, 0.0), dead_zone=num("dead_zone", float, 0.0),
-                  input_delay=num("input_delay", int, 0))
-    encoder = Encoder(num("cpr", int, DEFAULT_COUNTS_PER_REV), num("offset", int, 0), num("noise", float, 0.0))
-    faults = {}
-    for key in fault_fields:
-        if key in query:
-            kind = bool if key == "mute" else (int if key in ("stall_at", "disconnect_at", "watchdog_trip_at",
-                                                               "version") else float)
-            faults[key] = query[key].lower() in ("1", "true", "yes") if kind is bool else num(key, kind)
-    return FakeDevice(motor, encoder, FaultPlan(**faults), speed=num("speed", float, 1.0),
-                      queue_size=num("queue", int, 16), rng=np.random.default_rng(num("seed", int, 0)))
+    motor = Motor(**{**_MOTOR_DEFAULTS, **fields_of(Motor)})
+    return FakeDevice(motor, Encoder(**fields_of(Encoder)), FaultPlan(**fields_of(FaultPlan)),
+                      speed=values.get("speed", 1.0), queue_size=values.get("queue", 16),
+                      rng=np.random.default_rng(values.get("seed", 0)))
 
 
 @contextlib.contextmanager

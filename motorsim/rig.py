@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from .plant import Motor, simulate
 from .recording import Recording
 from .sensors import Encoder
 
-__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times"]
+__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,8 +106,9 @@ class SimRig:
 
     motor: Motor
     encoder: Encoder = dataclasses.field(default_factory=Encoder)
-    jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1")
-    drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1")
+    jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1", recorded=True)
+    drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1",
+                            recorded=True)
     initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample")
     record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)")
     rng: np.random.Generator | None = None
@@ -143,21 +144,33 @@ class SimRig:
         keep = np.ones(n, dtype=bool)
         if self.drop_rate > 0:
             keep[1:] = self.rng.random(n - 1) >= self.drop_rate
-        meta = {"source": "SimRig", **experiment.metadata(), **_motor_metadata(self.motor),
-                "angle_noise": repr(self.encoder.angle_noise), "jitter": repr(self.jitter),
-                "drop_rate": repr(self.drop_rate)}
+        meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
+                **recorded_knobs(self.encoder), **recorded_knobs(self)}
         speed = traj.speed[keep] if self.record_speed else None
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
                          speed=speed, seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
 
 
-def _motor_metadata(motor: Motor) -> Mapping[str, str]:
-    out = {"true_a": repr(motor.a), "true_b": repr(motor.b)}
-    for name in ("friction", "bias", "dead_zone", "input_delay"):
-        value = getattr(motor, name)
-        if value:
-            out[f"true_{name}"] = repr(value)
+def motor_metadata(motor: Motor) -> dict[str, str]:
+    """The motor's knobs as recording metadata ``true_NAME``: the required ones (``a``, ``b``)
+    always, the others when nonzero.
+
+    Examples
+    --------
+    >>> motor_metadata(Motor(25.0, 3.0, bias=0.5))
+    {'true_a': '25.0', 'true_b': '3.0', 'true_bias': '0.5'}
+    """
+    out = {}
+    for k in knobs_of(Motor):
+        value = getattr(motor, k.name)
+        if k.required or value:
+            out[f"true_{k.name}"] = repr(value)
     return out
+
+
+def recorded_knobs(obj: object) -> dict[str, str]:
+    """The knobs of ``obj`` (an Encoder, a SimRig) declared ``recorded=True``, as metadata ``NAME: repr``."""
+    return {k.name: repr(getattr(obj, k.name)) for k in knobs_of(type(obj)) if k.recorded}
 
 
 def bench_knobs() -> tuple[Knob, ...]:

@@ -38,7 +38,8 @@ class Encoder:
     counts_per_rev: int = knob(DEFAULT_COUNTS_PER_REV, unit="counts/rev",
                                help="encoder counts per revolution after quadrature decoding")
     count_offset: int = knob(0, unit="counts", help="count reported at angle 0")
-    angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it")
+    angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it",
+                              recorded=True)
 
     def __post_init__(self):
         object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))

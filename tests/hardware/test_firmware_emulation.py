@@ -375,7 +375,7 @@ def test_encoder_beyond_the_ceiling_reports_errors(built):
 # ------------------------------------------------------------------ firmware vs pure-Python device
 def test_emulated_firmware_and_pure_python_device_agree_to_one_count(sine_run):
     _, avr = sine_run
-    with SerialRig(f"fake://?a={A}&b={B}&cpr={COUNTS_PER_REV}&speed=0", 250000,
+    with SerialRig(f"fake://?a={A}&b={B}&counts_per_rev={COUNTS_PER_REV}&speed=0", 250000,
                    counts_per_rev=COUNTS_PER_REV) as rig:
         fake = rig.run(SINE)
     np.testing.assert_array_equal(avr.duty, fake.duty)
@@ -406,7 +406,7 @@ def test_harness_coulomb_friction_matches_the_pure_python_device(built):
     experiment = Experiment(PRBS(60, -60, order=7, hold=25), sample_period=0.002, duration=1.0)
     with _rig(friction=40) as (rig, _):
         avr = rig.run(experiment)
-    with SerialRig(f"fake://?a={A}&b={B}&cpr={COUNTS_PER_REV}&speed=0&friction=40", 250000,
+    with SerialRig(f"fake://?a={A}&b={B}&counts_per_rev={COUNTS_PER_REV}&speed=0&friction=40", 250000,
                    counts_per_rev=COUNTS_PER_REV) as rig:
         fake = rig.run(experiment)
     assert np.max(np.abs(avr.counts - fake.counts)) <= 1

@@ -10,10 +10,11 @@ import serial
 from hardware import protocol as P
 from hardware.errors import (DeviceFaultError, DeviceRefusedError, ProtocolVersionError, RigCheckError,
                              RigDisconnectedError, RigTimeoutError)
-from hardware.fake_device import FakeDevice, FaultPlan
-from hardware.ports import open_port
+from hardware.fake_device import FakeDevice, FaultPlan, parse_fake_url
+from hardware.ports import open_port, url_keys
 from hardware.serial_rig import SerialRig
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, Sine, SimRig, Step
+from motorsim.rig import bench_knobs
 
 MOTOR = Motor(25.0, 3.0)
 EXPERIMENT = Experiment(Sine(10.0), 0.005, 2.0)      # 400 samples
@@ -288,7 +289,7 @@ def test_unknown_and_unavailable_schemes_are_clear_errors(monkeypatch):
 
 
 def test_fake_url_opens_a_running_device():
-    with open_port("fake://?a=10&b=2&cpr=1000&speed=0", 250000, 0.02) as port:
+    with open_port("fake://?a=10&b=2&counts_per_rev=1000&speed=0", 250000, 0.02) as port:
         dev = port.fake_device
         assert dev.motor == Motor(10.0, 2.0) and dev.encoder.counts_per_rev == 1000
         rec = SerialRig(port, counts_per_rev=1000).run(Experiment(Sine(10.0), 0.005, 0.5))
@@ -373,3 +374,19 @@ def test_a_sample_rate_the_line_cannot_carry_is_refused_before_anything_is_sent(
     with pytest.raises(ValueError, match=r"210000 baud.*baudrate 115200"):
         SerialRig("loop://", 115_200).run(Experiment(Sine(10.0), 0.001, 1.0))
     assert SerialRig("loop://", 250_000).line_load(0.002) == pytest.approx(0.42)   # the README's 42 %
+
+
+@pytest.mark.parametrize("old, new", [("cpr", "counts_per_rev"), ("noise", "angle_noise"), ("offset", "count_offset")])
+def test_fake_url_refuses_old_key_names_naming_the_new_one(old, new):
+    with pytest.raises(ValueError, match=f"'{old}' is now called '{new}'"):
+        parse_fake_url(f"fake://?a=1&{old}=2")
+
+
+def test_url_keys_are_the_bench_knobs_under_their_own_names():
+    bench = {k.name for k in bench_knobs() if k.owner in (Motor, Encoder)}
+    assert bench <= set(url_keys("fake"))
+    assert {"a", "b", "friction", "counts_per_rev"} <= set(url_keys("avr-sim"))
+    device = parse_fake_url("fake://?a=30&b=2&friction=1&bias=0.5&dead_zone=3&input_delay=2"
+                            "&counts_per_rev=2000&count_offset=-7&angle_noise=0.001")
+    assert device.motor == Motor(30.0, 2.0, friction=1.0, bias=0.5, dead_zone=3.0, input_delay=2)
+    assert device.encoder == Encoder(2000, -7, 0.001)
