@@ -36,6 +36,7 @@ import contextlib
 import dataclasses
 import os
 import select
+import shutil
 import signal
 import subprocess
 import time
@@ -50,7 +51,7 @@ from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.rig import bench_knobs
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
-__all__ = ["open_avr_sim", "url_keys", "AvrSimulation", "HarnessOptions", "parse_avr_sim_url", "build",
+__all__ = ["open_avr_sim", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation", "HarnessOptions", "parse_avr_sim_url", "build",
            "firmware_elf", "SUPPORTED_BAUDRATES", "DEFAULT_BAUDRATE", "REPO_ROOT"]
 
 #: The repository root (the harness and firmware are built from the source tree).
@@ -224,11 +225,31 @@ def _stale(target: Path, sources: list[Path]) -> bool:
     return any(src.stat().st_mtime > built for src in sources)
 
 
+#: What building the firmware and the harness needs: programs on PATH, and pkg-config's simavr.
+_TOOLS = ("make", "cc", "avr-gcc", "avr-g++", "avr-ar", "avr-objcopy", "avr-size", "pkg-config")
+#: The Arduino core the Makefile compiles (Debian's arduino-core-avr).
+ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr")
+
+
+def missing_tools() -> list[str]:
+    """What is missing to build the firmware and the harness (empty when everything is there).
+
+    ``make firmware-deps`` installs the Debian packages that provide them.
+    """
+    missing = [tool for tool in _TOOLS if shutil.which(tool) is None]
+    if shutil.which("pkg-config") is not None and subprocess.run(
+            ["pkg-config", "--exists", "simavr"], capture_output=True).returncode != 0:
+        missing.append("simavr (pkg-config: libsimavr-dev)")
+    if not (ARDUINO_CORE / "cores" / "arduino").is_dir():
+        missing.append(f"the Arduino core in {ARDUINO_CORE} (arduino-core-avr)")
+    return missing
+
+
 def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Path, Path]:
     """Build the firmware (for ``baudrate`` and ``driver``) and the harness when missing or stale.
 
-    Runs ``make firmware avr-sim`` in the repository, which apt-installs the Debian packages
-    when they are missing.
+    Runs ``make firmware avr-sim`` in the repository without installing anything: when a tool
+    is missing (:func:`missing_tools`) it raises, naming it and ``make firmware-deps``.
 
     Parameters
     ----------
@@ -251,7 +272,11 @@ def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Pa
     if _stale(_HARNESS, _HARNESS_SOURCES):
         targets.append("avr-sim")
     if targets:
-        cmd = ["make", "--no-print-directory", "-s", "-C", str(REPO_ROOT), *targets]
+        missing = missing_tools()
+        if missing:
+            raise RuntimeError(f"building the AVR firmware/harness needs {', '.join(missing)}; "
+                               f"install them with 'make firmware-deps'")
+        cmd = ["make", "--no-print-directory", "-s", "-C", str(REPO_ROOT), *targets, "FIRMWARE_DEPS="]
         if sub:
             cmd += [f"FIRMWARE_BUILD={elf.parent.relative_to(REPO_ROOT)}", f"FIRMWARE_DEFS={' '.join(defs)}"]
         done = subprocess.run(cmd, capture_output=True, text=True)
