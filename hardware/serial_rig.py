@@ -88,6 +88,16 @@ class SerialRig:
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
         Seconds to wait for the ACK of CONFIG, WAVE, START (each is sent up to 3 times).
+
+    Examples
+    --------
+    The emulated device (``fake://``, here unpaced with ``speed=0``) runs a 0.5 s sine:
+
+    >>> from motorsim import Experiment, Sine
+    >>> with SerialRig("fake://?a=25&b=3&speed=0") as rig:
+    ...     rec = rig.run(Experiment(Sine(10, 200), sample_period=0.005, duration=0.5))
+    >>> len(rec), rec.metadata["complete"], rec.duty[:4].tolist(), rec.has_gaps
+    (100, 'true', [0.0, 10.0, 20.0, 30.0], False)
     """
 
     def __init__(self, port, baudrate: int = 250_000, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,

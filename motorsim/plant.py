@@ -168,6 +168,14 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     -------
     Trajectory
         ``angle[k]`` and ``speed[k]`` at ``time[k]``.
+
+    Examples
+    --------
+    A step of 100 duty units from rest: the speed rises towards ``b/a * 100 = 12`` rad/s.
+
+    >>> t = np.arange(5) * 0.01
+    >>> simulate(Motor(25.0, 3.0), np.full(5, 100), t).speed.round(3).tolist()
+    [0.0, 2.654, 4.722, 6.332, 7.585]
     """
     if not isinstance(motor, Motor):
         raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")

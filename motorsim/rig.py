@@ -132,7 +132,20 @@ class SimRig:
             raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, got {self.rng!r}")
 
     def run(self, experiment: Experiment) -> Recording:
-        """Simulate ``experiment`` and return what the bench would record."""
+        """Simulate ``experiment`` and return what the bench would record.
+
+        Parameters
+        ----------
+        experiment : Experiment
+            What to run.
+
+        Examples
+        --------
+        >>> from motorsim import Sine
+        >>> rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
+        >>> len(rec), rec.counts[:5].tolist(), rec.metadata["true_a"]
+        (200, [0, 0, 0, 4, 12], '25.0')
+        """
         if not isinstance(experiment, Experiment):
             raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         n, dt = experiment.n_samples, experiment.sample_period
