@@ -162,7 +162,7 @@ class FakeDevice:
         if not isinstance(self.rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
-        self._zoh = None
+        self._zoh: tuple[float, ...] | None = None
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -179,7 +179,7 @@ class FakeDevice:
         """Open the pty and start the device thread; returns ``self``."""
         if self._thread is not None:
             raise RuntimeError("this FakeDevice is already started")
-        import tty   # POSIX only: imported here so that `import hardware` works on Windows
+        import tty  # POSIX only: imported here so that `import hardware` works on Windows
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
         tty.setraw(self._slave)
@@ -330,11 +330,13 @@ class FakeDevice:
                 self._send(P.Nak(msg_type, frame_seq, P.NakReason.NOT_CONFIGURED))
             else:
                 self._send(P.Ack(msg_type, frame_seq))
-                self._start_run()
+                self._start_run(self._config, self._wave)
 
-    def _start_run(self) -> None:
-        cfg = self._config
-        self._duty_seq = P.expand(self._wave, cfg.n_samples, cfg.duty_limit) if cfg.n_samples <= 10**8 else None
+    def _start_run(self, cfg: P.Config, wave: P.Wave) -> None:
+        if cfg.n_samples > 10**8:
+            raise RuntimeError(f"the fake device emulates runs of at most 10**8 samples, got {cfg.n_samples}")
+        self._run_config = cfg
+        self._duty_seq = P.expand(wave, cfg.n_samples, cfg.duty_limit)
         self._dt = cfg.sample_period_us * 1e-6
         # the motor coasted with duty 0 since the last run
         idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
@@ -366,7 +368,7 @@ class FakeDevice:
         self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
 
     def _ticks(self, now: float) -> None:
-        cfg = self._config
+        cfg = self._run_config
         while self._running:
             if self.speed == 0:
                 if self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE:
@@ -449,7 +451,8 @@ class FakeDevice:
         self._end(P.EndReason.HOST_SILENCE)
 
     def _check_watchdog(self, now: float) -> None:
-        if self._running and self._config.watchdog_ms and now - self._last_rx > self._config.watchdog_ms / 1000:
+        watchdog_ms = self._run_config.watchdog_ms if self._running else 0
+        if watchdog_ms and now - self._last_rx > watchdog_ms / 1000:
             self._watchdog_trip()
 
     def _disconnect(self) -> None:

@@ -4,7 +4,7 @@ This module is the executable form of ``hardware/PROTOCOL.md`` (read that first)
 bytes in, values out, no I/O and no clock.  A frame on the wire is
 ``COBS(type u8 | frame_seq u8 | payload | crc u16) 0x00``, little-endian, with
 CRC-16/CCITT-FALSE over ``type|frame_seq|payload``; ``frame_seq`` is the sender's
-link frame counter (a sample's index is ``Sample.index``, the recording's ``seq``).
+link frame counter (a sample's index is ``Sample.seq``, as in a recording).
 
 Messages are small immutable named tuples (one class per type, fixed fields):
 they are created at up to 2 000 per second per direction and decoded at well
@@ -21,13 +21,24 @@ from __future__ import annotations
 import binascii
 import enum
 import struct
-from typing import NamedTuple, Union
+from typing import Any, NamedTuple, Union
 
 import numpy as np
 
 from motorsim.checks import check_int
-from motorsim.excitation import (MAX_AMPLITUDE, MAX_COMPONENTS, PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step,
-                                 chirp_duty, multisine_duty, prbs_bits)
+from motorsim.excitation import (
+    MAX_AMPLITUDE,
+    MAX_COMPONENTS,
+    PRBS,
+    PRBS_MASKS,
+    Chirp,
+    Constant,
+    Multisine,
+    Step,
+    chirp_duty,
+    multisine_duty,
+    prbs_bits,
+)
 from motorsim.rig import Experiment
 
 from .errors import FrameError, ProtocolError, ProtocolVersionError
@@ -38,7 +49,8 @@ __all__ = [
     "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
     "WavePrbs", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
     "decode_frame", "encode_message", "decode_message", "FrameReader", "expand", "wave_for",
-    "config_for", "check_version", "msg_type_of", "wave_range_problems", "FrameSplitter", "FrameError", "ProtocolError", "ProtocolVersionError",
+    "config_for", "check_version", "msg_type_of", "wave_range_problems", "FrameSplitter", "FrameError",
+    "ProtocolError", "ProtocolVersionError",
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
@@ -120,7 +132,8 @@ class Hello(NamedTuple):
 
 
 class Config(NamedTuple):
-    """CONFIG (0x02): sample period in µs, samples, duty clamp, quadrature decoding (1, 2, 4), watchdog in ms (0 off)."""
+    """CONFIG (0x02): sample period in µs, samples, duty clamp, quadrature decoding (1, 2, 4),
+    watchdog in ms (0 off)."""
 
     sample_period_us: int
     n_samples: int
@@ -142,7 +155,8 @@ class Heartbeat(NamedTuple):
 
 
 class HelloAck(NamedTuple):
-    """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot, max payload, board name."""
+    """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot,
+    max payload, board name."""
 
     version: int
     firmware_version: int
@@ -168,9 +182,10 @@ class Nak(NamedTuple):
 
 
 class Sample(NamedTuple):
-    """SAMPLE (0x84): sample index, device time in µs (wrapping u32), absolute encoder count, duty, flags."""
+    """SAMPLE (0x84): sample index ``seq``, device time in µs (wrapping u32), absolute encoder count, duty,
+    flags."""
 
-    index: int
+    seq: int
     time_us: int
     counts: int
     duty: int
@@ -189,10 +204,10 @@ class End(NamedTuple):
 
 
 class Fault(NamedTuple):
-    """FAULT (0x86): a :class:`FaultCode` and the sample index at which it happened."""
+    """FAULT (0x86): a :class:`FaultCode` and the sample index ``seq`` at which it happened."""
 
     code: int
-    index: int
+    seq: int
 
 
 class Boot(NamedTuple):
@@ -248,10 +263,11 @@ class WavePrbs(NamedTuple):
 
 
 Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs]
+_WAVE_TYPES = (WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs)
 Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave]
 
 # type -> (class, struct) for the fixed-length messages
-_FIXED = {
+_FIXED: dict[int, tuple[Any, struct.Struct]] = {
     MsgType.HELLO: (Hello, struct.Struct("<B")),
     MsgType.CONFIG: (Config, struct.Struct("<IIhBH")),
     MsgType.START: (Start, struct.Struct("<")),
@@ -268,7 +284,7 @@ _FIXED = {
 _TYPE_OF = {cls: t for t, (cls, _) in _FIXED.items()}
 _WAVE_KIND = {WaveConstant: WaveKind.CONSTANT, WaveStep: WaveKind.STEP, WaveMultisine: WaveKind.MULTISINE,
               WaveChirp: WaveKind.CHIRP, WavePrbs: WaveKind.PRBS}
-_WAVE_FIXED = {
+_WAVE_FIXED: dict[int, tuple[Any, struct.Struct]] = {
     WaveKind.CONSTANT: (WaveConstant, struct.Struct("<h")),
     WaveKind.STEP: (WaveStep, struct.Struct("<hhI")),
     WaveKind.CHIRP: (WaveChirp, struct.Struct("<hhIIi")),
@@ -385,17 +401,17 @@ def msg_type_of(msg: Message) -> MsgType:
         return MsgType.WAVE
     if cls not in _TYPE_OF:
         raise TypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), got {cls.__name__}")
-    return _TYPE_OF[cls]
+    return MsgType(_TYPE_OF[cls])
 
 
 def encode_message(msg: Message, frame_seq: int) -> bytes:
     """The wire bytes (COBS frame and delimiter) of ``msg`` with link frame counter ``frame_seq``."""
     t = msg_type_of(msg)
-    if t == MsgType.WAVE:
+    if isinstance(msg, _WAVE_TYPES):
         return encode_frame(MsgType.WAVE, frame_seq, _wave_payload(msg))
     cls = type(msg)
     fields = tuple(msg)
-    if cls is HelloAck:
+    if isinstance(msg, HelloAck):
         board = msg.board.encode("ascii")
         if len(board) > 8:
             raise ValueError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
@@ -410,7 +426,7 @@ def encode_message(msg: Message, frame_seq: int) -> bytes:
 def _wave_payload(wave: Wave) -> bytes:
     kind = _WAVE_KIND[type(wave)]
     try:
-        if kind == WaveKind.MULTISINE:
+        if isinstance(wave, WaveMultisine):
             comps = tuple(wave.components)
             if not 1 <= len(comps) <= MAX_COMPONENTS:
                 raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")

@@ -21,7 +21,7 @@ import contextlib
 import dataclasses
 import threading
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -31,8 +31,7 @@ from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 from . import protocol as P
-from .errors import (DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError,
-                     RigTimeoutError)
+from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
 
 __all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
@@ -126,7 +125,7 @@ class SerialRig:
         self.hello_timeout = float(hello_timeout)
         self.command_timeout = float(command_timeout)
         self._stack: contextlib.ExitStack | None = None
-        self._port = None
+        self._port: Any = None    # a pyserial-compatible port while open
         self._reader = P.FrameReader()
         self._tx_frame_seq = 0
         self._rx_frame_seq: int | None = None
@@ -253,7 +252,8 @@ class SerialRig:
                     if isinstance(reply, P.Ack) and reply.acked_frame_seq == frame_seq and reply.acked_type == msg_type:
                         self._backlog = run_frames + replies[i + 1:]
                         return
-                    if isinstance(reply, P.Nak) and reply.refused_frame_seq == frame_seq and reply.refused_type == msg_type:
+                    if (isinstance(reply, P.Nak) and reply.refused_frame_seq == frame_seq
+                            and reply.refused_type == msg_type):
                         if is_start and attempt > 0 and reply.reason == P.NakReason.BUSY:
                             self._backlog = run_frames + replies[i + 1:]
                             return     # the first START did start the run; its ACK was lost
@@ -270,8 +270,8 @@ class SerialRig:
         raise RigTimeoutError(f"the device on {self.port_name} did not acknowledge {P.MsgType(msg_type).name} "
                               f"(3 tries, {self.command_timeout:g} s each)")
 
-    def _receive_run(self, run: "_RunState", on_sample) -> None:
-        """Read the run's frames until END; silence longer than ``timeout`` raises."""
+    def _receive_run(self, run: "_RunState", on_sample) -> P.End:
+        """Read the run's frames until END and return it; silence longer than ``timeout`` raises."""
         last_rx = loop_end = time.monotonic()
         while run.end is None:
             msgs = self._read()
@@ -291,6 +291,7 @@ class SerialRig:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
             loop_end = time.monotonic()
+        return run.end
 
     # -------------------------------------------------------------- the run
     def line_load(self, sample_period: float) -> float:
@@ -337,11 +338,11 @@ class SerialRig:
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
             with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms else None):
-                self._receive_run(run, on_sample)
+                end = self._receive_run(run, on_sample)
             ended = True
-            if run.end.reason != P.EndReason.COMPLETE:
+            if end.reason != P.EndReason.COMPLETE:
                 raise DeviceFaultError(f"the device ended the run early: {run.describe_end()}")
-            problems = run.check()
+            problems = run.check(end)
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
             return run.recording(self, complete=True)
@@ -430,7 +431,7 @@ class _RunState:
         n_expected = len(self.expected)
         for msg in msgs:
             if type(msg) is P.Sample:
-                k = msg.index
+                k = msg.seq
                 if k <= self.last_index or k >= n_expected:
                     self.out_of_order += 1
                     continue
@@ -477,12 +478,12 @@ class _RunState:
                 name = P.FaultCode(self.fault.code).name
             except ValueError:
                 name = f"code {self.fault.code}"
-            out.append(f"FAULT {name} at sample {self.fault.index}")
+            out.append(f"FAULT {name} at sample {self.fault.seq}")
         return ", ".join(out) + f"; {self.n} samples received"
 
-    def check(self) -> list[str]:
-        """END against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
-        e, problems = self.end, []
+    def check(self, e: P.End) -> list[str]:
+        """END ``e`` against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
+        problems = []
         if self.duty_mismatches:
             problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's "
                             f"(first: {self.first_mismatch})")
@@ -522,7 +523,7 @@ class _RunState:
                         device_samples_dropped=str(e.samples_dropped), device_encoder_errors=str(e.encoder_errors),
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
-            meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.index))
+            meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
         return Recording(time=np.array(self.time), duty=np.array(self.duty, dtype=np.int64),
                          sample_period=self.dt, counts=np.array(self.counts, dtype=np.int64),
                          seq=np.array(self.seq, dtype=np.int64), counts_per_rev=rig.counts_per_rev, metadata=meta)

@@ -468,7 +468,9 @@ def _parse_sine(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 1 <= len(v) <= 3:
         raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
-    return Sine(v[0], *_ints(v[1:2]), *v[2:3], offset=_ints([offset])[0])
+    amplitude = _ints(v[1:2])[0] if len(v) > 1 else 200
+    phase = v[2] if len(v) > 2 else 0.0
+    return Sine(v[0], amplitude, phase, offset=_ints([offset])[0])
 
 
 def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
@@ -484,7 +486,8 @@ def _parse_chirp(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 2 <= len(v) <= 3:
         raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
-    return Chirp(v[0], v[1], *_ints(v[2:3]), offset=_ints([offset])[0])
+    amplitude = _ints(v[2:3])[0] if len(v) > 2 else 200
+    return Chirp(v[0], v[1], amplitude, offset=_ints([offset])[0])
 
 
 def _parse_prbs(args: str, spec: str, offset: float) -> Excitation:
@@ -498,7 +501,9 @@ def _parse_step(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 1 <= len(v) <= 3:
         raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
-    return Step(_ints(v[:1])[0], *(v[1:2]), *_ints(v[2:3]))
+    at_time = v[1] if len(v) > 1 else 0.0
+    before = _ints(v[2:3])[0] if len(v) > 2 else 0
+    return Step(_ints(v[:1])[0], at_time, before)
 
 
 def _parse_constant(args: str, spec: str, offset: float) -> Excitation:

@@ -32,7 +32,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterable, Mapping, NoReturn
+from typing import Iterable, Mapping, NoReturn, TextIO
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -56,7 +56,7 @@ class RecordingFormatError(ValueError):
 
 def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
     """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given)."""
-    arr = np.array(value, dtype=dtype, copy=True)
+    arr: np.ndarray = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
         raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
     if n is not None and len(arr) != n:
@@ -191,7 +191,7 @@ class Recording:
         """Angle in rad: the ``angle`` column, else counts converted, else None."""
         if self.angle is not None:
             return self.angle
-        if self.counts is not None:
+        if self.counts is not None and self.counts_per_rev is not None:
             return counts_to_angle(self.counts, self.counts_per_rev)
         return None
 
@@ -245,13 +245,15 @@ def _metadata_lines(rec: Recording) -> list[str]:
 
 def _columns(rec: Recording) -> list[str]:
     cols = ["seq", "time_s", "duty"]
-    cols += [c for c, v in (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed)) if v is not None]
+    optional = (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed))
+    cols += [c for c, v in optional if v is not None]
     return cols
 
 
 def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | None = None) -> Iterable[str]:
-    data = {"seq": rec.seq, "time_s": rec.time, "duty": rec.duty, "counts": rec.counts,
-            "angle_rad": rec.angle, "speed_rad_s": rec.speed}
+    columns = {"seq": rec.seq, "time_s": rec.time, "duty": rec.duty, "counts": rec.counts,
+               "angle_rad": rec.angle, "speed_rad_s": rec.speed}
+    data = {c: arr for c, arr in columns.items() if arr is not None}
     integral_duty = bool(np.all(rec.duty == np.round(rec.duty)))
     fmt = {"seq": lambda x: str(int(x)), "counts": lambda x: str(int(x)),
            "time_s": repr, "angle_rad": repr, "speed_rad_s": repr,
@@ -333,7 +335,7 @@ class RecordingWriter:
         self._flush_interval = float(flush_interval)
         self._rows: list[tuple[int, float, int, int]] = []
         self._last: tuple[int, float, int, int] | None = None
-        self._file = None
+        self._file: TextIO | None = None
         self._header_lines = 0
         self._last_flush = time.monotonic()
         self.n_rows = 0

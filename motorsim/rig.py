@@ -8,7 +8,6 @@ Nothing here is simulation-specific except :class:`SimRig` itself.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -20,7 +19,8 @@ from .plant import Motor, simulate
 from .recording import Recording
 from .sensors import Encoder
 
-__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs"]
+__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs",
+           "kept_samples"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +129,8 @@ class SimRig:
         object.__setattr__(self, "initial_speed", check_real("initial_speed", self.initial_speed))
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
-            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, got {self.rng!r}")
+            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
+                            f"got {self.rng!r}")
 
     def run(self, experiment: Experiment) -> Recording:
         """Simulate ``experiment`` and return what the bench would record.
@@ -154,9 +155,7 @@ class SimRig:
         time = jittered_times(n, dt, self.jitter, self.rng)
         traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
         counts = self.encoder.counts(traj.angle, self.rng)
-        keep = np.ones(n, dtype=bool)
-        if self.drop_rate > 0:
-            keep[1:] = self.rng.random(n - 1) >= self.drop_rate
+        keep = kept_samples(n, self.drop_rate, self.rng)
         meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
                 **recorded_knobs(self.encoder), **recorded_knobs(self)}
         speed = traj.speed[keep] if self.record_speed else None
@@ -196,6 +195,19 @@ def bench_knobs() -> tuple[Knob, ...]:
     if len(set(names)) != len(names):  # pragma: no cover - a programming error caught by the tests
         raise RuntimeError(f"bench knob names must be unique, got {names}")
     return out
+
+
+def kept_samples(n_samples: int, drop_rate: float, rng: np.random.Generator | None) -> np.ndarray:
+    """Which samples reach the host (bool mask): each but the first is lost with probability ``drop_rate``.
+
+    ``rng`` may be None when ``drop_rate`` is 0.
+    """
+    keep = np.ones(n_samples, dtype=bool)
+    if drop_rate > 0:
+        if rng is None:
+            raise TypeError("rng must be a numpy.random.Generator when drop_rate > 0, got None")
+        keep[1:] = rng.random(n_samples - 1) >= drop_rate
+    return keep
 
 
 def jittered_times(n_samples: int, sample_period: float, jitter: float,

@@ -62,7 +62,10 @@ def counts_to_angle(counts, counts_per_rev: int) -> np.ndarray:
 
 
 def backward_difference(angle, time) -> np.ndarray:
-    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])`` in rad/s; ``nan`` at k = 0 (angle in rad, time in s)."""
+    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])`` in rad/s; ``nan`` at k = 0.
+
+    ``angle`` in rad, ``time`` in s.
+    """
     angle = np.asarray(angle, dtype=float)
     time = np.asarray(time, dtype=float)
     speed = np.full(angle.shape, np.nan)

@@ -51,7 +51,8 @@ from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.rig import bench_knobs
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
-__all__ = ["open_avr_sim", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation", "HarnessOptions", "parse_avr_sim_url", "build",
+__all__ = ["open_avr_sim", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation", "HarnessOptions",
+           "parse_avr_sim_url", "build",
            "firmware_elf", "SUPPORTED_BAUDRATES", "DEFAULT_BAUDRATE", "REPO_ROOT"]
 
 #: The repository root (the harness and firmware are built from the source tree).
@@ -313,11 +314,15 @@ class AvrSimulation:
     def start(self) -> str:
         """Build if needed, start the harness and return its pty path."""
         elf, harness = build(self.baudrate, self.options.driver)
-        self._process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
-                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                         stderr=subprocess.PIPE, text=True)
+        process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
+                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+        self._process = process
+        stdout, stderr = process.stdout, process.stderr
+        if stdout is None or stderr is None:   # pragma: no cover - PIPE always gives both
+            raise RuntimeError("motorid-avr-sim was started without its output pipes")
         # Read the raw pipe (a buffered readline would hide lines from select()).
-        fd = self._process.stdout.fileno()
+        fd = stdout.fileno()
         deadline = time.monotonic() + _STARTUP_TIMEOUT
         text = b""
         while True:
@@ -332,7 +337,7 @@ class AvrSimulation:
                 raise TimeoutError(f"motorid-avr-sim printed no PTY line within {_STARTUP_TIMEOUT} s")
             chunk = os.read(fd, 4096)
             if not chunk:
-                err = self._process.stderr.read()
+                err = stderr.read()
                 self.stop()
                 raise RuntimeError(f"motorid-avr-sim exited before opening its pty: {err.strip()}")
             text += chunk

@@ -18,12 +18,12 @@ import pytest
 from scipy.optimize import least_squares
 
 import identify
-from hardware.sim.device_link import DeviceLink
 from hardware import protocol as P
 from hardware.errors import DeviceFaultError
 from hardware.serial_rig import SerialRig
+from hardware.sim.device_link import DeviceLink
 from hardware.sim.launcher import build, missing_tools, open_avr_sim
-from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Recording, Sine, Step
+from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Sine, Step
 
 A, B, COUNTS_PER_REV = 25.0, 3.0, 16667
 # 20 rad/s, amplitude 100: the speed swings +-9.4 rad/s (25 k counts/s, well under the
@@ -191,9 +191,9 @@ def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
         busy_seqs = []
 
         def meddle_then_stop(link, sample):
-            if sample.index == 50:
+            if sample.seq == 50:
                 busy_seqs.extend(link.send(m) for m in (P.Hello(), STEADY, P.WaveConstant(0), P.Start()))
-            if sample.index == 200:
+            if sample.seq == 200:
                 link.send(P.Stop())
 
         run = link.run(STEADY, P.WaveConstant(150), on_sample=meddle_then_stop)
@@ -293,9 +293,9 @@ def test_corrupted_frames_are_refused_and_counted_and_the_link_recovers(built):
         injected = []
 
         def corrupt_twice(link, sample):
-            if sample.index in (50, 100) and sample.index not in injected:
-                injected.append(sample.index)
-                if sample.index == 50:
+            if sample.seq in (50, 100) and sample.seq not in injected:
+                injected.append(sample.seq)
+                if sample.seq == 50:
                     bad = bytearray(P.encode_message(P.Heartbeat(), link.frame_seq))
                     bad[1] ^= 0xFF
                     link.send_raw(bytes(bad))             # bad CRC
@@ -327,7 +327,8 @@ def test_unknown_type_and_wrong_length_are_naked(built):
         link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
         assert nak == P.Nak(P.MsgType.WAVE, frame_seq, P.NakReason.BAD_VALUE)
-        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.frame_seq - 1, P.NakReason.BAD_VALUE)
+        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.frame_seq - 1,
+                                                                  P.NakReason.BAD_VALUE)
         assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.frame_seq - 1, P.NakReason.NOT_CONFIGURED)
 
 
@@ -346,13 +347,13 @@ def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
     assert all(np.diff(run.frame_seqs) % 256 == 1), "the link itself lost nothing"
     assert end.samples_sent == len(run.samples)
     assert len(run.samples) + end.samples_dropped == n
-    indices = np.array([s.index for s in run.samples])
+    indices = np.array([s.seq for s in run.samples])
     assert np.all(np.diff(indices) > 0)
     gaps = int(np.sum(np.diff(indices) - 1)) + indices[0] + (n - 1 - indices[-1])
     assert gaps == end.samples_dropped, "every dropped sample is a gap in the indices"
     assert [f.code for f in run.faults] == [P.FaultCode.QUEUE_OVERFLOW]
     first_gap = next(k for k, i in enumerate(indices) if i != k)
-    assert run.faults[0].index == first_gap
+    assert run.faults[0].seq == first_gap
 
 
 def test_serial_rig_refuses_a_rate_the_line_cannot_carry_before_starting(built):

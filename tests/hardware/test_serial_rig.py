@@ -8,12 +8,18 @@ import pytest
 import serial
 
 from hardware import protocol as P
-from hardware.errors import (DeviceFaultError, DeviceRefusedError, ProtocolVersionError, RigCheckError,
-                             RigDisconnectedError, RigTimeoutError)
+from hardware.errors import (
+    DeviceFaultError,
+    DeviceRefusedError,
+    ProtocolVersionError,
+    RigCheckError,
+    RigDisconnectedError,
+    RigTimeoutError,
+)
 from hardware.fake_device import FakeDevice, FaultPlan, parse_fake_url
 from hardware.ports import open_port, url_keys
 from hardware.serial_rig import SerialRig
-from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, Sine, SimRig, Step
+from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, SimRig, Sine, Step
 from motorsim.rig import bench_knobs
 
 MOTOR = Motor(25.0, 3.0)
@@ -185,7 +191,7 @@ def test_the_device_watchdog_stops_a_host_that_goes_silent():
         deadline = time.monotonic() + 3.0
         while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
             got += [m for _, m in reader.feed(port.read(256))]
-        assert P.Fault(P.FaultCode.HOST_SILENCE, got[-2].index) in got
+        assert P.Fault(P.FaultCode.HOST_SILENCE, got[-2].seq) in got
         assert got[-1].reason == P.EndReason.HOST_SILENCE and dev.duty == 0
         # stopped by the watchdog (after ~20 samples), long before the 100 000 of the run
         assert 0 < got[-1].samples_sent < 100_000

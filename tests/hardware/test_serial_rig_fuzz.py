@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hardware import protocol as P
 from hardware.errors import ProtocolError, RigError
 from hardware.serial_rig import SerialRig
-from motorsim import Experiment, Motor, Sine, SimRig
+from motorsim import Experiment, Motor, SimRig, Sine
 
 EXPERIMENT = Experiment(Sine(25.0), 0.005, 0.3)     # 60 samples
 CLEAN = SimRig(Motor(25.0, 3.0)).run(EXPERIMENT)
