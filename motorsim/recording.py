@@ -1,7 +1,14 @@
 """``Recording``: one experiment's samples, and the CSV recording format v1.
 
-Alignment (fixed for the whole project)
----------------------------------------
+:class:`Recording` holds the sample columns (read-only arrays) and the metadata of one
+run, checks them when built, converts counts to angle (:meth:`Recording.measured_angle`),
+differences the angle into speed (:meth:`Recording.measured_speed`) and splits at dropped
+samples (:meth:`Recording.segments`).  :func:`write_recording` and :func:`read_recording`
+write and read format v1 (below); :class:`RecordingWriter` writes it row by row during a
+run, so that an interrupted run still leaves a readable file.
+
+Alignment (every package follows it)
+------------------------------------
 Row ``k``'s encoder reading (``counts``/``angle_rad``) is taken at ``time_s[k]``;
 then ``duty[k]`` is applied until ``time_s[k+1]``.  Speed at ``k`` is the backward
 difference ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])``, the average over
