@@ -4,8 +4,17 @@
 runs an :class:`~motorsim.rig.Experiment` on a device over any pyserial port or
 URL; ``fake_device`` is an emulated Arduino on a pty (``fake://?a=25&b=3``).
 """
-from .errors import (DeviceFaultError, DeviceRefusedError, FrameError, ProtocolError, ProtocolVersionError,
-                     RigCheckError, RigDisconnectedError, RigError, RigTimeoutError)
+from .errors import (
+                     DeviceFaultError,
+                     DeviceRefusedError,
+                     FrameError,
+                     ProtocolError,
+                     ProtocolVersionError,
+                     RigCheckError,
+                     RigDisconnectedError,
+                     RigError,
+                     RigTimeoutError,
+)
 from .fake_device import FakeDevice, FaultPlan
 from .ports import open_port
 from .protocol import PROTOCOL_VERSION, expand

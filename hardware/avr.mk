@@ -2,6 +2,8 @@
 #   make firmware       hardware/firmware/build/motorid_bench.{elf,hex} (gcc-avr + Debian's Arduino core)
 #   make avr-sim        hardware/sim/build/motorid-avr-sim (libsimavr harness)
 #   make firmware-deps  apt-get install the Debian packages, only those missing
+# firmware and avr-sim run firmware-deps first; FIRMWARE_DEPS= (empty) skips it, as the Python
+# launcher does (it reports missing tools instead of installing packages).
 # FIRMWARE_DEFS adds -D settings (e.g. FIRMWARE_DEFS=-DBAUD_RATE=500000 FIRMWARE_BUILD=...).
 
 AVR_PACKAGES   := gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1 \
@@ -22,6 +24,7 @@ CORE_SOURCES   := $(wildcard $(ARDUINO_CORE)/cores/arduino/*.c $(ARDUINO_CORE)/c
                             $(ARDUINO_CORE)/cores/arduino/*.S)
 FIRMWARE_ELF   := $(FIRMWARE_BUILD)/motorid_bench.elf
 SIM_BIN        := $(SIM_BUILD)/motorid-avr-sim
+FIRMWARE_DEPS  ?= firmware-deps
 
 .PHONY: firmware avr-sim firmware-deps firmware-size
 
@@ -33,10 +36,10 @@ firmware-deps:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
 	fi
 
-firmware: firmware-deps
+firmware: $(FIRMWARE_DEPS)
 	@$(MAKE) --no-print-directory $(FIRMWARE_ELF) $(FIRMWARE_BUILD)/motorid_bench.hex
 
-avr-sim: firmware-deps
+avr-sim: $(FIRMWARE_DEPS)
 	@$(MAKE) --no-print-directory $(SIM_BIN)
 
 firmware-size: firmware

@@ -45,13 +45,15 @@ from typing import Iterator
 
 import numpy as np
 
-from motorsim.excitation import _check_int, _check_real
+from motorsim.checks import check_bool, check_int, check_real
+from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, simulate, zoh_matrices
-from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
+from motorsim.rig import bench_knobs
+from motorsim.sensors import Encoder
 
 from . import protocol as P
 
-__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url"]
+__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url", "url_keys"]
 
 _SAMPLE_WIRE = 21
 
@@ -87,29 +89,30 @@ class FaultPlan:
         Seconds in the "bootloader" after start, ignoring input, before BOOT.
     """
 
-    flip_rate: float = 0.0
-    drop_rate: float = 0.0
-    garbage_rate: float = 0.0
-    queue_drop_rate: float = 0.0
-    stall_at: int | None = None
-    disconnect_at: int | None = None
-    watchdog_trip_at: int | None = None
-    mute: bool = False
-    version: int = P.PROTOCOL_VERSION
-    boot_delay: float = 0.0
+    flip_rate: float = knob(0.0, unit="", help="probability that a SAMPLE frame has one bit flipped")
+    drop_rate: float = knob(0.0, unit="", help="probability that a SAMPLE frame is lost on the link")
+    garbage_rate: float = knob(0.0, unit="", help="probability of random bytes before a SAMPLE frame")
+    queue_drop_rate: float = knob(0.0, unit="", help="probability that the device drops a sample")
+    stall_at: int | None = knob(None, kind=int, unit="samples", help="sample from which the device sends nothing")
+    disconnect_at: int | None = knob(None, kind=int, unit="samples", help="sample at which the link closes")
+    watchdog_trip_at: int | None = knob(None, kind=int, unit="samples",
+                                        help="sample at which the host-silence watchdog trips")
+    mute: bool = knob(False, unit="", help="never answer (a board without the firmware)")
+    version: int = knob(P.PROTOCOL_VERSION, unit="", help="protocol version the device reports")
+    boot_delay: float = knob(0.0, unit="s", help="time in the bootloader before BOOT")
 
     def __post_init__(self):
         for name in ("flip_rate", "drop_rate", "garbage_rate", "queue_drop_rate"):
-            v = _check_real(name, getattr(self, name), nonnegative=True)
+            v = check_real(name, getattr(self, name), nonnegative=True)
             if v >= 1:
                 raise ValueError(f"{name} must be a probability in [0, 1), got {v!r}")
             object.__setattr__(self, name, v)
         for name in ("stall_at", "disconnect_at", "watchdog_trip_at"):
             if getattr(self, name) is not None:
-                object.__setattr__(self, name, _check_int(name, getattr(self, name), 0, 2**32 - 1))
-        object.__setattr__(self, "version", _check_int("version", self.version, 0, 255))
-        object.__setattr__(self, "boot_delay", _check_real("boot_delay", self.boot_delay, nonnegative=True))
-        object.__setattr__(self, "mute", bool(self.mute))
+                object.__setattr__(self, name, check_int(name, getattr(self, name), 0, 2**32 - 1))
+        object.__setattr__(self, "version", check_int("version", self.version, 0, 255))
+        object.__setattr__(self, "boot_delay", check_real("boot_delay", self.boot_delay, nonnegative=True))
+        object.__setattr__(self, "mute", check_bool("mute", self.mute))
 
 
 class FakeDevice:
@@ -153,13 +156,13 @@ class FakeDevice:
         self.faults = faults if faults is not None else FaultPlan()
         if not isinstance(self.faults, FaultPlan):
             raise TypeError(f"faults must be a FaultPlan, got {type(self.faults).__name__}")
-        self.speed = _check_real("speed", speed, nonnegative=True)
-        self.queue_size = _check_int("queue_size", queue_size, 1, 10_000)
+        self.speed = check_real("speed", speed, nonnegative=True)
+        self.queue_size = check_int("queue_size", queue_size, 1, 10_000)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         if not isinstance(self.rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
-        self._zoh = None
+        self._zoh: tuple[float, ...] | None = None
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -176,7 +179,7 @@ class FakeDevice:
         """Open the pty and start the device thread; returns ``self``."""
         if self._thread is not None:
             raise RuntimeError("this FakeDevice is already started")
-        import tty   # POSIX only: imported here so that `import hardware` works on Windows
+        import tty  # POSIX only: imported here so that `import hardware` works on Windows
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
         tty.setraw(self._slave)
@@ -215,9 +218,8 @@ class FakeDevice:
     def _run_firmware(self) -> None:
         self._out = bytearray()
         self._queued_samples = 0
-        self._tx_seq = 0
-        self._rx_pending = b""
-        self._rx_discarding = False
+        self._tx_frame_seq = 0
+        self._splitter = P.FrameSplitter()
         self._config: P.Config | None = None
         self._wave = None
         self._running = False
@@ -269,24 +271,17 @@ class FakeDevice:
             raise
         if discard or self.faults.mute:
             return
-        parts = (self._rx_pending + data).split(b"\x00")
-        self._rx_pending = parts.pop()
-        if self._rx_discarding and parts:
-            parts[0] = b""                    # the overlong frame ends at this delimiter
-            self._rx_discarding = False
-        if self._rx_discarding:
-            self._rx_pending = b""
-        elif len(self._rx_pending) > P.MAX_ENCODED:   # discard up to the next 0x00, one error
-            self._rx_pending = b""
-            self._rx_discarding = True
+        parts, overflow = self._splitter.split(data)
+        if overflow:      # an overlong frame, discarded up to the next 0x00: one error
             self.rx_errors += 1
         for part in parts:
             if part:
                 self._receive(part)
 
     def _receive(self, encoded: bytes) -> None:
+        """Act on one encoded frame as the firmware does: answer it, or count it as an error."""
         try:
-            msg_type, seq, payload = P.decode_frame(encoded)
+            msg_type, frame_seq, payload = P.decode_frame(encoded)
         except P.FrameError:
             self.rx_errors += 1
             return
@@ -296,13 +291,7 @@ class FakeDevice:
                 raise P.FrameError(f"type {msg_type:#04x} is not a host-to-device type")
         except P.FrameError:
             self.rx_errors += 1
-            known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
-            reason = P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE
-            if msg_type == P.MsgType.WAVE and payload and (
-                    payload[0] not in P.WaveKind._value2member_map_
-                    or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):
-                reason = P.NakReason.BAD_VALUE
-            self._send(P.Nak(msg_type, seq, reason))
+            self._send(P.Nak(msg_type, frame_seq, _nak_reason(msg_type, payload)))
             return
         self._last_rx = time.monotonic()   # any valid frame refreshes the watchdog
         if isinstance(msg, P.Heartbeat):
@@ -310,36 +299,44 @@ class FakeDevice:
         if isinstance(msg, P.Stop):
             self.stops_received += 1
             self.duty = 0
-            self._send(P.Ack(msg_type, seq))
+            self._send(P.Ack(msg_type, frame_seq))
             if self._running:
                 self._end(P.EndReason.STOPPED_BY_HOST)
             return
         if self._running:
-            self._send(P.Nak(msg_type, seq, P.NakReason.BUSY))
+            self._send(P.Nak(msg_type, frame_seq, P.NakReason.BUSY))
             return
+        self._answer_idle(msg, msg_type, frame_seq)
+
+    def _answer_idle(self, msg, msg_type: int, frame_seq: int) -> None:
+        """HELLO, CONFIG, WAVE or START while no run is going on."""
+        def ack_if(ok: bool) -> None:
+            self._send(P.Ack(msg_type, frame_seq) if ok else P.Nak(msg_type, frame_seq, P.NakReason.BAD_VALUE))
+
         if isinstance(msg, P.Hello):
             self._send(P.HelloAck(self.faults.version, 0x0100, 16_000_000, 1, P.MAX_PAYLOAD, "fake"))
         elif isinstance(msg, P.Config):
-            ok = (100 <= msg.sample_period_us <= 1_000_000 and msg.n_samples >= 1 and 0 <= msg.duty_limit <= 255
-                  and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
+            ok = _config_ok(msg)
             if ok:
                 self._config = msg
-            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+            ack_if(ok)
         elif msg_type == P.MsgType.WAVE:
-            ok = not P._check_wave_ranges(msg)
+            ok = not P.wave_range_problems(msg)
             if ok:
                 self._wave = msg
-            self._send(P.Ack(msg_type, seq) if ok else P.Nak(msg_type, seq, P.NakReason.BAD_VALUE))
+            ack_if(ok)
         elif isinstance(msg, P.Start):
             if self._config is None or self._wave is None:
-                self._send(P.Nak(msg_type, seq, P.NakReason.NOT_CONFIGURED))
+                self._send(P.Nak(msg_type, frame_seq, P.NakReason.NOT_CONFIGURED))
             else:
-                self._send(P.Ack(msg_type, seq))
-                self._start_run()
+                self._send(P.Ack(msg_type, frame_seq))
+                self._start_run(self._config, self._wave)
 
-    def _start_run(self) -> None:
-        cfg = self._config
-        self._duty_seq = P.expand(self._wave, cfg.n_samples, cfg.duty_limit) if cfg.n_samples <= 10**8 else None
+    def _start_run(self, cfg: P.Config, wave: P.Wave) -> None:
+        if cfg.n_samples > 10**8:
+            raise RuntimeError(f"the fake device emulates runs of at most 10**8 samples, got {cfg.n_samples}")
+        self._run_config = cfg
+        self._duty_seq = P.expand(wave, cfg.n_samples, cfg.duty_limit)
         self._dt = cfg.sample_period_us * 1e-6
         # the motor coasted with duty 0 since the last run
         idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
@@ -371,7 +368,7 @@ class FakeDevice:
         self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
 
     def _ticks(self, now: float) -> None:
-        cfg = self._config
+        cfg = self._run_config
         while self._running:
             if self.speed == 0:
                 if self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE:
@@ -424,8 +421,8 @@ class FakeDevice:
 
     def _send_sample(self, sample: P.Sample) -> None:
         f, rng = self.faults, self.rng
-        wire = P.encode_message(sample, self._tx_seq)
-        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        wire = P.encode_message(sample, self._tx_frame_seq)
+        self._tx_frame_seq = (self._tx_frame_seq + 1) & 0xFF
         self._counters["sent"] += 1
         if f.garbage_rate and rng.random() < f.garbage_rate:
             self._emit(bytes(rng.integers(1, 256, int(rng.integers(1, 9)), dtype=np.uint8)) + b"\x00")
@@ -454,7 +451,8 @@ class FakeDevice:
         self._end(P.EndReason.HOST_SILENCE)
 
     def _check_watchdog(self, now: float) -> None:
-        if self._running and self._config.watchdog_ms and now - self._last_rx > self._config.watchdog_ms / 1000:
+        watchdog_ms = self._run_config.watchdog_ms if self._running else 0
+        if watchdog_ms and now - self._last_rx > watchdog_ms / 1000:
             self._watchdog_trip()
 
     def _disconnect(self) -> None:
@@ -485,8 +483,8 @@ class FakeDevice:
 
     # -------------------------------------------------------------- transmit
     def _send(self, msg) -> None:
-        self._emit(P.encode_message(msg, self._tx_seq))
-        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        self._emit(P.encode_message(msg, self._tx_frame_seq))
+        self._tx_frame_seq = (self._tx_frame_seq + 1) & 0xFF
 
     def _emit(self, wire: bytes, sample: bool = False) -> None:
         if self._silent or self.faults.mute:
@@ -511,46 +509,88 @@ class FakeDevice:
         self._queued_samples = min(self._queued_samples, math.ceil(len(self._out) / _SAMPLE_WIRE))
 
 
+def _nak_reason(msg_type: int, payload: bytes) -> int:
+    """Why the firmware NAKs a frame whose COBS and CRC are good but whose message is not."""
+    known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
+    if msg_type == P.MsgType.WAVE and payload and (
+            payload[0] not in P.WaveKind._value2member_map_
+            or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):
+        return P.NakReason.BAD_VALUE
+    return P.NakReason.BAD_LENGTH if known else P.NakReason.UNKNOWN_TYPE
+
+
+def _config_ok(msg: P.Config) -> bool:
+    """The CONFIG ranges of PROTOCOL.md."""
+    return (100 <= msg.sample_period_us <= 1_000_000 and msg.n_samples >= 1 and 0 <= msg.duty_limit <= 255
+            and msg.decoding in (1, 2, 4) and (msg.watchdog_ms == 0 or 50 <= msg.watchdog_ms <= 60_000))
+
+
+#: Defaults of the fake device's motor (``Motor`` itself has none for ``a`` and ``b``).
+_MOTOR_DEFAULTS = {"a": 25.0, "b": 3.0}
+#: Keys of the emulated device itself (not bench knobs, not faults).
+_DEVICE_KNOBS = (
+    Knob("seed", FakeDevice, int, 0, "", "seed of the angle noise and of the injected faults"),
+    Knob("speed", FakeDevice, float, 1.0, "", "device time per wall-clock time (0: as fast as the host reads)"),
+    Knob("queue", FakeDevice, int, 16, "SAMPLE frames", "transmit queue length"),
+)
+#: Keys earlier versions accepted, and their names now.
+_RENAMED_KEYS = {"cpr": "counts_per_rev", "noise": "angle_noise", "offset": "count_offset"}
+
+
+def _url_knobs() -> tuple[Knob, ...]:
+    bench = tuple(k for k in bench_knobs() if k.owner in (Motor, Encoder))
+    return bench + _DEVICE_KNOBS + knobs_of(FaultPlan)
+
+
+def url_keys() -> tuple[str, ...]:
+    """The query keys of ``fake://``: the motor's and encoder's bench knobs, the device's
+    (``seed``, ``speed``, ``queue``) and the :class:`FaultPlan` fields.
+
+    Examples
+    --------
+    >>> url_keys()[:9]
+    ('a', 'b', 'friction', 'bias', 'dead_zone', 'input_delay', 'counts_per_rev', 'count_offset', 'angle_noise')
+    """
+    return tuple(k.name for k in _url_knobs())
+
+
 def parse_fake_url(url: str) -> FakeDevice:
     """A (not yet started) :class:`FakeDevice` from ``fake://?a=25&b=3&...``.
 
-    Query keys: ``a``, ``b`` (motor, defaults 25 and 3), ``friction``, ``bias``, ``dead_zone``,
-    ``input_delay``, ``cpr`` (counts per revolution, default 16667), ``offset`` (count at boot),
-    ``noise`` (angle noise in rad), ``seed``, ``speed``, ``queue``, and every
-    :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+    Query keys (:func:`url_keys`): the bench knobs of ``Motor`` (``a``, ``b``, defaults 25 and 3;
+    ``friction``, ``bias``, ``dead_zone``, ``input_delay``) and ``Encoder`` (``counts_per_rev``,
+    ``count_offset``, ``angle_noise``) under their own names; ``seed``, ``speed``, ``queue``;
+    and every :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+
+    Examples
+    --------
+    >>> device = parse_fake_url("fake://?a=30&b=2&counts_per_rev=2000&speed=0")
+    >>> device.motor.a, device.encoder.counts_per_rev, device.speed
+    (30.0, 2000, 0.0)
     """
     parsed = urllib.parse.urlsplit(url)
     if parsed.scheme != "fake":
         raise ValueError(f"url must start with fake://, got {url!r}")
     query = dict(urllib.parse.parse_qsl(parsed.query, keep_blank_values=True))
-    motor_keys = {"a": float, "b": float, "friction": float, "bias": float, "dead_zone": float, "input_delay": int}
-    fault_fields = {f.name: f.type for f in dataclasses.fields(FaultPlan)}
-    other = {"cpr", "offset", "noise", "seed", "speed", "queue"}
-    unknown = set(query) - set(motor_keys) - set(fault_fields) - other
+    for old, new in _RENAMED_KEYS.items():
+        if old in query:
+            raise ValueError(f"fake:// url key {old!r} is now called {new!r}")
+    knobs = {k.name: k for k in _url_knobs()}
+    unknown = set(query) - set(knobs)
     if unknown:
-        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: "
-                         f"{sorted(set(motor_keys) | set(fault_fields) | other)}")
+        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: {sorted(knobs)}")
+    try:
+        values = {name: knobs[name].parse(text) for name, text in query.items()}
+    except ValueError as exc:
+        raise ValueError(f"fake:// url key {exc}") from None
 
-    def num(key, kind, default=None):
-        if key not in query:
-            return default
-        try:
-            return kind(float(query[key])) if kind is int else kind(query[key])
-        except ValueError:
-            raise ValueError(f"fake:// url key {key} must be a number, got {query[key]!r}") from None
+    def fields_of(cls: type) -> dict:
+        return {k.name: values[k.name] for k in knobs_of(cls) if k.name in values}
 
-    motor = Motor(num("a", float, 25.0), num("b", float, 3.0), friction=num("friction", float, 0.0),
-                  bias=num("bias", float, 0.0), dead_zone=num("dead_zone", float, 0.0),
-                  input_delay=num("input_delay", int, 0))
-    encoder = Encoder(num("cpr", int, DEFAULT_COUNTS_PER_REV), num("offset", int, 0), num("noise", float, 0.0))
-    faults = {}
-    for key in fault_fields:
-        if key in query:
-            kind = bool if key == "mute" else (int if key in ("stall_at", "disconnect_at", "watchdog_trip_at",
-                                                               "version") else float)
-            faults[key] = query[key].lower() in ("1", "true", "yes") if kind is bool else num(key, kind)
-    return FakeDevice(motor, encoder, FaultPlan(**faults), speed=num("speed", float, 1.0),
-                      queue_size=num("queue", int, 16), rng=np.random.default_rng(num("seed", int, 0)))
+    motor = Motor(**{**_MOTOR_DEFAULTS, **fields_of(Motor)})
+    return FakeDevice(motor, Encoder(**fields_of(Encoder)), FaultPlan(**fields_of(FaultPlan)),
+                      speed=values.get("speed", 1.0), queue_size=values.get("queue", 16),
+                      rng=np.random.default_rng(values.get("seed", 0)))
 
 
 @contextlib.contextmanager

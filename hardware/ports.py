@@ -13,7 +13,7 @@ from typing import Iterator
 
 from .errors import RigDisconnectedError
 
-__all__ = ["open_port", "available_schemes"]
+__all__ = ["open_port", "available_schemes", "url_keys"]
 
 #: scheme -> "module:function"; the function is a context manager
 #: ``open_X(url: str, baudrate: int, timeout: float)`` yielding an open pyserial-compatible port.
@@ -22,10 +22,35 @@ _SCHEMES = {
     "avr-sim": "hardware.sim.launcher:open_avr_sim",
 }
 
+#: scheme -> "module:function" returning the scheme's URL query keys.
+_URL_KEYS = {
+    "fake": "hardware.fake_device:url_keys",
+    "avr-sim": "hardware.sim.launcher:url_keys",
+}
+
 
 def available_schemes() -> list[str]:
     """motorid's own URL schemes (pyserial's are accepted too)."""
     return list(_SCHEMES)
+
+
+def url_keys(scheme: str) -> tuple[str, ...]:
+    """The query keys a motorid URL scheme accepts (bench knobs under their own names).
+
+    Parameters
+    ----------
+    scheme : {"fake", "avr-sim"}
+        One of :func:`available_schemes`.
+
+    Examples
+    --------
+    >>> url_keys("avr-sim")[:4]
+    ('a', 'b', 'friction', 'counts_per_rev')
+    """
+    if scheme not in _URL_KEYS:
+        raise ValueError(f"scheme must be one of {sorted(_URL_KEYS)}, got {scheme!r}")
+    module_name, _, func = _URL_KEYS[scheme].partition(":")
+    return getattr(importlib.import_module(module_name), func)()
 
 
 @contextlib.contextmanager

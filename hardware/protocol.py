@@ -2,8 +2,9 @@
 
 This module is the executable form of ``hardware/PROTOCOL.md`` (read that first):
 bytes in, values out, no I/O and no clock.  A frame on the wire is
-``COBS(type u8 | seq u8 | payload | crc u16) 0x00``, little-endian, with
-CRC-16/CCITT-FALSE over ``type|seq|payload``.
+``COBS(type u8 | frame_seq u8 | payload | crc u16) 0x00``, little-endian, with
+CRC-16/CCITT-FALSE over ``type|frame_seq|payload``; ``frame_seq`` is the sender's
+link frame counter (a sample's index is ``Sample.seq``, as in a recording).
 
 Messages are small immutable named tuples (one class per type, fixed fields):
 they are created at up to 2 000 per second per direction and decoded at well
@@ -20,12 +21,24 @@ from __future__ import annotations
 import binascii
 import enum
 import struct
-from typing import NamedTuple, Union
+from typing import Any, NamedTuple, Union
 
 import numpy as np
 
-from motorsim.excitation import (MAX_AMPLITUDE, MAX_COMPONENTS, PRBS, PRBS_MASKS, Chirp, Constant, Multisine, Step,
-                                 chirp_duty, multisine_duty, prbs_bits)
+from motorsim.checks import check_int
+from motorsim.excitation import (
+    MAX_AMPLITUDE,
+    MAX_COMPONENTS,
+    PRBS,
+    PRBS_MASKS,
+    Chirp,
+    Constant,
+    Multisine,
+    Step,
+    chirp_duty,
+    multisine_duty,
+    prbs_bits,
+)
 from motorsim.rig import Experiment
 
 from .errors import FrameError, ProtocolError, ProtocolVersionError
@@ -36,7 +49,8 @@ __all__ = [
     "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
     "WavePrbs", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
     "decode_frame", "encode_message", "decode_message", "FrameReader", "expand", "wave_for",
-    "config_for", "check_version", "FrameError", "ProtocolError", "ProtocolVersionError",
+    "config_for", "check_version", "msg_type_of", "wave_range_problems", "FrameSplitter", "FrameError",
+    "ProtocolError", "ProtocolVersionError",
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
@@ -118,7 +132,8 @@ class Hello(NamedTuple):
 
 
 class Config(NamedTuple):
-    """CONFIG (0x02): sample period in µs, samples, duty clamp, quadrature decoding (1, 2, 4), watchdog in ms (0 off)."""
+    """CONFIG (0x02): sample period in µs, samples, duty clamp, quadrature decoding (1, 2, 4),
+    watchdog in ms (0 off)."""
 
     sample_period_us: int
     n_samples: int
@@ -140,7 +155,8 @@ class Heartbeat(NamedTuple):
 
 
 class HelloAck(NamedTuple):
-    """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot, max payload, board name."""
+    """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot,
+    max payload, board name."""
 
     version: int
     firmware_version: int
@@ -151,24 +167,25 @@ class HelloAck(NamedTuple):
 
 
 class Ack(NamedTuple):
-    """ACK (0x82): the type and seq of the accepted frame."""
+    """ACK (0x82): the type and frame_seq of the accepted frame."""
 
     acked_type: int
-    acked_seq: int
+    acked_frame_seq: int
 
 
 class Nak(NamedTuple):
-    """NAK (0x83): the type and seq of the refused frame and a :class:`NakReason`."""
+    """NAK (0x83): the type and frame_seq of the refused frame and a :class:`NakReason`."""
 
     refused_type: int
-    refused_seq: int
+    refused_frame_seq: int
     reason: int
 
 
 class Sample(NamedTuple):
-    """SAMPLE (0x84): sample index, device time in µs (wrapping u32), absolute encoder count, duty, flags."""
+    """SAMPLE (0x84): sample index ``seq``, device time in µs (wrapping u32), absolute encoder count, duty,
+    flags."""
 
-    index: int
+    seq: int
     time_us: int
     counts: int
     duty: int
@@ -187,10 +204,10 @@ class End(NamedTuple):
 
 
 class Fault(NamedTuple):
-    """FAULT (0x86): a :class:`FaultCode` and the sample index at which it happened."""
+    """FAULT (0x86): a :class:`FaultCode` and the sample index ``seq`` at which it happened."""
 
     code: int
-    index: int
+    seq: int
 
 
 class Boot(NamedTuple):
@@ -232,20 +249,25 @@ class WaveChirp(NamedTuple):
 
 
 class WavePrbs(NamedTuple):
-    """WAVE kind 4: Galois LFSR of ``order`` from ``seed``, each bit held ``hold`` samples."""
+    """WAVE kind 4: Galois LFSR of ``order`` from ``seed``, each bit held ``hold`` samples.
 
-    low: int
+    Fields in the order of :class:`motorsim.excitation.PRBS` (``high, low, order, hold, seed``);
+    on the wire they go as ``low, high, order, seed, hold`` (PROTOCOL.md).
+    """
+
     high: int
+    low: int
     order: int
-    seed: int
     hold: int
+    seed: int
 
 
 Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs]
+_WAVE_TYPES = (WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs)
 Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave]
 
 # type -> (class, struct) for the fixed-length messages
-_FIXED = {
+_FIXED: dict[int, tuple[Any, struct.Struct]] = {
     MsgType.HELLO: (Hello, struct.Struct("<B")),
     MsgType.CONFIG: (Config, struct.Struct("<IIhBH")),
     MsgType.START: (Start, struct.Struct("<")),
@@ -262,12 +284,14 @@ _FIXED = {
 _TYPE_OF = {cls: t for t, (cls, _) in _FIXED.items()}
 _WAVE_KIND = {WaveConstant: WaveKind.CONSTANT, WaveStep: WaveKind.STEP, WaveMultisine: WaveKind.MULTISINE,
               WaveChirp: WaveKind.CHIRP, WavePrbs: WaveKind.PRBS}
-_WAVE_FIXED = {
+_WAVE_FIXED: dict[int, tuple[Any, struct.Struct]] = {
     WaveKind.CONSTANT: (WaveConstant, struct.Struct("<h")),
     WaveKind.STEP: (WaveStep, struct.Struct("<hhI")),
     WaveKind.CHIRP: (WaveChirp, struct.Struct("<hhIIi")),
     WaveKind.PRBS: (WavePrbs, struct.Struct("<hhBHH")),
 }
+#: Wire position of each WavePrbs field (the wire order is low, high, order, seed, hold).
+_PRBS_WIRE = (1, 0, 2, 4, 3)
 _MS_HEAD = struct.Struct("<hB")
 _MS_COMPONENT = struct.Struct("<hII")
 _SAMPLE_STRUCT = _FIXED[MsgType.SAMPLE][1]
@@ -327,26 +351,26 @@ def cobs_decode(encoded: bytes) -> bytes:
 
 
 # ---------------------------------------------------------------- frames and messages
-def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
-    """One frame as sent on the wire: ``COBS(type | seq | payload | crc) 0x00``.
+def encode_frame(msg_type: int, frame_seq: int, payload: bytes = b"") -> bytes:
+    """One frame as sent on the wire: ``COBS(type | frame_seq | payload | crc) 0x00``.
 
     Raises
     ------
     ValueError
-        ``msg_type`` or ``seq`` outside 0...255, or ``payload`` longer than :data:`MAX_PAYLOAD`.
+        ``msg_type`` or ``frame_seq`` outside 0...255, or ``payload`` longer than :data:`MAX_PAYLOAD`.
     """
     if not 0 <= msg_type <= 255:
         raise ValueError(f"msg_type must be in 0...255, got {msg_type!r}")
-    if not 0 <= seq <= 255:
-        raise ValueError(f"seq must be in 0...255, got {seq!r}")
+    if not 0 <= frame_seq <= 255:
+        raise ValueError(f"frame_seq must be in 0...255, got {frame_seq!r}")
     if len(payload) > MAX_PAYLOAD:
         raise ValueError(f"payload must be at most {MAX_PAYLOAD} bytes, got {len(payload)}")
-    body = bytes((msg_type, seq)) + bytes(payload)
+    body = bytes((msg_type, frame_seq)) + bytes(payload)
     return cobs_encode(body + crc16(body).to_bytes(2, "little")) + b"\x00"
 
 
 def decode_frame(encoded: bytes) -> tuple[int, int, bytes]:
-    """``(type, seq, payload)`` of one encoded frame (without its 0x00), CRC checked.
+    """``(type, frame_seq, payload)`` of one encoded frame (without its 0x00), CRC checked.
 
     Raises
     ------
@@ -364,16 +388,30 @@ def decode_frame(encoded: bytes) -> tuple[int, int, bytes]:
     return body[0], body[1], body[2:-2]
 
 
-def encode_message(msg: Message, seq: int) -> bytes:
-    """The wire bytes (COBS frame and delimiter) of ``msg`` with link sequence number ``seq``."""
+def msg_type_of(msg: Message) -> MsgType:
+    """The frame type that carries ``msg`` (WAVE for every ``Wave*`` message).
+
+    Examples
+    --------
+    >>> msg_type_of(Hello()).name, msg_type_of(WaveConstant(5)).name
+    ('HELLO', 'WAVE')
+    """
     cls = type(msg)
     if cls in _WAVE_KIND:
-        return encode_frame(MsgType.WAVE, seq, _wave_payload(msg))
+        return MsgType.WAVE
     if cls not in _TYPE_OF:
         raise TypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), got {cls.__name__}")
-    t = _TYPE_OF[cls]
+    return MsgType(_TYPE_OF[cls])
+
+
+def encode_message(msg: Message, frame_seq: int) -> bytes:
+    """The wire bytes (COBS frame and delimiter) of ``msg`` with link frame counter ``frame_seq``."""
+    t = msg_type_of(msg)
+    if isinstance(msg, _WAVE_TYPES):
+        return encode_frame(MsgType.WAVE, frame_seq, _wave_payload(msg))
+    cls = type(msg)
     fields = tuple(msg)
-    if cls is HelloAck:
+    if isinstance(msg, HelloAck):
         board = msg.board.encode("ascii")
         if len(board) > 8:
             raise ValueError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
@@ -382,19 +420,22 @@ def encode_message(msg: Message, seq: int) -> bytes:
         payload = _FIXED[t][1].pack(*fields)
     except struct.error as exc:
         raise ValueError(f"{cls.__name__} field out of range: {exc} (got {msg!r})") from None
-    return encode_frame(t, seq, payload)
+    return encode_frame(t, frame_seq, payload)
 
 
 def _wave_payload(wave: Wave) -> bytes:
     kind = _WAVE_KIND[type(wave)]
     try:
-        if kind == WaveKind.MULTISINE:
+        if isinstance(wave, WaveMultisine):
             comps = tuple(wave.components)
             if not 1 <= len(comps) <= MAX_COMPONENTS:
                 raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
             return (bytes((kind,)) + _MS_HEAD.pack(wave.offset, len(comps))
                     + b"".join(_MS_COMPONENT.pack(*c) for c in comps))
-        return bytes((kind,)) + _WAVE_FIXED[kind][1].pack(*wave)
+        fields = tuple(wave)
+        if kind == WaveKind.PRBS:
+            fields = tuple(fields[i] for i in _PRBS_WIRE)
+        return bytes((kind,)) + _WAVE_FIXED[kind][1].pack(*fields)
     except struct.error as exc:
         raise ValueError(f"{type(wave).__name__} field out of range: {exc} (got {wave!r})") from None
 
@@ -442,11 +483,50 @@ def _decode_wave(payload: bytes) -> Wave:
     cls, st = entry
     if len(rest) != st.size:
         raise FrameError(f"WAVE {cls.__name__} must have {st.size} bytes after the kind, got {len(rest)}")
-    return cls._make(st.unpack(rest))
+    fields = st.unpack(rest)
+    if kind == WaveKind.PRBS:
+        fields = tuple(fields[i] for i in _PRBS_WIRE)   # the permutation is its own inverse
+    return cls._make(fields)
+
+
+class FrameSplitter:
+    """Cuts a byte stream at each 0x00 into encoded frames, with bounded memory.
+
+    Bytes beyond :data:`MAX_ENCODED` without a delimiter are discarded up to the next
+    0x00 (what a receiver does with an overlong frame, PROTOCOL.md "Framing").
+    """
+
+    __slots__ = ("_pending", "_discarding")
+
+    def __init__(self) -> None:
+        self._pending = b""
+        self._discarding = False
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held while waiting for their delimiter (at most :data:`MAX_ENCODED`)."""
+        return len(self._pending)
+
+    def split(self, data: bytes) -> tuple[list[bytes], bool]:
+        """The encoded frames completed by ``data`` (empty ones included), and True when an
+        overlong frame began to be discarded (one receive error)."""
+        parts = (self._pending + bytes(data)).split(b"\x00")
+        tail = parts.pop()
+        if self._discarding and parts:
+            parts[0] = b""   # the overlong frame ends at this delimiter
+            self._discarding = False
+        overflow = False
+        if self._discarding:
+            tail = b""
+        elif len(tail) > MAX_ENCODED:
+            self._discarding = overflow = True
+            tail = b""
+        self._pending = tail
+        return parts, overflow
 
 
 class FrameReader:
-    """Incremental frame reader: feed it bytes as they arrive, get ``(seq, message)`` pairs.
+    """Incremental frame reader: feed it bytes as they arrive, get ``(frame_seq, message)`` pairs.
 
     Every invalid frame is dropped and counted in :attr:`rx_errors` (never raised),
     and the reader resynchronises at the next 0x00; zero-length frames are
@@ -462,23 +542,23 @@ class FrameReader:
         Description of the most recent invalid frame ("" if none).
     """
 
-    __slots__ = ("_pending", "_discarding", "rx_errors", "last_error")
+    __slots__ = ("_splitter", "rx_errors", "last_error")
 
     def __init__(self) -> None:
-        self._pending = b""
-        self._discarding = False
+        self._splitter = FrameSplitter()
         self.rx_errors = 0
         self.last_error = ""
 
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes of an unfinished frame held until its delimiter arrives."""
+        return self._splitter.pending_bytes
+
     def feed(self, data: bytes) -> list[tuple[int, Message]]:
         """Consume ``data`` (any length, any split) and return the complete valid frames in it."""
-        parts = (self._pending + bytes(data)).split(b"\x00")
-        tail = parts.pop()
-        out = []
+        parts, overflow = self._splitter.split(data)
+        out: list[tuple[int, Message]] = []
         append = out.append
-        if self._discarding and parts:
-            parts[0] = b""   # the overlong frame ends at this delimiter
-            self._discarding = False
         sample_cls = Sample
         unpack = _SAMPLE_STRUCT.unpack_from
         crc = binascii.crc_hqx
@@ -512,14 +592,9 @@ class FrameReader:
             except FrameError as exc:
                 self.rx_errors += 1
                 self.last_error = str(exc)
-        if self._discarding:
-            tail = b""
-        elif len(tail) > MAX_ENCODED:
+        if overflow:
             self.rx_errors += 1
             self.last_error = f"more than {MAX_ENCODED} bytes without a delimiter"
-            self._discarding = True
-            tail = b""
-        self._pending = tail
         return out
 
 
@@ -547,11 +622,8 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
     duty_limit : int
         Clamp, 0...255.
     """
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 0:
-        raise ValueError(f"n_samples must be an integer >= 0, got {n_samples!r}")
-    if isinstance(duty_limit, bool) or not isinstance(duty_limit, (int, np.integer)) or not 0 <= duty_limit <= 255:
-        raise ValueError(f"duty_limit must be an integer in 0...255, got {duty_limit!r}")
-    n = int(n_samples)
+    n = check_int("n_samples", n_samples, 0, allow_integral_float=False)
+    duty_limit = check_int("duty_limit", duty_limit, 0, 255, allow_integral_float=False)
     if isinstance(wave, WaveConstant):
         raw = np.full(n, wave.level, dtype=np.int64)
     elif isinstance(wave, WaveStep):
@@ -595,7 +667,7 @@ def wave_for(experiment: Experiment) -> Wave:
         inc0, step = ex.words(n, dt)
         return WaveChirp(ex.offset, ex.amplitude, 0, inc0, step)
     if isinstance(ex, PRBS):
-        return WavePrbs(ex.low, ex.high, ex.order, ex.seed, ex.hold)
+        return WavePrbs(ex.high, ex.low, ex.order, ex.hold, ex.seed)
     raise ValueError(f"excitation must be one the device can generate (constant, step, sine, multisine, "
                      f"chirp, prbs), got {type(ex).__name__}")
 
@@ -627,10 +699,17 @@ def config_for(experiment: Experiment, *, decoding: int = 4, watchdog_ms: int = 
     return Config(period_us, experiment.n_samples, experiment.duty_limit, decoding, watchdog_ms)
 
 
-def _check_wave_ranges(wave: Wave) -> list[str]:
-    """Problems a device would NAK with BAD_VALUE (amplitudes beyond +-1023, bad PRBS fields)."""
-    bad = []
-    def amp(name, x):
+def wave_range_problems(wave: Wave) -> list[str]:
+    """Problems a device would NAK with BAD_VALUE (amplitudes beyond +-1023, bad PRBS fields).
+
+    Returns
+    -------
+    list of str
+        One message per problem; empty when the device accepts ``wave``.
+    """
+    bad: list[str] = []
+
+    def amp(name: str, x: int) -> None:
         if abs(x) > MAX_AMPLITUDE:
             bad.append(f"{name} must satisfy |x| <= {MAX_AMPLITUDE}, got {x}")
     if isinstance(wave, WaveConstant):

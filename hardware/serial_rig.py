@@ -19,20 +19,19 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import threading
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
+from motorsim.checks import check_int, check_real
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 from . import protocol as P
-from .errors import (DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError,
-                     RigTimeoutError)
+from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
 
 __all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
@@ -88,6 +87,16 @@ class SerialRig:
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
         Seconds to wait for the ACK of CONFIG, WAVE, START (each is sent up to 3 times).
+
+    Examples
+    --------
+    The emulated device (``fake://``, here unpaced with ``speed=0``) runs a 0.5 s sine:
+
+    >>> from motorsim import Experiment, Sine
+    >>> with SerialRig("fake://?a=25&b=3&speed=0") as rig:
+    ...     rec = rig.run(Experiment(Sine(10, 200), sample_period=0.005, duration=0.5))
+    >>> len(rec), rec.metadata["complete"], rec.duty[:4].tolist(), rec.has_gaps
+    (100, 'true', [0.0, 10.0, 20.0, 30.0], False)
     """
 
     def __init__(self, port, baudrate: int = 250_000, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
@@ -98,18 +107,15 @@ class SerialRig:
                 raise ValueError("port must be a device path or URL, got ''")
         elif not all(hasattr(port, a) for a in ("read", "write")):
             raise TypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
-        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
-            raise ValueError(f"baudrate must be a positive integer, got {baudrate!r}")
-        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
-            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
+        counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
             raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
         if not (watchdog_ms == 0 or (isinstance(watchdog_ms, int) and 50 <= watchdog_ms <= 60_000)):
             raise ValueError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
         for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
                             ("command_timeout", command_timeout)):
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a number of seconds > 0, got {value!r}")
+            check_real(name, value, positive=True)
         self.port = port
         self.baudrate = baudrate
         self.counts_per_rev = counts_per_rev
@@ -119,10 +125,10 @@ class SerialRig:
         self.hello_timeout = float(hello_timeout)
         self.command_timeout = float(command_timeout)
         self._stack: contextlib.ExitStack | None = None
-        self._port = None
+        self._port: Any = None    # a pyserial-compatible port while open
         self._reader = P.FrameReader()
-        self._tx_seq = 0
-        self._rx_seq: int | None = None
+        self._tx_frame_seq = 0
+        self._rx_frame_seq: int | None = None
         self._link_lost = 0
         self._boot: P.Boot | None = None
         self._backlog: list = []
@@ -171,14 +177,15 @@ class SerialRig:
             stack.close()
 
     def _write(self, msg) -> int:
+        """Send ``msg``; returns its frame_seq."""
         with self._write_lock:     # the heartbeat thread writes too
-            seq = self._tx_seq
+            frame_seq = self._tx_frame_seq
             try:
-                self._port.write(P.encode_message(msg, seq))
+                self._port.write(P.encode_message(msg, frame_seq))
             except Exception as exc:   # pyserial raises SerialException / OSError / portNotOpenError
                 raise RigDisconnectedError(f"writing to {self.port_name} failed: {exc}") from None
-            self._tx_seq = (seq + 1) & 0xFF
-            return seq
+            self._tx_frame_seq = (frame_seq + 1) & 0xFF
+            return frame_seq
 
     def _read(self) -> list:
         if self._backlog:
@@ -193,12 +200,12 @@ class SerialRig:
         if not data:
             return []
         frames = self._reader.feed(data)
-        for seq, msg in frames:
+        for frame_seq, msg in frames:
             if isinstance(msg, P.Boot):
                 self._boot = msg
-            elif self._rx_seq is not None:
-                self._link_lost += (seq - self._rx_seq - 1) & 0xFF
-            self._rx_seq = seq
+            elif self._rx_frame_seq is not None:
+                self._link_lost += (frame_seq - self._rx_frame_seq - 1) & 0xFF
+            self._rx_frame_seq = frame_seq
         return [msg for _, msg in frames]
 
     def _handshake(self) -> None:
@@ -233,19 +240,20 @@ class SerialRig:
         run loop, and samples arriving (or a retry NAKed BUSY) show that a START whose ACK
         was lost did start the run.
         """
-        msg_type = P.MsgType.WAVE if type(msg).__name__.startswith("Wave") else P._TYPE_OF[type(msg)]
+        msg_type = P.msg_type_of(msg)
         is_start = msg_type == P.MsgType.START
         run_frames: list = []
         for attempt in range(3):
-            seq = self._write(msg)
+            frame_seq = self._write(msg)
             deadline = time.monotonic() + self.command_timeout
             while time.monotonic() < deadline:
                 replies = self._read()
                 for i, reply in enumerate(replies):
-                    if isinstance(reply, P.Ack) and reply.acked_seq == seq and reply.acked_type == msg_type:
+                    if isinstance(reply, P.Ack) and reply.acked_frame_seq == frame_seq and reply.acked_type == msg_type:
                         self._backlog = run_frames + replies[i + 1:]
                         return
-                    if isinstance(reply, P.Nak) and reply.refused_seq == seq and reply.refused_type == msg_type:
+                    if (isinstance(reply, P.Nak) and reply.refused_frame_seq == frame_seq
+                            and reply.refused_type == msg_type):
                         if is_start and attempt > 0 and reply.reason == P.NakReason.BUSY:
                             self._backlog = run_frames + replies[i + 1:]
                             return     # the first START did start the run; its ACK was lost
@@ -262,8 +270,8 @@ class SerialRig:
         raise RigTimeoutError(f"the device on {self.port_name} did not acknowledge {P.MsgType(msg_type).name} "
                               f"(3 tries, {self.command_timeout:g} s each)")
 
-    def _receive_run(self, run: "_RunState", on_sample) -> None:
-        """Read the run's frames until END; silence longer than ``timeout`` raises."""
+    def _receive_run(self, run: "_RunState", on_sample) -> P.End:
+        """Read the run's frames until END and return it; silence longer than ``timeout`` raises."""
         last_rx = loop_end = time.monotonic()
         while run.end is None:
             msgs = self._read()
@@ -283,6 +291,7 @@ class SerialRig:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
             loop_end = time.monotonic()
+        return run.end
 
     # -------------------------------------------------------------- the run
     def line_load(self, sample_period: float) -> float:
@@ -329,11 +338,11 @@ class SerialRig:
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
             with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms else None):
-                self._receive_run(run, on_sample)
+                end = self._receive_run(run, on_sample)
             ended = True
-            if run.end.reason != P.EndReason.COMPLETE:
+            if end.reason != P.EndReason.COMPLETE:
                 raise DeviceFaultError(f"the device ended the run early: {run.describe_end()}")
-            problems = run.check()
+            problems = run.check(end)
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
             return run.recording(self, complete=True)
@@ -422,7 +431,7 @@ class _RunState:
         n_expected = len(self.expected)
         for msg in msgs:
             if type(msg) is P.Sample:
-                k = msg.index
+                k = msg.seq
                 if k <= self.last_index or k >= n_expected:
                     self.out_of_order += 1
                     continue
@@ -469,12 +478,12 @@ class _RunState:
                 name = P.FaultCode(self.fault.code).name
             except ValueError:
                 name = f"code {self.fault.code}"
-            out.append(f"FAULT {name} at sample {self.fault.index}")
+            out.append(f"FAULT {name} at sample {self.fault.seq}")
         return ", ".join(out) + f"; {self.n} samples received"
 
-    def check(self) -> list[str]:
-        """END against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
-        e, problems = self.end, []
+    def check(self, e: P.End) -> list[str]:
+        """END ``e`` against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
+        problems = []
         if self.duty_mismatches:
             problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's "
                             f"(first: {self.first_mismatch})")
@@ -514,7 +523,7 @@ class _RunState:
                         device_samples_dropped=str(e.samples_dropped), device_encoder_errors=str(e.encoder_errors),
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
-            meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.index))
+            meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
         return Recording(time=np.array(self.time), duty=np.array(self.duty, dtype=np.int64),
                          sample_period=self.dt, counts=np.array(self.counts, dtype=np.int64),
                          seq=np.array(self.seq, dtype=np.int64), counts_per_rev=rig.counts_per_rev, metadata=meta)

@@ -1,6 +1,5 @@
 """motorsim: the simulated bench (plant, excitations, encoder, recordings, rigs)."""
-from .excitation import (DUTY_LIMIT, PRBS, Chirp, Constant, Excitation, Multisine, Sine, Step,
-                         parse_excitation)
+from .excitation import DUTY_LIMIT, PRBS, Chirp, Constant, Excitation, Multisine, Sine, Step, parse_excitation
 from .plant import Motor, Trajectory, simulate
 from .recording import Recording, RecordingFormatError, RecordingWriter, read_recording, write_recording
 from .rig import Experiment, Rig, SimRig

@@ -24,6 +24,8 @@ from typing import ClassVar, Sequence
 
 import numpy as np
 
+from .checks import check_int, check_real
+
 __all__ = [
     "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
     "sine_table", "sine_q15", "phase_increment", "multisine_duty", "chirp_duty", "prbs_bits",
@@ -160,34 +162,10 @@ def _clamp(duty: np.ndarray, duty_limit: int) -> np.ndarray:
     return np.clip(duty, -duty_limit, duty_limit).astype(np.int64)
 
 
-def _check_int(name: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise TypeError(f"{name} must be an integer, got {value!r}")
-    if not lo <= value <= hi:
-        raise ValueError(f"{name} must be in {lo}...{hi}, got {value!r}")
-    return int(value)
-
-
-def _check_real(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if positive and value <= 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
-    if nonnegative and value < 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-    return value
-
-
 def _check_common(n_samples: int, sample_period: float, duty_limit: int) -> tuple[int, float, int]:
-    n_samples = _check_int("n_samples", n_samples, 0, 2**32 - 1)
-    sample_period = _check_real("sample_period", sample_period, positive=True)
-    duty_limit = _check_int("duty_limit", duty_limit, 0, 32767)
+    n_samples = check_int("n_samples", n_samples, 0, 2**32 - 1)
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    duty_limit = check_int("duty_limit", duty_limit, 0, 32767)
     return n_samples, sample_period, duty_limit
 
 
@@ -230,7 +208,7 @@ class Constant(Excitation):
     kind: ClassVar[str] = "constant"
 
     def __post_init__(self):
-        object.__setattr__(self, "level", _check_int("level", self.level, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "level", check_int("level", self.level, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def _raw(self, n, dt):
         return np.full(n, self.level, dtype=np.int64)
@@ -252,9 +230,9 @@ class Step(Excitation):
     kind: ClassVar[str] = "step"
 
     def __post_init__(self):
-        object.__setattr__(self, "after", _check_int("after", self.after, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "before", _check_int("before", self.before, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "at_time", _check_real("at_time", self.at_time, nonnegative=True))
+        object.__setattr__(self, "after", check_int("after", self.after, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "before", check_int("before", self.before, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "at_time", check_real("at_time", self.at_time, nonnegative=True))
 
     def step_index(self, sample_period: float) -> int:
         """Index of the first sample with duty ``after``."""
@@ -291,20 +269,20 @@ class Multisine(Excitation):
     kind: ClassVar[str] = "multisine"
 
     def __post_init__(self):
-        f = tuple(_check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
+        f = tuple(check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
         if not 1 <= len(f) <= MAX_COMPONENTS:
             raise ValueError(f"frequencies must have 1...{MAX_COMPONENTS} components, got {len(f)}")
-        a = tuple(_check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
+        a = tuple(check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
         if len(a) == 1 and len(f) > 1:
             a = a * len(f)
-        p = tuple(_check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
+        p = tuple(check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
         if not len(a) == len(p) == len(f):
             raise ValueError(f"frequencies, amplitudes and phases must have equal lengths, "
                              f"got {len(f)}, {len(a)} and {len(p)}")
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "amplitudes", a)
         object.__setattr__(self, "phases", p)
-        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def components(self, sample_period: float) -> list[tuple[int, int, int]]:
         """``(amplitude, phase0, phase_inc)`` per component, as the firmware receives them."""
@@ -327,7 +305,7 @@ class Multisine(Excitation):
         return f"multisine:{parts}" + (f"@{self.offset}" if self.offset else "")
 
 
-def Sine(frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offset: int = 0) -> Multisine:
+class Sine(Multisine):
     """The article's sine ``eta = A sin(omega t + alpha)`` (eqs. 29-32): a one-component :class:`Multisine`.
 
     Parameters
@@ -340,8 +318,40 @@ def Sine(frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offs
         alpha in rad.
     offset : int
         Constant duty added.
+
+    Examples
+    --------
+    >>> s = Sine(10, 200)
+    >>> s.describe()
+    'sine:10.0,200,0.0'
+    >>> s.duty(4, 0.005).tolist()
+    [0, 10, 20, 30]
     """
-    return Multisine((frequency,), (amplitude,), (phase,), offset)
+
+    def __init__(self, frequency: float = 10.0, amplitude: int = 200, phase: float = 0.0, offset: int = 0):
+        super().__init__((frequency,), (amplitude,), (phase,), offset)
+
+    @property
+    def frequency(self) -> float:
+        """omega in rad/s."""
+        return self.frequencies[0]
+
+    @property
+    def amplitude(self) -> int:
+        """A in duty units."""
+        return self.amplitudes[0]
+
+    @property
+    def phase(self) -> float:
+        """alpha in rad."""
+        return self.phases[0]
+
+    def __repr__(self) -> str:
+        return (f"Sine(frequency={self.frequency!r}, amplitude={self.amplitude!r}, phase={self.phase!r}, "
+                f"offset={self.offset!r})")
+
+    def __reduce__(self):
+        return (Sine, (self.frequency, self.amplitude, self.phase, self.offset))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -368,10 +378,10 @@ class Chirp(Excitation):
     kind: ClassVar[str] = "chirp"
 
     def __post_init__(self):
-        object.__setattr__(self, "f0", _check_real("f0", self.f0, positive=True))
-        object.__setattr__(self, "f1", _check_real("f1", self.f1, positive=True))
-        object.__setattr__(self, "amplitude", _check_int("amplitude", self.amplitude, -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "offset", _check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "f0", check_real("f0", self.f0, positive=True))
+        object.__setattr__(self, "f1", check_real("f1", self.f1, positive=True))
+        object.__setattr__(self, "amplitude", check_int("amplitude", self.amplitude, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
     def words(self, n_samples: int, sample_period: float) -> tuple[int, int]:
         """``(inc0, inc_step)``: the u32 start step and the i32 step change per sample."""
@@ -420,10 +430,10 @@ class PRBS(Excitation):
 
     def __post_init__(self):
         for name in ("high", "low"):
-            object.__setattr__(self, name, _check_int(name, getattr(self, name), -MAX_AMPLITUDE, MAX_AMPLITUDE))
-        object.__setattr__(self, "order", _check_int("order", self.order, 2, 16))
-        object.__setattr__(self, "hold", _check_int("hold", self.hold, 1, 65535))
-        object.__setattr__(self, "seed", _check_int("seed", self.seed, 1, (1 << self.order) - 1))
+            object.__setattr__(self, name, check_int(name, getattr(self, name), -MAX_AMPLITUDE, MAX_AMPLITUDE))
+        object.__setattr__(self, "order", check_int("order", self.order, 2, 16))
+        object.__setattr__(self, "hold", check_int("hold", self.hold, 1, 65535))
+        object.__setattr__(self, "seed", check_int("seed", self.seed, 1, (1 << self.order) - 1))
 
     def bits(self, n_bits: int) -> np.ndarray:
         """The first ``n_bits`` output bits of the LFSR (uint8); see :func:`prbs_bits`."""
@@ -449,6 +459,65 @@ def _numbers(text: str, spec: str) -> list[float]:
         raise ValueError(f"excitation {spec!r}: expected comma-separated numbers; forms: {_PARSE_HELP}") from None
 
 
+def _ints(values: Sequence[float]) -> list:
+    """Integral floats as ints (the checks of the excitation then refuse the rest)."""
+    return [int(x) if float(x).is_integer() else x for x in values]
+
+
+def _parse_sine(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 1 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
+    amplitude = _ints(v[1:2])[0] if len(v) > 1 else 200
+    phase = v[2] if len(v) > 2 else 0.0
+    return Sine(v[0], amplitude, phase, offset=_ints([offset])[0])
+
+
+def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
+    comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
+    if not comps or any(not 1 <= len(c) <= 3 for c in comps):
+        raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
+    return Multisine(tuple(c[0] for c in comps),
+                     tuple(_ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
+                     tuple(c[2] if len(c) > 2 else 0.0 for c in comps), _ints([offset])[0])
+
+
+def _parse_chirp(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 2 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
+    amplitude = _ints(v[2:3])[0] if len(v) > 2 else 200
+    return Chirp(v[0], v[1], amplitude, offset=_ints([offset])[0])
+
+
+def _parse_prbs(args: str, spec: str, offset: float) -> Excitation:
+    v = _ints(_numbers(args, spec))
+    if not 2 <= len(v) <= 5:
+        raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
+    return PRBS(*v)
+
+
+def _parse_step(args: str, spec: str, offset: float) -> Excitation:
+    v = _numbers(args, spec)
+    if not 1 <= len(v) <= 3:
+        raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
+    at_time = v[1] if len(v) > 1 else 0.0
+    before = _ints(v[2:3])[0] if len(v) > 2 else 0
+    return Step(_ints(v[:1])[0], at_time, before)
+
+
+def _parse_constant(args: str, spec: str, offset: float) -> Excitation:
+    v = _ints(_numbers(args, spec))
+    if len(v) != 1:
+        raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
+    return Constant(v[0])
+
+
+#: kind -> reader of ``ARGS`` (with the ``@OFFSET`` already split off).
+_PARSERS = {"sine": _parse_sine, "multisine": _parse_multisine, "chirp": _parse_chirp, "prbs": _parse_prbs,
+            "step": _parse_step, "constant": _parse_constant}
+
+
 def parse_excitation(spec: str) -> Excitation:
     """Read an excitation from its one-line form (``sine:10,200,0.5``; see :meth:`Excitation.describe`).
 
@@ -458,47 +527,22 @@ def parse_excitation(spec: str) -> Excitation:
     ----------
     spec : str
         ``KIND:ARGS``, e.g. ``sine:FREQ[,AMP[,PHASE]]``, ``prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]``.
+
+    Examples
+    --------
+    >>> parse_excitation("sine:10,200")
+    Sine(frequency=10.0, amplitude=200, phase=0.0, offset=0)
+    >>> parse_excitation("prbs:200,-200,9,3").describe()
+    'prbs:200,-200,9,3,1'
     """
     if not isinstance(spec, str) or ":" not in spec:
         raise ValueError(f"excitation must look like KIND:ARGS ({_PARSE_HELP}), got {spec!r}")
     kind, _, args = spec.partition(":")
     kind = kind.strip().lower()
-    offset = 0
+    offset = 0.0
     if "@" in args:
         args, _, off = args.partition("@")
         offset = _numbers(off, spec)[0]
-    def ints(xs):
-        return [int(x) if float(x).is_integer() else x for x in xs]
-    if kind == "sine":
-        v = _numbers(args, spec)
-        if not 1 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
-        return Sine(v[0], *ints(v[1:2]), *v[2:3], offset=ints([offset])[0])
-    if kind == "multisine":
-        comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
-        if not comps or any(not 1 <= len(c) <= 3 for c in comps):
-            raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
-        return Multisine(tuple(c[0] for c in comps),
-                         tuple(ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
-                         tuple(c[2] if len(c) > 2 else 0.0 for c in comps), ints([offset])[0])
-    if kind == "chirp":
-        v = _numbers(args, spec)
-        if not 2 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
-        return Chirp(v[0], v[1], *ints(v[2:3]), offset=ints([offset])[0])
-    if kind == "prbs":
-        v = ints(_numbers(args, spec))
-        if not 2 <= len(v) <= 5:
-            raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
-        return PRBS(*v)
-    if kind == "step":
-        v = _numbers(args, spec)
-        if not 1 <= len(v) <= 3:
-            raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
-        return Step(ints(v[:1])[0], *(v[1:2]), *ints(v[2:3]))
-    if kind == "constant":
-        v = ints(_numbers(args, spec))
-        if len(v) != 1:
-            raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
-        return Constant(v[0])
-    raise ValueError(f"excitation kind must be one of sine, multisine, chirp, prbs, step, constant, got {kind!r}")
+    if kind not in _PARSERS:
+        raise ValueError(f"excitation kind must be one of {', '.join(_PARSERS)}, got {kind!r}")
+    return _PARSERS[kind](args, spec, offset)

@@ -9,7 +9,7 @@ sweep CSV columns, ``fake://`` URL keys, recording metadata — is derived from
 
 The knob's name is the field name everywhere: TOML key and CSV column ``name``, CLI flag
 ``--name`` (``_`` becomes ``-``), URL key ``name``, recording metadata ``true_name``
-(for the motor's parameters) or ``name``.
+(for the motor's parameters) or ``name`` (for knobs declared ``recorded=True``).
 
 Examples
 --------
@@ -30,6 +30,7 @@ __all__ = ["Knob", "knob", "knobs_of"]
 _UNIT = "motorid.unit"
 _HELP = "motorid.help"
 _KIND = "motorid.kind"
+_RECORDED = "motorid.recorded"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +51,8 @@ class Knob:
         Unit, ``""`` when dimensionless.
     help : str
         One line of help text (without the unit or default).
+    recorded : bool
+        True when a simulated recording's metadata carry the value (the bench's imperfections).
     """
 
     name: str
@@ -58,6 +61,7 @@ class Knob:
     default: Any
     unit: str
     help: str
+    recorded: bool = False
 
     @property
     def flag(self) -> str:
@@ -96,7 +100,8 @@ class Knob:
         return f"{self.help}{unit}{default}"
 
 
-def knob(default: Any = dataclasses.MISSING, *, unit: str, help: str, kind: type | None = None) -> Any:
+def knob(default: Any = dataclasses.MISSING, *, unit: str, help: str, kind: type | None = None,
+         recorded: bool = False) -> Any:
     """A dataclass field that is a bench knob (use in place of a plain default).
 
     Parameters
@@ -109,17 +114,20 @@ def knob(default: Any = dataclasses.MISSING, *, unit: str, help: str, kind: type
         One line saying what the knob does.
     kind : type, optional
         ``int``, ``float`` or ``bool``; default: the type of ``default`` (float when required).
+    recorded : bool, optional
+        Whether a simulated recording's metadata carry the value (default False).
     """
     if kind is None:
         kind = float if default is dataclasses.MISSING else type(default)
     if kind not in (int, float, bool):
         raise TypeError(f"kind must be int, float or bool, got {kind!r}")
-    return dataclasses.field(default=default, metadata={_UNIT: unit, _HELP: help, _KIND: kind})
+    return dataclasses.field(default=default, metadata={_UNIT: unit, _HELP: help, _KIND: kind, _RECORDED: recorded})
 
 
 def knobs_of(cls: type) -> tuple[Knob, ...]:
     """The knobs a dataclass declares, in field order."""
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"cls must be a dataclass, got {cls!r}")
-    return tuple(Knob(f.name, cls, f.metadata[_KIND], f.default, f.metadata[_UNIT], f.metadata[_HELP])
+    return tuple(Knob(f.name, cls, f.metadata[_KIND], f.default, f.metadata[_UNIT], f.metadata[_HELP],
+                      f.metadata.get(_RECORDED, False))
                  for f in dataclasses.fields(cls) if _HELP in f.metadata)

@@ -23,7 +23,7 @@ import math
 import control
 import numpy as np
 
-from .excitation import _check_int, _check_real
+from .checks import check_int, check_real
 from .knobs import knob
 
 __all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty"]
@@ -59,15 +59,15 @@ class Motor:
     input_delay: int = knob(0, unit="samples", help="whole samples between command and motor, >= 0")
 
     def __post_init__(self):
-        object.__setattr__(self, "a", _check_real("a", self.a, positive=True))
-        b = _check_real("b", self.b)
+        object.__setattr__(self, "a", check_real("a", self.a, positive=True))
+        b = check_real("b", self.b)
         if b == 0:
             raise ValueError(f"b must be nonzero, got {self.b!r}")
         object.__setattr__(self, "b", b)
-        object.__setattr__(self, "friction", _check_real("friction", self.friction, nonnegative=True))
-        object.__setattr__(self, "bias", _check_real("bias", self.bias))
-        object.__setattr__(self, "dead_zone", _check_real("dead_zone", self.dead_zone, nonnegative=True))
-        object.__setattr__(self, "input_delay", _check_int("input_delay", self.input_delay, 0, 10**6))
+        object.__setattr__(self, "friction", check_real("friction", self.friction, nonnegative=True))
+        object.__setattr__(self, "bias", check_real("bias", self.bias))
+        object.__setattr__(self, "dead_zone", check_real("dead_zone", self.dead_zone, nonnegative=True))
+        object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, 0, 10**6))
 
     @property
     def is_linear(self) -> bool:
@@ -92,7 +92,7 @@ class Motor:
 
     def discretise(self, sample_period: float) -> control.StateSpace:
         """The exact ZOH model at ``sample_period`` s, via ``control.sample_system``."""
-        sample_period = _check_real("sample_period", sample_period, positive=True)
+        sample_period = check_real("sample_period", sample_period, positive=True)
         return control.sample_system(self.state_space(), sample_period, method="zoh")
 
     def drive(self, duty: np.ndarray) -> np.ndarray:
@@ -168,6 +168,14 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     -------
     Trajectory
         ``angle[k]`` and ``speed[k]`` at ``time[k]``.
+
+    Examples
+    --------
+    A step of 100 duty units from rest: the speed rises towards ``b/a * 100 = 12`` rad/s.
+
+    >>> t = np.arange(5) * 0.01
+    >>> simulate(Motor(25.0, 3.0), np.full(5, 100), t).speed.round(3).tolist()
+    [0.0, 2.654, 4.722, 6.332, 7.585]
     """
     if not isinstance(motor, Motor):
         raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")

@@ -1,7 +1,14 @@
 """``Recording``: one experiment's samples, and the CSV recording format v1.
 
-Alignment (fixed for the whole project)
----------------------------------------
+:class:`Recording` holds the sample columns (read-only arrays) and the metadata of one
+run, checks them when built, converts counts to angle (:meth:`Recording.measured_angle`),
+differences the angle into speed (:meth:`Recording.measured_speed`) and splits at dropped
+samples (:meth:`Recording.segments`).  :func:`write_recording` and :func:`read_recording`
+write and read format v1 (below); :class:`RecordingWriter` writes it row by row during a
+run, so that an interrupted run still leaves a readable file.
+
+Alignment (every package follows it)
+------------------------------------
 Row ``k``'s encoder reading (``counts``/``angle_rad``) is taken at ``time_s[k]``;
 then ``duty[k]`` is applied until ``time_s[k+1]``.  Speed at ``k`` is the backward
 difference ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])``, the average over
@@ -32,10 +39,12 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, NoReturn, TextIO
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from .checks import check_int, check_real
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
@@ -52,10 +61,9 @@ class RecordingFormatError(ValueError):
     """A recording file or array breaks a rule of recording format v1."""
 
 
-def _as_array(name, value, dtype, n=None):
-    if value is None:
-        return None
-    arr = np.array(value, dtype=dtype, copy=True)
+def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
+    """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given)."""
+    arr: np.ndarray = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
         raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
     if n is not None and len(arr) != n:
@@ -64,7 +72,39 @@ def _as_array(name, value, dtype, n=None):
     return arr
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+def _optional_array(name: str, value: ArrayLike | None, n: int) -> np.ndarray | None:
+    """A float column, or None when absent."""
+    return None if value is None else _as_array(name, value, float, n)
+
+
+def _integer_array(name: str, value: ArrayLike | None, n: int) -> np.ndarray | None:
+    """An integer column (``seq``, ``counts``): integral floats are accepted, fractions refused."""
+    if value is None:
+        return None
+    raw = np.asarray(value)
+    if raw.dtype.kind == "f":
+        if not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
+            raise ValueError(f"{name} must hold integers, got non-integer values")
+    elif raw.dtype.kind not in "iu":
+        raise TypeError(f"{name} must hold integers, got dtype {raw.dtype}")
+    return _as_array(name, value, np.int64, n)
+
+
+def _check_finite(name: str, arr: np.ndarray | None) -> None:
+    if arr is not None and not np.all(np.isfinite(arr)):
+        k = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+
+
+def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
+    if len(time) > 1 and np.any(np.diff(time) <= 0):
+        k = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 1
+        raise ValueError(f"time must be strictly increasing, got {time[k]!r} after {time[k-1]!r} at sample {k}")
+    if len(seq) > 1 and np.any(np.diff(seq) <= 0):
+        raise ValueError("seq must be strictly increasing")
+
+
+@dataclasses.dataclass(frozen=True, eq=False, init=False)
 class Recording:
     """Samples of one experiment (see the module docstring for the alignment).
 
@@ -83,69 +123,63 @@ class Recording:
     speed : array_like, optional
         Measured speed in rad/s at ``time[k]``.
     seq : array_like of int, optional
-        Sample index; a gap means dropped samples.  Default ``0 ... n-1``.
+        Sample index; a gap means dropped samples.  Default ``0 ... n-1`` (the attribute is
+        always an array).
     counts_per_rev : int, optional
         Encoder counts per revolution.
     metadata : mapping of str to str, optional
         Free-form ``key: value`` pairs (``input_unit``, ``source``, ...).
+
+    Examples
+    --------
+    >>> rec = Recording(time=[0.0, 0.005, 0.01], duty=[100, 100, 0], sample_period=0.005,
+    ...                 counts=[0, 3, 9], counts_per_rev=16667)
+    >>> rec.seq
+    array([0, 1, 2])
+    >>> rec.measured_speed()[1:].round(3).tolist()   # rad/s; nan at the first sample
+    [0.226, 0.452]
     """
 
     time: np.ndarray
     duty: np.ndarray
     sample_period: float
-    counts: np.ndarray | None = None
-    angle: np.ndarray | None = None
-    speed: np.ndarray | None = None
-    seq: np.ndarray | None = None
-    counts_per_rev: int | None = None
-    metadata: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    counts: np.ndarray | None
+    angle: np.ndarray | None
+    speed: np.ndarray | None
+    seq: np.ndarray
+    counts_per_rev: int | None
+    metadata: Mapping[str, str]
 
-    def __post_init__(self):
-        time = _as_array("time", self.time, float)
-        n = len(time)
-        object.__setattr__(self, "time", time)
-        object.__setattr__(self, "duty", _as_array("duty", self.duty, float, n))
-        for name in ("angle", "speed"):
-            object.__setattr__(self, name, _as_array(name, getattr(self, name), float, n))
-        for name in _INT_COLUMNS:
-            value = getattr(self, name)
-            if value is not None:
-                raw = np.asarray(value)
-                if raw.dtype.kind == "f":
-                    if not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
-                        raise ValueError(f"{name} must hold integers, got non-integer values")
-                elif raw.dtype.kind not in "iu":
-                    raise TypeError(f"{name} must hold integers, got dtype {raw.dtype}")
-            object.__setattr__(self, name, _as_array(name, value, np.int64, n))
-        if self.seq is None:
-            seq = np.arange(n, dtype=np.int64)
-            seq.setflags(write=False)
-            object.__setattr__(self, "seq", seq)
-        sp = self.sample_period
-        if isinstance(sp, bool) or not isinstance(sp, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(sp) or sp <= 0:
-            raise ValueError(f"sample_period must be a finite number > 0 s, got {sp!r}")
-        object.__setattr__(self, "sample_period", float(sp))
-        if self.counts is None and self.angle is None and self.speed is None:
+    def __init__(self, time: ArrayLike, duty: ArrayLike, sample_period: float, counts: ArrayLike | None = None,
+                 angle: ArrayLike | None = None, speed: ArrayLike | None = None, seq: ArrayLike | None = None,
+                 counts_per_rev: int | None = None, metadata: Mapping[str, str] | None = None):
+        t = _as_array("time", time, float)
+        n = len(t)
+        columns = {"time": t, "duty": _as_array("duty", duty, float, n),
+                   "angle": _optional_array("angle", angle, n), "speed": _optional_array("speed", speed, n),
+                   "counts": _integer_array("counts", counts, n)}
+        seq_array = _integer_array("seq", seq, n)
+        if seq_array is None:
+            seq_array = np.arange(n, dtype=np.int64)
+            seq_array.setflags(write=False)
+        for name, value in (*columns.items(), ("seq", seq_array)):
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "sample_period", check_real("sample_period", sample_period, positive=True))
+        if counts is None and angle is None and speed is None:
             raise ValueError("a Recording needs at least one of counts, angle, speed")
-        if self.counts is not None:
-            cpr = self.counts_per_rev
-            if isinstance(cpr, bool) or not isinstance(cpr, (int, np.integer)) or cpr <= 0:
-                raise ValueError(f"counts_per_rev must be a positive integer when counts are given, got {cpr!r}")
-            object.__setattr__(self, "counts_per_rev", int(cpr))
+        if counts is not None:
+            if counts_per_rev is None:
+                raise ValueError("counts_per_rev must be a positive integer when counts are given, got None")
+            counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
+        object.__setattr__(self, "counts_per_rev", counts_per_rev)
         for name in ("time", "duty", "angle", "speed"):
-            arr = getattr(self, name)
-            if arr is not None and not np.all(np.isfinite(arr)):
-                k = int(np.flatnonzero(~np.isfinite(arr))[0])
-                raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
-        if n > 1 and np.any(np.diff(self.time) <= 0):
-            k = int(np.flatnonzero(np.diff(self.time) <= 0)[0]) + 1
-            raise ValueError(f"time must be strictly increasing, got {self.time[k]!r} after {self.time[k-1]!r} at sample {k}")
-        if n > 1 and np.any(np.diff(self.seq) <= 0):
-            raise ValueError("seq must be strictly increasing")
-        if not isinstance(self.metadata, Mapping):
-            raise TypeError(f"metadata must be a mapping, got {type(self.metadata).__name__}")
-        object.__setattr__(self, "metadata", {str(k): str(v) for k, v in self.metadata.items()})
+            _check_finite(name, columns[name])
+        _check_increasing(t, seq_array)
+        if metadata is None:
+            metadata = {}
+        if not isinstance(metadata, Mapping):
+            raise TypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
+        object.__setattr__(self, "metadata", {str(k): str(v) for k, v in metadata.items()})
 
     def __len__(self) -> int:
         return len(self.time)
@@ -164,7 +198,7 @@ class Recording:
         """Angle in rad: the ``angle`` column, else counts converted, else None."""
         if self.angle is not None:
             return self.angle
-        if self.counts is not None:
+        if self.counts is not None and self.counts_per_rev is not None:
             return counts_to_angle(self.counts, self.counts_per_rev)
         return None
 
@@ -218,13 +252,15 @@ def _metadata_lines(rec: Recording) -> list[str]:
 
 def _columns(rec: Recording) -> list[str]:
     cols = ["seq", "time_s", "duty"]
-    cols += [c for c, v in (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed)) if v is not None]
+    optional = (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed))
+    cols += [c for c, v in optional if v is not None]
     return cols
 
 
 def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | None = None) -> Iterable[str]:
-    data = {"seq": rec.seq, "time_s": rec.time, "duty": rec.duty, "counts": rec.counts,
-            "angle_rad": rec.angle, "speed_rad_s": rec.speed}
+    columns = {"seq": rec.seq, "time_s": rec.time, "duty": rec.duty, "counts": rec.counts,
+               "angle_rad": rec.angle, "speed_rad_s": rec.speed}
+    data = {c: arr for c, arr in columns.items() if arr is not None}
     integral_duty = bool(np.all(rec.duty == np.round(rec.duty)))
     fmt = {"seq": lambda x: str(int(x)), "counts": lambda x: str(int(x)),
            "time_s": repr, "angle_rad": repr, "speed_rad_s": repr,
@@ -306,7 +342,7 @@ class RecordingWriter:
         self._flush_interval = float(flush_interval)
         self._rows: list[tuple[int, float, int, int]] = []
         self._last: tuple[int, float, int, int] | None = None
-        self._file = None
+        self._file: TextIO | None = None
         self._header_lines = 0
         self._last_flush = time.monotonic()
         self.n_rows = 0
@@ -426,10 +462,35 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def _parse(text: str, name: str) -> Recording:
-    def fail(line, rule):
-        raise RecordingFormatError(f"{name}, line {line}: {rule}")
-
+    fail = _Failer(name)
     lines = text.splitlines()
+    meta, header_index = _parse_metadata(lines, fail)
+    header, cols = _parse_rows(lines, header_index, fail)
+    header_line = header_index + 1
+    cpr = _counts_per_rev(meta, fail)
+    if "counts" in cols and cpr is None:
+        fail(header_line, "column 'counts' needs the metadata line '# counts_per_rev: N'")
+    values = {h: np.array([v for _, v in cols[h]]) for h in header}
+    sp = _sample_period(meta, values["time_s"], fail)
+    extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
+    return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
+                     counts=values.get("counts"), angle=values.get("angle_rad"),
+                     speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
+                     metadata=extra)
+
+
+class _Failer:
+    """Raises :class:`RecordingFormatError` as ``"FILE, line N: rule"``."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __call__(self, line: int, rule: str) -> NoReturn:
+        raise RecordingFormatError(f"{self.name}, line {line}: {rule}")
+
+
+def _parse_metadata(lines: list[str], fail: _Failer) -> tuple[dict[str, str], int]:
+    """The ``# key: value`` lines (aliases resolved) and the index of the header row."""
     meta: dict[str, str] = {}
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
@@ -443,17 +504,49 @@ def _parse(text: str, name: str) -> Recording:
         i += 1
     if i == len(lines):
         fail(i, "no header row (expected column names such as seq,time_s,duty,counts)")
-    header_line = i + 1
-    reader = csv.reader(io.StringIO("\n".join(lines[i:])))
-    header = [h.strip() for h in next(reader)]
+    return meta, i
+
+
+def _check_header(header: list[str], line: int, fail: _Failer) -> None:
     if len(set(header)) != len(header):
-        fail(header_line, f"duplicate column names in {header}")
+        fail(line, f"duplicate column names in {header}")
     for required in ("time_s", "duty"):
         if required not in header:
-            fail(header_line, f"missing required column {required!r} (columns: {header})")
+            fail(line, f"missing required column {required!r} (columns: {header})")
     if not {"counts", "angle_rad", "speed_rad_s"} & set(header):
-        fail(header_line, f"needs at least one of the columns counts, angle_rad, speed_rad_s (columns: {header})")
-    cols: dict[str, list] = {h: [] for h in header}
+        fail(line, f"needs at least one of the columns counts, angle_rad, speed_rad_s (columns: {header})")
+
+
+def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
+    cell = cell.strip()
+    if column in _INT_COLUMNS:
+        try:
+            return int(cell)
+        except ValueError:
+            fail(line, f"column {column!r} must be an integer, got {cell!r}")
+    try:
+        v = float(cell)
+    except ValueError:
+        fail(line, f"column {column!r} must be a number, got {cell!r}")
+    if not math.isfinite(v) and column in COLUMNS:
+        fail(line, f"column {column!r} must be finite, got {cell!r}")
+    return v
+
+
+def _check_strictly_increasing(column: list[tuple[int, float]], name: str, fail: _Failer) -> None:
+    for (_, v0), (line, v1) in zip(column, column[1:]):
+        if v1 <= v0:
+            fail(line, f"{name} must be strictly increasing, got {v1!r} after {v0!r}")
+
+
+def _parse_rows(lines: list[str], header_index: int, fail: _Failer
+                ) -> tuple[list[str], dict[str, list[tuple[int, float]]]]:
+    """The column names and, per column, ``(line number, value)`` of every data row."""
+    header_line = header_index + 1
+    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+    header = [h.strip() for h in next(reader)]
+    _check_header(header, header_line, fail)
+    cols: dict[str, list[tuple[int, float]]] = {h: [] for h in header}
     for j, row in enumerate(reader):
         line = header_line + 1 + j
         if not row or all(not c.strip() for c in row):
@@ -461,42 +554,29 @@ def _parse(text: str, name: str) -> Recording:
         if len(row) != len(header):
             fail(line, f"expected {len(header)} values, got {len(row)}")
         for h, cell in zip(header, row):
-            cell = cell.strip()
-            if h in _INT_COLUMNS:
-                try:
-                    v = int(cell)
-                except ValueError:
-                    fail(line, f"column {h!r} must be an integer, got {cell!r}")
-            else:
-                try:
-                    v = float(cell)
-                except ValueError:
-                    fail(line, f"column {h!r} must be a number, got {cell!r}")
-                if not math.isfinite(v) and h in COLUMNS:
-                    fail(line, f"column {h!r} must be finite, got {cell!r}")
-            cols[h].append((line, v))
+            cols[h].append((line, _parse_cell(h, cell, line, fail)))
     if not cols["time_s"]:
         fail(header_line, "no data rows")
-    times = cols["time_s"]
-    for (l0, t0), (l1, t1) in zip(times, times[1:]):
-        if t1 <= t0:
-            fail(l1, f"time_s must be strictly increasing, got {t1!r} after {t0!r}")
+    _check_strictly_increasing(cols["time_s"], "time_s", fail)
     if "seq" in cols:
-        s = cols["seq"]
-        for (l0, s0), (l1, s1) in zip(s, s[1:]):
-            if s1 <= s0:
-                fail(l1, f"seq must be strictly increasing, got {s1} after {s0}")
-    cpr = None
-    if "counts_per_rev" in meta:
-        try:
-            cpr = int(meta["counts_per_rev"])
-            if cpr <= 0:
-                raise ValueError
-        except ValueError:
-            fail(1, f"counts_per_rev must be a positive integer, got {meta['counts_per_rev']!r}")
-    if "counts" in cols and cpr is None:
-        fail(header_line, "column 'counts' needs the metadata line '# counts_per_rev: N'")
-    values = {h: np.array([v for _, v in cols[h]]) for h in header}
+        _check_strictly_increasing(cols["seq"], "seq", fail)
+    return header, cols
+
+
+def _counts_per_rev(meta: Mapping[str, str], fail: _Failer) -> int | None:
+    if "counts_per_rev" not in meta:
+        return None
+    try:
+        cpr = int(meta["counts_per_rev"])
+        if cpr <= 0:
+            raise ValueError
+    except ValueError:
+        fail(1, f"counts_per_rev must be a positive integer, got {meta['counts_per_rev']!r}")
+    return cpr
+
+
+def _sample_period(meta: Mapping[str, str], time_s: np.ndarray, fail: _Failer) -> float:
+    """The metadata's sample period, else the median interval of ``time_s``."""
     if "sample_period" in meta:
         try:
             sp = float(meta["sample_period"])
@@ -504,12 +584,7 @@ def _parse(text: str, name: str) -> Recording:
                 raise ValueError
         except ValueError:
             fail(1, f"sample_period must be a number > 0 s, got {meta['sample_period']!r}")
-    elif len(values["time_s"]) > 1:
-        sp = float(np.median(np.diff(values["time_s"])))
-    else:
-        fail(1, "a one-row recording needs the metadata line '# sample_period: S'")
-    extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
-    return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
-                     counts=values.get("counts"), angle=values.get("angle_rad"),
-                     speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                     metadata=extra)
+        return sp
+    if len(time_s) > 1:
+        return float(np.median(np.diff(time_s)))
+    fail(1, "a one-row recording needs the metadata line '# sample_period: S'")

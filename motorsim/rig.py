@@ -8,18 +8,19 @@ Nothing here is simulation-specific except :class:`SimRig` itself.
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import Mapping, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .excitation import DUTY_LIMIT, Excitation, _check_int, _check_real
+from .checks import check_int, check_real
+from .excitation import DUTY_LIMIT, Excitation
 from .knobs import Knob, knob, knobs_of
 from .plant import Motor, simulate
 from .recording import Recording
 from .sensors import Encoder
 
-__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times"]
+__all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs",
+           "kept_samples"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,9 +47,9 @@ class Experiment:
     def __post_init__(self):
         if not isinstance(self.excitation, Excitation):
             raise TypeError(f"excitation must be an Excitation, got {type(self.excitation).__name__}")
-        object.__setattr__(self, "sample_period", _check_real("sample_period", self.sample_period, positive=True))
-        object.__setattr__(self, "duration", _check_real("duration", self.duration, positive=True))
-        object.__setattr__(self, "duty_limit", _check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
+        object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
+        object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
+        object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
         if self.n_samples < 2:
             raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
                              f"got {self.duration!r} s")
@@ -105,8 +106,9 @@ class SimRig:
 
     motor: Motor
     encoder: Encoder = dataclasses.field(default_factory=Encoder)
-    jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1")
-    drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1")
+    jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1", recorded=True)
+    drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1",
+                            recorded=True)
     initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample")
     record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)")
     rng: np.random.Generator | None = None
@@ -116,21 +118,35 @@ class SimRig:
             raise TypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
         if not isinstance(self.encoder, Encoder):
             raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
-        jitter = _check_real("jitter", self.jitter, nonnegative=True)
+        jitter = check_real("jitter", self.jitter, nonnegative=True)
         if jitter >= 1:
             raise ValueError(f"jitter must be < 1 (a fraction of the sample period), got {jitter!r}")
-        drop = _check_real("drop_rate", self.drop_rate, nonnegative=True)
+        drop = check_real("drop_rate", self.drop_rate, nonnegative=True)
         if drop >= 1:
             raise ValueError(f"drop_rate must be < 1, got {drop!r}")
         object.__setattr__(self, "jitter", jitter)
         object.__setattr__(self, "drop_rate", drop)
-        object.__setattr__(self, "initial_speed", _check_real("initial_speed", self.initial_speed))
+        object.__setattr__(self, "initial_speed", check_real("initial_speed", self.initial_speed))
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
-            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, got {self.rng!r}")
+            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
+                            f"got {self.rng!r}")
 
     def run(self, experiment: Experiment) -> Recording:
-        """Simulate ``experiment`` and return what the bench would record."""
+        """Simulate ``experiment`` and return what the bench would record.
+
+        Parameters
+        ----------
+        experiment : Experiment
+            What to run.
+
+        Examples
+        --------
+        >>> from motorsim import Sine
+        >>> rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
+        >>> len(rec), rec.counts[:5].tolist(), rec.metadata["true_a"]
+        (200, [0, 0, 0, 4, 12], '25.0')
+        """
         if not isinstance(experiment, Experiment):
             raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         n, dt = experiment.n_samples, experiment.sample_period
@@ -139,24 +155,34 @@ class SimRig:
         time = jittered_times(n, dt, self.jitter, self.rng)
         traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
         counts = self.encoder.counts(traj.angle, self.rng)
-        keep = np.ones(n, dtype=bool)
-        if self.drop_rate > 0:
-            keep[1:] = self.rng.random(n - 1) >= self.drop_rate
-        meta = {"source": "SimRig", **experiment.metadata(), **_motor_metadata(self.motor),
-                "angle_noise": repr(self.encoder.angle_noise), "jitter": repr(self.jitter),
-                "drop_rate": repr(self.drop_rate)}
+        keep = kept_samples(n, self.drop_rate, self.rng)
+        meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
+                **recorded_knobs(self.encoder), **recorded_knobs(self)}
         speed = traj.speed[keep] if self.record_speed else None
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
                          speed=speed, seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
 
 
-def _motor_metadata(motor: Motor) -> Mapping[str, str]:
-    out = {"true_a": repr(motor.a), "true_b": repr(motor.b)}
-    for name in ("friction", "bias", "dead_zone", "input_delay"):
-        value = getattr(motor, name)
-        if value:
-            out[f"true_{name}"] = repr(value)
+def motor_metadata(motor: Motor) -> dict[str, str]:
+    """The motor's knobs as recording metadata ``true_NAME``: the required ones (``a``, ``b``)
+    always, the others when nonzero.
+
+    Examples
+    --------
+    >>> motor_metadata(Motor(25.0, 3.0, bias=0.5))
+    {'true_a': '25.0', 'true_b': '3.0', 'true_bias': '0.5'}
+    """
+    out = {}
+    for k in knobs_of(Motor):
+        value = getattr(motor, k.name)
+        if k.required or value:
+            out[f"true_{k.name}"] = repr(value)
     return out
+
+
+def recorded_knobs(obj: object) -> dict[str, str]:
+    """The knobs of ``obj`` (an Encoder, a SimRig) declared ``recorded=True``, as metadata ``NAME: repr``."""
+    return {k.name: repr(getattr(obj, k.name)) for k in knobs_of(type(obj)) if k.recorded}
 
 
 def bench_knobs() -> tuple[Knob, ...]:
@@ -169,6 +195,19 @@ def bench_knobs() -> tuple[Knob, ...]:
     if len(set(names)) != len(names):  # pragma: no cover - a programming error caught by the tests
         raise RuntimeError(f"bench knob names must be unique, got {names}")
     return out
+
+
+def kept_samples(n_samples: int, drop_rate: float, rng: np.random.Generator | None) -> np.ndarray:
+    """Which samples reach the host (bool mask): each but the first is lost with probability ``drop_rate``.
+
+    ``rng`` may be None when ``drop_rate`` is 0.
+    """
+    keep = np.ones(n_samples, dtype=bool)
+    if drop_rate > 0:
+        if rng is None:
+            raise TypeError("rng must be a numpy.random.Generator when drop_rate > 0, got None")
+        keep[1:] = rng.random(n_samples - 1) >= drop_rate
+    return keep
 
 
 def jittered_times(n_samples: int, sample_period: float, jitter: float,

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .excitation import _check_int, _check_real
+from .checks import check_int, check_real
 from .knobs import knob
 
 __all__ = ["Encoder", "counts_to_angle", "backward_difference", "DEFAULT_COUNTS_PER_REV"]
@@ -38,12 +38,13 @@ class Encoder:
     counts_per_rev: int = knob(DEFAULT_COUNTS_PER_REV, unit="counts/rev",
                                help="encoder counts per revolution after quadrature decoding")
     count_offset: int = knob(0, unit="counts", help="count reported at angle 0")
-    angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it")
+    angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it",
+                              recorded=True)
 
     def __post_init__(self):
-        object.__setattr__(self, "counts_per_rev", _check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
-        object.__setattr__(self, "count_offset", _check_int("count_offset", self.count_offset, -(2**62), 2**62))
-        object.__setattr__(self, "angle_noise", _check_real("angle_noise", self.angle_noise, nonnegative=True))
+        object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
+        object.__setattr__(self, "count_offset", check_int("count_offset", self.count_offset, -(2**62), 2**62))
+        object.__setattr__(self, "angle_noise", check_real("angle_noise", self.angle_noise, nonnegative=True))
 
     def counts(self, angle, rng: np.random.Generator | None = None) -> np.ndarray:
         """Integer counts (int64) for ``angle`` in rad; ``rng`` is required when noise > 0."""
@@ -61,7 +62,10 @@ def counts_to_angle(counts, counts_per_rev: int) -> np.ndarray:
 
 
 def backward_difference(angle, time) -> np.ndarray:
-    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])`` in rad/s; ``nan`` at k = 0 (angle in rad, time in s)."""
+    """Speed ``(angle[k] - angle[k-1]) / (time[k] - time[k-1])`` in rad/s; ``nan`` at k = 0.
+
+    ``angle`` in rad, ``time`` in s.
+    """
     angle = np.asarray(angle, dtype=float)
     time = np.asarray(time, dtype=float)
     speed = np.full(angle.shape, np.nan)

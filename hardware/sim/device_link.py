@@ -29,15 +29,15 @@ class RunResult:
         The END frame (None if the run timed out).
     others : list
         Every other message (ACK, NAK, ...).
-    seqs : list of int
-        Link sequence number of every frame received, in order.
+    frame_seqs : list of int
+        Link frame counter of every frame received, in order.
     """
 
     samples: list
     faults: list
     end: "P.End | None"
     others: list
-    seqs: list
+    frame_seqs: list
 
 
 class DeviceLink:
@@ -52,22 +52,22 @@ class DeviceLink:
     def __init__(self, port: serial.Serial):
         self.port = port
         self.reader = P.FrameReader()
-        self.seq = 0
-        self.received: list = []   # (seq, message) in arrival order
+        self.frame_seq = 0
+        self.received: list = []   # (frame_seq, message) in arrival order
 
     def send(self, msg) -> int:
-        """Send ``msg`` with the next sequence number; returns that number."""
-        seq = self.seq
-        self.port.write(P.encode_message(msg, seq))
-        self.seq = (seq + 1) & 0xFF
-        return seq
+        """Send ``msg`` with the next frame_seq; returns that number."""
+        frame_seq = self.frame_seq
+        self.port.write(P.encode_message(msg, frame_seq))
+        self.frame_seq = (frame_seq + 1) & 0xFF
+        return frame_seq
 
     def send_raw(self, data: bytes) -> None:
         """Write ``data`` as is (a corrupted frame, a lone delimiter, ...)."""
         self.port.write(data)
 
     def poll(self) -> list:
-        """Read what is waiting and return the new ``(seq, message)`` pairs."""
+        """Read what is waiting and return the new ``(frame_seq, message)`` pairs."""
         new = self.reader.feed(self.port.read(max(1, self.port.in_waiting)))
         self.received += new
         return new
@@ -108,11 +108,11 @@ class DeviceLink:
 
     def command(self, msg, timeout: float = 2.0):
         """Send ``msg`` and return its ACK or NAK (within ``timeout`` s, else TimeoutError)."""
-        seq = self.send(msg)
+        frame_seq = self.send(msg)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             for _, reply in self.poll():
-                if isinstance(reply, (P.Ack, P.Nak)) and reply[1] == seq:
+                if isinstance(reply, (P.Ack, P.Nak)) and reply[1] == frame_seq:
                     return reply
         raise TimeoutError(f"no ACK/NAK for {msg!r}")
 
@@ -154,4 +154,4 @@ class DeviceLink:
         return RunResult(samples=[m for _, m in got if isinstance(m, P.Sample)],
                          faults=[m for _, m in got if isinstance(m, P.Fault)], end=end,
                          others=[m for _, m in got if not isinstance(m, (P.Sample, P.Fault, P.End))],
-                         seqs=[s for s, _ in got])
+                         frame_seqs=[s for s, _ in got])

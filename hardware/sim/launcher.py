@@ -5,12 +5,13 @@ firmware and the harness when needed (``make firmware avr-sim``), starts
 ``hardware/sim/build/motorid-avr-sim`` with the motor from the URL, opens the harness's
 pseudo-terminal with pyserial and, on exit, closes it and stops the harness.
 
-URL query keys (all optional):
+URL query keys (all optional; :func:`url_keys`):
 
 ``a``, ``b``, ``friction``
-    The harness's motor ``d omega/dt + a omega = b u - friction sign(omega)`` (defaults 25, 3, 0).
+    The harness's motor ``d omega/dt + a omega = b u - friction sign(omega)`` (defaults 25, 3, 0),
+    named and parsed as the bench knobs of ``motorsim.Motor``.
 ``counts_per_rev``
-    Encoder counts per revolution with 4x decoding (default 16667).
+    Encoder counts per revolution with 4x decoding, an integer (default 16667).
 ``encoder_rate``
     Turn the encoder at this many counts/s whatever the duty (measures the encoder ceiling).
 ``driver``
@@ -33,19 +34,25 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import os
 import select
+import shutil
 import signal
 import subprocess
 import time
 from pathlib import Path
-from typing import Iterator, Mapping
+from typing import Any, Iterator, Mapping
 from urllib.parse import parse_qsl, urlsplit
 
 import serial
 
-__all__ = ["open_avr_sim", "AvrSimulation", "HarnessOptions", "parse_avr_sim_url", "build",
+from motorsim.checks import check_choice, check_int, check_real
+from motorsim.knobs import Knob, knob, knobs_of
+from motorsim.rig import bench_knobs
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+
+__all__ = ["open_avr_sim", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation", "HarnessOptions",
+           "parse_avr_sim_url", "build",
            "firmware_elf", "SUPPORTED_BAUDRATES", "DEFAULT_BAUDRATE", "REPO_ROOT"]
 
 #: The repository root (the harness and firmware are built from the source tree).
@@ -61,6 +68,8 @@ _SOURCES = [REPO_ROOT / "hardware" / "firmware" / "motorid_bench" / name
 _HARNESS_SOURCES = [REPO_ROOT / "hardware" / "sim" / "motorid_avr_sim.c"]
 _STARTUP_TIMEOUT = 10.0
 _STOP_TIMEOUT = 5.0
+#: H-bridge wiring -> the firmware's DRIVER_TYPE.
+_DRIVERS = {"dir-pwm": "DRIVER_DIR_PWM", "in1-in2": "DRIVER_IN1_IN2"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,7 +82,7 @@ class HarnessOptions:
         Motor ``d omega/dt + a omega = b u`` in 1/s and (rad/s^2) per duty unit.
     friction : float
         Coulomb friction in rad/s^2 (>= 0).
-    counts_per_rev : float
+    counts_per_rev : int
         Encoder counts per revolution with x4 decoding.
     encoder_rate : float
         If nonzero, the encoder turns at this many x4 counts/s whatever the duty.
@@ -91,41 +100,51 @@ class HarnessOptions:
     a: float = 25.0
     b: float = 3.0
     friction: float = 0.0
-    counts_per_rev: float = 16667.0
-    encoder_rate: float = 0.0
+    counts_per_rev: int = DEFAULT_COUNTS_PER_REV
+    encoder_rate: float = knob(0.0, unit="counts/s", help="turn the encoder at this rate whatever the duty")
     driver: str = "dir-pwm"
-    speed: float = 1.0
-    substep_cycles: int = 16
-    boot_delay: float = 0.05
+    speed: float = knob(1.0, unit="", help="largest ratio of emulated to wall-clock time (0 runs free)")
+    substep_cycles: int = knob(16, unit="cycles", help="CPU cycles per motor integration step")
+    boot_delay: float = knob(0.05, unit="s", help="time between opening the pty and the AVR starting")
 
     def __post_init__(self):
-        for name in ("a", "b", "friction", "counts_per_rev", "encoder_rate", "speed", "boot_delay"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
-        if self.a <= 0:
-            raise ValueError(f"a must be > 0 (1/s), got {self.a!r}")
-        if self.friction < 0:
-            raise ValueError(f"friction must be >= 0 (rad/s^2), got {self.friction!r}")
-        if self.counts_per_rev <= 0:
-            raise ValueError(f"counts_per_rev must be > 0, got {self.counts_per_rev!r}")
-        if self.speed < 0:
-            raise ValueError(f"speed must be >= 0 (0 runs free), got {self.speed!r}")
+        for name in ("a", "b", "friction", "encoder_rate", "speed", "boot_delay"):
+            object.__setattr__(self, name, check_real(name, getattr(self, name)))
+        check_real("a", self.a, positive=True)
+        check_real("friction", self.friction, nonnegative=True)
+        object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
+        check_real("speed", self.speed, nonnegative=True)
         if not 0 <= self.boot_delay <= 10:
             raise ValueError(f"boot_delay must be in 0...10 s, got {self.boot_delay!r}")
-        if self.driver not in ("dir-pwm", "in1-in2"):
-            raise ValueError(f"driver must be 'dir-pwm' or 'in1-in2', got {self.driver!r}")
-        if not 1 <= int(self.substep_cycles) <= 16000 or int(self.substep_cycles) != self.substep_cycles:
-            raise ValueError(f"substep_cycles must be an integer in 1...16000, got {self.substep_cycles!r}")
+        check_choice("driver", self.driver, _DRIVERS)
+        object.__setattr__(self, "substep_cycles", check_int("substep_cycles", self.substep_cycles, 1, 16000))
 
     def argv(self) -> list[str]:
         """Command-line options for ``motorid-avr-sim``."""
         return ["--a", repr(float(self.a)), "--b", repr(float(self.b)),
                 "--friction", repr(float(self.friction)),
-                "--counts-per-rev", repr(float(self.counts_per_rev)),
+                "--counts-per-rev", str(int(self.counts_per_rev)),
                 "--encoder-rate", repr(float(self.encoder_rate)), "--driver", self.driver,
                 "--speed", repr(float(self.speed)), "--substep-cycles", str(int(self.substep_cycles)),
                 "--boot-delay", repr(float(self.boot_delay))]
+
+
+def _url_knobs() -> dict[str, Knob]:
+    """The numeric keys: the bench knobs the harness has, then its own."""
+    names = {f.name for f in dataclasses.fields(HarnessOptions)}
+    bench = {k.name: k for k in bench_knobs() if k.name in names}
+    return {**bench, **{k.name: k for k in knobs_of(HarnessOptions)}}
+
+
+def url_keys() -> tuple[str, ...]:
+    """The query keys of ``avr-sim://`` (the fields of :class:`HarnessOptions`).
+
+    Examples
+    --------
+    >>> url_keys()[:4]
+    ('a', 'b', 'friction', 'counts_per_rev')
+    """
+    return tuple(f.name for f in dataclasses.fields(HarnessOptions))
 
 
 def parse_avr_sim_url(url: str) -> HarnessOptions:
@@ -140,36 +159,34 @@ def parse_avr_sim_url(url: str) -> HarnessOptions:
     ------
     ValueError
         If the scheme is not ``avr-sim``, a key is unknown or a value is not a number.
+
+    Examples
+    --------
+    >>> parse_avr_sim_url("avr-sim://?a=30&counts_per_rev=2000").counts_per_rev
+    2000
     """
     if not isinstance(url, str):
         raise TypeError(f"url must be a str, got {type(url).__name__}")
     parts = urlsplit(url)
     if parts.scheme != "avr-sim":
         raise ValueError(f"url must start with 'avr-sim://', got {url!r}")
-    fields = {f.name: f for f in dataclasses.fields(HarnessOptions)}
-    values: dict[str, object] = {}
+    keys, knobs = url_keys(), _url_knobs()
+    values: dict[str, Any] = {}
     for key, text in parse_qsl(parts.query, keep_blank_values=True, strict_parsing=False):
         key = key.replace("-", "_")
-        if key not in fields:
-            raise ValueError(f"avr-sim URL key must be one of {sorted(fields)}, got {key!r} in {url!r}")
-        if key == "driver":
-            values[key] = text
-            continue
+        if key not in keys:
+            raise ValueError(f"avr-sim URL key must be one of {sorted(keys)}, got {key!r} in {url!r}")
         try:
-            number = float(text)
-        except ValueError:
-            raise ValueError(f"avr-sim URL key {key!r} must be a number, got {text!r}") from None
-        values[key] = int(number) if key == "substep_cycles" and number.is_integer() else number
+            values[key] = knobs[key].parse(text) if key in knobs else text
+        except ValueError as exc:
+            raise ValueError(f"avr-sim URL key {exc}") from None
     return HarnessOptions(**values)
 
 
 def _check_baudrate(baudrate: int) -> int:
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate not in SUPPORTED_BAUDRATES:
+    if check_int("baudrate", baudrate, allow_integral_float=False) not in SUPPORTED_BAUDRATES:
         raise ValueError(f"baudrate must be one of {SUPPORTED_BAUDRATES}, got {baudrate!r}")
     return baudrate
-
-
-_DRIVERS = {"dir-pwm": "DRIVER_DIR_PWM", "in1-in2": "DRIVER_IN1_IN2"}
 
 
 def _variant(baudrate: int, driver: str) -> tuple[str, list[str]]:
@@ -209,11 +226,31 @@ def _stale(target: Path, sources: list[Path]) -> bool:
     return any(src.stat().st_mtime > built for src in sources)
 
 
+#: What building the firmware and the harness needs: programs on PATH, and pkg-config's simavr.
+_TOOLS = ("make", "cc", "avr-gcc", "avr-g++", "avr-ar", "avr-objcopy", "avr-size", "pkg-config")
+#: The Arduino core the Makefile compiles (Debian's arduino-core-avr).
+ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr")
+
+
+def missing_tools() -> list[str]:
+    """What is missing to build the firmware and the harness (empty when everything is there).
+
+    ``make firmware-deps`` installs the Debian packages that provide them.
+    """
+    missing = [tool for tool in _TOOLS if shutil.which(tool) is None]
+    if shutil.which("pkg-config") is not None and subprocess.run(
+            ["pkg-config", "--exists", "simavr"], capture_output=True).returncode != 0:
+        missing.append("simavr (pkg-config: libsimavr-dev)")
+    if not (ARDUINO_CORE / "cores" / "arduino").is_dir():
+        missing.append(f"the Arduino core in {ARDUINO_CORE} (arduino-core-avr)")
+    return missing
+
+
 def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Path, Path]:
     """Build the firmware (for ``baudrate`` and ``driver``) and the harness when missing or stale.
 
-    Runs ``make firmware avr-sim`` in the repository, which apt-installs the Debian packages
-    when they are missing.
+    Runs ``make firmware avr-sim`` in the repository without installing anything: when a tool
+    is missing (:func:`missing_tools`) it raises, naming it and ``make firmware-deps``.
 
     Parameters
     ----------
@@ -236,7 +273,11 @@ def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Pa
     if _stale(_HARNESS, _HARNESS_SOURCES):
         targets.append("avr-sim")
     if targets:
-        cmd = ["make", "--no-print-directory", "-s", "-C", str(REPO_ROOT), *targets]
+        missing = missing_tools()
+        if missing:
+            raise RuntimeError(f"building the AVR firmware/harness needs {', '.join(missing)}; "
+                               f"install them with 'make firmware-deps'")
+        cmd = ["make", "--no-print-directory", "-s", "-C", str(REPO_ROOT), *targets, "FIRMWARE_DEPS="]
         if sub:
             cmd += [f"FIRMWARE_BUILD={elf.parent.relative_to(REPO_ROOT)}", f"FIRMWARE_DEFS={' '.join(defs)}"]
         done = subprocess.run(cmd, capture_output=True, text=True)
@@ -273,11 +314,15 @@ class AvrSimulation:
     def start(self) -> str:
         """Build if needed, start the harness and return its pty path."""
         elf, harness = build(self.baudrate, self.options.driver)
-        self._process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
-                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                         stderr=subprocess.PIPE, text=True)
+        process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
+                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+        self._process = process
+        stdout, stderr = process.stdout, process.stderr
+        if stdout is None or stderr is None:   # pragma: no cover - PIPE always gives both
+            raise RuntimeError("motorid-avr-sim was started without its output pipes")
         # Read the raw pipe (a buffered readline would hide lines from select()).
-        fd = self._process.stdout.fileno()
+        fd = stdout.fileno()
         deadline = time.monotonic() + _STARTUP_TIMEOUT
         text = b""
         while True:
@@ -292,7 +337,7 @@ class AvrSimulation:
                 raise TimeoutError(f"motorid-avr-sim printed no PTY line within {_STARTUP_TIMEOUT} s")
             chunk = os.read(fd, 4096)
             if not chunk:
-                err = self._process.stderr.read()
+                err = stderr.read()
                 self.stop()
                 raise RuntimeError(f"motorid-avr-sim exited before opening its pty: {err.strip()}")
             text += chunk

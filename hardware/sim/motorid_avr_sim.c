@@ -303,16 +303,15 @@ static double parse_number(const char *name, const char *text) {
     return v;
 }
 
-int main(int argc, char **argv) {
-    harness_t s;
-    memset(&s, 0, sizeof(s));
-    s.a = 25.0;
-    s.b = 3.0;
-    s.counts_per_rev = 16667.0;
-    s.substep = 16;
-    s.min_sp = 0x8FF;
-    double speed_cap = 1.0;
-    double boot_delay = 0.05;
+/* What the command line sets besides the motor (which goes straight into the harness). */
+typedef struct options {
+    const char *firmware;
+    double speed_cap;     /* largest emulated / wall time ratio, 0 = free */
+    double boot_delay;    /* s between the host opening the pty and the AVR starting */
+} options_t;
+
+/* Reads the command line into s and o; returns 0, or the exit status after a message. */
+static int parse_options(int argc, char **argv, harness_t *s, options_t *o) {
     static const struct option options[] = {
         {"a", required_argument, 0, 'a'},          {"b", required_argument, 0, 'b'},
         {"friction", required_argument, 0, 'f'},   {"counts-per-rev", required_argument, 0, 'n'},
@@ -323,17 +322,17 @@ int main(int argc, char **argv) {
     int opt;
     while ((opt = getopt_long(argc, argv, "", options, NULL)) != -1) {
         switch (opt) {
-            case 'a': s.a = parse_number("a", optarg); break;
-            case 'b': s.b = parse_number("b", optarg); break;
-            case 'f': s.friction = parse_number("friction", optarg); break;
-            case 'n': s.counts_per_rev = parse_number("counts-per-rev", optarg); break;
-            case 'r': s.encoder_rate = parse_number("encoder-rate", optarg); break;
-            case 's': speed_cap = parse_number("speed", optarg); break;
-            case 'c': s.substep = (uint32_t)parse_number("substep-cycles", optarg); break;
-            case 'w': boot_delay = parse_number("boot-delay", optarg); break;
+            case 'a': s->a = parse_number("a", optarg); break;
+            case 'b': s->b = parse_number("b", optarg); break;
+            case 'f': s->friction = parse_number("friction", optarg); break;
+            case 'n': s->counts_per_rev = parse_number("counts-per-rev", optarg); break;
+            case 'r': s->encoder_rate = parse_number("encoder-rate", optarg); break;
+            case 's': o->speed_cap = parse_number("speed", optarg); break;
+            case 'c': s->substep = (uint32_t)parse_number("substep-cycles", optarg); break;
+            case 'w': o->boot_delay = parse_number("boot-delay", optarg); break;
             case 'd':
-                if (!strcmp(optarg, "dir-pwm")) s.driver = DRIVER_DIR_PWM;
-                else if (!strcmp(optarg, "in1-in2")) s.driver = DRIVER_IN1_IN2;
+                if (!strcmp(optarg, "dir-pwm")) s->driver = DRIVER_DIR_PWM;
+                else if (!strcmp(optarg, "in1-in2")) s->driver = DRIVER_IN1_IN2;
                 else {
                     fprintf(stderr, "motorid-avr-sim: --driver must be dir-pwm or in1-in2, got '%s'\n", optarg);
                     return 2;
@@ -343,35 +342,126 @@ int main(int argc, char **argv) {
         }
     }
     if (optind != argc - 1) { usage(argv[0]); return 2; }
-    if (!(s.a > 0)) { fprintf(stderr, "motorid-avr-sim: --a must be > 0, got %g\n", s.a); return 2; }
-    if (s.friction < 0) { fprintf(stderr, "motorid-avr-sim: --friction must be >= 0, got %g\n", s.friction); return 2; }
-    if (!(s.counts_per_rev > 0)) { fprintf(stderr, "motorid-avr-sim: --counts-per-rev must be > 0, got %g\n", s.counts_per_rev); return 2; }
-    if (s.substep < 1 || s.substep > 16000) { fprintf(stderr, "motorid-avr-sim: --substep-cycles must be 1...16000, got %u\n", s.substep); return 2; }
-    if (boot_delay < 0 || boot_delay > 10) { fprintf(stderr, "motorid-avr-sim: --boot-delay must be 0...10 s, got %g\n", boot_delay); return 2; }
-    if (speed_cap < 0) { fprintf(stderr, "motorid-avr-sim: --speed must be >= 0, got %g\n", speed_cap); return 2; }
+    o->firmware = argv[optind];
+    return 0;
+}
 
+/* Returns 0 when every setting is in range, else 2 after naming the first that is not. */
+static int check_options(const harness_t *s, const options_t *o) {
+    if (!(s->a > 0)) { fprintf(stderr, "motorid-avr-sim: --a must be > 0, got %g\n", s->a); return 2; }
+    if (s->friction < 0) {
+        fprintf(stderr, "motorid-avr-sim: --friction must be >= 0, got %g\n", s->friction); return 2;
+    }
+    if (!(s->counts_per_rev > 0)) {
+        fprintf(stderr, "motorid-avr-sim: --counts-per-rev must be > 0, got %g\n", s->counts_per_rev); return 2;
+    }
+    if (s->substep < 1 || s->substep > 16000) {
+        fprintf(stderr, "motorid-avr-sim: --substep-cycles must be 1...16000, got %u\n", s->substep); return 2;
+    }
+    if (o->boot_delay < 0 || o->boot_delay > 10) {
+        fprintf(stderr, "motorid-avr-sim: --boot-delay must be 0...10 s, got %g\n", o->boot_delay); return 2;
+    }
+    if (o->speed_cap < 0) {
+        fprintf(stderr, "motorid-avr-sim: --speed must be >= 0, got %g\n", o->speed_cap); return 2;
+    }
+    return 0;
+}
+
+/* Loads the firmware into a fresh ATmega328P at 16 MHz and wires the encoder pins; 0 or 1. */
+static int start_avr(harness_t *s, const char *firmware) {
     elf_firmware_t fw;
     memset(&fw, 0, sizeof(fw));
-    if (elf_read_firmware(argv[optind], &fw) != 0) {
-        fprintf(stderr, "motorid-avr-sim: cannot read firmware '%s'\n", argv[optind]);
+    if (elf_read_firmware(firmware, &fw) != 0) {
+        fprintf(stderr, "motorid-avr-sim: cannot read firmware '%s'\n", firmware);
         return 1;
     }
-    s.avr = avr_make_mcu_by_name("atmega328p");
-    if (!s.avr) { fprintf(stderr, "motorid-avr-sim: simavr has no atmega328p\n"); return 1; }
-    avr_init(s.avr);
-    s.avr->frequency = 16000000;
-    avr_load_firmware(s.avr, &fw);
-    s.avr->log = LOG_ERROR;
-    s.avr->data[REG_MCUSR] |= 1;   /* power-on reset */
+    s->avr = avr_make_mcu_by_name("atmega328p");
+    if (!s->avr) { fprintf(stderr, "motorid-avr-sim: simavr has no atmega328p\n"); return 1; }
+    avr_init(s->avr);
+    s->avr->frequency = 16000000;
+    avr_load_firmware(s->avr, &fw);
+    s->avr->log = LOG_ERROR;
+    s->avr->data[REG_MCUSR] |= 1;   /* power-on reset */
 
-    s.h = s.substep / (double)s.avr->frequency;
-    s.e = exp(-s.a * s.h);
-    s.one_minus_e_over_a = (1.0 - s.e) / s.a;
-    s.h_minus_over_a = s.h - s.one_minus_e_over_a;
-    s.enc_a = avr_io_getirq(s.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
-    s.enc_b = avr_io_getirq(s.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
-    avr_raise_irq(s.enc_a, 0);
-    avr_raise_irq(s.enc_b, 0);
+    s->h = s->substep / (double)s->avr->frequency;
+    s->e = exp(-s->a * s->h);
+    s->one_minus_e_over_a = (1.0 - s->e) / s->a;
+    s->h_minus_over_a = s->h - s->one_minus_e_over_a;
+    s->enc_a = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
+    s->enc_b = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
+    avr_raise_irq(s->enc_a, 0);
+    avr_raise_irq(s->enc_b, 0);
+    return 0;
+}
+
+/* Every 4096 avr_run() calls: host flow control, the motor timer after a reset, the speed cap. */
+static void housekeeping(harness_t *s, bridge_t *pty, double speed_cap, double wall0, avr_cycle_count_t cycle0) {
+    /* Flow control towards the host: while more than 4 kB of the AVR's output wait for a
+       busy host, the emulation pauses. Nothing is lost and the firmware's own (emulated)
+       timing is untouched; a real USB-serial link has large host buffers instead. */
+    bridge_poll(pty);
+    while (!stop_requested && bridge_pending(pty) > 4096) {
+        struct timespec ts = {0, 200000};
+        nanosleep(&ts, NULL);
+        s->flow_pauses++;
+        bridge_poll(pty);
+    }
+    if (!avr_cycle_timer_status(s->avr, motor_step, s)) {   /* cleared by an AVR reset */
+        s->resets++;
+        avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
+    }
+    if (speed_cap > 0) {
+        double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
+        double ahead = emulated / speed_cap - (wall_seconds() - wall0);
+        if (ahead > 0.002) {
+            struct timespec ts = {0, (long)(ahead * 1e9)};
+            nanosleep(&ts, NULL);
+        }
+    }
+}
+
+/* Runs the AVR until a signal stops it or it crashes; prints the STATS line; returns the state. */
+static int run_emulation(harness_t *s, bridge_t *pty, double speed_cap) {
+    avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
+    double wall0 = wall_seconds();
+    avr_cycle_count_t cycle0 = s->avr->cycle;
+    int state = cpu_Running;
+    uint32_t n = 0;
+    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+        state = avr_run(s->avr);
+        if (hang_requested && s->avr->sreg[S_I]) {   /* not inside an interrupt: simavr
+                                                        ends a run on "rjmp ." with I clear */
+            hang_requested = 0;
+            hang_firmware(s->avr);
+        }
+        if (++n < 4096) continue;
+        n = 0;
+        housekeeping(s, pty, speed_cap, wall0, cycle0);
+    }
+    double wall = wall_seconds() - wall0;
+    double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
+    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
+           "stack_bytes=%d flow_pauses=%llu state=%d\n",
+           emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s->emitted,
+           (unsigned long long)s->edges, (unsigned long long)s->resets, s->speed, 0x8FF - s->min_sp,
+           (unsigned long long)s->flow_pauses, state);
+    fflush(stdout);
+    return state;
+}
+
+int main(int argc, char **argv) {
+    harness_t s;
+    memset(&s, 0, sizeof(s));
+    s.a = 25.0;
+    s.b = 3.0;
+    s.counts_per_rev = 16667.0;
+    s.substep = 16;
+    s.min_sp = 0x8FF;
+    options_t o = {NULL, 1.0, 0.05};
+    int status = parse_options(argc, argv, &s, &o);
+    if (!status) status = check_options(&s, &o);
+    if (!status) status = start_avr(&s, o.firmware);
+    if (status) return status;
 
     static bridge_t pty;   /* static: 70 kB */
     if (bridge_open(&pty, s.avr) != 0) {
@@ -390,56 +480,11 @@ int main(int argc, char **argv) {
        bootloader; the emulated one starts when the host opens the pty, after --boot-delay
        (default 50 ms), so its BOOT frame cannot be flushed by the host's own open(). */
     bridge_wait_for_host(&pty);
-    if (boot_delay > 0) {
-        struct timespec ts = {(time_t)boot_delay, (long)((boot_delay - (time_t)boot_delay) * 1e9)};
+    if (o.boot_delay > 0) {
+        struct timespec ts = {(time_t)o.boot_delay, (long)((o.boot_delay - (time_t)o.boot_delay) * 1e9)};
         nanosleep(&ts, NULL);
     }
-
-    avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
-    double wall0 = wall_seconds();
-    avr_cycle_count_t cycle0 = s.avr->cycle;
-    int state = cpu_Running;
-    uint32_t n = 0;
-    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
-        state = avr_run(s.avr);
-        if (hang_requested && s.avr->sreg[S_I]) {   /* not inside an interrupt: simavr
-                                                        ends a run on "rjmp ." with I clear */
-            hang_requested = 0;
-            hang_firmware(s.avr);
-        }
-        if (++n < 4096) continue;
-        n = 0;
-        /* Flow control towards the host: while more than 4 kB of the AVR's output wait for a
-           busy host, the emulation pauses. Nothing is lost and the firmware's own (emulated)
-           timing is untouched; a real USB-serial link has large host buffers instead. */
-        bridge_poll(&pty);
-        while (!stop_requested && bridge_pending(&pty) > 4096) {
-            struct timespec ts = {0, 200000};
-            nanosleep(&ts, NULL);
-            s.flow_pauses++;
-            bridge_poll(&pty);
-        }
-        if (!avr_cycle_timer_status(s.avr, motor_step, &s)) {   /* cleared by an AVR reset */
-            s.resets++;
-            avr_cycle_timer_register(s.avr, s.substep, motor_step, &s);
-        }
-        if (speed_cap > 0) {
-            double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
-            double ahead = emulated / speed_cap - (wall_seconds() - wall0);
-            if (ahead > 0.002) {
-                struct timespec ts = {0, (long)(ahead * 1e9)};
-                nanosleep(&ts, NULL);
-            }
-        }
-    }
-    double wall = wall_seconds() - wall0;
-    double emulated = (s.avr->cycle - cycle0) / (double)s.avr->frequency;
-    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
-           "stack_bytes=%d flow_pauses=%llu state=%d\n",
-           emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s.emitted,
-           (unsigned long long)s.edges, (unsigned long long)s.resets, s.speed, 0x8FF - s.min_sp,
-           (unsigned long long)s.flow_pauses, state);
-    fflush(stdout);
+    int state = run_emulation(&s, &pty, o.speed_cap);
     bridge_poll(&pty);
     _exit(state == cpu_Crashed ? 1 : 0);
 }

@@ -18,12 +18,12 @@ import pytest
 from scipy.optimize import least_squares
 
 import identify
-from hardware.sim.device_link import DeviceLink
 from hardware import protocol as P
 from hardware.errors import DeviceFaultError
 from hardware.serial_rig import SerialRig
-from hardware.sim.launcher import build, open_avr_sim
-from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Recording, Sine, Step
+from hardware.sim.device_link import DeviceLink
+from hardware.sim.launcher import build, missing_tools, open_avr_sim
+from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Sine, Step
 
 A, B, COUNTS_PER_REV = 25.0, 3.0, 16667
 # 20 rad/s, amplitude 100: the speed swings +-9.4 rad/s (25 k counts/s, well under the
@@ -36,9 +36,15 @@ def _open(baudrate: int = 250000, **query):
     return open_avr_sim("avr-sim://?" + urlencode(query), baudrate, 0.02)
 
 
+pytestmark = pytest.mark.firmware
+
+
 @pytest.fixture(scope="module")
 def built():
-    """Firmware and harness built once (``make firmware avr-sim``; installs packages if missing)."""
+    """Firmware and harness built once (``make firmware avr-sim``); skipped without the AVR toolchain."""
+    missing = missing_tools()
+    if missing:
+        pytest.skip(f"the AVR toolchain is missing: {', '.join(missing)} (make firmware-deps installs it)")
     return build()
 
 
@@ -185,15 +191,15 @@ def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
         busy_seqs = []
 
         def meddle_then_stop(link, sample):
-            if sample.index == 50:
+            if sample.seq == 50:
                 busy_seqs.extend(link.send(m) for m in (P.Hello(), STEADY, P.WaveConstant(0), P.Start()))
-            if sample.index == 200:
+            if sample.seq == 200:
                 link.send(P.Stop())
 
         run = link.run(STEADY, P.WaveConstant(150), on_sample=meddle_then_stop)
     naks = [m for m in run.others if isinstance(m, P.Nak)]
-    assert [(n.refused_type, n.refused_seq, n.reason) for n in naks] == [
-        (t, seq, P.NakReason.BUSY) for t, seq in zip((P.MsgType.HELLO, P.MsgType.CONFIG, P.MsgType.WAVE,
+    assert [(n.refused_type, n.refused_frame_seq, n.reason) for n in naks] == [
+        (t, frame_seq, P.NakReason.BUSY) for t, frame_seq in zip((P.MsgType.HELLO, P.MsgType.CONFIG, P.MsgType.WAVE,
                                                        P.MsgType.START), busy_seqs)]
     assert {s.duty for s in run.samples} == {150}, "the running experiment was not touched"
     assert run.end is not None and run.end.reason == P.EndReason.STOPPED_BY_HOST
@@ -205,14 +211,23 @@ def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
 
 
 class _HostLink:
-    """The port as SerialRig sees it, with a switch that stops the host's frames arriving."""
+    """The port as SerialRig sees it, with a switch that stops the host's frames arriving.
+
+    ``latest`` is the last sample index the host has read (set by the test's callback);
+    ``latest_at_last_write`` its value when the last frame that reached the device was written.
+    """
 
     def __init__(self, port):
         self._port = port
         self.silent = False
+        self.latest = -1
+        self.latest_at_last_write = -1
 
     def write(self, data):
-        return len(data) if self.silent else self._port.write(data)
+        if self.silent:
+            return len(data)
+        self.latest_at_last_write = self.latest
+        return self._port.write(data)
 
     def __getattr__(self, name):
         return getattr(self._port, name)
@@ -225,6 +240,7 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
         link = _HostLink(port)
 
         def go_silent(sample):
+            link.latest = sample.seq
             if sample.seq == 50:
                 link.silent = True
 
@@ -235,10 +251,13 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
     meta = info.value.recording.metadata
     assert meta["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
     assert meta["device_fault_code"] == str(int(P.FaultCode.HOST_SILENCE))
-    # The last HEARTBEAT got through at most 50 ms (watchdog / 4) before the host read sample
-    # 50; the device trips 200 ms later: sample 50 + (150...200 ms) / 2 ms, plus the host's lag
-    # behind the device when it read sample 50 (it reads in batches: allow 50 ms).
-    assert 50 + 75 <= int(meta["device_fault_index"]) <= 50 + 125
+    # The device trips 200 ms (100 samples) after the last frame reached it.  That frame left
+    # after the host had read sample `seen`, so the device was at `seen` or later: the lower
+    # bound holds however slow the host is.  The upper bound allows the host's view to lag
+    # the device by up to 200 ms when it wrote that frame (a loaded machine).
+    seen = link.latest_at_last_write
+    assert seen <= 50
+    assert seen + 99 <= int(meta["device_fault_index"]) <= seen + 100 + 100
     assert int(meta["samples_received"]) == int(meta["device_fault_index"])
     assert abs(speed) < 1e-2 * STEADY_SPEED
 
@@ -274,10 +293,10 @@ def test_corrupted_frames_are_refused_and_counted_and_the_link_recovers(built):
         injected = []
 
         def corrupt_twice(link, sample):
-            if sample.index in (50, 100) and sample.index not in injected:
-                injected.append(sample.index)
-                if sample.index == 50:
-                    bad = bytearray(P.encode_message(P.Heartbeat(), link.seq))
+            if sample.seq in (50, 100) and sample.seq not in injected:
+                injected.append(sample.seq)
+                if sample.seq == 50:
+                    bad = bytearray(P.encode_message(P.Heartbeat(), link.frame_seq))
                     bad[1] ^= 0xFF
                     link.send_raw(bytes(bad))             # bad CRC
                 else:
@@ -293,23 +312,24 @@ def test_unknown_type_and_wrong_length_are_naked(built):
     with _open() as port:
         link = DeviceLink(port)
         link.hello()
-        seq = link.seq
-        link.send_raw(P.encode_frame(0x3F, seq, b""))
-        link.seq += 1
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(0x3F, frame_seq, b""))
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(0x3F, seq, P.NakReason.UNKNOWN_TYPE)
-        seq = link.seq
-        link.send_raw(P.encode_frame(P.MsgType.CONFIG, seq, b"\x00" * 12))
-        link.seq += 1
+        assert nak == P.Nak(0x3F, frame_seq, P.NakReason.UNKNOWN_TYPE)
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(P.MsgType.CONFIG, frame_seq, b"\x00" * 12))
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(P.MsgType.CONFIG, seq, P.NakReason.BAD_LENGTH)
-        seq = link.seq
-        link.send_raw(P.encode_frame(P.MsgType.WAVE, seq, b"\x09\x00\x00"))   # unknown kind
-        link.seq += 1
+        assert nak == P.Nak(P.MsgType.CONFIG, frame_seq, P.NakReason.BAD_LENGTH)
+        frame_seq = link.frame_seq
+        link.send_raw(P.encode_frame(P.MsgType.WAVE, frame_seq, b"\x09\x00\x00"))   # unknown kind
+        link.frame_seq += 1
         nak = link.wait_for(P.Nak, timeout=1.0)
-        assert nak == P.Nak(P.MsgType.WAVE, seq, P.NakReason.BAD_VALUE)
-        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.seq - 1, P.NakReason.BAD_VALUE)
-        assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.seq - 1, P.NakReason.NOT_CONFIGURED)
+        assert nak == P.Nak(P.MsgType.WAVE, frame_seq, P.NakReason.BAD_VALUE)
+        assert link.command(P.Config(50, 10, 255, 4, 0)) == P.Nak(P.MsgType.CONFIG, link.frame_seq - 1,
+                                                                  P.NakReason.BAD_VALUE)
+        assert link.command(P.Start()) == P.Nak(P.MsgType.START, link.frame_seq - 1, P.NakReason.NOT_CONFIGURED)
 
 
 # ------------------------------------------------------------------ overload
@@ -324,16 +344,16 @@ def test_overload_shows_up_as_counted_drops_never_silent_ones(built):
     end = run.end
     assert end is not None and end.reason == P.EndReason.COMPLETE
     assert end.samples_dropped > 0
-    assert all(np.diff(run.seqs) % 256 == 1), "the link itself lost nothing"
+    assert all(np.diff(run.frame_seqs) % 256 == 1), "the link itself lost nothing"
     assert end.samples_sent == len(run.samples)
     assert len(run.samples) + end.samples_dropped == n
-    indices = np.array([s.index for s in run.samples])
+    indices = np.array([s.seq for s in run.samples])
     assert np.all(np.diff(indices) > 0)
     gaps = int(np.sum(np.diff(indices) - 1)) + indices[0] + (n - 1 - indices[-1])
     assert gaps == end.samples_dropped, "every dropped sample is a gap in the indices"
     assert [f.code for f in run.faults] == [P.FaultCode.QUEUE_OVERFLOW]
     first_gap = next(k for k, i in enumerate(indices) if i != k)
-    assert run.faults[0].index == first_gap
+    assert run.faults[0].seq == first_gap
 
 
 def test_serial_rig_refuses_a_rate_the_line_cannot_carry_before_starting(built):
@@ -375,7 +395,7 @@ def test_encoder_beyond_the_ceiling_reports_errors(built):
 # ------------------------------------------------------------------ firmware vs pure-Python device
 def test_emulated_firmware_and_pure_python_device_agree_to_one_count(sine_run):
     _, avr = sine_run
-    with SerialRig(f"fake://?a={A}&b={B}&cpr={COUNTS_PER_REV}&speed=0", 250000,
+    with SerialRig(f"fake://?a={A}&b={B}&counts_per_rev={COUNTS_PER_REV}&speed=0", 250000,
                    counts_per_rev=COUNTS_PER_REV) as rig:
         fake = rig.run(SINE)
     np.testing.assert_array_equal(avr.duty, fake.duty)
@@ -406,7 +426,7 @@ def test_harness_coulomb_friction_matches_the_pure_python_device(built):
     experiment = Experiment(PRBS(60, -60, order=7, hold=25), sample_period=0.002, duration=1.0)
     with _rig(friction=40) as (rig, _):
         avr = rig.run(experiment)
-    with SerialRig(f"fake://?a={A}&b={B}&cpr={COUNTS_PER_REV}&speed=0&friction=40", 250000,
+    with SerialRig(f"fake://?a={A}&b={B}&counts_per_rev={COUNTS_PER_REV}&speed=0&friction=40", 250000,
                    counts_per_rev=COUNTS_PER_REV) as rig:
         fake = rig.run(experiment)
     assert np.max(np.abs(avr.counts - fake.counts)) <= 1

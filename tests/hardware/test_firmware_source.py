@@ -52,10 +52,12 @@ def test_avr_sim_url_reads_the_motor_and_rejects_unknown_keys():
         launcher.parse_avr_sim_url("avr-sim://?ppr=100")
     with pytest.raises(ValueError, match="a must be > 0"):
         launcher.parse_avr_sim_url("avr-sim://?a=-1")
-    with pytest.raises(ValueError, match="'b' must be a number"):
+    with pytest.raises(ValueError, match="key b must be a number"):
         launcher.parse_avr_sim_url("avr-sim://?b=fast")
     with pytest.raises(ValueError, match="avr-sim://"):
         launcher.parse_avr_sim_url("fake://?a=1")
+    assert isinstance(opts.counts_per_rev, int) and "--counts-per-rev" in opts.argv()
+    assert opts.argv()[opts.argv().index("--counts-per-rev") + 1] == "2000"
 
 
 def test_firmware_builds_exist_per_baud_rate_only_for_rates_the_uno_can_make():

@@ -62,7 +62,7 @@ _MESSAGES = [
     P.Sample(123456, 4_000_000_000, -2_000_000_000, -255, 3), P.End(0, 2000, 1, 2, 3, 4), P.Fault(1, 77),
     P.Boot(1, 1), P.WaveConstant(-100), P.WaveStep(0, 100, 200),
     P.WaveMultisine(5, ((200, 0, 34_359_738), (-50, 2**32 - 1, 1))), P.WaveChirp(0, 200, 5, 100_000, -3),
-    P.WavePrbs(-200, 200, 10, 1, 3),
+    P.WavePrbs(200, -200, 10, 3, 1),
 ]
 
 _LENGTHS = {P.Hello: 1, P.Config: 13, P.Start: 0, P.Stop: 0, P.Heartbeat: 0, P.HelloAck: 17, P.Ack: 2,
@@ -74,8 +74,8 @@ _LENGTHS = {P.Hello: 1, P.Config: 13, P.Start: 0, P.Stop: 0, P.Heartbeat: 0, P.H
 def test_every_message_round_trips_with_the_documented_length(msg):
     wire = P.encode_message(msg, 200)
     assert wire.endswith(b"\x00") and b"\x00" not in wire[:-1]
-    t, seq, payload = P.decode_frame(wire[:-1])
-    assert seq == 200
+    t, frame_seq, payload = P.decode_frame(wire[:-1])
+    assert frame_seq == 200
     # PROTOCOL.md's table: payload lengths (WAVE: 1 kind byte + the kind's fields; multisine 3 + 10 n)
     expected = _LENGTHS.get(type(msg), 1 + 3 + 10 * len(getattr(msg, "components", ())))
     assert len(payload) == expected
@@ -122,7 +122,7 @@ def test_decode_message_rejects_wrong_lengths_and_types(msg_type, payload, rule)
 
 
 def test_encode_rejects_out_of_range_fields_naming_them():
-    with pytest.raises(ValueError, match="seq"):
+    with pytest.raises(ValueError, match="frame_seq"):
         P.encode_frame(1, 256)
     with pytest.raises(ValueError, match="payload"):
         P.encode_frame(1, 0, bytes(61))
@@ -149,9 +149,9 @@ _sample_st = st.builds(P.Sample, st.integers(0, 2**32 - 1), st.integers(0, 2**32
 
 @settings(max_examples=60, deadline=None)
 @given(_sample_st, st.integers(0, 255))
-def test_every_single_bit_flip_of_a_sample_frame_is_detected(sample, seq):
-    wire = P.encode_message(sample, seq)
-    after = P.encode_message(P.Ack(1, 2), (seq + 1) % 256)
+def test_every_single_bit_flip_of_a_sample_frame_is_detected(sample, frame_seq):
+    wire = P.encode_message(sample, frame_seq)
+    after = P.encode_message(P.Ack(1, 2), (frame_seq + 1) % 256)
     for byte in range(len(wire) - 1):           # every bit of the encoded frame ...
         for bit in range(8):
             bad = bytearray(wire)
@@ -159,7 +159,7 @@ def test_every_single_bit_flip_of_a_sample_frame_is_detected(sample, seq):
             reader = P.FrameReader()
             got = reader.feed(b"\x00" + bytes(bad) + after)
             # ... is caught: the damaged frame yields nothing and is counted, the next frame survives
-            assert got == [((seq + 1) % 256, P.Ack(1, 2))], (byte, bit)
+            assert got == [((frame_seq + 1) % 256, P.Ack(1, 2))], (byte, bit)
             assert reader.rx_errors >= 1
 
 
@@ -213,9 +213,9 @@ def test_fuzz_reader_never_raises_never_grows_and_recovers(chunks, sizes):
     i, j = 0, 0
     while i < len(data):
         n = sizes[j % len(sizes)]
-        for seq, msg in reader.feed(data[i:i + n]):
-            assert 0 <= seq <= 255 and type(msg).__module__ == P.__name__
-        assert len(reader._pending) <= P.MAX_ENCODED
+        for frame_seq, msg in reader.feed(data[i:i + n]):
+            assert 0 <= frame_seq <= 255 and type(msg).__module__ == P.__name__
+        assert reader.pending_bytes <= P.MAX_ENCODED
         i, j = i + n, j + 1
     marker = P.End(0, 1, 2, 3, 4, 5)
     assert reader.feed(b"\x00" + P.encode_message(marker, 9)) == [(9, marker)]
@@ -223,14 +223,14 @@ def test_fuzz_reader_never_raises_never_grows_and_recovers(chunks, sizes):
 
 def _reference_decode(part: bytes):
     try:
-        t, seq, payload = P.decode_frame(part)
-        return [(seq, P.decode_message(t, payload))]
+        t, frame_seq, payload = P.decode_frame(part)
+        return [(frame_seq, P.decode_message(t, payload))]
     except FrameError:
         return []
 
 
-def _edited_frame(sample, seq, where, value):
-    frame = bytearray(P.encode_message(sample, seq)[:-1])
+def _edited_frame(sample, frame_seq, where, value):
+    frame = bytearray(P.encode_message(sample, frame_seq)[:-1])
     if where is not None:
         frame[where % len(frame)] = value
     return bytes(frame)
@@ -282,7 +282,7 @@ def test_expand_sine_is_within_one_duty_unit_of_the_real_sine():
 def test_expand_prbs_has_maximal_period_and_balance():
     # Defining property of a maximal-length LFSR of order m: period 2^m - 1 with 2^(m-1) ones.
     m = 9
-    d = P.expand(P.WavePrbs(0, 1, m, 1, 1), 2 * (2**m - 1), 255)
+    d = P.expand(P.WavePrbs(1, 0, m, 1, 1), 2 * (2**m - 1), 255)
     period = 2**m - 1
     assert np.array_equal(d[:period], d[period:]) and d[:period].sum() == 2 ** (m - 1)
     for shift in range(1, period):
@@ -295,7 +295,7 @@ def test_expand_rejects_bad_arguments_naming_them():
     with pytest.raises(ValueError, match="duty_limit"):
         P.expand(P.WaveConstant(1), 10, 256)
     with pytest.raises(ValueError, match="seed"):
-        P.expand(P.WavePrbs(0, 1, 3, 8, 1), 10, 255)
+        P.expand(P.WavePrbs(1, 0, 3, 1, 8), 10, 255)
     with pytest.raises(TypeError, match="wave"):
         P.expand(P.Ack(1, 2), 10, 255)
 

@@ -8,12 +8,19 @@ import pytest
 import serial
 
 from hardware import protocol as P
-from hardware.errors import (DeviceFaultError, DeviceRefusedError, ProtocolVersionError, RigCheckError,
-                             RigDisconnectedError, RigTimeoutError)
-from hardware.fake_device import FakeDevice, FaultPlan
-from hardware.ports import open_port
+from hardware.errors import (
+    DeviceFaultError,
+    DeviceRefusedError,
+    ProtocolVersionError,
+    RigCheckError,
+    RigDisconnectedError,
+    RigTimeoutError,
+)
+from hardware.fake_device import FakeDevice, FaultPlan, parse_fake_url
+from hardware.ports import open_port, url_keys
 from hardware.serial_rig import SerialRig
-from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, Sine, SimRig, Step
+from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, SimRig, Sine, Step
+from motorsim.rig import bench_knobs
 
 MOTOR = Motor(25.0, 3.0)
 EXPERIMENT = Experiment(Sine(10.0), 0.005, 2.0)      # 400 samples
@@ -178,13 +185,13 @@ def test_the_device_watchdog_stops_a_host_that_goes_silent():
     # Speak the protocol by hand and never send a HEARTBEAT: the device must stop on its own.
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
-        for seq, msg in enumerate([P.Config(5000, 100_000, 255, 4, 100), P.WaveConstant(120), P.Start()]):
-            port.write(P.encode_message(msg, seq))
+        for frame_seq, msg in enumerate([P.Config(5000, 100_000, 255, 4, 100), P.WaveConstant(120), P.Start()]):
+            port.write(P.encode_message(msg, frame_seq))
         got = []
         deadline = time.monotonic() + 3.0
         while not any(isinstance(m, P.End) for m in got) and time.monotonic() < deadline:
             got += [m for _, m in reader.feed(port.read(256))]
-        assert P.Fault(P.FaultCode.HOST_SILENCE, got[-2].index) in got
+        assert P.Fault(P.FaultCode.HOST_SILENCE, got[-2].seq) in got
         assert got[-1].reason == P.EndReason.HOST_SILENCE and dev.duty == 0
         # stopped by the watchdog (after ~20 samples), long before the 100 000 of the run
         assert 0 < got[-1].samples_sent < 100_000
@@ -250,8 +257,8 @@ def test_the_fake_device_counts_an_overlong_frame_once_and_resynchronises():
 def test_the_fake_device_answers_busy_and_unknown_types():
     reader = P.FrameReader()
     with _fake(speed=1.0) as dev, serial.Serial(dev.port_name, timeout=0.05) as port:
-        for seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
-            port.write(P.encode_message(msg, seq))
+        for frame_seq, msg in enumerate([P.Config(5000, 1000, 255, 4, 0), P.WaveConstant(10), P.Start(), P.Hello()]):
+            port.write(P.encode_message(msg, frame_seq))
         port.write(P.encode_frame(0x30, 4))
         port.write(P.encode_frame(P.MsgType.WAVE, 5, b"\x07\x00"))
         port.write(P.encode_frame(P.MsgType.STOP, 6, b"\x00"))
@@ -288,7 +295,7 @@ def test_unknown_and_unavailable_schemes_are_clear_errors(monkeypatch):
 
 
 def test_fake_url_opens_a_running_device():
-    with open_port("fake://?a=10&b=2&cpr=1000&speed=0", 250000, 0.02) as port:
+    with open_port("fake://?a=10&b=2&counts_per_rev=1000&speed=0", 250000, 0.02) as port:
         dev = port.fake_device
         assert dev.motor == Motor(10.0, 2.0) and dev.encoder.counts_per_rev == 1000
         rec = SerialRig(port, counts_per_rev=1000).run(Experiment(Sine(10.0), 0.005, 0.5))
@@ -312,8 +319,8 @@ def test_a_run_left_over_from_an_earlier_session_is_stopped_at_hello():
     # NAKed BUSY, so it sends STOP and shakes hands.
     with _fake(speed=1.0) as dev:
         with serial.Serial(dev.port_name, timeout=0.05) as port:
-            for seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
-                port.write(P.encode_message(msg, seq))
+            for frame_seq, msg in enumerate([P.Config(5000, 1_000_000, 255, 4, 0), P.WaveConstant(50), P.Start()]):
+                port.write(P.encode_message(msg, frame_seq))
             _wait_for(lambda: dev.runs_started == 1, "the first session's run")
         with SerialRig(dev.port_name) as rig:
             assert rig.device is not None
@@ -373,3 +380,19 @@ def test_a_sample_rate_the_line_cannot_carry_is_refused_before_anything_is_sent(
     with pytest.raises(ValueError, match=r"210000 baud.*baudrate 115200"):
         SerialRig("loop://", 115_200).run(Experiment(Sine(10.0), 0.001, 1.0))
     assert SerialRig("loop://", 250_000).line_load(0.002) == pytest.approx(0.42)   # the README's 42 %
+
+
+@pytest.mark.parametrize("old, new", [("cpr", "counts_per_rev"), ("noise", "angle_noise"), ("offset", "count_offset")])
+def test_fake_url_refuses_old_key_names_naming_the_new_one(old, new):
+    with pytest.raises(ValueError, match=f"'{old}' is now called '{new}'"):
+        parse_fake_url(f"fake://?a=1&{old}=2")
+
+
+def test_url_keys_are_the_bench_knobs_under_their_own_names():
+    bench = {k.name for k in bench_knobs() if k.owner in (Motor, Encoder)}
+    assert bench <= set(url_keys("fake"))
+    assert {"a", "b", "friction", "counts_per_rev"} <= set(url_keys("avr-sim"))
+    device = parse_fake_url("fake://?a=30&b=2&friction=1&bias=0.5&dead_zone=3&input_delay=2"
+                            "&counts_per_rev=2000&count_offset=-7&angle_noise=0.001")
+    assert device.motor == Motor(30.0, 2.0, friction=1.0, bias=0.5, dead_zone=3.0, input_delay=2)
+    assert device.encoder == Encoder(2000, -7, 0.001)

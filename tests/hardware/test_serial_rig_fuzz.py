@@ -10,14 +10,14 @@ from hypothesis import strategies as st
 from hardware import protocol as P
 from hardware.errors import ProtocolError, RigError
 from hardware.serial_rig import SerialRig
-from motorsim import Experiment, Motor, Sine, SimRig
+from motorsim import Experiment, Motor, SimRig, Sine
 
 EXPERIMENT = Experiment(Sine(25.0), 0.005, 0.3)     # 60 samples
 CLEAN = SimRig(Motor(25.0, 3.0)).run(EXPERIMENT)
 
 
 def _device_stream() -> bytes:
-    """What a correct device sends to a host whose frames have seq 0 (HELLO), 1 (CONFIG), 2 (WAVE), 3 (START)."""
+    """What a correct device sends to a host whose frames have frame_seq 0 (HELLO), 1 (CONFIG), 2 (WAVE), 3 (START)."""
     msgs = [P.Boot(1, 1), P.HelloAck(1, 0x0100, 16_000_000, 1, 60, "script"), P.Ack(P.MsgType.CONFIG, 1),
             P.Ack(P.MsgType.WAVE, 2), P.Ack(P.MsgType.START, 3)]
     msgs += [P.Sample(k, (1000 + 5000 * k) & 0xFFFFFFFF, int(c), int(u), 0)

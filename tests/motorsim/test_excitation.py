@@ -4,8 +4,18 @@ import math
 import numpy as np
 import pytest
 
-from motorsim.excitation import (PRBS, Chirp, Constant, Multisine, Sine, Step, parse_excitation,
-                                 phase_increment, sine_q15, sine_table)
+from motorsim.excitation import (
+    PRBS,
+    Chirp,
+    Constant,
+    Multisine,
+    Sine,
+    Step,
+    parse_excitation,
+    phase_increment,
+    sine_q15,
+    sine_table,
+)
 
 # The interpolated Q15 table is within 4.8e-5 of sin (measured over the whole phase circle
 # below); the firmware divides by 32768 (a shift), not 32767, which adds a gain error of

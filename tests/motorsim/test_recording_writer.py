@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motorsim import Experiment, Motor, Sine, SimRig, read_recording
+from motorsim import Experiment, Motor, SimRig, Sine, read_recording
 from motorsim.recording import RecordingWriter
 
 

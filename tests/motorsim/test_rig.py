@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from motorsim import Encoder, Experiment, Motor, PRBS, Rig, SimRig, Sine, simulate
+from motorsim import PRBS, Encoder, Experiment, Motor, Rig, SimRig, Sine, simulate
 
 
 def test_simrig_is_a_rig_and_applies_the_experiment_duty():

@@ -190,7 +190,7 @@ struct WaveState {
 struct Response {
   uint8_t type;       // T_ACK, T_NAK or T_HELLO_ACK
   uint8_t ref_type;
-  uint8_t ref_seq;
+  uint8_t ref_frame_seq;
   uint8_t reason;
 };
 
@@ -251,7 +251,7 @@ uint8_t rx_buf[MAX_ENCODED];
 uint8_t rx_len = 0;
 uint8_t rx_discarding = 0;
 uint16_t rx_errors = 0;
-uint8_t tx_seq = 0;
+uint8_t tx_frame_seq = 0;
 uint32_t samples_sent = 0;
 uint32_t last_rx_ms = 0;
 uint8_t boot_pending = 1;
@@ -568,7 +568,7 @@ static uint8_t send_frame(uint8_t type, const uint8_t *payload, uint8_t len) {
   uint8_t body[MAX_BODY];
   if (Serial.availableForWrite() < len + 4 + 3) return 0;
   body[0] = type;
-  body[1] = tx_seq;
+  body[1] = tx_frame_seq;
   for (uint8_t i = 0; i < len; i++) body[2 + i] = payload[i];
   uint16_t crc = crc16(body, len + 2);
   put_u16(body + 2 + len, crc);
@@ -585,16 +585,16 @@ static uint8_t send_frame(uint8_t type, const uint8_t *payload, uint8_t len) {
     i = j + 1;
   }
   Serial.write((uint8_t)0);
-  tx_seq++;
+  tx_frame_seq++;
   return 1;
 }
 
-static void respond(uint8_t type, uint8_t ref_type, uint8_t ref_seq, uint8_t reason) {
+static void respond(uint8_t type, uint8_t ref_type, uint8_t ref_frame_seq, uint8_t reason) {
   uint8_t next = (resp_head + 1) % RESPONSE_QUEUE_LEN;
   if (next == resp_tail) return;  // the host sent 8 commands without reading: it will time out
   responses[resp_head].type = type;
   responses[resp_head].ref_type = ref_type;
-  responses[resp_head].ref_seq = ref_seq;
+  responses[resp_head].ref_frame_seq = ref_frame_seq;
   responses[resp_head].reason = reason;
   resp_head = next;
 }
@@ -714,22 +714,22 @@ static void start_run(void) {
 // Only valid frames (known type, right length) show the host is alive (PROTOCOL.md).
 static void host_alive(void) { last_rx_ms = millis(); }
 
-static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t len) {
+static void handle_frame(uint8_t type, uint8_t frame_seq, const uint8_t *p, uint8_t len) {
   uint8_t busy = running;
   switch (type) {
     case T_HELLO:
       if (len != 1) break;
       host_alive();
-      if (busy) respond(T_NAK, type, seq, NAK_BUSY);
-      else respond(T_HELLO_ACK, type, seq, 0);
+      if (busy) respond(T_NAK, type, frame_seq, NAK_BUSY);
+      else respond(T_HELLO_ACK, type, frame_seq, 0);
       return;
     case T_CONFIG: {
       if (len != 13) break;
       host_alive();
-      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
+      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
       uint8_t r = parse_config(p);
-      if (r) respond(T_NAK, type, seq, r);
-      else { have_config = 1; respond(T_ACK, type, seq, 0); }
+      if (r) respond(T_NAK, type, frame_seq, r);
+      else { have_config = 1; respond(T_ACK, type, frame_seq, 0); }
       return;
     }
     case T_WAVE: {
@@ -737,21 +737,21 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       if (r == NAK_BAD_LENGTH) break;
       if (r == INVALID_BAD_VALUE) {
         rx_errors++;
-        respond(T_NAK, type, seq, NAK_BAD_VALUE);
+        respond(T_NAK, type, frame_seq, NAK_BAD_VALUE);
         return;
       }
       host_alive();
-      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
-      if (r) respond(T_NAK, type, seq, r);
-      else { have_wave = 1; respond(T_ACK, type, seq, 0); }
+      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
+      if (r) respond(T_NAK, type, frame_seq, r);
+      else { have_wave = 1; respond(T_ACK, type, frame_seq, 0); }
       return;
     }
     case T_START:
       if (len != 0) break;
       host_alive();
-      if (busy) { respond(T_NAK, type, seq, NAK_BUSY); return; }
-      if (!have_config || !have_wave) { respond(T_NAK, type, seq, NAK_NOT_CONFIGURED); return; }
-      respond(T_ACK, type, seq, 0);
+      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
+      if (!have_config || !have_wave) { respond(T_NAK, type, frame_seq, NAK_NOT_CONFIGURED); return; }
+      respond(T_ACK, type, frame_seq, 0);
       start_run();
       return;
     case T_STOP:
@@ -760,7 +760,7 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       cli();
       stop_run(END_STOPPED);
       sei();
-      respond(T_ACK, type, seq, 0);
+      respond(T_ACK, type, frame_seq, 0);
       return;
     case T_HEARTBEAT:
       if (len != 0) break;
@@ -768,12 +768,12 @@ static void handle_frame(uint8_t type, uint8_t seq, const uint8_t *p, uint8_t le
       return;
     default:  // unknown, or a device-to-host type
       rx_errors++;
-      respond(T_NAK, type, seq, NAK_UNKNOWN_TYPE);
+      respond(T_NAK, type, frame_seq, NAK_UNKNOWN_TYPE);
       return;
   }
   // A known type with the wrong payload length.
   rx_errors++;
-  respond(T_NAK, type, seq, NAK_BAD_LENGTH);
+  respond(T_NAK, type, frame_seq, NAK_BAD_LENGTH);
 }
 
 // A complete frame (delimiter excluded) has arrived in rx_buf.
@@ -837,11 +837,11 @@ static void transmit(void) {
       ok = send_frame(T_HELLO_ACK, p, 17);
     } else if (r->type == T_ACK) {
       p[0] = r->ref_type;
-      p[1] = r->ref_seq;
+      p[1] = r->ref_frame_seq;
       ok = send_frame(T_ACK, p, 2);
     } else {
       p[0] = r->ref_type;
-      p[1] = r->ref_seq;
+      p[1] = r->ref_frame_seq;
       p[2] = r->reason;
       ok = send_frame(T_NAK, p, 3);
     }
