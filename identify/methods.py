@@ -13,7 +13,7 @@ from .instrumental import fit_instrumental_variables
 from .output_error import fit_output_error
 from .regression import fit_euler_ls, fit_zoh_ls
 
-__all__ = ["fit", "available_methods", "DEFAULT_METHOD"]
+__all__ = ["fit", "available_methods", "method_options", "DEFAULT_METHOD"]
 
 _METHODS: dict[str, Callable[..., Estimate]] = {
     "euler-ls": fit_euler_ls,
@@ -30,6 +30,14 @@ DEFAULT_METHOD = "oe"
 def available_methods() -> list[str]:
     """Names accepted by :func:`fit`."""
     return list(_METHODS)
+
+
+def method_options(method: str) -> tuple[str, ...]:
+    """Names of the keyword options the named method accepts (besides the recordings)."""
+    import inspect
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
+    return tuple(inspect.signature(_METHODS[method]).parameters)[1:]
 
 
 def fit(recordings, method: str = DEFAULT_METHOD, **options) -> Estimate:

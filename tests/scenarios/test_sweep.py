@@ -164,7 +164,7 @@ def test_cli_sweep_lists_runs_and_plots(small, tmp_path, capsys):
     toml = tmp_path / "small.toml"
     toml.write_text(SMALL, encoding="utf-8")
     out = tmp_path / "cli"
-    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repeats", "2",
+    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repetitions", "2",
                  "--methods", "zoh-ls,oe"]) == 0
     text = capsys.readouterr().out
     assert "8 points x 2 methods x 2 repetitions" in text
@@ -219,11 +219,11 @@ def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order(
 
 def test_run_point_checks_its_arguments(small):
     point = next(small.points())
-    with pytest.raises(ValueError, match="repetitions must be an integer >= 1"):
+    with pytest.raises(ValueError, match="repetitions must be >= 1"):
         run_point(point, ["zoh-ls"], 0, 1)
     with pytest.raises(ValueError, match="methods must be a non-empty list"):
         run_point(point, ["nope"], 2, 1)
     with pytest.raises(TypeError, match="point must be a GridPoint"):
         run_point(point.setting, ["zoh-ls"], 2, 1)
-    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+    with pytest.raises(ValueError, match="workers must be >= 1"):
         run_scenario(small, "unused", workers=0)

@@ -1,4 +1,4 @@
-"""``motorid bench accuracy``: do the estimators reach the truth?  (issue 3 acceptance)
+"""``motorid bench accuracy``: do the estimators reach the truth?
 
 Recordings come from an integrator that is *not* the estimators' model: classical
 Runge–Kutta 4 with fine sub-steps (``a delta <= 0.02`` per sub-step), the duty
@@ -35,6 +35,8 @@ import numpy as np
 from motorsim.excitation import Multisine, Sine
 from motorsim.rig import jittered_times
 from motorsim.recording import Recording
+
+from . import median_time
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
 
@@ -165,6 +167,11 @@ def _fit_or_nan(method, rec, a, b, **kw):
         return math.nan, math.nan
 
 
+def _friction_of(est) -> float:
+    """The fitted Coulomb friction of an oe-friction estimate (rad/s^2)."""
+    return est.extra.get("friction", est.extra.get("c", math.nan))
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:+9.4f}" if math.isfinite(x) else "      n/a"
 
@@ -175,7 +182,7 @@ def _section_sines(args, rng) -> tuple[bool, list]:
           f"{'euler a':>9} {'zoh-ls a':>9} {'iv a':>9} {'iv b':>9}")
     worst, worst_euler, worst_zoh, worst_iv, rows = 0.0, [], [], [], []
     ok = True
-    for dt in args.periods:
+    for dt in args.sample_periods:
         for cpr in args.counts:
             for a in args.poles:
                 b = _STATIC_GAIN * a
@@ -220,7 +227,7 @@ def _section_multisine(args, rng) -> bool:
     ok = True
     worst = {"jitter": 0.0, "drops": 0.0}
     for case, jitter, drop, limit in (("jitter", 0.1, 0.0, 1e-3), ("drops", 0.0, 0.01, 5e-3)):
-        for dt in args.periods:
+        for dt in args.sample_periods:
             for cpr in (1200, 16667):
                 for a in args.poles:
                     b = _STATIC_GAIN * a
@@ -285,21 +292,21 @@ def _section_friction(args, rng) -> bool:
                 worst_fr = max(worst_fr, abs(fa), abs(fb))
                 worst_oe = max(worst_oe, abs(oa), abs(ob)) if math.isfinite(oa) else worst_oe
                 print(f"{a_:4g} {c_:6.2f} {dz_:4g} {label:>10}  {_pct(fa)} {_pct(fb)}  {_pct(oa)} {_pct(ob)}"
-                      f"  {fr.extra.get('c', math.nan):8.3f}" + ("   <-- above 2 %" if bad else ""))
+                      f"  {_friction_of(fr):8.3f}" + ("   <-- above 2 %" if bad else ""))
     print(f"worst |error|: oe-friction {100 * worst_fr:.3f} % (criterion 2 %), oe {100 * worst_oe:.2f} %")
     return ok
 
 
 def _section_monte_carlo(args) -> bool:
     from identify import NotIdentifiableError, cramer_rao_bound, fit
-    a, b, dt, cpr, noise = 25.0, 3.0, 0.005, 16667, args.noise
+    a, b, dt, cpr, noise = 25.0, 3.0, 0.005, 16667, args.angle_noise
     n = args.samples
     duty = Multisine((0.3 * a, a, 2 * a), (90, 90, 90), (0.0, 0.7, 1.4)).duty(n, dt).astype(float)
     t = np.arange(n) * dt
     angle = rk4_angle(a, b, duty, t)
     crb = cramer_rao_bound(a, b, duty, dt, counts_per_rev=cpr, angle_noise=noise).stderr()
     est = []
-    for child in np.random.SeedSequence(args.seed).spawn(args.runs):
+    for child in np.random.SeedSequence(args.seed).spawn(args.repetitions):
         rng = np.random.default_rng(child)
         try:
             e = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
@@ -346,7 +353,6 @@ def _section_timing(args) -> None:
     from identify import fit_zoh_ls
     from identify.instrumental import fit_instrumental_variables
     from identify.output_error import fit_output_error
-    from scenarios.bench import median_time
     a, b, dt, n = 25.0, 3.0, 0.005, 10_000
     rng = np.random.default_rng(args.seed)
     duty = Sine(10.0, 200).duty(n, dt).astype(float)
@@ -386,26 +392,48 @@ def _generator_check(rng) -> float:
     return worst
 
 
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",")]
+
+
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",")]
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="motorid bench accuracy", description=(__doc__ or "").split("\n\n")[0])
+    p.add_argument("--sample-periods", type=_floats, default=[0.001, 0.002, 0.005, 0.01, 0.02], metavar="S,S,...",
+                   help="sample periods in s, comma-separated (default 0.001,0.002,0.005,0.01,0.02)")
+    p.add_argument("--counts", type=_ints, default=[1200, 4096, 16667], metavar="N,N,...",
+                   help="encoder resolutions in counts/rev, comma-separated (default 1200,4096,16667)")
+    p.add_argument("--poles", type=_floats, default=[4.0, 25.0, 90.0], metavar="A,A,...",
+                   help="poles a in 1/s, comma-separated (default 4,25,90)")
+    p.add_argument("--ratios", type=_floats, default=[0.3, 1.0, 2.0], metavar="R,R,...",
+                   help="sine frequency / a, dimensionless, comma-separated (default 0.3,1,2)")
+    p.add_argument("--samples", type=int, default=10_000, metavar="N",
+                   help="minimum samples per recording (default 10000)")
+    p.add_argument("--crb-target", type=float, default=2.5e-4, metavar="X",
+                   help="lengthen a run until its relative CRB of a and b is at most this fraction "
+                        "(default 2.5e-4, i.e. 0.025 %%)")
+    p.add_argument("--max-samples", type=int, default=100_000, metavar="N",
+                   help="longest run when lengthening, samples (default 100000)")
+    p.add_argument("--friction-samples", type=int, default=4000, metavar="N",
+                   help="samples per friction run (default 4000)")
+    p.add_argument("--repetitions", type=int, default=200, metavar="N",
+                   help="Monte Carlo repetitions (default 200)")
+    p.add_argument("--angle-noise", type=float, default=2e-3, metavar="RAD",
+                   help="Monte Carlo angle noise in rad (default 0.002)")
+    p.add_argument("--repeats", type=int, default=15, metavar="N",
+                   help="timings of each fit to take the median of (default 15)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None,
+                   help="run one section only (default all)")
+    return p.parse_args(list(argv))
+
+
 def bench_accuracy(argv: Sequence[str]) -> int:
     """Run the accuracy benchmark; exit status 0 when every criterion holds."""
-    p = argparse.ArgumentParser(prog="motorid bench accuracy", description=__doc__.split("\n\n")[0])
-    p.add_argument("--periods", type=lambda s: [float(x) / 1e3 for x in s.split(",")],
-                   default=[0.001, 0.002, 0.005, 0.01, 0.02], help="sample periods in ms, comma-separated")
-    p.add_argument("--counts", type=lambda s: [int(x) for x in s.split(",")], default=[1200, 4096, 16667])
-    p.add_argument("--poles", type=lambda s: [float(x) for x in s.split(",")], default=[4.0, 25.0, 90.0])
-    p.add_argument("--ratios", type=lambda s: [float(x) for x in s.split(",")], default=[0.3, 1.0, 2.0],
-                   help="sine frequency / a")
-    p.add_argument("--samples", type=int, default=10_000, help="minimum samples per recording")
-    p.add_argument("--crb-target", type=float, default=2.5e-4,
-                   help="lengthen a run until its relative CRB of a and b is at most this (default 0.025 %%)")
-    p.add_argument("--max-samples", type=int, default=100_000)
-    p.add_argument("--friction-samples", type=int, default=4000)
-    p.add_argument("--runs", type=int, default=200, help="Monte Carlo runs")
-    p.add_argument("--noise", type=float, default=2e-3, help="Monte Carlo angle noise, rad")
-    p.add_argument("--repeats", type=int, default=15)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None)
-    args = p.parse_args(list(argv))
+    args = _parse(argv)
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     print(f"generator: RK4 sub-steps (a*delta <= {_SUBSTEP_AD}); largest relative difference from the exact "

@@ -3,7 +3,7 @@
 Run from the repository root (it builds what it needs)::
 
     motorid bench firmware                  # everything, ~3 min
-    motorid bench firmware --only encoder   # (or python -m hardware.sim.bench_firmware)
+    motorid bench firmware --only encoder   # (or python -m scenarios.benchmarks.firmware)
 
 Prints Markdown tables (the figures in ``hardware/firmware/README.md`` come from here).
 Every figure is measured under simavr, which is cycle-counted but not cycle-exact for every
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import re
 import subprocess
+from typing import Sequence
 from urllib.parse import urlencode
 
 import numpy as np
@@ -22,7 +23,7 @@ from hardware import protocol as P
 from hardware.sim.device_link import DeviceLink
 from hardware.sim.launcher import build, open_avr_sim
 
-__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "main"]
+__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "bench_firmware"]
 
 _FLASH, _RAM = 32768, 2048
 
@@ -134,7 +135,7 @@ def emulation_speed(duration: float = 2.0) -> list[dict]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
+def bench_firmware(argv: Sequence[str] | None = None) -> int:
     """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``); returns 0.
 
     Parameters
@@ -143,8 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         ``--only size|link|encoder|speed`` (repeatable).
     """
     parser = argparse.ArgumentParser(prog="motorid bench firmware", description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append")
-    args = parser.parse_args(argv)
+    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append",
+                        help="measure only this (repeatable; default all)")
+    args = parser.parse_args(None if argv is None else list(argv))
     only = set(args.only or ["size", "link", "encoder", "speed"])
     if "size" in only:
         s = firmware_size()
@@ -171,4 +173,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(bench_firmware())
