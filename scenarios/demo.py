@@ -129,7 +129,8 @@ def run_demo(args: argparse.Namespace) -> int:
                  for i, rec in enumerate(recordings, 1)]
         default_rows = {r.input_name: r.estimate for r in rows if r.estimate is not None
                         and r.method == _best_method(methods)}
-        paths.append(plots.plot_overlay(recordings, [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)],
+        overlaid = [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)]
+        paths.append(plots.plot_overlay(recordings, overlaid,
                                         out / "overlay.png"))
         print("\nfigures: " + ", ".join(str(p) for p in paths))
     print(f"table, recordings: {out / 'table.txt'}, {out / 'table.json'}, {out}/eta_*.csv")

@@ -20,7 +20,6 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -212,7 +211,8 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--angle-noise", type=float, default=0.0, metavar="RAD",
                         help="std of the angle noise in rad, besides quantisation (default 0)")
     parser.add_argument("--duration", type=float, default=10.0, metavar="T", help="length of the run in s (default 10)")
-    parser.add_argument("--duty-limit", type=int, default=255, metavar="N", help="duty clamp, 1...255 [duty] (default 255)")
+    parser.add_argument("--duty-limit", type=int, default=255, metavar="N",
+                        help="duty clamp, 1...255 [duty] (default 255)")
     parser.add_argument("--out", default="design-output", metavar="DIR",
                         help="folder for design.json and design.png (default design-output)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG")

@@ -26,6 +26,7 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import time
 from typing import Sequence
@@ -33,8 +34,8 @@ from typing import Sequence
 import numpy as np
 
 from motorsim.excitation import Multisine, Sine
-from motorsim.rig import jittered_times
 from motorsim.recording import Recording
+from motorsim.rig import jittered_times
 
 from . import median_time
 
@@ -176,42 +177,47 @@ def _pct(x: float) -> str:
     return f"{100 * x:+9.4f}" if math.isfinite(x) else "      n/a"
 
 
+def _sine_case(args, dt: float, cpr: int, a: float, ratio: float, rng) -> tuple[float, ...] | None:
+    """Relative errors of oe (a, b), euler-ls (a), zoh-ls (a), iv (a, b) on one sine, with n and the CRB."""
+    b = _STATIC_GAIN * a
+    f = ratio * a
+    if f * dt >= 0.9 * math.pi:
+        return None
+    exc = Sine(f, 200, 0.3)
+    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                    _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
+    t = jittered_times(n, dt, 0.0, rng)
+    duty = exc.duty(n, dt).astype(float)
+    rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, cpr)
+    ea, eb = _fit_or_nan("oe", rec, a, b)
+    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+    za, _ = _fit_or_nan("zoh-ls", rec, a, b)
+    ia, ib = _fit_or_nan("iv", rec, a, b)
+    return n, crb, ea, eb, ua, za, ia, ib
+
+
 def _section_sines(args, rng) -> tuple[bool, list]:
     print("\n1. sines, oe vs the article's euler-ls and zoh-ls (relative error in %; n = samples)")
     print(f"{'dt ms':>5} {'cpr':>6} {'a':>4} {'f/a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  "
           f"{'euler a':>9} {'zoh-ls a':>9} {'iv a':>9} {'iv b':>9}")
     worst, worst_euler, worst_zoh, worst_iv, rows = 0.0, [], [], [], []
     ok = True
-    for dt in args.sample_periods:
-        for cpr in args.counts:
-            for a in args.poles:
-                b = _STATIC_GAIN * a
-                for ratio in args.ratios:
-                    f = ratio * a
-                    if f * dt >= 0.9 * math.pi:
-                        rows.append((dt, cpr, a, ratio, "above 0.9 Nyquist"))
-                        print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g}      -  (sine above 0.9 x Nyquist, skipped)")
-                        continue
-                    exc = Sine(f, 200, 0.3)
-                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
-                                    _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
-                    t = jittered_times(n, dt, 0.0, rng)
-                    duty = exc.duty(n, dt).astype(float)
-                    angle = rk4_angle(a, b, duty, t)
-                    rec = make_recording(angle, duty, t, dt, cpr)
-                    ea, eb = _fit_or_nan("oe", rec, a, b)
-                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
-                    za, _ = _fit_or_nan("zoh-ls", rec, a, b)
-                    ia, ib = _fit_or_nan("iv", rec, a, b)
-                    worst_zoh.append(abs(za) if math.isfinite(za) else math.inf)
-                    worst_iv.append(max(abs(ia), abs(ib)) if math.isfinite(ia) else math.inf)
-                    bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
-                    ok &= not bad
-                    worst = max(worst, abs(ea), abs(eb))
-                    if math.isfinite(ua):
-                        worst_euler.append(abs(ua))
-                    print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {n:6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
-                          f"{_pct(ua)} {_pct(za)} {_pct(ia)} {_pct(ib)}" + ("   <-- above 0.1 %" if bad else ""))
+    for dt, cpr, a, ratio in itertools.product(args.sample_periods, args.counts, args.poles, args.ratios):
+        case = _sine_case(args, dt, cpr, a, ratio, rng)
+        if case is None:
+            rows.append((dt, cpr, a, ratio, "above 0.9 Nyquist"))
+            print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g}      -  (sine above 0.9 x Nyquist, skipped)")
+            continue
+        n, crb, ea, eb, ua, za, ia, ib = case
+        worst_zoh.append(abs(za) if math.isfinite(za) else math.inf)
+        worst_iv.append(max(abs(ia), abs(ib)) if math.isfinite(ia) else math.inf)
+        bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
+        ok &= not bad
+        worst = max(worst, abs(ea), abs(eb))
+        if math.isfinite(ua):
+            worst_euler.append(abs(ua))
+        print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {int(n):6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
+              f"{_pct(ua)} {_pct(za)} {_pct(ia)} {_pct(ib)}" + ("   <-- above 0.1 %" if bad else ""))
     print(f"worst |oe error| {100 * worst:.4f} %  (criterion 0.1 %)   "
           f"euler-ls |a error| from {100 * min(worst_euler):.2f} % to {100 * max(worst_euler):.2f} %")
     finite_iv = [x for x in worst_iv if math.isfinite(x)]
@@ -221,35 +227,39 @@ def _section_sines(args, rng) -> tuple[bool, list]:
     return ok, rows
 
 
+def _multisine_case(args, dt: float, cpr: int, a: float, jitter: float, drop: float, rng):
+    """(samples kept, CRB, oe a, oe b, euler-ls a) relative errors on one multisine, or None above Nyquist."""
+    b = _STATIC_GAIN * a
+    freqs = [r * a for r in (0.3, 1.0, 2.0) if r * a * dt < 0.9 * math.pi]
+    if not freqs:
+        return None
+    exc = Multisine(tuple(freqs), (200 // len(freqs) + 20,) * len(freqs), tuple(0.7 * i for i in range(len(freqs))))
+    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                    _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
+    t = jittered_times(n, dt, jitter, rng)
+    duty = exc.duty(n, dt).astype(float)
+    rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, cpr, rng=rng, drop_rate=drop)
+    ea, eb = _fit_or_nan("oe", rec, a, b)
+    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+    return len(rec), crb, ea, eb, ua
+
+
 def _section_multisine(args, rng) -> bool:
     print("\n2. multisines (0.3a, a, 2a below Nyquist), 16667/1200 counts: jitter +-10 % and 1 % dropped samples")
     print(f"{'case':>8} {'dt ms':>5} {'cpr':>6} {'a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  {'euler a':>9}")
     ok = True
     worst = {"jitter": 0.0, "drops": 0.0}
     for case, jitter, drop, limit in (("jitter", 0.1, 0.0, 1e-3), ("drops", 0.0, 0.01, 5e-3)):
-        for dt in args.sample_periods:
-            for cpr in (1200, 16667):
-                for a in args.poles:
-                    b = _STATIC_GAIN * a
-                    freqs = [r * a for r in (0.3, 1.0, 2.0) if r * a * dt < 0.9 * math.pi]
-                    if not freqs:
-                        continue
-                    exc = Multisine(tuple(freqs), (200 // len(freqs) + 20,) * len(freqs),
-                                    tuple(0.7 * i for i in range(len(freqs))))
-                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
-                                    _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
-                    t = jittered_times(n, dt, jitter, rng)
-                    duty = exc.duty(n, dt).astype(float)
-                    angle = rk4_angle(a, b, duty, t)
-                    rec = make_recording(angle, duty, t, dt, cpr, rng=rng, drop_rate=drop)
-                    ea, eb = _fit_or_nan("oe", rec, a, b)
-                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
-                    bad = not (abs(ea) <= limit and abs(eb) <= limit)
-                    ok &= not bad
-                    worst[case] = max(worst[case], abs(ea), abs(eb))
-                    print(f"{case:>8} {dt * 1e3:5g} {cpr:6d} {a:4g} {len(rec):6d} {100 * crb:7.4f}  "
-                          f"{_pct(ea)} {_pct(eb)}  {_pct(ua)}"
-                          + (f"   <-- above {100 * limit:g} %" if bad else ""))
+        for dt, cpr, a in itertools.product(args.sample_periods, (1200, 16667), args.poles):
+            result = _multisine_case(args, dt, cpr, a, jitter, drop, rng)
+            if result is None:
+                continue
+            n, crb, ea, eb, ua = result
+            bad = not (abs(ea) <= limit and abs(eb) <= limit)
+            ok &= not bad
+            worst[case] = max(worst[case], abs(ea), abs(eb))
+            print(f"{case:>8} {dt * 1e3:5g} {cpr:6d} {a:4g} {n:6d} {100 * crb:7.4f}  "
+                  f"{_pct(ea)} {_pct(eb)}  {_pct(ua)}" + (f"   <-- above {100 * limit:g} %" if bad else ""))
     print(f"worst |oe error|: jitter {100 * worst['jitter']:.4f} % (criterion 0.1 %), "
           f"1 % drops {100 * worst['drops']:.4f} % (criterion 0.5 %)")
     return ok
@@ -349,10 +359,28 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
     return float(res.x[0]), float(res.x[1])
 
 
-def _section_timing(args) -> None:
+def _time_fits(rec: Recording, repeats: int) -> str:
+    """One line: oe's fit time against its finite-difference and plain baselines, zoh-ls and iv."""
     from identify import fit_zoh_ls
     from identify.instrumental import fit_instrumental_variables
     from identify.output_error import fit_output_error
+    t_an = median_time(lambda: fit_output_error(rec), repeats)
+    t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), repeats)
+    t_ls = median_time(lambda: fit_zoh_ls(rec), repeats)
+    t_iv = median_time(lambda: fit_instrumental_variables(rec), repeats)
+    if rec.has_gaps:
+        plain = "(b) n/a: one gap-free run only"
+    else:
+        ours = fit_output_error(rec)
+        naive = naive_output_error(rec)
+        agree = max(abs(naive[0] / ours.a - 1), abs(naive[1] / ours.b - 1))
+        t_nv = median_time(lambda: naive_output_error(rec), repeats)
+        plain = f"(b) {t_nv * 1e3:6.1f} ms, ratio {t_nv / t_an:4.2f} x, same a, b to {agree:.0e}"
+    return (f"oe {t_an * 1e3:6.1f} ms | (a) {t_fd * 1e3:6.1f} ms, ratio {t_fd / t_an:4.2f} x | "
+            f"{plain} | zoh-ls {t_ls * 1e3:.1f} ms, iv {t_iv * 1e3:.1f} ms")
+
+
+def _section_timing(args) -> None:
     a, b, dt, n = 25.0, 3.0, 0.005, 10_000
     rng = np.random.default_rng(args.seed)
     duty = Sine(10.0, 200).duty(n, dt).astype(float)
@@ -362,20 +390,7 @@ def _section_timing(args) -> None:
                                 ("1 % drops", 0.1, 0.01)):
         t = jittered_times(n, dt, jitter, rng)
         rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667, rng=rng, drop_rate=drop)
-        t_an = median_time(lambda: fit_output_error(rec), args.repeats)
-        t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), args.repeats)
-        t_ls = median_time(lambda: fit_zoh_ls(rec), args.repeats)
-        t_iv = median_time(lambda: fit_instrumental_variables(rec), args.repeats)
-        if rec.has_gaps:
-            plain = "(b) n/a: one gap-free run only"
-        else:
-            ours = fit_output_error(rec)
-            naive = naive_output_error(rec)
-            agree = max(abs(naive[0] / ours.a - 1), abs(naive[1] / ours.b - 1))
-            t_nv = median_time(lambda: naive_output_error(rec), args.repeats)
-            plain = f"(b) {t_nv * 1e3:6.1f} ms, ratio {t_nv / t_an:4.2f} x, same a, b to {agree:.0e}"
-        print(f"{label:>14}: oe {t_an * 1e3:6.1f} ms | (a) {t_fd * 1e3:6.1f} ms, ratio {t_fd / t_an:4.2f} x | "
-              f"{plain} | zoh-ls {t_ls * 1e3:.1f} ms, iv {t_iv * 1e3:.1f} ms")
+        print(f"{label:>14}: {_time_fits(rec, args.repeats)}")
 
 
 def _generator_check(rng) -> float:

@@ -56,7 +56,7 @@ def bench_serial(argv: Sequence[str]) -> int:
     """Print the reader's frames/s against the goal and the pty run's losses; exit 1 if a goal is missed."""
     from hardware.fake_device import FakeDevice
     from hardware.serial_rig import SerialRig
-    from motorsim import Encoder, Experiment, Motor, PRBS
+    from motorsim import PRBS, Encoder, Experiment, Motor
 
     p = argparse.ArgumentParser(prog="motorid bench serial")
     p.add_argument("--frames", type=int, default=200_000, help="frames in the decoding test (default 200000)")

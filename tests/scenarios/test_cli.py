@@ -43,7 +43,8 @@ def test_identify_pools_several_files(tmp_path, capsys):
 def test_simulate_excitation_flags(tmp_path, capsys):
     out = tmp_path / "p.csv"
     assert main(["simulate", "--a", "10", "--b", "1", "--duration", "1", "--prbs", "120,-80,7,3",
-                 "--jitter", "0.1", "--drop-rate", "0.01", "--angle-noise", "0.001", "--seed", "4", "--out", str(out)]) == 0
+                 "--jitter", "0.1", "--drop-rate", "0.01", "--angle-noise", "0.001", "--seed", "4",
+                 "--out", str(out)]) == 0
     rec = read_recording(out)
     assert set(rec.duty.tolist()) == {120, -80} and rec.metadata["jitter"] == "0.1"
 

@@ -11,7 +11,7 @@ from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from scenarios.cli import main
 from scenarios.scenario import load_scenario, scenario_from_dict
-from scenarios.sweep import (CSV_COLUMNS, read_sweep_csv, repetition_seed, run_point, run_scenario)
+from scenarios.sweep import CSV_COLUMNS, read_sweep_csv, repetition_seed, run_point, run_scenario
 
 # Small but complete: batchable points (noise) and non-batchable ones (jitter); the two batched
 # estimators and oe, which goes through identify.fit (the slower estimators add time, not cases;
@@ -189,6 +189,7 @@ def test_cli_sweep_errors_are_messages(tmp_path, capsys):
 def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order():
     # Bounded memory: the sweep never submits more than `window` points ahead of the one it writes.
     import concurrent.futures
+
     from scenarios import sweep
 
     class Recorder(concurrent.futures.Executor):
