@@ -55,11 +55,12 @@ def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[s
     for i, exp in enumerate(experiments, 1):
         rec = rig.run(exp)
         recordings.append(rec)
+        frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
         for m in methods:
             try:
-                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, fit(rec, method=m)))
+                rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
             except NotIdentifiableError as exc:
-                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, None, str(exc)))
+                rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
     return recordings, rows
 
 

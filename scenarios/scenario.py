@@ -121,13 +121,13 @@ class _SettingMethods:
     @property
     def frequency(self) -> float:
         """Frequency in rad/s of a single sine, else nan."""
-        freqs = getattr(self.excitation_object(), "frequencies", ())
+        freqs: tuple[float, ...] = tuple(getattr(self.excitation_object(), "frequencies", ()))
         return float(freqs[0]) if len(freqs) == 1 else math.nan
 
     @property
     def amplitude(self) -> float:
         """Amplitude in duty of a single sine, else nan."""
-        amps = getattr(self.excitation_object(), "amplitudes", ())
+        amps: tuple[float, ...] = tuple(getattr(self.excitation_object(), "amplitudes", ()))
         return float(amps[0]) if len(amps) == 1 else math.nan
 
     @property

@@ -128,11 +128,13 @@ def _rk4_branch(a, f, w, dt):
 def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, sample_period: float,
                    counts_per_rev: int, *, rng: np.random.Generator | None = None, drop_rate: float = 0.0,
                    angle_noise: float = 0.0) -> Recording:
-    """Floored counts (optional noise and dropped rows) as a Recording."""
-    noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if angle_noise else 0.0)
+    """Floored counts (optional noise and dropped rows) as a Recording; ``rng`` is needed for either."""
+    if (angle_noise or drop_rate) and rng is None:
+        raise TypeError("rng must be a numpy.random.Generator when angle_noise or drop_rate is set, got None")
+    noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if rng is not None and angle_noise else 0.0)
     counts = np.floor(noisy * counts_per_rev / (2 * math.pi)).astype(np.int64) + 1000
     keep = np.ones(len(angle), bool)
-    if drop_rate:
+    if rng is not None and drop_rate:
         keep[1:] = rng.random(len(angle) - 1) >= drop_rate
     return Recording(time=time_s[keep], duty=duty[keep], sample_period=sample_period, counts=counts[keep],
                      seq=np.flatnonzero(keep), counts_per_rev=counts_per_rev)
@@ -266,7 +268,7 @@ def _section_multisine(args, rng) -> bool:
 
 
 def _section_friction(args, rng) -> bool:
-    from identify import available_methods
+    from identify import available_methods, fit
     if "oe-friction" not in available_methods():
         print("\n3. friction: oe-friction not available in this build")
         return True
@@ -293,7 +295,6 @@ def _section_friction(args, rng) -> bool:
                                         dead_zone=dz)
             for j, (a_, b_, c_, dz_, label, duty) in enumerate(sub):
                 rec = make_recording(angles[:, j], duty, t, dt, cpr)
-                from identify import fit
                 fr = fit(rec, method="oe-friction")
                 fa, fb = _rel(fr, a_, b_)
                 oa, ob = _fit_or_nan("oe", rec, a_, b_)
@@ -315,15 +316,15 @@ def _section_monte_carlo(args) -> bool:
     t = np.arange(n) * dt
     angle = rk4_angle(a, b, duty, t)
     crb = cramer_rao_bound(a, b, duty, dt, counts_per_rev=cpr, angle_noise=noise).stderr()
-    est = []
+    rows = []
     for child in np.random.SeedSequence(args.seed).spawn(args.repetitions):
         rng = np.random.default_rng(child)
         try:
-            e = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
-            est.append((e.a, e.b, e.stderr()["a"], e.stderr()["b"]))
+            fitted = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
+            rows.append((fitted.a, fitted.b, fitted.stderr()["a"], fitted.stderr()["b"]))
         except NotIdentifiableError:
             pass
-    e = np.array(est)
+    e = np.array(rows)
     sd = e[:, :2].std(axis=0, ddof=1)
     bias = e[:, :2].mean(axis=0) - (a, b)
     rep = e[:, 2:].mean(axis=0)
@@ -347,7 +348,7 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
 
     from identify import fit_zoh_ls
     from identify.sensitivity import zoh_response
-    y = recording.measured_angle()
+    y = np.asarray(recording.measured_angle())
     t, u = recording.time, recording.duty
     start = fit_zoh_ls(recording)
 

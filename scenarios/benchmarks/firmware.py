@@ -33,9 +33,13 @@ def firmware_size() -> dict[str, int]:
     elf, _ = build()
     out = subprocess.run(["avr-size", "-C", "--mcu=atmega328p", str(elf)], capture_output=True,
                          text=True, check=True).stdout
-    program = int(re.search(r"Program:\s+(\d+)", out).group(1))
-    data = int(re.search(r"Data:\s+(\d+)", out).group(1))
-    return {"flash": program, "ram": data}
+    sizes = {}
+    for key, label in (("flash", "Program"), ("ram", "Data")):
+        found = re.search(label + r":\s+(\d+)", out)
+        if found is None:
+            raise RuntimeError(f"avr-size output must have a {label!r} line, got {out!r}")
+        sizes[key] = int(found.group(1))
+    return sizes
 
 
 def _run(query: dict, config: P.Config, wave, baudrate: int = 250000):

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from typing import Sequence
 
@@ -40,7 +41,7 @@ def _stream(n: int, rng: np.random.Generator, corrupt: float = 0.0) -> bytes:
 
 def _decode_rate(data: bytes, chunk: int, repeats: int) -> tuple[float, int, int]:
     from hardware.protocol import FrameReader
-    best = None
+    best = math.inf
     for _ in range(repeats):
         reader = FrameReader()
         n = 0
@@ -48,7 +49,7 @@ def _decode_rate(data: bytes, chunk: int, repeats: int) -> tuple[float, int, int
         for i in range(0, len(data), chunk):
             n += len(reader.feed(data[i:i + chunk]))
         dt = time.perf_counter() - t0
-        best = dt if best is None else min(best, dt)
+        best = min(best, dt)
     return n / best, n, reader.rx_errors
 
 

@@ -1,6 +1,9 @@
 """The motorid command line, end to end: simulate -> file -> identify --json."""
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -67,3 +70,12 @@ def test_identify_on_a_constant_input_says_why(tmp_path, capsys):
     main(["simulate", "--a", "25", "--b", "3", "--duration", "1", "--constant", "0", "--out", str(out)])
     assert main(["identify", str(out), "--method", "zoh-ls"]) == 2
     assert "not persistently exciting" in capsys.readouterr().err
+
+
+def test_help_does_not_import_plotting_or_control():
+    # Building the parser loads every command's flags but none of their heavy dependencies.
+    code = ("import sys\nfrom scenarios.cli import build_parser\nbuild_parser()\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'matplotlib', 'control', 'dask'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    assert out.strip() == "[]"
