@@ -1,4 +1,4 @@
-"""Command-line pieces every ``motorid`` command shares: bench and experiment flags, errors, stderr.
+"""Command-line pieces every ``motorid`` command shares: bench and experiment flags, errors, messages on stderr.
 
 The flags of the simulated bench and of an experiment are derived from the bench knobs
 (:func:`motorsim.rig.bench_knobs`): each knob ``name`` is the flag ``--name`` with its unit
@@ -19,7 +19,7 @@ from motorsim.plant import Motor
 from motorsim.rig import Experiment, SimRig
 from motorsim.sensors import Encoder
 
-__all__ = ["CommandError", "stderr", "add_knob_flag", "add_bench_arguments", "sim_rig_from_args",
+__all__ = ["CommandError", "print_to_stderr", "add_knob_flag", "add_bench_arguments", "sim_rig_from_args",
            "add_experiment_arguments", "experiment_from_args", "EXCITATION_FLAGS"]
 
 
@@ -27,7 +27,7 @@ class CommandError(Exception):
     """A user-facing error: printed as ``motorid: error: ...``, exit status 2."""
 
 
-def stderr(*parts: Any, end: str = "\n") -> None:
+def print_to_stderr(*parts: Any, end: str = "\n") -> None:
     """Print to standard error and flush (progress lines, warnings)."""
     print(*parts, end=end, file=sys.stderr, flush=True)
 

@@ -18,7 +18,7 @@ from typing import Callable, NamedTuple, Sequence
 
 from motorsim.recording import RecordingFormatError
 
-from .arguments import CommandError, stderr
+from .arguments import CommandError, print_to_stderr
 
 __all__ = ["main", "build_parser", "COMMANDS", "Command"]
 
@@ -99,10 +99,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.run(args)
     except (CommandError, RecordingFormatError, ValueError, TypeError) as exc:
-        stderr(f"motorid: error: {exc}")
+        print_to_stderr(f"motorid: error: {exc}")
         return 2
     except KeyboardInterrupt:
-        stderr("motorid: interrupted")
+        print_to_stderr("motorid: interrupted")
         return 130
 
 

@@ -16,7 +16,7 @@ import json
 from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
 
-from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, stderr
+from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, print_to_stderr
 from .progress import ProgressBar
 
 __all__ = ["add_live_arguments", "run_live"]
@@ -100,7 +100,7 @@ def run_live(args: argparse.Namespace) -> int:
         reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
         path = writer.close(False, reason)
         if path is not None:
-            stderr(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)")
+            print_to_stderr(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)")
         raise
     finally:
         if plot is not None:
