@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/motorid demo --out-dir demo-output
+	$(BIN)/motorid demo --out demo-output
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
-import control
 import numpy as np
 from scipy import stats
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["Estimate", "json_ready"]
 
@@ -123,6 +125,7 @@ class Estimate:
 
     def transfer_function(self) -> control.TransferFunction:
         """``b / (s + a)`` from input to speed."""
+        import control
         return control.tf([self.b], [1.0, self.a])
 
     def to_dict(self) -> dict:

@@ -7,6 +7,8 @@ it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration
 """
 from __future__ import annotations
 
+import inspect
+
 from typing import Any, Callable
 
 from motorsim.recording import Recording
@@ -17,7 +19,7 @@ from .instrumental import fit_instrumental_variables
 from .output_error import fit_output_error
 from .regression import fit_euler_ls, fit_zoh_ls
 
-__all__ = ["fit", "available_methods", "method_function", "DEFAULT_METHOD"]
+__all__ = ["fit", "available_methods", "method_function", "method_options", "DEFAULT_METHOD"]
 
 _METHODS: dict[str, Callable[..., Estimate]] = {
     "euler-ls": fit_euler_ls,
@@ -47,6 +49,11 @@ def method_function(method: str) -> Callable[..., Estimate]:
     if method not in _METHODS:
         raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
     return _METHODS[method]
+
+
+def method_options(method: str) -> tuple[str, ...]:
+    """Names of the keyword options the named method accepts (besides the recordings)."""
+    return tuple(inspect.signature(method_function(method)).parameters)[1:]
 
 
 def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, **options: Any) -> Estimate:

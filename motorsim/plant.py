@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from .checks import check_int, check_real
 from .knobs import knob
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty"]
 
@@ -81,10 +84,12 @@ class Motor:
 
     def transfer_function(self) -> control.TransferFunction:
         """``b / (s + a)`` from duty to speed (delay and non-idealities omitted)."""
+        import control
         return control.tf([self.b], [1.0, self.a])
 
     def state_space(self) -> control.StateSpace:
         """States ``[angle, speed]``, input duty, outputs ``[angle, speed]`` (linear part)."""
+        import control
         A = [[0.0, 1.0], [0.0, -self.a]]
         B = [[0.0], [self.b]]
         return control.ss(A, B, np.eye(2), np.zeros((2, 1)),
@@ -92,6 +97,7 @@ class Motor:
 
     def discretise(self, sample_period: float) -> control.StateSpace:
         """The exact ZOH model at ``sample_period`` s, via ``control.sample_system``."""
+        import control
         sample_period = check_real("sample_period", sample_period, positive=True)
         return control.sample_system(self.state_space(), sample_period, method="zoh")
 

@@ -36,7 +36,7 @@ from scipy.signal import lfilter
 from motorsim.plant import Motor, delayed_duty, zoh_matrices
 
 __all__ = ["MethodOutcome", "BATCHED_METHODS", "simulate_batch", "encoder_counts_batch", "speed_batch",
-           "regression_batch", "fit_batch", "is_batchable", "bench_sweep"]
+           "regression_batch", "fit_batch", "is_batchable"]
 
 
 def is_batchable(motor: Motor, *, jitter: float = 0.0, drop_rate: float = 0.0) -> bool:
@@ -292,73 +292,3 @@ def fit_batch(methods, speed: np.ndarray, duty: np.ndarray, sample_period: float
         a, b, reasons = BATCHED_METHODS[m](theta1, theta2, sample_period, failure)
         out[m] = MethodOutcome(m, a, b, tuple(reasons))
     return out
-
-
-def bench_sweep(argv: list[str]) -> int:
-    """``motorid bench sweep``: the batch engine against a per-run python-control loop, same workload.
-
-    Workload: ``--runs`` runs of ``--samples`` samples, run r driven by
-    ``200 sin(10 t + alpha_r)`` with its own phase (so no run repeats another), simulated,
-    read by the 16667-count encoder and fitted with ``euler-ls`` and ``zoh-ls``.  The
-    baseline is the naive loop: ``control.forced_response`` of ``Motor.discretise(dt)``,
-    ``floor`` to counts, differencing and ``numpy.linalg.lstsq`` per run.  Both produce
-    every estimate; they must agree to 1e-9 relative (exit status 1 otherwise).
-    """
-    import argparse
-    import time
-
-    import control
-
-    from motorsim.excitation import Sine
-
-    p = argparse.ArgumentParser(prog="motorid bench sweep")
-    p.add_argument("--runs", type=int, default=200, help="runs (default 200)")
-    p.add_argument("--samples", type=int, default=10_000, help="samples per run (default 10000)")
-    p.add_argument("--repeats", type=int, default=5, help="timings of the batch engine to take the median of")
-    args = p.parse_args(argv)
-    if args.runs < 1 or args.samples < 10 or args.repeats < 1:
-        p.error(f"--runs must be >= 1, --samples >= 10 and --repeats >= 1, got {args.runs}, {args.samples}, "
-                f"{args.repeats}")
-    motor, dt, cpr, n, runs = Motor(25.0, 3.0), 0.005, 16667, args.samples, args.runs
-    phases = np.linspace(0.0, 2 * math.pi, runs, endpoint=False)
-    duty = np.stack([Sine(10.0, 200, ph).duty(n, dt) for ph in phases]).astype(float)
-    methods = ("euler-ls", "zoh-ls")
-
-    def batch():
-        angle, _ = simulate_batch(motor, duty, dt)
-        counts = encoder_counts_batch(angle, cpr)
-        return fit_batch(methods, speed_batch(counts, cpr, dt), duty, dt)
-
-    def loop():
-        sysd = motor.discretise(dt)
-        out = np.empty((runs, 4))
-        for r in range(runs):
-            resp = control.forced_response(sysd, U=duty[r])
-            counts = np.floor(resp.outputs[0] * (cpr / (2 * math.pi)))
-            speed = np.diff(counts * (2 * math.pi / cpr)) / dt
-            A = np.column_stack([speed[:-1], duty[r, 1:-1]])
-            (t1, t2), *_ = np.linalg.lstsq(A, speed[1:], rcond=None)
-            a_zoh = -math.log(t1) / dt
-            out[r] = (1 - t1) / dt, t2 / dt, a_zoh, a_zoh * t2 / (1 - t1)
-        return out
-
-    batch()  # warm-up
-    times = []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        fits = batch()
-        times.append(time.perf_counter() - t0)
-    t_batch = float(np.median(times))
-    t0 = time.perf_counter()
-    ref = loop()
-    t_loop = time.perf_counter() - t0
-    ours = np.column_stack([fits["euler-ls"].a, fits["euler-ls"].b, fits["zoh-ls"].a, fits["zoh-ls"].b])
-    diff = float(np.max(np.abs(ours - ref) / np.abs(ref)))
-    total = runs * n
-    print(f"workload                 {runs} runs x {n} samples: simulate + encoder + euler-ls + zoh-ls")
-    print(f"max relative difference  {diff:.2e}  (all {4 * runs} estimates)")
-    print(f"batch engine             {total / t_batch / 1e6:10.2f} M samples/s  ({t_batch * 1e3:.1f} ms, "
-          f"median of {args.repeats})")
-    print(f"python-control loop      {total / t_loop / 1e6:10.2f} M samples/s  ({t_loop * 1e3:.0f} ms)")
-    print(f"ratio                    {t_loop / t_batch:10.1f} x")
-    return 0 if diff < 1e-9 else 1

@@ -16,10 +16,13 @@ from typing import Sequence
 from identify import NotIdentifiableError, available_methods, fit
 from identify.estimate import Estimate
 from motorsim.excitation import Sine
+from motorsim.knobs import knobs_of
 from motorsim.recording import Recording, write_recording
 from motorsim.rig import Experiment, Rig
 
-__all__ = ["DemoRow", "article_experiments", "run_article", "format_table"]
+from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args
+
+__all__ = ["DemoRow", "article_experiments", "run_article", "format_table", "add_demo_arguments", "run_demo"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,11 +55,12 @@ def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[s
     for i, exp in enumerate(experiments, 1):
         rec = rig.run(exp)
         recordings.append(rec)
+        frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
         for m in methods:
             try:
-                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, fit(rec, method=m)))
+                rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
             except NotIdentifiableError as exc:
-                rows.append(DemoRow(f"eta_{i}", exp.excitation.frequencies[0], m, None, str(exc)))
+                rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
     return recordings, rows
 
 
@@ -77,22 +81,24 @@ def format_table(rows: Sequence[DemoRow], a: float, b: float) -> str:
 
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
-    from .cli import add_bench_arguments
+    """Flags of ``motorid demo``: the bench (a = 25, b = 3 by default), the sines, ``--out``."""
     add_bench_arguments(parser, a=25.0, b=3.0)
-    parser.add_argument("--sample-period", type=float, default=0.005, metavar="S", help="sample period in s (default 0.005)")
-    parser.add_argument("--duration", type=float, default=10.0, metavar="T", help="seconds per run (default 10)")
-    parser.add_argument("--frequencies", default="10,20,30,40", metavar="W,W,...",
-                        help="sine frequencies in rad/s (default 10,20,30,40)")
-    parser.add_argument("--amplitude", type=int, default=200, help="sine amplitude in duty units (default 200)")
-    parser.add_argument("--phase", type=float, default=0.0, help="sine phase alpha in rad (default 0)")
+    g = parser.add_argument_group("experiments")
+    for k in knobs_of(Experiment):
+        if k.name in ("sample_period", "duration"):
+            add_knob_flag(g, k)
+    g.add_argument("--frequencies", default="10,20,30,40", metavar="W,W,...",
+                   help="sine frequencies in rad/s (default 10,20,30,40)")
+    g.add_argument("--amplitude", type=int, default=200, help="sine amplitude in duty (default 200)")
+    g.add_argument("--phase", type=float, default=0.0, help="sine phase alpha in rad (default 0)")
     parser.add_argument("--methods", default=None, metavar="M,M,...", help="methods to compare (default: all)")
-    parser.add_argument("--out-dir", default="demo-output", metavar="DIR",
+    parser.add_argument("--out", default="demo-output", metavar="DIR",
                         help="where the table, recordings and figures go (default demo-output)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    from .cli import CommandError, sim_rig_from_args
+    """Run the article's experiments, print and write Table 1, the recordings and the figures."""
     try:
         freqs = [float(x) for x in args.frequencies.split(",") if x.strip()]
     except ValueError:
@@ -104,7 +110,7 @@ def run_demo(args: argparse.Namespace) -> int:
     rig = sim_rig_from_args(args)
     exps = article_experiments(freqs, args.amplitude, args.phase, args.sample_period, args.duration)
     recordings, rows = run_article(rig, exps, methods)
-    out = Path(args.out_dir)
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = format_table(rows, args.a, args.b)
     print(f"Article Table 1 on the simulated bench: a = {args.a:g} 1/s, b = {args.b:g} (rad/s^2)/duty, "
@@ -124,7 +130,8 @@ def run_demo(args: argparse.Namespace) -> int:
                  for i, rec in enumerate(recordings, 1)]
         default_rows = {r.input_name: r.estimate for r in rows if r.estimate is not None
                         and r.method == _best_method(methods)}
-        paths.append(plots.plot_overlay(recordings, [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)],
+        overlaid = [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)]
+        paths.append(plots.plot_overlay(recordings, overlaid,
                                         out / "overlay.png"))
         print("\nfigures: " + ", ".join(str(p) for p in paths))
     print(f"table, recordings: {out / 'table.txt'}, {out / 'table.json'}, {out}/eta_*.csv")

@@ -35,23 +35,25 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--a", type=float, required=True, help="rough guess of the pole a in 1/s")
     parser.add_argument("--b", type=float, required=True, help="rough guess of the gain b in (rad/s^2)/duty")
     parser.add_argument("--sample-period", type=float, required=True, metavar="S", help="sample period in s")
-    parser.add_argument("--counts-per-rev", type=int, required=True, metavar="N", help="encoder counts per revolution")
-    parser.add_argument("--noise", type=float, default=0.0, metavar="RAD",
+    parser.add_argument("--counts-per-rev", type=int, required=True, metavar="N",
+                        help="encoder counts per revolution after quadrature decoding [counts/rev]")
+    parser.add_argument("--angle-noise", type=float, default=0.0, metavar="RAD",
                         help="std of the angle noise in rad, besides quantisation (default 0)")
     parser.add_argument("--duration", type=float, default=10.0, metavar="T", help="length of the run in s (default 10)")
-    parser.add_argument("--duty-limit", type=int, default=255, metavar="N", help="duty clamp (default 255)")
+    parser.add_argument("--duty-limit", type=int, default=255, metavar="N",
+                        help="duty clamp, 1...255 [duty] (default 255)")
     parser.add_argument("--out", default="design-output", metavar="DIR",
-                        help="where design.json and design.png go (default design-output)")
+                        help="folder for design.json and design.png (default design-output)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG")
 
 
 def run_design(args: argparse.Namespace) -> int:
     """``motorid design``: recommend a sine and compare it with the article's four."""
     design = design_sine(args.a, args.b, args.sample_period, counts_per_rev=args.counts_per_rev,
-                         angle_noise=args.noise, duration=args.duration, duty_limit=args.duty_limit)
+                         angle_noise=args.angle_noise, duration=args.duration, duty_limit=args.duty_limit)
     b = design.best
     print(f"guesses a = {args.a:g} 1/s, b = {args.b:g} (rad/s^2)/duty; dt = {args.sample_period:g} s, "
-          f"{args.counts_per_rev} counts/rev, angle noise {args.noise:g} rad, {args.duration:g} s per run\n")
+          f"{args.counts_per_rev} counts/rev, angle noise {args.angle_noise:g} rad, {args.duration:g} s per run\n")
     print(f"recommended: {b.amplitude} sin({b.frequency:.4g} t)  (duty limit {args.duty_limit}); "
           "predicted Cramér-Rao standard errors:\n")
     print(format_design(design))

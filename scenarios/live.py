@@ -12,32 +12,35 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
+
+from motorsim.knobs import knobs_of
+from motorsim.sensors import Encoder
+
+from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, print_to_stderr
+from .progress import ProgressBar
 
 __all__ = ["add_live_arguments", "run_live"]
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``motorid live``: the port, the bench's encoder, the experiment, the estimator."""
     from identify import DEFAULT_METHOD, available_methods
-    from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
-    from .cli import add_experiment_arguments
     g = parser.add_argument_group("bench")
     g.add_argument("--port", required=True, metavar="PORT",
                    help="serial port or URL: /dev/ttyACM0, COM3, socket://host:port, 'fake://?a=25&b=3' "
                         "(the emulated Arduino), avr-sim://...")
     g.add_argument("--baud", type=int, default=250_000, metavar="B",
-                   help="line rate (default 250000 for <= 500 Hz; 115200 is the safe choice at <= 250 Hz)")
-    g.add_argument("--counts-per-rev", type=int, default=DEFAULT_COUNTS_PER_REV, metavar="N",
-                   help=f"encoder counts per revolution after decoding (default {DEFAULT_COUNTS_PER_REV})")
-    g.add_argument("--decoding", type=int, default=4, choices=(1, 2, 4), help="quadrature decoding (default 4)")
+                   help="line rate in baud (default 250000 for <= 500 Hz; 115200 is the safe choice at <= 250 Hz)")
+    add_knob_flag(g, next(k for k in knobs_of(Encoder) if k.name == "counts_per_rev"))
+    g.add_argument("--decoding", type=int, default=4, choices=(1, 2, 4),
+                   help="quadrature decoding: counts per encoder line cycle, 1, 2 or 4 (default 4)")
     g.add_argument("--watchdog-ms", type=int, default=500, metavar="MS",
-                   help="device stops the motor after this much host silence (default 500; 0 off)")
+                   help="device stops the motor after this much host silence, in ms (default 500; 0 off)")
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
                    help="give up after the device is silent this long during a run (default 1 s)")
     add_experiment_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="where to write the recording")
+    parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
     parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
@@ -47,41 +50,27 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress line")
 
 
-class _Progress:
-    """The progress line on stderr, at most 4 times a second."""
-
-    def __init__(self, n_samples: int, enabled: bool):
-        self.n = n_samples
-        self.enabled = enabled and n_samples > 0
-        self._next = 0.0
-
-    def show(self, k: int, running, force: bool = False) -> None:
-        now = time.monotonic()
-        if not self.enabled or (now < self._next and not force):
-            return
-        self._next = now + 0.25
-        estimate = running.estimate()
-        est = (f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
-               if estimate.ready else "estimate: waiting for data")
-        print(f"\r  {k + 1:>7}/{self.n} samples ({100 * (k + 1) / self.n:5.1f} %)  {est}   ",
-              end="", file=sys.stderr, flush=True)
-
-    def done(self) -> None:
-        if self.enabled:
-            print(file=sys.stderr)
+def _estimate_note(running) -> str:
+    """The running estimate as shown after the progress bar."""
+    estimate = running.estimate()
+    if not estimate.ready:
+        return "estimate: waiting for data"
+    return f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
 
 
 def run_live(args: argparse.Namespace) -> int:
+    """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
     from hardware.serial_rig import SerialRig
     from identify import fit
     from identify.recursive import RunningEstimator
     from motorsim.recording import RecordingWriter
 
-    from .cli import CommandError, experiment_from_args, format_estimate
+    from .identification import format_estimate
     experiment = experiment_from_args(args)
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
-    progress = _Progress(experiment.n_samples, not args.quiet)
+    progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
+                           enabled=not args.quiet and experiment.n_samples > 0)
     plot = None
     if args.plot:
         from .plots import LivePlot
@@ -92,7 +81,7 @@ def run_live(args: argparse.Namespace) -> int:
     def on_sample(s) -> None:
         writer.append(s.seq, s.time_s, s.duty, s.counts)
         running.add(s.seq, s.time_s, s.duty, s.counts)
-        progress.show(s.seq, running)
+        progress.set(s.seq + 1, lambda: _estimate_note(running))
         if plot is not None:
             plot.add(s, running)
 
@@ -101,24 +90,23 @@ def run_live(args: argparse.Namespace) -> int:
                        watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
             recording = rig.run(experiment, on_sample=on_sample)
     except RigError as exc:
-        progress.done()
+        progress.close()
         meta = exc.recording.metadata if exc.recording is not None else None
         path = writer.close(False, f"{type(exc).__name__}: {exc}", metadata=meta)
         kept = f"; the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
         raise CommandError(f"{exc}{kept}") from None
     except BaseException as exc:   # Ctrl-C, a protocol version mismatch, ...: keep what arrived
-        progress.done()
+        progress.close()
         reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
         path = writer.close(False, reason)
         if path is not None:
-            print(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)",
-                  file=sys.stderr)
+            print_to_stderr(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)")
         raise
     finally:
         if plot is not None:
             plot.close()
-    progress.show(experiment.n_samples - 1, running, force=True)
-    progress.done()
+    progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
+    progress.close()
     path = writer.close(True, metadata=recording.metadata)
     estimate = fit(recording, method=args.method)
     m = recording.metadata

@@ -224,7 +224,9 @@ class LivePlot:
         self._path = Path(fallback_path)
         self._interval = float(interval) if self.window else max(float(interval), 1.0)   # PNGs are slow
         self._next = 0.0
-        self._t, self._u, self._w = [], [], []
+        self._t: list[float] = []
+        self._u: list[float] = []
+        self._w: list[float] = []
         self._prev = None
         self._running = None
         if self.window:

@@ -8,12 +8,12 @@ A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
     repetitions = 50
     methods = "all"                 # or a list of names from identify.available_methods()
 
-    [motor]                         # Motor: a, b, friction, bias, dead_zone, input_delay
+    [motor]                         # any knob of Motor: a, b, friction, bias, dead_zone, input_delay
     a = 25.0
     b = 3.0
 
-    [bench]                         # sample_period, counts_per_rev, angle_noise, jitter,
-    sample_period = 0.005           # drop_rate, duration, duty_limit, initial_speed
+    [bench]                         # any knob of Encoder, SimRig or Experiment: counts_per_rev,
+    sample_period = 0.005           # angle_noise, jitter, drop_rate, sample_period, duration, ...
     counts_per_rev = 16667
     duration = 10.0
 
@@ -25,8 +25,10 @@ A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
     "excitation.frequency" = [10, 20, 30, 40]
     "bench.angle_noise" = [0.0, 2e-4]
 
-Every grid point is a complete :class:`Setting`.  Unknown keys, sections or grid
-axes are errors that name the key.
+The keys of ``[motor]`` and ``[bench]`` are the bench knobs (:func:`motorsim.rig.bench_knobs`),
+so a knob added to one of the bench's classes is a scenario key, a :class:`Setting` field and
+a sweep CSV column without a change here.  Every grid point is a complete :class:`Setting`.
+Unknown keys, sections or grid axes are errors that name the key.
 """
 from __future__ import annotations
 
@@ -37,14 +39,16 @@ import os
 import sys
 from importlib import resources
 from pathlib import Path
-from typing import Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
+from motorsim.checks import is_int
 from motorsim.excitation import Excitation, Sine, parse_excitation
+from motorsim.knobs import knobs_of
 from motorsim.plant import Motor
-from motorsim.rig import Experiment, SimRig
-from motorsim.sensors import DEFAULT_COUNTS_PER_REV, Encoder
+from motorsim.rig import Experiment, SimRig, bench_knobs
+from motorsim.sensors import Encoder
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -52,83 +56,55 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 __all__ = ["Setting", "GridPoint", "Scenario", "load_scenario", "builtin_scenarios", "ScenarioError",
-           "SETTING_KEYS", "scenario_from_dict"]
+           "SETTING_KEYS", "DEFAULT_EXCITATION", "scenario_from_dict"]
 
 
 class ScenarioError(ValueError):
     """A scenario file or definition breaks a rule (the message names the key)."""
 
 
-#: section -> keys a scenario may set (and sweep as ``"section.key"``).
+#: Defaults of a scenario for the knobs the bench classes require (the article's motor).
+_REQUIRED_DEFAULTS = {"a": 25.0, "b": 3.0}
+#: The excitation of a scenario that gives none: the article's 200 sin(10 t).
+DEFAULT_EXCITATION = "sine:10.0,200,0.0"
+_SINE_KEYS = ("frequency", "amplitude", "phase", "offset")
+
+#: section -> keys a scenario may set (and sweep as ``"section.key"``): ``[motor]`` holds the
+#: Motor's knobs, ``[bench]`` every other bench knob (Encoder, SimRig, Experiment).
 SETTING_KEYS: dict[str, tuple[str, ...]] = {
-    "motor": ("a", "b", "friction", "bias", "dead_zone", "input_delay"),
-    "bench": ("sample_period", "counts_per_rev", "angle_noise", "jitter", "drop_rate", "duration",
-              "duty_limit", "initial_speed"),
-    "excitation": ("spec", "frequency", "amplitude", "phase", "offset"),
+    "motor": tuple(k.name for k in knobs_of(Motor)),
+    "bench": tuple(k.name for k in bench_knobs() if k.owner is not Motor),
+    "excitation": ("spec", *_SINE_KEYS),
 }
 _TOP_KEYS = ("name", "description", "seed", "repetitions", "methods", "motor", "bench", "excitation", "grid")
 
 
-@dataclasses.dataclass(frozen=True)
-class Setting:
-    """Everything that defines one simulated experiment (one grid point).
+class _SettingMethods:
+    """What a :class:`Setting` builds from its knobs (the fields come from :func:`bench_knobs`)."""
 
-    Parameters
-    ----------
-    a, b, friction, bias, dead_zone, input_delay
-        The :class:`~motorsim.plant.Motor` (1/s, (rad/s^2)/duty, rad/s^2, rad/s^2, duty, samples).
-    sample_period : float
-        s.
-    counts_per_rev : int
-        Encoder resolution.
-    angle_noise : float
-        Standard deviation of the angle noise before the encoder floors it, rad.
-    jitter, drop_rate : float
-        Timing jitter (fraction of the sample period) and probability of a lost sample.
-    duration : float
-        s per run.
-    duty_limit : int
-        Duty clamp.
-    initial_speed : float
-        rad/s at the first sample.
-    excitation : str
-        The excitation in :func:`motorsim.excitation.parse_excitation` form (``sine:10,200,0``).
-    """
+    excitation: str
 
-    a: float = 25.0
-    b: float = 3.0
-    friction: float = 0.0
-    bias: float = 0.0
-    dead_zone: float = 0.0
-    input_delay: int = 0
-    sample_period: float = 0.005
-    counts_per_rev: int = DEFAULT_COUNTS_PER_REV
-    angle_noise: float = 0.0
-    jitter: float = 0.0
-    drop_rate: float = 0.0
-    duration: float = 10.0
-    duty_limit: int = 255
-    initial_speed: float = 0.0
-    excitation: str = "sine:10.0,200,0.0"
-
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         # Validate by building every object once; their messages name the parameter.
         self.sim_rig(np.random.default_rng(0) if self.needs_rng else None)
         self.experiment()
 
+    def _knobs(self, cls: type) -> dict[str, Any]:
+        return {k.name: getattr(self, k.name) for k in knobs_of(cls)}
+
     @property
     def needs_rng(self) -> bool:
         """True when runs differ (noise, jitter or drops), so repetitions are Monte Carlo draws."""
-        return self.angle_noise > 0 or self.jitter > 0 or self.drop_rate > 0
+        knobs = {**self._knobs(Encoder), **self._knobs(SimRig)}
+        return knobs["angle_noise"] > 0 or knobs["jitter"] > 0 or knobs["drop_rate"] > 0
 
     def motor(self) -> Motor:
         """The plant."""
-        return Motor(self.a, self.b, friction=self.friction, bias=self.bias, dead_zone=self.dead_zone,
-                     input_delay=self.input_delay)
+        return Motor(**self._knobs(Motor))
 
     def encoder(self) -> Encoder:
-        """The encoder (offset 0)."""
-        return Encoder(self.counts_per_rev, angle_noise=self.angle_noise)
+        """The encoder."""
+        return Encoder(**self._knobs(Encoder))
 
     def excitation_object(self) -> Excitation:
         """The excitation."""
@@ -136,24 +112,61 @@ class Setting:
 
     def experiment(self) -> Experiment:
         """The :class:`~motorsim.rig.Experiment` every repetition runs."""
-        return Experiment(self.excitation_object(), self.sample_period, self.duration, self.duty_limit)
+        return Experiment(self.excitation_object(), **self._knobs(Experiment))
 
-    def sim_rig(self, rng) -> SimRig:
+    def sim_rig(self, rng: np.random.Generator | None) -> SimRig:
         """The simulated bench of this setting with the generator ``rng``."""
-        return SimRig(self.motor(), self.encoder(), jitter=self.jitter, drop_rate=self.drop_rate,
-                      initial_speed=self.initial_speed, rng=rng)
+        return SimRig(self.motor(), self.encoder(), **self._knobs(SimRig), rng=rng)
 
     @property
     def frequency(self) -> float:
         """Frequency in rad/s of a single sine, else nan."""
-        exc = self.excitation_object()
-        freqs = getattr(exc, "frequencies", ())
+        freqs: tuple[float, ...] = tuple(getattr(self.excitation_object(), "frequencies", ()))
         return float(freqs[0]) if len(freqs) == 1 else math.nan
+
+    @property
+    def amplitude(self) -> float:
+        """Amplitude in duty of a single sine, else nan."""
+        amps: tuple[float, ...] = tuple(getattr(self.excitation_object(), "amplitudes", ()))
+        return float(amps[0]) if len(amps) == 1 else math.nan
 
     @property
     def n_samples(self) -> int:
         """Samples per run."""
         return self.experiment().n_samples
+
+
+def _setting_fields() -> list[tuple[str, type, Any]]:
+    fields: list[tuple[str, type, Any]] = [
+        (k.name, k.kind, dataclasses.field(default=_REQUIRED_DEFAULTS.get(k.name, k.default)))
+        for k in bench_knobs()]
+    fields.append(("excitation", str, dataclasses.field(default=DEFAULT_EXCITATION)))
+    return fields
+
+
+def _setting_doc() -> str:
+    lines = ["Everything that defines one simulated experiment (one grid point).", "",
+             "Parameters", "----------"]
+    for k in bench_knobs():
+        default = _REQUIRED_DEFAULTS.get(k.name, k.default)
+        lines += [f"{k.name} : {k.kind.__name__}", f"    {k.help}" + (f" [{k.unit}]" if k.unit else "")
+                  + f" (default {default!r}; :class:`~{k.owner.__module__}.{k.owner.__name__}`)."]
+    lines += ["excitation : str", "    The excitation in :func:`motorsim.excitation.parse_excitation` form "
+              f"(default ``{DEFAULT_EXCITATION}``)."]
+    return "\n".join(lines)
+
+
+if TYPE_CHECKING:
+    class Setting(_SettingMethods):
+        """Every bench knob as an attribute, and the excitation."""
+
+        def __init__(self, **values: Any) -> None: ...
+
+        def __getattr__(self, name: str) -> Any: ...
+else:
+    Setting = dataclasses.make_dataclass("Setting", _setting_fields(), bases=(_SettingMethods,), frozen=True,
+                                         namespace={"__module__": __name__})
+    Setting.__doc__ = _setting_doc()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,10 +246,10 @@ class Scenario:
         return sum(p.setting.n_samples for p in self.points()) * self.repetitions
 
 
-def _check_count(name: str, value, lo: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+def _check_count(name: str, value: Any, lo: int = 1) -> int:
+    if not is_int(value) or value < lo:
         raise ScenarioError(f"{name} must be an integer >= {lo}, got {value!r}")
-    return value
+    return int(value)
 
 
 def _check_methods(methods) -> tuple[str, ...]:
@@ -253,8 +266,8 @@ def _check_methods(methods) -> tuple[str, ...]:
 
 def _setting(values: Mapping) -> Setting:
     """Build a Setting from ``"section.key" -> value``; a sine's fields become its spec."""
-    kw = {}
-    sine = {"frequency": 10.0, "amplitude": 200, "phase": 0.0, "offset": 0}
+    kw: dict[str, Any] = {}
+    sine: dict[str, Any] = {"frequency": 10.0, "amplitude": 200, "phase": 0.0, "offset": 0}
     has_sine_keys = False
     spec = None
     for key, value in values.items():

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import collections
 import concurrent.futures
+import contextlib
 import csv
 import dataclasses
 import json
@@ -38,21 +39,36 @@ import numpy as np
 
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
+from motorsim.checks import check_int
 from motorsim.recording import Recording
+from motorsim.rig import bench_knobs
 
-from .batch import (BATCHED_METHODS, MethodOutcome, encoder_counts_batch, fit_batch, is_batchable,
-                    simulate_batch, speed_batch)
+from .arguments import CommandError
+from .batch import (
+    BATCHED_METHODS,
+    MethodOutcome,
+    encoder_counts_batch,
+    fit_batch,
+    is_batchable,
+    simulate_batch,
+    speed_batch,
+)
 from .progress import ProgressBar
 from .scenario import GridPoint, Scenario, Setting
 
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
-           "axis_column", "read_sweep_csv", "repetition_seed", "make_plots", "format_sweep_table",
+           "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "make_plots",
+           "format_sweep_table",
            "add_sweep_arguments", "run_sweep"]
 
-#: Columns of the tidy CSV, one row per grid point x estimator.
-SETTING_COLUMNS = ("true_a", "true_b", "friction", "bias", "dead_zone", "input_delay", "sample_period",
-                   "counts_per_rev", "angle_noise", "jitter", "drop_rate", "duration", "duty_limit",
-                   "initial_speed", "excitation", "frequency", "amplitude", "n_samples")
+def setting_column(knob: str) -> str:
+    """The CSV column of a bench knob: its name, except ``true_a`` and ``true_b`` for the motor's a and b."""
+    return f"true_{knob}" if knob in ("a", "b") else knob
+
+
+#: Columns of the tidy CSV, one row per grid point x estimator: every bench knob, then the excitation.
+SETTING_COLUMNS = (*(setting_column(k.name) for k in bench_knobs()), "excitation", "frequency", "amplitude",
+                   "n_samples")
 STAT_COLUMNS = ("method", "repetitions", "successes", "failures", "failure_reasons",
                 "mean_a", "bias_a_pct", "std_a", "rmse_a", "crb_a",
                 "mean_b", "bias_b_pct", "std_b", "rmse_b", "crb_b")
@@ -65,11 +81,9 @@ _CHUNK_SAMPLES = 1 << 21
 def axis_column(axis: str) -> str:
     """The CSV column holding grid axis ``axis`` (``"excitation.frequency"`` -> ``"frequency"``)."""
     section, _, key = axis.partition(".")
-    if section == "motor" and key in ("a", "b"):
-        return f"true_{key}"
     if section == "excitation":
         return key if key in ("frequency", "amplitude") else "excitation"
-    return key
+    return setting_column(key)
 
 
 def repetition_seed(seed: int, point: int, repetition: int) -> np.random.SeedSequence:
@@ -105,30 +119,28 @@ class PointResult:
     def rows(self) -> list[dict]:
         """The CSV rows of this point (see :data:`CSV_COLUMNS`)."""
         s = self.point.setting
-        exc = s.excitation_object()
-        amps = getattr(exc, "amplitudes", ())
-        base = {"point": self.point.index, "true_a": s.a, "true_b": s.b, "friction": s.friction, "bias": s.bias,
-                "dead_zone": s.dead_zone, "input_delay": s.input_delay, "sample_period": s.sample_period,
-                "counts_per_rev": s.counts_per_rev, "angle_noise": s.angle_noise, "jitter": s.jitter,
-                "drop_rate": s.drop_rate, "duration": s.duration, "duty_limit": s.duty_limit,
-                "initial_speed": s.initial_speed, "excitation": s.excitation, "frequency": s.frequency,
-                "amplitude": float(amps[0]) if len(amps) == 1 else math.nan, "n_samples": s.n_samples}
-        out = []
-        for o in self.outcomes:
-            row = dict(base, method=o.method, repetitions=len(o.a), successes=len(o.a) - o.n_failed,
-                       failures=o.n_failed, failure_reasons=o.failure_summary())
-            for name, truth in (("a", s.a), ("b", s.b)):
-                st = o.statistics(name, truth)
-                row.update({f"mean_{name}": st["mean"], f"bias_{name}_pct": st["bias_pct"],
-                            f"std_{name}": st["std"], f"rmse_{name}": st["rmse"],
-                            f"crb_{name}": self.crb[name] if self.crb else math.nan})
-            out.append(row)
-        return out
+        base = {"point": self.point.index, **{setting_column(k.name): getattr(s, k.name) for k in bench_knobs()},
+                "excitation": s.excitation, "frequency": s.frequency, "amplitude": s.amplitude,
+                "n_samples": s.n_samples}
+        return [dict(base, **self._statistics(o)) for o in self.outcomes]
+
+    def _statistics(self, outcome: MethodOutcome) -> dict:
+        s = self.point.setting
+        n = len(outcome.a)
+        row = {"method": outcome.method, "repetitions": n, "successes": n - outcome.n_failed,
+               "failures": outcome.n_failed, "failure_reasons": outcome.failure_summary()}
+        for name, truth in (("a", s.a), ("b", s.b)):
+            st = outcome.statistics(name, truth)
+            row.update({f"mean_{name}": st["mean"], f"bias_{name}_pct": st["bias_pct"],
+                        f"std_{name}": st["std"], f"rmse_{name}": st["rmse"],
+                        f"crb_{name}": self.crb[name] if self.crb else math.nan})
+        return row
 
 
 def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
     motor = setting.motor()
-    if not (motor.is_linear and motor.input_delay == 0 and setting.jitter == 0 and setting.drop_rate == 0):
+    if not (motor.is_linear and motor.input_delay == 0 and setting.jitter == 0 and setting.drop_rate == 0
+            and not setting.record_speed):
         return None
     bound = cramer_rao_bound(setting.a, setting.b, duty, setting.sample_period,
                              counts_per_rev=setting.counts_per_rev, angle_noise=setting.angle_noise,
@@ -167,57 +179,91 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
     -------
     PointResult
     """
+    methods = _check_point_arguments(point, methods, repetitions)
+    s = point.setting
+    exp = s.experiment()
+    # Without noise, jitter or drops every repetition is the same run: simulate it once.
+    distinct = repetitions if s.needs_rng else 1
+    fits = _Fits(methods, distinct)
+    batched = batch and _is_batchable(s)
+    if batched:
+        _run_batched(s, exp, fits, seed, point.index)
+    else:
+        _run_each(s, exp, fits, seed, point.index)
+    copies = repetitions // distinct
+    outcomes = tuple(MethodOutcome(m, np.tile(fits.a[m], copies), np.tile(fits.b[m], copies),
+                                   tuple(fits.why[m]) * copies) for m in methods)
+    return PointResult(point, outcomes, _crb(s, exp.duty()), distinct * exp.n_samples, batched)
+
+
+def _check_point_arguments(point: GridPoint, methods: Sequence[str], repetitions: int) -> list[str]:
     from identify import available_methods
     if not isinstance(point, GridPoint):
         raise TypeError(f"point must be a GridPoint, got {type(point).__name__}")
-    if isinstance(repetitions, bool) or not isinstance(repetitions, int) or repetitions < 1:
-        raise ValueError(f"repetitions must be an integer >= 1, got {repetitions!r}")
+    check_int("repetitions", repetitions, lo=1, allow_integral_float=False)
     methods = list(methods)
     unknown = [m for m in methods if m not in available_methods()]
     if not methods or unknown:
         raise ValueError(f"methods must be a non-empty list of names among {available_methods()}, got {methods!r}")
-    s = point.setting
-    exp = s.experiment()
-    duty = exp.duty()
-    n = exp.n_samples
-    # Without noise, jitter or drops every repetition is the same run: simulate it once.
-    distinct = repetitions if s.needs_rng else 1
-    a = {m: np.full(distinct, np.nan) for m in methods}
-    b = {m: np.full(distinct, np.nan) for m in methods}
-    why = {m: [""] * distinct for m in methods}
-    batched = batch and is_batchable(s.motor(), jitter=s.jitter, drop_rate=s.drop_rate)
-    if batched:
-        angle, _ = simulate_batch(s.motor(), duty, s.sample_period, initial_speed=s.initial_speed)
-        time_s = np.arange(n) * s.sample_period
-        batched_methods = [m for m in methods if m in BATCHED_METHODS]
-        other = [m for m in methods if m not in BATCHED_METHODS]
-        chunk = max(1, _CHUNK_SAMPLES // n)
-        for lo in range(0, distinct, chunk):
-            hi = min(distinct, lo + chunk)
-            rngs = [np.random.default_rng(repetition_seed(seed, point.index, r)) for r in range(lo, hi)]
-            counts = encoder_counts_batch(np.broadcast_to(angle, (hi - lo, n)), s.counts_per_rev,
-                                          s.angle_noise, rngs)
-            fits = fit_batch(batched_methods, speed_batch(counts, s.counts_per_rev, s.sample_period),
-                             duty, s.sample_period) if batched_methods else {}
-            for m, f in fits.items():
-                a[m][lo:hi], b[m][lo:hi] = f.a, f.b
-                why[m][lo:hi] = f.failure
-            for j in (range(hi - lo) if other else ()):
-                rec = Recording(time=time_s, duty=duty, sample_period=s.sample_period,
-                                counts=counts[j].astype(np.int64), counts_per_rev=s.counts_per_rev,
-                                metadata={"source": "scenarios.batch"})
-                for m in other:
-                    a[m][lo + j], b[m][lo + j], why[m][lo + j] = _fit_or_reason(rec, m)
-    else:
-        for r in range(distinct):
-            rng = np.random.default_rng(repetition_seed(seed, point.index, r))
-            rec = s.sim_rig(rng).run(exp)
-            for m in methods:
-                a[m][r], b[m][r], why[m][r] = _fit_or_reason(rec, m)
-    copies = repetitions // distinct
-    outcomes = tuple(MethodOutcome(m, np.tile(a[m], copies), np.tile(b[m], copies), tuple(why[m]) * copies)
-                     for m in methods)
-    return PointResult(point, outcomes, _crb(s, duty), distinct * n, batched)
+    return methods
+
+
+def _is_batchable(s: Setting) -> bool:
+    return not s.record_speed and is_batchable(s.motor(), jitter=s.jitter, drop_rate=s.drop_rate)
+
+
+class _Fits:
+    """Estimates of a and b and failure reasons, per method and repetition (filled in place)."""
+
+    def __init__(self, methods: Sequence[str], repetitions: int):
+        self.methods = list(methods)
+        self.a = {m: np.full(repetitions, np.nan) for m in methods}
+        self.b = {m: np.full(repetitions, np.nan) for m in methods}
+        self.why = {m: [""] * repetitions for m in methods}
+
+    @property
+    def repetitions(self) -> int:
+        return len(self.why[self.methods[0]])
+
+    def fit(self, r: int, recording: Recording, methods: Sequence[str]) -> None:
+        """Fit repetition ``r`` with each of ``methods`` through ``identify.fit``."""
+        for m in methods:
+            self.a[m][r], self.b[m][r], self.why[m][r] = _fit_or_reason(recording, m)
+
+
+def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
+    """One ``SimRig.run`` and one ``identify.fit`` per repetition and method: the users' path."""
+    for r in range(fits.repetitions):
+        rng = np.random.default_rng(repetition_seed(seed, index, r))
+        fits.fit(r, s.sim_rig(rng).run(exp), fits.methods)
+
+
+def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
+    """All repetitions through the batch engine, in chunks of about ``_CHUNK_SAMPLES`` samples.
+
+    Batched estimators fit whole chunks; the others get one Recording per repetition built
+    from the same counts.
+    """
+    duty, n = exp.duty(), exp.n_samples
+    angle, _ = simulate_batch(s.motor(), duty, s.sample_period, initial_speed=s.initial_speed)
+    batched = [m for m in fits.methods if m in BATCHED_METHODS]
+    other = [m for m in fits.methods if m not in BATCHED_METHODS]
+    chunk = max(1, _CHUNK_SAMPLES // n)
+    for lo in range(0, fits.repetitions, chunk):
+        hi = min(fits.repetitions, lo + chunk)
+        rngs = [np.random.default_rng(repetition_seed(seed, index, r)) for r in range(lo, hi)]
+        counts = encoder_counts_batch(np.broadcast_to(angle, (hi - lo, n)), s.counts_per_rev, s.angle_noise, rngs)
+        counts += s.count_offset
+        if batched:
+            speed = speed_batch(counts, s.counts_per_rev, s.sample_period)
+            for m, f in fit_batch(batched, speed, duty, s.sample_period).items():
+                fits.a[m][lo:hi], fits.b[m][lo:hi] = f.a, f.b
+                fits.why[m][lo:hi] = f.failure
+        for j in (range(hi - lo) if other else ()):
+            rec = Recording(time=np.arange(n) * s.sample_period, duty=duty, sample_period=s.sample_period,
+                            counts=counts[j].astype(np.int64), counts_per_rev=s.counts_per_rev,
+                            metadata={"source": "scenarios.batch"})
+            fits.fit(lo + j, rec, other)
 
 
 def _run_point_job(point: GridPoint, methods: tuple, repetitions: int, seed: int) -> PointResult:
@@ -299,79 +345,142 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     Notes
     -----
     The CSV is the same byte for byte whatever the executor or the number of workers.
+
+    Examples
+    --------
+    Two sine frequencies, the article's regression against output error, noise-free
+    (so both repetitions are the same run):
+
+    >>> import tempfile
+    >>> from scenarios.scenario import scenario_from_dict
+    >>> scenario = scenario_from_dict({"name": "tiny", "repetitions": 2, "methods": ["zoh-ls", "oe"],
+    ...                                "bench": {"duration": 1.0},
+    ...                                "grid": {"excitation.frequency": [10, 20]}})
+    >>> with tempfile.TemporaryDirectory() as out:
+    ...     summary = run_scenario(scenario, out, workers=1, progress=False)
+    ...     rows = read_sweep_csv(summary.csv_path)
+    >>> summary.n_points, summary.n_rows
+    (2, 4)
+    >>> for r in rows:
+    ...     print(r["frequency"], r["method"], f"{r['mean_a']:.2f}", int(r["failures"]))
+    10.0 zoh-ls 23.28 0
+    10.0 oe 25.00 0
+    20.0 zoh-ls 22.61 0
+    20.0 oe 25.00 0
     """
     if not isinstance(scenario, Scenario):
         raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if workers is not None:
+        check_int("workers", workers, lo=1, allow_integral_float=False)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    csv_path, json_path = out / "sweep.csv", out / "summary.json"
     jobs = ((p, scenario.methods, scenario.repetitions, scenario.seed) for p in scenario.points())
-    own = None
-    if executor is None:
-        workers = workers or os.cpu_count() or 1
-        if workers > 1:
-            # spawn: no fork of a threaded parent; workers import motorid afresh.
-            own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
-        window = 2 * workers
-    else:
-        window = 2 * (os.cpu_count() or 1)
     t0 = time.perf_counter()
-    n_rows = samples = 0
-    failures = collections.Counter({m: 0 for m in scenario.methods})
-    worst = {m: 0.0 for m in scenario.methods}
-    tmp = csv_path.with_name(csv_path.name + ".part")
+    tally = _Tally(scenario.methods)
+    with _points_executor(workers, executor) as (pool, window), \
+            ProgressBar(scenario.n_points, f"sweep {scenario.name}", enabled=progress) as bar:
+        csv_path = _write_csv(out / "sweep.csv", _in_order(pool, jobs, window), tally, bar)
+    elapsed = time.perf_counter() - t0
+    json_path = _write_summary_json(out / "summary.json", scenario, tally, elapsed, csv_path.name)
+    return SweepSummary(scenario, csv_path, json_path, scenario.n_points, tally.n_rows, tally.samples,
+                        dict(tally.failures), elapsed)
+
+
+@contextlib.contextmanager
+def _points_executor(workers: int | None, executor: concurrent.futures.Executor | None
+                     ) -> Iterator[tuple[concurrent.futures.Executor | None, int]]:
+    """The executor to run points on (None: this process) and how many points to keep in flight.
+
+    A process pool made here (``workers`` > 1, no ``executor`` given) is shut down on exit.
+    """
+    if executor is not None:
+        yield executor, 2 * (os.cpu_count() or 1)
+        return
+    workers = workers or os.cpu_count() or 1
+    if workers == 1:
+        yield None, 2
+        return
+    # spawn: no fork of a threaded parent; workers import motorid afresh.
+    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
     try:
-        with open(tmp, "w", encoding="utf-8", newline="") as f, \
-                ProgressBar(scenario.n_points, f"sweep {scenario.name}", enabled=progress) as bar:
+        yield own, 2 * workers
+    finally:
+        own.shutdown()
+
+
+class _Tally:
+    """What the summary reports, accumulated row by row."""
+
+    def __init__(self, methods: Sequence[str]):
+        self.n_rows = 0
+        self.samples = 0
+        self.failures = collections.Counter({m: 0 for m in methods})
+        self.worst = {m: 0.0 for m in methods}
+
+    def add(self, result: PointResult) -> list[dict]:
+        """Count a point's rows, failures and samples; return its rows."""
+        rows = result.rows()
+        for row in rows:
+            self.n_rows += 1
+            self.failures[row["method"]] += row["failures"]
+            if math.isfinite(row["bias_a_pct"]):
+                self.worst[row["method"]] = max(self.worst[row["method"]], abs(row["bias_a_pct"]))
+        self.samples += result.samples_simulated
+        return rows
+
+
+def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally, bar: ProgressBar) -> Path:
+    """Stream the rows of ``results`` to ``path`` through a ``.part`` file renamed when complete."""
+    tmp = path.with_name(path.name + ".part")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
             writer = csv.writer(f, lineterminator="\n")
             writer.writerow(CSV_COLUMNS)
-            for result in _in_order(own or executor, jobs, window):
-                for row in result.rows():
+            for result in results:
+                for row in tally.add(result):
                     writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
-                    n_rows += 1
-                    failures[row["method"]] += row["failures"]
-                    if math.isfinite(row["bias_a_pct"]):
-                        worst[row["method"]] = max(worst[row["method"]], abs(row["bias_a_pct"]))
-                samples += result.samples_simulated
                 f.flush()
                 bar.update()
-        os.replace(tmp, csv_path)
+        os.replace(tmp, path)
     finally:
-        if own is not None:
-            own.shutdown()
         if tmp.exists():
             tmp.unlink()
-    elapsed = time.perf_counter() - t0
-    summary = SweepSummary(scenario, csv_path, json_path, scenario.n_points, n_rows, samples, dict(failures),
-                           elapsed)
-    json_path.write_text(json.dumps({
+    return path
+
+
+def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: float, csv_name: str) -> Path:
+    path.write_text(json.dumps({
         "scenario": scenario.name, "description": scenario.description, "seed": scenario.seed,
         "repetitions": scenario.repetitions, "methods": list(scenario.methods),
         "grid": {axis: list(values) for axis, values in scenario.grid},
         "grid_columns": {axis: axis_column(axis) for axis in scenario.axes},
-        "base": dict(scenario.base), "points": scenario.n_points, "rows": n_rows,
-        "samples_simulated": samples, "elapsed_s": round(elapsed, 3),
-        "failures": dict(failures), "worst_abs_bias_a_pct": worst, "csv": csv_path.name,
+        "base": dict(scenario.base), "points": scenario.n_points, "rows": tally.n_rows,
+        "samples_simulated": tally.samples, "elapsed_s": round(elapsed, 3),
+        "failures": dict(tally.failures), "worst_abs_bias_a_pct": tally.worst, "csv": csv_name,
     }, indent=1), encoding="utf-8")
-    return summary
+    return path
 
 
 def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
-    """Rows of a sweep CSV with numbers parsed (empty cells become nan)."""
+    """Rows of a sweep CSV with numbers parsed (empty cells become nan, ``True``/``False`` bools)."""
     text_cols = {"excitation", "method", "failure_reasons"}
-    rows = []
     with open(path, encoding="utf-8", newline="") as f:
-        for raw in csv.DictReader(f):
-            rows.append({k: (v if k in text_cols else (float(v) if v != "" else math.nan)) for k, v in raw.items()})
-    return rows
+        return [{k: (v if k in text_cols else _parse_cell(v)) for k, v in raw.items()} for raw in csv.DictReader(f)]
+
+
+def _parse_cell(text: str) -> float | bool:
+    if text in ("True", "False"):
+        return text == "True"
+    return float(text) if text != "" else math.nan
 
 
 def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
-    """The PNGs of a sweep: bias and spread against frequency (or, when frequency is not a grid
-    axis, against the first numeric axis) and heatmaps of |bias| of a and b over the first two numeric grid axes (other axes held at
-    their first value)."""
+    """The PNGs of a sweep: bias and spread against frequency and heatmaps of |bias| of a and b.
+
+    The bias plot is against frequency, or when frequency is not a grid axis, against the
+    first numeric axis; the heatmaps span the first two numeric grid axes (other axes held
+    at their first value).
+    """
     from . import plots
     out = Path(out_dir)
     rows = read_sweep_csv(csv_path)
@@ -424,10 +533,10 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a built-in scenario (see --list) or a scenario file")
     parser.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="where sweep.csv, summary.json and the PNGs go (default sweep-output/NAME)")
+                        help="folder for sweep.csv, summary.json and the PNGs (default sweep-output/NAME)")
     parser.add_argument("--workers", type=int, default=None, metavar="N",
                         help="worker processes (default: all cores; 1 runs in this process)")
-    parser.add_argument("--repeats", type=int, default=None, metavar="N",
+    parser.add_argument("--repetitions", type=int, default=None, metavar="N",
                         help="Monte Carlo repetitions per grid point (default: the scenario's)")
     parser.add_argument("--methods", default=None, metavar="all|M,M,...",
                         help="estimators to compare instead of the scenario's (e.g. all, or oe,oe-friction)")
@@ -440,54 +549,63 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_sweep(args: argparse.Namespace) -> int:
     """``motorid sweep``: the CLI glue around :func:`run_scenario`."""
-    from .cli import CommandError
-    from .scenario import builtin_scenarios, load_scenario
+    from .scenario import builtin_scenarios
     if args.list:
         for name, description in builtin_scenarios().items():
             print(f"{name:<16} {description}")
         return 0
-    if not args.scenario:
-        raise CommandError("sweep needs a scenario NAME or FILE.toml (see motorid sweep --list)")
-    if args.workers is not None and args.workers < 1:
-        raise CommandError(f"--workers must be >= 1, got {args.workers}")
-    scenario = load_scenario(args.scenario)
-    if args.repeats is not None:
-        scenario = scenario.with_repetitions(args.repeats)
-    if args.methods is not None:
-        scenario = scenario.with_methods("all" if args.methods == "all"
-                                         else [m.strip() for m in args.methods.split(",") if m.strip()])
+    scenario = _scenario_from_args(args)
     out = Path(args.out or Path("sweep-output") / scenario.name)
-    client = cluster = None
-    executor = None
-    if args.dask:
-        try:
-            from dask.distributed import Client, LocalCluster
-        except ImportError:
-            raise CommandError("--dask needs Dask: pip install 'motorid[dask]'") from None
-        if args.dask == "local":
-            cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1,
-                                   processes=True, dashboard_address=None)
-            client = Client(cluster)
-        else:
-            client = Client(args.dask)
-        executor = client.get_executor()
-    try:
+    with _dask_executor(args.dask, args.workers) as executor:
         summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
                                progress=False if args.quiet else None)
-    finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
     if not args.quiet:
         print(f"{scenario.name}: {scenario.description}")
         print(f"{summary.n_points} points x {len(scenario.methods)} methods x {scenario.repetitions} repetitions, "
               f"{summary.samples_simulated:,} samples simulated in {summary.elapsed:.2f} s\n")
         rows = read_sweep_csv(summary.csv_path)
-        if len(rows) <= 200:
-            print(format_sweep_table(scenario, rows))
-        else:
-            print(f"({len(rows)} rows: see the CSV)")
+        print(format_sweep_table(scenario, rows) if len(rows) <= 200 else f"({len(rows)} rows: see the CSV)")
     paths = [] if args.no_plots else make_plots(scenario, summary.csv_path, out)
     print(f"\nwrote {summary.csv_path}, {summary.json_path}" + "".join(f", {p}" for p in paths))
     return 0
+
+
+def _scenario_from_args(args: argparse.Namespace) -> Scenario:
+    """The scenario the flags name, with ``--repetitions`` and ``--methods`` applied."""
+    from .scenario import load_scenario
+    if not args.scenario:
+        raise CommandError("sweep needs a scenario NAME or FILE.toml (see motorid sweep --list)")
+    if args.workers is not None and args.workers < 1:
+        raise CommandError(f"--workers must be >= 1, got {args.workers}")
+    scenario = load_scenario(args.scenario)
+    if args.repetitions is not None:
+        scenario = scenario.with_repetitions(args.repetitions)
+    if args.methods is not None:
+        scenario = scenario.with_methods("all" if args.methods == "all"
+                                         else [m.strip() for m in args.methods.split(",") if m.strip()])
+    return scenario
+
+
+@contextlib.contextmanager
+def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurrent.futures.Executor | None]:
+    """A Dask client's executor for ``--dask ADDRESS`` (``local``: a LocalCluster), else None."""
+    if not address:
+        yield None
+        return
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError:
+        raise CommandError("--dask needs Dask: pip install 'motorid[dask]'") from None
+    cluster = None
+    if address == "local":
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                               processes=True, dashboard_address=None)
+        client = Client(cluster)
+    else:
+        client = Client(address)
+    try:
+        yield client.get_executor()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

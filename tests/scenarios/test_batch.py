@@ -5,7 +5,7 @@ import pytest
 
 from identify import NotIdentifiableError, fit_euler_ls, fit_zoh_ls
 from motorsim import Constant, Encoder, Experiment, Motor, Recording, SimRig, Sine, simulate
-from scenarios.batch import (BATCHED_METHODS, encoder_counts_batch, fit_batch, simulate_batch, speed_batch)
+from scenarios.batch import BATCHED_METHODS, encoder_counts_batch, fit_batch, simulate_batch, speed_batch
 
 # Noise-free comparisons of the same arithmetic done two ways: agreement to 1e-9 relative
 # (the figure); observed differences are ~1e-13.

@@ -1,6 +1,9 @@
 """The motorid command line, end to end: simulate -> file -> identify --json."""
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -43,7 +46,8 @@ def test_identify_pools_several_files(tmp_path, capsys):
 def test_simulate_excitation_flags(tmp_path, capsys):
     out = tmp_path / "p.csv"
     assert main(["simulate", "--a", "10", "--b", "1", "--duration", "1", "--prbs", "120,-80,7,3",
-                 "--jitter", "0.1", "--drop-rate", "0.01", "--angle-noise", "0.001", "--seed", "4", "--out", str(out)]) == 0
+                 "--jitter", "0.1", "--drop-rate", "0.01", "--angle-noise", "0.001", "--seed", "4",
+                 "--out", str(out)]) == 0
     rec = read_recording(out)
     assert set(rec.duty.tolist()) == {120, -80} and rec.metadata["jitter"] == "0.1"
 
@@ -66,3 +70,12 @@ def test_identify_on_a_constant_input_says_why(tmp_path, capsys):
     main(["simulate", "--a", "25", "--b", "3", "--duration", "1", "--constant", "0", "--out", str(out)])
     assert main(["identify", str(out), "--method", "zoh-ls"]) == 2
     assert "not persistently exciting" in capsys.readouterr().err
+
+
+def test_help_does_not_import_plotting_or_control():
+    # Building the parser loads every command's flags but none of their heavy dependencies.
+    code = ("import sys\nfrom scenarios.cli import build_parser\nbuild_parser()\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'matplotlib', 'control', 'dask'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    assert out.strip() == "[]"

@@ -1,4 +1,4 @@
-"""``motorid identify`` with the issue-3 flags: --json uncertainty, --validate, --report, --delay, --fix-d."""
+"""``motorid identify``: --json uncertainty, --validate, --report, --input-delay, --fix-bias."""
 import json
 
 import pytest
@@ -37,15 +37,15 @@ def test_json_carries_standard_errors_intervals_and_validation(runs, capsys, tmp
 def test_friction_flags_reach_the_estimator(runs, capsys):
     _, test = runs  # the run without dropped samples: one segment keeps the finite differences cheap
     capsys.readouterr()
-    assert main(["identify", str(test), "--method", "oe-friction", "--fix-d", "--delay", "0", "--json"]) == 0
+    assert main(["identify", str(test), "--method", "oe-friction", "--fix-bias", "--input-delay", "0", "--json"]) == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert data["bias"] == 0.0 and "friction_stderr" in data and "bias_stderr" not in data
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--method", "zoh-ls", "--delay", "2"], "--delay is not supported by method 'zoh-ls'"),
-    (["--method", "oe", "--fix-d"], "--fix-d is not supported by method 'oe'"),
-], ids=["delay-zoh-ls", "fix-d-oe"])
+    (["--method", "zoh-ls", "--input-delay", "2"], "--input-delay is not supported by method 'zoh-ls'"),
+    (["--method", "oe", "--fix-bias"], "--fix-bias is not supported by method 'oe'"),
+], ids=["input-delay-zoh-ls", "fix-bias-oe"])
 def test_unsupported_flags_are_user_errors(runs, capsys, argv, message):
     train, _ = runs
     assert main(["identify", str(train), *argv]) == 2
@@ -54,5 +54,5 @@ def test_unsupported_flags_are_user_errors(runs, capsys, argv, message):
 
 def test_bad_delay_value_is_refused(runs, capsys):
     with pytest.raises(SystemExit):
-        main(["identify", str(runs[0]), "--delay", "soon"])
-    assert "--delay must be 'auto' or an integer >= 0, got 'soon'" in capsys.readouterr().err
+        main(["identify", str(runs[0]), "--input-delay", "soon"])
+    assert "--input-delay must be 'auto' or an integer >= 0 (samples), got 'soon'" in capsys.readouterr().err

@@ -10,7 +10,7 @@ from scenarios.cli import main
 
 def test_demo_table_matches_direct_fits_of_its_recordings(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--duration", "2", "--out-dir", str(out), "--no-plots"]) == 0
+    assert main(["demo", "--duration", "2", "--out", str(out), "--no-plots"]) == 0
     text = capsys.readouterr().out
     assert "true a" in text and "eta_4" in text
     table = json.loads((out / "table.json").read_text())
@@ -30,11 +30,11 @@ def test_demo_table_matches_direct_fits_of_its_recordings(tmp_path, capsys):
 
 def test_demo_writes_the_figures(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--duration", "1", "--frequencies", "10,20", "--out-dir", str(out)]) == 0
+    assert main(["demo", "--duration", "1", "--frequencies", "10,20", "--out", str(out)]) == 0
     for name in ("figure_1.png", "figure_2.png", "overlay.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_demo_rejects_unknown_methods(tmp_path, capsys):
-    assert main(["demo", "--methods", "nope", "--out-dir", str(tmp_path)]) == 2
+    assert main(["demo", "--methods", "nope", "--out", str(tmp_path)]) == 2
     assert "--methods must name methods among" in capsys.readouterr().err

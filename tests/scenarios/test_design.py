@@ -54,7 +54,7 @@ def test_bad_input_names_the_parameter(kwargs, match):
 def test_cli_design_prints_the_comparison_and_writes_json_and_png(tmp_path, capsys):
     out = tmp_path / "d"
     assert main(["design", "--a", "25", "--b", "3", "--sample-period", "0.005", "--counts-per-rev", "1024",
-                 "--noise", "1e-3", "--duration", "4", "--out", str(out)]) == 0
+                 "--angle-noise", "1e-3", "--duration", "4", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "recommended:" in text and "200 sin(40 t)" in text
     data = json.loads((out / "design.json").read_text(encoding="utf-8"))

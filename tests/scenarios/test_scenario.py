@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from scenarios.scenario import (ScenarioError, builtin_scenarios, load_scenario, scenario_from_dict)
+from scenarios.scenario import ScenarioError, builtin_scenarios, load_scenario, scenario_from_dict
 
 BASE = {"motor": {"a": 25.0, "b": 3.0}, "bench": {"duration": 1.0}, "excitation": {"frequency": 10.0}}
 

@@ -11,7 +11,7 @@ from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from scenarios.cli import main
 from scenarios.scenario import load_scenario, scenario_from_dict
-from scenarios.sweep import (CSV_COLUMNS, read_sweep_csv, repetition_seed, run_point, run_scenario)
+from scenarios.sweep import CSV_COLUMNS, read_sweep_csv, repetition_seed, run_point, run_scenario
 
 # Small but complete: batchable points (noise) and non-batchable ones (jitter); the two batched
 # estimators and oe, which goes through identify.fit (the slower estimators add time, not cases;
@@ -164,7 +164,7 @@ def test_cli_sweep_lists_runs_and_plots(small, tmp_path, capsys):
     toml = tmp_path / "small.toml"
     toml.write_text(SMALL, encoding="utf-8")
     out = tmp_path / "cli"
-    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repeats", "2",
+    assert main(["sweep", str(toml), "--out", str(out), "--workers", "1", "--repetitions", "2",
                  "--methods", "zoh-ls,oe"]) == 0
     text = capsys.readouterr().out
     assert "8 points x 2 methods x 2 repetitions" in text
@@ -189,6 +189,7 @@ def test_cli_sweep_errors_are_messages(tmp_path, capsys):
 def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order():
     # Bounded memory: the sweep never submits more than `window` points ahead of the one it writes.
     import concurrent.futures
+
     from scenarios import sweep
 
     class Recorder(concurrent.futures.Executor):
@@ -219,11 +220,11 @@ def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order(
 
 def test_run_point_checks_its_arguments(small):
     point = next(small.points())
-    with pytest.raises(ValueError, match="repetitions must be an integer >= 1"):
+    with pytest.raises(ValueError, match="repetitions must be >= 1"):
         run_point(point, ["zoh-ls"], 0, 1)
     with pytest.raises(ValueError, match="methods must be a non-empty list"):
         run_point(point, ["nope"], 2, 1)
     with pytest.raises(TypeError, match="point must be a GridPoint"):
         run_point(point.setting, ["zoh-ls"], 2, 1)
-    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+    with pytest.raises(ValueError, match="workers must be >= 1"):
         run_scenario(small, "unused", workers=0)

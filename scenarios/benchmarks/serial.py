@@ -12,7 +12,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
+from typing import Sequence
 
 import numpy as np
 
@@ -39,7 +41,7 @@ def _stream(n: int, rng: np.random.Generator, corrupt: float = 0.0) -> bytes:
 
 def _decode_rate(data: bytes, chunk: int, repeats: int) -> tuple[float, int, int]:
     from hardware.protocol import FrameReader
-    best = None
+    best = math.inf
     for _ in range(repeats):
         reader = FrameReader()
         n = 0
@@ -47,23 +49,23 @@ def _decode_rate(data: bytes, chunk: int, repeats: int) -> tuple[float, int, int
         for i in range(0, len(data), chunk):
             n += len(reader.feed(data[i:i + chunk]))
         dt = time.perf_counter() - t0
-        best = dt if best is None else min(best, dt)
+        best = min(best, dt)
     return n / best, n, reader.rx_errors
 
 
-def bench_serial(argv: list[str]) -> int:
+def bench_serial(argv: Sequence[str]) -> int:
     """Print the reader's frames/s against the goal and the pty run's losses; exit 1 if a goal is missed."""
     from hardware.fake_device import FakeDevice
     from hardware.serial_rig import SerialRig
-    from motorsim import Encoder, Experiment, Motor, PRBS
+    from motorsim import PRBS, Encoder, Experiment, Motor
 
     p = argparse.ArgumentParser(prog="motorid bench serial")
     p.add_argument("--frames", type=int, default=200_000, help="frames in the decoding test (default 200000)")
-    p.add_argument("--repeats", type=int, default=3, help="decoding repeats, best kept (default 3)")
+    p.add_argument("--repeats", type=int, default=3, help="timings of the decoding, best kept (default 3)")
     p.add_argument("--duration", type=float, default=60.0, help="length of the pty run in s (default 60; 0 skips)")
     p.add_argument("--rate", type=float, default=1000.0, help="sample rate of the pty run in Hz (default 1000)")
-    p.add_argument("--baud", type=int, default=500_000, help="baud rate of the pty run (default 500000)")
-    args = p.parse_args(argv)
+    p.add_argument("--baud", type=int, default=500_000, help="line rate of the pty run in baud (default 500000)")
+    args = p.parse_args(list(argv))
     rng = np.random.default_rng(0)
     ok = True
 

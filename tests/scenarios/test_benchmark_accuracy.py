@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from motorsim.plant import Motor, simulate
-from scenarios.benchmarks_accuracy import bench_accuracy, rk4_angle, rk4_friction_angle
+from scenarios.benchmarks.accuracy import bench_accuracy, rk4_angle, rk4_friction_angle
 
 
 @pytest.mark.parametrize("a, dt, jitter", [(4.0, 0.001, 0.0), (90.0, 0.02, 0.1)], ids=["slow", "fast-jittered"])
@@ -28,7 +28,7 @@ def test_friction_generator_agrees_with_the_event_based_solution():
 
 
 def test_a_small_benchmark_run_meets_the_criteria(capsys):
-    rc = bench_accuracy(["--only", "sines", "--periods", "5", "--counts", "4096", "--poles", "25",
+    rc = bench_accuracy(["--only", "sines", "--sample-periods", "0.005", "--counts", "4096", "--poles", "25",
                          "--ratios", "1", "--samples", "3000"])
     out = capsys.readouterr().out
     assert rc == 0 and "all criteria hold" in out and "worst |oe error|" in out

@@ -3,7 +3,7 @@
 Run from the repository root (it builds what it needs)::
 
     motorid bench firmware                  # everything, ~3 min
-    motorid bench firmware --only encoder   # (or python -m hardware.sim.bench_firmware)
+    motorid bench firmware --only encoder   # (or python -m scenarios.benchmarks.firmware)
 
 Prints Markdown tables (the figures in ``hardware/firmware/README.md`` come from here).
 Every figure is measured under simavr, which is cycle-counted but not cycle-exact for every
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import re
 import subprocess
+from typing import Sequence
 from urllib.parse import urlencode
 
 import numpy as np
@@ -22,7 +23,7 @@ from hardware import protocol as P
 from hardware.sim.device_link import DeviceLink
 from hardware.sim.launcher import build, open_avr_sim
 
-__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "main"]
+__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "bench_firmware"]
 
 _FLASH, _RAM = 32768, 2048
 
@@ -32,9 +33,13 @@ def firmware_size() -> dict[str, int]:
     elf, _ = build()
     out = subprocess.run(["avr-size", "-C", "--mcu=atmega328p", str(elf)], capture_output=True,
                          text=True, check=True).stdout
-    program = int(re.search(r"Program:\s+(\d+)", out).group(1))
-    data = int(re.search(r"Data:\s+(\d+)", out).group(1))
-    return {"flash": program, "ram": data}
+    sizes = {}
+    for key, label in (("flash", "Program"), ("ram", "Data")):
+        found = re.search(label + r":\s+(\d+)", out)
+        if found is None:
+            raise RuntimeError(f"avr-size output must have a {label!r} line, got {out!r}")
+        sizes[key] = int(found.group(1))
+    return sizes
 
 
 def _run(query: dict, config: P.Config, wave, baudrate: int = 250000):
@@ -134,7 +139,7 @@ def emulation_speed(duration: float = 2.0) -> list[dict]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
+def bench_firmware(argv: Sequence[str] | None = None) -> int:
     """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``); returns 0.
 
     Parameters
@@ -143,8 +148,9 @@ def main(argv: list[str] | None = None) -> int:
         ``--only size|link|encoder|speed`` (repeatable).
     """
     parser = argparse.ArgumentParser(prog="motorid bench firmware", description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append")
-    args = parser.parse_args(argv)
+    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append",
+                        help="measure only this (repeatable; default all)")
+    args = parser.parse_args(None if argv is None else list(argv))
     only = set(args.only or ["size", "link", "encoder", "speed"])
     if "size" in only:
         s = firmware_size()
@@ -171,4 +177,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(bench_firmware())

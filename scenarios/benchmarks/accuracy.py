@@ -1,4 +1,4 @@
-"""``motorid bench accuracy``: do the estimators reach the truth?  (issue 3 acceptance)
+"""``motorid bench accuracy``: do the estimators reach the truth?
 
 Recordings come from an integrator that is *not* the estimators' model: classical
 Runge–Kutta 4 with fine sub-steps (``a delta <= 0.02`` per sub-step), the duty
@@ -26,6 +26,7 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import time
 from typing import Sequence
@@ -33,8 +34,10 @@ from typing import Sequence
 import numpy as np
 
 from motorsim.excitation import Multisine, Sine
-from motorsim.rig import jittered_times
 from motorsim.recording import Recording
+from motorsim.rig import jittered_times
+
+from . import median_time
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
 
@@ -125,11 +128,13 @@ def _rk4_branch(a, f, w, dt):
 def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, sample_period: float,
                    counts_per_rev: int, *, rng: np.random.Generator | None = None, drop_rate: float = 0.0,
                    angle_noise: float = 0.0) -> Recording:
-    """Floored counts (optional noise and dropped rows) as a Recording."""
-    noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if angle_noise else 0.0)
+    """Floored counts (optional noise and dropped rows) as a Recording; ``rng`` is needed for either."""
+    if (angle_noise or drop_rate) and rng is None:
+        raise TypeError("rng must be a numpy.random.Generator when angle_noise or drop_rate is set, got None")
+    noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if rng is not None and angle_noise else 0.0)
     counts = np.floor(noisy * counts_per_rev / (2 * math.pi)).astype(np.int64) + 1000
     keep = np.ones(len(angle), bool)
-    if drop_rate:
+    if rng is not None and drop_rate:
         keep[1:] = rng.random(len(angle) - 1) >= drop_rate
     return Recording(time=time_s[keep], duty=duty[keep], sample_period=sample_period, counts=counts[keep],
                      seq=np.flatnonzero(keep), counts_per_rev=counts_per_rev)
@@ -165,8 +170,32 @@ def _fit_or_nan(method, rec, a, b, **kw):
         return math.nan, math.nan
 
 
+def _friction_of(est) -> float:
+    """The fitted Coulomb friction of an oe-friction estimate (rad/s^2)."""
+    return est.extra.get("friction", math.nan)
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:+9.4f}" if math.isfinite(x) else "      n/a"
+
+
+def _sine_case(args, dt: float, cpr: int, a: float, ratio: float, rng) -> tuple[float, ...] | None:
+    """Relative errors of oe (a, b), euler-ls (a), zoh-ls (a), iv (a, b) on one sine, with n and the CRB."""
+    b = _STATIC_GAIN * a
+    f = ratio * a
+    if f * dt >= 0.9 * math.pi:
+        return None
+    exc = Sine(f, 200, 0.3)
+    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                    _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
+    t = jittered_times(n, dt, 0.0, rng)
+    duty = exc.duty(n, dt).astype(float)
+    rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, cpr)
+    ea, eb = _fit_or_nan("oe", rec, a, b)
+    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+    za, _ = _fit_or_nan("zoh-ls", rec, a, b)
+    ia, ib = _fit_or_nan("iv", rec, a, b)
+    return n, crb, ea, eb, ua, za, ia, ib
 
 
 def _section_sines(args, rng) -> tuple[bool, list]:
@@ -175,36 +204,22 @@ def _section_sines(args, rng) -> tuple[bool, list]:
           f"{'euler a':>9} {'zoh-ls a':>9} {'iv a':>9} {'iv b':>9}")
     worst, worst_euler, worst_zoh, worst_iv, rows = 0.0, [], [], [], []
     ok = True
-    for dt in args.periods:
-        for cpr in args.counts:
-            for a in args.poles:
-                b = _STATIC_GAIN * a
-                for ratio in args.ratios:
-                    f = ratio * a
-                    if f * dt >= 0.9 * math.pi:
-                        rows.append((dt, cpr, a, ratio, "above 0.9 Nyquist"))
-                        print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g}      -  (sine above 0.9 x Nyquist, skipped)")
-                        continue
-                    exc = Sine(f, 200, 0.3)
-                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
-                                    _n_samples(dt, f, args.samples), args.crb_target, args.max_samples)
-                    t = jittered_times(n, dt, 0.0, rng)
-                    duty = exc.duty(n, dt).astype(float)
-                    angle = rk4_angle(a, b, duty, t)
-                    rec = make_recording(angle, duty, t, dt, cpr)
-                    ea, eb = _fit_or_nan("oe", rec, a, b)
-                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
-                    za, _ = _fit_or_nan("zoh-ls", rec, a, b)
-                    ia, ib = _fit_or_nan("iv", rec, a, b)
-                    worst_zoh.append(abs(za) if math.isfinite(za) else math.inf)
-                    worst_iv.append(max(abs(ia), abs(ib)) if math.isfinite(ia) else math.inf)
-                    bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
-                    ok &= not bad
-                    worst = max(worst, abs(ea), abs(eb))
-                    if math.isfinite(ua):
-                        worst_euler.append(abs(ua))
-                    print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {n:6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
-                          f"{_pct(ua)} {_pct(za)} {_pct(ia)} {_pct(ib)}" + ("   <-- above 0.1 %" if bad else ""))
+    for dt, cpr, a, ratio in itertools.product(args.sample_periods, args.counts, args.poles, args.ratios):
+        case = _sine_case(args, dt, cpr, a, ratio, rng)
+        if case is None:
+            rows.append((dt, cpr, a, ratio, "above 0.9 Nyquist"))
+            print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g}      -  (sine above 0.9 x Nyquist, skipped)")
+            continue
+        n, crb, ea, eb, ua, za, ia, ib = case
+        worst_zoh.append(abs(za) if math.isfinite(za) else math.inf)
+        worst_iv.append(max(abs(ia), abs(ib)) if math.isfinite(ia) else math.inf)
+        bad = not (abs(ea) <= 1e-3 and abs(eb) <= 1e-3)
+        ok &= not bad
+        worst = max(worst, abs(ea), abs(eb))
+        if math.isfinite(ua):
+            worst_euler.append(abs(ua))
+        print(f"{dt * 1e3:5g} {cpr:6d} {a:4g} {ratio:4g} {int(n):6d} {100 * crb:7.4f}  {_pct(ea)} {_pct(eb)}  "
+              f"{_pct(ua)} {_pct(za)} {_pct(ia)} {_pct(ib)}" + ("   <-- above 0.1 %" if bad else ""))
     print(f"worst |oe error| {100 * worst:.4f} %  (criterion 0.1 %)   "
           f"euler-ls |a error| from {100 * min(worst_euler):.2f} % to {100 * max(worst_euler):.2f} %")
     finite_iv = [x for x in worst_iv if math.isfinite(x)]
@@ -214,42 +229,46 @@ def _section_sines(args, rng) -> tuple[bool, list]:
     return ok, rows
 
 
+def _multisine_case(args, dt: float, cpr: int, a: float, jitter: float, drop: float, rng):
+    """(samples kept, CRB, oe a, oe b, euler-ls a) relative errors on one multisine, or None above Nyquist."""
+    b = _STATIC_GAIN * a
+    freqs = [r * a for r in (0.3, 1.0, 2.0) if r * a * dt < 0.9 * math.pi]
+    if not freqs:
+        return None
+    exc = Multisine(tuple(freqs), (200 // len(freqs) + 20,) * len(freqs), tuple(0.7 * i for i in range(len(freqs))))
+    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
+                    _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
+    t = jittered_times(n, dt, jitter, rng)
+    duty = exc.duty(n, dt).astype(float)
+    rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, cpr, rng=rng, drop_rate=drop)
+    ea, eb = _fit_or_nan("oe", rec, a, b)
+    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
+    return len(rec), crb, ea, eb, ua
+
+
 def _section_multisine(args, rng) -> bool:
     print("\n2. multisines (0.3a, a, 2a below Nyquist), 16667/1200 counts: jitter +-10 % and 1 % dropped samples")
     print(f"{'case':>8} {'dt ms':>5} {'cpr':>6} {'a':>4} {'n':>6} {'CRB':>7}  {'oe a':>9} {'oe b':>9}  {'euler a':>9}")
     ok = True
     worst = {"jitter": 0.0, "drops": 0.0}
     for case, jitter, drop, limit in (("jitter", 0.1, 0.0, 1e-3), ("drops", 0.0, 0.01, 5e-3)):
-        for dt in args.periods:
-            for cpr in (1200, 16667):
-                for a in args.poles:
-                    b = _STATIC_GAIN * a
-                    freqs = [r * a for r in (0.3, 1.0, 2.0) if r * a * dt < 0.9 * math.pi]
-                    if not freqs:
-                        continue
-                    exc = Multisine(tuple(freqs), (200 // len(freqs) + 20,) * len(freqs),
-                                    tuple(0.7 * i for i in range(len(freqs))))
-                    n, crb = _sized(a, b, lambda m: exc.duty(m, dt).astype(float), dt, cpr,
-                                    _n_samples(dt, freqs[0], args.samples), args.crb_target, args.max_samples)
-                    t = jittered_times(n, dt, jitter, rng)
-                    duty = exc.duty(n, dt).astype(float)
-                    angle = rk4_angle(a, b, duty, t)
-                    rec = make_recording(angle, duty, t, dt, cpr, rng=rng, drop_rate=drop)
-                    ea, eb = _fit_or_nan("oe", rec, a, b)
-                    ua, _ = _fit_or_nan("euler-ls", rec, a, b)
-                    bad = not (abs(ea) <= limit and abs(eb) <= limit)
-                    ok &= not bad
-                    worst[case] = max(worst[case], abs(ea), abs(eb))
-                    print(f"{case:>8} {dt * 1e3:5g} {cpr:6d} {a:4g} {len(rec):6d} {100 * crb:7.4f}  "
-                          f"{_pct(ea)} {_pct(eb)}  {_pct(ua)}"
-                          + (f"   <-- above {100 * limit:g} %" if bad else ""))
+        for dt, cpr, a in itertools.product(args.sample_periods, (1200, 16667), args.poles):
+            result = _multisine_case(args, dt, cpr, a, jitter, drop, rng)
+            if result is None:
+                continue
+            n, crb, ea, eb, ua = result
+            bad = not (abs(ea) <= limit and abs(eb) <= limit)
+            ok &= not bad
+            worst[case] = max(worst[case], abs(ea), abs(eb))
+            print(f"{case:>8} {dt * 1e3:5g} {cpr:6d} {a:4g} {n:6d} {100 * crb:7.4f}  "
+                  f"{_pct(ea)} {_pct(eb)}  {_pct(ua)}" + (f"   <-- above {100 * limit:g} %" if bad else ""))
     print(f"worst |oe error|: jitter {100 * worst['jitter']:.4f} % (criterion 0.1 %), "
           f"1 % drops {100 * worst['drops']:.4f} % (criterion 0.5 %)")
     return ok
 
 
 def _section_friction(args, rng) -> bool:
-    from identify import available_methods
+    from identify import available_methods, fit
     if "oe-friction" not in available_methods():
         print("\n3. friction: oe-friction not available in this build")
         return True
@@ -276,7 +295,6 @@ def _section_friction(args, rng) -> bool:
                                         dead_zone=dz)
             for j, (a_, b_, c_, dz_, label, duty) in enumerate(sub):
                 rec = make_recording(angles[:, j], duty, t, dt, cpr)
-                from identify import fit
                 fr = fit(rec, method="oe-friction")
                 fa, fb = _rel(fr, a_, b_)
                 oa, ob = _fit_or_nan("oe", rec, a_, b_)
@@ -285,28 +303,28 @@ def _section_friction(args, rng) -> bool:
                 worst_fr = max(worst_fr, abs(fa), abs(fb))
                 worst_oe = max(worst_oe, abs(oa), abs(ob)) if math.isfinite(oa) else worst_oe
                 print(f"{a_:4g} {c_:6.2f} {dz_:4g} {label:>10}  {_pct(fa)} {_pct(fb)}  {_pct(oa)} {_pct(ob)}"
-                      f"  {fr.extra.get('friction', math.nan):8.3f}" + ("   <-- above 2 %" if bad else ""))
+                      f"  {_friction_of(fr):8.3f}" + ("   <-- above 2 %" if bad else ""))
     print(f"worst |error|: oe-friction {100 * worst_fr:.3f} % (criterion 2 %), oe {100 * worst_oe:.2f} %")
     return ok
 
 
 def _section_monte_carlo(args) -> bool:
     from identify import NotIdentifiableError, cramer_rao_bound, fit
-    a, b, dt, cpr, noise = 25.0, 3.0, 0.005, 16667, args.noise
+    a, b, dt, cpr, noise = 25.0, 3.0, 0.005, 16667, args.angle_noise
     n = args.samples
     duty = Multisine((0.3 * a, a, 2 * a), (90, 90, 90), (0.0, 0.7, 1.4)).duty(n, dt).astype(float)
     t = np.arange(n) * dt
     angle = rk4_angle(a, b, duty, t)
     crb = cramer_rao_bound(a, b, duty, dt, counts_per_rev=cpr, angle_noise=noise).stderr()
-    est = []
-    for child in np.random.SeedSequence(args.seed).spawn(args.runs):
+    rows = []
+    for child in np.random.SeedSequence(args.seed).spawn(args.repetitions):
         rng = np.random.default_rng(child)
         try:
-            e = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
-            est.append((e.a, e.b, e.stderr()["a"], e.stderr()["b"]))
+            fitted = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
+            rows.append((fitted.a, fitted.b, fitted.stderr()["a"], fitted.stderr()["b"]))
         except NotIdentifiableError:
             pass
-    e = np.array(est)
+    e = np.array(rows)
     sd = e[:, :2].std(axis=0, ddof=1)
     bias = e[:, :2].mean(axis=0) - (a, b)
     rep = e[:, 2:].mean(axis=0)
@@ -330,7 +348,7 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
 
     from identify import fit_zoh_ls
     from identify.sensitivity import zoh_response
-    y = recording.measured_angle()
+    y = np.asarray(recording.measured_angle())
     t, u = recording.time, recording.duty
     start = fit_zoh_ls(recording)
 
@@ -342,11 +360,28 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
     return float(res.x[0]), float(res.x[1])
 
 
-def _section_timing(args) -> None:
+def _time_fits(rec: Recording, repeats: int) -> str:
+    """One line: oe's fit time against its finite-difference and plain baselines, zoh-ls and iv."""
     from identify import fit_zoh_ls
     from identify.instrumental import fit_instrumental_variables
     from identify.output_error import fit_output_error
-    from scenarios.bench import median_time
+    t_an = median_time(lambda: fit_output_error(rec), repeats)
+    t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), repeats)
+    t_ls = median_time(lambda: fit_zoh_ls(rec), repeats)
+    t_iv = median_time(lambda: fit_instrumental_variables(rec), repeats)
+    if rec.has_gaps:
+        plain = "(b) n/a: one gap-free run only"
+    else:
+        ours = fit_output_error(rec)
+        naive = naive_output_error(rec)
+        agree = max(abs(naive[0] / ours.a - 1), abs(naive[1] / ours.b - 1))
+        t_nv = median_time(lambda: naive_output_error(rec), repeats)
+        plain = f"(b) {t_nv * 1e3:6.1f} ms, ratio {t_nv / t_an:4.2f} x, same a, b to {agree:.0e}"
+    return (f"oe {t_an * 1e3:6.1f} ms | (a) {t_fd * 1e3:6.1f} ms, ratio {t_fd / t_an:4.2f} x | "
+            f"{plain} | zoh-ls {t_ls * 1e3:.1f} ms, iv {t_iv * 1e3:.1f} ms")
+
+
+def _section_timing(args) -> None:
     a, b, dt, n = 25.0, 3.0, 0.005, 10_000
     rng = np.random.default_rng(args.seed)
     duty = Sine(10.0, 200).duty(n, dt).astype(float)
@@ -356,20 +391,7 @@ def _section_timing(args) -> None:
                                 ("1 % drops", 0.1, 0.01)):
         t = jittered_times(n, dt, jitter, rng)
         rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667, rng=rng, drop_rate=drop)
-        t_an = median_time(lambda: fit_output_error(rec), args.repeats)
-        t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), args.repeats)
-        t_ls = median_time(lambda: fit_zoh_ls(rec), args.repeats)
-        t_iv = median_time(lambda: fit_instrumental_variables(rec), args.repeats)
-        if rec.has_gaps:
-            plain = "(b) n/a: one gap-free run only"
-        else:
-            ours = fit_output_error(rec)
-            naive = naive_output_error(rec)
-            agree = max(abs(naive[0] / ours.a - 1), abs(naive[1] / ours.b - 1))
-            t_nv = median_time(lambda: naive_output_error(rec), args.repeats)
-            plain = f"(b) {t_nv * 1e3:6.1f} ms, ratio {t_nv / t_an:4.2f} x, same a, b to {agree:.0e}"
-        print(f"{label:>14}: oe {t_an * 1e3:6.1f} ms | (a) {t_fd * 1e3:6.1f} ms, ratio {t_fd / t_an:4.2f} x | "
-              f"{plain} | zoh-ls {t_ls * 1e3:.1f} ms, iv {t_iv * 1e3:.1f} ms")
+        print(f"{label:>14}: {_time_fits(rec, args.repeats)}")
 
 
 def _generator_check(rng) -> float:
@@ -386,26 +408,48 @@ def _generator_check(rng) -> float:
     return worst
 
 
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",")]
+
+
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",")]
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="motorid bench accuracy", description=(__doc__ or "").split("\n\n")[0])
+    p.add_argument("--sample-periods", type=_floats, default=[0.001, 0.002, 0.005, 0.01, 0.02], metavar="S,S,...",
+                   help="sample periods in s, comma-separated (default 0.001,0.002,0.005,0.01,0.02)")
+    p.add_argument("--counts", type=_ints, default=[1200, 4096, 16667], metavar="N,N,...",
+                   help="encoder resolutions in counts/rev, comma-separated (default 1200,4096,16667)")
+    p.add_argument("--poles", type=_floats, default=[4.0, 25.0, 90.0], metavar="A,A,...",
+                   help="poles a in 1/s, comma-separated (default 4,25,90)")
+    p.add_argument("--ratios", type=_floats, default=[0.3, 1.0, 2.0], metavar="R,R,...",
+                   help="sine frequency / a, dimensionless, comma-separated (default 0.3,1,2)")
+    p.add_argument("--samples", type=int, default=10_000, metavar="N",
+                   help="minimum samples per recording (default 10000)")
+    p.add_argument("--crb-target", type=float, default=2.5e-4, metavar="X",
+                   help="lengthen a run until its relative CRB of a and b is at most this fraction "
+                        "(default 2.5e-4, i.e. 0.025 %%)")
+    p.add_argument("--max-samples", type=int, default=100_000, metavar="N",
+                   help="longest run when lengthening, samples (default 100000)")
+    p.add_argument("--friction-samples", type=int, default=4000, metavar="N",
+                   help="samples per friction run (default 4000)")
+    p.add_argument("--repetitions", type=int, default=200, metavar="N",
+                   help="Monte Carlo repetitions (default 200)")
+    p.add_argument("--angle-noise", type=float, default=2e-3, metavar="RAD",
+                   help="Monte Carlo angle noise in rad (default 0.002)")
+    p.add_argument("--repeats", type=int, default=15, metavar="N",
+                   help="timings of each fit to take the median of (default 15)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None,
+                   help="run one section only (default all)")
+    return p.parse_args(list(argv))
+
+
 def bench_accuracy(argv: Sequence[str]) -> int:
     """Run the accuracy benchmark; exit status 0 when every criterion holds."""
-    p = argparse.ArgumentParser(prog="motorid bench accuracy", description=__doc__.split("\n\n")[0])
-    p.add_argument("--periods", type=lambda s: [float(x) / 1e3 for x in s.split(",")],
-                   default=[0.001, 0.002, 0.005, 0.01, 0.02], help="sample periods in ms, comma-separated")
-    p.add_argument("--counts", type=lambda s: [int(x) for x in s.split(",")], default=[1200, 4096, 16667])
-    p.add_argument("--poles", type=lambda s: [float(x) for x in s.split(",")], default=[4.0, 25.0, 90.0])
-    p.add_argument("--ratios", type=lambda s: [float(x) for x in s.split(",")], default=[0.3, 1.0, 2.0],
-                   help="sine frequency / a")
-    p.add_argument("--samples", type=int, default=10_000, help="minimum samples per recording")
-    p.add_argument("--crb-target", type=float, default=2.5e-4,
-                   help="lengthen a run until its relative CRB of a and b is at most this (default 0.025 %%)")
-    p.add_argument("--max-samples", type=int, default=100_000)
-    p.add_argument("--friction-samples", type=int, default=4000)
-    p.add_argument("--runs", type=int, default=200, help="Monte Carlo runs")
-    p.add_argument("--noise", type=float, default=2e-3, help="Monte Carlo angle noise, rad")
-    p.add_argument("--repeats", type=int, default=15)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None)
-    args = p.parse_args(list(argv))
+    args = _parse(argv)
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     print(f"generator: RK4 sub-steps (a*delta <= {_SUBSTEP_AD}); largest relative difference from the exact "

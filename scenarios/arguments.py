@@ -1,0 +1,112 @@
+"""Command-line pieces every ``motorid`` command shares: bench and experiment flags, errors, messages on stderr.
+
+The flags of the simulated bench and of an experiment are derived from the bench knobs
+(:func:`motorsim.rig.bench_knobs`): each knob ``name`` is the flag ``--name`` with its unit
+and default in the help text, so a knob added to ``Motor``, ``Encoder``, ``SimRig`` or
+``Experiment`` is a flag of ``motorid simulate`` and ``motorid demo`` without a change here.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any, Callable
+
+import numpy as np
+
+from motorsim.excitation import parse_excitation
+from motorsim.knobs import Knob, knobs_of
+from motorsim.plant import Motor
+from motorsim.rig import Experiment, SimRig
+from motorsim.sensors import Encoder
+
+__all__ = ["CommandError", "print_to_stderr", "add_knob_flag", "add_bench_arguments", "sim_rig_from_args",
+           "add_experiment_arguments", "experiment_from_args", "EXCITATION_FLAGS"]
+
+
+class CommandError(Exception):
+    """A user-facing error: printed as ``motorid: error: ...``, exit status 2."""
+
+
+def print_to_stderr(*parts: Any, end: str = "\n") -> None:
+    """Print to standard error and flush (progress lines, warnings)."""
+    print(*parts, end=end, file=sys.stderr, flush=True)
+
+
+def _flag_type(k: Knob) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            return k.parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    parse.__name__ = k.name
+    return parse
+
+
+def add_knob_flag(group: Any, k: Knob, default: Any = None) -> None:
+    """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own)."""
+    value = k.default if default is None else default
+    help_ = k.describe() if default is None else f"{k.help}{f' [{k.unit}]' if k.unit else ''} (default {value!r})"
+    if k.kind is bool:
+        group.add_argument(k.flag, dest=k.name, action="store_true", help=k.describe())
+    elif k.required and default is None:
+        group.add_argument(k.flag, dest=k.name, type=_flag_type(k), required=True, help=help_)
+    else:
+        group.add_argument(k.flag, dest=k.name, type=_flag_type(k), default=value, help=help_)
+
+
+def _values(args: argparse.Namespace, cls: type) -> dict[str, Any]:
+    return {k.name: getattr(args, k.name) for k in knobs_of(cls)}
+
+
+def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+    """Flags of the simulated bench: every knob of Motor, Encoder and SimRig, and ``--seed``.
+
+    ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional).
+    """
+    g = parser.add_argument_group("simulated bench")
+    for cls in (Motor, Encoder, SimRig):
+        for k in knobs_of(cls):
+            add_knob_flag(g, k, defaults.get(k.name))
+    g.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+
+
+def sim_rig_from_args(args: argparse.Namespace) -> SimRig:
+    """The SimRig the bench flags describe."""
+    return SimRig(Motor(**_values(args, Motor)), Encoder(**_values(args, Encoder)), **_values(args, SimRig),
+                  rng=np.random.default_rng(args.seed))
+
+
+#: Excitation flags: ``--NAME ARGS`` is the same as ``--excitation NAME:ARGS``.
+EXCITATION_FLAGS = {
+    "sine": "FREQ[,AMP[,PHASE]]: the article's A sin(omega t + alpha); FREQ in rad/s, AMP in duty "
+            "(default 200), PHASE in rad",
+    "multisine": "F,A,P;F,A,P...: up to 4 sines (rad/s, duty, rad)",
+    "chirp": "F0,F1[,AMP]: linear chirp from F0 to F1 rad/s, AMP in duty",
+    "prbs": "HIGH,LOW[,ORDER[,HOLD[,SEED]]]: maximal-length PRBS between two duties, each bit held HOLD samples",
+    "step": "AFTER[,AT_TIME[,BEFORE]]: step of the duty at AT_TIME s",
+    "constant": "LEVEL: constant duty",
+}
+
+
+def add_experiment_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+    """Flags of an :class:`~motorsim.rig.Experiment`: its knobs and the excitation.
+
+    ``defaults`` give defaults to knobs by name (``duration=60.0``).
+    """
+    g = parser.add_argument_group("experiment")
+    for k in knobs_of(Experiment):
+        add_knob_flag(g, k, defaults.get(k.name))
+    ex = g.add_mutually_exclusive_group()
+    for name, help_ in EXCITATION_FLAGS.items():
+        ex.add_argument(f"--{name}", metavar="ARGS", help=help_)
+    ex.add_argument("--excitation", metavar="KIND:ARGS",
+                    help="any excitation as KIND:ARGS, e.g. sine:10,200 (default sine:10,200,0)")
+
+
+def experiment_from_args(args: argparse.Namespace) -> Experiment:
+    """The Experiment the flags describe (default: the article's 200 sin(10 t))."""
+    spec = args.excitation
+    for name in EXCITATION_FLAGS:
+        if getattr(args, name, None):
+            spec = f"{name}:{getattr(args, name)}"
+    return Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))

@@ -1,0 +1,93 @@
+"""``motorid bench sweep``: the sweeps' batch engine against a per-run python-control loop, same workload.
+
+Workload: ``--repetitions`` runs of ``--samples`` samples, run r driven by
+``200 sin(10 t + alpha_r)`` with its own phase (so no run repeats another), simulated,
+read by the 16667-count encoder and fitted with ``euler-ls`` and ``zoh-ls``.  The
+baseline is the naive loop: ``control.forced_response`` of ``Motor.discretise(dt)``,
+``floor`` to counts, differencing and ``numpy.linalg.lstsq`` per run.  Both produce
+every estimate; they must agree to 1e-9 relative (exit status 1 otherwise).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from typing import Sequence
+
+import numpy as np
+
+from motorsim.excitation import Sine
+from motorsim.plant import Motor
+
+from ..batch import encoder_counts_batch, fit_batch, simulate_batch, speed_batch
+from . import median_time
+
+__all__ = ["bench_sweep", "python_control_loop"]
+
+_METHODS = ("euler-ls", "zoh-ls")
+
+
+def python_control_loop(motor: Motor, duty: np.ndarray, sample_period: float, counts_per_rev: int) -> np.ndarray:
+    """The baseline: per run, ``control.forced_response``, floored counts, differencing, ``lstsq``.
+
+    Returns
+    -------
+    ndarray, shape (runs, 4)
+        ``euler-ls`` a, b and ``zoh-ls`` a, b of each row of ``duty``.
+    """
+    import control
+    dt, cpr = sample_period, counts_per_rev
+    sysd = motor.discretise(dt)
+    out = np.empty((len(duty), 4))
+    for r, row in enumerate(duty):
+        resp = control.forced_response(sysd, U=row)
+        counts = np.floor(resp.outputs[0] * (cpr / (2 * math.pi)))
+        speed = np.diff(counts * (2 * math.pi / cpr)) / dt
+        A = np.column_stack([speed[:-1], row[1:-1]])
+        (t1, t2), *_ = np.linalg.lstsq(A, speed[1:], rcond=None)
+        a_zoh = -math.log(t1) / dt
+        out[r] = (1 - t1) / dt, t2 / dt, a_zoh, a_zoh * t2 / (1 - t1)
+    return out
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="motorid bench sweep", description=__doc__.splitlines()[0])
+    p.add_argument("--repetitions", type=int, default=200, metavar="N",
+                   help="runs, each with its own phase (default 200)")
+    p.add_argument("--samples", type=int, default=10_000, metavar="N", help="samples per run (default 10000)")
+    p.add_argument("--repeats", type=int, default=5, metavar="N",
+                   help="timings of the batch engine to take the median of (default 5)")
+    args = p.parse_args(list(argv))
+    if args.repetitions < 1 or args.samples < 10 or args.repeats < 1:
+        p.error(f"--repetitions must be >= 1, --samples >= 10 and --repeats >= 1, got {args.repetitions}, "
+                f"{args.samples}, {args.repeats}")
+    return args
+
+
+def bench_sweep(argv: Sequence[str]) -> int:
+    """Time the batch engine and the loop on the same workload; exit 1 if their estimates differ."""
+    args = _parse(argv)
+    motor, dt, cpr, n, runs = Motor(25.0, 3.0), 0.005, 16667, args.samples, args.repetitions
+    phases = np.linspace(0.0, 2 * math.pi, runs, endpoint=False)
+    duty = np.stack([Sine(10.0, 200, ph).duty(n, dt) for ph in phases]).astype(float)
+
+    def batch():
+        angle, _ = simulate_batch(motor, duty, dt)
+        counts = encoder_counts_batch(angle, cpr)
+        return fit_batch(_METHODS, speed_batch(counts, cpr, dt), duty, dt)
+
+    t_batch = median_time(batch, args.repeats)
+    fits = batch()
+    t0 = time.perf_counter()
+    ref = python_control_loop(motor, duty, dt, cpr)
+    t_loop = time.perf_counter() - t0
+    ours = np.column_stack([fits["euler-ls"].a, fits["euler-ls"].b, fits["zoh-ls"].a, fits["zoh-ls"].b])
+    diff = float(np.max(np.abs(ours - ref) / np.abs(ref)))
+    total = runs * n
+    print(f"workload                 {runs} runs x {n} samples: simulate + encoder + euler-ls + zoh-ls")
+    print(f"max relative difference  {diff:.2e}  (all {4 * runs} estimates)")
+    print(f"batch engine             {total / t_batch / 1e6:10.2f} M samples/s  ({t_batch * 1e3:.1f} ms, "
+          f"median of {args.repeats})")
+    print(f"python-control loop      {total / t_loop / 1e6:10.2f} M samples/s  ({t_loop * 1e3:.0f} ms)")
+    print(f"ratio                    {t_loop / t_batch:10.1f} x")
+    return 0 if diff < 1e-9 else 1
