@@ -1,4 +1,4 @@
-"""Markers set in one place: ``slow`` and ``firmware`` by test id.
+"""Markers set in one place (``slow`` and ``firmware``, by test id), and the ``motorid`` parsers.
 
 ``make test-fast`` runs ``pytest -m "not slow and not firmware"``.  A test is ``slow`` when it
 takes over about 1.5 s on its own (``pytest --durations=40``); it is listed in :data:`SLOW`
@@ -13,10 +13,18 @@ the fast subset slower.
 """
 from __future__ import annotations
 
+import argparse
+import importlib
 import re
+import sys
 from pathlib import Path
 
 import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -65,3 +73,71 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if test_id in FIRMWARE:
             item.add_marker(pytest.mark.firmware)
+
+
+class _ParserFound(Exception):
+    """Carries the parser whose ``parse_known_args`` was called first."""
+
+
+def _subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            seen = set()
+            for name, sub in action.choices.items():
+                if id(sub) not in seen:          # an alias maps to the same parser
+                    seen.add(id(sub))
+                    yield from _subcommands(sub, path + (name,))
+
+
+def _parser_of(main, argv: list[str], known: list[argparse.ArgumentParser]) -> argparse.ArgumentParser | None:
+    """The first parser that ``main(argv)`` asks to parse whose ``prog`` is not one of ``known``'s, or None.
+
+    ``main`` may build its parsers anew on each call, so they are told apart by ``prog``.
+    """
+    progs = {parser.prog for parser in known}
+    original = argparse.ArgumentParser.parse_known_args
+
+    def catch(self, args=None, namespace=None):
+        if self.prog in progs:
+            return original(self, args, namespace)
+        raise _ParserFound(self)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(argparse.ArgumentParser, "parse_known_args", catch)
+        try:
+            main(argv)
+        except _ParserFound as found:
+            return found.args[0]
+        except SystemExit:
+            return None
+    return None
+
+
+def _dispatched_names(parser: argparse.ArgumentParser) -> list[str]:
+    """Choices of a positional that hands the rest of the line (``REMAINDER``) to its own parser."""
+    positionals = [a for a in parser._actions if not a.option_strings]
+    if not any(a.nargs == argparse.REMAINDER for a in positionals):
+        return []
+    return [str(c) for a in positionals if a.choices and a.nargs != argparse.REMAINDER for c in a.choices]
+
+
+@pytest.fixture(scope="session")
+def motorid_commands() -> dict[tuple[str, ...], argparse.ArgumentParser]:
+    """Every parser of the ``motorid`` console script by command path (``()``, ``("bench", "sweep")``).
+
+    The entry point is read from pyproject.toml and each parser caught when ``main`` parses its
+    arguments (``--help``), so the tests do not depend on how the CLI builds its parsers: the
+    sub-parsers, and the parsers of commands such as ``bench NAME`` that parse their own flags.
+    """
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]
+    module_name, _, attr = scripts["motorid"].partition(":")
+    main = getattr(importlib.import_module(module_name), attr)
+    top = _parser_of(main, ["--help"], [])
+    assert top is not None, f"{scripts['motorid']} parsed no arguments"
+    commands = dict(_subcommands(top))
+    for path, parser in list(commands.items()):
+        for name in _dispatched_names(parser):
+            inner = _parser_of(main, [*path, name, "--help"], list(commands.values()))
+            if inner is not None:
+                commands.update(_subcommands(inner, path + (name,)))
+    return commands
