@@ -72,8 +72,10 @@ def device_only_keys() -> dict[str, set[str]]:
     """URL keys the guide lists as device-only, by scheme."""
     keys: dict[str, set[str]] = {}
     for row in guide_table("Device URL keys"):
+        key = row.code("key")
+        assert key, f"docs/develop.md: device URL keys row without a key: {row.cells}"
         for scheme in re.findall(r"`(\w[\w-]*)://`", row.cells["schemes"]):
-            keys.setdefault(scheme, set()).add(row.code("key"))
+            keys.setdefault(scheme, set()).add(key)
     return keys
 
 
