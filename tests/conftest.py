@@ -2,14 +2,13 @@
 
 ``make test-fast`` runs ``pytest -m "not slow and not firmware"``.  A test is ``slow`` when it
 takes over about 1.5 s on its own (``pytest --durations=40``); it is listed in :data:`SLOW`
-with what makes it slow.  Tests that start the AVR emulator are ``firmware``: the module
-``tests/hardware/test_firmware_emulation.py`` marks itself; :data:`FIRMWARE` lists those
-elsewhere.  A test may also carry ``@pytest.mark.slow`` itself; the lists here keep the test
-files untouched.
+with what makes it slow.  Tests that start the AVR emulator are ``firmware``, listed in
+:data:`FIRMWARE`.  A test may also carry the marker itself (a module ``pytestmark``); the
+lists here keep the test files untouched.
 
-An entry names ``path::function`` (every parametrisation of it).  An entry whose function
-no longer exists in its file stops the collection, so a renamed test cannot silently leave
-the fast subset slower.
+An entry names ``path::function`` (every parametrisation of it) or a whole ``path``.  An
+entry whose file or function no longer exists stops the collection, so a renamed test cannot
+silently leave the fast subset slower.
 """
 from __future__ import annotations
 
@@ -44,8 +43,9 @@ SLOW = {
         "2.3 s: 80 hypothesis examples",
 }
 
-#: test id -> which part of the emulator it needs (outside tests/hardware/test_firmware_emulation.py)
+#: test id or module -> what it runs under the emulator
 FIRMWARE = {
+    "tests/hardware/test_firmware_emulation.py": "the firmware ELF under simavr, frame by frame",
     "tests/scenarios/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
         "motorid live on avr-sim://",
 }
@@ -57,8 +57,10 @@ def _check_entries(entries: dict[str, str], marker: str) -> None:
         path, _, function = test_id.partition("::")
         file = ROOT / path
         text = file.read_text(encoding="utf-8") if file.is_file() else ""
+        if not function and text:
+            continue
         if not re.search(rf"^\s*(async\s+)?def {re.escape(function)}\(", text, re.MULTILINE):
-            raise pytest.UsageError(f"tests/conftest.py: {marker} entry {test_id!r} names no test function; "
+            raise pytest.UsageError(f"tests/conftest.py: {marker} entry {test_id!r} names no test file or function; "
                                     "update the list after renaming or moving a test")
 
 
@@ -69,9 +71,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         path = Path(str(item.path)).resolve().relative_to(ROOT).as_posix()
         test_id = f"{path}::{item.originalname}" if isinstance(item, pytest.Function) else item.nodeid
-        if test_id in SLOW:
+        if test_id in SLOW or path in SLOW:
             item.add_marker(pytest.mark.slow)
-        if test_id in FIRMWARE:
+        if test_id in FIRMWARE or path in FIRMWARE:
             item.add_marker(pytest.mark.firmware)
 
 
