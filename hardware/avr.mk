@@ -1,7 +1,7 @@
 # Firmware and AVR-emulation targets, included by the top-level Makefile.
 #   make firmware       hardware/firmware/build/motorid_bench.{elf,hex} (gcc-avr + Debian's Arduino core)
 #   make avr-sim        hardware/sim/build/motorid-avr-sim (libsimavr harness)
-#   make firmware-deps  apt-get install the Debian packages, only those missing
+#   make firmware-deps  apt-get install the Debian packages, only those missing (sudo when not root)
 # firmware and avr-sim run firmware-deps first; FIRMWARE_DEPS= (empty) skips it, as the Python
 # launcher does (it reports missing tools instead of installing packages).
 # FIRMWARE_DEFS adds -D settings (e.g. FIRMWARE_DEFS=-DBAUD_RATE=500000 FIRMWARE_BUILD=...).
@@ -28,12 +28,16 @@ FIRMWARE_DEPS  ?= firmware-deps
 
 .PHONY: firmware avr-sim firmware-deps firmware-size
 
+# Debian/Ubuntu only; as root (as in CI) or through sudo. Installs nothing when all are present.
 firmware-deps:
 	@missing=""; for p in $(AVR_PACKAGES); do \
 	  dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
+	  if ! command -v apt-get >/dev/null 2>&1; then \
+	    echo "firmware-deps: apt-get not found; install the equivalents of:$$missing" >&2; exit 1; fi; \
+	  sudo=""; [ "$$(id -u)" = 0 ] || sudo="sudo"; \
 	  echo "installing:$$missing"; \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
+	  $$sudo apt-get update -qq && $$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
 	fi
 
 firmware: $(FIRMWARE_DEPS)

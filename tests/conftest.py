@@ -1,0 +1,145 @@
+"""Markers set in one place (``slow`` and ``firmware``, by test id), and the ``motorid`` parsers.
+
+``make test-fast`` runs ``pytest -m "not slow and not firmware"``.  A test is ``slow`` when it
+takes over about 1.5 s on its own (``pytest --durations=40``); it is listed in :data:`SLOW`
+with what makes it slow.  Tests that start the AVR emulator are ``firmware``, listed in
+:data:`FIRMWARE`.  A test may also carry the marker itself (a module ``pytestmark``); the
+lists here keep the test files untouched.
+
+An entry names ``path::function`` (every parametrisation of it) or a whole ``path``.  An
+entry whose file or function no longer exists stops the collection, so a renamed test cannot
+silently leave the fast subset slower.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: test id -> why it is slow (seconds measured alone on a 2-core machine)
+SLOW = {
+    "tests/scenarios/test_sweep.py::test_same_csv_from_one_worker_two_processes_and_dask":
+        "12 s: starts worker processes and a local Dask cluster",
+    "tests/scenarios/test_sweep.py::test_cli_sweep_lists_runs_and_plots": "1.5 s: a sweep with its figures",
+    "tests/scenarios/test_demo.py::test_demo_table_matches_direct_fits_of_its_recordings":
+        "4.5 s: the whole demo, oe-friction included",
+    "tests/scenarios/test_demo.py::test_demo_writes_the_figures": "1.5 s: the demo's figures",
+    "tests/identify/test_output_error.py::test_unstable_data_is_refused_with_theta1":
+        "4.5 s: a long reference integration",
+    "tests/motorsim/test_plant.py::test_nonuniform_time_equals_matrix_exponential_per_interval":
+        "2.9 s: one matrix exponential per interval",
+    "tests/hardware/test_serial_rig_fuzz.py::test_fuzz_any_corruption_gives_true_rows_or_a_typed_error":
+        "2.3 s: 80 hypothesis examples",
+}
+
+#: test id or module -> what it runs under the emulator
+FIRMWARE = {
+    "tests/hardware/test_firmware_emulation.py": "the firmware ELF under simavr, frame by frame",
+    "tests/scenarios/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
+        "motorid live on avr-sim://",
+}
+
+
+def _check_entries(entries: dict[str, str], marker: str) -> None:
+    """Stop the run when an entry names a file or a test function that does not exist."""
+    for test_id in entries:
+        path, _, function = test_id.partition("::")
+        file = ROOT / path
+        text = file.read_text(encoding="utf-8") if file.is_file() else ""
+        if not function and text:
+            continue
+        if not re.search(rf"^\s*(async\s+)?def {re.escape(function)}\(", text, re.MULTILINE):
+            raise pytest.UsageError(f"tests/conftest.py: {marker} entry {test_id!r} names no test file or function; "
+                                    "update the list after renaming or moving a test")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Add the ``slow`` and ``firmware`` markers to the tests listed above."""
+    _check_entries(SLOW, "slow")
+    _check_entries(FIRMWARE, "firmware")
+    for item in items:
+        path = Path(str(item.path)).resolve().relative_to(ROOT).as_posix()
+        test_id = f"{path}::{item.originalname}" if isinstance(item, pytest.Function) else item.nodeid
+        if test_id in SLOW or path in SLOW:
+            item.add_marker(pytest.mark.slow)
+        if test_id in FIRMWARE or path in FIRMWARE:
+            item.add_marker(pytest.mark.firmware)
+
+
+class _ParserFound(Exception):
+    """Carries the parser whose ``parse_known_args`` was called first."""
+
+
+def _subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            seen = set()
+            for name, sub in action.choices.items():
+                if id(sub) not in seen:          # an alias maps to the same parser
+                    seen.add(id(sub))
+                    yield from _subcommands(sub, path + (name,))
+
+
+def _parser_of(main, argv: list[str], known: list[argparse.ArgumentParser]) -> argparse.ArgumentParser | None:
+    """The first parser that ``main(argv)`` asks to parse whose ``prog`` is not one of ``known``'s, or None.
+
+    ``main`` may build its parsers anew on each call, so they are told apart by ``prog``.
+    """
+    progs = {parser.prog for parser in known}
+    original = argparse.ArgumentParser.parse_known_args
+
+    def catch(self, args=None, namespace=None):
+        if self.prog in progs:
+            return original(self, args, namespace)
+        raise _ParserFound(self)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(argparse.ArgumentParser, "parse_known_args", catch)
+        try:
+            main(argv)
+        except _ParserFound as found:
+            return found.args[0]
+        except SystemExit:
+            return None
+    return None
+
+
+def _dispatched_names(parser: argparse.ArgumentParser) -> list[str]:
+    """Choices of a positional that hands the rest of the line (``REMAINDER``) to its own parser."""
+    positionals = [a for a in parser._actions if not a.option_strings]
+    if not any(a.nargs == argparse.REMAINDER for a in positionals):
+        return []
+    return [str(c) for a in positionals if a.choices and a.nargs != argparse.REMAINDER for c in a.choices]
+
+
+@pytest.fixture(scope="session")
+def motorid_commands() -> dict[tuple[str, ...], argparse.ArgumentParser]:
+    """Every parser of the ``motorid`` console script by command path (``()``, ``("bench", "sweep")``).
+
+    The entry point is read from pyproject.toml and each parser caught when ``main`` parses its
+    arguments (``--help``), so the tests do not depend on how the CLI builds its parsers: the
+    sub-parsers, and the parsers of commands such as ``bench NAME`` that parse their own flags.
+    """
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]
+    module_name, _, attr = scripts["motorid"].partition(":")
+    main = getattr(importlib.import_module(module_name), attr)
+    top = _parser_of(main, ["--help"], [])
+    assert top is not None, f"{scripts['motorid']} parsed no arguments"
+    commands = dict(_subcommands(top))
+    for path, parser in list(commands.items()):
+        for name in _dispatched_names(parser):
+            inner = _parser_of(main, [*path, name, "--help"], list(commands.values()))
+            if inner is not None:
+                commands.update(_subcommands(inner, path + (name,)))
+    return commands
