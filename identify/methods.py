@@ -8,7 +8,6 @@ it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration
 from __future__ import annotations
 
 import inspect
-
 from typing import Any, Callable
 
 from motorsim.recording import Recording

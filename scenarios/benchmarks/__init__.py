@@ -17,23 +17,9 @@ and one entry.
 from __future__ import annotations
 
 import argparse
-import time
 from typing import Callable, NamedTuple, Sequence
 
-import numpy as np
-
-__all__ = ["BENCHMARKS", "Benchmark", "median_time", "add_bench_arguments", "run_bench"]
-
-
-def median_time(func: Callable[[], object], repeats: int = 5) -> float:
-    """Median wall-clock seconds of ``func()`` over ``repeats`` calls (after one warm-up call)."""
-    func()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+__all__ = ["BENCHMARKS", "Benchmark", "add_bench_arguments", "run_bench"]
 
 
 class Benchmark(NamedTuple):

@@ -37,7 +37,7 @@ from motorsim.excitation import Multisine, Sine
 from motorsim.recording import Recording
 from motorsim.rig import jittered_times
 
-from . import median_time
+from .timing import median_time
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
 

@@ -6,7 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import median_time
+from .timing import median_time
 
 __all__ = ["bench_simulate"]
 

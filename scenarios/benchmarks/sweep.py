@@ -20,7 +20,7 @@ from motorsim.excitation import Sine
 from motorsim.plant import Motor
 
 from ..batch import encoder_counts_batch, fit_batch, simulate_batch, speed_batch
-from . import median_time
+from .timing import median_time
 
 __all__ = ["bench_sweep", "python_control_loop"]
 

@@ -132,7 +132,7 @@ def test_sine_run_identifies_the_harness_motor_within_one_percent(sine_run):
     else:
         a, b = _fit_output_error(counts, rec.duty, h, COUNTS_PER_REV)
     # Truth is the harness's a, b. Left over: the few us between the count snapshot and the
-    # duty write, and count quantisation; measured 0.05 %, the issue asks for 1 %.
+    # duty write, and count quantisation; measured 0.05 %, the bound asserted here is 1 %.
     assert a == pytest.approx(A, rel=0.01)
     assert b == pytest.approx(B, rel=0.01)
 

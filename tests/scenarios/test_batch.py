@@ -8,7 +8,7 @@ from motorsim import Constant, Encoder, Experiment, Motor, Recording, SimRig, Si
 from scenarios.batch import BATCHED_METHODS, encoder_counts_batch, fit_batch, simulate_batch, speed_batch
 
 # Noise-free comparisons of the same arithmetic done two ways: agreement to 1e-9 relative
-# (the figure); observed differences are ~1e-13.
+# (the bound asserted below); observed differences are ~1e-13.
 RTOL = 1e-9
 
 

@@ -26,7 +26,7 @@ def test_acceptance_live_fake_run_recovers_a_and_b_within_one_percent(tmp_path, 
 def test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent(tmp_path, capsys):
     # The whole chain a user runs: CLI -> SerialRig -> pty -> simavr running the real firmware ELF.
     # oe measured -0.036 % / -0.021 % here (the emulated bench's 4 us micros() and interrupt timing
-    # are outside oe's noise model, so its own stderr is smaller than that); 1 % is the bound.
+    # are outside oe's noise model, so its own stderr is smaller than that); 1 % is the bound asserted here.
     status, out = _live(tmp_path, "avr-sim://?a=25&b=3", "--sine", "20,100", "--duration", "3", "--json")
     assert status == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
