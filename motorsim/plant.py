@@ -29,7 +29,7 @@ from .knobs import knob
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty"]
+__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "RECURSION_RTOL"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,12 +214,36 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     return Trajectory(t, angle, speed)
 
 
+#: Largest relative spread of the per-interval decay factors ``exp(-a h_k)`` that the
+#: linear recursion treats as a constant factor plus a correction (see :func:`_linear_recursion`).
+#: A float time grid ``k * dt`` has intervals that differ by rounding (~1e-16 ``t_k / dt``
+#: relative), far inside it; genuinely jittered clocks are far outside it.
+RECURSION_RTOL = 1e-9
+
+
 def _linear_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float) -> None:
-    """``out[0] = x0; out[k+1] = e[k] out[k] + f[k]``, exactly, without a Python loop when e is constant."""
-    if len(e) and np.all(e == e[0]):
-        from scipy.signal import lfilter
-        out[1:], _ = lfilter([1.0], [1.0, -e[0]], f, zi=[e[0] * x0])
-        return
+    """``out[0] = x0; out[k+1] = e[k] out[k] + f[k]``, without a Python loop when ``e`` is nearly constant.
+
+    When every ``e[k]`` is within :data:`RECURSION_RTOL` (relative) of ``e[0]``, the
+    recursion is rewritten as ``out[k+1] = e[0] out[k] + (f[k] + (e[k] - e[0]) out[k])``
+    and solved by ``lfilter`` with the constant factor, the bracket evaluated at a first
+    pass's ``out``.  The error of that first pass is ``O(RECURSION_RTOL)`` relative, and
+    the bracket multiplies it by ``e[k] - e[0]`` again, so the second pass is exact to
+    ``O(RECURSION_RTOL^2)``, i.e. to rounding (a test checks it against the loop to 1e-12).
+    Bit-equal factors take one pass.
+    """
+    if len(e):
+        e0 = e[0]
+        de = e - e0
+        spread = float(np.max(np.abs(de)))
+        if spread <= RECURSION_RTOL * abs(e0):
+            from scipy.signal import lfilter
+            out[1:], _ = lfilter([1.0], [1.0, -e0], f, zi=[e0 * x0])
+            if spread > 0:
+                de *= out[:-1]
+                de += f
+                out[1:], _ = lfilter([1.0], [1.0, -e0], de, zi=[e0 * x0])
+            return
     x = x0
     for k in range(len(e)):
         x = e[k] * x + f[k]

@@ -8,6 +8,7 @@ from scipy.linalg import expm
 
 from motorsim import Motor, Sine, simulate
 from motorsim.excitation import PRBS
+from motorsim.plant import zoh_matrices
 
 RTOL = 1e-9  # noise-free: the exact ZOH solution is reproduced to rounding error
 
@@ -122,3 +123,38 @@ def test_motor_rejects_bad_parameters(kwargs, match):
 def test_simulate_rejects_time_not_increasing():
     with pytest.raises(ValueError, match="time must be strictly increasing"):
         simulate(Motor(1.0, 1.0), [0, 0, 0], [0.0, 0.1, 0.1])
+
+
+
+def _speed_loop(motor, duty, t, initial_speed):
+    """The exact recursion, one interval at a time (the reference)."""
+    e, g, _, _ = zoh_matrices(motor.a, motor.b, np.diff(t))
+    out = np.empty(len(t))
+    out[0] = x = initial_speed
+    for k in range(len(t) - 1):
+        x = e[k] * x + g[k] * duty[k]
+        out[k + 1] = x
+    return out
+
+
+@pytest.mark.parametrize("a, dt", [(25.0, 0.005), (0.05, 0.001), (200.0, 0.01)], ids=["article", "slow", "fast"])
+def test_float_time_grid_equals_the_exact_per_interval_loop(a, dt):
+    # k * dt has intervals that differ by rounding (the fast path with its correction pass):
+    # it must agree with the per-interval loop to rounding, 1e-12 of the largest speed
+    n = 200_000
+    t = np.arange(n) * dt
+    assert len(np.unique(np.diff(t))) > 1
+    duty = Sine(10.0, 200).duty(n, dt).astype(float)
+    motor = Motor(a, 3.0)
+    exact = _speed_loop(motor, duty, t, 0.7)
+    speed = simulate(motor, duty, t, initial_speed=0.7).speed
+    assert np.max(np.abs(speed - exact)) <= 1e-12 * np.max(np.abs(exact))
+
+
+def test_jittered_time_grid_is_simulated_interval_by_interval():
+    # intervals 1e-6 relative apart (a real clock, outside RECURSION_RTOL): the loop's answer exactly
+    rng = np.random.default_rng(5)
+    t = np.concatenate([[0.0], np.cumsum(0.005 * (1 + 1e-6 * rng.standard_normal(999)))])
+    duty = rng.standard_normal(1000)
+    motor = Motor(25.0, 3.0)
+    np.testing.assert_array_equal(simulate(motor, duty, t, initial_speed=0.3).speed, _speed_loop(motor, duty, t, 0.3))
