@@ -50,6 +50,7 @@ from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian
 from .validation import segment_fit_percent
+from .variable_projection import SeparableSolution, is_separable, solve_separable
 
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
            "MAX_AUTO_DELAY", "JACOBIANS"]
@@ -267,10 +268,27 @@ class OutputErrorSolution:
 
     result: OptimizeResult
     problem: OutputErrorProblem
+    separable: SeparableSolution | None = None
 
     def initial_speeds(self) -> np.ndarray:
         """Fitted initial speed of each segment in rad/s."""
+        if self.separable is not None:
+            return self.separable.initial_speeds
         return self.problem.initial_speeds(self.result.x)
+
+    def covariance(self, noise_variance: float) -> np.ndarray:
+        """``noise_variance (J^T J)^{-1}`` over the shared parameters (projected Jacobian)."""
+        if self.separable is not None:
+            return self.separable.covariance(noise_variance)
+        return covariance_from_jacobian(self.problem.jacobian(self.result.x), noise_variance, self.problem.n_global)
+
+    def model_outputs(self) -> list[np.ndarray]:
+        """The fitted model's output (angle or speed, as each segment) on every segment."""
+        a, b, bias = self.problem.unpack(self.result.x)
+        if self.separable is not None:
+            return [seg.output - r for seg, r in zip(self.problem.segments, self.separable.segment_residuals())]
+        return [_segment_output(float(a), float(b), bias, seg, w)
+                for seg, w in zip(self.problem.segments, self.initial_speeds())]
 
 
 def _solve(problem: OutputErrorProblem, x0: np.ndarray, jac: str) -> OptimizeResult:
@@ -353,6 +371,10 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
                                    f"{problem.n_global + problem.n_nuisance} parameters "
                                    f"(a, b and the initial state of {len(segments)} segments); record longer")
     a0, b0 = initial_guess(recordings, segments)
+    if jac == "analytic" and is_separable(segments, with_bias):
+        separable = solve_separable(segments, a0)
+        if separable is not None:
+            return OutputErrorSolution(separable.optimize_result(), problem, separable)
     x0 = np.array([a0, b0] + ([0.0] if with_bias else []))
     res = _solve(problem, x0, jac)
     a = float(res.x[0])
@@ -379,13 +401,12 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
     s2 = float(r @ r) / max(dof, 1)
-    cov = covariance_from_jacobian(problem.jacobian(res.x), s2, problem.n_global)
+    cov = solution.covariance(s2)
     a, b, bias = problem.unpack(res.x)
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
         extra["bias"] = float(bias)
-    models = [_segment_output(float(a), float(b), bias, seg, w)
-              for seg, w in zip(problem.segments, solution.initial_speeds())]
+    models = solution.model_outputs()
     return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
                     sample_period=recs[0].sample_period, residual_rms=math.sqrt(float(r @ r) / problem.n_rows),
                     fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,

@@ -1,0 +1,67 @@
+"""The separable (variable projection in ``a``) output-error fit equals the general Levenberg–Marquardt one."""
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from identify.data import as_recordings, prepare_segments
+from identify.output_error import OutputErrorProblem
+from identify.start import initial_guess
+from identify.uncertainty import covariance_from_jacobian
+from identify.variable_projection import is_separable, solve_separable
+from motorsim.excitation import Sine
+from motorsim.plant import Motor
+from motorsim.rig import Experiment, SimRig
+from motorsim.sensors import Encoder
+
+# Both minimise the same residual; LM stops at xtol = 1e-12 and the separable iteration
+# after a relative step of 1e-8 (quadratic convergence: error ~1e-16), so a and b agree to
+# 1e-9 relative; the covariance is the same J^T J formed differently (1e-7 relative).
+SAME = 1e-9
+
+
+def _recordings(kind):
+    if kind == "one":
+        rig = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(3))
+        return [rig.run(Experiment(Sine(10.0, 200), 0.005, 5.0))]
+    if kind == "dropped":  # one recording cut into segments at the lost samples
+        rig = SimRig(Motor(25.0, 3.0), drop_rate=0.002, rng=np.random.default_rng(4))
+        return [rig.run(Experiment(Sine(10.0, 200), 0.005, 10.0))]
+    # pooled recordings of different lengths and drives
+    rig = SimRig(Motor(4.0, 0.5), Encoder(angle_noise=1e-4), rng=np.random.default_rng(5))
+    return [rig.run(Experiment(Sine(2.0, 150), 0.001, 3.0)), rig.run(Experiment(Sine(7.0, 90), 0.001, 4.0))]
+
+
+def _levenberg_marquardt(segments, x0):
+    problem = OutputErrorProblem(segments, False)
+    res = least_squares(problem.residuals, x0, jac=problem.jacobian, method="lm", x_scale="jac",
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    return problem, res
+
+
+@pytest.mark.parametrize("kind", ["one", "dropped", "pooled"])
+def test_separable_fit_equals_levenberg_marquardt(kind):
+    recs = as_recordings(_recordings(kind))
+    segments = prepare_segments(recs, 0)
+    assert is_separable(segments, with_bias=False)
+    assert (len(segments) > 1) == (kind != "one")
+    a0, b0 = initial_guess(recs, segments)
+    sol = solve_separable(segments, a0)
+    problem, res = _levenberg_marquardt(segments, np.array([a0, b0]))
+    assert sol.a == pytest.approx(res.x[0], rel=SAME)
+    assert sol.b == pytest.approx(res.x[1], rel=SAME)
+    # residuals: the model angle agrees to SAME of the largest angle (its a and b do)
+    scale = max(np.max(np.abs(s.output)) for s in segments)
+    np.testing.assert_allclose(sol.residuals, res.fun, rtol=0, atol=SAME * scale)
+    np.testing.assert_allclose(sol.initial_speeds, problem.initial_speeds(res.x), rtol=1e-7, atol=1e-9)
+    cov = covariance_from_jacobian(problem.jacobian(res.x), 1.0, 2)
+    np.testing.assert_allclose(sol.covariance(1.0), cov, rtol=1e-7)
+
+
+def test_bias_speed_and_jittered_data_are_not_separable():
+    rig = SimRig(Motor(25.0, 3.0), jitter=0.1, rng=np.random.default_rng(6))
+    jittered = prepare_segments(as_recordings(rig.run(Experiment(Sine(10.0, 200), 0.005, 2.0))), 0)
+    uniform = prepare_segments(as_recordings(SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 2.0))), 0)
+    assert not is_separable(jittered, with_bias=False)
+    assert not is_separable(uniform, with_bias=True)
+    assert is_separable(uniform, with_bias=False)
