@@ -50,7 +50,7 @@ from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian
 from .validation import segment_fit_percent
-from .variable_projection import SeparableSolution, is_separable, solve_separable
+from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
 
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
            "MAX_AUTO_DELAY", "JACOBIANS"]
@@ -329,7 +329,7 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
             fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
         except NotIdentifiableError:
             continue
-        rss = float(fun @ fun)
+        rss = float(np.einsum("i,i->", fun, fun))
         if rss < best[0]:
             best = (rss, delay)
     return best[1]
@@ -370,11 +370,14 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
         raise NotIdentifiableError(f"recording is too short: {problem.n_rows} samples for "
                                    f"{problem.n_global + problem.n_nuisance} parameters "
                                    f"(a, b and the initial state of {len(segments)} segments); record longer")
-    a0, b0 = initial_guess(recordings, segments)
     if jac == "analytic" and is_separable(segments, with_bias):
-        separable = solve_separable(segments, a0)
+        start = regression_start(segments)
+        if start is None:
+            start = initial_guess(recordings, segments)[0]
+        separable = solve_separable(segments, start)
         if separable is not None:
             return OutputErrorSolution(separable.optimize_result(), problem, separable)
+    a0, b0 = initial_guess(recordings, segments)
     x0 = np.array([a0, b0] + ([0.0] if with_bias else []))
     res = _solve(problem, x0, jac)
     a = float(res.x[0])
@@ -400,7 +403,8 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     res, problem = solution.result, solution.problem
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
-    s2 = float(r @ r) / max(dof, 1)
+    rss = float(np.einsum("i,i->", r, r))  # not BLAS: a threaded dot is slow on a busy machine
+    s2 = rss / max(dof, 1)
     cov = solution.covariance(s2)
     a, b, bias = problem.unpack(res.x)
     extra: dict[str, float] = {"input_delay": input_delay}
@@ -408,7 +412,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
         extra["bias"] = float(bias)
     models = solution.model_outputs()
     return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
-                    sample_period=recs[0].sample_period, residual_rms=math.sqrt(float(r @ r) / problem.n_rows),
+                    sample_period=recs[0].sample_period, residual_rms=math.sqrt(rss / problem.n_rows),
                     fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit)

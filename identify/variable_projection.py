@@ -34,19 +34,47 @@ from scipy.signal import lfilter
 from .data import Segment
 from .sensitivity import phi_functions
 
-__all__ = ["SeparableSolution", "solve_separable", "is_separable"]
+__all__ = ["SeparableSolution", "solve_separable", "is_separable", "regression_start"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
 #: order its square, below rounding.
 STEP_RTOL = 1e-8
+#: Samples of the coarse phase: on long recordings the first steps, which need no
+#: precision, run on about this many samples (the segments' beginnings) until a step
+#: is below ``COARSE_RTOL``; the fit on all samples then starts within the coarse
+#: fit's statistical error and needs one or two steps.
+COARSE_SAMPLES = 20_000
+COARSE_RTOL = 1e-5
 #: Gauss--Newton iterations before giving up (the caller then falls back to Levenberg--Marquardt).
 MAX_ITERATIONS = 30
 
 
 def _dot(x: np.ndarray, y: np.ndarray) -> float:
-    """``x . y`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine."""
+    """``x . y``; long vectors by numpy's own loop, as a multi-threaded BLAS ``dot`` is many times slower
+    on a busy machine (short ones stay on one thread)."""
+    if len(x) < _BLAS_BELOW:
+        return float(x.dot(y))
     return float(np.einsum("i,i->", x, y))
+
+
+_BLAS_BELOW = 4096
+
+
+def _mean(x: np.ndarray) -> float:
+    return float(np.add.reduce(x)) / len(x)
+
+
+def _coefficients(a: float, h: float) -> tuple[float, float, float]:
+    """``e = exp(-a h)``, ``p = h phi1(a h)`` and ``dp/da = h^2 phi1'(a h)`` (scalars)."""
+    x = a * h
+    e = math.exp(-x)
+    if abs(x) < 0.05:   # cancellation: the power series of identify.sensitivity
+        p1, _, d1, _ = (float(f[0]) for f in phi_functions(np.array([x])))
+    else:
+        one_minus = -math.expm1(-x)
+        p1, d1 = one_minus / x, (x * e - one_minus) / (x * x)
+    return e, h * p1, h * h * d1
 
 
 def is_separable(segments: list[Segment], with_bias: bool) -> bool:
@@ -108,99 +136,178 @@ class SeparableSolution:
 
 
 class _Segment:
-    """Per-segment constants and work arrays (allocated once per fit)."""
+    """Per-segment constants and work arrays, allocated once per fit.
+
+    Columns are kept in convenient scalings: ``B* = a B = h S - w`` with coefficient
+    ``beta = b / a``, and ``D = -exp(-a tau)`` (``W = (1 + D)/a``) with coefficient
+    ``gamma = omega0 / a``.  ``D`` is nonzero only while ``a tau < DECAYED`` (``k < K``):
+    every product with a centred vector needs only those samples.
+    """
 
     def __init__(self, seg: Segment):
         n = len(seg.time)
         self.n = n
         self.h = float(seg.time[1] - seg.time[0])
-        self.u = np.ascontiguousarray(seg.drive[:-1], dtype=float)
-        self.tau = seg.time - seg.time[0]
+        self.u = seg.drive[:-1]
         self.h_sum = np.empty(n)                     # h S_k
         self.h_sum[0] = 0.0
         np.cumsum(self.u, out=self.h_sum[1:])
         self.h_sum *= self.h
         self.y = seg.output - seg.output.mean()      # centred: the offset is projected out
-        self.w_col = np.empty(n)                     # W, centred
-        self.w_da = np.empty(n)                      # dW/da
-        self.b_col = np.empty(n)                     # B, centred
-        self.b_da = np.empty(n)                      # dB/da
-        self.speed = np.empty(n)                     # w per unit b
-        self.work = np.empty(n)
+        self.b_col = np.empty(n)                     # B*, centred
+        self.g = np.empty(n)                         # direction g, centred
+        self.r = np.empty(n)                         # residual
+        self.d_col = np.empty(0)                     # D on its first K samples
+        self.d_mean = 0.0
+        self.d_norm2 = 0.0                           # |D - mean(D)|^2 over all n samples
+        self.factors = (0.0, 0.0, 0.0)               # p, dp/da, h e p of the last evaluation
+        self.f_col = np.empty(0)                     # lfilter(u)
+        self.g_col = np.empty(0)                     # lfilter(lfilter(u))
 
 
-def _columns(s: _Segment, a: float) -> None:
-    """Fill ``W``, ``dW/da``, ``B``, ``dB/da`` of one segment at ``a`` (``W`` and ``B`` centred)."""
+#: ``a tau`` beyond which ``exp(-a tau)`` is below 1e-17 relative: treated as 0.
+DECAYED = 40.0
+
+
+def _columns(s: _Segment, a: float, direction: bool) -> None:
+    """``B*`` (centred), ``D`` on its support, the filtered drive ``F`` and, with ``direction``, ``G``."""
     h = s.h
-    p1, _, d1, _ = (float(f[0]) for f in phi_functions(np.array([a * h])))
-    e = math.exp(-a * h)
-    p, dp = h * p1, h * h * d1
-    m, w_da = s.work, s.w_da
-    np.multiply(s.tau, -a, out=m)
-    np.expm1(m, out=m)                               # M = exp(-a tau) - 1
-    np.multiply(s.tau, m, out=w_da)
-    w_da += s.tau                                    # tau exp(-a tau)
-    w_da /= a
-    w_da += m / (a * a)                              # dW/da = tau E / a + M / a^2
-    np.divide(m, -a, out=s.w_col)                    # W = -M / a
-    speed = s.speed
-    speed[0] = 0.0
-    speed[1:], _ = lfilter([p], [1.0, -e], s.u, zi=[0.0])
-    np.subtract(s.h_sum, speed, out=s.b_col)
-    s.b_col /= a                                     # B = (h S - w) / a
-    # dw/da: w'_{k+1} = e w'_k - h e w_k + dp u_k
-    np.multiply(speed[:-1], -h * e, out=m[:-1])
-    m[:-1] += dp * s.u
-    s.b_da[0] = 0.0
-    s.b_da[1:], _ = lfilter([1.0], [1.0, -e], m[:-1], zi=[0.0])
-    s.b_da += s.b_col
-    s.b_da /= -a                                     # dB/da = -(B + dw/da) / a
-    s.b_col -= s.b_col.mean()
-    s.w_col -= s.w_col.mean()
+    e, p, dp = _coefficients(a, h)
+    s.factors = (p, dp, h * e * p)
+    s.f_col, _ = lfilter([1.0], [1.0, -e], s.u, zi=[0.0])   # F_k = e F_{k-1} + u_k
+    if direction:
+        s.g_col, _ = lfilter([1.0], [1.0, -e], s.f_col, zi=[0.0])
+    b = s.b_col
+    b[0] = 0.0
+    np.multiply(s.f_col, -p, out=b[1:])
+    b += s.h_sum                                     # B* = h S - p F_{k-1}
+    b -= _mean(b)
+    support = min(s.n, int(math.ceil(DECAYED / (a * h))) + 1)
+    s.d_col = -np.exp(-a * h * np.arange(support))
+    s.d_mean = float(s.d_col.sum()) / s.n
+    centred = s.d_col - s.d_mean
+    s.d_norm2 = _dot(centred, centred) + (s.n - support) * s.d_mean ** 2
 
 
-def _evaluate(segs: list[_Segment], a: float) -> tuple[float, np.ndarray, float, float]:
-    """Linear parameters at ``a``: ``(b, omega0s, g.r, |P g|^2)``; leaves ``r`` in each segment's ``work``.
+def _dot_d(s: _Segment, x: np.ndarray) -> float:
+    """``x . (D - mean D)`` for a centred ``x`` (only ``D``'s support counts)."""
+    return _dot(x[:len(s.d_col)], s.d_col)
 
-    Per segment the offset is removed by centring and ``W`` by one Gram--Schmidt step;
-    ``b`` is shared, so its column ``B~ = B - (B.W/W.W) W`` is projected out across segments.
+
+def _direction(s: _Segment, beta: float, gamma: float) -> np.ndarray:
+    """The part of ``d model/d a`` outside the span of ``1``, ``D``, ``B*``, centred, in ``s.g``.
+
+    At fixed ``b`` and ``omega0``, ``d model/da = -beta (B*/a + dw/da) - gamma D (1/a + tau)``
+    with ``dw/da_k = dp F_{k-1} - h e p G_{k-2}``; the ``B*`` and ``D/a`` terms are
+    projected out anyway, so ``g = -beta dw/da - gamma tau D`` (:func:`_normal_matrix`
+    adds the ``B*`` term back for the Jacobian over ``b``).
+    """
+    _, dp, hep = s.factors
+    g = s.g
+    g[0] = 0.0
+    np.multiply(s.f_col, -beta * dp, out=g[1:])
+    s.g_col *= beta * hep                            # G is not needed after this
+    g[2:] += s.g_col[:-1]
+    support = len(s.d_col)
+    g[:support] -= (gamma * s.h) * np.arange(support) * s.d_col
+    g -= _mean(g)
+    return g
+
+
+@dataclasses.dataclass
+class _Point:
+    """Everything one evaluation at ``a`` yields (sums over segments where shared)."""
+
+    a: float
+    beta: float
+    gammas: np.ndarray
+    step: float = math.nan                           # Gauss--Newton step in a
+    gg: float = 0.0                                  # <g, g>' (1 and D projected out)
+    gb: float = 0.0                                  # <g, B*>'
+    bb: float = 0.0                                  # <B*, B*>'
+
+    @property
+    def b(self) -> float:
+        return self.beta * self.a
+
+
+def _evaluate(segs: list[_Segment], a: float, direction: bool = True) -> _Point:
+    """Linear parameters at ``a`` and, with ``direction``, the Gauss--Newton step; else the residuals in ``r``.
+
+    Per segment the offset is removed by centring and ``D`` by one Gram--Schmidt step;
+    ``b`` is shared, so its column ``B~ = B* - (B*.D/D.D) D`` is projected out across segments.
     """
     by = bb = 0.0
     parts = []
     for s in segs:
-        _columns(s, a)
-        ww = _dot(s.w_col, s.w_col)
-        bw = _dot(s.b_col, s.w_col) / ww
-        yw = _dot(s.y, s.w_col) / ww
-        by += _dot(s.b_col, s.y) - bw * yw * ww
-        bb += _dot(s.b_col, s.b_col) - bw * bw * ww
-        parts.append((ww, bw, yw))
-    b = by / bb
-    omega0 = np.empty(len(segs))
-    gr = gg = gb = 0.0
-    for i, (s, (ww, bw, yw)) in enumerate(zip(segs, parts)):
-        w0 = yw - b * bw
-        omega0[i] = w0
-        r = s.work
-        np.multiply(s.b_col, -b, out=r)
-        r += s.y
-        r -= w0 * s.w_col                            # r = y - b B - omega0 W (all centred)
-        g = _direction(s, b, w0)
-        gw = _dot(g, s.w_col)
-        gr += _dot(g, r)
-        gg += _dot(g, g) - gw * gw / ww
-        gb += _dot(g, s.b_col) - gw * bw
-    gg -= gb * gb / bb
-    return b, omega0, gr, gg
+        _columns(s, a, direction)
+        dd = s.d_norm2
+        bd = _dot_d(s, s.b_col) / dd
+        yd = _dot_d(s, s.y) / dd
+        by += _dot(s.b_col, s.y) - bd * yd * dd
+        bb += _dot(s.b_col, s.b_col) - bd * bd * dd
+        parts.append((bd, yd))
+    if not bb > 0:                                   # B* in the span of 1 and D: b not identifiable here
+        return _Point(a, math.nan, np.full(len(segs), math.nan))
+    beta = by / bb
+    point = _Point(a, beta, np.array([yd - beta * bd for bd, yd in parts]), bb=bb)
+    if not direction:
+        for s, gamma in zip(segs, point.gammas):
+            r = s.r
+            np.multiply(s.b_col, -beta, out=r)
+            r += s.y
+            r[:len(s.d_col)] -= gamma * s.d_col
+            r += gamma * s.d_mean                    # r = y - beta B* - gamma (D - mean D)
+        return point
+    gr = 0.0
+    for s, gamma, (bd, _) in zip(segs, point.gammas, parts):
+        g = _direction(s, beta, gamma)
+        gd = _dot_d(s, g)
+        gb = _dot(g, s.b_col) - gd * bd
+        # g . r with r = y - beta B* - gamma (D - mean D) (g is centred)
+        gr += _dot(g, s.y) - beta * _dot(g, s.b_col) - gamma * gd
+        point.gg += _dot(g, g) - gd * gd / s.d_norm2
+        point.gb += gb
+    curvature = point.gg - point.gb ** 2 / bb
+    point.step = gr / curvature if curvature > 0 else math.nan   # nan: no descent direction, give up
+    return point
 
 
-def _direction(s: _Segment, b: float, omega0: float) -> np.ndarray:
-    """``g = b dB/da + omega0 dW/da``, centred, in the segment's ``speed`` array (no longer needed)."""
-    g = s.speed
-    np.multiply(s.b_da, b, out=g)
-    g += omega0 * s.w_da
-    g -= g.mean()
-    return g
+def _normal_matrix(point: _Point) -> np.ndarray:
+    """``J^T J`` over ``(a, b)`` with each segment's ``omega0`` and offset projected out.
+
+    The columns are ``d model/da = g - (beta/a) B*`` (up to the span of ``1``, ``D``) and
+    ``d model/db = B*/a``.
+    """
+    a, c = point.a, point.beta / point.a
+    aa = point.gg - 2 * c * point.gb + c * c * point.bb
+    ab = (point.gb - c * point.bb) / a
+    return np.array([[aa, ab], [ab, point.bb / a ** 2]])
+
+
+def regression_start(segments: list[Segment]) -> float | None:
+    """``a`` from ``zoh-ls``'s regression on the segments' angle increments, or None.
+
+    ``Delta_{k+1} = theta_1 Delta_k + c u_k`` (``Delta_k = theta_k - theta_{k-1}``) by a
+    2 x 2 normal-equation solve pooled over segments, ``a = -log(theta_1)/h``: a start
+    value only (biased by the averaging and the encoder's noise, a few per cent).
+    """
+    s11 = s12 = s22 = t1 = t2 = 0.0
+    for seg in segments:
+        d = np.diff(seg.output)
+        x, y, u = d[:-1], d[1:], seg.drive[1:-1]
+        s11 += _dot(x, x)
+        s12 += _dot(x, u)
+        s22 += _dot(u, u)
+        t1 += _dot(x, y)
+        t2 += _dot(u, y)
+    det = s11 * s22 - s12 * s12
+    if not det > 0:
+        return None
+    theta1 = (t1 * s22 - t2 * s12) / det
+    if not 0 < theta1 < 1:
+        return None
+    return -math.log(theta1) / float(segments[0].time[1] - segments[0].time[0])
 
 
 def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | None:
@@ -219,39 +326,47 @@ def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | N
         None when the iteration leaves ``a > 0`` or does not converge (the caller
         then uses the general Levenberg--Marquardt fit and its diagnostics).
     """
+    evaluations = 0
+    if sum(len(seg.time) for seg in segments) >= 4 * COARSE_SAMPLES:
+        coarse = _iterate([_Segment(seg) for seg in _prefixes(segments)], float(a0), COARSE_RTOL)
+        if coarse is not None:
+            a0, evaluations = coarse[0], coarse[2]
     segs = [_Segment(s) for s in segments]
-    a = float(a0)
+    fine = _iterate(segs, float(a0), STEP_RTOL)
+    if fine is None:
+        return None
+    a, point, count = fine
+    # the Jacobian at the last step's start is within STEP_RTOL of the final one: enough for a covariance
+    normal = _normal_matrix(point)
+    final = _evaluate(segs, a, direction=False)
+    if not (math.isfinite(final.b) and np.all(np.isfinite(final.gammas))):
+        return None
+    return SeparableSolution(a=a, b=final.b, initial_speeds=final.gammas * a,
+                             residuals=np.concatenate([s.r for s in segs]), normal_matrix=normal,
+                             iterations=evaluations + count + 1, segment_lengths=tuple(s.n for s in segs))
+
+
+def _prefixes(segments: list[Segment]) -> list[Segment]:
+    """The first samples of each segment, about :data:`COARSE_SAMPLES` in all (in proportion)."""
+    total = sum(len(seg.time) for seg in segments)
+    out = []
+    for seg in segments:
+        m = max(3, len(seg.time) * COARSE_SAMPLES // total)
+        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
+    return out
+
+
+def _iterate(segs: list[_Segment], a: float, rtol: float) -> tuple[float, _Point, int] | None:
+    """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative: ``(a, last point, evaluations)``."""
     evaluations = 0
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
             return None
-        b, omega0, gr, gg = _evaluate(segs, a)
+        point = _evaluate(segs, a)
         evaluations += 1
-        if not (gg > 0 and math.isfinite(gr)):
+        if not math.isfinite(point.step):
             return None
-        step = gr / gg
-        a += step
-        if abs(step) <= STEP_RTOL * abs(a):
+        a += point.step
+        if abs(point.step) <= rtol * abs(a):
             break
-    if not a > 0:
-        return None
-    b, omega0, _, _ = _evaluate(segs, a)
-    return SeparableSolution(a=a, b=b, initial_speeds=omega0,
-                             residuals=np.concatenate([s.work for s in segs]),
-                             normal_matrix=_normal_matrix(segs, b, omega0), iterations=evaluations + 1,
-                             segment_lengths=tuple(s.n for s in segs))
-
-
-def _normal_matrix(segs: list[_Segment], b: float, omega0: np.ndarray) -> np.ndarray:
-    """``J^T J`` over ``(a, b)`` with ``omega0`` and the offsets projected out, per segment, summed."""
-    out = np.zeros((2, 2))
-    for s, w0 in zip(segs, omega0):
-        g = _direction(s, b, w0)
-        ww = _dot(s.w_col, s.w_col)
-        cols = (g, s.b_col)
-        proj = [_dot(c, s.w_col) / ww for c in cols]
-        for i in range(2):
-            for j in range(i, 2):
-                out[i, j] += _dot(cols[i], cols[j]) - proj[i] * proj[j] * ww
-        out[1, 0] = out[0, 1]
-    return out
+    return (a, point, evaluations) if a > 0 else None

@@ -3,6 +3,7 @@
 =========== ================================================================
 ``simulate`` :mod:`~scenarios.benchmarks.simulate`: ``motorsim.simulate`` against python-control
 ``sweep``    :mod:`~scenarios.benchmarks.sweep`: the sweeps' batch engine against a per-run loop
+``oe``       :mod:`~scenarios.benchmarks.output_error`: the ``oe`` fit against ``lfilter`` and ``least_squares``
 ``accuracy`` :mod:`~scenarios.benchmarks.accuracy`: the estimators against the truth and the CRB
 ``serial``   :mod:`~scenarios.benchmarks.serial`: the host's frame reader and a pty run
 ``firmware`` :mod:`~scenarios.benchmarks.firmware`: the Arduino firmware under simavr
@@ -40,6 +41,11 @@ def _sweep(argv: Sequence[str]) -> int:
     return bench_sweep(argv)
 
 
+def _output_error(argv: Sequence[str]) -> int:
+    from .output_error import bench_output_error
+    return bench_output_error(argv)
+
+
 def _accuracy(argv: Sequence[str]) -> int:
     from .accuracy import bench_accuracy
     return bench_accuracy(argv)
@@ -58,6 +64,8 @@ def _firmware(argv: Sequence[str]) -> int:
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
+    "oe": Benchmark(_output_error, "the oe fit against bare lfilter passes and a plain least_squares output-error "
+                                   "fit, same recording; peak memory per sample"),
     "accuracy": Benchmark(_accuracy, "oe/oe-friction against the truth on an independent integrator, Monte "
                                      "Carlo vs the Cramér–Rao bound, oe fit time vs a finite-difference Jacobian"),
     "serial": Benchmark(_serial, "frames decoded/s by the host reader vs the 200 000/s goal; 60 s at 1 kHz "
