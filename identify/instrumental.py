@@ -66,21 +66,40 @@ def _rows(recs: list[Recording], delay: int) -> list[Stretch]:
 
 
 def _model_average_speed(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-    resp = zoh_response(a, b, u, t, 0.0)
+    resp = zoh_response(a, b, u, t, 0.0, sensitivities=False)
     out = np.empty(len(t))
     out[0] = 0.0
     out[1:] = np.diff(resp.angle) / np.diff(t)
     return out
 
 
+def _dot(x: np.ndarray, y: np.ndarray) -> float:
+    """``x . y`` by numpy's own loop (a multi-threaded BLAS ``dot`` is many times slower on a busy machine)."""
+    return float(np.einsum("i,i->", x, y))
+
+
 @dataclasses.dataclass(frozen=True)
 class _IvSolution:
-    """One IV solve: ``theta = (e, b)``, the regressors ``Phi``, instruments ``Z`` and ``M = Z^T Phi``."""
+    """One IV solve: ``theta = (e, b)``, the regressor and instrument columns, ``M = Z^T Phi``.
+
+    ``Phi = [w_now, v]`` and ``Z = [x, v]`` share the filtered input ``v``: the columns
+    are kept apart rather than stacked into copies.
+    """
 
     theta: np.ndarray
-    Phi: np.ndarray
-    Z: np.ndarray
+    w_now: np.ndarray
+    v: np.ndarray
+    x: np.ndarray
     M: np.ndarray
+
+    def residuals(self, y: np.ndarray) -> np.ndarray:
+        """``y - Phi theta``."""
+        return y - self.theta[0] * self.w_now - self.theta[1] * self.v
+
+    def instrument_gram(self) -> np.ndarray:
+        """``Z^T Z``."""
+        xv = _dot(self.x, self.v)
+        return np.array([[_dot(self.x, self.x), xv], [xv, _dot(self.v, self.v)]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,13 +122,13 @@ class _IvRegression:
 
     def solve(self, a_filter: float, x_inst: np.ndarray) -> _IvSolution:
         """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``."""
-        Phi = np.column_stack([self.w_now, _filtered_input(a_filter, self.stretches, self.h)])
-        Z = np.column_stack([x_inst, Phi[:, 1]])
-        M = Z.T @ Phi
+        v = _filtered_input(a_filter, self.stretches, self.h)
+        M = np.array([[_dot(x_inst, self.w_now), _dot(x_inst, v)], [_dot(v, self.w_now), _dot(v, v)]])
         if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e12:
             raise NotIdentifiableError("iv: instruments and regressors are (nearly) collinear; the input is not "
                                        "persistently exciting (use a sine, multisine or PRBS)")
-        return _IvSolution(np.linalg.solve(M, Z.T @ self.y), Phi, Z, M)
+        rhs = np.array([_dot(x_inst, self.y), _dot(v, self.y)])
+        return _IvSolution(np.linalg.solve(M, rhs), self.w_now, v, x_inst, M)
 
     def pole(self, theta: np.ndarray) -> float:
         """``a = -ln(e) / h`` from ``theta = (e, b)``; refuses ``e`` outside (0, 1)."""
@@ -192,14 +211,15 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
     """The estimate with the IV covariance (see :func:`fit_instrumental_variables`)."""
     h, y = regression.h, regression.y
     e = float(sol.theta[0])
-    resid = y - sol.Phi @ sol.theta
-    s2 = float(resid @ resid) / max(len(y) - 2, 1)
+    resid = sol.residuals(y)
+    rss = _dot(resid, resid)
+    s2 = rss / max(len(y) - 2, 1)
     Minv = np.linalg.inv(sol.M)
-    cov_theta = s2 * Minv @ (sol.Z.T @ sol.Z) @ Minv.T
+    cov_theta = s2 * Minv @ sol.instrument_gram() @ Minv.T
     jac = np.array([[-1.0 / (e * h), 0.0], [0.0, 1.0]])
     cov = jac @ cov_theta @ jac.T
     return Estimate(method="iv", a=a, b=b, n_samples=len(y), sample_period=h,
-                    residual_rms=math.sqrt(float(resid @ resid) / len(y)),
+                    residual_rms=math.sqrt(rss / len(y)),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), covariance=cov,
                     extra={"input_delay": delay}, input_unit=recs[0].input_unit)
 

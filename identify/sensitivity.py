@@ -30,8 +30,11 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["Response", "zoh_response", "phi_functions"]
+__all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL"]
 
+#: Relative spread of the sample intervals under which a clock counts as uniform (as
+#: :class:`identify.data.Segment` decides): a float grid ``k * dt`` differs by rounding only.
+UNIFORM_RTOL = 1e-9
 _SERIES_BELOW = 0.05  # power series below; above, the closed forms lose < 1e-13 to cancellation
 _SERIES_TERMS = 8     # 0.05**8 / 10! < 1e-16: series truncation below rounding
 _BLOCK_EXPONENT = 200.0  # keep exp() of partial sums far from overflow in the blocked scan
@@ -179,7 +182,8 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     bias : float
         Constant acceleration ``d`` in rad/s^2: ``d omega/dt = -a omega + b v + d``.
     uniform : bool, optional
-        Whether ``time`` is uniformly spaced (detected when None).
+        Whether ``time`` is uniformly spaced (detected when None: intervals within
+        :data:`UNIFORM_RTOL` of the first).
     sensitivities : bool
         When False, only the angle, the speed and the ``initial_speed`` columns are
         computed (the others are nan): what a residual evaluation needs.
@@ -193,7 +197,7 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     t = np.asarray(time, dtype=float)
     if uniform is None:
         steps = np.diff(t)
-        uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= 1e-12 * abs(steps[0])))
+        uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= UNIFORM_RTOL * abs(steps[0])))
     h, x, p, q, dp, dq = _interval_coefficients(a, t, uniform)
     n = len(t)
     tau = a * (t - t[0]) if uniform else np.concatenate([[0.0], np.cumsum(x)])
