@@ -31,6 +31,7 @@ import json
 import math
 import multiprocessing
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -59,7 +60,8 @@ from .scenario import GridPoint, Scenario, Setting
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
            "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "make_plots",
            "format_sweep_table",
-           "add_sweep_arguments", "run_sweep"]
+           "add_sweep_arguments", "run_sweep", "available_cores", "usable_workers", "worker_context",
+           "WORKER_PRELOAD"]
 
 def setting_column(knob: str) -> str:
     """The CSV column of a bench knob: its name, except ``true_a`` and ``true_b`` for the motor's a and b."""
@@ -331,8 +333,9 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     out_dir : path
         Created if needed.
     workers : int, optional
-        Processes to use when no ``executor`` is given (default ``os.cpu_count()``; 1 runs
-        in this process).
+        Processes to use when no ``executor`` is given (default: every core; more than the
+        cores is clamped to them, see :func:`usable_workers`; 1 runs in this process).
+        Workers are forked from a fork server that has imported motorid (:func:`worker_context`).
     executor : concurrent.futures.Executor, optional
         Any executor (e.g. Dask's ``Client(...).get_executor()``); used as given, not shut down.
     progress : bool, optional
@@ -386,6 +389,42 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
                         dict(tally.failures), elapsed)
 
 
+#: Modules a worker needs, imported once by the fork server so that workers start warm.
+WORKER_PRELOAD = ("scenarios.sweep", "identify", "scipy.signal", "scipy.optimize")
+
+
+def available_cores() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - no affinity API (macOS, Windows)
+        return os.cpu_count() or 1
+
+
+def usable_workers(workers: int | None) -> int:
+    """Worker processes for a sweep: ``workers`` (default: every core) clamped to :func:`available_cores`.
+
+    More CPU-bound processes than cores only add switching and memory, so a larger
+    request is clamped (``motorid sweep`` says so).
+    """
+    cores = available_cores()
+    return min(workers or cores, cores)
+
+
+def worker_context() -> multiprocessing.context.BaseContext:
+    """Processes forked from a fork server that has imported :data:`WORKER_PRELOAD` (spawn where there is none).
+
+    The fork server is a clean single-threaded process started once, so workers neither
+    inherit the parent's threads (the danger of plain fork) nor import scipy and
+    python-control afresh (the cost of spawn: about a second of CPU each).
+    """
+    if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover - Windows
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(WORKER_PRELOAD))
+    return context
+
+
 @contextlib.contextmanager
 def _points_executor(workers: int | None, executor: concurrent.futures.Executor | None
                      ) -> Iterator[tuple[concurrent.futures.Executor | None, int]]:
@@ -396,12 +435,11 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
     if executor is not None:
         yield executor, 2 * (os.cpu_count() or 1)
         return
-    workers = workers or os.cpu_count() or 1
+    workers = usable_workers(workers)
     if workers == 1:
         yield None, 2
         return
-    # spawn: no fork of a threaded parent; workers import motorid afresh.
-    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context())
     try:
         yield own, 2 * workers
     finally:
@@ -535,7 +573,8 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="folder for sweep.csv, summary.json and the PNGs (default sweep-output/NAME)")
     parser.add_argument("--workers", type=int, default=None, metavar="N",
-                        help="worker processes (default: all cores; 1 runs in this process)")
+                        help="worker processes (default: all cores; more are clamped to the cores; "
+                             "1 runs in this process)")
     parser.add_argument("--repetitions", type=int, default=None, metavar="N",
                         help="Monte Carlo repetitions per grid point (default: the scenario's)")
     parser.add_argument("--methods", default=None, metavar="all|M,M,...",
@@ -556,6 +595,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         return 0
     scenario = _scenario_from_args(args)
     out = Path(args.out or Path("sweep-output") / scenario.name)
+    if args.workers and not args.dask and args.workers > usable_workers(args.workers):
+        print(f"--workers {args.workers}: using {usable_workers(args.workers)}, the cores available "
+              "(more processes than cores only slow a sweep down)", file=sys.stderr)
     with _dask_executor(args.dask, args.workers) as executor:
         summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
                                progress=False if args.quiet else None)

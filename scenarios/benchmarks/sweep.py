@@ -57,6 +57,9 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--samples", type=int, default=10_000, metavar="N", help="samples per run (default 10000)")
     p.add_argument("--repeats", type=int, default=5, metavar="N",
                    help="timings of the batch engine to take the median of (default 5)")
+    p.add_argument("--parallel", action="store_true",
+                   help="also time the frequency-noise sweep (20 repetitions) on 1 worker, as many workers as "
+                        "cores and twice as many: the parallel efficiency")
     args = p.parse_args(list(argv))
     if args.repetitions < 1 or args.samples < 10 or args.repeats < 1:
         p.error(f"--repetitions must be >= 1, --samples >= 10 and --repeats >= 1, got {args.repetitions}, "
@@ -90,4 +93,32 @@ def bench_sweep(argv: Sequence[str]) -> int:
           f"median of {args.repeats})")
     print(f"python-control loop      {total / t_loop / 1e6:10.2f} M samples/s  ({t_loop * 1e3:.0f} ms)")
     print(f"ratio                    {t_loop / t_batch:10.1f} x")
-    return 0 if diff < 1e-9 else 1
+    same = _parallel_efficiency() if args.parallel else True
+    return 0 if diff < 1e-9 and same else 1
+
+
+def _parallel_efficiency() -> bool:
+    """Time ``frequency-noise`` on 1, cores and 2 x cores workers; True when the CSVs are identical."""
+    import os
+    import tempfile
+
+    from ..scenario import load_scenario
+    from ..sweep import available_cores, run_scenario
+    scenario = load_scenario("frequency-noise")
+    cores = available_cores()
+    times, csvs = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers in (1, cores, 2 * cores):
+            t0 = time.perf_counter()
+            summary = run_scenario(scenario, os.path.join(tmp, str(workers)), workers=workers, progress=False)
+            times[workers] = time.perf_counter() - t0
+            csvs[workers] = summary.csv_path.read_bytes()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"frequency-noise sweep    {scenario.n_points} points x {len(scenario.methods)} methods x "
+          f"{scenario.repetitions} repetitions, load average {load:.1f} on {cores} cores")
+    for workers, t in times.items():
+        note = "  (clamped to the cores)" if workers > cores else ""
+        print(f"  {workers:2d} worker(s)            {t:8.2f} s  efficiency {times[1] / (min(workers, cores) * t):6.1%}"
+              f"{note}")
+    print("goal: efficiency >= 85 % at as many workers as cores; more workers never slower")
+    return len(set(csvs.values())) == 1

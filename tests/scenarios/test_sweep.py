@@ -228,3 +228,14 @@ def test_run_point_checks_its_arguments(small):
         run_point(point.setting, ["zoh-ls"], 2, 1)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         run_scenario(small, "unused", workers=0)
+
+
+def test_workers_are_clamped_to_the_cores_and_forked_warm():
+    from scenarios.sweep import WORKER_PRELOAD, available_cores, usable_workers, worker_context
+    cores = available_cores()
+    assert usable_workers(None) == cores
+    assert usable_workers(1) == 1
+    assert usable_workers(10 * cores) == cores
+    context = worker_context()
+    assert context.get_start_method() in ("forkserver", "spawn")
+    assert "scenarios.sweep" in WORKER_PRELOAD
