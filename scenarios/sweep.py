@@ -51,9 +51,11 @@ from .batch import (
     encoder_counts_batch,
     fit_batch,
     is_batchable,
+    regression_batch,
     simulate_batch,
     speed_batch,
 )
+from .batch_output_error import output_error_batch
 from .progress import ProgressBar
 from .scenario import GridPoint, Scenario, Setting
 
@@ -243,8 +245,9 @@ def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
 def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
     """All repetitions through the batch engine, in chunks of about ``_CHUNK_SAMPLES`` samples.
 
-    Batched estimators fit whole chunks; the others get one Recording per repetition built
-    from the same counts.
+    Batched estimators fit whole chunks, ``oe`` too (:mod:`scenarios.batch_output_error`,
+    rows it cannot fit fall back to ``identify.fit``); the others get one Recording per
+    repetition built from the same counts.
     """
     duty, n = exp.duty(), exp.n_samples
     angle, _ = simulate_batch(s.motor(), duty, s.sample_period, initial_speed=s.initial_speed)
@@ -261,11 +264,66 @@ def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
             for m, f in fit_batch(batched, speed, duty, s.sample_period).items():
                 fits.a[m][lo:hi], fits.b[m][lo:hi] = f.a, f.b
                 fits.why[m][lo:hi] = f.failure
-        for j in (range(hi - lo) if other else ()):
-            rec = Recording(time=np.arange(n) * s.sample_period, duty=duty, sample_period=s.sample_period,
-                            counts=counts[j].astype(np.int64), counts_per_rev=s.counts_per_rev,
-                            metadata={"source": "scenarios.batch"})
-            fits.fit(lo + j, rec, other)
+        recordings = [_batch_recording(s, duty, row) for row in counts]
+        rest = {j: list(other) for j in range(hi - lo)}
+        if "oe" in other and _oe_batchable(recordings[0]):
+            a, b = _output_error_rows(s, counts, duty)
+            for j in map(int, np.flatnonzero(np.isfinite(a))):
+                fits.a["oe"][lo + j], fits.b["oe"][lo + j] = a[j], b[j]
+                rest[j].remove("oe")
+        for j, methods in rest.items():
+            if methods:
+                fits.fit(lo + j, recordings[j], methods)
+
+
+def _batch_recording(s: Setting, duty: np.ndarray, counts: np.ndarray) -> Recording:
+    return Recording(time=np.arange(len(duty)) * s.sample_period, duty=duty, sample_period=s.sample_period,
+                     counts=counts.astype(np.int64), counts_per_rev=s.counts_per_rev,
+                     metadata={"source": "scenarios.batch"})
+
+
+def _oe_batchable(recording: Recording) -> bool:
+    """Whether ``oe`` would take its separable path: the shared duty excites, the segment is uniform."""
+    import warnings
+
+    from identify.data import as_recordings, check_excitation, prepare_segments
+    from identify.variable_projection import is_separable
+    recs = as_recordings(recording)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            check_excitation(recs, 2)
+    except ValueError:
+        return False
+    segments = prepare_segments(recs, 0)
+    return len(segments) == 1 and is_separable(segments, with_bias=False)
+
+
+def _output_error_rows(s: Setting, counts: np.ndarray, duty: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``oe`` of every row at once, started from ``zoh-ls``'s regression on the same counts.
+
+    The fit's minimum does not depend on where it starts (the per-fit path starts
+    unstartable rows on a grid of ``a``, here at the other rows' median: a test checks
+    that the estimates agree).
+    """
+    speed = speed_batch(counts, s.counts_per_rev, s.sample_period)
+    theta1, _, _ = regression_batch(speed, duty)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        start = np.where((theta1 > 0) & (theta1 < 1), -np.log(theta1) / s.sample_period, np.nan)
+    angle = counts * (2.0 * math.pi / s.counts_per_rev)
+    a, b = output_error_batch(angle, duty, s.sample_period, start)
+    # rows the regression could not start (noisy, fast sines): from the median of the fitted
+    # rows, or from identify's grid start on the first row when none was fitted
+    late = np.flatnonzero(~np.isfinite(start))
+    if len(late):
+        if np.any(np.isfinite(a)):
+            a0 = float(np.nanmedian(a))
+        else:
+            from identify.data import as_recordings, prepare_segments
+            from identify.start import grid_guess
+            a0 = grid_guess(prepare_segments(as_recordings(_batch_recording(s, duty, counts[late[0]])), 0))[0]
+        a[late], b[late] = output_error_batch(angle[late], duty, s.sample_period, np.full(len(late), a0))
+    return a, b
 
 
 def _run_point_job(point: GridPoint, methods: tuple, repetitions: int, seed: int) -> PointResult:

@@ -93,8 +93,31 @@ def bench_sweep(argv: Sequence[str]) -> int:
           f"median of {args.repeats})")
     print(f"python-control loop      {total / t_loop / 1e6:10.2f} M samples/s  ({t_loop * 1e3:.0f} ms)")
     print(f"ratio                    {t_loop / t_batch:10.1f} x")
+    _oe_against_zoh_ls()
     same = _parallel_efficiency() if args.parallel else True
     return 0 if diff < 1e-9 and same else 1
+
+
+def _oe_against_zoh_ls() -> None:
+    """Time the ``frequency-noise`` sweep (one process) with ``zoh-ls`` alone and with ``oe`` alone."""
+    import dataclasses
+    import functools
+    import os
+    import tempfile
+
+    from ..scenario import load_scenario
+    from ..sweep import run_scenario
+    scenario = load_scenario("frequency-noise")
+    times = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for method in ("zoh-ls", "oe"):
+            times[method] = median_time(functools.partial(
+                run_scenario, dataclasses.replace(scenario, methods=(method,)), os.path.join(tmp, method),
+                workers=1, progress=False), 3)
+    print(f"frequency-noise sweep    {scenario.n_points} points x {scenario.repetitions} repetitions, one process")
+    print(f"  zoh-ls                 {times['zoh-ls']:8.2f} s")
+    print(f"  oe                     {times['oe']:8.2f} s  ratio {times['oe'] / times['zoh-ls']:.1f} x  "
+          "(goal <= 3 x)")
 
 
 def _parallel_efficiency() -> bool:

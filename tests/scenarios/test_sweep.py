@@ -11,10 +11,17 @@ from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from scenarios.cli import main
 from scenarios.scenario import load_scenario, scenario_from_dict
-from scenarios.sweep import CSV_COLUMNS, read_sweep_csv, repetition_seed, run_point, run_scenario
+from scenarios.sweep import (
+    CSV_COLUMNS,
+    format_sweep_table,
+    read_sweep_csv,
+    repetition_seed,
+    run_point,
+    run_scenario,
+)
 
 # Small but complete: batchable points (noise) and non-batchable ones (jitter); the two batched
-# estimators and oe, which goes through identify.fit (the slower estimators add time, not cases;
+# estimators and oe (batched too; the slower estimators add time, not cases;
 # test_estimators_are_found_by_name sweeps every available one).
 SMALL = """
 name = "small"
@@ -239,3 +246,21 @@ def test_workers_are_clamped_to_the_cores_and_forked_warm():
     context = worker_context()
     assert context.get_start_method() in ("forkserver", "spawn")
     assert "scenarios.sweep" in WORKER_PRELOAD
+
+
+@pytest.mark.parametrize("frequency, angle_noise", [(10.0, 0.0), (10.0, 1e-3), (120.0, 3e-4)],
+                         ids=["noise-free", "noisy", "no-regression-start"])
+def test_batched_oe_equals_identify_fit_per_repetition(frequency, angle_noise):
+    # oe fitted on all repetitions at once against identify.fit on SimRig.run, repetition by
+    # repetition: the same minimum (1e-9 relative: different starts and paths, rounding apart),
+    # so the sweep's table prints the same digits.  At 120 rad/s zoh-ls gives no start.
+    scenario = load_scenario("frequency-noise")
+    point = _point(scenario, frequency=frequency, angle_noise=angle_noise)
+    fast = run_point(point, ["oe"], 20, scenario.seed)
+    slow = run_point(point, ["oe"], 20, scenario.seed, batch=False)
+    assert fast.batched and not slow.batched
+    (f,), (s,) = fast.outcomes, slow.outcomes
+    assert f.n_failed == s.n_failed == 0
+    np.testing.assert_allclose(f.a, s.a, rtol=1e-9)
+    np.testing.assert_allclose(f.b, s.b, rtol=1e-9)
+    assert format_sweep_table(scenario, fast.rows()) == format_sweep_table(scenario, slow.rows())
