@@ -13,7 +13,10 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
   device fault (:class:`DeviceFaultError`) raise with the samples received so far
   attached as ``exc.recording``;
-- STOP is sent from ``finally`` whenever a run is left early, including Ctrl-C.
+- whenever a run is left early (an error, Ctrl-C, or SIGTERM raised as an exception),
+  STOP is sent and END awaited for :data:`STOP_TIMEOUT` s, so the recording attached to
+  the exception (``exc.recording``, also on a ``KeyboardInterrupt``) holds the samples
+  still in flight and the device's END counters (``device_end_reason`` 1: stopped by host).
 """
 from __future__ import annotations
 
@@ -34,10 +37,12 @@ from . import protocol as P
 from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
 
-__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
+__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT"]
 
 #: Seconds between HELLOs while waiting for the device to boot (PROTOCOL.md).
 HELLO_INTERVAL = 0.2
+#: Seconds to wait for END after a STOP sent to end a run early (two tries).
+STOP_TIMEOUT = 0.5
 _READ_TIMEOUT = 0.02
 _SAMPLE_BITS = 21 * 10      # a SAMPLE frame on the wire: 21 bytes of 10 bits (8N1)
 
@@ -346,17 +351,37 @@ class SerialRig:
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
             return run.recording(self, complete=True)
-        except Exception as exc:
-            if isinstance(exc, RigError) and exc.recording is None:
-                exc.with_recording(run.recording(self, complete=False, reason=str(exc)) if run.n else None)
+        except BaseException as exc:   # an error, Ctrl-C, SIGTERM: stop the motor, keep what arrived
+            if started and not ended:
+                self._stop_run(run, wait=not isinstance(exc, RigDisconnectedError))
+            if getattr(exc, "recording", None) is None and run.n:
+                reason = str(exc) if isinstance(exc, RigError) else f"{type(exc).__name__}: {exc}".rstrip(": ")
+                with contextlib.suppress(AttributeError):   # an exception class with __slots__
+                    exc.recording = run.recording(self, complete=False, reason=reason)  # type: ignore[attr-defined]
             raise
-        finally:
-            if started and not ended and self._port is not None:
-                with contextlib.suppress(Exception):
-                    self._write(P.Stop())
-                    flush = getattr(self._port, "flush", None)
-                    if flush is not None:
-                        flush()
+
+    def _stop_run(self, run: "_RunState", *, wait: bool) -> None:
+        """Send STOP and read until the device's END (``STOP_TIMEOUT`` s per try, 2 tries).
+
+        The samples still on the wire and END's counters go into ``run``, so that a run
+        left early still records what the device sent and dropped.  Never raises: it runs
+        while another exception is propagating.
+        """
+        if self._port is None:
+            return
+        for _ in range(2 if wait else 1):
+            try:
+                self._write(P.Stop())
+                flush = getattr(self._port, "flush", None)
+                if flush is not None:
+                    flush()
+                deadline = time.monotonic() + STOP_TIMEOUT
+                while wait and run.end is None and run.boot is None and time.monotonic() < deadline:
+                    run.accept(self._read(), None)
+            except Exception:
+                return
+            if run.end is not None or run.boot is not None:
+                return
 
 
 class _Heartbeats:
@@ -503,6 +528,8 @@ class _RunState:
         return problems
 
     def recording(self, rig: SerialRig, *, complete: bool, reason: str = "") -> Recording:
+        # an interrupt between the appends of accept() can leave one list a row longer
+        n = min(len(self.seq), len(self.time), len(self.duty), len(self.counts))
         meta = {"source": "SerialRig", **self.experiment.metadata(), "port": rig.port_name,
                 "baudrate": str(rig.baudrate), "line_load": f"{rig.line_load(self.dt):.3f}",
                 "protocol_version": str(P.PROTOCOL_VERSION),
@@ -513,7 +540,7 @@ class _RunState:
             d = rig.device
             meta.update(board=d.board or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
-        meta.update(samples_expected=str(len(self.expected)), samples_received=str(self.n),
+        meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
                     host_duty_mismatches=str(self.duty_mismatches), flagged_encoder_errors=str(self.encoder_flags),
                     flagged_late_ticks=str(self.late_flags))
@@ -524,6 +551,7 @@ class _RunState:
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
             meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
-        return Recording(time=np.array(self.time), duty=np.array(self.duty, dtype=np.int64),
-                         sample_period=self.dt, counts=np.array(self.counts, dtype=np.int64),
-                         seq=np.array(self.seq, dtype=np.int64), counts_per_rev=rig.counts_per_rev, metadata=meta)
+        return Recording(time=np.array(self.time[:n]), duty=np.array(self.duty[:n], dtype=np.int64),
+                         sample_period=self.dt, counts=np.array(self.counts[:n], dtype=np.int64),
+                         seq=np.array(self.seq[:n], dtype=np.int64), counts_per_rev=rig.counts_per_rev,
+                         metadata=meta)

@@ -426,6 +426,30 @@ class RecordingWriter:
         os.unlink(self.partial_path)
         return self.path
 
+    def close_with(self, recording: Recording) -> Path:
+        """Write ``recording`` as the final file instead of the rows appended, and remove the partial file.
+
+        For a caller that holds every row in memory anyway (``SerialRig`` attaches them to
+        the exception that ended a run): rows that arrived after the last :meth:`append`
+        and the final metadata are kept too.
+
+        Returns
+        -------
+        pathlib.Path
+            The final file.
+        """
+        if not isinstance(recording, Recording):
+            raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+        self.closed = True
+        self._rows = []
+        if self._file is not None:
+            self._file.close()
+        write_recording(recording, self.path)
+        if self._file is not None:
+            os.unlink(self.partial_path)
+        self.n_rows = len(recording)
+        return self.path
+
     def __enter__(self) -> "RecordingWriter":
         return self
 

@@ -17,6 +17,7 @@ from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
 
 from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, print_to_stderr
+from .interrupts import describe_interrupt
 from .progress import ProgressBar
 
 __all__ = ["add_live_arguments", "run_live"]
@@ -58,6 +59,21 @@ def _estimate_note(running) -> str:
     return f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
 
 
+def _keep_what_arrived(writer, recording, reason: str):
+    """Close ``writer`` as incomplete: with the rig's own copy of the run when it has one.
+
+    The rig's copy (``exc.recording``) also holds the samples that arrived after the last
+    one written and the device's END counters read after STOP.
+    """
+    from motorsim.recording import Recording
+    if recording is None:
+        return writer.close(False, reason)
+    meta = {**recording.metadata, "complete": "false", "incomplete_reason": " ".join(reason.split())}
+    return writer.close_with(Recording(time=recording.time, duty=recording.duty, sample_period=recording.sample_period,
+                                       counts=recording.counts, seq=recording.seq,
+                                       counts_per_rev=recording.counts_per_rev, metadata=meta))
+
+
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
@@ -89,18 +105,18 @@ def run_live(args: argparse.Namespace) -> int:
         with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
                        watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
             recording = rig.run(experiment, on_sample=on_sample)
-    except RigError as exc:
+    except BaseException as exc:   # a rig error, Ctrl-C, SIGTERM, ...: keep what arrived
         progress.close()
-        meta = exc.recording.metadata if exc.recording is not None else None
-        path = writer.close(False, f"{type(exc).__name__}: {exc}", metadata=meta)
-        kept = f"; the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
-        raise CommandError(f"{exc}{kept}") from None
-    except BaseException as exc:   # Ctrl-C, a protocol version mismatch, ...: keep what arrived
-        progress.close()
-        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        path = writer.close(False, reason)
-        if path is not None:
-            print_to_stderr(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)")
+        if isinstance(exc, KeyboardInterrupt):
+            reason = describe_interrupt(exc)
+        else:
+            reason = f"{type(exc).__name__}: {exc}"
+        path = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
+        kept = f"the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
+        if isinstance(exc, RigError):
+            raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
+        if kept:
+            print_to_stderr(f"motorid: {kept}")
         raise
     finally:
         if plot is not None:

@@ -278,9 +278,11 @@ def _in_order(executor: concurrent.futures.Executor | None, jobs: Iterable[tuple
         for job in jobs:
             yield _run_point_job(*job)
         return
+    from .interrupts import interrupts_deferred
     pending: collections.deque = collections.deque()
     for job in jobs:
-        pending.append(executor.submit(_run_point_job, *job))
+        with interrupts_deferred():    # a submit may start the workers
+            pending.append(executor.submit(_run_point_job, *job))
         if len(pending) >= window:
             yield pending.popleft().result()
     while pending:
@@ -404,8 +406,21 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
     own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         yield own, 2 * workers
+    except BaseException:     # an error, Ctrl-C, SIGTERM: no point waits for the points in flight
+        _stop_workers(own)
+        raise
     finally:
         own.shutdown()
+
+
+def _stop_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """Cancel the queued points and terminate the worker processes (their points are abandoned)."""
+    # terminated before the pool lets go of them: a worker still starting up would otherwise
+    # find its pipe closed and print a traceback
+    for process in list((getattr(pool, "_processes", None) or {}).values()):   # no public handle on them
+        if process.is_alive():
+            process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 class _Tally:

@@ -155,7 +155,7 @@ def test_device_going_silent_times_out_stops_the_motor_and_keeps_the_partial_rec
     with _fake(FaultPlan(stall_at=120), speed=1.0) as dev:     # the run would end 1.4 s after the stall
         with SerialRig(dev.port_name, timeout=0.3) as rig, pytest.raises(RigTimeoutError, match="silent") as err:
             rig.run(EXPERIMENT)
-        _wait_for(lambda: dev.stops_received == 1, "the STOP from the host")
+        _wait_for(lambda: dev.stops_received >= 1, "the STOP from the host")
         assert dev.duty == 0 and dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
     rec = err.value.recording
     assert rec.metadata["complete"] == "false" and "silent" in rec.metadata["incomplete_reason"]
