@@ -9,7 +9,8 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   recording's ``seq`` (its sample index), and is counted in the metadata;
 - every SAMPLE's duty is checked against :func:`hardware.protocol.expand` of the
   WAVE sent, and END's counters against what arrived (:class:`RigCheckError`);
-- the device going silent (:class:`RigTimeoutError`), the port failing
+- the device going silent or never advancing ``seq`` for ``timeout`` s, or the run
+  passing its deadline (duration + :func:`run_margin`) (:class:`RigTimeoutError`), the port failing
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
   device fault (:class:`DeviceFaultError`) raise with the samples received so far
   attached as ``exc.recording``;
@@ -37,7 +38,7 @@ from . import protocol as P
 from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
 
-__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT"]
+__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT", "run_margin"]
 
 #: Seconds between HELLOs while waiting for the device to boot (PROTOCOL.md).
 HELLO_INTERVAL = 0.2
@@ -87,7 +88,9 @@ class SerialRig:
     watchdog_ms : int
         Device's host-silence watchdog in ms (0 off, else 50...60 000); HEARTBEAT every quarter of it.
     timeout : float
-        Seconds of silence from the device during a run before :class:`RigTimeoutError`.
+        Seconds without a new sample during a run (silence, or frames that do not advance
+        ``seq``) before :class:`RigTimeoutError`; a run also ends in that error once it takes
+        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).
     hello_timeout : float
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
@@ -276,22 +279,41 @@ class SerialRig:
                               f"(3 tries, {self.command_timeout:g} s each)")
 
     def _receive_run(self, run: "_RunState", on_sample) -> P.End:
-        """Read the run's frames until END and return it; silence longer than ``timeout`` raises."""
-        last_rx = loop_end = time.monotonic()
+        """Read the run's frames until END and return it.
+
+        Two limits, both raising :class:`RigTimeoutError`: ``timeout`` s without a new
+        sample (silence, or frames that do not advance ``seq``: a device repeating itself),
+        and the run's deadline, its duration plus :func:`run_margin`.
+        """
+        start = last_progress = loop_end = time.monotonic()
+        duration = run.experiment.duration
+        margin = run_margin(duration, self.timeout)
+        deadline = start + duration + margin
+        frames = 0
         while run.end is None:
             msgs = self._read()
             now = time.monotonic()
             # An iteration far longer than a read timeout means this process was not running
-            # (or a callback was slow): that is not the device's silence.
+            # (or a callback was slow): that is not the device's silence, nor its slowness.
             if now - loop_end > 0.25:
-                last_rx += now - loop_end - _READ_TIMEOUT
+                last_progress += now - loop_end - _READ_TIMEOUT
+                deadline += now - loop_end - _READ_TIMEOUT
             loop_end = now
             if msgs:
-                last_rx = now
+                frames += len(msgs)
+                before = (run.last_index, run.fault)
                 run.accept(msgs, on_sample)
-            elif now - last_rx > self.timeout:
-                raise RigTimeoutError(f"the device on {self.port_name} went silent for {self.timeout:g} s "
+                if (run.last_index, run.fault) != before or run.end is not None:
+                    last_progress, frames = now, 0
+            if run.end is None and now - last_progress > self.timeout:
+                what = (f"sent {frames} frames but no new sample" if frames else "went silent")
+                raise RigTimeoutError(f"the device on {self.port_name} {what} for {self.timeout:g} s "
                                       f"after sample {run.last_index}")
+            if run.end is None and now > deadline:
+                raise RigTimeoutError(
+                    f"the run on {self.port_name} passed its deadline ({now - start:.1f} s for a "
+                    f"{duration:g} s experiment, margin {margin:g} s) "
+                    f"at sample {run.last_index} of {len(run.expected)}: the device is slower than its clock")
             if run.boot is not None:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
@@ -382,6 +404,24 @@ class SerialRig:
                 return
             if run.end is not None or run.boot is not None:
                 return
+
+
+def run_margin(duration: float, timeout: float) -> float:
+    """Seconds a run may take beyond its ``duration`` before :class:`RigTimeoutError`: 10 % + 2 s + ``timeout``.
+
+    Parameters
+    ----------
+    duration : float
+        The experiment's duration in s (the device's clock).
+    timeout : float
+        The rig's silence timeout in s.
+
+    Examples
+    --------
+    >>> run_margin(10.0, 1.0)
+    4.0
+    """
+    return 0.1 * duration + 2.0 + timeout
 
 
 class _Heartbeats:

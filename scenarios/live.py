@@ -39,7 +39,8 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--watchdog-ms", type=int, default=500, metavar="MS",
                    help="device stops the motor after this much host silence, in ms (default 500; 0 off)")
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
-                   help="give up after the device is silent this long during a run (default 1 s)")
+                   help="give up after this long without a new sample during a run, silent or not (default 1 s); "
+                        "a run also gives up after its duration + 10 %% + 2 s + this timeout")
     add_experiment_arguments(parser)
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
