@@ -6,7 +6,10 @@ a slow callback cannot trip the device's watchdog); the clock and the
 waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
 
 - a SAMPLE lost on the link or dropped by the device leaves a gap in the
-  recording's ``seq`` (its sample index), and is counted in the metadata;
+  recording's ``seq`` (its sample index), and is counted in the metadata, on every
+  ending: ``samples_ticked`` (samples the device ran), ``samples_lost`` (of those, not
+  received) and ``loss_fraction``, with the link's ``host_link_frames_lost`` and
+  ``host_rx_errors`` (frames with a bad CRC or COBS) and END's ``device_*`` counters;
 - every SAMPLE's duty is checked against :func:`hardware.protocol.expand` of the
   WAVE sent, and END's counters against what arrived (:class:`RigCheckError`);
 - the device going silent or never advancing ``seq`` for ``timeout`` s, or the run
@@ -567,6 +570,17 @@ class _RunState:
             problems.append(f"sample {self.seq[-1]} arrived but END counts only {ticks} ticks")
         return problems
 
+    def losses(self, n: int) -> tuple[int, int]:
+        """Samples the device ticked so far and how many of them did not arrive (lost or dropped).
+
+        The ticks are END's ``samples_sent + samples_dropped`` once END arrived, else the
+        index after the last sample received (the gaps before it are what is known lost).
+        """
+        ticks = self.last_index + 1
+        if self.end is not None:
+            ticks = max(ticks, self.end.samples_sent + self.end.samples_dropped)
+        return ticks, max(ticks - n, 0)
+
     def recording(self, rig: SerialRig, *, complete: bool, reason: str = "") -> Recording:
         # an interrupt between the appends of accept() can leave one list a row longer
         n = min(len(self.seq), len(self.time), len(self.duty), len(self.counts))
@@ -591,6 +605,9 @@ class _RunState:
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
             meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
+        ticks, lost = self.losses(n)
+        meta.update(samples_ticked=str(ticks), samples_lost=str(lost),
+                    loss_fraction=f"{lost / ticks:.6g}" if ticks else "0")
         return Recording(time=np.array(self.time[:n]), duty=np.array(self.duty[:n], dtype=np.int64),
                          sample_period=self.dt, counts=np.array(self.counts[:n], dtype=np.int64),
                          seq=np.array(self.seq[:n], dtype=np.int64), counts_per_rev=rig.counts_per_rev,

@@ -20,7 +20,10 @@ from .arguments import CommandError, add_experiment_arguments, add_knob_flag, ex
 from .interrupts import describe_interrupt
 from .progress import ProgressBar
 
-__all__ = ["add_live_arguments", "run_live"]
+__all__ = ["add_live_arguments", "run_live", "DEFAULT_MAX_LOSS"]
+
+#: Default ``--max-loss`` in %: more samples lost than this and ``live`` refuses to identify.
+DEFAULT_MAX_LOSS = 2.0
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +48,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
+    parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
+                        help=f"largest share of the samples run that may be lost (link or device) before live "
+                             f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
     parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
     parser.add_argument("--plot", action="store_true",
                         help="show duty and speed live with the running estimate (matplotlib window; "
@@ -79,12 +85,12 @@ def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
     from hardware.serial_rig import SerialRig
-    from identify import fit
     from identify.recursive import RunningEstimator
     from motorsim.recording import RecordingWriter
 
-    from .identification import format_estimate
     experiment = experiment_from_args(args)
+    if not 0 <= args.max_loss <= 100:
+        raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=not args.quiet and experiment.n_samples > 0)
@@ -112,8 +118,12 @@ def run_live(args: argparse.Namespace) -> int:
             reason = describe_interrupt(exc)
         else:
             reason = f"{type(exc).__name__}: {exc}"
-        path = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
-        kept = f"the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
+        kept_rec = getattr(exc, "recording", None)
+        path = _keep_what_arrived(writer, kept_rec, reason)
+        kept = ""
+        if path:
+            figures = f" ({_loss_note(kept_rec.metadata)})" if kept_rec is not None else ""
+            kept = f"the {writer.n_rows} samples received are in {path} (complete: false){figures}"
         if isinstance(exc, RigError):
             raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
         if kept:
@@ -125,11 +135,32 @@ def run_live(args: argparse.Namespace) -> int:
     progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
     progress.close()
     path = writer.close(True, metadata=recording.metadata)
-    estimate = fit(recording, method=args.method)
+    return _report(args, recording, path, running)
+
+
+def _loss_note(m) -> str:
+    """The loss figures of a run's metadata, as every ending of ``live`` states them."""
+    ticked, lost = int(m.get("samples_ticked", 0)), int(m.get("samples_lost", 0))
+    device = m.get("device_samples_dropped", "?")
+    return (f"{m.get('samples_received', '?')} received of {m.get('samples_expected', '?')}; "
+            f"{lost} of the {ticked} samples run lost ({100 * float(m.get('loss_fraction', 0)):.3g} %): "
+            f"{m.get('host_link_frames_lost', '?')} frames lost on the link, {device} dropped by the device, "
+            f"{m.get('host_rx_errors', '?')} bad frames (CRC or framing)")
+
+
+def _report(args: argparse.Namespace, recording, path, running) -> int:
+    """After a complete run: the summary line, the loss check, the estimates (and JSON)."""
+    from identify import fit
+
+    from .identification import format_estimate
     m = recording.metadata
-    print(f"wrote {len(recording)} samples to {path}: {m['samples_received']} received of "
-          f"{m['samples_expected']}, {m['host_link_frames_lost']} lost on the link, "
-          f"{m['device_samples_dropped']} dropped by the device, {m['host_rx_errors']} bad frames")
+    print(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
+    loss_pct = 100 * float(m["loss_fraction"])
+    if loss_pct > args.max_loss:
+        raise CommandError(f"{m['samples_lost']} of the {m['samples_ticked']} samples were lost "
+                           f"({loss_pct:.3g} %), above --max-loss {args.max_loss:g} %; {path} is kept but not "
+                           f"identified: check the cable and the baud rate, or raise --max-loss")
+    estimate = fit(recording, method=args.method)
     print(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:
@@ -137,7 +168,8 @@ def run_live(args: argparse.Namespace) -> int:
               f"the estimate shown during the run)")
     if args.json:
         out = {**estimate.to_dict(), "running_estimate": run_est.to_dict(), "recording": str(path),
-               "samples_received": len(recording), "samples_expected": experiment.n_samples,
+               "samples_received": len(recording), "samples_expected": int(m["samples_expected"]),
+               "samples_lost": int(m["samples_lost"]), "loss_fraction": float(m["loss_fraction"]),
                "link_frames_lost": int(m["host_link_frames_lost"]),
                "device_samples_dropped": int(m["device_samples_dropped"]),
                "host_rx_errors": int(m["host_rx_errors"])}
