@@ -392,6 +392,8 @@ class SerialRig:
         left early still records what the device sent and dropped.  Never raises: it runs
         while another exception is propagating.
         """
+        pending, run.unaccepted = run.unaccepted, []
+        run.accept(pending, None)
         if self._port is None:
             return
         for _ in range(2 if wait else 1):
@@ -481,6 +483,7 @@ class _RunState:
         self.late_flags = 0
         self.last_index = -1
         self.rx0, self.lost0 = rig._reader.rx_errors, rig._link_lost
+        self.unaccepted: list = []
         self._first_us = self._prev_us = self._unwrapped = 0
 
     @property
@@ -496,8 +499,9 @@ class _RunState:
         return self._rig._link_lost - self.lost0
 
     def accept(self, msgs: list, on_sample) -> None:
+        """Take the frames ``msgs`` in; frames after one whose ``on_sample`` raised wait in ``unaccepted``."""
         n_expected = len(self.expected)
-        for msg in msgs:
+        for i, msg in enumerate(msgs):
             if type(msg) is P.Sample:
                 k = msg.seq
                 if k <= self.last_index or k >= n_expected:
@@ -524,7 +528,11 @@ class _RunState:
                 self.duty.append(msg.duty)
                 self.counts.append(msg.counts)
                 if on_sample is not None:
-                    on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                    try:
+                        on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                    except BaseException:
+                        self.unaccepted = msgs[i + 1:]    # still received: recorded when the run is stopped
+                        raise
             elif type(msg) is P.End:
                 self.end = msg
                 return

@@ -18,6 +18,7 @@ import argparse
 import sys
 from typing import Callable, NamedTuple, Sequence
 
+from motorsim.files import OutputFileError
 from motorsim.recording import RecordingFormatError
 
 from .arguments import CommandError, print_to_stderr
@@ -104,6 +105,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.run(args)
     except (CommandError, RecordingFormatError, ValueError, TypeError) as exc:
         print_to_stderr(f"motorid: error: {exc}")
+        return 2
+    except OSError as exc:      # a file that cannot be read or written: one line naming it
+        print_to_stderr(f"motorid: error: {exc}" if isinstance(exc, OutputFileError) or not exc.strerror
+                        else f"motorid: error: {exc.filename or ''}: {exc.strerror}".replace("error: : ", "error: "))
         return 2
     except KeyboardInterrupt as exc:
         print_to_stderr(f"motorid: {describe_interrupt(exc)}")

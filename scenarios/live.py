@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
@@ -45,7 +46,10 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                    help="give up after this long without a new sample during a run, silent or not (default 1 s); "
                         "a run also gives up after its duration + 10 %% + 2 s + this timeout")
     add_experiment_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
+    parser.add_argument("--out", required=True, metavar="FILE.csv",
+                        help="path of the recording to write (checked before the motor starts; an existing "
+                             "file is refused without --overwrite, a folder or a device always)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --out")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
     parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
@@ -66,19 +70,49 @@ def _estimate_note(running) -> str:
     return f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
 
 
-def _keep_what_arrived(writer, recording, reason: str):
-    """Close ``writer`` as incomplete: with the rig's own copy of the run when it has one.
+def _keep_what_arrived(writer, recording, reason: str) -> str:
+    """Close ``writer`` as incomplete, with the rig's own copy of the run when it has one; say where it is.
 
     The rig's copy (``exc.recording``) also holds the samples that arrived after the last
-    one written and the device's END counters read after STOP.
+    one written and the device's END counters read after STOP.  When the recording cannot
+    be written where asked (a full disk), it goes to the temporary folder.
+
+    Returns
+    -------
+    str
+        Where the samples are and the loss figures, for the message; empty when none arrived.
     """
     from motorsim.recording import Recording
     if recording is None:
-        return writer.close(False, reason)
+        try:
+            path = writer.close(False, reason)
+        except OSError as exc:
+            return f"writing {writer.path} failed ({exc}); what was written is in {writer.partial_path}"
+        return f"the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
     meta = {**recording.metadata, "complete": "false", "incomplete_reason": " ".join(reason.split())}
-    return writer.close_with(Recording(time=recording.time, duty=recording.duty, sample_period=recording.sample_period,
-                                       counts=recording.counts, seq=recording.seq,
-                                       counts_per_rev=recording.counts_per_rev, metadata=meta))
+    recording = Recording(time=recording.time, duty=recording.duty, sample_period=recording.sample_period,
+                          counts=recording.counts, seq=recording.seq, counts_per_rev=recording.counts_per_rev,
+                          metadata=meta)
+    figures = f" ({_loss_note(meta)})"
+    try:
+        path = writer.close_with(recording)
+    except OSError as exc:
+        return f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}{figures}"
+    return f"the {len(recording)} samples received are in {path} (complete: false){figures}"
+
+
+def _rescue(recording, path) -> str:
+    """Write ``recording`` to the temporary folder when ``path`` cannot take it; say where it went."""
+    import os
+    import tempfile
+
+    from motorsim.recording import write_recording
+    rescue = Path(tempfile.gettempdir()) / f"motorid-rescued-{os.getpid()}-{Path(path).name}"
+    try:
+        write_recording(recording, rescue)
+    except OSError as exc:
+        return f"the {len(recording)} samples could not be saved anywhere (also {exc})"
+    return f"the {len(recording)} samples received are in {rescue} instead"
 
 
 def run_live(args: argparse.Namespace) -> int:
@@ -98,7 +132,8 @@ def run_live(args: argparse.Namespace) -> int:
     if args.plot:
         from .plots import LivePlot
         plot = LivePlot(experiment, counts_per_rev=args.counts_per_rev, fallback_path=f"{args.out}.live.png")
-    writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
+    # made before the port is opened: an --out that cannot be written stops here, before the motor turns
+    writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev, overwrite=args.overwrite,
                              metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
 
     def on_sample(s) -> None:
@@ -112,20 +147,14 @@ def run_live(args: argparse.Namespace) -> int:
         with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
                        watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
             recording = rig.run(experiment, on_sample=on_sample)
-    except BaseException as exc:   # a rig error, Ctrl-C, SIGTERM, ...: keep what arrived
+    except BaseException as exc:   # a rig error, a write error, Ctrl-C, SIGTERM: keep what arrived
         progress.close()
-        if isinstance(exc, KeyboardInterrupt):
-            reason = describe_interrupt(exc)
-        else:
-            reason = f"{type(exc).__name__}: {exc}"
-        kept_rec = getattr(exc, "recording", None)
-        path = _keep_what_arrived(writer, kept_rec, reason)
-        kept = ""
-        if path:
-            figures = f" ({_loss_note(kept_rec.metadata)})" if kept_rec is not None else ""
-            kept = f"the {writer.n_rows} samples received are in {path} (complete: false){figures}"
+        reason = describe_interrupt(exc) if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        kept = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
         if isinstance(exc, RigError):
             raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
+        if isinstance(exc, OSError):      # the recording could not be written: the rig sent STOP
+            raise CommandError(f"{exc}; the motor was stopped; {kept}" if kept else str(exc)) from None
         if kept:
             print_to_stderr(f"motorid: {kept}")
         raise
@@ -134,8 +163,14 @@ def run_live(args: argparse.Namespace) -> int:
             plot.close()
     progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
     progress.close()
-    path = writer.close(True, metadata=recording.metadata)
-    return _report(args, recording, path, running)
+    try:
+        path, problem = writer.close(True, metadata=recording.metadata), ""
+    except OSError as exc:         # a full disk at the end: the whole run is still in memory
+        path, problem = writer.path, f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}"
+    status = _report(args, recording, path, running)
+    if problem:
+        raise CommandError(problem)
+    return status
 
 
 def _loss_note(m) -> str:

@@ -40,6 +40,7 @@ import numpy as np
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from motorsim.checks import check_int
+from motorsim.files import atomic_writer, make_output_dir, safe_file_name, write_atomically
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
@@ -375,7 +376,7 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     if workers is not None:
         check_int("workers", workers, lo=1, allow_integral_float=False)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
     jobs = ((p, scenario.methods, scenario.repetitions, scenario.seed) for p in scenario.points())
     t0 = time.perf_counter()
     tally = _Tally(scenario.methods)
@@ -445,26 +446,22 @@ class _Tally:
 
 
 def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally, bar: ProgressBar) -> Path:
-    """Stream the rows of ``results`` to ``path`` through a ``.part`` file renamed when complete."""
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as f:
-            writer = csv.writer(f, lineterminator="\n")
-            writer.writerow(CSV_COLUMNS)
-            for result in results:
-                for row in tally.add(result):
-                    writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
-                f.flush()
-                bar.update()
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Stream the rows of ``results`` to a temporary file that becomes ``path`` when complete.
+
+    An interrupted or failed sweep leaves no CSV (and the previous one, if any, unchanged).
+    """
+    with atomic_writer(path) as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(CSV_COLUMNS)
+        for result in results:
+            for row in tally.add(result):
+                writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
+            bar.update()
     return path
 
 
 def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: float, csv_name: str) -> Path:
-    path.write_text(json.dumps({
+    return write_atomically(path, json.dumps({
         "scenario": scenario.name, "description": scenario.description, "seed": scenario.seed,
         "repetitions": scenario.repetitions, "methods": list(scenario.methods),
         "grid": {axis: list(values) for axis, values in scenario.grid},
@@ -472,8 +469,7 @@ def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: 
         "base": dict(scenario.base), "points": scenario.n_points, "rows": tally.n_rows,
         "samples_simulated": tally.samples, "elapsed_s": round(elapsed, 3),
         "failures": dict(tally.failures), "worst_abs_bias_a_pct": tally.worst, "csv": csv_name,
-    }, indent=1), encoding="utf-8")
-    return path
+    }, indent=1))
 
 
 def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
@@ -570,7 +566,7 @@ def run_sweep(args: argparse.Namespace) -> int:
             print(f"{name:<16} {description}")
         return 0
     scenario = _scenario_from_args(args)
-    out = Path(args.out or Path("sweep-output") / scenario.name)
+    out = Path(args.out or Path("sweep-output") / safe_file_name(scenario.name, "scenario"))
     with _dask_executor(args.dask, args.workers) as executor:
         summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
                                progress=False if args.quiet else None)

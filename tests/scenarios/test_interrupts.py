@@ -30,15 +30,20 @@ def _start(args, marker):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _wait_for_file(path: Path, proc: subprocess.Popen) -> None:
+def _wait_for(predicate, what: str, proc: subprocess.Popen) -> None:
     deadline = time.monotonic() + HANG_GUARD
-    while not path.exists():
+    while not predicate():
         if proc.poll() is not None:
-            raise AssertionError(f"motorid ended before {path.name} appeared: {proc.communicate()}")
+            raise AssertionError(f"motorid ended before {what}: {proc.communicate()}")
         if time.monotonic() > deadline:
             proc.kill()
-            raise AssertionError(f"{path.name} never appeared")
+            raise AssertionError(f"never saw {what}")
         time.sleep(0.05)
+
+
+def _has_rows(path: Path):
+    """True once ``path`` exists and is not empty (the partial recording has its first rows)."""
+    return lambda: path.exists() and path.stat().st_size > 0
 
 
 def _processes_with(marker: str) -> list[int]:
@@ -55,11 +60,11 @@ def _processes_with(marker: str) -> list[int]:
     return found
 
 
-def _signal_mid_run(args, wait_for: Path, signum: int) -> tuple[int, str, str]:
+def _signal_mid_run(args, mid_run, what: str, signum: int) -> tuple[int, str, str]:
     marker = uuid.uuid4().hex
     proc = _start(args, marker)
     try:
-        _wait_for_file(wait_for, proc)
+        _wait_for(mid_run, what, proc)
         proc.send_signal(signum)
         out, err = proc.communicate(timeout=HANG_GUARD)
     finally:
@@ -91,7 +96,8 @@ def _assert_stopped_recording(out: Path, reason: str) -> None:
 def test_a_signal_during_live_on_fake_sends_stop_and_writes_the_final_recording(tmp_path, signum):
     out = tmp_path / "run.csv"
     status, _, err = _signal_mid_run(["live", "--port", "fake://?a=25&b=3", "--duration", "60", "--quiet",
-                                      "--watchdog-ms", "0", "--out", str(out)], Path(f"{out}.partial"), signum)
+                                      "--watchdog-ms", "0", "--out", str(out)],
+                                     _has_rows(Path(f"{out}.partial")), "rows in the partial recording", signum)
     name = signal.Signals(signum).name
     assert status == 128 + signum, err
     assert f"interrupted ({name})" in err and "Traceback" not in err
@@ -102,7 +108,8 @@ def test_a_signal_during_live_on_fake_sends_stop_and_writes_the_final_recording(
 def test_sigterm_during_live_on_the_emulated_firmware_stops_it_and_reaps_the_emulator(tmp_path):
     out = tmp_path / "run.csv"
     status, _, err = _signal_mid_run(["live", "--port", "avr-sim://?a=25&b=3", "--duration", "60", "--quiet",
-                                      "--watchdog-ms", "0", "--out", str(out)], Path(f"{out}.partial"),
+                                      "--watchdog-ms", "0", "--out", str(out)],
+                                     _has_rows(Path(f"{out}.partial")), "rows in the partial recording",
                                      signal.SIGTERM)
     assert status == 143 and "Traceback" not in err, err
     _assert_stopped_recording(out, "interrupted (SIGTERM)")
@@ -111,7 +118,8 @@ def test_sigterm_during_live_on_the_emulated_firmware_stops_it_and_reaps_the_emu
 @pytest.mark.slow
 def test_sigterm_during_a_sweep_leaves_no_partial_csv_and_no_worker(tmp_path):
     status, _, err = _signal_mid_run(["sweep", "reality", "--workers", "2", "--repetitions", "2000", "--quiet",
-                                      "--no-plots", "--out", str(tmp_path)], tmp_path / "sweep.csv.part",
-                                     signal.SIGTERM)
+                                      "--no-plots", "--out", str(tmp_path)],
+                                     lambda: any(p.name.startswith(".sweep.csv.") for p in tmp_path.iterdir()),
+                                     "the unfinished sweep CSV", signal.SIGTERM)
     assert status == 143 and "interrupted (SIGTERM)" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
