@@ -553,7 +553,8 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
                         help="estimators to compare instead of the scenario's (e.g. all, or oe,oe-friction)")
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run on a Dask cluster (scheduler address, or 'local' for a LocalCluster of "
-                             "--workers processes); needs motorid[dask]")
+                             "--workers processes; gives up after 10 s without a scheduler); the scheduler "
+                             "runs code of its choosing here: use only one you trust; needs motorid[dask]")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
@@ -597,6 +598,23 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
     return scenario
 
 
+#: Seconds ``--dask ADDRESS`` waits for the scheduler before giving up.
+DASK_CONNECT_TIMEOUT = 10.0
+
+
+def _connect_dask(client_class, address: str):
+    """A Dask client on ``address``, or a one-line :class:`CommandError` within :data:`DASK_CONNECT_TIMEOUT` s."""
+    try:
+        return client_class(address, timeout=DASK_CONNECT_TIMEOUT)
+    except (OSError, TimeoutError) as exc:
+        raise CommandError(f"--dask {address}: no Dask scheduler answered within {DASK_CONNECT_TIMEOUT:g} s "
+                           f"({type(exc).__name__}: {exc}); check the address (tcp://HOST:8786, tls://...) "
+                           f"and that the scheduler runs") from None
+    except Exception as exc:    # whatever a server that is not a Dask scheduler makes the client raise
+        raise CommandError(f"--dask {address}: the server there does not speak Dask's protocol "
+                           f"({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
 @contextlib.contextmanager
 def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurrent.futures.Executor | None]:
     """A Dask client's executor for ``--dask ADDRESS`` (``local``: a LocalCluster), else None."""
@@ -613,7 +631,7 @@ def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurr
                                processes=True, dashboard_address=None)
         client = Client(cluster)
     else:
-        client = Client(address)
+        client = _connect_dask(Client, address)
     try:
         yield client.get_executor()
     finally:

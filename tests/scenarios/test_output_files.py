@@ -182,3 +182,44 @@ def test_a_scenario_name_never_writes_outside_the_output_folder(tmp_path, monkey
     written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*.csv"))
     assert len(written) == 1 and written[0].startswith("a/b/sweep-output/")
     assert not Path("/tmp/escaped-absolute").exists()
+
+
+def _serve_once(reply: bytes):
+    """A TCP server on localhost that answers every connection with ``reply`` (not Dask); returns its port."""
+    import socket
+    import threading
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    server.settimeout(30)
+
+    def serve():
+        with server:
+            for _ in range(8):
+                try:
+                    conn, _ = server.accept()
+                except OSError:
+                    return
+                with conn:
+                    conn.sendall(reply)
+    threading.Thread(target=serve, daemon=True).start()
+    return server.getsockname()[1]
+
+
+def test_dask_at_an_address_that_is_not_a_scheduler_is_one_clear_line(tmp_path, capsys):
+    pytest.importorskip("dask.distributed")
+    port = _serve_once(b"HTTP/1.0 200 OK\r\n\r\nhello, I am a web server\n" * 4)
+    argv = ["sweep", "article", "--repetitions", "1", "--quiet", "--no-plots", "--out", str(tmp_path / "o")]
+    assert main([*argv, "--dask", f"tcp://127.0.0.1:{port}"]) == 2
+    line = _error_line(capsys)
+    assert f"--dask tcp://127.0.0.1:{port}" in line and "Dask" in line
+
+
+def test_dask_where_nothing_listens_gives_up_with_one_line(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("dask.distributed")
+    import scenarios.sweep
+    monkeypatch.setattr(scenarios.sweep, "DASK_CONNECT_TIMEOUT", 1.0)
+    argv = ["sweep", "article", "--repetitions", "1", "--quiet", "--no-plots", "--out", str(tmp_path / "o")]
+    assert main([*argv, "--dask", "tcp://127.0.0.1:1"]) == 2
+    line = _error_line(capsys)
+    assert "no Dask scheduler answered within 1 s" in line
