@@ -123,3 +123,26 @@ def test_sigterm_during_a_sweep_leaves_no_partial_csv_and_no_worker(tmp_path):
                                      "the unfinished sweep CSV", signal.SIGTERM)
     assert status == 143 and "interrupted (SIGTERM)" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.firmware
+def test_an_interrupt_while_the_emulator_starts_ends_its_process(monkeypatch):
+    # Ctrl-C or SIGTERM can arrive while the harness is starting (before its pty is known).
+    from hardware.sim import launcher
+    sim = launcher.AvrSimulation()
+    started = []
+    popen = launcher.subprocess.Popen
+
+    def popen_then_interrupt(*args, **kw):
+        process = popen(*args, **kw)
+        started.append(process)
+        return process
+
+    def select_interrupted(*args):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(launcher.subprocess, "Popen", popen_then_interrupt)
+    monkeypatch.setattr(launcher.select, "select", select_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sim.start()
+    [process] = started
+    assert process.poll() is not None, "the harness was left running"
