@@ -393,6 +393,7 @@ class FakeDevice:
                 self._silent = True
             if f.repeat_at is not None and k > f.repeat_at and self._repeated is not None:
                 self._send_sample(self._repeated)      # the same sample again; k never advances
+                self._counters["sent"] -= 1            # a repeat is not a new sample sent
                 self._next_tick += self._dt / self.speed if self.speed else 0.0
                 continue
             counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
