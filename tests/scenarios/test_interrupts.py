@@ -63,20 +63,22 @@ def _processes_with(marker: str) -> list[int]:
 def _signal_mid_run(args, mid_run, what: str, signum: int) -> tuple[int, str, str]:
     marker = uuid.uuid4().hex
     proc = _start(args, marker)
+    left: list[int] = []
     try:
         _wait_for(mid_run, what, proc)
         proc.send_signal(signum)
         out, err = proc.communicate(timeout=HANG_GUARD)
-    finally:
+        # a child being reaped may take a moment to disappear from /proc
+        deadline = time.monotonic() + 5.0
+        while _processes_with(marker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = _processes_with(marker)
+    finally:      # whatever failed, no process of this test outlives it
         if proc.poll() is None:
             proc.kill()
-    # a child being reaped may take a moment to disappear from /proc
-    deadline = time.monotonic() + 5.0
-    while _processes_with(marker) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    left = _processes_with(marker)
-    for pid in left:
-        os.kill(pid, signal.SIGKILL)
+            proc.wait()
+        for pid in _processes_with(marker):
+            os.kill(pid, signal.SIGKILL)
     assert not left, f"processes left running after the signal: {left}"
     return proc.returncode, out, err
 
