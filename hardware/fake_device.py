@@ -76,6 +76,9 @@ class FaultPlan:
     stall_at : int or None
         Sample index from which the device transmits nothing more (it keeps receiving,
         so a STOP still stops the motor).
+    repeat_at : int or None
+        Sample index from which the device sends that same SAMPLE again at every tick, forever
+        (a device that talks but never progresses; the run never ends by itself).
     disconnect_at : int or None
         Sample index at which the device closes the link (the host sees the port fail), once the
         host has read the samples before it.
@@ -94,6 +97,8 @@ class FaultPlan:
     garbage_rate: float = knob(0.0, unit="", help="probability of random bytes before a SAMPLE frame")
     queue_drop_rate: float = knob(0.0, unit="", help="probability that the device drops a sample")
     stall_at: int | None = knob(None, kind=int, unit="samples", help="sample from which the device sends nothing")
+    repeat_at: int | None = knob(None, kind=int, unit="samples",
+                                 help="sample the device repeats forever from then on")
     disconnect_at: int | None = knob(None, kind=int, unit="samples", help="sample at which the link closes")
     watchdog_trip_at: int | None = knob(None, kind=int, unit="samples",
                                         help="sample at which the host-silence watchdog trips")
@@ -107,7 +112,7 @@ class FaultPlan:
             if v >= 1:
                 raise ValueError(f"{name} must be a probability in [0, 1), got {v!r}")
             object.__setattr__(self, name, v)
-        for name in ("stall_at", "disconnect_at", "watchdog_trip_at"):
+        for name in ("stall_at", "repeat_at", "disconnect_at", "watchdog_trip_at"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, check_int(name, getattr(self, name), 0, 2**32 - 1))
         object.__setattr__(self, "version", check_int("version", self.version, 0, 255))
@@ -168,6 +173,7 @@ class FakeDevice:
         self.runs_started = 0
         self.last_end: P.End | None = None
         self.rx_errors = 0
+        self._repeated: P.Sample | None = None     # the sample a repeat_at fault sends again
         self._master = self._slave = -1
         self.port_name = ""
         self._thread: threading.Thread | None = None
@@ -385,6 +391,11 @@ class FakeDevice:
                 return
             if f.stall_at is not None and k >= f.stall_at:
                 self._silent = True
+            if f.repeat_at is not None and k > f.repeat_at and self._repeated is not None:
+                self._send_sample(self._repeated)      # the same sample again; k never advances
+                self._counters["sent"] -= 1            # a repeat is not a new sample sent
+                self._next_tick += self._dt / self.speed if self.speed else 0.0
+                continue
             counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
             duty = int(self._duty_seq[k])
             self.duty = duty
@@ -396,6 +407,7 @@ class FakeDevice:
             self._advance_motor(float(drive), self._dt)
             time_us = (self._t0_us + k * cfg.sample_period_us) & 0xFFFFFFFF
             sample = P.Sample(k, time_us, counts, duty, 0)
+            self._repeated = sample
             if self._queued_samples >= self.queue_size or self.rng.random() < f.queue_drop_rate:
                 self._counters["dropped"] += 1
                 if not self._overflow_reported:

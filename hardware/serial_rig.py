@@ -6,14 +6,21 @@ a slow callback cannot trip the device's watchdog); the clock and the
 waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
 
 - a SAMPLE lost on the link or dropped by the device leaves a gap in the
-  recording's ``seq`` (its sample index), and is counted in the metadata;
+  recording's ``seq`` (its sample index), and is counted in the metadata, on every
+  ending: ``samples_ticked`` (samples the device ran), ``samples_lost`` (of those, not
+  received) and ``loss_fraction``, with the link's ``host_link_frames_lost`` and
+  ``host_rx_errors`` (frames with a bad CRC or COBS) and END's ``device_*`` counters;
 - every SAMPLE's duty is checked against :func:`hardware.protocol.expand` of the
   WAVE sent, and END's counters against what arrived (:class:`RigCheckError`);
-- the device going silent (:class:`RigTimeoutError`), the port failing
+- the device going silent or never advancing ``seq`` for ``timeout`` s, or the run
+  passing its deadline (duration + :func:`run_margin`) (:class:`RigTimeoutError`), the port failing
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
   device fault (:class:`DeviceFaultError`) raise with the samples received so far
   attached as ``exc.recording``;
-- STOP is sent from ``finally`` whenever a run is left early, including Ctrl-C.
+- whenever a run is left early (an error, Ctrl-C, or SIGTERM raised as an exception),
+  STOP is sent and END awaited for :data:`STOP_TIMEOUT` s, so the recording attached to
+  the exception (``exc.recording``, also on a ``KeyboardInterrupt``) holds the samples
+  still in flight and the device's END counters (``device_end_reason`` 1: stopped by host).
 """
 from __future__ import annotations
 
@@ -34,10 +41,12 @@ from . import protocol as P
 from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
 
-__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL"]
+__all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT", "run_margin"]
 
 #: Seconds between HELLOs while waiting for the device to boot (PROTOCOL.md).
 HELLO_INTERVAL = 0.2
+#: Seconds to wait for END after a STOP sent to end a run early (two tries).
+STOP_TIMEOUT = 0.5
 _READ_TIMEOUT = 0.02
 _SAMPLE_BITS = 21 * 10      # a SAMPLE frame on the wire: 21 bytes of 10 bits (8N1)
 
@@ -82,7 +91,9 @@ class SerialRig:
     watchdog_ms : int
         Device's host-silence watchdog in ms (0 off, else 50...60 000); HEARTBEAT every quarter of it.
     timeout : float
-        Seconds of silence from the device during a run before :class:`RigTimeoutError`.
+        Seconds without a new sample during a run (silence, or frames that do not advance
+        ``seq``) before :class:`RigTimeoutError`; a run also ends in that error once it takes
+        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).
     hello_timeout : float
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
@@ -271,22 +282,41 @@ class SerialRig:
                               f"(3 tries, {self.command_timeout:g} s each)")
 
     def _receive_run(self, run: "_RunState", on_sample) -> P.End:
-        """Read the run's frames until END and return it; silence longer than ``timeout`` raises."""
-        last_rx = loop_end = time.monotonic()
+        """Read the run's frames until END and return it.
+
+        Two limits, both raising :class:`RigTimeoutError`: ``timeout`` s without a new
+        sample (silence, or frames that do not advance ``seq``: a device repeating itself),
+        and the run's deadline, its duration plus :func:`run_margin`.
+        """
+        start = last_progress = loop_end = time.monotonic()
+        duration = run.experiment.duration
+        margin = run_margin(duration, self.timeout)
+        deadline = start + duration + margin
+        frames = 0
         while run.end is None:
             msgs = self._read()
             now = time.monotonic()
             # An iteration far longer than a read timeout means this process was not running
-            # (or a callback was slow): that is not the device's silence.
+            # (or a callback was slow): that is not the device's silence, nor its slowness.
             if now - loop_end > 0.25:
-                last_rx += now - loop_end - _READ_TIMEOUT
+                last_progress += now - loop_end - _READ_TIMEOUT
+                deadline += now - loop_end - _READ_TIMEOUT
             loop_end = now
             if msgs:
-                last_rx = now
+                frames += len(msgs)
+                before = (run.last_index, run.fault)
                 run.accept(msgs, on_sample)
-            elif now - last_rx > self.timeout:
-                raise RigTimeoutError(f"the device on {self.port_name} went silent for {self.timeout:g} s "
+                if (run.last_index, run.fault) != before or run.end is not None:
+                    last_progress, frames = now, 0
+            if run.end is None and now - last_progress > self.timeout:
+                what = (f"sent {frames} frames but no new sample" if frames else "went silent")
+                raise RigTimeoutError(f"the device on {self.port_name} {what} for {self.timeout:g} s "
                                       f"after sample {run.last_index}")
+            if run.end is None and now > deadline:
+                raise RigTimeoutError(
+                    f"the run on {self.port_name} passed its deadline ({now - start:.1f} s for a "
+                    f"{duration:g} s experiment, margin {margin:g} s) "
+                    f"at sample {run.last_index} of {len(run.expected)}: the device is slower than its clock")
             if run.boot is not None:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
@@ -346,17 +376,57 @@ class SerialRig:
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
             return run.recording(self, complete=True)
-        except Exception as exc:
-            if isinstance(exc, RigError) and exc.recording is None:
-                exc.with_recording(run.recording(self, complete=False, reason=str(exc)) if run.n else None)
+        except BaseException as exc:   # an error, Ctrl-C, SIGTERM: stop the motor, keep what arrived
+            if started and not ended:
+                self._stop_run(run, wait=not isinstance(exc, RigDisconnectedError))
+            if getattr(exc, "recording", None) is None and run.n:
+                reason = str(exc) if isinstance(exc, RigError) else f"{type(exc).__name__}: {exc}".rstrip(": ")
+                with contextlib.suppress(AttributeError):   # an exception class with __slots__
+                    exc.recording = run.recording(self, complete=False, reason=reason)  # type: ignore[attr-defined]
             raise
-        finally:
-            if started and not ended and self._port is not None:
-                with contextlib.suppress(Exception):
-                    self._write(P.Stop())
-                    flush = getattr(self._port, "flush", None)
-                    if flush is not None:
-                        flush()
+
+    def _stop_run(self, run: "_RunState", *, wait: bool) -> None:
+        """Send STOP and read until the device's END (``STOP_TIMEOUT`` s per try, 2 tries).
+
+        The samples still on the wire and END's counters go into ``run``, so that a run
+        left early still records what the device sent and dropped.  Never raises: it runs
+        while another exception is propagating.
+        """
+        pending, run.unaccepted = run.unaccepted, []
+        run.accept(pending, None)
+        if self._port is None:
+            return
+        for _ in range(2 if wait else 1):
+            try:
+                self._write(P.Stop())
+                flush = getattr(self._port, "flush", None)
+                if flush is not None:
+                    flush()
+                deadline = time.monotonic() + STOP_TIMEOUT
+                while wait and run.end is None and run.boot is None and time.monotonic() < deadline:
+                    run.accept(self._read(), None)
+            except Exception:
+                return
+            if run.end is not None or run.boot is not None:
+                return
+
+
+def run_margin(duration: float, timeout: float) -> float:
+    """Seconds a run may take beyond its ``duration`` before :class:`RigTimeoutError`: 10 % + 2 s + ``timeout``.
+
+    Parameters
+    ----------
+    duration : float
+        The experiment's duration in s (the device's clock).
+    timeout : float
+        The rig's silence timeout in s.
+
+    Examples
+    --------
+    >>> run_margin(10.0, 1.0)
+    4.0
+    """
+    return 0.1 * duration + 2.0 + timeout
 
 
 class _Heartbeats:
@@ -413,6 +483,7 @@ class _RunState:
         self.late_flags = 0
         self.last_index = -1
         self.rx0, self.lost0 = rig._reader.rx_errors, rig._link_lost
+        self.unaccepted: list = []
         self._first_us = self._prev_us = self._unwrapped = 0
 
     @property
@@ -428,8 +499,9 @@ class _RunState:
         return self._rig._link_lost - self.lost0
 
     def accept(self, msgs: list, on_sample) -> None:
+        """Take the frames ``msgs`` in; frames after one whose ``on_sample`` raised wait in ``unaccepted``."""
         n_expected = len(self.expected)
-        for msg in msgs:
+        for i, msg in enumerate(msgs):
             if type(msg) is P.Sample:
                 k = msg.seq
                 if k <= self.last_index or k >= n_expected:
@@ -456,7 +528,11 @@ class _RunState:
                 self.duty.append(msg.duty)
                 self.counts.append(msg.counts)
                 if on_sample is not None:
-                    on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                    try:
+                        on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                    except BaseException:
+                        self.unaccepted = msgs[i + 1:]    # still received: recorded when the run is stopped
+                        raise
             elif type(msg) is P.End:
                 self.end = msg
                 return
@@ -502,7 +578,20 @@ class _RunState:
             problems.append(f"sample {self.seq[-1]} arrived but END counts only {ticks} ticks")
         return problems
 
+    def losses(self, n: int) -> tuple[int, int]:
+        """Samples the device ticked so far and how many of them did not arrive (lost or dropped).
+
+        The ticks are END's ``samples_sent + samples_dropped`` once END arrived, else the
+        index after the last sample received (the gaps before it are what is known lost).
+        """
+        ticks = self.last_index + 1
+        if self.end is not None:
+            ticks = max(ticks, self.end.samples_sent + self.end.samples_dropped)
+        return ticks, max(ticks - n, 0)
+
     def recording(self, rig: SerialRig, *, complete: bool, reason: str = "") -> Recording:
+        # an interrupt between the appends of accept() can leave one list a row longer
+        n = min(len(self.seq), len(self.time), len(self.duty), len(self.counts))
         meta = {"source": "SerialRig", **self.experiment.metadata(), "port": rig.port_name,
                 "baudrate": str(rig.baudrate), "line_load": f"{rig.line_load(self.dt):.3f}",
                 "protocol_version": str(P.PROTOCOL_VERSION),
@@ -513,7 +602,7 @@ class _RunState:
             d = rig.device
             meta.update(board=d.board or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
-        meta.update(samples_expected=str(len(self.expected)), samples_received=str(self.n),
+        meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
                     host_duty_mismatches=str(self.duty_mismatches), flagged_encoder_errors=str(self.encoder_flags),
                     flagged_late_ticks=str(self.late_flags))
@@ -524,6 +613,10 @@ class _RunState:
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
             meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
-        return Recording(time=np.array(self.time), duty=np.array(self.duty, dtype=np.int64),
-                         sample_period=self.dt, counts=np.array(self.counts, dtype=np.int64),
-                         seq=np.array(self.seq, dtype=np.int64), counts_per_rev=rig.counts_per_rev, metadata=meta)
+        ticks, lost = self.losses(n)
+        meta.update(samples_ticked=str(ticks), samples_lost=str(lost),
+                    loss_fraction=f"{lost / ticks:.6g}" if ticks else "0")
+        return Recording(time=np.array(self.time[:n]), duty=np.array(self.duty[:n], dtype=np.int64),
+                         sample_period=self.dt, counts=np.array(self.counts[:n], dtype=np.int64),
+                         seq=np.array(self.seq[:n], dtype=np.int64), counts_per_rev=rig.counts_per_rev,
+                         metadata=meta)

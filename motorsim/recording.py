@@ -31,12 +31,12 @@ come in any order: ``time_s`` and ``duty`` are required, and at least one of
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Iterable, Mapping, NoReturn, TextIO
@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import check_int, check_real
+from .files import OutputFileError, check_output_file, open_exclusive, write_atomically
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
@@ -270,18 +271,6 @@ def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | No
         yield ",".join(fmt[c](float(data[c][k]) if c not in _INT_COLUMNS else data[c][k]) for c in cols)
 
 
-def _replace_atomically(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
     """Write ``recording`` to ``path`` in format v1, atomically (temporary file, then rename).
 
@@ -299,7 +288,7 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
     path = Path(path)
     cols = _columns(recording)
     text = "\n".join([*_metadata_lines(recording), ",".join(cols), *_format_rows(recording, cols)]) + "\n"
-    _replace_atomically(path, text)
+    write_atomically(path, text)
     return path
 
 
@@ -308,7 +297,12 @@ class RecordingWriter:
 
     Rows go to ``PATH.partial`` as they arrive (whole lines, flushed at least every
     ``flush_interval`` s), so the partial file is always a readable format-v1 file whose
-    metadata say ``complete: false``.  :meth:`close` then atomically writes ``PATH``
+    metadata say ``complete: false``.  Everything that could stop the recording being
+    written is checked when the writer is made, before a motor turns: the folder takes
+    new files, ``PATH`` is not a folder or a device, an existing ``PATH`` is refused
+    unless ``overwrite``, and the partial file is created exclusively (an existing one, the
+    data of an earlier run that did not finish, or a link planted there, is refused, never
+    truncated or followed) (:mod:`motorsim.files`).  :meth:`close` then atomically writes ``PATH``
     with the final metadata, ``complete: true`` or ``complete: false`` and
     ``incomplete_reason``, and removes the partial file.  Leaving the ``with`` block by
     an exception (including Ctrl-C) closes it as incomplete, naming the exception.
@@ -325,16 +319,23 @@ class RecordingWriter:
         Metadata known at the start (more can be given to :meth:`close`).
     flush_interval : float, optional
         Longest time in s rows wait in memory, default 0.25.
+    overwrite : bool, optional
+        Replace an existing ``PATH`` (never a folder or a device); default False.
+
+    Raises
+    ------
+    motorsim.files.OutputFileError
+        From the constructor, when ``PATH`` cannot be written; from :meth:`append`,
+        :meth:`flush` or :meth:`close` when writing fails (a full disk): the rows not yet
+        written are the caller's to keep.
     """
 
     _COLS = ["seq", "time_s", "duty", "counts"]
 
     def __init__(self, path: str | os.PathLike, sample_period: float, counts_per_rev: int, *,
-                 metadata: Mapping[str, str] | None = None, flush_interval: float = 0.25):
-        self.path = Path(path)
+                 metadata: Mapping[str, str] | None = None, flush_interval: float = 0.25, overwrite: bool = False):
+        self.path = check_output_file(path, overwrite=overwrite, flag="recording")
         self.partial_path = self.path.with_name(self.path.name + ".partial")
-        if not self.path.parent.is_dir():
-            raise ValueError(f"path must be in an existing directory, got {str(path)!r}")
         self._meta = {str(k): str(v) for k, v in (metadata or {}).items()}
         self._sample_period = sample_period
         self._counts_per_rev = counts_per_rev
@@ -342,7 +343,17 @@ class RecordingWriter:
         self._flush_interval = float(flush_interval)
         self._rows: list[tuple[int, float, int, int]] = []
         self._last: tuple[int, float, int, int] | None = None
-        self._file: TextIO | None = None
+        try:
+            self._file: TextIO | None = open_exclusive(self.partial_path)
+        except FileExistsError:
+            if self.partial_path.is_symlink():
+                raise OutputFileError(f"{self.partial_path} is a symbolic link; a partial recording is never "
+                                      f"written through a link: remove it, then run again") from None
+            raise OutputFileError(f"{self.partial_path} exists: an earlier run that did not finish left it. "
+                                  f"It is a readable recording; rename or delete it, then run again") from None
+        except OSError as exc:
+            raise OutputFileError(f"cannot create {self.partial_path}: {exc.strerror or exc}", exc.errno) from None
+        self._header_written = False
         self._header_lines = 0
         self._last_flush = time.monotonic()
         self.n_rows = 0
@@ -376,14 +387,19 @@ class RecordingWriter:
             return
         batch = self._batch(self._rows, {})
         lines = list(_format_rows(batch, self._COLS))
-        if self._file is None:
+        if not self._header_written:
             header = _metadata_lines(self._batch(self._rows[:1], {
                 "complete": "false", "incomplete_reason": "still recording (partial file)"})) + [",".join(self._COLS)]
             self._header_lines = len(header)
-            self._file = open(self.partial_path, "w", encoding="utf-8", newline="")
+            self._header_written = True
             lines = header + lines
-        self._file.write("\n".join(lines) + "\n")
-        self._file.flush()
+        if self._file is None:
+            raise ValueError(f"this RecordingWriter for {self.path} is closed")
+        try:
+            self._file.write("\n".join(lines) + "\n")
+            self._file.flush()
+        except OSError as exc:
+            raise OutputFileError(f"writing {self.partial_path} failed: {exc.strerror or exc}", exc.errno) from None
         self.n_rows += len(self._rows)
         self._last = self._rows[-1]
         self._rows = []
@@ -411,8 +427,12 @@ class RecordingWriter:
         self.flush()
         self.closed = True
         if self._file is None:
-            return None
+            return self.path if self.n_rows else None
         self._file.close()
+        self._file = None
+        if not self.n_rows:
+            os.unlink(self.partial_path)
+            return None
         if metadata:
             self._meta.update({str(k): str(v) for k, v in metadata.items()})
         extra = {"complete": "true" if complete else "false"}
@@ -422,8 +442,33 @@ class RecordingWriter:
         header = _metadata_lines(self._batch([self._last], extra)) + [",".join(self._COLS)]
         with open(self.partial_path, encoding="utf-8") as f:
             body = f.read().split("\n")[self._header_lines:]
-        _replace_atomically(self.path, "\n".join(header + body))
+        write_atomically(self.path, "\n".join(header + body))
         os.unlink(self.partial_path)
+        return self.path
+
+    def close_with(self, recording: Recording) -> Path:
+        """Write ``recording`` as the final file instead of the rows appended, and remove the partial file.
+
+        For a caller that holds every row in memory anyway (``SerialRig`` attaches them to
+        the exception that ended a run): rows that arrived after the last :meth:`append`
+        and the final metadata are kept too.
+
+        Returns
+        -------
+        pathlib.Path
+            The final file.
+        """
+        if not isinstance(recording, Recording):
+            raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+        self.closed = True
+        self._rows = []
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        write_recording(recording, self.path)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.partial_path)
+        self.n_rows = len(recording)
         return self.path
 
     def __enter__(self) -> "RecordingWriter":

@@ -9,6 +9,8 @@ writing its module and adding one entry.  Flags shared by several commands live 
 
 Errors a user can fix (bad flags, bad files, data that cannot identify the
 motor) print ``motorid: error: ...`` and exit with status 2, never a traceback.
+Ctrl-C, SIGTERM and SIGHUP unwind the command (STOP sent, data kept) and exit with
+128 + the signal number (:mod:`scenarios.interrupts`).
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import argparse
 import sys
 from typing import Callable, NamedTuple, Sequence
 
+from motorsim.files import OutputFileError
 from motorsim.recording import RecordingFormatError
 
 from .arguments import CommandError, print_to_stderr
@@ -94,16 +97,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script."""
+    from .interrupts import describe_interrupt, exit_status, signals_as_interrupts
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.run(args)
+        with signals_as_interrupts():
+            return args.run(args)
     except (CommandError, RecordingFormatError, ValueError, TypeError) as exc:
         print_to_stderr(f"motorid: error: {exc}")
         return 2
-    except KeyboardInterrupt:
-        print_to_stderr("motorid: interrupted")
-        return 130
+    except OSError as exc:      # a file that cannot be read or written: one line naming it
+        print_to_stderr(f"motorid: error: {exc}" if isinstance(exc, OutputFileError) or not exc.strerror
+                        else f"motorid: error: {exc.filename or ''}: {exc.strerror}".replace("error: : ", "error: "))
+        return 2
+    except KeyboardInterrupt as exc:
+        print_to_stderr(f"motorid: {describe_interrupt(exc)}")
+        return exit_status(exc)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from identify.design import SineDesign, design_sine
+from motorsim.files import make_output_dir, write_atomically
 
 __all__ = ["format_design", "add_design_arguments", "run_design"]
 
@@ -58,8 +59,8 @@ def run_design(args: argparse.Namespace) -> int:
           "predicted Cramér-Rao standard errors:\n")
     print(format_design(design))
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "design.json").write_text(json.dumps(design.to_dict(), indent=1), encoding="utf-8")
+    make_output_dir(out)
+    write_atomically(out / "design.json", json.dumps(design.to_dict(), indent=1))
     paths = [out / "design.json"]
     if not args.no_plots:
         from . import plots

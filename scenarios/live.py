@@ -12,14 +12,19 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
 
 from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, print_to_stderr
+from .interrupts import describe_interrupt
 from .progress import ProgressBar
 
-__all__ = ["add_live_arguments", "run_live"]
+__all__ = ["add_live_arguments", "run_live", "DEFAULT_MAX_LOSS"]
+
+#: Default ``--max-loss`` in %: more samples lost than this and ``live`` refuses to identify.
+DEFAULT_MAX_LOSS = 2.0
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,11 +43,18 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--watchdog-ms", type=int, default=500, metavar="MS",
                    help="device stops the motor after this much host silence, in ms (default 500; 0 off)")
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
-                   help="give up after the device is silent this long during a run (default 1 s)")
+                   help="give up after this long without a new sample during a run, silent or not (default 1 s); "
+                        "a run also gives up after its duration + 10 %% + 2 s + this timeout")
     add_experiment_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
+    parser.add_argument("--out", required=True, metavar="FILE.csv",
+                        help="path of the recording to write (checked before the motor starts; an existing "
+                             "file is refused without --overwrite, a folder or a device always)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --out")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
+    parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
+                        help=f"largest share of the samples run that may be lost (link or device) before live "
+                             f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
     parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
     parser.add_argument("--plot", action="store_true",
                         help="show duty and speed live with the running estimate (matplotlib window; "
@@ -58,16 +70,61 @@ def _estimate_note(running) -> str:
     return f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
 
 
+def _keep_what_arrived(writer, recording, reason: str) -> str:
+    """Close ``writer`` as incomplete, with the rig's own copy of the run when it has one; say where it is.
+
+    The rig's copy (``exc.recording``) also holds the samples that arrived after the last
+    one written and the device's END counters read after STOP.  When the recording cannot
+    be written where asked (a full disk), it goes to the temporary folder.
+
+    Returns
+    -------
+    str
+        Where the samples are and the loss figures, for the message; empty when none arrived.
+    """
+    from motorsim.recording import Recording
+    if recording is None:
+        try:
+            path = writer.close(False, reason)
+        except OSError as exc:
+            return f"writing {writer.path} failed ({exc}); what was written is in {writer.partial_path}"
+        return f"the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
+    meta = {**recording.metadata, "complete": "false", "incomplete_reason": " ".join(reason.split())}
+    recording = Recording(time=recording.time, duty=recording.duty, sample_period=recording.sample_period,
+                          counts=recording.counts, seq=recording.seq, counts_per_rev=recording.counts_per_rev,
+                          metadata=meta)
+    figures = f" ({_loss_note(meta)})"
+    try:
+        path = writer.close_with(recording)
+    except OSError as exc:
+        return f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}{figures}"
+    return f"the {len(recording)} samples received are in {path} (complete: false){figures}"
+
+
+def _rescue(recording, path) -> str:
+    """Write ``recording`` to the temporary folder when ``path`` cannot take it; say where it went."""
+    import os
+    import tempfile
+
+    from motorsim.recording import write_recording
+    rescue = Path(tempfile.gettempdir()) / f"motorid-rescued-{os.getpid()}-{Path(path).name}"
+    try:
+        write_recording(recording, rescue)
+    except OSError as exc:
+        return f"the {len(recording)} samples could not be saved anywhere (also {exc})"
+    return f"the {len(recording)} samples received are in {rescue} instead"
+
+
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
     from hardware.serial_rig import SerialRig
-    from identify import fit
     from identify.recursive import RunningEstimator
     from motorsim.recording import RecordingWriter
 
-    from .identification import format_estimate
     experiment = experiment_from_args(args)
+    if not 0 <= args.max_loss <= 100:
+        raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=not args.quiet and experiment.n_samples > 0)
@@ -75,7 +132,8 @@ def run_live(args: argparse.Namespace) -> int:
     if args.plot:
         from .plots import LivePlot
         plot = LivePlot(experiment, counts_per_rev=args.counts_per_rev, fallback_path=f"{args.out}.live.png")
-    writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
+    # made before the port is opened: an --out that cannot be written stops here, before the motor turns
+    writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev, overwrite=args.overwrite,
                              metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
 
     def on_sample(s) -> None:
@@ -89,30 +147,55 @@ def run_live(args: argparse.Namespace) -> int:
         with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
                        watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
             recording = rig.run(experiment, on_sample=on_sample)
-    except RigError as exc:
+    except BaseException as exc:   # a rig error, a write error, Ctrl-C, SIGTERM: keep what arrived
         progress.close()
-        meta = exc.recording.metadata if exc.recording is not None else None
-        path = writer.close(False, f"{type(exc).__name__}: {exc}", metadata=meta)
-        kept = f"; the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
-        raise CommandError(f"{exc}{kept}") from None
-    except BaseException as exc:   # Ctrl-C, a protocol version mismatch, ...: keep what arrived
-        progress.close()
-        reason = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        path = writer.close(False, reason)
-        if path is not None:
-            print_to_stderr(f"motorid: the {writer.n_rows} samples received are in {path} (complete: false)")
+        reason = describe_interrupt(exc) if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        kept = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
+        if isinstance(exc, RigError):
+            raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
+        if isinstance(exc, OSError):      # the recording could not be written: the rig sent STOP
+            raise CommandError(f"{exc}; the motor was stopped; {kept}" if kept else str(exc)) from None
+        if kept:
+            print_to_stderr(f"motorid: {kept}")
         raise
     finally:
         if plot is not None:
             plot.close()
     progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
     progress.close()
-    path = writer.close(True, metadata=recording.metadata)
-    estimate = fit(recording, method=args.method)
+    try:
+        path, problem = writer.close(True, metadata=recording.metadata), ""
+    except OSError as exc:         # a full disk at the end: the whole run is still in memory
+        path, problem = writer.path, f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}"
+    status = _report(args, recording, path, running)
+    if problem:
+        raise CommandError(problem)
+    return status
+
+
+def _loss_note(m) -> str:
+    """The loss figures of a run's metadata, as every ending of ``live`` states them."""
+    ticked, lost = int(m.get("samples_ticked", 0)), int(m.get("samples_lost", 0))
+    device = m.get("device_samples_dropped", "?")
+    return (f"{m.get('samples_received', '?')} received of {m.get('samples_expected', '?')}; "
+            f"{lost} of the {ticked} samples run lost ({100 * float(m.get('loss_fraction', 0)):.3g} %): "
+            f"{m.get('host_link_frames_lost', '?')} frames lost on the link, {device} dropped by the device, "
+            f"{m.get('host_rx_errors', '?')} bad frames (CRC or framing)")
+
+
+def _report(args: argparse.Namespace, recording, path, running) -> int:
+    """After a complete run: the summary line, the loss check, the estimates (and JSON)."""
+    from identify import fit
+
+    from .identification import format_estimate
     m = recording.metadata
-    print(f"wrote {len(recording)} samples to {path}: {m['samples_received']} received of "
-          f"{m['samples_expected']}, {m['host_link_frames_lost']} lost on the link, "
-          f"{m['device_samples_dropped']} dropped by the device, {m['host_rx_errors']} bad frames")
+    print(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
+    loss_pct = 100 * float(m["loss_fraction"])
+    if loss_pct > args.max_loss:
+        raise CommandError(f"{m['samples_lost']} of the {m['samples_ticked']} samples were lost "
+                           f"({loss_pct:.3g} %), above --max-loss {args.max_loss:g} %; {path} is kept but not "
+                           f"identified: check the cable and the baud rate, or raise --max-loss")
+    estimate = fit(recording, method=args.method)
     print(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:
@@ -120,7 +203,8 @@ def run_live(args: argparse.Namespace) -> int:
               f"the estimate shown during the run)")
     if args.json:
         out = {**estimate.to_dict(), "running_estimate": run_est.to_dict(), "recording": str(path),
-               "samples_received": len(recording), "samples_expected": experiment.n_samples,
+               "samples_received": len(recording), "samples_expected": int(m["samples_expected"]),
+               "samples_lost": int(m["samples_lost"]), "loss_fraction": float(m["loss_fraction"]),
                "link_frames_lost": int(m["host_link_frames_lost"]),
                "device_samples_dropped": int(m["device_samples_dropped"]),
                "host_rx_errors": int(m["host_rx_errors"])}

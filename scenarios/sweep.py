@@ -41,6 +41,7 @@ import numpy as np
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from motorsim.checks import check_int
+from motorsim.files import atomic_writer, make_output_dir, safe_file_name, write_atomically
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
@@ -338,9 +339,11 @@ def _in_order(executor: concurrent.futures.Executor | None, jobs: Iterable[tuple
         for job in jobs:
             yield _run_point_job(*job)
         return
+    from .interrupts import interrupts_deferred
     pending: collections.deque = collections.deque()
     for job in jobs:
-        pending.append(executor.submit(_run_point_job, *job))
+        with interrupts_deferred():    # a submit may start the workers
+            pending.append(executor.submit(_run_point_job, *job))
         if len(pending) >= window:
             yield pending.popleft().result()
     while pending:
@@ -434,7 +437,7 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     if workers is not None:
         check_int("workers", workers, lo=1, allow_integral_float=False)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
     jobs = ((p, scenario.methods, scenario.repetitions, scenario.seed) for p in scenario.points())
     t0 = time.perf_counter()
     tally = _Tally(scenario.methods)
@@ -500,8 +503,21 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
     own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context())
     try:
         yield own, 2 * workers
+    except BaseException:     # an error, Ctrl-C, SIGTERM: no point waits for the points in flight
+        _stop_workers(own)
+        raise
     finally:
         own.shutdown()
+
+
+def _stop_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """Cancel the queued points and terminate the worker processes (their points are abandoned)."""
+    # terminated before the pool lets go of them: a worker still starting up would otherwise
+    # find its pipe closed and print a traceback
+    for process in list((getattr(pool, "_processes", None) or {}).values()):   # no public handle on them
+        if process.is_alive():
+            process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 class _Tally:
@@ -526,26 +542,22 @@ class _Tally:
 
 
 def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally, bar: ProgressBar) -> Path:
-    """Stream the rows of ``results`` to ``path`` through a ``.part`` file renamed when complete."""
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as f:
-            writer = csv.writer(f, lineterminator="\n")
-            writer.writerow(CSV_COLUMNS)
-            for result in results:
-                for row in tally.add(result):
-                    writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
-                f.flush()
-                bar.update()
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Stream the rows of ``results`` to a temporary file that becomes ``path`` when complete.
+
+    An interrupted or failed sweep leaves no CSV (and the previous one, if any, unchanged).
+    """
+    with atomic_writer(path) as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(CSV_COLUMNS)
+        for result in results:
+            for row in tally.add(result):
+                writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
+            bar.update()
     return path
 
 
 def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: float, csv_name: str) -> Path:
-    path.write_text(json.dumps({
+    return write_atomically(path, json.dumps({
         "scenario": scenario.name, "description": scenario.description, "seed": scenario.seed,
         "repetitions": scenario.repetitions, "methods": list(scenario.methods),
         "grid": {axis: list(values) for axis, values in scenario.grid},
@@ -553,8 +565,7 @@ def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: 
         "base": dict(scenario.base), "points": scenario.n_points, "rows": tally.n_rows,
         "samples_simulated": tally.samples, "elapsed_s": round(elapsed, 3),
         "failures": dict(tally.failures), "worst_abs_bias_a_pct": tally.worst, "csv": csv_name,
-    }, indent=1), encoding="utf-8")
-    return path
+    }, indent=1))
 
 
 def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
@@ -639,7 +650,8 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
                         help="estimators to compare instead of the scenario's (e.g. all, or oe,oe-friction)")
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run on a Dask cluster (scheduler address, or 'local' for a LocalCluster of "
-                             "--workers processes); needs motorid[dask]")
+                             "--workers processes; gives up after 10 s without a scheduler); the scheduler "
+                             "runs code of its choosing here: use only one you trust; needs motorid[dask]")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
@@ -652,7 +664,7 @@ def run_sweep(args: argparse.Namespace) -> int:
             print(f"{name:<16} {description}")
         return 0
     scenario = _scenario_from_args(args)
-    out = Path(args.out or Path("sweep-output") / scenario.name)
+    out = Path(args.out or Path("sweep-output") / safe_file_name(scenario.name, "scenario"))
     if args.workers and not args.dask and args.workers > usable_workers(args.workers):
         print(f"--workers {args.workers}: using {usable_workers(args.workers)}, the cores available "
               "(more processes than cores only slow a sweep down)", file=sys.stderr)
@@ -686,6 +698,23 @@ def _scenario_from_args(args: argparse.Namespace) -> Scenario:
     return scenario
 
 
+#: Seconds ``--dask ADDRESS`` waits for the scheduler before giving up.
+DASK_CONNECT_TIMEOUT = 10.0
+
+
+def _connect_dask(client_class, address: str):
+    """A Dask client on ``address``, or a one-line :class:`CommandError` within :data:`DASK_CONNECT_TIMEOUT` s."""
+    try:
+        return client_class(address, timeout=DASK_CONNECT_TIMEOUT)
+    except (OSError, TimeoutError) as exc:
+        raise CommandError(f"--dask {address}: no Dask scheduler answered within {DASK_CONNECT_TIMEOUT:g} s "
+                           f"({type(exc).__name__}: {exc}); check the address (tcp://HOST:8786, tls://...) "
+                           f"and that the scheduler runs") from None
+    except Exception as exc:    # whatever a server that is not a Dask scheduler makes the client raise
+        raise CommandError(f"--dask {address}: the server there does not speak Dask's protocol "
+                           f"({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
 @contextlib.contextmanager
 def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurrent.futures.Executor | None]:
     """A Dask client's executor for ``--dask ADDRESS`` (``local``: a LocalCluster), else None."""
@@ -702,7 +731,7 @@ def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurr
                                processes=True, dashboard_address=None)
         client = Client(cluster)
     else:
-        client = Client(address)
+        client = _connect_dask(Client, address)
     try:
         yield client.get_executor()
     finally:

@@ -318,6 +318,13 @@ class AvrSimulation:
                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                    stderr=subprocess.PIPE, text=True)
         self._process = process
+        try:
+            return self._read_pty_path(process)
+        except BaseException:      # including Ctrl-C or SIGTERM while it starts: never leave it running
+            self.stop()
+            raise
+
+    def _read_pty_path(self, process: subprocess.Popen) -> str:
         stdout, stderr = process.stdout, process.stderr
         if stdout is None or stderr is None:   # pragma: no cover - PIPE always gives both
             raise RuntimeError("motorid-avr-sim was started without its output pipes")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 import time
 from urllib.parse import urlencode
 
@@ -210,24 +211,48 @@ def test_commands_are_refused_while_running_and_stop_ends_the_run(built):
     assert moved > 0.5 * STEADY_SPEED * 0.2 * COUNTS_PER_REV / (2 * math.pi)
 
 
+#: Samples the firmware queues before sending (config.h SAMPLE_QUEUE_LEN).
+SAMPLE_QUEUE_LEN = 40
+
+
 class _HostLink:
     """The port as SerialRig sees it, with a switch that stops the host's frames arriving.
 
-    ``latest`` is the last sample index the host has read (set by the test's callback);
-    ``latest_at_last_write`` its value when the last frame that reached the device was written.
+    ``latest`` is the last sample index the host has handled (set by the test's callback);
+    ``latest_at_last_write`` its value when the last frame that reached the device was
+    written, and ``sent_at_last_write`` how many frames had left the device by then (read by
+    the host, or waiting in the port): counted on the wire, so both hold however slow the host.
     """
 
     def __init__(self, port):
         self._port = port
+        self._lock = threading.Lock()     # a write (heartbeat thread) sees a read as done or not begun
         self.silent = False
         self.latest = -1
         self.latest_at_last_write = -1
+        self.frames_read = 0
+        self.sent_at_last_write = 0
+
+    def read(self, size=1):
+        with self._lock:
+            data = self._port.read(size)
+            self.frames_read += data.count(0)      # every frame ends with one 0x00
+            return data
+
+    def handled(self, seq: int, *, go_silent: bool) -> None:
+        """The host handled sample ``seq``; from now on nothing reaches the device if ``go_silent``."""
+        with self._lock:      # a heartbeat is written entirely before this, or not at all
+            self.latest = seq
+            self.silent = self.silent or go_silent
 
     def write(self, data):
-        if self.silent:
-            return len(data)
-        self.latest_at_last_write = self.latest
-        return self._port.write(data)
+        with self._lock:
+            if self.silent:
+                return len(data)
+            self.latest_at_last_write = self.latest
+            waiting = self._port.in_waiting
+            self.sent_at_last_write = self.frames_read + -(-waiting // 21) + 1   # a SAMPLE is 21 bytes
+            return self._port.write(data)
 
     def __getattr__(self, name):
         return getattr(self._port, name)
@@ -240,9 +265,7 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
         link = _HostLink(port)
 
         def go_silent(sample):
-            link.latest = sample.seq
-            if sample.seq == 50:
-                link.silent = True
+            link.handled(sample.seq, go_silent=sample.seq == 50)
 
         with SerialRig(link, 250000, counts_per_rev=COUNTS_PER_REV, watchdog_ms=200) as rig:
             with pytest.raises(DeviceFaultError, match="HOST_SILENCE") as info:
@@ -251,13 +274,15 @@ def test_host_silence_watchdog_stops_the_motor_and_reports_fault_then_end(built)
     meta = info.value.recording.metadata
     assert meta["device_end_reason"] == str(int(P.EndReason.HOST_SILENCE))
     assert meta["device_fault_code"] == str(int(P.FaultCode.HOST_SILENCE))
-    # The device trips 200 ms (100 samples) after the last frame reached it.  That frame left
-    # after the host had read sample `seen`, so the device was at `seen` or later: the lower
-    # bound holds however slow the host is.  The upper bound allows the host's view to lag
-    # the device by up to 200 ms when it wrote that frame (a loaded machine).
-    seen = link.latest_at_last_write
+    # The device trips 200 ms (100 samples) after the last frame reached it.  When that frame
+    # left, the host had handled sample `seen`, so the device was at `seen` or later (lower
+    # bound); and the device was at most at the frames that had left it plus its queue of
+    # SAMPLE_QUEUE_LEN (upper bound), whatever the host's lag: both are counted on the wire,
+    # not on a clock.  The 5 samples of slack cover the emulator reading its input once per
+    # main-loop pass and the off-by-one of "after".
+    seen, sent = link.latest_at_last_write, link.sent_at_last_write
     assert seen <= 50
-    assert seen + 99 <= int(meta["device_fault_index"]) <= seen + 100 + 100
+    assert seen + 99 <= int(meta["device_fault_index"]) <= sent + SAMPLE_QUEUE_LEN + 100 + 5
     assert int(meta["samples_received"]) == int(meta["device_fault_index"])
     assert abs(speed) < 1e-2 * STEADY_SPEED
 

@@ -1,6 +1,7 @@
 """SerialRig against the emulated device: the contract with SimRig, and every fault with a clear outcome."""
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -155,7 +156,7 @@ def test_device_going_silent_times_out_stops_the_motor_and_keeps_the_partial_rec
     with _fake(FaultPlan(stall_at=120), speed=1.0) as dev:     # the run would end 1.4 s after the stall
         with SerialRig(dev.port_name, timeout=0.3) as rig, pytest.raises(RigTimeoutError, match="silent") as err:
             rig.run(EXPERIMENT)
-        _wait_for(lambda: dev.stops_received == 1, "the STOP from the host")
+        _wait_for(lambda: dev.stops_received >= 1, "the STOP from the host")
         assert dev.duty == 0 and dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
     rec = err.value.recording
     assert rec.metadata["complete"] == "false" and "silent" in rec.metadata["incomplete_reason"]
@@ -396,3 +397,33 @@ def test_url_keys_are_the_bench_knobs_under_their_own_names():
                             "&counts_per_rev=2000&count_offset=-7&angle_noise=0.001")
     assert device.motor == Motor(30.0, 2.0, friction=1.0, bias=0.5, dead_zone=3.0, input_delay=2)
     assert device.encoder == Encoder(2000, -7, 0.001)
+
+
+def test_a_device_repeating_one_sample_forever_times_out_and_is_stopped():
+    # Frames keep arriving, so silence alone never trips: seq must advance.
+    with _fake(FaultPlan(repeat_at=50), speed=1.0) as dev:
+        with SerialRig(dev.port_name, timeout=0.3) as rig, \
+                pytest.raises(RigTimeoutError, match=r"frames but no new sample .* after sample 50") as err:
+            rig.run(EXPERIMENT)
+        _wait_for(lambda: dev.stops_received >= 1, "the STOP from the host")
+        assert dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
+    rec = err.value.recording
+    assert rec.metadata["complete"] == "false" and np.array_equal(rec.seq, np.arange(51))
+    assert rec.metadata["device_end_reason"] == "1"
+
+
+@pytest.mark.slow
+def test_a_device_slower_than_its_clock_passes_the_run_deadline():
+    # Every sample arrives and seq advances, but at half the pace that would end the run by its
+    # deadline (duration + run_margin): the run ends there, not when the device finally does.
+    from hardware.serial_rig import run_margin
+    experiment = dataclasses.replace(EXPERIMENT, duration=0.2)
+    allowed = experiment.duration + run_margin(experiment.duration, 0.3)
+    with _fake(speed=experiment.duration / allowed / 2) as dev:     # samples 57 ms apart: never "silent"
+        with SerialRig(dev.port_name, timeout=0.3) as rig, pytest.raises(RigTimeoutError, match="deadline") as err:
+            rig.run(experiment)
+        _wait_for(lambda: dev.stops_received >= 1, "the STOP from the host")
+        assert dev.last_end.reason == P.EndReason.STOPPED_BY_HOST
+    rec = err.value.recording
+    assert rec.metadata["complete"] == "false" and rec.metadata["device_end_reason"] == "1"
+    assert 0 < len(rec) < experiment.n_samples

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from motorsim import Experiment, Motor, SimRig, Sine, read_recording
+from motorsim.files import OutputFileError
 from motorsim.recording import RecordingWriter
 
 
@@ -64,9 +65,10 @@ def test_writer_rejects_rows_out_of_order_and_bad_settings(tmp_path):
     w.append(3, 0.015, 0, 0)
     with pytest.raises(ValueError, match="strictly increasing"):
         w.append(3, 0.02, 0, 0)
+    w.close(False, "abandoned")
     with pytest.raises(ValueError, match="counts_per_rev"):
         RecordingWriter(tmp_path / "x.csv", 0.005, 0)
     with pytest.raises(ValueError, match="sample_period"):
         RecordingWriter(tmp_path / "x.csv", -1.0, 10)
-    with pytest.raises(ValueError, match="directory"):
+    with pytest.raises(OutputFileError, match="missing does not exist"):
         RecordingWriter(tmp_path / "missing" / "x.csv", 0.005, 10)

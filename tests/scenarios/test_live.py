@@ -78,6 +78,11 @@ def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys, 
     rec = read_recording(out)
     assert 100 < len(rec) < 1000 and rec.metadata["complete"] == "false"
     assert rec.metadata["incomplete_reason"] == "interrupted (Ctrl-C)"
+    # the loss counters are recorded on this ending too, and the message states them
+    m = rec.metadata
+    assert m["host_link_frames_lost"] == m["host_rx_errors"] == m["samples_lost"] == "0"
+    assert int(m["samples_ticked"]) == len(rec) and m["device_end_reason"] == "1"
+    assert "0 of the" in capsys.readouterr().err
 
 
 def test_a_wrong_protocol_version_is_a_clear_error(tmp_path, capsys):
@@ -98,3 +103,31 @@ def test_plot_without_a_display_updates_a_png_next_to_the_recording(tmp_path, mo
     status, out = _live(tmp_path, "fake://?speed=0", "--duration", "1", "--plot")
     png = tmp_path / "run.csv.live.png"
     assert status == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_run_losing_more_than_max_loss_exits_2_with_the_figures(tmp_path, capsys):
+    # drop_rate 0.5 loses about half the frames on the link: the recording is complete but not trustworthy
+    status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0&drop_rate=0.5", "--duration", "2")
+    captured = capsys.readouterr()
+    m = read_recording(out).metadata
+    lost, ticked = int(m["samples_lost"]), int(m["samples_ticked"])
+    assert status == 2 and ticked == 400 and lost == 400 - len(read_recording(out)) == int(m["host_link_frames_lost"])
+    assert 0.3 < float(m["loss_fraction"]) == lost / ticked < 0.7
+    assert f"{lost} of the 400 samples were lost" in captured.err and "--max-loss 2 %" in captured.err
+    assert f"{lost} of the 400 samples run lost" in captured.out        # the summary line states them
+    assert "method" not in captured.out                                  # and nothing was identified
+
+
+def test_max_loss_lets_a_lossy_run_be_identified_and_the_summary_states_the_loss(tmp_path, capsys):
+    status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0&drop_rate=0.5", "--duration", "2", "--max-loss", "80",
+                        "--json")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["samples_lost"] == 400 - result["samples_received"] > 100
+    assert result["loss_fraction"] == pytest.approx(result["samples_lost"] / 400, rel=1e-5)
+
+
+@pytest.mark.parametrize("value", ["-1", "101", "nan"])
+def test_max_loss_must_be_a_percentage(tmp_path, capsys, value):
+    status, _ = _live(tmp_path, "fake://?speed=0", "--duration", "1", "--max-loss", value)
+    assert status == 2 and "--max-loss must be a percentage" in capsys.readouterr().err
