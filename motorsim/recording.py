@@ -27,7 +27,9 @@ Format v1 (CSV, UTF-8)::
 Leading ``#`` lines hold ``key: value`` metadata (unknown keys are kept; ``dt``
 and ``ppr`` are read as ``sample_period`` and ``counts_per_rev``).  Columns may
 come in any order: ``time_s`` and ``duty`` are required, and at least one of
-``counts``, ``angle_rad``, ``speed_rad_s``; ``seq`` is optional.
+``counts``, ``angle_rad``, ``speed_rad_s``; ``seq`` is optional.  ``time_s`` is in seconds:
+its median interval per ``seq`` step must be within :data:`TIME_BASE_TOLERANCE` of
+``sample_period`` (a column in ms, or a wrong period, is refused with both figures).
 """
 from __future__ import annotations
 
@@ -48,13 +50,18 @@ from .checks import check_int, check_real
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
-           "FORMAT_HEADER", "COLUMNS"]
+           "FORMAT_HEADER", "COLUMNS", "TIME_BASE_TOLERANCE"]
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
 COLUMNS = ("seq", "time_s", "duty", "counts", "angle_rad", "speed_rad_s")
 _ALIASES = {"dt": "sample_period", "ppr": "counts_per_rev"}
 _INT_COLUMNS = ("seq", "counts")
+#: Largest relative disagreement allowed between the median interval of ``time_s`` (per step
+#: of ``seq``) and the declared ``sample_period``.  Timing jitter (< 1 sample period, see
+#: ``SimRig.jitter``) and dropped samples leave the median interval within a few per cent of
+#: the period; a time column in ms or µs, or a wrong period, is off by a large factor.
+TIME_BASE_TOLERANCE = 0.2
 
 
 class RecordingFormatError(ValueError):
@@ -94,6 +101,20 @@ def _check_finite(name: str, arr: np.ndarray | None) -> None:
     if arr is not None and not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+
+
+def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
+    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
+    if len(time) < 3:
+        return
+    step = np.diff(seq)
+    interval = float(np.median(np.diff(time) / np.where(step > 0, step, 1)))
+    ratio = interval / sample_period
+    if abs(ratio - 1) > TIME_BASE_TOLERANCE:
+        raise ValueError(
+            f"time and sample_period disagree: time advances {interval:.6g} s per sample (median over "
+            f"{len(time) - 1} intervals) but sample_period is {sample_period!r} s, a factor {ratio:.4g} "
+            f"(allowed: within {TIME_BASE_TOLERANCE:.0%}); is time in seconds, and is the period right?")
 
 
 def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
@@ -175,6 +196,7 @@ class Recording:
         for name in ("time", "duty", "angle", "speed"):
             _check_finite(name, columns[name])
         _check_increasing(t, seq_array)
+        _check_time_base(t, seq_array, self.sample_period)
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):
@@ -473,10 +495,13 @@ def _parse(text: str, name: str) -> Recording:
     values = {h: np.array([v for _, v in cols[h]]) for h in header}
     sp = _sample_period(meta, values["time_s"], fail)
     extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
-    return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
-                     counts=values.get("counts"), angle=values.get("angle_rad"),
-                     speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                     metadata=extra)
+    try:
+        return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
+                         counts=values.get("counts"), angle=values.get("angle_rad"),
+                         speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
+                         metadata=extra)
+    except (ValueError, TypeError) as exc:
+        raise RecordingFormatError(f"{name}: {exc}") from None
 
 
 class _Failer:
