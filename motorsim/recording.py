@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import check_int, check_real
+from .plausibility import ImplausibleSample, implausible_samples
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
@@ -248,6 +249,43 @@ class Recording:
         """Rows ``start:stop`` as a new Recording."""
         def cut(x):
             return None if x is None else x[start:stop]
+        return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
+                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
+
+    def implausible_samples(self) -> list[ImplausibleSample]:
+        """Rows no motor can produce: a speed or time step far beyond the rest of the run.
+
+        See :mod:`motorsim.plausibility` for the rules; one count per sample period is the
+        smallest speed scale of a counts recording.
+
+        Examples
+        --------
+        >>> rec = Recording(time=np.arange(50) * 0.01, duty=np.full(50, 100), sample_period=0.01,
+        ...                 counts=np.arange(50) * 7, counts_per_rev=400)
+        >>> rec.implausible_samples()
+        []
+        >>> counts = rec.counts.copy(); counts[20] ^= 1 << 40           # one flipped bit
+        >>> [s.row for s in dataclasses.replace(rec, counts=counts).implausible_samples()]
+        [20]
+        """
+        floor = 0.0
+        if self.counts is not None and self.counts_per_rev is not None:
+            floor = 2 * np.pi / self.counts_per_rev / self.sample_period
+        return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor)
+
+    def drop_rows(self, rows: Iterable[int]) -> "Recording":
+        """This recording without ``rows`` (0-based): they become gaps in ``seq``.
+
+        Parameters
+        ----------
+        rows : iterable of int
+            Row indices to remove.
+        """
+        keep = np.ones(len(self), dtype=bool)
+        keep[list(rows)] = False
+
+        def cut(x):
+            return None if x is None else x[keep]
         return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
                                    angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
 
@@ -460,13 +498,16 @@ class RecordingWriter:
             self.close(False, f"{exc_type.__name__}: {exc}")
 
 
-def read_recording(path: str | os.PathLike) -> Recording:
+def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Recording:
     """Read a format-v1 CSV file.
 
     Parameters
     ----------
     path : str or path-like
         The file.
+    check_samples : bool, optional
+        Refuse rows no motor can produce (default True; see :mod:`motorsim.plausibility`).
+        With False they are kept, for the caller to find and drop.
 
     Raises
     ------
@@ -480,10 +521,10 @@ def read_recording(path: str | os.PathLike) -> Recording:
         raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror}") from None
-    return _parse(text, str(path))
+    return _parse(text, str(path), check_samples)
 
 
-def _parse(text: str, name: str) -> Recording:
+def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
     fail = _Failer(name)
     lines = text.splitlines()
     meta, header_index = _parse_metadata(lines, fail)
@@ -496,12 +537,26 @@ def _parse(text: str, name: str) -> Recording:
     sp = _sample_period(meta, values["time_s"], fail)
     extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
     try:
-        return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
-                         counts=values.get("counts"), angle=values.get("angle_rad"),
-                         speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                         metadata=extra)
+        rec = Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
+                        counts=values.get("counts"), angle=values.get("angle_rad"),
+                        speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
+                        metadata=extra)
     except (ValueError, TypeError) as exc:
         raise RecordingFormatError(f"{name}: {exc}") from None
+    if check_samples:
+        _refuse_implausible(rec, [line for line, _ in cols["time_s"]], fail)
+    return rec
+
+
+def _refuse_implausible(rec: Recording, lines: list[int], fail: _Failer) -> None:
+    """Refuse the file when rows no motor can produce are found, naming their lines."""
+    bad = rec.implausible_samples()
+    if bad:
+        others = "" if len(bad) == 1 else f" (and {len(bad) - 1} more, lines " + ", ".join(
+            str(lines[s.row]) for s in bad[1:6]) + (", ..." if len(bad) > 6 else "") + ")"
+        fail(lines[bad[0].row], f"implausible sample (seq {bad[0].seq}): {bad[0].reason}{others}; "
+                                  "a corrupted row? remove it, or drop such rows as gaps "
+                                  "(motorid identify --drop-outliers)")
 
 
 class _Failer:
