@@ -30,6 +30,9 @@ come in any order: ``time_s`` and ``duty`` are required, and at least one of
 ``counts``, ``angle_rad``, ``speed_rad_s``; ``seq`` is optional.  ``time_s`` is in seconds:
 its median interval per ``seq`` step must be within :data:`TIME_BASE_TOLERANCE` of
 ``sample_period`` (a column in ms, or a wrong period, is refused with both figures).
+Only a regular file of at most :data:`MAX_RECORDING_BYTES` is read; a byte-order mark, a
+NUL byte, a cell with ``_`` digit separators, a count beyond 64 bits and a torn last line
+(no final newline) are refused, each with its own message.
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ import dataclasses
 import io
 import math
 import os
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -51,7 +55,7 @@ from .plausibility import ImplausibleSample, implausible_samples
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
-           "FORMAT_HEADER", "COLUMNS", "TIME_BASE_TOLERANCE"]
+           "FORMAT_HEADER", "COLUMNS", "TIME_BASE_TOLERANCE", "MAX_RECORDING_BYTES"]
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
@@ -515,20 +519,52 @@ def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Re
         For every broken rule, naming the file, the line and the rule.
     """
     path = Path(path)
+    data = _read_bounded(path)
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise RecordingFormatError(f"{path}, line 1: starts with a UTF-8 byte-order mark (BOM); "
+                                   "save it as UTF-8 without BOM")
+    if b"\0" in data:
+        at = data.index(b"\0")
+        line = data.count(b"\n", 0, at) + 1
+        raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte "
+                                   f"(at byte {at}): binary data or a corrupted file, not a recording")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror}") from None
     return _parse(text, str(path), check_samples)
+
+
+#: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
+MAX_RECORDING_BYTES = 1 << 30
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
+    try:
+        with open(path, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
+                raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
+            if st.st_size > MAX_RECORDING_BYTES:
+                raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
+                                           "recording may have; split it")
+            data = f.read(MAX_RECORDING_BYTES + 1)
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
+    except OSError as exc:
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; split it")
+    return data
 
 
 def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
     fail = _Failer(name)
     lines = text.splitlines()
     meta, header_index = _parse_metadata(lines, fail)
-    header, cols = _parse_rows(lines, header_index, fail)
+    header, cols = _parse_rows(lines, header_index, fail, torn=bool(text) and not text.endswith(("\n", "\r")))
     header_line = header_index + 1
     cpr = _counts_per_rev(meta, fail)
     if "counts" in cols and cpr is None:
@@ -599,15 +635,20 @@ def _check_header(header: list[str], line: int, fail: _Failer) -> None:
 
 def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
     cell = cell.strip()
+    if "_" in cell:
+        fail(line, f"column {column!r} must be a plain number (no '_' digit separators), got {cell!r}")
     if column in _INT_COLUMNS:
         try:
-            return int(cell)
+            value = int(cell)
         except ValueError:
-            fail(line, f"column {column!r} must be an integer, got {cell!r}")
+            fail(line, f"column {column!r} must be an integer, got {cell[:40]!r}")
+        if not -(1 << 63) <= value < (1 << 63):
+            fail(line, f"column {column!r} must fit a 64-bit integer, got {cell[:40]}{'...' if len(cell) > 40 else ''}")
+        return value
     try:
         v = float(cell)
     except ValueError:
-        fail(line, f"column {column!r} must be a number, got {cell!r}")
+        fail(line, f"column {column!r} must be a number, got {cell[:40]!r}")
     if not math.isfinite(v) and column in COLUMNS:
         fail(line, f"column {column!r} must be finite, got {cell!r}")
     return v
@@ -619,22 +660,44 @@ def _check_strictly_increasing(column: list[tuple[int, float]], name: str, fail:
             fail(line, f"{name} must be strictly increasing, got {v1!r} after {v0!r}")
 
 
-def _parse_rows(lines: list[str], header_index: int, fail: _Failer
+def _csv_rows(reader, header_line: int, fail: _Failer) -> Iterable[list[str]]:
+    """The csv rows, a csv error (a field over the module's limit, a stray quote) as RecordingFormatError."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            fail(header_line + reader.line_num - 1, f"not a CSV row: {exc}")
+        yield row
+
+
+def _parse_rows(lines: list[str], header_index: int, fail: _Failer, torn: bool = False
                 ) -> tuple[list[str], dict[str, list[tuple[int, float]]]]:
-    """The column names and, per column, ``(line number, value)`` of every data row."""
+    """The column names and, per column, ``(line number, value)`` of every data row.
+
+    ``torn`` says the text does not end with a newline: an error on the last line names it as torn.
+    """
     header_line = header_index + 1
     reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
-    header = [h.strip() for h in next(reader)]
+    header = [h.strip() for h in next(iter(_csv_rows(reader, header_line, fail)), [])]
     _check_header(header, header_line, fail)
     cols: dict[str, list[tuple[int, float]]] = {h: [] for h in header}
-    for j, row in enumerate(reader):
+    last_line = len(lines)
+    for j, row in enumerate(_csv_rows(reader, header_line, fail)):
         line = header_line + 1 + j
         if not row or all(not c.strip() for c in row):
             continue
-        if len(row) != len(header):
-            fail(line, f"expected {len(header)} values, got {len(row)}")
-        for h, cell in zip(header, row):
-            cols[h].append((line, _parse_cell(h, cell, line, fail)))
+        try:
+            if len(row) != len(header):
+                fail(line, f"expected {len(header)} values, got {len(row)}")
+            for h, cell in zip(header, row):
+                cols[h].append((line, _parse_cell(h, cell, line, fail)))
+        except RecordingFormatError as exc:
+            if line == last_line and torn:
+                fail(line, f"the last line is torn (the file ends mid-row, without a newline: a run cut off or "
+                           f"a full disk?): {str(exc).partition(': ')[2]}")
+            raise
     if not cols["time_s"]:
         fail(header_line, "no data rows")
     _check_strictly_increasing(cols["time_s"], "time_s", fail)

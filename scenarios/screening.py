@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 from typing import Any, NamedTuple, Sequence
 
 from motorsim.recording import Recording, read_recording
@@ -43,7 +44,7 @@ def refuse_duplicates(files: Sequence[str]) -> None:
                 raise CommandError(f"{name} is the same file as {seen[key]}; pooling data twice would understate "
                                    "the standard errors")
             seen[key] = name
-            if st.st_size <= 1 << 28:
+            if stat.S_ISREG(st.st_mode) and st.st_size <= 1 << 28:
                 with open(name, "rb") as f:
                     digest = hashlib.sha256(f.read()).hexdigest()
                 if digest in seen:
