@@ -367,7 +367,10 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
         if not path.is_file():
             raise ScenarioError(f"scenario must be a built-in name {sorted(builtin_scenarios())} or an existing "
                                 f".toml file, got {text!r}")
-        source, raw = str(path), path.read_text(encoding="utf-8")
+        try:
+            source, raw = str(path), path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise ScenarioError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
         data = tomllib.loads(raw)
     except tomllib.TOMLDecodeError as exc:
