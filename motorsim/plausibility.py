@@ -54,7 +54,7 @@ def spike_rows(values: np.ndarray, threshold: float) -> list[int]:
     list of int
         The flagged rows; of two consecutive flagged rows of opposite sign only the first.
     """
-    flagged = np.flatnonzero(np.abs(np.nan_to_num(values)) > threshold).tolist()
+    flagged = np.flatnonzero(np.abs(values) > threshold).tolist()   # nan compares False
     rows: list[int] = []
     for k in flagged:
         if rows and rows[-1] == k - 1 and np.sign(values[k]) == -np.sign(values[k - 1]):
@@ -64,11 +64,14 @@ def spike_rows(values: np.ndarray, threshold: float) -> list[int]:
 
 
 def _speed_rows(speed: np.ndarray, seq: np.ndarray, speed_floor: float) -> list[ImplausibleSample]:
-    finite = np.abs(speed[np.isfinite(speed)])
-    if len(finite) < 10:
+    magnitude = np.abs(speed)
+    magnitude = magnitude[np.isfinite(magnitude)]
+    if len(magnitude) < 10:
         return []
-    top = len(finite) - 1 - max(3, len(finite) // 100)    # leave out the largest 1 %, at least 3
-    scale = max(float(np.partition(finite, top)[top]), speed_floor)
+    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)    # leave out the largest 1 %, at least 3
+    magnitude.partition(top)
+    scale = max(float(magnitude[top]), speed_floor)
+    del magnitude
     if scale == 0:
         return []
     return [ImplausibleSample(k, int(seq[k]),
@@ -80,7 +83,9 @@ def _speed_rows(speed: np.ndarray, seq: np.ndarray, speed_floor: float) -> list[
 def _interval_rows(time: np.ndarray, seq: np.ndarray, sample_period: float) -> list[ImplausibleSample]:
     if len(time) < 2:
         return []
-    per_step = np.diff(time) / np.diff(seq) / sample_period
+    per_step = np.diff(time)
+    per_step /= np.diff(seq)
+    per_step /= sample_period
     return [ImplausibleSample(k, int(seq[k]),
                               f"time step {time[k] - time[k - 1]:.6g} s is {per_step[k - 1]:.3g} sample "
                               f"periods per seq step (limit {INTERVAL_FACTOR:g})")

@@ -45,7 +45,7 @@ import stat
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterable, Mapping, NoReturn, TextIO
+from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence, TextIO
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -74,8 +74,16 @@ class RecordingFormatError(ValueError):
 
 
 def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
-    """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given)."""
-    arr: np.ndarray = np.array(value, dtype=dtype, copy=True)
+    """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given).
+
+    An array nobody can write to (read-only, owning its memory) is kept as it is: copying it
+    would only double the memory of a large recording.
+    """
+    arr: np.ndarray
+    if isinstance(value, np.ndarray) and value.dtype == dtype and value.base is None and not value.flags.writeable:
+        arr = value
+    else:
+        arr = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
         raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
     if n is not None and len(arr) != n:
@@ -112,8 +120,10 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
     """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
     if len(time) < 3:
         return
-    step = np.diff(seq)
-    interval = float(np.median(np.diff(time) / np.where(step > 0, step, 1)))
+    per_step = np.diff(time)
+    per_step /= np.maximum(np.diff(seq), 1)
+    interval = float(np.median(per_step, overwrite_input=True))
+    del per_step
     ratio = interval / sample_period
     if abs(ratio - 1) > TIME_BASE_TOLERANCE:
         raise ValueError(
@@ -519,7 +529,24 @@ def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Re
         For every broken rule, naming the file, the line and the rule.
     """
     path = Path(path)
+    scan = _scan_file(path)
+    parsed = _parse_fast(path, scan)
+    if parsed is not None:
+        rec = _build_fast(parsed, str(path), check_samples)
+        if rec is not None:
+            return rec
     data = _read_bounded(path)
+    _check_bytes(data, path)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    del data
+    return _parse(text, str(path), check_samples)
+
+
+def _check_bytes(data: bytes, path: Path) -> None:
+    """Refuse a byte-order mark and NUL bytes, each with its own message."""
     if data.startswith(b"\xef\xbb\xbf"):
         raise RecordingFormatError(f"{path}, line 1: starts with a UTF-8 byte-order mark (BOM); "
                                    "save it as UTF-8 without BOM")
@@ -528,28 +555,197 @@ def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Re
         line = data.count(b"\n", 0, at) + 1
         raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte "
                                    f"(at byte {at}): binary data or a corrupted file, not a recording")
+
+
+class _FileScan(NamedTuple):
+    """One pass over a file in blocks: its first block, its number of newlines, whether it ends with one."""
+
+    head: bytes
+    newlines: int
+    ends_with_newline: bool
+
+
+#: Bytes read per block when a file is scanned.
+_SCAN_BLOCK_BYTES = 1 << 20
+
+
+def _scan_file(path: Path) -> _FileScan:
+    """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
+    head, newlines, last = b"", 0, b""
     try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    return _parse(text, str(path), check_samples)
+        with open(path, "rb") as f:
+            _check_regular(path, os.fstat(f.fileno()))
+            total = 0
+            while block := f.read(_SCAN_BLOCK_BYTES):
+                if not head:
+                    head = block
+                    _check_bytes(block, path)
+                elif b"\0" in block:
+                    line = newlines + block.count(b"\n", 0, block.index(b"\0")) + 1
+                    raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte: binary data or a "
+                                               "corrupted file, not a recording")
+                newlines += block.count(b"\n")
+                total += len(block)
+                last = block[-1:]
+                if total > MAX_RECORDING_BYTES:
+                    raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
+                                               "split it")
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
+    except OSError as exc:
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return _FileScan(head, newlines, last == b"\n")
+
+
+def _split_head(data: bytes) -> tuple[list[str], int] | None:
+    """The lines up to and including the header row, decoded, and the byte offset after it; None if odd."""
+    pos = 0
+    while True:
+        end = data.find(b"\n", pos)
+        if end < 0:
+            return None
+        line = data[pos:end]
+        pos = end + 1
+        if not (line.startswith(b"#") or not line.strip()):
+            break
+    try:
+        return data[:pos].decode("utf-8").splitlines(), pos
+    except UnicodeDecodeError:
+        return None
+
+
+#: Bytes the fast reader parses per block (bounds its working memory).
+_FAST_BLOCK_BYTES = 1 << 21
+
+
+def _blocks(path: Path, offset: int) -> Iterator[bytes]:
+    """The file from byte ``offset`` in blocks of whole lines of about :data:`_FAST_BLOCK_BYTES`."""
+    carry = b""
+    with open(path, "rb") as f:
+        f.seek(offset)
+        while block := f.read(_FAST_BLOCK_BYTES):
+            block = carry + block
+            cut = block.rfind(b"\n") + 1
+            carry = block[cut:]
+            if cut:
+                yield block[:cut]
+    if carry:
+        yield carry
+
+
+def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
+    """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
+
+    Blocks of whole lines are parsed one at a time and copied into arrays of ``max_rows``
+    (the number of lines), so the working memory is the columns plus one block.  pyarrow
+    parses floats correctly rounded: a file written by :func:`write_recording` reads back
+    bit for bit.  None also when pyarrow is not installed.
+    """
+    try:
+        import pyarrow
+        import pyarrow.csv
+    except ImportError:
+        return None
+    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=False)
+    convert_options = pyarrow.csv.ConvertOptions(
+        column_types={h: pyarrow.int64() if h in _INT_COLUMNS else pyarrow.float64() for h in header},
+        null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
+    values = {h: np.empty(max_rows, dtype=np.int64 if h in _INT_COLUMNS else np.float64)
+              for h in header if h in COLUMNS}
+    n = 0
+    try:
+        for block in _blocks(path, offset):
+            table = pyarrow.csv.read_csv(pyarrow.BufferReader(block), read_options=read_options,
+                                         convert_options=convert_options, memory_pool=pyarrow.system_memory_pool())
+            k = table.num_rows
+            if n + k > max_rows:
+                return None
+            for h, column in values.items():
+                column[n:n + k] = table.column(h).to_numpy()
+            n += k
+    except Exception:   # any failure of the fast path: the careful parser names the line and the rule
+        return None
+    values = {h: v if n == max_rows else v[:n] for h, v in values.items()}
+    for v in values.values():
+        v.setflags(write=False)     # owned by nobody else: the Recording keeps them without a copy
+    return values if n else None
+
+
+class _FastParse(NamedTuple):
+    """What the fast reader found: metadata, the header's line, the columns, each row's line (if known)."""
+
+    meta: dict[str, str]
+    header_line: int
+    counts_per_rev: int | None
+    values: dict[str, np.ndarray]
+    row_lines: np.ndarray | None
+
+
+def _parse_fast(path: Path, scan: _FileScan) -> _FastParse | None:
+    """``path`` parsed by pyarrow's CSV reader, or None for the careful parser to name what is wrong.
+
+    Only a well-formed file takes this path: every row complete, every cell a number of its
+    column's type, a final newline (the Recording then checks the values).
+    """
+    head = _split_head(scan.head) if scan.ends_with_newline else None
+    if head is None:
+        return None
+    lines, offset = head
+    fail = _Failer(str(path))
+    meta, header_index = _parse_metadata(lines, fail)
+    header = [h.strip() for h in next(csv.reader([lines[header_index]]))]
+    _check_header(header, header_index + 1, fail)
+    cpr = _counts_per_rev(meta, fail)
+    if "counts" in header and cpr is None:
+        fail(header_index + 1, "column 'counts' needs the metadata line '# counts_per_rev: N'")
+    n_lines = scan.newlines - scan.head.count(b"\n", 0, offset)
+    values = _read_columns_fast(path, offset, header, n_lines)
+    if values is None:
+        return None
+    n = len(values["time_s"])
+    row_lines = header_index + 2 + np.arange(n) if n_lines == n else None
+    return _FastParse(meta, header_index + 1, cpr, values, row_lines)
+
+
+def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording | None:
+    """The Recording of a fast parse; None when a rule is broken, for the careful parser to name the line."""
+    fail = _Failer(name)
+    values = parsed.values
+    sp = _sample_period(parsed.meta, values["time_s"], fail)
+    extra = {k: v for k, v in parsed.meta.items() if k not in ("sample_period", "counts_per_rev")}
+    try:
+        rec = Recording(time=values.pop("time_s"), duty=values.pop("duty"), sample_period=sp,
+                        counts=values.pop("counts", None), angle=values.pop("angle_rad", None),
+                        speed=values.pop("speed_rad_s", None), seq=values.pop("seq", None),
+                        counts_per_rev=parsed.counts_per_rev, metadata=extra)
+    except (ValueError, TypeError):
+        return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
+    if check_samples:
+        if parsed.row_lines is None:
+            return None if rec.implausible_samples() else rec   # blank lines: the careful parser knows the lines
+        _refuse_implausible(rec, parsed.row_lines, fail)
+    return rec
 
 
 #: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
 MAX_RECORDING_BYTES = 1 << 30
 
 
+def _check_regular(path: Path, st: os.stat_result) -> None:
+    """Refuse anything but a regular file of at most :data:`MAX_RECORDING_BYTES`."""
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
+        raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
+    if st.st_size > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
+                                   "recording may have; split it")
+
+
 def _read_bounded(path: Path) -> bytes:
     """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
     try:
         with open(path, "rb") as f:
-            st = os.fstat(f.fileno())
-            if not stat.S_ISREG(st.st_mode):
-                kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
-                raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
-            if st.st_size > MAX_RECORDING_BYTES:
-                raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
-                                           "recording may have; split it")
+            _check_regular(path, os.fstat(f.fileno()))
             data = f.read(MAX_RECORDING_BYTES + 1)
     except IsADirectoryError:
         raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
@@ -584,7 +780,7 @@ def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
     return rec
 
 
-def _refuse_implausible(rec: Recording, lines: list[int], fail: _Failer) -> None:
+def _refuse_implausible(rec: Recording, lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:
     """Refuse the file when rows no motor can produce are found, naming their lines."""
     bad = rec.implausible_samples()
     if bad:
