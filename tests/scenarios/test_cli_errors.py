@@ -154,3 +154,22 @@ def test_sweep_on_a_mutated_scenario_is_a_result_or_a_user_error(tmp_path, capsy
     code = main(["sweep", str(path), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet", "--no-plots",
                  "--repetitions", "2"])
     _assert_result_or_user_error(code, capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["design", "--a", "25", "--b", "0", "--sample-period", "0.005", "--counts-per-rev", "1024"], "b must be nonzero"),
+    (["design", "--a", "25", "--b", "3", "--sample-period", "0.005", "--counts-per-rev", "1024", "--duration", "0.05"],
+     "duration must cover at least 20 samples"),
+], ids=["b=0", "short"])
+def test_rules_of_the_library_reached_from_flags_are_user_errors(tmp_path, capsys, argv, text):
+    assert main([*argv, "--out", str(tmp_path / "d"), "--no-plots"]) == 2
+    assert text in capsys.readouterr().err
+
+
+def test_pooling_recordings_of_different_periods_is_a_user_error(tmp_path, capsys):
+    files = [str(tmp_path / f"r{dt}.csv") for dt in ("0.005", "0.01")]
+    for dt, f in zip(("0.005", "0.01"), files):
+        assert main(["simulate", "--a", "25", "--b", "3", "--sample-period", dt, "--duration", "1", "--out", f]) == 0
+    capsys.readouterr()
+    assert main(["identify", *files]) == 2
+    assert "must share one sample_period" in capsys.readouterr().err
