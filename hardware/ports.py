@@ -11,6 +11,8 @@ import contextlib
 import importlib
 from typing import Iterator
 
+from motorsim.checks import ParameterError
+
 from .errors import RigDisconnectedError
 
 __all__ = ["open_port", "available_schemes", "url_keys"]
@@ -68,22 +70,26 @@ def open_port(url: str, baudrate: int, timeout: float) -> Iterator:
 
     Raises
     ------
-    ValueError
-        A motorid scheme whose module is not available.
+    motorsim.checks.ParameterError
+        A motorid scheme whose module is not available, or a URL key breaking a rule (a ``ValueError``).
     RigDisconnectedError
         The port cannot be opened.
     """
     if not isinstance(url, str) or not url:
-        raise ValueError(f"port must be a non-empty string (a device path or URL), got {url!r}")
+        raise ParameterError(f"port must be a non-empty string (a device path or URL), got {url!r}")
     scheme = url.partition("://")[0] if "://" in url else ""
     if scheme in _SCHEMES:
         module_name, _, func = _SCHEMES[scheme].partition(":")
         try:
             opener = getattr(importlib.import_module(module_name), func)
         except (ImportError, AttributeError) as exc:
-            raise ValueError(f"port scheme {scheme}:// is not available in this installation "
+            raise ParameterError(f"port scheme {scheme}:// is not available in this installation "
                              f"({module_name}:{func} cannot be loaded: {exc})") from None
-        with opener(url, baudrate, timeout) as port:
+        with contextlib.ExitStack() as stack:
+            try:
+                port = stack.enter_context(opener(url, baudrate, timeout))
+            except (ValueError, TypeError) as exc:   # the URL's keys break a rule
+                raise ParameterError(f"port {url!r}: {exc}") from exc
             yield port
         return
     import serial
@@ -91,7 +97,7 @@ def open_port(url: str, baudrate: int, timeout: float) -> Iterator:
     try:
         port = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
     except ValueError as exc:   # pyserial: unknown URL scheme or bad settings
-        raise ValueError(f"port {url!r} cannot be used: {exc} (motorid's own schemes: "
+        raise ParameterError(f"port {url!r} cannot be used: {exc} (motorid's own schemes: "
                          f"{', '.join(s + '://' for s in _SCHEMES)})") from None
     except (serial.SerialException, OSError) as exc:
         raise RigDisconnectedError(f"cannot open port {url!r}: {exc}") from None

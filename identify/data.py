@@ -15,7 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from motorsim.checks import check_int
+from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
@@ -44,16 +44,16 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
         recordings = [recordings]
     recs = list(recordings)
     if not recs:
-        raise ValueError("recordings must hold at least one Recording, got none")
+        raise ParameterError("recordings must hold at least one Recording, got none")
     for i, r in enumerate(recs):
         if not isinstance(r, Recording):
             raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
     dts = {r.sample_period for r in recs}
     if len(dts) > 1:
-        raise ValueError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
+        raise ParameterError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
     units = {r.input_unit for r in recs}
     if len(units) > 1:
-        raise ValueError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
+        raise ParameterError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
     return recs
 
 
@@ -71,7 +71,7 @@ def check_input_delay(input_delay: Any) -> int | str:
     """
     if isinstance(input_delay, str):
         if input_delay != "auto":
-            raise ValueError(f"input_delay must be 'auto' or an integer >= 0 samples, got {input_delay!r}")
+            raise ParameterError(f"input_delay must be 'auto' or an integer >= 0 samples, got {input_delay!r}")
         return input_delay
     return check_int("input_delay", input_delay, lo=0, allow_integral_float=False)
 
@@ -131,7 +131,7 @@ def _measured_output(rec: Recording) -> tuple[np.ndarray, str]:
     if angle is not None:
         return angle, "angle"
     if rec.speed is None:   # a Recording always holds angle, counts or speed
-        raise ValueError("recording holds neither angle, counts nor speed")
+        raise ParameterError("recording holds neither angle, counts nor speed")
     return rec.speed, "speed"
 
 
@@ -168,7 +168,7 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
                 output = output_all[row:row + n][sl]
                 t = seg.time[sl]
                 if kind == "speed" and not np.all(np.isfinite(output)):
-                    raise ValueError(f"recordings[{i}] has non-finite speed values")
+                    raise ParameterError(f"recordings[{i}] has non-finite speed values")
                 out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
                                    kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
             row += n

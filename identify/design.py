@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.excitation import Sine
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -168,7 +168,7 @@ def design_sine(a: float, b: float, sample_period: float, *, counts_per_rev: int
     a = check_real("a", a, positive=True)
     b = check_real("b", b)
     if b == 0:
-        raise ValueError(f"b must be nonzero, got {b!r}")
+        raise ParameterError(f"b must be nonzero, got {b!r}")
     sample_period = check_real("sample_period", sample_period, positive=True)
     duration = check_real("duration", duration, positive=True)
     angle_noise = check_real("angle_noise", angle_noise, nonnegative=True)
@@ -176,11 +176,11 @@ def design_sine(a: float, b: float, sample_period: float, *, counts_per_rev: int
     counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, 2**31 - 1)
     n_frequencies = check_int("n_frequencies", n_frequencies, 8, 10_000)
     if duration / sample_period < 20:
-        raise ValueError(f"duration must cover at least 20 samples of {sample_period!r} s, got {duration!r} s")
+        raise ParameterError(f"duration must cover at least 20 samples of {sample_period!r} s, got {duration!r} s")
     lo = 2 * 2 * math.pi / duration               # two cycles per run
     hi = 0.8 * math.pi / sample_period            # 0.8 of the Nyquist frequency
     if lo >= hi:
-        raise ValueError(f"duration {duration!r} s is too short for sample_period {sample_period!r} s: "
+        raise ParameterError(f"duration {duration!r} s is too short for sample_period {sample_period!r} s: "
                          "no sine fits two cycles below the Nyquist frequency")
 
     def at(f, amp):

@@ -1,7 +1,8 @@
 """Argument checks shared by every package: one message format, one rule per check.
 
 Each check returns the value converted to a plain Python type, or raises
-``TypeError`` (wrong kind) / ``ValueError`` (wrong value) with a message that
+:class:`ParameterTypeError` (wrong kind, a ``TypeError``) / :class:`ParameterError`
+(wrong value, a ``ValueError``) with a message that
 names the parameter, the rule and the value received, e.g.
 ``"sample_period must be > 0, got -1.0"``.  Booleans are never accepted as numbers.
 
@@ -14,7 +15,7 @@ Examples
 >>> check_real("sample_period", 0, positive=True)
 Traceback (most recent call last):
 ...
-ValueError: sample_period must be > 0, got 0.0
+motorsim.checks.ParameterError: sample_period must be > 0, got 0.0
 """
 from __future__ import annotations
 
@@ -23,7 +24,16 @@ from typing import Any, Collection
 
 import numpy as np
 
-__all__ = ["check_int", "check_real", "check_bool", "check_choice", "is_int", "is_real"]
+__all__ = ["ParameterError", "ParameterTypeError", "check_int", "check_real", "check_bool", "check_choice", "is_int",
+           "is_real"]
+
+
+class ParameterError(ValueError):
+    """A parameter's value breaks its rule (the message names the parameter, the rule and the value)."""
+
+
+class ParameterTypeError(ParameterError, TypeError):
+    """A parameter is of the wrong kind; a ``TypeError`` (and a :class:`ParameterError`)."""
 
 
 def is_int(value: Any) -> bool:
@@ -47,14 +57,14 @@ def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = Non
                 and float(value).is_integer():
             value = int(value)
         else:
-            raise TypeError(f"{name} must be an integer, got {value!r}")
+            raise ParameterTypeError(f"{name} must be an integer, got {value!r}")
     value = int(value)
     if lo is not None and hi is not None and not lo <= value <= hi:
-        raise ValueError(f"{name} must be in {lo}...{hi}, got {value!r}")
+        raise ParameterError(f"{name} must be in {lo}...{hi}, got {value!r}")
     if lo is not None and value < lo:
-        raise ValueError(f"{name} must be >= {lo}, got {value!r}")
+        raise ParameterError(f"{name} must be >= {lo}, got {value!r}")
     if hi is not None and value > hi:
-        raise ValueError(f"{name} must be <= {hi}, got {value!r}")
+        raise ParameterError(f"{name} must be <= {hi}, got {value!r}")
     return value
 
 
@@ -62,28 +72,28 @@ def check_real(name: str, value: Any, *, positive: bool = False, nonnegative: bo
                finite: bool = True, below: float | None = None) -> float:
     """``value`` as a float; optionally > 0, >= 0, finite (default) and < ``below``."""
     if not is_real(value):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
+        raise ParameterTypeError(f"{name} must be a real number, got {value!r}")
     value = float(value)
     if finite and not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ParameterError(f"{name} must be finite, got {value!r}")
     if positive and not value > 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
+        raise ParameterError(f"{name} must be > 0, got {value!r}")
     if nonnegative and not value >= 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
+        raise ParameterError(f"{name} must be >= 0, got {value!r}")
     if below is not None and not value < below:
-        raise ValueError(f"{name} must be < {below!r}, got {value!r}")
+        raise ParameterError(f"{name} must be < {below!r}, got {value!r}")
     return value
 
 
 def check_bool(name: str, value: Any) -> bool:
     """``value`` as a bool (only ``True``/``False`` and numpy bools are accepted)."""
     if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
+        raise ParameterTypeError(f"{name} must be True or False, got {value!r}")
     return bool(value)
 
 
 def check_choice(name: str, value: Any, choices: Collection[Any]) -> Any:
     """``value`` if it is one of ``choices``."""
     if value not in choices:
-        raise ValueError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
+        raise ParameterError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
     return value

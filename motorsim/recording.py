@@ -27,7 +27,12 @@ Format v1 (CSV, UTF-8)::
 Leading ``#`` lines hold ``key: value`` metadata (unknown keys are kept; ``dt``
 and ``ppr`` are read as ``sample_period`` and ``counts_per_rev``).  Columns may
 come in any order: ``time_s`` and ``duty`` are required, and at least one of
-``counts``, ``angle_rad``, ``speed_rad_s``; ``seq`` is optional.
+``counts``, ``angle_rad``, ``speed_rad_s``; ``seq`` is optional.  ``time_s`` is in seconds:
+its median interval per ``seq`` step must be within :data:`TIME_BASE_TOLERANCE` of
+``sample_period`` (a column in ms, or a wrong period, is refused with both figures).
+Only a regular file of at most :data:`MAX_RECORDING_BYTES` is read; a byte-order mark, a
+NUL byte, a cell with ``_`` digit separators, a count beyond 64 bits and a torn last line
+(no final newline) are refused, each with its own message.
 """
 from __future__ import annotations
 
@@ -37,25 +42,32 @@ import dataclasses
 import io
 import math
 import os
+import stat
 import time
 from pathlib import Path
-from typing import Iterable, Mapping, NoReturn, TextIO
+from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence, TextIO
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import check_int, check_real
 from .files import OutputFileError, check_output_file, open_exclusive, write_atomically
+from .plausibility import ImplausibleSample, implausible_samples
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recording", "RecordingWriter",
-           "FORMAT_HEADER", "COLUMNS"]
+           "FORMAT_HEADER", "COLUMNS", "TIME_BASE_TOLERANCE", "MAX_RECORDING_BYTES"]
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
 COLUMNS = ("seq", "time_s", "duty", "counts", "angle_rad", "speed_rad_s")
 _ALIASES = {"dt": "sample_period", "ppr": "counts_per_rev"}
 _INT_COLUMNS = ("seq", "counts")
+#: Largest relative disagreement allowed between the median interval of ``time_s`` (per step
+#: of ``seq``) and the declared ``sample_period``.  Timing jitter (< 1 sample period, see
+#: ``SimRig.jitter``) and dropped samples leave the median interval within a few per cent of
+#: the period; a time column in ms or µs, or a wrong period, is off by a large factor.
+TIME_BASE_TOLERANCE = 0.2
 
 
 class RecordingFormatError(ValueError):
@@ -63,8 +75,16 @@ class RecordingFormatError(ValueError):
 
 
 def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
-    """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given)."""
-    arr: np.ndarray = np.array(value, dtype=dtype, copy=True)
+    """``value`` as a read-only 1-D copy of ``dtype`` (of length ``n`` when given).
+
+    An array nobody can write to (read-only, owning its memory) is kept as it is: copying it
+    would only double the memory of a large recording.
+    """
+    arr: np.ndarray
+    if isinstance(value, np.ndarray) and value.dtype == dtype and value.base is None and not value.flags.writeable:
+        arr = value
+    else:
+        arr = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
         raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
     if n is not None and len(arr) != n:
@@ -95,6 +115,22 @@ def _check_finite(name: str, arr: np.ndarray | None) -> None:
     if arr is not None and not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+
+
+def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
+    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
+    if len(time) < 3:
+        return
+    per_step = np.diff(time)
+    per_step /= np.maximum(np.diff(seq), 1)
+    interval = float(np.median(per_step, overwrite_input=True))
+    del per_step
+    ratio = interval / sample_period
+    if abs(ratio - 1) > TIME_BASE_TOLERANCE:
+        raise ValueError(
+            f"time and sample_period disagree: time advances {interval:.6g} s per sample (median over "
+            f"{len(time) - 1} intervals) but sample_period is {sample_period!r} s, a factor {ratio:.4g} "
+            f"(allowed: within {TIME_BASE_TOLERANCE:.0%}); is time in seconds, and is the period right?")
 
 
 def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
@@ -176,6 +212,7 @@ class Recording:
         for name in ("time", "duty", "angle", "speed"):
             _check_finite(name, columns[name])
         _check_increasing(t, seq_array)
+        _check_time_base(t, seq_array, self.sample_period)
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):
@@ -227,6 +264,43 @@ class Recording:
         """Rows ``start:stop`` as a new Recording."""
         def cut(x):
             return None if x is None else x[start:stop]
+        return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
+                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
+
+    def implausible_samples(self) -> list[ImplausibleSample]:
+        """Rows no motor can produce: a speed or time step far beyond the rest of the run.
+
+        See :mod:`motorsim.plausibility` for the rules; one count per sample period is the
+        smallest speed scale of a counts recording.
+
+        Examples
+        --------
+        >>> rec = Recording(time=np.arange(50) * 0.01, duty=np.full(50, 100), sample_period=0.01,
+        ...                 counts=np.arange(50) * 7, counts_per_rev=400)
+        >>> rec.implausible_samples()
+        []
+        >>> counts = rec.counts.copy(); counts[20] ^= 1 << 40           # one flipped bit
+        >>> [s.row for s in dataclasses.replace(rec, counts=counts).implausible_samples()]
+        [20]
+        """
+        floor = 0.0
+        if self.counts is not None and self.counts_per_rev is not None:
+            floor = 2 * np.pi / self.counts_per_rev / self.sample_period
+        return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor)
+
+    def drop_rows(self, rows: Iterable[int]) -> "Recording":
+        """This recording without ``rows`` (0-based): they become gaps in ``seq``.
+
+        Parameters
+        ----------
+        rows : iterable of int
+            Row indices to remove.
+        """
+        keep = np.ones(len(self), dtype=bool)
+        keep[list(rows)] = False
+
+        def cut(x):
+            return None if x is None else x[keep]
         return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
                                    angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
 
@@ -483,13 +557,16 @@ class RecordingWriter:
             self.close(False, f"{exc_type.__name__}: {exc}")
 
 
-def read_recording(path: str | os.PathLike) -> Recording:
+def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Recording:
     """Read a format-v1 CSV file.
 
     Parameters
     ----------
     path : str or path-like
         The file.
+    check_samples : bool, optional
+        Refuse rows no motor can produce (default True; see :mod:`motorsim.plausibility`).
+        With False they are kept, for the caller to find and drop.
 
     Raises
     ------
@@ -497,20 +574,238 @@ def read_recording(path: str | os.PathLike) -> Recording:
         For every broken rule, naming the file, the line and the rule.
     """
     path = Path(path)
+    scan = _scan_file(path)
+    parsed = _parse_fast(path, scan)
+    if parsed is not None:
+        rec = _build_fast(parsed, str(path), check_samples)
+        if rec is not None:
+            return rec
+    data = _read_bounded(path)
+    _check_bytes(data, path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    del data
+    return _parse(text, str(path), check_samples)
+
+
+def _check_bytes(data: bytes, path: Path) -> None:
+    """Refuse a byte-order mark and NUL bytes, each with its own message."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise RecordingFormatError(f"{path}, line 1: starts with a UTF-8 byte-order mark (BOM); "
+                                   "save it as UTF-8 without BOM")
+    if b"\0" in data:
+        at = data.index(b"\0")
+        line = data.count(b"\n", 0, at) + 1
+        raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte "
+                                   f"(at byte {at}): binary data or a corrupted file, not a recording")
+
+
+class _FileScan(NamedTuple):
+    """One pass over a file in blocks: its first block, its number of newlines, whether it ends with one."""
+
+    head: bytes
+    newlines: int
+    ends_with_newline: bool
+
+
+#: Bytes read per block when a file is scanned.
+_SCAN_BLOCK_BYTES = 1 << 20
+
+
+def _scan_file(path: Path) -> _FileScan:
+    """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
+    head, newlines, last = b"", 0, b""
+    try:
+        with open(path, "rb") as f:
+            _check_regular(path, os.fstat(f.fileno()))
+            total = 0
+            while block := f.read(_SCAN_BLOCK_BYTES):
+                if not head:
+                    head = block
+                    _check_bytes(block, path)
+                elif b"\0" in block:
+                    line = newlines + block.count(b"\n", 0, block.index(b"\0")) + 1
+                    raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte: binary data or a "
+                                               "corrupted file, not a recording")
+                newlines += block.count(b"\n")
+                total += len(block)
+                last = block[-1:]
+                if total > MAX_RECORDING_BYTES:
+                    raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
+                                               "split it")
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
-        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror}") from None
-    return _parse(text, str(path))
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return _FileScan(head, newlines, last == b"\n")
 
 
-def _parse(text: str, name: str) -> Recording:
+def _split_head(data: bytes) -> tuple[list[str], int] | None:
+    """The lines up to and including the header row, decoded, and the byte offset after it; None if odd."""
+    pos = 0
+    while True:
+        end = data.find(b"\n", pos)
+        if end < 0:
+            return None
+        line = data[pos:end]
+        pos = end + 1
+        if not (line.startswith(b"#") or not line.strip()):
+            break
+    try:
+        return data[:pos].decode("utf-8").splitlines(), pos
+    except UnicodeDecodeError:
+        return None
+
+
+#: Bytes the fast reader parses per block (bounds its working memory).
+_FAST_BLOCK_BYTES = 1 << 21
+
+
+def _blocks(path: Path, offset: int) -> Iterator[bytes]:
+    """The file from byte ``offset`` in blocks of whole lines of about :data:`_FAST_BLOCK_BYTES`."""
+    carry = b""
+    with open(path, "rb") as f:
+        f.seek(offset)
+        while block := f.read(_FAST_BLOCK_BYTES):
+            block = carry + block
+            cut = block.rfind(b"\n") + 1
+            carry = block[cut:]
+            if cut:
+                yield block[:cut]
+    if carry:
+        yield carry
+
+
+def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
+    """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
+
+    Blocks of whole lines are parsed one at a time and copied into arrays of ``max_rows``
+    (the number of lines), so the working memory is the columns plus one block.  pyarrow
+    parses floats correctly rounded: a file written by :func:`write_recording` reads back
+    bit for bit.  None also when pyarrow is not installed.
+    """
+    try:
+        import pyarrow
+        import pyarrow.csv
+    except ImportError:
+        return None
+    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=False)
+    convert_options = pyarrow.csv.ConvertOptions(
+        column_types={h: pyarrow.int64() if h in _INT_COLUMNS else pyarrow.float64() for h in header},
+        null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
+    values = {h: np.empty(max_rows, dtype=np.int64 if h in _INT_COLUMNS else np.float64)
+              for h in header if h in COLUMNS}
+    n = 0
+    try:
+        for block in _blocks(path, offset):
+            table = pyarrow.csv.read_csv(pyarrow.BufferReader(block), read_options=read_options,
+                                         convert_options=convert_options, memory_pool=pyarrow.system_memory_pool())
+            k = table.num_rows
+            if n + k > max_rows:
+                return None
+            for h, column in values.items():
+                column[n:n + k] = table.column(h).to_numpy()
+            n += k
+    except Exception:   # any failure of the fast path: the careful parser names the line and the rule
+        return None
+    values = {h: v if n == max_rows else v[:n] for h, v in values.items()}
+    for v in values.values():
+        v.setflags(write=False)     # owned by nobody else: the Recording keeps them without a copy
+    return values if n else None
+
+
+class _FastParse(NamedTuple):
+    """What the fast reader found: metadata, the header's line, the columns, each row's line (if known)."""
+
+    meta: dict[str, str]
+    header_line: int
+    counts_per_rev: int | None
+    values: dict[str, np.ndarray]
+    row_lines: np.ndarray | None
+
+
+def _parse_fast(path: Path, scan: _FileScan) -> _FastParse | None:
+    """``path`` parsed by pyarrow's CSV reader, or None for the careful parser to name what is wrong.
+
+    Only a well-formed file takes this path: every row complete, every cell a number of its
+    column's type, a final newline (the Recording then checks the values).
+    """
+    head = _split_head(scan.head) if scan.ends_with_newline else None
+    if head is None:
+        return None
+    lines, offset = head
+    fail = _Failer(str(path))
+    meta, header_index = _parse_metadata(lines, fail)
+    header = [h.strip() for h in next(csv.reader([lines[header_index]]))]
+    _check_header(header, header_index + 1, fail)
+    cpr = _counts_per_rev(meta, fail)
+    if "counts" in header and cpr is None:
+        fail(header_index + 1, "column 'counts' needs the metadata line '# counts_per_rev: N'")
+    n_lines = scan.newlines - scan.head.count(b"\n", 0, offset)
+    values = _read_columns_fast(path, offset, header, n_lines)
+    if values is None:
+        return None
+    n = len(values["time_s"])
+    row_lines = header_index + 2 + np.arange(n) if n_lines == n else None
+    return _FastParse(meta, header_index + 1, cpr, values, row_lines)
+
+
+def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording | None:
+    """The Recording of a fast parse; None when a rule is broken, for the careful parser to name the line."""
+    fail = _Failer(name)
+    values = parsed.values
+    sp = _sample_period(parsed.meta, values["time_s"], fail)
+    extra = {k: v for k, v in parsed.meta.items() if k not in ("sample_period", "counts_per_rev")}
+    try:
+        rec = Recording(time=values.pop("time_s"), duty=values.pop("duty"), sample_period=sp,
+                        counts=values.pop("counts", None), angle=values.pop("angle_rad", None),
+                        speed=values.pop("speed_rad_s", None), seq=values.pop("seq", None),
+                        counts_per_rev=parsed.counts_per_rev, metadata=extra)
+    except (ValueError, TypeError):
+        return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
+    if check_samples:
+        if parsed.row_lines is None:
+            return None if rec.implausible_samples() else rec   # blank lines: the careful parser knows the lines
+        _refuse_implausible(rec, parsed.row_lines, fail)
+    return rec
+
+
+#: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
+MAX_RECORDING_BYTES = 1 << 30
+
+
+def _check_regular(path: Path, st: os.stat_result) -> None:
+    """Refuse anything but a regular file of at most :data:`MAX_RECORDING_BYTES`."""
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
+        raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
+    if st.st_size > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
+                                   "recording may have; split it")
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
+    try:
+        with open(path, "rb") as f:
+            _check_regular(path, os.fstat(f.fileno()))
+            data = f.read(MAX_RECORDING_BYTES + 1)
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
+    except OSError as exc:
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; split it")
+    return data
+
+
+def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
     fail = _Failer(name)
     lines = text.splitlines()
     meta, header_index = _parse_metadata(lines, fail)
-    header, cols = _parse_rows(lines, header_index, fail)
+    header, cols = _parse_rows(lines, header_index, fail, torn=bool(text) and not text.endswith(("\n", "\r")))
     header_line = header_index + 1
     cpr = _counts_per_rev(meta, fail)
     if "counts" in cols and cpr is None:
@@ -518,10 +813,27 @@ def _parse(text: str, name: str) -> Recording:
     values = {h: np.array([v for _, v in cols[h]]) for h in header}
     sp = _sample_period(meta, values["time_s"], fail)
     extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
-    return Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
-                     counts=values.get("counts"), angle=values.get("angle_rad"),
-                     speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                     metadata=extra)
+    try:
+        rec = Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
+                        counts=values.get("counts"), angle=values.get("angle_rad"),
+                        speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
+                        metadata=extra)
+    except (ValueError, TypeError) as exc:
+        raise RecordingFormatError(f"{name}: {exc}") from None
+    if check_samples:
+        _refuse_implausible(rec, [line for line, _ in cols["time_s"]], fail)
+    return rec
+
+
+def _refuse_implausible(rec: Recording, lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:
+    """Refuse the file when rows no motor can produce are found, naming their lines."""
+    bad = rec.implausible_samples()
+    if bad:
+        others = "" if len(bad) == 1 else f" (and {len(bad) - 1} more, lines " + ", ".join(
+            str(lines[s.row]) for s in bad[1:6]) + (", ..." if len(bad) > 6 else "") + ")"
+        fail(lines[bad[0].row], f"implausible sample (seq {bad[0].seq}): {bad[0].reason}{others}; "
+                                  "a corrupted row? remove it, or drop such rows as gaps "
+                                  "(motorid identify --drop-outliers)")
 
 
 class _Failer:
@@ -564,15 +876,20 @@ def _check_header(header: list[str], line: int, fail: _Failer) -> None:
 
 def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
     cell = cell.strip()
+    if "_" in cell:
+        fail(line, f"column {column!r} must be a plain number (no '_' digit separators), got {cell!r}")
     if column in _INT_COLUMNS:
         try:
-            return int(cell)
+            value = int(cell)
         except ValueError:
-            fail(line, f"column {column!r} must be an integer, got {cell!r}")
+            fail(line, f"column {column!r} must be an integer, got {cell[:40]!r}")
+        if not -(1 << 63) <= value < (1 << 63):
+            fail(line, f"column {column!r} must fit a 64-bit integer, got {cell[:40]}{'...' if len(cell) > 40 else ''}")
+        return value
     try:
         v = float(cell)
     except ValueError:
-        fail(line, f"column {column!r} must be a number, got {cell!r}")
+        fail(line, f"column {column!r} must be a number, got {cell[:40]!r}")
     if not math.isfinite(v) and column in COLUMNS:
         fail(line, f"column {column!r} must be finite, got {cell!r}")
     return v
@@ -584,22 +901,44 @@ def _check_strictly_increasing(column: list[tuple[int, float]], name: str, fail:
             fail(line, f"{name} must be strictly increasing, got {v1!r} after {v0!r}")
 
 
-def _parse_rows(lines: list[str], header_index: int, fail: _Failer
+def _csv_rows(reader, header_line: int, fail: _Failer) -> Iterable[list[str]]:
+    """The csv rows, a csv error (a field over the module's limit, a stray quote) as RecordingFormatError."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            fail(header_line + reader.line_num - 1, f"not a CSV row: {exc}")
+        yield row
+
+
+def _parse_rows(lines: list[str], header_index: int, fail: _Failer, torn: bool = False
                 ) -> tuple[list[str], dict[str, list[tuple[int, float]]]]:
-    """The column names and, per column, ``(line number, value)`` of every data row."""
+    """The column names and, per column, ``(line number, value)`` of every data row.
+
+    ``torn`` says the text does not end with a newline: an error on the last line names it as torn.
+    """
     header_line = header_index + 1
     reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
-    header = [h.strip() for h in next(reader)]
+    header = [h.strip() for h in next(iter(_csv_rows(reader, header_line, fail)), [])]
     _check_header(header, header_line, fail)
     cols: dict[str, list[tuple[int, float]]] = {h: [] for h in header}
-    for j, row in enumerate(reader):
+    last_line = len(lines)
+    for j, row in enumerate(_csv_rows(reader, header_line, fail)):
         line = header_line + 1 + j
         if not row or all(not c.strip() for c in row):
             continue
-        if len(row) != len(header):
-            fail(line, f"expected {len(header)} values, got {len(row)}")
-        for h, cell in zip(header, row):
-            cols[h].append((line, _parse_cell(h, cell, line, fail)))
+        try:
+            if len(row) != len(header):
+                fail(line, f"expected {len(header)} values, got {len(row)}")
+            for h, cell in zip(header, row):
+                cols[h].append((line, _parse_cell(h, cell, line, fail)))
+        except RecordingFormatError as exc:
+            if line == last_line and torn:
+                fail(line, f"the last line is torn (the file ends mid-row, without a newline: a run cut off or "
+                           f"a full disk?): {str(exc).partition(': ')[2]}")
+            raise
     if not cols["time_s"]:
         fail(header_line, "no data rows")
     _check_strictly_increasing(cols["time_s"], "time_s", fail)

@@ -71,9 +71,12 @@ def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> Non
 
 
 def sim_rig_from_args(args: argparse.Namespace) -> SimRig:
-    """The SimRig the bench flags describe."""
-    return SimRig(Motor(**_values(args, Motor)), Encoder(**_values(args, Encoder)), **_values(args, SimRig),
-                  rng=np.random.default_rng(args.seed))
+    """The SimRig the bench flags describe (a rule they break is a :class:`CommandError`)."""
+    try:
+        return SimRig(Motor(**_values(args, Motor)), Encoder(**_values(args, Encoder)), **_values(args, SimRig),
+                      rng=np.random.default_rng(args.seed))
+    except (ValueError, TypeError) as exc:
+        raise CommandError(f"bench flags: {exc}") from exc
 
 
 #: Excitation flags: ``--NAME ARGS`` is the same as ``--excitation NAME:ARGS``.
@@ -104,9 +107,12 @@ def add_experiment_arguments(parser: argparse.ArgumentParser, **defaults: Any) -
 
 
 def experiment_from_args(args: argparse.Namespace) -> Experiment:
-    """The Experiment the flags describe (default: the article's 200 sin(10 t))."""
+    """The Experiment the flags describe (default: the article's 200 sin(10 t)); a broken rule is a CommandError."""
     spec = args.excitation
     for name in EXCITATION_FLAGS:
         if getattr(args, name, None):
             spec = f"{name}:{getattr(args, name)}"
-    return Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
+    try:
+        return Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
+    except (ValueError, TypeError) as exc:
+        raise CommandError(f"experiment flags: {exc}") from exc

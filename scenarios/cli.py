@@ -7,15 +7,20 @@ dependencies (matplotlib, python-control) inside ``run`` only.  Add a command by
 writing its module and adding one entry.  Flags shared by several commands live in
 :mod:`scenarios.arguments`.
 
-Errors a user can fix (bad flags, bad files, data that cannot identify the
-motor) print ``motorid: error: ...`` and exit with status 2, never a traceback.
-Ctrl-C, SIGTERM and SIGHUP unwind the command (STOP sent, data kept) and exit with
-128 + the signal number (:mod:`scenarios.interrupts`).
+Error contract.  Errors a user can fix (:func:`user_error_types`: bad flags, bad
+files, a scenario that breaks a rule, data that cannot identify the motor, a device
+that misbehaves, a path that cannot be read or written) print one line
+``motorid: error: ...`` naming the file, line or flag and the rule, and exit with
+status 2.  Any other exception is a bug, never disguised as a user error: one line
+``motorid: internal error: ...`` asks to re-run with ``--traceback`` (which prints the
+traceback), and the status is 1.  Ctrl-C, SIGTERM and SIGHUP unwind the command (STOP
+sent, data kept) and exit with 128 + the signal number (:mod:`scenarios.interrupts`).
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import traceback
 from typing import Callable, NamedTuple, Sequence
 
 from motorsim.files import OutputFileError
@@ -23,7 +28,7 @@ from motorsim.recording import RecordingFormatError
 
 from .arguments import CommandError, print_to_stderr
 
-__all__ = ["main", "build_parser", "COMMANDS", "Command"]
+__all__ = ["main", "build_parser", "COMMANDS", "Command", "user_error_types"]
 
 AddArguments = Callable[[argparse.ArgumentParser], None]
 Run = Callable[[argparse.Namespace], int]
@@ -86,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``motorid`` parser with every sub-command of :data:`COMMANDS`."""
     parser = argparse.ArgumentParser(prog="motorid", description="Identify a and b of a PWM-driven DC motor, "
                                      "dω/dt + aω = b·u, on a simulated or real bench.")
+    parser.add_argument("--traceback", action="store_true",
+                        help="on an error, print the Python traceback (for bug reports)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, command in COMMANDS.items():
         p = sub.add_parser(name, help=command.help, description=command.help)
@@ -95,24 +102,52 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def user_error_types() -> tuple[type[BaseException], ...]:
+    """The exceptions that report a user's mistake (exit status 2); anything else is a bug (status 1).
+
+    ``OSError`` (a path that cannot be read or written, a full disk, a port that cannot
+    be opened) is one too.
+    """
+    from hardware.errors import ProtocolError, RigError
+    from identify.errors import NotIdentifiableError
+    from motorsim.checks import ParameterError
+
+    from .scenario import ScenarioError
+    return (CommandError, RecordingFormatError, ScenarioError, NotIdentifiableError, ParameterError,
+            ProtocolError, RigError, OSError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, OSError) and not isinstance(exc, OutputFileError) and exc.filename is not None \
+            and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}"
+    return text or type(exc).__name__
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``motorid`` console script."""
+    """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses)."""
     from .interrupts import describe_interrupt, exit_status, signals_as_interrupts
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         with signals_as_interrupts():
             return args.run(args)
-    except (CommandError, RecordingFormatError, ValueError, TypeError) as exc:
-        print_to_stderr(f"motorid: error: {exc}")
-        return 2
-    except OSError as exc:      # a file that cannot be read or written: one line naming it
-        print_to_stderr(f"motorid: error: {exc}" if isinstance(exc, OutputFileError) or not exc.strerror
-                        else f"motorid: error: {exc.filename or ''}: {exc.strerror}".replace("error: : ", "error: "))
-        return 2
     except KeyboardInterrupt as exc:
         print_to_stderr(f"motorid: {describe_interrupt(exc)}")
         return exit_status(exc)
+    except BrokenPipeError:
+        sys.stderr.close()   # the reader of our output went away (``| head``): nothing left to say
+        return 1
+    except Exception as exc:
+        if args.traceback:
+            traceback.print_exc()
+        if isinstance(exc, user_error_types()):
+            print_to_stderr(f"motorid: error: {_one_line(exc)}")
+            return 2
+        print_to_stderr(f"motorid: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
+                        "(a bug: re-run with --traceback to see where, and report it)")
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

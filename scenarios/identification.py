@@ -44,6 +44,9 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
                              "(on TEST, else on the first FILE)")
     parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
+    parser.add_argument("--drop-outliers", action="store_true",
+                        help="drop corrupted samples (implausible jumps, isolated residual outliers) as gaps, "
+                             "refit and list them, instead of refusing the file")
 
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -63,12 +66,18 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def run_identify(args: argparse.Namespace) -> int:
     """Fit, print the estimate (and the validation), write the report figure if asked."""
-    from identify import fit, validate
+    from identify import validate
     from identify.estimate import json_ready
-    recs = [read_recording(f) for f in args.files]
-    est = fit(recs, method=args.method, **estimator_options(args))
+
+    from .screening import read_and_fit
+    est, recs, dropped = read_and_fit(args.files, args.method, estimator_options(args),
+                                      drop_outliers=args.drop_outliers)
+    for d in dropped:
+        print(f"dropped     {d}")
     print(format_estimate(est))
     out = est.to_dict()
+    if dropped:
+        out["dropped_samples"] = {d.file: d.seq for d in dropped}
     report = None
     if args.validate:
         report = validate(est, read_recording(args.validate))

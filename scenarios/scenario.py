@@ -59,6 +59,10 @@ __all__ = ["Setting", "GridPoint", "Scenario", "load_scenario", "builtin_scenari
            "SETTING_KEYS", "DEFAULT_EXCITATION", "scenario_from_dict"]
 
 
+#: Largest grid a scenario may have: every point is validated when the file is loaded.
+MAX_GRID_POINTS = 100_000
+
+
 class ScenarioError(ValueError):
     """A scenario file or definition breaks a rule (the message names the key)."""
 
@@ -335,11 +339,19 @@ def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario
     scenario = Scenario(name=str(data.get("name", Path(source).stem)), description=str(data.get("description", "")),
                         base=base, grid=tuple(grid), methods=tuple(methods), repetitions=reps, seed=seed)
     try:
-        for _ in scenario.points():  # validate every point now, not hours into the sweep
-            pass
+        _validate_points(scenario)
     except ScenarioError as exc:
         fail(str(exc))
     return scenario
+
+
+def _validate_points(scenario: Scenario) -> None:
+    """Every grid point now, not hours into the sweep; a grid over :data:`MAX_GRID_POINTS` is refused first."""
+    if scenario.n_points > MAX_GRID_POINTS:
+        raise ScenarioError(f"the grid has {scenario.n_points:,} points, over the {MAX_GRID_POINTS:,} a sweep may "
+                            "have; use fewer values per axis")
+    for _ in scenario.points():
+        pass
 
 
 def _builtin_dir():
@@ -367,7 +379,10 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
         if not path.is_file():
             raise ScenarioError(f"scenario must be a built-in name {sorted(builtin_scenarios())} or an existing "
                                 f".toml file, got {text!r}")
-        source, raw = str(path), path.read_text(encoding="utf-8")
+        try:
+            source, raw = str(path), path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise ScenarioError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
         data = tomllib.loads(raw)
     except tomllib.TOMLDecodeError as exc:

@@ -638,6 +638,8 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid sweep``."""
     parser.add_argument("scenario", nargs="?", metavar="NAME|FILE.toml",
                         help="a built-in scenario (see --list) or a scenario file")
+    from .budget import add_max_memory_flag
+    add_max_memory_flag(parser)
     parser.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="folder for sweep.csv, summary.json and the PNGs (default sweep-output/NAME)")
@@ -664,6 +666,8 @@ def run_sweep(args: argparse.Namespace) -> int:
             print(f"{name:<16} {description}")
         return 0
     scenario = _scenario_from_args(args)
+    from .budget import check_sweep
+    check_sweep(scenario, args.max_memory)
     out = Path(args.out or Path("sweep-output") / safe_file_name(scenario.name, "scenario"))
     if args.workers and not args.dask and args.workers > usable_workers(args.workers):
         print(f"--workers {args.workers}: using {usable_workers(args.workers)}, the cores available "

@@ -77,7 +77,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.firmware)
 
 
-class _ParserFound(Exception):
+class _ParserFound(BaseException):   # not an Exception: main() turns those into exit statuses
     """Carries the parser whose ``parse_known_args`` was called first."""
 
 

@@ -7,6 +7,7 @@
 ``accuracy`` :mod:`~scenarios.benchmarks.accuracy`: the estimators against the truth and the CRB
 ``serial``   :mod:`~scenarios.benchmarks.serial`: the host's frame reader and a pty run
 ``firmware`` :mod:`~scenarios.benchmarks.firmware`: the Arduino firmware under simavr
+``parse``    :mod:`~scenarios.benchmarks.parse`: reading a large recording against pandas.read_csv
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -56,6 +57,11 @@ def _serial(argv: Sequence[str]) -> int:
     return bench_serial(argv)
 
 
+def _parse(argv: Sequence[str]) -> int:
+    from .parse import bench_parse
+    return bench_parse(argv)
+
+
 def _firmware(argv: Sequence[str]) -> int:
     from .firmware import bench_firmware
     return bench_firmware(argv)
@@ -72,6 +78,7 @@ BENCHMARKS: dict[str, Benchmark] = {
                                  "through the pty"),
     "firmware": Benchmark(_firmware, "the Arduino firmware under simavr: size, sample rates per baud, encoder "
                                      "ceiling, speed"),
+    "parse": Benchmark(_parse, "read_recording of a 2-million-row recording vs pandas.read_csv: time, peak memory"),
 }
 
 

@@ -47,6 +47,22 @@ def test_prbs_fit_and_static_gain_match_the_lab(prbs_fit):
     assert se["a"] > 0 and se["b"] > 0
 
 
+def test_standard_errors_match_the_spread_between_the_two_halves(prbs_fit):
+    # Independent of the covariance formula: each half of the run is fitted on its own.  The
+    # halves must agree within 4 combined standard errors (a stderr understated by an order of
+    # magnitude fails this), and the full run's stderr must be the halves' / sqrt(2) within 30 %.
+    rec = load_undc("DCmotor_prbs_open_exp.csv")
+    n = len(rec)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        halves = [fit(rec.slice(lo, hi), method="oe-friction", input_delay=1) for lo, hi in ((0, n // 2), (n // 2, n))]
+    for name in ("a", "b"):
+        se1, se2 = (h.stderr()[name] for h in halves)
+        diff = abs(getattr(halves[0], name) - getattr(halves[1], name))
+        assert diff < 4 * math.hypot(se1, se2), name
+        assert prbs_fit.stderr()[name] == pytest.approx(math.hypot(se1, se2) / 2, rel=0.3), name
+
+
 def test_model_predicts_the_held_out_step_run(prbs_fit):
     meas, sim = model_output(prbs_fit, load_undc("DCmotor_step_open_exp.csv"))
     assert nrmse_fit(meas, sim) > 85.0

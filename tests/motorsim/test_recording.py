@@ -88,9 +88,20 @@ def test_bad_files_name_the_file_line_and_rule(tmp_path, name):
     assert message in str(info.value)
 
 
-def test_unreadable_and_non_utf8_files(tmp_path):
-    with pytest.raises(RecordingFormatError, match="cannot read"):
+def test_unreadable_and_non_utf8_files(tmp_path, monkeypatch):
+    with pytest.raises(RecordingFormatError, match="missing.csv: cannot read: No such file"):
         read_recording(tmp_path / "missing.csv")
+    with pytest.raises(RecordingFormatError, match="not a regular file .a directory"):
+        read_recording(tmp_path)
+    readable = write_recording(Recording(time=[0.0, 1.0], duty=[0, 1], sample_period=1.0, angle=[0.0, 1.0]),
+                               tmp_path / "denied.csv")
+
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(readable))
+    monkeypatch.setattr("builtins.open", denied)   # root reads any file: a refusal has to be simulated
+    with pytest.raises(RecordingFormatError, match="denied.csv: cannot read: Permission denied"):
+        read_recording(readable)
+    monkeypatch.undo()
     p = tmp_path / "latin1.csv"
     p.write_bytes(b"time_s,duty,angle_rad\n0,0,\xe9\n")
     with pytest.raises(RecordingFormatError, match="not UTF-8"):
@@ -122,3 +133,20 @@ def test_failed_write_leaves_no_file_behind(tmp_path):
     with pytest.raises(ValueError, match="single-line"):
         write_recording(rec, tmp_path / "r.csv")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_write_failing_after_the_temporary_file_exists_keeps_the_old_file(tmp_path, monkeypatch):
+    import motorsim.recording as recording
+    path = write_recording(Recording(time=[0.0, 1.0], duty=[0, 1], sample_period=1.0, angle=[0.0, 1.0]),
+                           tmp_path / "r.csv")
+    old = path.read_bytes()
+    seen = []
+
+    def failing_replace(src, dst):
+        seen.append(src)
+        assert (tmp_path / src).exists()        # the temporary file was written
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(recording.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="No space left"):
+        write_recording(Recording(time=[0.0, 2.0], duty=[0, 1], sample_period=2.0, angle=[0.0, 1.0]), path)
+    assert seen and path.read_bytes() == old and sorted(tmp_path.iterdir()) == [path]

@@ -6,7 +6,7 @@ import pytest
 
 from identify.design import design_sine, predicted_stderr
 from identify.uncertainty import cramer_rao_bound
-from motorsim import Sine
+from motorsim import Motor, Sine, simulate
 from scenarios.cli import main
 
 
@@ -15,11 +15,30 @@ def design():
     return design_sine(25.0, 3.0, 0.005, counts_per_rev=1024, angle_noise=1e-3, duration=4.0, n_frequencies=16)
 
 
+def _finite_difference_stderr(a, b, duty, dt, variance, h=1e-6):
+    """sqrt(diag(sigma^2 (J^T J)^-1)) for (a, b), J by central differences of the simulated angle
+    with respect to (a, b, initial speed) and a column of ones for the angle offset."""
+    t = np.arange(len(duty)) * dt
+
+    def angle(a_, b_, w0):
+        return simulate(Motor(a_, b_), duty, t, initial_speed=w0).angle
+    columns = [(angle(a * (1 + h), b, 0.0) - angle(a * (1 - h), b, 0.0)) / (2 * a * h),
+               (angle(a, b * (1 + h), 0.0) - angle(a, b * (1 - h), 0.0)) / (2 * b * h),
+               (angle(a, b, h) - angle(a, b, -h)) / (2 * h), np.ones(len(t))]
+    J = np.column_stack(columns)
+    cov = variance * np.linalg.inv(J.T @ J)
+    return np.sqrt(np.diag(cov)[:2])
+
+
 def test_prediction_is_the_bound_of_the_bench_sine():
     p = predicted_stderr(25.0, 3.0, 20.0, 150, 0.005, 2.0, counts_per_rev=1024, angle_noise=1e-3)
-    ref = cramer_rao_bound(25.0, 3.0, Sine(20.0, 150).duty(400, 0.005), 0.005, counts_per_rev=1024,
-                           angle_noise=1e-3).stderr()
+    duty = Sine(20.0, 150).duty(400, 0.005)
+    ref = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=1024, angle_noise=1e-3).stderr()
     assert (p.stderr_a, p.stderr_b) == (ref["a"], ref["b"])
+    # independently: finite-difference Fisher information of the angle, noise = Gaussian + quantisation
+    variance = 1e-3 ** 2 + (2 * np.pi / 1024) ** 2 / 12
+    fd = _finite_difference_stderr(25.0, 3.0, duty.astype(float), 0.005, variance)
+    np.testing.assert_allclose([p.stderr_a, p.stderr_b], fd, rtol=1e-5)   # central differences, h = 1e-6
 
 
 def test_recommendation_beats_every_scanned_sine_and_the_articles(design):

@@ -1,0 +1,65 @@
+"""Isolated residual outliers after a fit: single samples the fitted model cannot explain.
+
+A corrupted sample too small for :func:`motorsim.plausibility.implausible_samples` still
+pulls a least-squares fit.  After the fit it stands out as an isolated spike in the speed
+residual (measured minus the model's speed, :func:`identify.validation.model_output`).
+
+Rule: a row is an outlier when its residual exceeds :data:`RESIDUAL_FACTOR` robust
+standard deviations (1.4826 times the median absolute deviation) and 0.1 % of the RMS
+measured speed (a noise-free fit has a near-zero deviation), and the outliers are isolated:
+at most :data:`ISOLATED_SHARE` of the rows.  Many large residuals mean a model that misses
+dynamics (friction, delay), which :func:`identify.validate` reports; they are not named here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from motorsim.plausibility import spike_rows
+from motorsim.recording import Recording
+
+from .estimate import Estimate
+from .validation import model_output
+
+__all__ = ["residual_outliers", "RESIDUAL_FACTOR", "ISOLATED_SHARE"]
+
+#: Robust standard deviations beyond which a residual is an outlier.
+RESIDUAL_FACTOR = 10.0
+#: Largest share of rows that can be outliers and still be called isolated.
+ISOLATED_SHARE = 0.01
+
+
+def residual_outliers(estimate: Estimate, recording: Recording) -> list[int]:
+    """Rows (0-based) of ``recording`` whose speed residual is an isolated outlier.
+
+    Parameters
+    ----------
+    estimate : Estimate
+        A fit (of this recording, or pooled with it).
+    recording : Recording
+        The data.
+
+    Returns
+    -------
+    list of int
+        Outlier rows; a count jump and back is named by its first row.  Empty when none,
+        or when too many rows exceed the limit to be isolated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+    >>> from identify import fit
+    >>> rec = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(1)).run(
+    ...     Experiment(Sine(20.0), 0.005, 4.0))
+    >>> residual_outliers(fit(rec, method="zoh-ls"), rec)
+    []
+    """
+    measured, simulated = model_output(estimate, recording)
+    residual = measured - simulated
+    finite = residual[np.isfinite(residual)]
+    if len(finite) < 10:
+        return []
+    sigma = 1.4826 * float(np.median(np.abs(finite - np.median(finite))))
+    speed_rms = float(np.sqrt(np.mean(measured[np.isfinite(measured)] ** 2)))
+    rows = spike_rows(residual, max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms))
+    return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []

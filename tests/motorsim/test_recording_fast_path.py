@@ -1,0 +1,66 @@
+"""The fast reader (pyarrow) and the careful line-by-line parser give the same recording, bit for bit."""
+import numpy as np
+import pytest
+
+import motorsim.recording as recording
+from motorsim import Encoder, Experiment, Motor, RecordingFormatError, SimRig, Sine, read_recording, write_recording
+
+
+def _careful(monkeypatch):
+    monkeypatch.setattr(recording, "_read_columns_fast", lambda *args: None)
+
+
+@pytest.fixture
+def written(tmp_path):
+    rig = SimRig(Motor(25.0, 3.0), Encoder(count_offset=-(1 << 40), angle_noise=1e-3), jitter=0.3, drop_rate=0.05,
+                 record_speed=True, rng=np.random.default_rng(4))
+    rec = rig.run(Experiment(Sine(20.0), 0.005, 2.0))
+    return rec, write_recording(rec, tmp_path / "r.csv")
+
+
+def test_the_fast_path_is_taken_and_reads_back_bit_for_bit(written, monkeypatch):
+    rec, path = written
+    calls = []
+    fast = recording._read_columns_fast
+    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: calls.append(1) or fast(*a))
+    back = read_recording(path)
+    assert calls and back.counts is not None and back.counts.dtype == np.int64
+    for name in ("time", "duty", "counts", "speed", "seq"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(rec, name), err_msg=name)
+    assert dict(back.metadata) == dict(rec.metadata) and back.sample_period == rec.sample_period
+
+
+def test_the_careful_parser_reads_the_same_recording(written, monkeypatch):
+    rec, path = written
+    fast = read_recording(path)
+    _careful(monkeypatch)
+    careful = read_recording(path)
+    for name in ("time", "duty", "counts", "speed", "seq"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(careful, name), err_msg=name)
+
+
+@pytest.mark.parametrize("bad_row, match", [
+    ("5,0.5,abc,7", r"line 19: column 'duty' must be a number"),
+    ("5,0.5,1,7.5", r"line 19: column 'counts' must be an integer"),
+    ("5,nan,1,7", r"line 19: column 'time_s' must be finite"),
+    ("5,0.5,1", r"line 19: expected 4 values, got 3"),
+    ("5,0.5,1,7,8", r"line 19: expected 4 values, got 5"),
+], ids=["text", "fraction", "nan", "short", "long"])
+def test_a_bad_row_still_gets_its_line_when_the_fast_path_fails(tmp_path, bad_row, match):
+    lines = [recording.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    rows = [f"{k},{k * 0.1!r},1,{k}" for k in range(30)]
+    rows[14] = bad_row
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(lines + rows) + "\n", encoding="utf-8")
+    with pytest.raises(RecordingFormatError, match=match):
+        read_recording(path)
+
+
+def test_blank_lines_keep_the_line_numbers_of_an_implausible_row(tmp_path):
+    lines = [recording.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    rows = [f"{k},{k * 0.1!r},1,{k * 3}" for k in range(40)]
+    rows[20] = f"20,2.0,1,{1 << 40}"
+    path = tmp_path / "blank.csv"
+    path.write_text("\n".join(lines + rows[:10] + ["", ""] + rows[10:]) + "\n", encoding="utf-8")
+    with pytest.raises(RecordingFormatError, match=r"line 27: implausible sample \(seq 20\)"):
+        read_recording(path)
