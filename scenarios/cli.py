@@ -43,6 +43,11 @@ def _identify() -> tuple[AddArguments, Run]:
     return identification.add_identify_arguments, identification.run_identify
 
 
+def _import() -> tuple[AddArguments, Run]:
+    from . import importing
+    return importing.add_import_arguments, importing.run_import
+
+
 def _demo() -> tuple[AddArguments, Run]:
     from . import demo
     return demo.add_demo_arguments, demo.run_demo
@@ -71,6 +76,7 @@ def _live() -> tuple[AddArguments, Run]:
 COMMANDS: dict[str, Command] = {
     "simulate": Command("simulate the bench and write a recording (format v1)", _simulate),
     "identify": Command("identify a and b from recordings", _identify),
+    "import": Command("a lab's own file (CSV, TSV, whitespace, MATLAB .mat) to a recording (format v1)", _import),
     "demo": Command("the article's section 5 on the simulated bench", _demo),
     "bench": Command("speed and accuracy benchmarks", _bench),
     "sweep": Command("sweep scenarios: grid x estimators x Monte Carlo repetitions", _sweep),

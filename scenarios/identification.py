@@ -9,7 +9,8 @@ import numpy as np
 
 from motorsim.recording import read_recording
 
-from .arguments import CommandError
+from .arguments import CommandError, print_to_stderr
+from .importing import add_column_arguments, column_flags_given, import_from_args
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
 
@@ -32,7 +33,8 @@ def _input_delay(text: str) -> int | str:
 def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid identify``."""
     from identify import DEFAULT_METHOD, available_methods
-    parser.add_argument("files", nargs="+", metavar="FILE", help="recordings (format v1); several are pooled")
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="recordings (format v1), or foreign files with the column flags; several are pooled")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator (default {DEFAULT_METHOD}, the most accurate available)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
@@ -43,7 +45,16 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", metavar="FILE.png",
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
                              "(on TEST, else on the first FILE)")
-    parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
+    add_column_arguments(parser, required=False)
+
+
+def read_inputs(paths: list[str], args: argparse.Namespace) -> list:
+    """Recordings (format v1), or foreign files mapped by the column flags when any is given."""
+    if column_flags_given(args):
+        return [import_from_args(p, args) for p in paths]
+    return [read_recording(p) for p in paths]
 
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -62,25 +73,30 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    """Fit, print the estimate (and the validation), write the report figure if asked."""
+    """Fit, print the estimate (and the validation), write the report figure if asked.
+
+    With ``--json`` standard output holds exactly one JSON document and the human text goes to
+    standard error, so the output pipes into ``python -m json.tool`` or ``jq``.
+    """
     from identify import fit, validate
     from identify.estimate import json_ready
-    recs = [read_recording(f) for f in args.files]
+    say = print_to_stderr if args.json else print
+    recs = read_inputs(args.files, args)
     est = fit(recs, method=args.method, **estimator_options(args))
-    print(format_estimate(est))
+    say(format_estimate(est))
     out = est.to_dict()
     report = None
     if args.validate:
-        report = validate(est, read_recording(args.validate))
-        print(format_validation(report, args.validate))
+        report = validate(est, read_inputs([args.validate], args)[0])
+        say(format_validation(report, args.validate))
         out.update(report.summary())
     if args.report:
         from .plots import plot_validation
         if report is None:
             report = validate(est, recs[0])
         where = args.validate or args.files[0]
-        path = plot_validation(report, est, args.report, title=f"{est.method} on {where}")
-        print(f"report      {path}")
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}")
+        say(f"report      {args.report}")
     if args.json:
         print(json.dumps(json_ready(out)))
     return 0
