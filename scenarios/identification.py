@@ -5,8 +5,6 @@ import argparse
 import json
 from typing import Any
 
-import numpy as np
-
 from motorsim.recording import read_recording
 
 from .arguments import CommandError, print_to_stderr
@@ -45,6 +43,9 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", metavar="FILE.png",
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
                              "(on TEST, else on the first FILE)")
+    parser.add_argument("--save", metavar="MODEL.json",
+                        help="write the model (parameters, covariance, delay, sample period in s, units, method, "
+                             "data files with sha256) for Estimate.from_json")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON document on stdout (the human-readable text goes to stderr)")
     add_column_arguments(parser, required=False)
@@ -84,6 +85,12 @@ def run_identify(args: argparse.Namespace) -> int:
     recs = read_inputs(args.files, args)
     est = fit(recs, method=args.method, **estimator_options(args))
     say(format_estimate(est))
+    if args.save:
+        from identify.estimate import with_data_files
+        est = with_data_files(est, [*args.files])
+        with open(args.save, "w", encoding="utf-8") as fh:
+            fh.write(est.to_json() + "\n")
+        say(f"model       {args.save}")
     out = est.to_dict()
     report = None
     if args.validate:
@@ -103,23 +110,8 @@ def run_identify(args: argparse.Namespace) -> int:
 
 
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval)."""
-    se = est.stderr()
-    ci = est.confidence_interval(0.95)
-
-    def ci_text(name):
-        lo, hi = ci[name]
-        return f"   95 % CI [{lo:.6g}, {hi:.6g}]" if np.isfinite(lo) and np.isfinite(hi) else ""
-    lines = [f"method      {est.method}",
-             f"a           {est.a:.6g} 1/s   (stderr {se['a']:.2g}){ci_text('a')}",
-             f"b           {est.b:.6g} (rad/s^2)/{est.input_unit}   (stderr {se['b']:.2g}){ci_text('b')}"]
-    for k, v in est.extra.items():
-        lines.append(f"{k:<11} {v:.6g}" + (f"   (stderr {se[k]:.2g}){ci_text(k)}" if k in se else ""))
-    lines += [f"b/a         {est.static_gain:.6g} (rad/s)/{est.input_unit}",
-              f"fit         {est.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
-              f"residual    {est.residual_rms:.3g} {est.residual_unit} RMS",
-              f"samples     {est.n_samples}"]
-    return "\n".join(lines)
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval): ``str(est)``."""
+    return str(est)
 
 
 def format_validation(report, name: str) -> str:
