@@ -13,6 +13,7 @@ motor) print ``motorid: error: ...`` and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Callable, NamedTuple, Sequence
 
@@ -89,6 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``motorid`` parser with every sub-command of :data:`COMMANDS`."""
     parser = argparse.ArgumentParser(prog="motorid", description="Identify a and b of a PWM-driven DC motor, "
                                      "dω/dt + aω = b·u, on a simulated or real bench.")
+    parser.add_argument("--version", action="version", version=f"motorid {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, command in COMMANDS.items():
         p = sub.add_parser(name, help=command.help, description=command.help)
@@ -98,12 +100,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _version() -> str:
+    """The installed distribution's version (``unknown`` when run from a source tree not installed)."""
+    from importlib import metadata
+    try:
+        return metadata.version("motorid")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader of stdout went away (``motorid ... | head``): end quietly, as ``SIGPIPE`` would."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())    # the interpreter's final flush must not fail again
+    except (OSError, ValueError, AttributeError):
+        pass                                     # stdout is not a file descriptor (captured, embedded)
+    return 141                                   # 128 + SIGPIPE, the shell's status for the same case
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.run(args)
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
     except (CommandError, RecordingFormatError, ValueError, TypeError) as exc:
         print_to_stderr(f"motorid: error: {exc}")
         return 2
