@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import time
 
 from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
@@ -19,7 +21,7 @@ from motorsim.sensors import Encoder
 from .arguments import CommandError, add_experiment_arguments, add_knob_flag, experiment_from_args, print_to_stderr
 from .progress import ProgressBar
 
-__all__ = ["add_live_arguments", "run_live"]
+__all__ = ["add_live_arguments", "run_live", "default_out_path"]
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,7 +42,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
                    help="give up after the device is silent this long during a run (default 1 s)")
     add_experiment_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
+    parser.add_argument("--out", default=None, metavar="FILE.csv",
+                        help="path of the recording to write (default live-YYYYMMDD-HHMMSS.csv in the current "
+                             "folder, named on stderr)")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
     parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
@@ -58,6 +62,16 @@ def _estimate_note(running) -> str:
     return f"a ≈ {estimate.a:.4g} 1/s  b ≈ {estimate.b:.4g}  ({estimate.model}, {estimate.n_rows} rows)"
 
 
+def default_out_path(now: float | None = None) -> str:
+    """``live-YYYYMMDD-HHMMSS.csv`` in the current folder (``-2``, ``-3``, ... when taken)."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
+    path, k = f"live-{stamp}.csv", 1
+    while os.path.exists(path) or os.path.exists(f"{path}.partial"):
+        k += 1
+        path = f"live-{stamp}-{k}.csv"
+    return path
+
+
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
@@ -68,6 +82,9 @@ def run_live(args: argparse.Namespace) -> int:
 
     from .identification import format_estimate
     experiment = experiment_from_args(args)
+    if args.out is None:
+        args.out = default_out_path()
+        print_to_stderr(f"recording to {args.out}")
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=not args.quiet and experiment.n_samples > 0)
