@@ -7,28 +7,25 @@ it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration
 """
 from __future__ import annotations
 
+import importlib
 import inspect
 from typing import Any, Callable
 
 from motorsim.recording import Recording
 
 from .estimate import Estimate
-from .friction import fit_output_error_friction
-from .instrumental import fit_instrumental_variables
-from .output_error import fit_output_error
-from .regression import fit_euler_ls, fit_zoh_ls
 
 __all__ = ["fit", "available_methods", "method_function", "method_options", "DEFAULT_METHOD"]
 
-_METHODS: dict[str, Callable[..., Estimate]] = {
-    "euler-ls": fit_euler_ls,
-    "zoh-ls": fit_zoh_ls,
-    "oe": fit_output_error,
-    "iv": fit_instrumental_variables,
-    "oe-friction": fit_output_error_friction,
+#: name -> "module:function" of this package (its module imported when first used), or the function itself
+_METHODS: dict[str, str | Callable[..., Estimate]] = {
+    "euler-ls": "regression:fit_euler_ls",
+    "zoh-ls": "regression:fit_zoh_ls",
+    "oe": "output_error:fit_output_error",
+    "iv": "instrumental:fit_instrumental_variables",
+    "oe-friction": "friction:fit_output_error_friction",
 }
 
-#: The most accurate method available (``motorid identify`` without ``--method``).
 DEFAULT_METHOD = "oe"
 
 
@@ -47,7 +44,11 @@ def method_function(method: str) -> Callable[..., Estimate]:
     """
     if method not in _METHODS:
         raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
-    return _METHODS[method]
+    entry = _METHODS[method]
+    if callable(entry):
+        return entry
+    module, function = entry.split(":")
+    return getattr(importlib.import_module(f".{module}", __package__), function)
 
 
 def method_options(method: str) -> tuple[str, ...]:
