@@ -21,6 +21,7 @@ from motorsim.recording import Recording, write_recording
 from motorsim.rig import Experiment, Rig
 
 from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args
+from .progress import ProgressBar
 
 __all__ = ["DemoRow", "article_experiments", "run_article", "format_table", "add_demo_arguments", "run_demo"]
 
@@ -47,20 +48,29 @@ def article_experiments(frequencies: Sequence[float] = (10, 20, 30, 40), amplitu
     return [Experiment(Sine(f, amplitude, phase), sample_period, duration) for f in frequencies]
 
 
-def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[str] | None = None
-                ) -> tuple[list[Recording], list[DemoRow]]:
-    """Run each experiment on ``rig`` and fit it with each method (failures are rows, not crashes)."""
+def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[str] | None = None,
+                progress: bool | None = None) -> tuple[list[Recording], list[DemoRow]]:
+    """Run each experiment on ``rig`` and fit it with each method (failures are rows, not crashes).
+
+    A progress bar on stderr counts the runs and fits (``progress``: None draws it when stderr
+    is a terminal, True or False force it).
+    """
     methods = list(methods or available_methods())
     recordings, rows = [], []
-    for i, exp in enumerate(experiments, 1):
-        rec = rig.run(exp)
-        recordings.append(rec)
-        frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
-        for m in methods:
-            try:
-                rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
-            except NotIdentifiableError as exc:
-                rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
+    with ProgressBar(len(experiments) * (1 + len(methods)), "demo", unit="steps", enabled=progress) as bar:
+        for i, exp in enumerate(experiments, 1):
+            bar.update(0, f"eta_{i}: simulating")
+            rec = rig.run(exp)
+            recordings.append(rec)
+            bar.update(1)
+            frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
+            for m in methods:
+                bar.update(0, f"eta_{i}: {m}")
+                try:
+                    rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
+                except NotIdentifiableError as exc:
+                    rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
+                bar.update(1)
     return recordings, rows
 
 

@@ -87,7 +87,7 @@ def run_live(args: argparse.Namespace) -> int:
         print_to_stderr(f"recording to {args.out}")
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
-                           enabled=not args.quiet and experiment.n_samples > 0)
+                           enabled=None if not args.quiet and experiment.n_samples > 0 else False)
     plot = None
     if args.plot:
         from .plots import LivePlot

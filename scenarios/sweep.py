@@ -43,7 +43,7 @@ from motorsim.checks import check_int
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
-from .arguments import CommandError
+from .arguments import CommandError, print_to_stderr
 from .batch import (
     BATCHED_METHODS,
     MethodOutcome,
@@ -556,6 +556,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         return 0
     scenario = _scenario_from_args(args)
     out = Path(args.out or Path("sweep-output") / scenario.name)
+    if not args.quiet:
+        from .sweep_time import estimate_sweep_time
+        print_to_stderr(estimate_sweep_time(scenario, args.workers).describe(scenario))
     with _dask_executor(args.dask, args.workers) as executor:
         summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
                                progress=False if args.quiet else None)
