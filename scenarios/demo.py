@@ -23,7 +23,12 @@ from motorsim.rig import Experiment, Rig
 from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args
 from .progress import ProgressBar
 
-__all__ = ["DemoRow", "article_experiments", "run_article", "format_table", "add_demo_arguments", "run_demo"]
+#: Methods whose simulated speed ``overlay.png`` draws over the measured one: the article's
+#: Euler least squares and the output-error fit (all methods run when neither did).
+OVERLAID_METHODS = ("euler-ls", "oe")
+
+__all__ = ["OVERLAID_METHODS", "DemoRow", "article_experiments", "run_article", "format_table",
+           "add_demo_arguments", "run_demo"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,21 +140,17 @@ def run_demo(args: argparse.Namespace) -> int:
                                     encoding="utf-8")
     if not args.no_plots:
         from . import plots
-        paths = [plots.plot_run(rec, out / f"figure_{i}.png", title=f"Figure {i}: eta_{i} = "
-                                f"{args.amplitude} sin({freqs[i - 1]:g} t) and omega")
-                 for i, rec in enumerate(recordings, 1)]
-        default_rows = {r.input_name: r.estimate for r in rows if r.estimate is not None
-                        and r.method == _best_method(methods)}
-        overlaid = [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)]
-        paths.append(plots.plot_overlay(recordings, overlaid,
-                                        out / "overlay.png"))
+        sines = [f"eta_{i} = {args.amplitude} sin({freqs[i - 1]:g} t)" for i in range(1, len(recordings) + 1)]
+        paths = []
+        for i, (rec, sine) in enumerate(zip(recordings, sines), 1):
+            paths.append(out / f"figure_{i}.png")
+            plots.plot_run(rec, paths[-1], title=f"Figure {i}: {sine} and the measured speed ω")
+        ran = list(dict.fromkeys(r.method for r in rows))
+        shown = [m for m in OVERLAID_METHODS if m in ran] or ran
+        fits = [{r.method: r.estimate for r in rows if r.input_name == f"eta_{i}" and r.method in shown}
+                for i in range(1, len(recordings) + 1)]
+        paths.append(out / "overlay.png")
+        plots.plot_overlay(recordings, fits, paths[-1], labels=sines)
         print("\nfigures: " + ", ".join(str(p) for p in paths))
     print(f"table, recordings: {out / 'table.txt'}, {out / 'table.json'}, {out}/eta_*.csv")
     return 0
-
-
-def _best_method(methods: Sequence[str] | None) -> str:
-    from identify import DEFAULT_METHOD
-    if not methods or DEFAULT_METHOD in methods:
-        return DEFAULT_METHOD
-    return methods[-1]

@@ -126,6 +126,8 @@ def run_live(args: argparse.Namespace) -> int:
     progress.close()
     path = writer.close(True, metadata=recording.metadata)
     estimate = fit(recording, method=args.method)
+    if plot is not None:
+        plot.show_fit(recording, estimate)
     m = recording.metadata
     print(f"wrote {len(recording)} samples to {path}: {m['samples_received']} received of "
           f"{m['samples_expected']}, {m['host_link_frames_lost']} lost on the link, "

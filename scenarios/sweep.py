@@ -490,8 +490,9 @@ def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | o
     if numeric:
         x = "frequency" if "frequency" in numeric else numeric[0]
         others = [c for c in columns if c != x]
-        paths.append(plots.plot_sweep_frequency(rows, out / f"bias_vs_{x}.png", others=others, x=x,
-                                                title=f"{scenario.name}: bias and spread against {x}"))
+        paths.append(out / f"bias_vs_{x}.png")
+        plots.plot_sweep_frequency(rows, paths[-1], others=others, x=x,
+                                   title=f"{scenario.name}: bias and spread against {x}")
     if len(numeric) >= 2:
         x, y = numeric[0], numeric[1]
         fixed = {c: rows[0][c] for c in columns if c not in (x, y)}
@@ -499,9 +500,10 @@ def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | o
         note = ("; " + ", ".join(f"{c}={v:g}" if isinstance(v, float) else f"{c}={v}" for c, v in fixed.items())
                 if fixed else "")
         for name in ("a", "b"):
-            paths.append(plots.plot_sweep_heatmap(sub, x, y, out / f"heatmap_bias_{name}.png",
-                                                  value=f"bias_{name}_pct",
-                                                  title=f"{scenario.name}: |bias of {name}| in %{note}"))
+            paths.append(out / f"heatmap_bias_{name}.png")
+            plots.plot_sweep_heatmap(sub, x, y, paths[-1], value=f"bias_{name}_pct",
+                                     value_label=f"|bias of {name}| [% of the true {name}]",
+                                     title=f"{scenario.name}: |bias of {name}| in %{note}")
     return paths
 
 
