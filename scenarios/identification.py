@@ -9,6 +9,7 @@ from motorsim.recording import read_recording
 
 from .arguments import CommandError, print_to_stderr
 from .importing import add_column_arguments, column_flags_given, import_from_args
+from .progress import Ticker
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
 
@@ -83,7 +84,8 @@ def run_identify(args: argparse.Namespace) -> int:
     from identify.estimate import json_ready
     say = print_to_stderr if args.json else print
     recs = read_inputs(args.files, args)
-    est = fit(recs, method=args.method, **estimator_options(args))
+    with Ticker(f"identify: {args.method} fit on {len(recs)} recording(s)"):   # a line only after 1 s
+        est = fit(recs, method=args.method, **estimator_options(args))
     say(format_estimate(est))
     if args.save:
         from identify.estimate import with_data_files

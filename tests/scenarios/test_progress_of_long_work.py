@@ -1,11 +1,15 @@
 """Long work shows progress on a terminal, stays quiet in pipes, and a sweep says its run time first."""
+import io
 import math
+import sys
 
 import pytest
 
 from motorsim import Motor, SimRig
+from motorsim.recording import write_recording
 from scenarios.cli import main
 from scenarios.demo import article_experiments, run_article
+from scenarios.progress import Ticker
 from scenarios.scenario import scenario_from_dict
 from scenarios.sweep_time import estimate_sweep_time
 
@@ -38,3 +42,36 @@ def test_sweep_announces_its_run_time_unless_quiet(tmp_path, capsys):
     assert "sweep article: 8 points x 1 methods x 1 repetitions, estimated" in capsys.readouterr().err
     assert main([*args, "--out", str(tmp_path / "b"), "--quiet"]) == 0
     assert "estimated" not in capsys.readouterr().err
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_ticker_draws_on_a_terminal_and_wipes_its_line_before_standard_output(capsys):
+    term = _Terminal()
+    with Ticker("identify: oe-friction fit", stream=term, delay=0, interval=60) as ticker:
+        assert term.getvalue() == "\r\033[Kidentify: oe-friction fit, 0 s"
+        ticker.set_note("section 1 of 5: sines")
+        print("a table row")
+        assert term.getvalue().endswith("\r\033[K")          # wiped before the row was printed
+        ticker.draw()
+        assert term.getvalue().endswith("identify: oe-friction fit, 0 s  section 1 of 5: sines")
+    assert term.getvalue().endswith("\r\033[K") and type(sys.stdout).__name__ != "_ClearingStdout"
+    assert capsys.readouterr().out == "a table row\n"
+
+
+def test_ticker_is_silent_in_a_pipe_and_leaves_standard_output_alone():
+    pipe = io.StringIO()
+    before = sys.stdout
+    with Ticker("bench accuracy", stream=pipe, delay=0):
+        assert sys.stdout is before
+    assert pipe.getvalue() == ""
+
+
+def test_identify_in_a_pipe_shows_no_ticker(tmp_path, capsys):
+    rec = SimRig(Motor(25.0, 3.0)).run(article_experiments((10,), duration=0.5)[0])
+    write_recording(rec, tmp_path / "r.csv")
+    assert main(["identify", str(tmp_path / "r.csv"), "--method", "oe"]) == 0
+    assert "identify: oe fit" not in capsys.readouterr().err
