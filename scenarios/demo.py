@@ -20,7 +20,7 @@ from motorsim.knobs import knobs_of
 from motorsim.recording import Recording, write_recording
 from motorsim.rig import Experiment, Rig
 
-from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args
+from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args, warn_if_clipped
 from .progress import ProgressBar
 
 #: Methods whose simulated speed ``overlay.png`` draws over the measured one: the article's
@@ -124,6 +124,8 @@ def run_demo(args: argparse.Namespace) -> int:
             raise CommandError(f"--methods must name methods among {available_methods()}, got {m!r}")
     rig = sim_rig_from_args(args)
     exps = article_experiments(freqs, args.amplitude, args.phase, args.sample_period, args.duration)
+    if exps:
+        warn_if_clipped(exps[0], f"--amplitude {args.amplitude}")
     recordings, rows = run_article(rig, exps, methods)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
