@@ -4,6 +4,14 @@ Add an estimator by adding one line to ``_METHODS``; the CLI and the sweeps
 pick it up by name.  Every estimate's ``method`` is one of these names, and
 ``fit(recordings, estimate.method, **options)`` reproduces it with the options
 it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration).
+
+The registry names each estimator as ``"module:function"`` of this package rather than
+holding the function, so that listing the names imports no estimator.  Every command's
+``--help`` lists the methods (``--method`` choices), and the estimator modules import
+scipy.optimize, scipy.linalg and scipy.sparse at the top: with the functions registered,
+``motorid --help`` took 588 ms, 0.43 x ``import control`` measured in the same
+``motorid bench startup`` run (goal 0.25 x), against 262 ms, 0.14 x, with the names.
+A test resolves every entry, so a misspelt one fails there rather than at a user's fit.
 """
 from __future__ import annotations
 
