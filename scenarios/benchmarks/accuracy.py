@@ -463,7 +463,7 @@ def bench_accuracy(argv: Sequence[str]) -> int:
     sections = {"sines": lambda: _section_sines(args, rng)[0], "multisine": lambda: _section_multisine(args, rng),
                 "friction": lambda: _section_friction(args, rng), "montecarlo": lambda: _section_monte_carlo(args),
                 "timing": timing}
-    with Ticker("bench accuracy", delay=0) as ticker:      # on a terminal only, below the tables
+    with Ticker("bench accuracy") as ticker:      # on a terminal only, below the tables
         for i, (name, run) in enumerate(sections.items(), 1):
             if args.only in (None, name):
                 ticker.set_note(f"section {i} of {len(sections)}: {name}")
