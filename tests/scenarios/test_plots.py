@@ -135,3 +135,13 @@ def test_live_plot_titles_in_words_and_shows_the_final_fit(tmp_path, runs):
     assert len(live.ax2.get_lines()) == 2            # measured and model speed
     assert _texts(live.ax.get_legend())[-1] == f"model (oe), fit {est.fit_percent:.1f} %"
     assert (tmp_path / "live.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_design_figure_draws_both_errors_and_one_mark_per_frequency(tmp_path):
+    f = np.geomspace(1, 100, 20)
+    fig = plots.plot_design(f, 1 / f, 2 / f, marks=[(10.0, "recommended"), (20.0, "article 20")])
+    (ax,) = fig.axes
+    assert ax.get_xlabel() == "sine frequency ω [rad/s]" and ax.get_ylabel().endswith("[% of value]")
+    assert _texts(ax.get_legend()) == ["a", "b"]
+    assert len(ax.get_lines()) == 2 + 2                           # a, b and the two marks
+    assert [t.get_text() for t in ax.texts] == ["recommended", "article 20"]
