@@ -1,6 +1,7 @@
 """Long work shows progress on a terminal, stays quiet in pipes, and a sweep says its run time first."""
 import io
 import math
+import re
 import sys
 
 import pytest
@@ -52,12 +53,12 @@ class _Terminal(io.StringIO):
 def test_ticker_draws_on_a_terminal_and_wipes_its_line_before_standard_output(capsys):
     term = _Terminal()
     with Ticker("identify: oe-friction fit", stream=term, delay=0, interval=60) as ticker:
-        assert term.getvalue() == "\r\033[Kidentify: oe-friction fit, 0 s"
+        assert re.fullmatch(r"\r\033\[Kidentify: oe-friction fit, \d+ s", term.getvalue())
         ticker.set_note("section 1 of 5: sines")
         print("a table row")
         assert term.getvalue().endswith("\r\033[K")          # wiped before the row was printed
         ticker.draw()
-        assert term.getvalue().endswith("identify: oe-friction fit, 0 s  section 1 of 5: sines")
+        assert re.search(r"identify: oe-friction fit, \d+ s  section 1 of 5: sines$", term.getvalue())
     assert term.getvalue().endswith("\r\033[K") and type(sys.stdout).__name__ != "_ClearingStdout"
     assert capsys.readouterr().out == "a table row\n"
 
