@@ -1,17 +1,35 @@
-"""identify: estimators of a and b from a Recording (never from a rig)."""
-from .design import DesignPoint, SineDesign, design_sine, predicted_stderr
-from .errors import NotIdentifiableError
-from .estimate import Estimate
-from .friction import fit_output_error_friction
-from .instrumental import fit_instrumental_variables
-from .methods import DEFAULT_METHOD, available_methods, fit, method_function
-from .output_error import fit_output_error
-from .regression import fit_euler_ls, fit_zoh_ls
-from .uncertainty import CramerRaoBound, cramer_rao_bound
-from .validation import ValidationReport, fit_percent, nrmse_fit, simulated_speed, validate
+"""identify: estimators of a and b from a Recording (never from a rig).
 
-__all__ = ["NotIdentifiableError", "Estimate", "DEFAULT_METHOD", "available_methods", "fit", "method_function",
-           "fit_output_error", "fit_instrumental_variables", "fit_output_error_friction",
-           "fit_euler_ls", "fit_zoh_ls", "CramerRaoBound", "cramer_rao_bound",
-           "design_sine", "predicted_stderr", "DesignPoint", "SineDesign",
-           "fit_percent", "nrmse_fit", "simulated_speed", "ValidationReport", "validate"]
+The names below are loaded on first use (PEP 562), so ``import identify`` and the command
+line's ``--help`` do not pay for scipy's optimisers and filters until a fit needs them.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: public name -> the module of this package that defines it
+_WHERE = {
+    "NotIdentifiableError": "errors", "Estimate": "estimate",
+    "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
+    "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
+    "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",
+    "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",
+    "design_sine": "design", "predicted_stderr": "design", "DesignPoint": "design", "SineDesign": "design",
+    "fit_percent": "validation", "nrmse_fit": "validation", "simulated_speed": "validation",
+    "ValidationReport": "validation", "validate": "validation",
+}
+
+__all__ = list(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'identify' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *__all__])

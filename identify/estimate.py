@@ -1,17 +1,34 @@
-"""``Estimate``: the result every estimator returns."""
+"""``Estimate``: the result every estimator returns, and the model it describes.
+
+An estimate carries everything needed to rebuild the identified model: ``a``, ``b``, the
+covariance, the input delay, friction, bias and dead zone (``extra``), the sample period,
+the units and the method.  It gives that model back as a python-control transfer function
+(:meth:`Estimate.transfer_function`: the linear part, with its delay exact in discrete time),
+as a python-control nonlinear system (:meth:`Estimate.io_system`: everything, exact at the
+sample instants), as a :class:`motorsim.plant.Motor` (:meth:`Estimate.motor`), and as JSON
+(:meth:`Estimate.to_json`, :meth:`Estimate.from_json`; ``motorid identify --save``).
+"""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
-from typing import TYPE_CHECKING, Mapping
+import os
+import statistics
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
-from scipy import stats
+
+from motorsim.plant import Motor, simulate
 
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Estimate", "json_ready"]
+__all__ = ["Estimate", "json_ready", "file_sha256", "with_data_files", "ESTIMATE_FORMAT"]
+
+#: The ``format`` field of :meth:`Estimate.to_json`.
+ESTIMATE_FORMAT = "motorid estimate v1"
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -47,6 +64,9 @@ class Estimate:
         Unit of ``residual_rms``.
     input_unit : str
         Unit of the input ``u`` (``duty`` on the bench).
+    data_files : tuple of (str, str)
+        The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
+        ``motorid identify --save``).
     """
 
     method: str
@@ -61,6 +81,7 @@ class Estimate:
     extra: Mapping[str, float | int] = dataclasses.field(default_factory=dict)
     residual_unit: str = "rad/s"
     input_unit: str = "duty"
+    data_files: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -70,6 +91,39 @@ class Estimate:
             cov.setflags(write=False)
             object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "extra", dict(self.extra))
+        object.__setattr__(self, "data_files", tuple((str(p), str(h)) for p, h in self.data_files))
+
+    @property
+    def input_delay(self) -> int:
+        """Input delay in samples (``extra["input_delay"]``, 0 when the method has none)."""
+        return int(self.extra.get("input_delay", 0))
+
+    def __repr__(self) -> str:
+        extra = "".join(f", {k}={v:.6g}" for k, v in self.extra.items())
+        return (f"Estimate(method={self.method!r}, a={self.a:.6g}, b={self.b:.6g}{extra}, "
+                f"sample_period={self.sample_period:.6g}, fit_percent={self.fit_percent:.4g}, "
+                f"n_samples={self.n_samples})")
+
+    def __str__(self) -> str:
+        """Value, standard error and 95 % interval of each parameter, then the fit (plain floats)."""
+        se = self.stderr()
+        ci = self.confidence_interval(0.95)
+        delay_s = self.input_delay * self.sample_period
+        units = {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "friction": "rad/s^2", "bias": "rad/s^2",
+                 "dead_zone": self.input_unit, "input_delay": f"samples ({delay_s:.6g} s)"}
+
+        def line(name: str) -> str:
+            text = f"{name:<11} {self.value(name):.6g} {units.get(name, '')}"
+            if name in se and math.isfinite(se[name]):
+                lo, hi = ci[name]
+                text += f"   (stderr {se[name]:.2g})   95 % CI [{lo:.6g}, {hi:.6g}]"
+            return text.rstrip()
+        lines = [f"method      {self.method}", *(line(n) for n in ("a", "b", *self.extra)),
+                 f"b/a         {self.static_gain:.6g} (rad/s)/{self.input_unit}",
+                 f"fit         {self.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
+                 f"residual    {self.residual_rms:.3g} {self.residual_unit} RMS",
+                 f"samples     {self.n_samples} (sample period {self.sample_period:.6g} s)"]
+        return "\n".join(lines)
 
     @property
     def static_gain(self) -> float:
@@ -120,13 +174,122 @@ class Estimate:
         """
         if not 0 < level < 1:
             raise ValueError(f"level must be in (0, 1), got {level!r}")
-        z = stats.norm.ppf(0.5 + level / 2)
-        return {n: (self.value(n) - z * s, self.value(n) + z * s) for n, s in self.stderr().items()}
+        z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
+        return {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
 
-    def transfer_function(self) -> control.TransferFunction:
-        """``b / (s + a)`` from input to speed."""
+    def transfer_function(self, form: str = "continuous", *, delay: str | None = None,
+                          pade_order: int = 3) -> control.TransferFunction:
+        """The linear part of the model, from ``duty`` (input unit) to ``speed`` (rad/s).
+
+        Parameters
+        ----------
+        form : {"continuous", "discrete"}
+            ``continuous``: ``b / (s + a)``.  ``discrete``: its exact zero-order-hold model at
+            :attr:`sample_period`, ``z^-d (b/a)(1 - e) / (z - e)`` with ``e = exp(-a T)`` and
+            the input delay ``d`` samples included exactly.
+        delay : {None, "pade"}
+            How the continuous form carries an input delay ``d > 0``: ``"pade"`` multiplies by a
+            Padé approximation of ``exp(-s d T)`` of order ``pade_order``; None (the default)
+            refuses, since ``b/(s + a)`` alone would drop the delay.
+        pade_order : int
+            Order of the Padé approximation (default 3).
+
+        Returns
+        -------
+        control.TransferFunction
+            Input named ``duty``, output ``speed``; ``dt`` is the sample period in the discrete form.
+            Friction, bias and dead zone are not linear: :meth:`io_system` carries them.
+
+        Raises
+        ------
+        ValueError
+            For a delayed estimate in continuous form without ``delay="pade"``.
+
+        Examples
+        --------
+        >>> est = Estimate(method="oe", a=25.0, b=3.0, n_samples=1000, sample_period=0.005,
+        ...                residual_rms=1e-4, fit_percent=99.9, extra={"input_delay": 2})
+        >>> tf = est.transfer_function("discrete")
+        >>> tf.dt, tf.den[0][0].round(4).tolist()       # z^2 (z - e): the delay of 2 samples is kept
+        (0.005, [1.0, -0.8825, 0.0, 0.0])
+        """
         import control
-        return control.tf([self.b], [1.0, self.a])
+        if form not in ("continuous", "discrete"):
+            raise ValueError(f"form must be 'continuous' or 'discrete', got {form!r}")
+        if delay not in (None, "pade"):
+            raise ValueError(f"delay must be None or 'pade', got {delay!r}")
+        names = {"inputs": "duty", "outputs": "speed"}
+        d = self.input_delay
+        if form == "discrete":
+            e = math.exp(-self.a * self.sample_period)
+            g = -self.b / self.a * math.expm1(-self.a * self.sample_period)
+            return control.tf([g], [1.0, -e, *([0.0] * d)], self.sample_period, **names)
+        tf = control.tf([self.b], [1.0, self.a], **names)
+        if d == 0:
+            return tf
+        if delay is None:
+            raise ValueError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
+                             "which b/(s + a) cannot carry: use transfer_function('discrete') for the exact "
+                             "model with z^-d, or delay='pade' for a continuous approximation")
+        if not (isinstance(pade_order, int) and pade_order >= 1):
+            raise ValueError(f"pade_order must be an integer >= 1, got {pade_order!r}")
+        num, den = control.pade(d * self.sample_period, pade_order)
+        return control.tf(np.polymul(num, [self.b]), np.polymul(den, [1.0, self.a]), **names)
+
+    def motor(self) -> Motor:
+        """The identified model as a :class:`motorsim.plant.Motor` (friction, bias, dead zone, delay)."""
+        return Motor(self.a, self.b, friction=float(self.extra.get("friction", 0.0)),
+                     bias=float(self.extra.get("bias", 0.0)), dead_zone=float(self.extra.get("dead_zone", 0.0)),
+                     input_delay=self.input_delay)
+
+    def io_system(self, name: str = "motor") -> control.NonlinearIOSystem:
+        """The full identified model as a discrete-time python-control system at :attr:`sample_period`.
+
+        States ``angle`` (rad), ``speed`` (rad/s) and, with an input delay of ``d`` samples, the
+        last ``d`` duties (``duty_1`` ... ``duty_d``, most recent first); input ``duty``;
+        outputs ``speed`` and ``angle``.  Each step integrates the interval exactly as
+        :func:`motorsim.plant.simulate` does: the zero-order-hold solution of the linear part,
+        the dead zone applied to the delayed duty, and with Coulomb friction the event-by-event
+        solution (zero crossings, sticking at rest while ``|b v + d| <= c``).  So
+        ``control.input_output_response`` reproduces ``simulate`` at the sample instants to
+        rounding; between samples the model says nothing (friction makes it non-linear in
+        time, so no continuous-time system is exact).
+
+        Parameters
+        ----------
+        name : str
+            Name of the system.
+
+        Returns
+        -------
+        control.NonlinearIOSystem
+            ``dt`` is the sample period; the initial state ``[angle, speed, duty before ...]``.
+
+        Examples
+        --------
+        >>> import control
+        >>> est = Estimate(method="oe", a=25.0, b=3.0, n_samples=1000, sample_period=0.01,
+        ...                residual_rms=1e-4, fit_percent=99.9)
+        >>> res = control.input_output_response(est.io_system(), np.arange(5) * 0.01, np.full(5, 100.0))
+        >>> res.outputs[0].round(3).tolist()             # speed, as motorsim.simulate gives it
+        [0.0, 2.654, 4.722, 6.332, 7.585]
+        """
+        import control
+        motor = dataclasses.replace(self.motor(), input_delay=0)
+        d, h = self.input_delay, self.sample_period
+        times = np.array([0.0, h])
+
+        def update(t, x, u, params):
+            applied = x[2 + d - 1] if d else u[0]
+            traj = simulate(motor, np.array([applied, applied]), times, initial_speed=x[1], initial_angle=x[0])
+            return np.array([traj.angle[1], traj.speed[1], u[0], *x[2:2 + d - 1]] if d else
+                            [traj.angle[1], traj.speed[1]])
+
+        def output(t, x, u, params):
+            return np.array([x[1], x[0]])
+        states = ["angle", "speed", *(f"duty_{k}" for k in range(1, d + 1))]
+        return control.nlsys(update, output, inputs=["duty"], outputs=["speed", "angle"], states=states,
+                             dt=h, name=name)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (``motorid identify --json``)."""
@@ -141,6 +304,89 @@ class Estimate:
             out[f"{name}_stderr"] = se[name]
             out[f"{name}_ci95"] = list(ci[name])
         return json_ready(out)
+
+    def to_json(self, *, indent: int | None = 2) -> str:
+        """Everything needed to rebuild the estimate, as a JSON document (:meth:`from_json` reads it).
+
+        The fields: ``format`` (``motorid estimate v1``), ``method``, ``a``, ``b``, ``extra``
+        (friction, bias, dead zone, ``input_delay``), ``param_names`` and ``covariance`` (rows in
+        that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
+        ``fit_percent``, ``residual_rms`` and ``data_files`` (path and sha256 of each recording).
+
+        Parameters
+        ----------
+        indent : int or None
+            Indentation of the JSON text (None: one line).
+
+        Examples
+        --------
+        >>> est = Estimate(method="oe", a=25.0, b=3.0, n_samples=1000, sample_period=0.005,
+        ...                residual_rms=1e-4, fit_percent=99.9, covariance=np.diag([0.01, 1e-4]))
+        >>> Estimate.from_json(est.to_json()).covariance.tolist()
+        [[0.01, 0.0], [0.0, 0.0001]]
+        """
+        doc = {"format": ESTIMATE_FORMAT, "method": self.method, "a": self.a, "b": self.b, "extra": self.extra,
+               "param_names": list(self.param_names),
+               "covariance": None if self.covariance is None else self.covariance.tolist(),
+               "sample_period": self.sample_period,
+               "units": {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "input": self.input_unit,
+                         "friction": "rad/s^2", "bias": "rad/s^2", "dead_zone": self.input_unit,
+                         "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
+               "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
+               "data_files": [{"path": p, "sha256": h} for p, h in self.data_files]}
+        return json.dumps(json_ready(doc), indent=indent)
+
+    @classmethod
+    def from_json(cls, text: str) -> "Estimate":
+        """The estimate :meth:`to_json` wrote (a JSON document, or the path of a file holding one).
+
+        Parameters
+        ----------
+        text : str
+            JSON text, or a path to a ``.json`` file.
+
+        Raises
+        ------
+        ValueError
+            When the document is not a motorid estimate (``format`` missing or another).
+        """
+        if not text.lstrip().startswith("{") and os.path.isfile(text):
+            with open(text, encoding="utf-8") as fh:
+                text = fh.read()
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
+        if not isinstance(doc, dict) or doc.get("format") != ESTIMATE_FORMAT:
+            found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+            raise ValueError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
+        cov = doc.get("covariance")
+        units = doc.get("units", {})
+
+        def number(x: Any) -> float:
+            return math.nan if x is None else float(x)
+        return cls(method=doc["method"], a=float(doc["a"]), b=float(doc["b"]), n_samples=int(doc["n_samples"]),
+                   sample_period=float(doc["sample_period"]), residual_rms=number(doc["residual_rms"]),
+                   fit_percent=number(doc["fit_percent"]),
+                   covariance=None if cov is None else np.array([[number(x) for x in row] for row in cov]),
+                   param_names=tuple(doc["param_names"]),
+                   extra={k: int(v) if k == "input_delay" else number(v) for k, v in doc["extra"].items()},
+                   residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
+                   data_files=tuple((f["path"], f["sha256"]) for f in doc.get("data_files", [])))
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 hex digest of a file's bytes (the ``data_files`` of an estimate)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def with_data_files(estimate: Estimate, paths: Sequence[str | os.PathLike]) -> Estimate:
+    """``estimate`` recording the paths and SHA-256 digests of the files it was fitted to."""
+    return dataclasses.replace(estimate, data_files=tuple((os.fspath(p), file_sha256(p)) for p in paths))
 
 
 def json_ready(value):

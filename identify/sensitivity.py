@@ -28,7 +28,6 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL"]
 
@@ -99,6 +98,7 @@ def _scan(decay: np.ndarray, forcing: np.ndarray, x0: np.ndarray, uniform: bool)
         return out
     if uniform:
         e = math.exp(-decay[0])
+        from scipy.signal import lfilter  # imported when used: it costs most of `import control`
         out[1:], _ = lfilter([1.0], [1.0, -e], forcing, axis=0, zi=(e * np.asarray(x0, float))[None, :])
         return out
     s = np.concatenate([[0.0], np.cumsum(decay)])  # s[k] = a (t_k - t_0), increasing for a > 0

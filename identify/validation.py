@@ -18,7 +18,6 @@ import math
 from typing import Sequence
 
 import numpy as np
-from scipy import stats
 from scipy.linalg import toeplitz
 from scipy.optimize import least_squares
 
@@ -354,8 +353,9 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     proj = vecs[:, keep].T @ cc
     q_cross = n * float(np.sum(proj ** 2 / vals[keep]))
     dof_cross = int(keep.sum())
+    from scipy.stats import chi2  # imported when used (slow to import)
     return ValidationReport(fit_percent=nrmse_fit(meas, sim), time=recording.time, measured_speed=meas,
                             simulated_speed=sim, residual=res, lags=np.arange(lag + 1), autocorrelation=ac,
                             cross_lags=np.arange(-lag, lag + 1), cross_correlation=cc, band=1.96 / math.sqrt(n),
-                            whiteness_p=float(stats.chi2.sf(q_white, lag)),
-                            independence_p=float(stats.chi2.sf(q_cross, dof_cross)), residual_unit=unit)
+                            whiteness_p=float(chi2.sf(q_white, lag)),
+                            independence_p=float(chi2.sf(q_cross, dof_cross)), residual_unit=unit)

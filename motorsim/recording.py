@@ -44,6 +44,7 @@ import math
 import os
 import stat
 import time
+import warnings
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence, TextIO
 
@@ -218,6 +219,40 @@ class Recording:
         if not isinstance(metadata, Mapping):
             raise TypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
         object.__setattr__(self, "metadata", {str(k): str(v) for k, v in metadata.items()})
+
+    @classmethod
+    def from_columns(cls, time: ArrayLike, duty: ArrayLike, **columns) -> "Recording":
+        """A recording from columns in any supported unit, the sample period inferred from ``time``.
+
+        Parameters
+        ----------
+        time : array_like, shape (n,)
+            Sample instants (numpy array or pandas Series), in ``time_unit`` (default s).
+        duty : array_like, shape (n,)
+            Input, in ``input_unit`` (``duty``, ``V`` or ``%``).
+        **columns
+            ``speed``, ``angle``, ``counts``, ``counts_per_rev``, ``input_unit``, ``time_unit``,
+            ``speed_unit``, ``angle_unit``, ``sample_period``, ``metadata``: as
+            :func:`motorsim.units.columns_in_si`, which documents the units and the timing rule.
+            A non-uniform time column is kept and a ``UserWarning`` says so.
+
+        Returns
+        -------
+        Recording
+
+        Examples
+        --------
+        >>> rec = Recording.from_columns(time=[0.0, 0.02, 0.04], duty=[1.5, 1.5, 2.7],
+        ...                              speed=[0.0, 90.0, 180.0], speed_unit="deg/s", input_unit="V")
+        >>> rec.sample_period, rec.input_unit
+        (0.02, 'V')
+        """
+        from .units import columns_in_si, timing_note
+        rec = cls(**columns_in_si(time, duty, **columns))
+        note = timing_note(rec.metadata, rec.sample_period)
+        if note:
+            warnings.warn(note, UserWarning, stacklevel=2)
+        return rec
 
     def __len__(self) -> int:
         return len(self.time)

@@ -20,7 +20,7 @@ from motorsim.rig import Experiment, SimRig
 from motorsim.sensors import Encoder
 
 __all__ = ["CommandError", "print_to_stderr", "add_knob_flag", "add_bench_arguments", "sim_rig_from_args",
-           "add_experiment_arguments", "experiment_from_args", "EXCITATION_FLAGS"]
+           "add_experiment_arguments", "experiment_from_args", "warn_if_clipped", "UNCLIPPED_LIMIT", "EXCITATION_FLAGS"]
 
 
 class CommandError(Exception):
@@ -106,13 +106,41 @@ def add_experiment_arguments(parser: argparse.ArgumentParser, **defaults: Any) -
                     help="any excitation as KIND:ARGS, e.g. sine:10,200 (default sine:10,200,0)")
 
 
+#: Duty limit used to see what an excitation asks for before the bench clips it.
+UNCLIPPED_LIMIT = 32767
+
+
 def experiment_from_args(args: argparse.Namespace) -> Experiment:
-    """The Experiment the flags describe (default: the article's 200 sin(10 t)); a broken rule is a CommandError."""
-    spec = args.excitation
+    """The Experiment the flags describe (default: the article's 200 sin(10 t)); a broken rule is a CommandError.
+
+    When the excitation asks for more duty than ``--duty-limit``, says so on stderr (the duty
+    is clipped, as the firmware clips it).
+    """
+    spec, given = args.excitation, f"--excitation {args.excitation}"
     for name in EXCITATION_FLAGS:
         if getattr(args, name, None):
-            spec = f"{name}:{getattr(args, name)}"
+            spec, given = f"{name}:{getattr(args, name)}", f"--{name} {getattr(args, name)}"
     try:
-        return Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
+        experiment = Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
     except (ValueError, TypeError) as exc:
         raise CommandError(f"experiment flags: {exc}") from exc
+    warn_if_clipped(experiment, given)
+    return experiment
+
+
+def warn_if_clipped(experiment: Experiment, given: str) -> int:
+    """Say on stderr when ``experiment``'s excitation asks for more than its duty limit.
+
+    ``given`` names the excitation as the user wrote it (``"--sine 10,300"``).
+
+    Returns
+    -------
+    int
+        The largest duty magnitude the excitation asks for before clipping.
+    """
+    wanted = int(np.max(np.abs(experiment.excitation.duty(experiment.n_samples, experiment.sample_period,
+                                                          UNCLIPPED_LIMIT)), initial=0))
+    if wanted > experiment.duty_limit:
+        print_to_stderr(f"motorid: {given} asks for duty up to {wanted}; clipped to the duty limit "
+                        f"±{experiment.duty_limit}")
+    return wanted

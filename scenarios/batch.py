@@ -31,7 +31,6 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.signal import lfilter
 
 from motorsim.plant import Motor, delayed_duty, zoh_matrices
 
@@ -89,6 +88,7 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
     speed[..., 0] = initial_speed
     angle[..., 0] = 0.0
     zi = np.full(u.shape[:-1] + (1,), e * initial_speed)
+    from scipy.signal import lfilter  # imported when used: it costs most of `import control`
     speed[..., 1:], _ = lfilter([g], [1.0, -e], v, axis=-1, zi=zi)
     # Summing angle[k+1] = angle[k] + p speed[k] + q v[k] with p = (1 - e)/a and
     # (1 - e) speed[k] = speed[k] - speed[k+1] + g v[k] telescopes to

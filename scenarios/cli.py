@@ -19,6 +19,7 @@ sent, data kept) and exit with 128 + the signal number (:mod:`scenarios.interrup
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import traceback
 from typing import Callable, NamedTuple, Sequence
@@ -51,6 +52,11 @@ def _identify() -> tuple[AddArguments, Run]:
     return identification.add_identify_arguments, identification.run_identify
 
 
+def _import() -> tuple[AddArguments, Run]:
+    from . import importing
+    return importing.add_import_arguments, importing.run_import
+
+
 def _demo() -> tuple[AddArguments, Run]:
     from . import demo
     return demo.add_demo_arguments, demo.run_demo
@@ -79,6 +85,7 @@ def _live() -> tuple[AddArguments, Run]:
 COMMANDS: dict[str, Command] = {
     "simulate": Command("simulate the bench and write a recording (format v1)", _simulate),
     "identify": Command("identify a and b from recordings", _identify),
+    "import": Command("a lab's own file (CSV, TSV, whitespace, MATLAB .mat) to a recording (format v1)", _import),
     "demo": Command("the article's section 5 on the simulated bench", _demo),
     "bench": Command("speed and accuracy benchmarks", _bench),
     "sweep": Command("sweep scenarios: grid x estimators x Monte Carlo repetitions", _sweep),
@@ -93,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "dω/dt + aω = b·u, on a simulated or real bench.")
     parser.add_argument("--traceback", action="store_true",
                         help="on an error, print the Python traceback (for bug reports)")
+    parser.add_argument("--version", action="version", version=f"motorid {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, command in COMMANDS.items():
         p = sub.add_parser(name, help=command.help, description=command.help)
@@ -125,6 +133,25 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _version() -> str:
+    """The installed distribution's version (``unknown`` when run from a source tree not installed)."""
+    from importlib import metadata
+    try:
+        return metadata.version("motorid")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader of stdout went away (``motorid ... | head``): end quietly, as ``SIGPIPE`` would."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())    # the interpreter's final flush must not fail again
+    except (OSError, ValueError, AttributeError):
+        pass                                     # stdout is not a file descriptor (captured, embedded)
+    return 141                                   # 128 + SIGPIPE, the shell's status for the same case
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses)."""
     from .interrupts import describe_interrupt, exit_status, signals_as_interrupts
@@ -137,8 +164,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print_to_stderr(f"motorid: {describe_interrupt(exc)}")
         return exit_status(exc)
     except BrokenPipeError:
-        sys.stderr.close()   # the reader of our output went away (``| head``): nothing left to say
-        return 1
+        return _quiet_broken_pipe()
     except Exception as exc:
         if args.traceback:
             traceback.print_exc()

@@ -20,9 +20,15 @@ from motorsim.knobs import knobs_of
 from motorsim.recording import Recording, write_recording
 from motorsim.rig import Experiment, Rig
 
-from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args
+from .arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args, warn_if_clipped
+from .progress import ProgressBar
 
-__all__ = ["DemoRow", "article_experiments", "run_article", "format_table", "add_demo_arguments", "run_demo"]
+#: Methods whose simulated speed ``overlay.png`` draws over the measured one: the article's
+#: Euler least squares and the output-error fit (all methods run when neither did).
+OVERLAID_METHODS = ("euler-ls", "oe")
+
+__all__ = ["OVERLAID_METHODS", "DemoRow", "article_experiments", "run_article", "format_table",
+           "add_demo_arguments", "run_demo"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,20 +53,29 @@ def article_experiments(frequencies: Sequence[float] = (10, 20, 30, 40), amplitu
     return [Experiment(Sine(f, amplitude, phase), sample_period, duration) for f in frequencies]
 
 
-def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[str] | None = None
-                ) -> tuple[list[Recording], list[DemoRow]]:
-    """Run each experiment on ``rig`` and fit it with each method (failures are rows, not crashes)."""
+def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[str] | None = None,
+                progress: bool | None = None) -> tuple[list[Recording], list[DemoRow]]:
+    """Run each experiment on ``rig`` and fit it with each method (failures are rows, not crashes).
+
+    A progress bar on stderr counts the runs and fits (``progress``: None draws it when stderr
+    is a terminal, True or False force it).
+    """
     methods = list(methods or available_methods())
     recordings, rows = [], []
-    for i, exp in enumerate(experiments, 1):
-        rec = rig.run(exp)
-        recordings.append(rec)
-        frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
-        for m in methods:
-            try:
-                rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
-            except NotIdentifiableError as exc:
-                rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
+    with ProgressBar(len(experiments) * (1 + len(methods)), "demo", unit="steps", enabled=progress) as bar:
+        for i, exp in enumerate(experiments, 1):
+            bar.update(0, f"eta_{i}: simulating")
+            rec = rig.run(exp)
+            recordings.append(rec)
+            bar.update(1)
+            frequency = float(getattr(exp.excitation, "frequencies", (math.nan,))[0])
+            for m in methods:
+                bar.update(0, f"eta_{i}: {m}")
+                try:
+                    rows.append(DemoRow(f"eta_{i}", frequency, m, fit(rec, method=m)))
+                except NotIdentifiableError as exc:
+                    rows.append(DemoRow(f"eta_{i}", frequency, m, None, str(exc)))
+                bar.update(1)
     return recordings, rows
 
 
@@ -109,6 +124,8 @@ def run_demo(args: argparse.Namespace) -> int:
             raise CommandError(f"--methods must name methods among {available_methods()}, got {m!r}")
     rig = sim_rig_from_args(args)
     exps = article_experiments(freqs, args.amplitude, args.phase, args.sample_period, args.duration)
+    if exps:
+        warn_if_clipped(exps[0], f"--amplitude {args.amplitude}")
     recordings, rows = run_article(rig, exps, methods)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -125,21 +142,17 @@ def run_demo(args: argparse.Namespace) -> int:
                                     encoding="utf-8")
     if not args.no_plots:
         from . import plots
-        paths = [plots.plot_run(rec, out / f"figure_{i}.png", title=f"Figure {i}: eta_{i} = "
-                                f"{args.amplitude} sin({freqs[i - 1]:g} t) and omega")
-                 for i, rec in enumerate(recordings, 1)]
-        default_rows = {r.input_name: r.estimate for r in rows if r.estimate is not None
-                        and r.method == _best_method(methods)}
-        overlaid = [default_rows.get(f"eta_{i}") for i in range(1, len(recordings) + 1)]
-        paths.append(plots.plot_overlay(recordings, overlaid,
-                                        out / "overlay.png"))
+        sines = [f"eta_{i} = {args.amplitude} sin({freqs[i - 1]:g} t)" for i in range(1, len(recordings) + 1)]
+        paths = []
+        for i, (rec, sine) in enumerate(zip(recordings, sines), 1):
+            paths.append(out / f"figure_{i}.png")
+            plots.plot_run(rec, paths[-1], title=f"Figure {i}: {sine} and the measured speed ω")
+        ran = list(dict.fromkeys(r.method for r in rows))
+        shown = [m for m in OVERLAID_METHODS if m in ran] or ran
+        fits = [{r.method: r.estimate for r in rows if r.input_name == f"eta_{i}" and r.method in shown}
+                for i in range(1, len(recordings) + 1)]
+        paths.append(out / "overlay.png")
+        plots.plot_overlay(recordings, fits, paths[-1], labels=sines)
         print("\nfigures: " + ", ".join(str(p) for p in paths))
     print(f"table, recordings: {out / 'table.txt'}, {out / 'table.json'}, {out}/eta_*.csv")
     return 0
-
-
-def _best_method(methods: Sequence[str] | None) -> str:
-    from identify import DEFAULT_METHOD
-    if not methods or DEFAULT_METHOD in methods:
-        return DEFAULT_METHOD
-    return methods[-1]

@@ -65,11 +65,12 @@ def run_design(args: argparse.Namespace) -> int:
     if not args.no_plots:
         from . import plots
         f = np.array([p.frequency for p in design.scan])
-        paths.append(plots.plot_design(
+        paths.append(out / "design.png")
+        plots.plot_design(
             f, [100 * p.relative_stderr["a"] for p in design.scan], [100 * p.relative_stderr["b"] for p in design.scan],
-            out / "design.png", marks=[(b.frequency, "recommended"), *((p.frequency, f"article {p.frequency:g}")
-                                                                      for p in design.article)],
+            paths[-1], marks=[(b.frequency, "recommended"), *((p.frequency, f"article {p.frequency:g}")
+                                                               for p in design.article)],
             title=f"predicted standard error, {args.duty_limit} sin(ω t), a={args.a:g}, b={args.b:g}, "
-                  f"dt={args.sample_period:g} s"))
+                  f"dt={args.sample_period:g} s")
     print("\nwrote " + ", ".join(str(p) for p in paths))
     return 0

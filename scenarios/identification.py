@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
+from typing import Any, Callable
 
-import numpy as np
+from motorsim.recording import Recording, read_recording
 
-from motorsim.recording import read_recording
-
-from .arguments import CommandError
+from .arguments import CommandError, print_to_stderr
+from .importing import add_column_arguments, column_flags_given, import_from_args
+from .progress import Ticker
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
 
@@ -32,7 +32,8 @@ def _input_delay(text: str) -> int | str:
 def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid identify``."""
     from identify import DEFAULT_METHOD, available_methods
-    parser.add_argument("files", nargs="+", metavar="FILE", help="recordings (format v1); several are pooled")
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="recordings (format v1), or foreign files with the column flags; several are pooled")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator (default {DEFAULT_METHOD}, the most accurate available)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
@@ -43,10 +44,29 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", metavar="FILE.png",
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
                              "(on TEST, else on the first FILE)")
-    parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
     parser.add_argument("--drop-outliers", action="store_true",
                         help="drop corrupted samples (implausible jumps, isolated residual outliers) as gaps, "
                              "refit and list them, instead of refusing the file")
+    parser.add_argument("--save", metavar="MODEL.json",
+                        help="write the model (parameters, covariance, delay, sample period in s, units, method, "
+                             "data files with sha256) for Estimate.from_json")
+    add_column_arguments(parser, required=False)
+
+
+def read_inputs(paths: list[str], args: argparse.Namespace) -> list:
+    """Recordings (format v1), or foreign files mapped by the column flags when any is given."""
+    if column_flags_given(args):
+        return [import_from_args(p, args) for p in paths]
+    return [read_recording(p) for p in paths]
+
+
+def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None:
+    """How ``identify`` reads its files: the column mapping when any column flag is given."""
+    if not column_flags_given(args):
+        return None
+    return lambda path, check_samples: import_from_args(path, args)
 
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -65,54 +85,51 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    """Fit, print the estimate (and the validation), write the report figure if asked."""
+    """Fit, print the estimate (and the validation), write the report figure if asked.
+
+    With ``--json`` standard output holds exactly one JSON document and the human text goes to
+    standard error, so the output pipes into ``python -m json.tool`` or ``jq``.
+    """
     from identify import validate
     from identify.estimate import json_ready
 
     from .screening import read_and_fit
-    est, recs, dropped = read_and_fit(args.files, args.method, estimator_options(args),
-                                      drop_outliers=args.drop_outliers)
+    say = print_to_stderr if args.json else print
+    with Ticker(f"identify: {args.method} fit on {len(args.files)} recording(s)"):   # a line only after 1 s
+        est, recs, dropped = read_and_fit(args.files, args.method, estimator_options(args),
+                                          drop_outliers=args.drop_outliers, read=_reader(args))
     for d in dropped:
-        print(f"dropped     {d}")
-    print(format_estimate(est))
+        say(f"dropped     {d}")
+    say(format_estimate(est))
+    if args.save:
+        from identify.estimate import with_data_files
+        from motorsim.files import write_atomically
+        est = with_data_files(est, [*args.files])
+        write_atomically(args.save, est.to_json() + "\n")
+        say(f"model       {args.save}")
     out = est.to_dict()
     if dropped:
         out["dropped_samples"] = {d.file: d.seq for d in dropped}
     report = None
     if args.validate:
-        report = validate(est, read_recording(args.validate))
-        print(format_validation(report, args.validate))
+        report = validate(est, read_inputs([args.validate], args)[0])
+        say(format_validation(report, args.validate))
         out.update(report.summary())
     if args.report:
         from .plots import plot_validation
         if report is None:
             report = validate(est, recs[0])
         where = args.validate or args.files[0]
-        path = plot_validation(report, est, args.report, title=f"{est.method} on {where}")
-        print(f"report      {path}")
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}")
+        say(f"report      {args.report}")
     if args.json:
         print(json.dumps(json_ready(out)))
     return 0
 
 
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval)."""
-    se = est.stderr()
-    ci = est.confidence_interval(0.95)
-
-    def ci_text(name):
-        lo, hi = ci[name]
-        return f"   95 % CI [{lo:.6g}, {hi:.6g}]" if np.isfinite(lo) and np.isfinite(hi) else ""
-    lines = [f"method      {est.method}",
-             f"a           {est.a:.6g} 1/s   (stderr {se['a']:.2g}){ci_text('a')}",
-             f"b           {est.b:.6g} (rad/s^2)/{est.input_unit}   (stderr {se['b']:.2g}){ci_text('b')}"]
-    for k, v in est.extra.items():
-        lines.append(f"{k:<11} {v:.6g}" + (f"   (stderr {se[k]:.2g}){ci_text(k)}" if k in se else ""))
-    lines += [f"b/a         {est.static_gain:.6g} (rad/s)/{est.input_unit}",
-              f"fit         {est.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
-              f"residual    {est.residual_rms:.3g} {est.residual_unit} RMS",
-              f"samples     {est.n_samples}"]
-    return "\n".join(lines)
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval): ``str(est)``."""
+    return str(est)
 
 
 def format_validation(report, name: str) -> str:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import time
 from pathlib import Path
 
 from motorsim.knobs import knobs_of
@@ -21,7 +23,7 @@ from .arguments import CommandError, add_experiment_arguments, add_knob_flag, ex
 from .interrupts import describe_interrupt
 from .progress import ProgressBar
 
-__all__ = ["add_live_arguments", "run_live", "DEFAULT_MAX_LOSS"]
+__all__ = ["add_live_arguments", "run_live", "DEFAULT_MAX_LOSS", "default_out_path"]
 
 #: Default ``--max-loss`` in %: more samples lost than this and ``live`` refuses to identify.
 DEFAULT_MAX_LOSS = 2.0
@@ -46,9 +48,10 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                    help="give up after this long without a new sample during a run, silent or not (default 1 s); "
                         "a run also gives up after its duration + 10 %% + 2 s + this timeout")
     add_experiment_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="FILE.csv",
-                        help="path of the recording to write (checked before the motor starts; an existing "
-                             "file is refused without --overwrite, a folder or a device always)")
+    parser.add_argument("--out", default=None, metavar="FILE.csv",
+                        help="path of the recording to write (default live-YYYYMMDD-HHMMSS.csv in the current "
+                             "folder, named on stderr; checked before the motor starts; an existing file is "
+                             "refused without --overwrite, a folder or a device always)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --out")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
@@ -115,6 +118,16 @@ def _rescue(recording, path) -> str:
     return f"the {len(recording)} samples received are in {rescue} instead"
 
 
+def default_out_path(now: float | None = None) -> str:
+    """``live-YYYYMMDD-HHMMSS.csv`` in the current folder (``-2``, ``-3``, ... when taken)."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
+    path, k = f"live-{stamp}.csv", 1
+    while os.path.exists(path) or os.path.exists(f"{path}.partial"):
+        k += 1
+        path = f"live-{stamp}-{k}.csv"
+    return path
+
+
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.errors import RigError
@@ -125,9 +138,12 @@ def run_live(args: argparse.Namespace) -> int:
     experiment = experiment_from_args(args)
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
+    if args.out is None:
+        args.out = default_out_path()
+        print_to_stderr(f"recording to {args.out}")
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
-                           enabled=not args.quiet and experiment.n_samples > 0)
+                           enabled=None if not args.quiet and experiment.n_samples > 0 else False)
     plot = None
     if args.plot:
         from .plots import LivePlot
@@ -157,17 +173,20 @@ def run_live(args: argparse.Namespace) -> int:
             raise CommandError(f"{exc}; the motor was stopped; {kept}" if kept else str(exc)) from None
         if kept:
             print_to_stderr(f"motorid: {kept}")
-        raise
-    finally:
         if plot is not None:
             plot.close()
+        raise
     progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
     progress.close()
     try:
         path, problem = writer.close(True, metadata=recording.metadata), ""
     except OSError as exc:         # a full disk at the end: the whole run is still in memory
         path, problem = writer.path, f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}"
-    status = _report(args, recording, path, running)
+    try:
+        status = _report(args, recording, path, running, plot)
+    finally:
+        if plot is not None:
+            plot.close()
     if problem:
         raise CommandError(problem)
     return status
@@ -183,7 +202,7 @@ def _loss_note(m) -> str:
             f"{m.get('host_rx_errors', '?')} bad frames (CRC or framing)")
 
 
-def _report(args: argparse.Namespace, recording, path, running) -> int:
+def _report(args: argparse.Namespace, recording, path, running, plot=None) -> int:
     """After a complete run: the summary line, the loss check, the estimates (and JSON)."""
     from identify import fit
 
@@ -196,6 +215,8 @@ def _report(args: argparse.Namespace, recording, path, running) -> int:
                            f"({loss_pct:.3g} %), above --max-loss {args.max_loss:g} %; {path} is kept but not "
                            f"identified: check the cable and the baud rate, or raise --max-loss")
     estimate = fit(recording, method=args.method)
+    if plot is not None:
+        plot.show_fit(recording, estimate)
     print(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:

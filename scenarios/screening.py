@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 import stat
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 from motorsim.recording import Recording, read_recording
 
@@ -60,7 +60,8 @@ def _fit_outliers(est, recs: Sequence[Recording]) -> list[list[int]]:
     return [residual_outliers(est, rec) for rec in recs]
 
 
-def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, drop_outliers: bool = False
+def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, drop_outliers: bool = False,
+                 read: Callable[[str, bool], Recording] | None = None,
                  ) -> tuple[Any, list[Recording], list[DroppedSamples]]:
     """Read ``files``, screen them, fit ``method``; returns the estimate, the recordings fitted, the drops.
 
@@ -74,6 +75,9 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
         Estimator keyword options.
     drop_outliers : bool, optional
         Drop implausible rows and isolated residual outliers as gaps (and refit) instead of refusing.
+    read : callable, optional
+        ``read(path, check_samples) -> Recording``; default :func:`~motorsim.recording.read_recording`
+        (a lab's own files come through the column mapping of ``motorid import``).
 
     Raises
     ------
@@ -82,7 +86,10 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     """
     from identify import fit
     refuse_duplicates(files)
-    recs = [read_recording(f, check_samples=not drop_outliers) for f in files]
+    if read is None:
+        def read(path: str, check_samples: bool) -> Recording:
+            return read_recording(path, check_samples=check_samples)
+    recs = [read(f, not drop_outliers) for f in files]
     dropped: list[DroppedSamples] = []
     if drop_outliers:
         for i, (name, rec) in enumerate(zip(files, recs)):

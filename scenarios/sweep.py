@@ -45,7 +45,7 @@ from motorsim.files import atomic_writer, make_output_dir, safe_file_name, write
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
-from .arguments import CommandError
+from .arguments import CommandError, print_to_stderr
 from .batch import (
     BATCHED_METHODS,
     MethodOutcome,
@@ -597,8 +597,9 @@ def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | o
     if numeric:
         x = "frequency" if "frequency" in numeric else numeric[0]
         others = [c for c in columns if c != x]
-        paths.append(plots.plot_sweep_frequency(rows, out / f"bias_vs_{x}.png", others=others, x=x,
-                                                title=f"{scenario.name}: bias and spread against {x}"))
+        paths.append(out / f"bias_vs_{x}.png")
+        plots.plot_sweep_frequency(rows, paths[-1], others=others, x=x,
+                                   title=f"{scenario.name}: bias and spread against {x}")
     if len(numeric) >= 2:
         x, y = numeric[0], numeric[1]
         fixed = {c: rows[0][c] for c in columns if c not in (x, y)}
@@ -606,9 +607,10 @@ def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | o
         note = ("; " + ", ".join(f"{c}={v:g}" if isinstance(v, float) else f"{c}={v}" for c, v in fixed.items())
                 if fixed else "")
         for name in ("a", "b"):
-            paths.append(plots.plot_sweep_heatmap(sub, x, y, out / f"heatmap_bias_{name}.png",
-                                                  value=f"bias_{name}_pct",
-                                                  title=f"{scenario.name}: |bias of {name}| in %{note}"))
+            paths.append(out / f"heatmap_bias_{name}.png")
+            plots.plot_sweep_heatmap(sub, x, y, paths[-1], value=f"bias_{name}_pct",
+                                     value_label=f"|bias of {name}| [% of the true {name}]",
+                                     title=f"{scenario.name}: |bias of {name}| in %{note}")
     return paths
 
 
@@ -672,6 +674,9 @@ def run_sweep(args: argparse.Namespace) -> int:
     if args.workers and not args.dask and args.workers > usable_workers(args.workers):
         print(f"--workers {args.workers}: using {usable_workers(args.workers)}, the cores available "
               "(more processes than cores only slow a sweep down)", file=sys.stderr)
+    if not args.quiet:
+        from .sweep_time import estimate_sweep_time
+        print_to_stderr(estimate_sweep_time(scenario, args.workers).describe(scenario))
     with _dask_executor(args.dask, args.workers) as executor:
         summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
                                progress=False if args.quiet else None)

@@ -8,6 +8,7 @@
 ``serial``   :mod:`~scenarios.benchmarks.serial`: the host's frame reader and a pty run
 ``firmware`` :mod:`~scenarios.benchmarks.firmware`: the Arduino firmware under simavr
 ``parse``    :mod:`~scenarios.benchmarks.parse`: reading a large recording against pandas.read_csv
+``startup``  :mod:`~scenarios.benchmarks.startup`: ``motorid --help`` and ``identify`` against ``import control``
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -67,6 +68,11 @@ def _firmware(argv: Sequence[str]) -> int:
     return bench_firmware(argv)
 
 
+def _startup(argv: Sequence[str]) -> int:
+    from .startup import bench_startup
+    return bench_startup(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -79,6 +85,8 @@ BENCHMARKS: dict[str, Benchmark] = {
     "firmware": Benchmark(_firmware, "the Arduino firmware under simavr: size, sample rates per baud, encoder "
                                      "ceiling, speed"),
     "parse": Benchmark(_parse, "read_recording of a 2-million-row recording vs pandas.read_csv: time, peak memory"),
+    "startup": Benchmark(_startup, "motorid --help and motorid identify small.csv against python -c 'import control' "
+                                   "(subprocesses, medians)"),
 }
 
 

@@ -37,6 +37,7 @@ from motorsim.excitation import Multisine, Sine
 from motorsim.recording import Recording
 from motorsim.rig import jittered_times
 
+from ..progress import Ticker
 from .timing import median_time
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
@@ -455,15 +456,17 @@ def bench_accuracy(argv: Sequence[str]) -> int:
     print(f"generator: RK4 sub-steps (a*delta <= {_SUBSTEP_AD}); largest relative difference from the exact "
           f"ZOH angle {_generator_check(rng):.1e}")
     ok = True
-    if args.only in (None, "sines"):
-        ok &= _section_sines(args, rng)[0]
-    if args.only in (None, "multisine"):
-        ok &= _section_multisine(args, rng)
-    if args.only in (None, "friction"):
-        ok &= _section_friction(args, rng)
-    if args.only in (None, "montecarlo"):
-        ok &= _section_monte_carlo(args)
-    if args.only in (None, "timing"):
+
+    def timing() -> bool:          # timings have no criterion
         _section_timing(args)
+        return True
+    sections = {"sines": lambda: _section_sines(args, rng)[0], "multisine": lambda: _section_multisine(args, rng),
+                "friction": lambda: _section_friction(args, rng), "montecarlo": lambda: _section_monte_carlo(args),
+                "timing": timing}
+    with Ticker("bench accuracy") as ticker:      # on a terminal only, below the tables
+        for i, (name, run) in enumerate(sections.items(), 1):
+            if args.only in (None, name):
+                ticker.set_note(f"section {i} of {len(sections)}: {name}")
+                ok &= bool(run())
     print(f"\n{'all criteria hold' if ok else 'SOME CRITERIA FAIL'}  ({time.perf_counter() - t0:.0f} s)")
     return 0 if ok else 1

@@ -22,15 +22,15 @@ def test_json_carries_standard_errors_intervals_and_validation(runs, capsys, tmp
     png = tmp_path / "report.png"
     capsys.readouterr()
     assert main(["identify", str(train), "--validate", str(test), "--report", str(png), "--json"]) == 0
-    out = capsys.readouterr().out
-    data = json.loads(out.strip().splitlines()[-1])
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)             # stdout is the JSON document alone
     assert data["method"] == "oe"
     # quantisation-only errors: z-scores over 104 benchmark cases had std 1.0-1.2, so allow 4 standard errors
     assert abs(data["a"] - 25.0) < 4 * data["a_stderr"] and abs(data["b"] - 3.0) < 4 * data["b_stderr"]
     lo, hi = data["a_ci95"]
     assert lo < data["a"] < hi and hi - lo == pytest.approx(2 * 1.959964 * data["a_stderr"], rel=1e-6)
     assert data["validation_fit_percent"] > 99.0 and "whiteness_p" in data
-    assert "95 % CI" in out and "validation" in out
+    assert "95 % CI" in captured.err and "validation" in captured.err   # the human text is on stderr
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
 
 

@@ -28,11 +28,30 @@ def test_demo_table_matches_direct_fits_of_its_recordings(tmp_path, capsys):
     assert all(a < 25 for a in euler) and euler == sorted(euler, reverse=True)
 
 
-def test_demo_writes_the_figures(tmp_path, capsys):
+def test_demo_writes_the_figures(tmp_path, capsys, monkeypatch):
+    from scenarios import plots
+    figures = {}
+
+    def keep(name):
+        original = getattr(plots, name)
+
+        def wrapper(*args, **kwargs):
+            figures.setdefault(name, []).append(original(*args, **kwargs))
+            return figures[name][-1]
+        monkeypatch.setattr(plots, name, wrapper)
+    keep("plot_run")
+    keep("plot_overlay")
     out = tmp_path / "demo"
     assert main(["demo", "--duration", "1", "--frequencies", "10,20", "--out", str(out)]) == 0
     for name in ("figure_1.png", "figure_2.png", "overlay.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [f.get_suptitle() for f in figures["plot_run"]] == [
+        "Figure 1: eta_1 = 200 sin(10 t) and the measured speed ω",
+        "Figure 2: eta_2 = 200 sin(20 t) and the measured speed ω"]
+    (overlay,) = figures["plot_overlay"]
+    assert [ax.get_title(loc="left") for ax in overlay.axes] == ["eta_1 = 200 sin(10 t)", "eta_2 = 200 sin(20 t)"]
+    for ax in overlay.axes:   # measured, euler-ls and oe on every panel
+        assert [t.get_text().split(":")[0] for t in ax.get_legend().get_texts()] == ["measured ω", "euler-ls", "oe"]
 
 
 def test_demo_rejects_unknown_methods(tmp_path, capsys):

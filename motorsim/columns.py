@@ -1,0 +1,300 @@
+"""A lab's own files as a :class:`~motorsim.recording.Recording`: text tables and MATLAB ``.mat``.
+
+:func:`read_table` reads the columns of a text table (CSV, TSV, ``;`` or whitespace
+separated, with a header line or none) or of a MATLAB ``.mat`` file (v5 through scipy;
+v7.3/HDF5 through h5py when it is installed); :func:`import_recording` maps its columns,
+chosen by name or 0-based index with a unit (:class:`ColumnSpec`, ``"y:deg/s"``), to a
+recording through :meth:`Recording.from_columns`.  Units and the timing rule:
+:mod:`motorsim.units`.  Every refusal is an :class:`ImportFormatError` naming the file, the
+line or column, and the rule.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping, NoReturn
+
+import numpy as np
+
+from .recording import Recording
+from .units import DEFAULT_UNITS, UNITS
+
+__all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError"]
+
+class ImportFormatError(ValueError):
+    """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ColumnSpec:
+    """Which column holds a quantity, and in what unit: ``"NAME[:UNIT]"`` or ``"INDEX[:UNIT]"``.
+
+    Parameters
+    ----------
+    quantity : str
+        ``time``, ``input``, ``angle``, ``counts`` or ``speed``.
+    column : str or int
+        Column name (header cell, MATLAB variable) or 0-based index.
+    unit : str
+        One of the quantity's units (:mod:`motorsim.units`).
+
+    Examples
+    --------
+    >>> ColumnSpec.parse("speed", "y:deg/s")
+    ColumnSpec(quantity='speed', column='y', unit='deg/s')
+    >>> ColumnSpec.parse("time", "0:ms")
+    ColumnSpec(quantity='time', column=0, unit='ms')
+    """
+
+    quantity: str
+    column: str | int
+    unit: str
+
+    @classmethod
+    def parse(cls, quantity: str, text: str) -> "ColumnSpec":
+        """Parse ``"NAME[:UNIT]"``; a column that is a non-negative integer is an index."""
+        if quantity not in UNITS:
+            raise ValueError(f"quantity must be one of {list(UNITS)}, got {quantity!r}")
+        column, unit = text, DEFAULT_UNITS[quantity]
+        if ":" in text:
+            column, unit = text.rsplit(":", 1)
+        unit = unit.strip()
+        if unit not in UNITS[quantity]:
+            raise ValueError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
+                             f"got {unit!r} (in {text!r})")
+        column = column.strip()
+        if not column:
+            raise ValueError(f"the {quantity} column needs a name or a 0-based index, got {text!r}")
+        return cls(quantity, int(column) if column.isdigit() else column, unit)
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """Named numeric columns read from a file, with the file line of each row (1-based; 0 for .mat)."""
+
+    path: str
+    names: tuple[str, ...]
+    columns: tuple[np.ndarray, ...]
+    lines: np.ndarray
+    has_header: bool
+
+    def column(self, spec: ColumnSpec) -> np.ndarray:
+        """The column ``spec`` names (by name, else by 0-based index)."""
+        if isinstance(spec.column, str):
+            if spec.column in self.names:
+                return self.columns[self.names.index(spec.column)]
+            raise ImportFormatError(f"{self.path}: no column named {spec.column!r} for the {spec.quantity} "
+                                    f"(columns: {', '.join(self.names)}; or give a 0-based index)")
+        if spec.column < len(self.columns):
+            return self.columns[spec.column]
+        raise ImportFormatError(f"{self.path}: column index {spec.column} for the {spec.quantity} is out of range "
+                                f"(the file has {len(self.columns)} columns, 0-based)")
+
+
+def _fail(path: str, line: int, rule: str) -> NoReturn:
+    raise ImportFormatError(f"{path}, line {line}: {rule}")
+
+
+_SEPARATORS = (",", "\t", ";")
+
+
+def _split(line: str, sep: str | None) -> list[str]:
+    return [c.strip().strip('"').strip("'").strip() for c in (line.split(sep) if sep else line.split())]
+
+
+def _number(cell: str) -> float | None:
+    try:
+        return float(cell)
+    except ValueError:
+        return None
+
+
+def _read_text(path: str) -> Table:
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and s.lstrip()[0] not in "#%"]
+    if not rows:
+        raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
+    first = rows[0][1]
+    sep = next((s for s in _SEPARATORS if s in first), None)
+    head = _split(first, sep)
+    has_header = any(_number(c) is None for c in head)
+    names = tuple(head) if has_header else tuple(str(i) for i in range(len(head)))
+    if has_header:
+        rows = rows[1:]
+    if len(set(names)) != len(names):
+        _fail(path, rows[0][0] - 1 if rows else 1, f"the header repeats a column name ({', '.join(names)})")
+    values = np.empty((len(rows), len(names)))
+    for r, (line, s) in enumerate(rows):
+        cells = _split(s, sep)
+        if len(cells) != len(names):
+            _fail(path, line, f"{len(cells)} cells where the {'header' if has_header else 'first row'} has "
+                              f"{len(names)}")
+        for c, cell in enumerate(cells):
+            x = _number(cell)
+            if x is None or not math.isfinite(x):
+                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}")
+            values[r, c] = x
+    if not rows:
+        raise ImportFormatError(f"{path}: a header but no data rows")
+    return Table(path, names, tuple(values.T.copy()), np.array([line for line, _ in rows]), has_header)
+
+
+def _read_mat(path: str) -> Table:
+    from scipy import io
+    try:
+        data = io.loadmat(path, squeeze_me=False)
+    except NotImplementedError:
+        return _read_mat_hdf5(path)
+    except ValueError as exc:
+        raise ImportFormatError(f"{path}: not a MATLAB .mat file scipy can read ({exc})") from None
+    return _table_from_variables(path, {k: v for k, v in data.items() if not k.startswith("__")})
+
+
+def _read_mat_hdf5(path: str) -> Table:
+    try:
+        import h5py  # optional: MATLAB v7.3 files only
+    except ImportError:
+        raise ImportFormatError(f"{path}: a MATLAB v7.3 (HDF5) file: reading it needs h5py (pip install h5py), "
+                                "or save it from MATLAB with save(FILE, '-v7')") from None
+    with h5py.File(path, "r") as f:
+        # MATLAB writes column-major arrays: h5py sees them transposed
+        variables = {k: np.asarray(f[k]).T for k in f.keys() if isinstance(f[k], h5py.Dataset)}
+    return _table_from_variables(path, variables)
+
+
+def _table_from_variables(path: str, variables: Mapping[str, Any]) -> Table:
+    """Vectors become columns by name; a single numeric matrix gives its columns by index."""
+    numeric = {k: np.asarray(v) for k, v in variables.items()
+               if isinstance(v, np.ndarray) and v.dtype.kind in "biuf" and v.size > 1}
+    vectors = {k: v.ravel().astype(float) for k, v in numeric.items() if v.ndim == 2 and 1 in v.shape}
+    matrices = {k: v for k, v in numeric.items() if k not in vectors and v.ndim == 2}
+    if not vectors and len(matrices) == 1:
+        (name, m), = matrices.items()
+        if m.shape[0] < m.shape[1]:
+            m = m.T
+        cols = tuple(m[:, i].astype(float) for i in range(m.shape[1]))
+        return Table(path, tuple(str(i) for i in range(len(cols))), cols, np.zeros(len(cols[0]), int), False)
+    if not vectors:
+        raise ImportFormatError(f"{path}: no numeric vector variables (found: {', '.join(variables) or 'none'}); "
+                                "save each column as its own vector, or one N-by-k matrix")
+    return Table(path, tuple(vectors), tuple(vectors.values()), np.zeros(max(map(len, vectors.values())), int),
+                 True)
+
+
+def read_table(path: str | os.PathLike) -> Table:
+    """The numeric columns of a text table or a MATLAB ``.mat`` file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.mat`` (v5 through scipy; v7.3 needs h5py), else text: columns separated by
+        commas, tabs, semicolons or whitespace (decided on the first row); the first row is
+        a header when a cell is not a number; blank lines and lines starting with ``#`` or
+        ``%`` are skipped.
+
+    Returns
+    -------
+    Table
+        Columns by name (header cells, MATLAB variables; ``"0"``, ``"1"``, ... without a header).
+
+    Raises
+    ------
+    ImportFormatError
+        Naming the file, the line and the column of what cannot be read.
+    """
+    path = os.fspath(path)
+    if not Path(path).is_file():
+        raise ImportFormatError(f"{path}: no such file")
+    if path.lower().endswith(".mat"):
+        return _read_mat(path)
+    return _read_text(path)
+
+
+def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: str | ColumnSpec,
+                     speed: str | ColumnSpec | None = None, angle: str | ColumnSpec | None = None,
+                     counts: str | ColumnSpec | None = None, counts_per_rev: int | None = None) -> Recording:
+    """Read a foreign file and map its columns to a :class:`Recording`.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Text table or ``.mat`` file (:func:`read_table`).
+    time, input : str or ColumnSpec
+        ``"NAME[:UNIT]"`` or ``"INDEX[:UNIT]"``: the time and input columns.
+    speed, angle, counts : str or ColumnSpec, optional
+        The measured quantity (at least one), in the same form.
+    counts_per_rev : int, optional
+        Encoder resolution in counts/rev, for counts (or an angle in ``counts``).
+
+    Returns
+    -------
+    Recording
+        With the metadata ``source`` (the file name) and ``input_unit``.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> _ = Path("lab.csv").write_text("t,u,y\\n0,1.5,0\\n20,1.5,90\\n40,2.7,180\\n")
+    >>> rec = import_recording("lab.csv", time="t:ms", input="u:V", speed="y:deg/s")
+    >>> rec.sample_period, rec.input_unit, rec.speed.round(4).tolist()
+    (0.02, 'V', [0.0, 1.5708, 3.1416])
+    """
+    path = os.fspath(path)
+    specs = {}
+    for quantity, spec in (("time", time), ("input", input), ("speed", speed), ("angle", angle),
+                           ("counts", counts)):
+        if spec is not None:
+            try:
+                specs[quantity] = spec if isinstance(spec, ColumnSpec) else ColumnSpec.parse(quantity, spec)
+            except ValueError as exc:
+                raise ImportFormatError(f"{path}: {exc}") from None
+    if not {"speed", "angle", "counts"} & specs.keys():
+        raise ImportFormatError(f"{path}: give the speed, angle or counts column")
+    table = read_table(path)
+    cols = {q: table.column(s) for q, s in specs.items()}
+    _check_counts(table, specs, cols, counts_per_rev)
+    _check_time(table, specs["time"], cols["time"])
+    try:
+        return Recording.from_columns(
+            time=cols["time"], duty=cols["input"], speed=cols.get("speed"), angle=cols.get("angle"),
+            counts=cols.get("counts"), counts_per_rev=counts_per_rev, input_unit=specs["input"].unit,
+            time_unit=specs["time"].unit, metadata={"source": Path(path).name},
+            speed_unit=specs["speed"].unit if "speed" in specs else "rad/s",
+            angle_unit=specs["angle"].unit if "angle" in specs else "rad")
+    except ValueError as exc:
+        raise ImportFormatError(f"{path}: {exc}") from None
+
+
+def _where(table: Table, spec: ColumnSpec, k: int) -> str:
+    line = int(table.lines[k]) if k < len(table.lines) else 0
+    place = f"line {line}" if line else f"element {k}"
+    return f"{table.path}, {place}, column {spec.column!r} ({spec.quantity})"
+
+
+def _check_time(table: Table, spec: ColumnSpec, t: np.ndarray) -> None:
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise ImportFormatError(f"{_where(table, spec, k)}: time must be strictly increasing, got {float(t[k])!r} "
+                                f"after {float(t[k - 1])!r}")
+
+
+def _check_counts(table: Table, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np.ndarray],
+                  counts_per_rev: int | None) -> None:
+    spec = specs.get("counts") or (specs["angle"] if "angle" in specs and specs["angle"].unit == "counts" else None)
+    if spec is None:
+        return
+    if counts_per_rev is None:
+        raise ImportFormatError(f"{table.path}: counts in column {spec.column!r} need the encoder resolution "
+                                "(--counts-per-rev N, counts/rev)")
+    x = cols[spec.quantity]
+    bad = np.flatnonzero(x != np.round(x))
+    if len(bad):
+        k = int(bad[0])
+        raise ImportFormatError(f"{_where(table, spec, k)}: counts must be integers, got {float(x[k])!r}")
+

@@ -1,0 +1,152 @@
+"""Foreign data in: columns, units, timing rule, text tables and MATLAB files (motorsim/columns.py)."""
+import math
+
+import numpy as np
+import pytest
+
+from motorsim.columns import ColumnSpec, ImportFormatError, import_recording, read_table
+from motorsim.recording import Recording
+
+recording_from_columns = Recording.from_columns
+
+
+def test_units_convert_to_si_and_input_unit_is_kept():
+    t_ms = np.arange(5) * 20.0
+    rec = Recording.from_columns(time=t_ms, duty=[1, 1, 2, 2, 2], speed=[0, 60, 60, 120, 120], time_unit="ms",
+                                 speed_unit="rpm", input_unit="%")
+    assert rec.sample_period == 0.02
+    np.testing.assert_allclose(rec.time, t_ms / 1000, rtol=1e-15)
+    np.testing.assert_allclose(rec.speed, np.array([0, 60, 60, 120, 120]) * 2 * math.pi / 60, rtol=1e-15)
+    assert rec.input_unit == "%" and rec.duty.tolist() == [1, 1, 2, 2, 2]
+
+
+@pytest.mark.parametrize("unit,scale", [("rad", 1.0), ("deg", math.pi / 180), ("rev", 2 * math.pi)])
+def test_angle_units(unit, scale):
+    rec = recording_from_columns(time=[0, 1, 2], duty=[0, 0, 0], angle=[0, 1, 3], angle_unit=unit, time_unit="us")
+    np.testing.assert_allclose(rec.angle, np.array([0, 1, 3]) * scale, rtol=1e-15)
+    assert rec.sample_period == 1e-6
+
+
+def test_angle_in_counts_becomes_counts():
+    rec = recording_from_columns(time=[0, 0.01, 0.02], duty=[1, 1, 1], angle=[0, 10, 30], angle_unit="counts",
+                                 counts_per_rev=100)
+    assert rec.counts.tolist() == [0, 10, 30] and rec.angle is None
+    np.testing.assert_allclose(rec.measured_speed()[1:], [2 * math.pi * 0.1 / 0.01, 2 * math.pi * 0.2 / 0.01])
+
+
+def test_gaps_of_whole_periods_become_seq_gaps():
+    rec = recording_from_columns(time=[0, 0.01, 0.02, 0.05, 0.06], duty=[0] * 5, speed=[0] * 5)
+    assert rec.seq.tolist() == [0, 1, 2, 5, 6] and rec.has_gaps and "time_uniform" not in rec.metadata
+
+
+def test_non_uniform_clock_is_kept_and_said():
+    t = [0, 0.01, 0.017, 0.03, 0.04]
+    with pytest.warns(UserWarning, match="not uniform"):
+        rec = recording_from_columns(time=t, duty=[0] * 5, speed=[0] * 5)
+    assert rec.time.tolist() == t and rec.metadata["time_uniform"] == "false"
+    assert rec.seq.tolist() == [0, 1, 2, 3, 4]
+
+
+def test_pandas_series_are_accepted():
+    pd = pytest.importorskip("pandas")
+    df = pd.DataFrame({"t": [0.0, 0.5, 1.0], "u": [1.0, 2.0, 3.0], "y": [0.0, 1.0, 2.0]})
+    rec = Recording.from_columns(time=df["t"], duty=df["u"], speed=df["y"])
+    assert rec.sample_period == 0.5 and rec.speed.tolist() == [0.0, 1.0, 2.0]
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"time": [0, 0.1, 0.1], "speed": [0, 0, 0]}, "strictly increasing.*sample 2"),
+    ({"time": [0, 0.1, 0.2], "speed": [0, 0, 0], "speed_unit": "m/s"}, "speed_unit must be one of"),
+    ({"time": [0, 0.1, 0.2]}, "at least one of speed, angle, counts"),
+    ({"time": [0, 0.1, 0.2], "speed": [0, 0, 0], "sample_period": 0.2}, "sample_period must agree"),
+    ({"time": [0.0], "speed": [0]}, "at least 2 samples"),
+], ids=["time", "unit", "no-output", "period", "short"])
+def test_refusals_name_the_rule(kwargs, match):
+    duty = [0] * len(kwargs["time"])
+    with pytest.raises(ValueError, match=match):
+        recording_from_columns(duty=duty, **kwargs)
+
+
+def test_column_spec():
+    assert ColumnSpec.parse("time", "t") == ColumnSpec("time", "t", "s")
+    assert ColumnSpec.parse("time", "2:µs") == ColumnSpec("time", 2, "µs")
+    assert ColumnSpec.parse("speed", "w [x]:rev/s").column == "w [x]"
+    with pytest.raises(ValueError, match="unit of the speed column must be one of"):
+        ColumnSpec.parse("speed", "y:deg")
+
+
+@pytest.mark.parametrize("text,sep", [
+    ("t,u,y\n0,1,2\n0.1,1,3\n", ","), ("t\tu\ty\n0\t1\t2\n0.1\t1\t3\n", "\t"),
+    ("# lab run\n% more\nt  u   y\n\n0  1  2\n0.1 1 3\n", " "), ("t;u;y\n0;1;2\n0.1;1;3\n", ";"),
+    ('"t","u","y"\n0,1,2\n0.1,1,3\n', ","),
+], ids=["csv", "tsv", "whitespace-comments", "semicolon", "quoted"])
+def test_text_tables_with_header(tmp_path, text, sep):
+    path = tmp_path / "lab.txt"
+    path.write_text(text)
+    table = read_table(path)
+    assert table.names == ("t", "u", "y") and table.has_header
+    np.testing.assert_array_equal(table.column(ColumnSpec("speed", "y", "rad/s")), [2, 3])
+
+
+def test_text_table_without_header_by_index(tmp_path):
+    path = tmp_path / "raw.dat"
+    path.write_text("0 100 0\n5 100 12\n10 100 30\n")
+    rec = import_recording(path, time="0:ms", input="1", counts="2", counts_per_rev=1000)
+    assert rec.sample_period == 0.005 and rec.counts.tolist() == [0, 12, 30] and rec.counts_per_rev == 1000
+
+
+@pytest.mark.parametrize("text,kwargs,match", [
+    ("t,u,y\n0,1,2\n0.1,1\n", {}, r"raw.csv, line 3: 2 cells where the header has 3"),
+    ("t,u,y\n0,1,2\n0.1,1,abc\n", {}, r"raw.csv, line 3: column 'y' must hold a finite number, got 'abc'"),
+    ("t,u,y\n0,1,2\n0.1,1,3\n", {"speed": "w"}, r"raw.csv: no column named 'w' for the speed \(columns: t, u, y"),
+    ("t,u,y\n0,1,2\n0.1,1,3\n", {"speed": "5"}, r"column index 5 for the speed is out of range"),
+    ("t,u,y\n0,1,2\n0,1,3\n", {}, r"raw.csv, line 3, column 't' \(time\): time must be strictly increasing"),
+    ("t,u,y\n0,1,2\n0.1,1,3.5\n", {"speed": None, "counts": "y"}, r"need the encoder resolution"),
+    ("t,u,y\n0,1,2\n0.1,1,3.5\n", {"speed": None, "counts": "y", "counts_per_rev": 10},
+     r"raw.csv, line 3, column 'y' \(counts\): counts must be integers, got 3.5"),
+    ("t,u,y\n", {}, r"raw.csv: a header but no data rows"),
+], ids=["cells", "number", "name", "index", "time", "cpr", "counts", "empty"])
+def test_file_refusals_name_file_line_column_and_rule(tmp_path, text, kwargs, match):
+    path = tmp_path / "raw.csv"
+    path.write_text(text)
+    with pytest.raises(ImportFormatError, match=match):
+        import_recording(path, **{"time": "t", "input": "u", "speed": "y", **kwargs})
+
+
+def test_matlab_v5_vectors_and_matrix(tmp_path):
+    from scipy import io
+    t = np.arange(4) * 0.01
+    io.savemat(tmp_path / "run.mat", {"t": t[:, None], "u": np.ones(4), "y": np.arange(4.0)})
+    rec = import_recording(tmp_path / "run.mat", time="t", input="u:V", speed="y:rev/s")
+    np.testing.assert_allclose(rec.speed, np.arange(4.0) * 2 * math.pi, rtol=1e-15)
+    io.savemat(tmp_path / "matrix.mat", {"data": np.column_stack([t * 1000, np.ones(4), np.arange(4.0)])})
+    rec = import_recording(tmp_path / "matrix.mat", time="0:ms", input="1", speed="2:deg/s")
+    assert rec.sample_period == 0.01
+
+
+def _fake_v73(path):
+    """A MATLAB v7.3 file: HDF5 with MATLAB's 512-byte header (scipy refuses it as v7.3)."""
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    header = header.ljust(116) + b"\x00" * 8 + b"\x00\x02" + b"IM"
+    path.write_bytes(header.ljust(512, b"\x00") + b"\x89HDF\r\n\x1a\n")
+
+
+def test_matlab_v73_without_h5py_says_what_it_needs(tmp_path, monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "h5py", None)     # as if h5py were not installed
+    _fake_v73(tmp_path / "big.mat")
+    with pytest.raises(ImportFormatError, match=r"big.mat: a MATLAB v7.3 \(HDF5\) file: reading it needs h5py"):
+        read_table(tmp_path / "big.mat")
+
+
+def test_matlab_v73_with_h5py(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    path = tmp_path / "v73.mat"
+    with h5py.File(path, "w", userblock_size=512) as f:
+        f["t"] = (np.arange(3) * 0.1)[None, :]             # MATLAB's column vector, as HDF5 stores it
+        f["u"] = np.ones((1, 3))
+        f["y"] = np.arange(3.0)[None, :]
+    with open(path, "r+b") as fh:
+        fh.write(b"MATLAB 7.3 MAT-file".ljust(124) + b"\x00\x02IM")
+    rec = import_recording(path, time="t", input="u", speed="y")
+    assert rec.sample_period == 0.1 and rec.speed.tolist() == [0.0, 1.0, 2.0]
