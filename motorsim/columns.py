@@ -18,12 +18,13 @@ from typing import Any, Mapping, NoReturn
 
 import numpy as np
 
-from .recording import Recording
+from .checks import ParameterError
+from .recording import Recording, RecordingFormatError
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError"]
 
-class ImportFormatError(ValueError):
+class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
 
 
@@ -56,17 +57,17 @@ class ColumnSpec:
     def parse(cls, quantity: str, text: str) -> "ColumnSpec":
         """Parse ``"NAME[:UNIT]"``; a column that is a non-negative integer is an index."""
         if quantity not in UNITS:
-            raise ValueError(f"quantity must be one of {list(UNITS)}, got {quantity!r}")
+            raise ParameterError(f"quantity must be one of {list(UNITS)}, got {quantity!r}")
         column, unit = text, DEFAULT_UNITS[quantity]
         if ":" in text:
             column, unit = text.rsplit(":", 1)
         unit = unit.strip()
         if unit not in UNITS[quantity]:
-            raise ValueError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
+            raise ParameterError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
                              f"got {unit!r} (in {text!r})")
         column = column.strip()
         if not column:
-            raise ValueError(f"the {quantity} column needs a name or a 0-based index, got {text!r}")
+            raise ParameterError(f"the {quantity} column needs a name or a 0-based index, got {text!r}")
         return cls(quantity, int(column) if column.isdigit() else column, unit)
 
 

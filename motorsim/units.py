@@ -29,6 +29,8 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .checks import ParameterError, ParameterTypeError
+
 __all__ = ["TIME_UNITS", "INPUT_UNITS", "ANGLE_UNITS", "SPEED_UNITS", "UNITS", "DEFAULT_UNITS",
            "UNIFORM_TOLERANCE", "columns_in_si", "timing_note"]
 
@@ -54,22 +56,22 @@ def _as_float(name: str, value: ArrayLike) -> np.ndarray:
     """``value`` (a numpy array, pandas Series, list) as a 1-D float array."""
     arr = np.asarray(value)
     if arr.dtype.kind not in "biuf":
-        raise TypeError(f"{name} must hold numbers, got dtype {arr.dtype}")
+        raise ParameterTypeError(f"{name} must hold numbers, got dtype {arr.dtype}")
     arr = np.ravel(arr) if arr.ndim == 2 and 1 in arr.shape else arr
     if arr.ndim != 1:
-        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
+        raise ParameterError(f"{name} must be 1-D, got shape {arr.shape}")
     return arr.astype(float)
 
 
 def _timing(time_s: np.ndarray) -> tuple[float, np.ndarray, dict[str, str]]:
     """Sample period, ``seq`` and timing metadata of a time column in s (module docstring's rule)."""
     if len(time_s) < 2:
-        raise ValueError(f"time needs at least 2 samples to infer the sample period, got {len(time_s)}")
+        raise ParameterError(f"time needs at least 2 samples to infer the sample period, got {len(time_s)}")
     steps = np.diff(time_s)
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise ValueError(f"time must be strictly increasing, got {float(time_s[k])!r} after {float(time_s[k - 1])!r} "
-                         f"at sample {k}")
+        raise ParameterError(f"time must be strictly increasing, got {float(time_s[k])!r} after "
+                             f"{float(time_s[k - 1])!r} at sample {k}")
     period = float(f"{np.median(steps):.12g}")   # 0.02, not 0.019999999999999574 from rounding in the file
     ratio = steps / period
     whole = np.round(ratio)
@@ -125,16 +127,16 @@ def columns_in_si(time: ArrayLike, duty: ArrayLike, *, speed: ArrayLike | None =
     """
     for quantity, unit in (("time", time_unit), ("input", input_unit), ("speed", speed_unit), ("angle", angle_unit)):
         if unit not in UNITS[quantity]:
-            raise ValueError(f"{quantity}_unit must be one of {list(UNITS[quantity])}, got {unit!r}")
+            raise ParameterError(f"{quantity}_unit must be one of {list(UNITS[quantity])}, got {unit!r}")
     if speed is None and angle is None and counts is None:
-        raise ValueError("a recording needs at least one of speed, angle, counts")
+        raise ParameterError("a recording needs at least one of speed, angle, counts")
     time_s = _as_float("time", time) * TIME_UNITS[time_unit]
     if not np.all(np.isfinite(time_s)):
         k = int(np.flatnonzero(~np.isfinite(time_s))[0])
-        raise ValueError(f"time must be finite, got {float(time_s[k])!r} at sample {k}")
+        raise ParameterError(f"time must be finite, got {float(time_s[k])!r} at sample {k}")
     period, seq, meta = _timing(time_s)
     if sample_period is not None and abs(sample_period / period - 1) > UNIFORM_TOLERANCE:
-        raise ValueError(f"sample_period must agree with the median interval of time ({period!r} s) within "
+        raise ParameterError(f"sample_period must agree with the median interval of time ({period!r} s) within "
                          f"{UNIFORM_TOLERANCE:.0%}, got {sample_period!r}")
     if angle is not None and angle_unit == "counts":
         counts, angle = angle, None

@@ -121,9 +121,10 @@ def test_identify_refuses_a_corrupted_sample_naming_it(tmp_path, capsys, bit):
 def test_identify_drop_outliers_drops_and_says_so(tmp_path, capsys, bit):
     path, _ = _flip(tmp_path, bit)
     assert main(["identify", "--drop-outliers", "--json", str(path)]) == 0
-    out = capsys.readouterr().out
-    result = json.loads(out.strip().splitlines()[-1])
-    assert out.startswith(f"dropped     {path}: seq 1000 (") and result["dropped_samples"] == {str(path): [1000]}
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)           # --json: stdout is exactly one JSON document
+    assert captured.err.startswith(f"dropped     {path}: seq 1000 (")
+    assert result["dropped_samples"] == {str(path): [1000]}
     assert abs(result["a"] - 25.0) < 0.1 and abs(result["b"] - 3.0) < 0.012   # ~3 standard errors
 
 
