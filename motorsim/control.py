@@ -427,6 +427,8 @@ class ControlLoop:
         self.previous: int | None = None
         self.origin = 0
         self.law = getattr(self, "_" + controller.kind)
+        self.ku = [self.gains[f"ku{m}"] for m in range(1, len(self.history) + 1) if f"ku{m}" in self.gains]
+        self.with_feedforward = "kn" in self.gains
 
     def step(self, k: int, counts: int) -> int:
         """The duty to apply from sample ``k`` on, given the encoder's ``counts`` read at ``k``."""
@@ -445,8 +447,8 @@ class ControlLoop:
     def _mpc(self, k: int, counts: int, y: int) -> int:
         g, r = self.gains, self.reference[k + self.preview]
         acc = g["kr"] * r + g["ky"] * y + g["k0"] + g["kf"] * _sign(r)
-        for m, u in enumerate(self.history, 1):
-            acc += g[f"ku{m}"] * u
+        for gain, u in zip(self.ku, self.history):
+            acc += gain * u
         return self._clip(acc)
 
     def _feedforward_sum(self, k: int) -> int:
@@ -461,7 +463,7 @@ class ControlLoop:
         err = self.reference[k] - (y << SPEED_REFERENCE_BITS)
         integral = self.integral + err
         acc = g["kp"] * err + g["ki"] * integral
-        if g.get("kn", 0) or g.get("kc", 0):
+        if self.with_feedforward:
             acc += self._feedforward_sum(k)
         raw = (acc + _HALF) >> GAIN_BITS
         if not ((raw > self.limit and err > 0) or (raw < -self.limit and err < 0)):

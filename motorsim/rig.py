@@ -200,7 +200,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.nda
     pending = [0] * motor.input_delay
     e, g, p, q = (x.tolist() for x in zoh_matrices(motor.a, motor.b, h))
     bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
-    linear = motor.friction == 0
+    linear, dead_zone = motor.friction == 0, motor.dead_zone
     w, th = float(initial_speed), 0.0
     for k in range(n):
         counts[k] = c = math.floor((th + noise[k]) * scale) + offset
@@ -209,7 +209,9 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.nda
         if k == n - 1:
             break
         pending.append(u)
-        v = float(motor.drive(np.asarray(pending.pop(0))))
+        v = float(pending.pop(0))
+        if dead_zone and v:  # Motor.drive, on one sample
+            v = 0.0 if abs(v) <= dead_zone else v - math.copysign(dead_zone, v)
         if linear:
             v += motor.bias / motor.b
             w, th = e[k] * w + g[k] * v, th + p[k] * w + q[k] * v

@@ -6,6 +6,7 @@
 ``accuracy`` :mod:`~scenarios.benchmarks.accuracy`: the estimators against the truth and the CRB
 ``serial``   :mod:`~scenarios.benchmarks.serial`: the host's frame reader and a pty run
 ``firmware`` :mod:`~scenarios.benchmarks.firmware`: the Arduino firmware under simavr
+``control``  :mod:`~scenarios.benchmarks.control`: closed-loop simulated runs against the open loop
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -55,6 +56,11 @@ def _firmware(argv: Sequence[str]) -> int:
     return bench_firmware(argv)
 
 
+def _control(argv: Sequence[str]) -> int:
+    from .control import bench_control
+    return bench_control(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -64,6 +70,7 @@ BENCHMARKS: dict[str, Benchmark] = {
                                  "through the pty"),
     "firmware": Benchmark(_firmware, "the Arduino firmware under simavr: size, sample rates per baud, encoder "
                                      "ceiling, speed"),
+    "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
 }
 
 
