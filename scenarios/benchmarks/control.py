@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from typing import Sequence
 
 from .timing import median_time
@@ -27,7 +28,7 @@ def bench_control(argv: Sequence[str]) -> int:
     for kind, spec in (("mpc", "sine:10,10"), ("pi", "sine:10,10"), ("position", "sine:5,1"),
                        ("feedforward", "sine:10,10")):
         exp = ClosedLoopExperiment(design_controller(kind, model), parse_reference(spec), args.duration)
-        t = median_time(lambda exp=exp: rig.run(exp), args.repeats)
+        t = median_time(partial(rig.run, exp), args.repeats)
         print(f"{'closed loop ' + kind:<31} {n / t / 1e3:9.1f} k samples/s  "
               f"{t / t_open:6.1f} x the open-loop time, {n * dt / t:7.0f} x real time")
     return 0
