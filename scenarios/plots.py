@@ -298,8 +298,8 @@ def plot_prediction(prediction, path, *, title: str = "") -> Path:
     return Path(path)
 
 
-def plot_tracking(rows: Sequence, path, *, title: str = "", window: float = 2.0) -> Path:
-    """Closed-loop runs against their reference: measured output of each design, and its duty.
+def plot_tracking(rows: Sequence, path, *, title: str = "", window: float = 0.6) -> Path:
+    """Closed-loop runs against their reference: measured (solid) and predicted (dotted) output of each design.
 
     ``rows`` carry ``design``, ``recording`` and ``prediction`` (``scenarios.control.ClosedLoopRow``).
     """
@@ -310,7 +310,8 @@ def plot_tracking(rows: Sequence, path, *, title: str = "", window: float = 2.0)
     for row, color in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange")):
         rec = row.recording
         label = f"{row.design}: measured RMS {row.measured_rms:.3g} (predicted {row.prediction.tracking_rms:.3g})"
-        ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.8, label=label)
+        ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.9, label=label)
+        ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
         ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
     ax.set_ylabel("ω [rad/s]")
     ax.legend(loc="upper right", fontsize=7)
