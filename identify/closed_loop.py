@@ -44,11 +44,11 @@ def _rows(recs: list[Recording], delay: int) -> tuple[np.ndarray, np.ndarray, np
         if rec.reference is None:
             raise NotIdentifiableError("iv-reference needs the reference column of a closed-loop recording; "
                                        "use oe (or iv) on open-loop data")
-        w_all = rec.measured_speed()
+        w_all, reference = rec.measured_speed(), rec.reference
         start = 0
         for seg in rec.segments():
             n = len(seg)
-            w, r = w_all[start:start + n], seg.reference
+            w, r = w_all[start:start + n], reference[start:start + n]
             start += n
             u = np.concatenate([np.zeros(delay), seg.duty[:n - delay]]) if delay else seg.duty
             k = np.arange(max(2, _LAGS - 1, delay + 1), n - 1)
