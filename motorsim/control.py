@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -51,7 +51,9 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
-           "Feedforward", "ControlLoop", "Prediction", "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
+           "Feedforward", "ControlLoop",
+           "ReferenceWords", "reference_values", "gains_from_wire", "GAIN_ORDER", "Prediction",
+           "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
            "tracking_error", "feedforward_gains", "settings_from", "GAIN_BITS", "SPEED_REFERENCE_BITS",
            "SPEED_REFERENCE_LSB", "MAX_REFERENCE"]
 
@@ -274,7 +276,18 @@ class Reference:
         scale : float
             Integer units per physical unit (e.g. 1/16 count per sample per rad/s).
         """
-        n = check_int("n_samples", n_samples, 0, 2**32 - 1)
+        return reference_values(self.words(sample_period, scale), n_samples)
+
+    def words(self, sample_period: float, scale: float) -> ReferenceWords:
+        """The integers a device generates this reference from (see :func:`reference_values`).
+
+        Parameters
+        ----------
+        sample_period : float
+            Sample period in s.
+        scale : float
+            Integer units per physical unit.
+        """
         dt = check_real("sample_period", sample_period, positive=True)
 
         def lsb(x: float, name: str) -> int:
@@ -284,14 +297,14 @@ class Reference:
                                  f"beyond the device's limit +-{MAX_REFERENCE}")
             return v
 
-        k = np.arange(n, dtype=np.int64)
         if self.kind == "constant":
-            return np.full(n, lsb(self.level, "level"), dtype=np.int64)
+            return ReferenceWords("constant", lsb(self.level, "level"))
         if self.kind == "step":
-            at = int(round(self.at_time / dt))
-            return np.where(k < at, lsb(self.before, "before"), lsb(self.level, "after")).astype(np.int64)
+            return ReferenceWords("step", lsb(self.level, "after"), lsb(self.before, "before"),
+                                  int(round(self.at_time / dt)))
         if self.kind == "trapezoid":
-            return self._trapezoid(k, dt, lsb(self.level, "level"))
+            return ReferenceWords("trapezoid", lsb(self.level, "level"), 0, int(round(self.at_time / dt)),
+                                  max(1, int(round(self.ramp_time / dt))), int(round(self.hold_time / dt)))
         amps = [lsb(x, "amplitude") for x in self.amplitudes]
         if sum(abs(x) for x in amps) > MAX_REFERENCE:
             raise ValueError(f"reference amplitudes sum to {sum(abs(x) for x in amps)} units, "
@@ -302,16 +315,7 @@ class Reference:
                 raise ValueError(f"reference frequencies must be below pi/sample_period = {math.pi / dt:.6g} "
                                  f"rad/s, got {f!r}")
             comps.append((amp, int(round(ph / (2 * math.pi) * 2**32)) % 2**32, phase_increment(f, dt)))
-        return multisine_duty(comps, lsb(self.level, "offset"), n)
-
-    def _trapezoid(self, k: np.ndarray, dt: float, level: int) -> np.ndarray:
-        k0 = int(round(self.at_time / dt))
-        nr = max(1, int(round(self.ramp_time / dt)))
-        nh = int(round(self.hold_time / dt))
-        i = k - k0
-        up = (level * np.clip(i, 0, nr)) // nr
-        down = (level * np.clip(2 * nr + nh - i, 0, nr)) // nr
-        return np.where(i < nr + nh, up, down).astype(np.int64)
+        return ReferenceWords("multisine", lsb(self.level, "offset"), components=tuple(comps))
 
     def describe(self) -> str:
         """A one-line spec that :func:`parse_reference` reads back."""
@@ -323,6 +327,57 @@ class Reference:
             return f"trapezoid:{self.level!r},{self.ramp_time!r},{self.hold_time!r},{self.at_time!r}"
         parts = ";".join(f"{f!r},{a!r},{p!r}" for f, a, p in zip(self.frequencies, self.amplitudes, self.phases))
         return f"{self.kind}:{parts}" + (f"@{self.level!r}" if self.level else "")
+
+
+class ReferenceWords(NamedTuple):
+    """A reference as the integers a device generates it from (the REFERENCE message of protocol v2).
+
+    ``kind`` is ``constant``, ``step``, ``multisine`` (a sine is one component) or ``trapezoid``;
+    ``level`` is the constant, the step value after ``start``, the sines' offset or the
+    trapezoid's plateau; ``before`` the step value before ``start``; ``start`` the step's switch
+    or the trapezoid's first sample; ``ramp`` and ``hold`` the trapezoid's ramp and plateau in
+    samples; ``components`` the sines' ``(amplitude, phase0, phase_inc)`` words.
+    """
+
+    kind: str
+    level: int = 0
+    before: int = 0
+    start: int = 0
+    ramp: int = 1
+    hold: int = 0
+    components: tuple = ()
+
+
+def reference_values(words: ReferenceWords, n_samples: int) -> np.ndarray:
+    """The integer reference of samples ``0 ... n_samples-1`` (int64), as a device computes it.
+
+    constant: ``level``; step: ``before`` for ``k < start``, else ``level``; multisine:
+    :func:`~motorsim.excitation.multisine_duty` of the components, plus ``level``; trapezoid,
+    with ``i = k - start``: ``floor(level min(max(i, 0), ramp) / ramp)`` while ``i < ramp + hold``,
+    then ``floor(level min(max(2 ramp + hold - i, 0), ramp) / ramp)`` (floor division, 64-bit).
+
+    Parameters
+    ----------
+    words : ReferenceWords
+        The reference's integers.
+    n_samples : int
+        Number of samples.
+    """
+    n = check_int("n_samples", n_samples, 0, 2**32 - 1)
+    k = np.arange(n, dtype=np.int64)
+    if words.kind == "constant":
+        return np.full(n, words.level, dtype=np.int64)
+    if words.kind == "step":
+        return np.where(k < words.start, words.before, words.level).astype(np.int64)
+    if words.kind == "multisine":
+        return multisine_duty(words.components, words.level, n)
+    if words.kind == "trapezoid":
+        nr = check_int("ramp", words.ramp, 1, 2**32 - 1)
+        i = k - words.start
+        up = (words.level * np.clip(i, 0, nr)) // nr
+        down = (words.level * np.clip(2 * nr + words.hold - i, 0, nr)) // nr
+        return np.where(i < nr + words.hold, up, down).astype(np.int64)
+    raise ValueError(f"reference kind must be constant, step, multisine or trapezoid, got {words.kind!r}")
 
 
 def parse_reference(spec: str) -> Reference:
@@ -409,25 +464,32 @@ class ControlLoop:
 
     Parameters
     ----------
-    controller : Controller
-        What to run.
+    kind : str
+        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+    gains : mapping of str to int
+        The Q16 gains by name (:meth:`Controller.gains`, or :func:`gains_from_wire`).
+    preview : int
+        Samples of reference the step looks ahead.
     reference : sequence of int or ndarray
-        The integer reference, at least ``n_samples + controller.preview`` long.
+        The integer reference, at least ``n_samples + preview`` long.
     duty_limit : int
         Duty clamp, 0...255.
     """
 
-    def __init__(self, controller: "Controller", reference: Sequence[int] | np.ndarray, duty_limit: int = DUTY_LIMIT):
-        self.gains = controller.gains()
+    def __init__(self, kind: str, gains: Mapping[str, int], preview: int, reference: Sequence[int] | np.ndarray,
+                 duty_limit: int = DUTY_LIMIT):
+        if kind not in GAIN_ORDER:
+            raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+        self.gains = {k: int(v) for k, v in gains.items()}
         self.reference = [int(x) for x in reference]
-        self.preview = controller.preview
+        self.preview = check_int("preview", preview, 0, 255)
         self.limit = check_int("duty_limit", duty_limit, 0, DUTY_LIMIT)
-        self.history = [0] * (controller.model.input_delay + 1)
+        self.ku = [self.gains[f"ku{m}"] for m in range(1, len(self.gains) + 1) if f"ku{m}" in self.gains]
+        self.history = [0] * max(1, len(self.ku))
         self.integral = 0
         self.previous: int | None = None
         self.origin = 0
-        self.law = getattr(self, "_" + controller.kind)
-        self.ku = [self.gains[f"ku{m}"] for m in range(1, len(self.history) + 1) if f"ku{m}" in self.gains]
+        self.law = getattr(self, "_" + kind)
         self.with_feedforward = "kn" in self.gains
 
     def step(self, k: int, counts: int) -> int:
@@ -522,7 +584,7 @@ class Controller:
 
     def start(self, reference: Sequence[int] | np.ndarray, duty_limit: int = DUTY_LIMIT) -> ControlLoop:
         """A fresh :class:`ControlLoop` on the integer ``reference``."""
-        return ControlLoop(self, reference, duty_limit)
+        return ControlLoop(self.kind, self.gains(), self.preview, reference, duty_limit)
 
     def plant(self) -> control.TransferFunction:
         """Duty to what the controller measures: speed in counts/sample, or counts for position."""
@@ -808,6 +870,40 @@ class PositionPD(Controller):
         g, dt = self.gains(), self.model.sample_period
         kp, kd = _as_real(g["kp"]), _as_real(g["kd"])
         return _fir([kp], dt), _fir([-kp - kd, kd], dt)
+
+
+#: Names of each controller's gains in the order a device receives them (protocol v2 CONTROL);
+#: ``mpc`` then has ``ku1 ... ku(D+1)``, and ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
+GAIN_ORDER: dict[str, tuple[str, ...]] = {"mpc": ("kr", "ky", "k0", "kf"), "pi": ("kp", "ki"),
+                                          "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf")}
+
+
+def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
+    """The named gains of controller ``kind`` from the integers in their wire order (:data:`GAIN_ORDER`).
+
+    Parameters
+    ----------
+    kind : str
+        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+    values : sequence of int
+        The gains as sent.
+
+    Examples
+    --------
+    >>> gains_from_wire("mpc", [1, 2, 3, 4, 5, 6])
+    {'kr': 1, 'ky': 2, 'k0': 3, 'kf': 4, 'ku1': 5, 'ku2': 6}
+    """
+    if kind not in GAIN_ORDER:
+        raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+    names = list(GAIN_ORDER[kind])
+    values = [int(v) for v in values]
+    if kind == "mpc":
+        names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
+    elif kind == "pi" and len(values) == 6:
+        names += list(GAIN_ORDER["feedforward"])
+    if len(values) != len(names) or (kind == "mpc" and len(values) < 5):
+        raise ValueError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
+    return dict(zip(names, values))
 
 
 #: Controllers by ``kind`` (``motorid control design --controller``).
