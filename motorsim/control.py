@@ -897,11 +897,14 @@ def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
         raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
     names = list(GAIN_ORDER[kind])
     values = [int(v) for v in values]
+    if kind == "mpc" and len(values) < 5:
+        raise ValueError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
+                         f"got {len(values)}")
     if kind == "mpc":
         names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
     elif kind == "pi" and len(values) == 6:
         names += list(GAIN_ORDER["feedforward"])
-    if len(values) != len(names) or (kind == "mpc" and len(values) < 5):
+    if len(values) != len(names):
         raise ValueError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
     return dict(zip(names, values))
 
