@@ -71,3 +71,15 @@ def test_firmware_loop_tracks_within_10_percent_of_the_prediction(runs, case):
     # measured 0.13 % (mpc) and 0.03 % (pi) apart: the emulated motor applies the duty a few
     # tens of µs after the tick (the interrupt computes it first), and the encoder quantises
     assert measured == pytest.approx(predicted, rel=0.10)
+
+
+@pytest.mark.parametrize("case", range(len(CASES)), ids=["mpc", "pi", "pi-ff", "position", "feedforward"])
+def test_oe_identifies_the_on_board_closed_loop_recordings(runs, case):
+    from identify import fit
+    _, _, _, rec = runs[case]
+    est = fit(rec, method="oe")
+    # Measured: -0.06 % (position) to -0.85 % (pi with feedforward) on a.  The emulated motor receives each duty when
+    # the interrupt has computed it, 40-250 µs after the tick (bench firmware --only control),
+    # not at the tick as the ZOH model says; open-loop runs, whose duty is ready at the tick,
+    # give -0.035 %.  1 % is the emulator's tolerance for open-loop runs as well.
+    assert est.a == pytest.approx(25.0, rel=0.01) and est.b == pytest.approx(3.0, rel=0.01)
