@@ -35,7 +35,8 @@ from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 from .arguments import CommandError
 
-__all__ = ["add_controller_arguments", "controller_from_args", "model_from_args", "load_model_file",
+__all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_args", "model_from_args",
+           "load_model_file", "closed_loop_from_args",
            "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
 
 DEFAULT_REFERENCE = "sine:10,10"
@@ -61,6 +62,27 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
                         f"trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME] (default {DEFAULT_REFERENCE})")
     g.add_argument("--model", default=None, metavar="FILE.json",
                    help="design from this saved estimate instead of --a/--b")
+
+
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``."""
+    m = parser.add_argument_group("model (what the controller is designed from)")
+    m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
+    m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
+    m.add_argument("--friction", type=float, default=0.0, help="Coulomb friction c in rad/s^2 (default 0)")
+    m.add_argument("--bias", type=float, default=0.0, help="constant acceleration d in rad/s^2 (default 0)")
+    m.add_argument("--input-delay", dest="input_delay", type=int, default=0,
+                   help="input delay in samples (default 0)")
+
+
+def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int
+                          ) -> ClosedLoopExperiment:
+    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``."""
+    if not args.model and (args.a is None or args.b is None):
+        raise CommandError("give the model the controller is designed from: --a and --b, or --model FILE.json")
+    args.sample_period, args.counts_per_rev = sample_period, counts_per_rev
+    controller = controller_from_args(args, model_from_args(args))
+    return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
 
 
 def load_model_file(path: str) -> Any:
@@ -172,13 +194,8 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     p = sub.add_parser("design", help="design a controller from a model: gains, poles, predicted response",
                        description="design a controller from a model: gains, poles, predicted response")
-    m = p.add_argument_group("model")
-    m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
-    m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
-    m.add_argument("--friction", type=float, default=0.0, help="Coulomb friction c in rad/s^2 (default 0)")
-    m.add_argument("--bias", type=float, default=0.0, help="constant acceleration d in rad/s^2 (default 0)")
-    m.add_argument("--input-delay", dest="input_delay", type=int, default=0,
-                   help="input delay in samples (default 0)")
+    add_model_arguments(p)
+    m = p.add_argument_group("sampling")
     m.add_argument("--sample-period", dest="sample_period", type=float, default=None,
                    help="controller sample period in s (default: the model file's, else 0.005)")
     m.add_argument("--counts-per-rev", dest="counts_per_rev", type=int, default=DEFAULT_COUNTS_PER_REV,

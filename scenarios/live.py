@@ -7,6 +7,8 @@ to an optional live plot.  After the run the recording is identified with
 ``identify.fit`` (default: ``identify.DEFAULT_METHOD``).
 
 ``--port 'fake://?a=25&b=3'`` runs the emulated Arduino, so this works without a board.
+With ``--controller`` the device runs that controller (designed from ``--a/--b`` or
+``--model``) against ``--reference`` instead of the excitation.
 """
 from __future__ import annotations
 
@@ -39,7 +41,11 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                    help="device stops the motor after this much host silence, in ms (default 500; 0 off)")
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
                    help="give up after the device is silent this long during a run (default 1 s)")
+    parser.set_defaults(counts_per_rev=None)   # default: what the device reports, else 16667
     add_experiment_arguments(parser)
+    from .control import add_controller_arguments, add_model_arguments
+    add_controller_arguments(parser)
+    add_model_arguments(parser)
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator after the run (default {DEFAULT_METHOD})")
@@ -64,10 +70,26 @@ def run_live(args: argparse.Namespace) -> int:
     from hardware.serial_rig import SerialRig
     from identify import fit
     from identify.recursive import RunningEstimator
-    from motorsim.recording import RecordingWriter
+    from motorsim.control import ClosedLoopExperiment
+    from motorsim.recording import RecordingWriter, write_recording
+    from motorsim.rig import Experiment
 
     from .identification import format_estimate
-    experiment = experiment_from_args(args)
+    experiment: Experiment | ClosedLoopExperiment = experiment_from_args(args)
+    rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
+                    watchdog_ms=args.watchdog_ms, timeout=args.timeout)
+    try:
+        rig.open()   # the handshake: the device may report its encoder's counts per revolution
+    except RigError as exc:
+        raise CommandError(str(exc)) from None
+    args.counts_per_rev = rig.counts_per_rev
+    if args.controller:
+        from .control import closed_loop_from_args
+        try:
+            experiment = closed_loop_from_args(args, experiment.sample_period, rig.counts_per_rev)
+        except BaseException:
+            rig.close()
+            raise
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=not args.quiet and experiment.n_samples > 0)
@@ -86,8 +108,7 @@ def run_live(args: argparse.Namespace) -> int:
             plot.add(s, running)
 
     try:
-        with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
-                       watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
+        with rig:
             recording = rig.run(experiment, on_sample=on_sample)
     except RigError as exc:
         progress.close()
@@ -108,6 +129,8 @@ def run_live(args: argparse.Namespace) -> int:
     progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
     progress.close()
     path = writer.close(True, metadata=recording.metadata)
+    if recording.reference is not None and path is not None:
+        write_recording(recording, path)   # again, with the reference column the rows did not carry
     estimate = fit(recording, method=args.method)
     m = recording.metadata
     print(f"wrote {len(recording)} samples to {path}: {m['samples_received']} received of "

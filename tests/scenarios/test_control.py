@@ -56,3 +56,29 @@ def test_demo_closed_loop_part_follows_the_unchanged_open_loop_table(tmp_path, c
     # the article's biased a and b mispredict their own loop by more than 5 %
     assert abs(rows["euler-ls"][4] - 1.0) > 0.05
     assert read_recording(tmp_path / "b" / "closed_loop_oe.csv").metadata["controller"] == "mpc"
+
+
+def test_live_runs_a_controller_on_the_device_and_keeps_the_reference(tmp_path, capsys):
+    out = tmp_path / "live.csv"
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--controller", "pi", "--a", "25", "--b", "3",
+                 "--reference", "step:10,0.1", "--duration", "1", "--out", str(out), "--quiet"]) == 0
+    rec = read_recording(out)
+    assert rec.metadata["controller"] == "pi" and rec.metadata["host_duty_mismatches"] == "0"
+    # the reference is quantised to 1/16 count per sample: 1 / (16 x 13.26) = 0.0047 rad/s
+    assert rec.reference is not None and rec.reference[-1] == pytest.approx(10.0, abs=0.005)
+    assert abs(rec.measured_speed()[-50:].mean() - 10.0) < 0.1   # PI: no steady error (encoder 0.075 rad/s)
+    capsys.readouterr()
+    assert main(["live", "--port", "fake://?speed=0", "--controller", "pi", "--duration", "1",
+                 "--out", str(out), "--quiet"]) == 2
+    assert "give the model the controller is designed from" in capsys.readouterr().err
+
+
+def test_live_takes_counts_per_rev_from_the_device_and_refuses_a_contradiction(tmp_path, capsys):
+    out = tmp_path / "live.csv"
+    port = "fake://?a=25&b=3&speed=0&counts_per_rev=1200"
+    assert main(["live", "--port", port, "--duration", "0.5", "--out", str(out), "--quiet"]) == 0
+    assert read_recording(out).counts_per_rev == 1200
+    capsys.readouterr()
+    assert main(["live", "--port", port, "--counts-per-rev", "16667", "--duration", "0.5", "--out", str(out),
+                 "--quiet"]) == 2
+    assert "counts_per_rev 16667 was given but the device" in capsys.readouterr().err
