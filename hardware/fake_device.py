@@ -15,6 +15,9 @@ What it emulates, as the firmware does it
   computes ``duty_k`` from the WAVE with :func:`hardware.protocol.expand`'s
   integer arithmetic, holds it for one period while the motor is simulated
   exactly (``motorsim.simulate`` over that interval), and queues a SAMPLE.
+- Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
+  ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
+  :class:`motorsim.control.ControlLoop` (the reference the firmware's C step is tested against).
 - A bounded transmit queue: a sample that finds it full is dropped and counted
   (``samples_dropped``, FAULT 2 the first time), never overwritten.
 - Absolute encoder counts from boot; END with the device's counters.
@@ -46,6 +49,7 @@ from typing import Iterator
 import numpy as np
 
 from motorsim.checks import check_bool, check_int, check_real
+from motorsim.control import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, simulate, zoh_matrices
 from motorsim.rig import bench_knobs
@@ -228,6 +232,9 @@ class FakeDevice:
         self._splitter = P.FrameSplitter()
         self._config: P.Config | None = None
         self._wave = None
+        self._control = P.Control(P.ControllerKind.NONE, 0, ())
+        self._reference: P.ReferenceWords | None = None
+        self._loop: ControlLoop | None = None
         self._running = False
         self._link_down = False
         self._silent = False
@@ -320,29 +327,49 @@ class FakeDevice:
             self._send(P.Ack(msg_type, frame_seq) if ok else P.Nak(msg_type, frame_seq, P.NakReason.BAD_VALUE))
 
         if isinstance(msg, P.Hello):
-            self._send(P.HelloAck(self.faults.version, 0x0100, 16_000_000, 1, P.MAX_PAYLOAD, "fake"))
+            self._send(P.HelloAck(self.faults.version, 0x0100, 16_000_000, 1, P.MAX_PAYLOAD, "fake",
+                                  self.encoder.counts_per_rev))
         elif isinstance(msg, P.Config):
             ok = _config_ok(msg)
             if ok:
                 self._config = msg
+                self._control = P.Control(P.ControllerKind.NONE, 0, ())   # CONFIG returns to open loop
             ack_if(ok)
         elif msg_type == P.MsgType.WAVE:
             ok = not P.wave_range_problems(msg)
             if ok:
                 self._wave = msg
             ack_if(ok)
+        elif isinstance(msg, P.Control):
+            ok = not P.control_problems(msg)
+            if ok:
+                self._control = msg
+            ack_if(ok)
+        elif isinstance(msg, P.ReferenceWords):
+            ok = not P.reference_problems(msg)
+            if ok:
+                self._reference = msg
+            ack_if(ok)
         elif isinstance(msg, P.Start):
-            if self._config is None or self._wave is None:
+            closed = self._control.controller != P.ControllerKind.NONE
+            if self._config is None or (self._reference if closed else self._wave) is None:
                 self._send(P.Nak(msg_type, frame_seq, P.NakReason.NOT_CONFIGURED))
             else:
                 self._send(P.Ack(msg_type, frame_seq))
                 self._start_run(self._config, self._wave)
 
-    def _start_run(self, cfg: P.Config, wave: P.Wave) -> None:
+    def _start_run(self, cfg: P.Config, wave: P.Wave | None) -> None:
         if cfg.n_samples > 10**8:
             raise RuntimeError(f"the fake device emulates runs of at most 10**8 samples, got {cfg.n_samples}")
         self._run_config = cfg
-        self._duty_seq = P.expand(wave, cfg.n_samples, cfg.duty_limit)
+        self._loop = None
+        if self._control.controller != P.ControllerKind.NONE and self._reference is not None:
+            c = self._control
+            name = P.controller_name(c.controller)
+            reference = reference_values(self._reference, cfg.n_samples + c.preview)
+            self._loop = ControlLoop(name, gains_from_wire(name, c.gains), c.preview, reference, cfg.duty_limit)
+        elif wave is not None:
+            self._duty_seq = P.expand(wave, cfg.n_samples, cfg.duty_limit)
         self._dt = cfg.sample_period_us * 1e-6
         # the motor coasted with duty 0 since the last run
         idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
@@ -397,7 +424,7 @@ class FakeDevice:
                 self._next_tick += self._dt / self.speed if self.speed else 0.0
                 continue
             counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
-            duty = int(self._duty_seq[k])
+            duty = self._loop.step(k, counts) if self._loop is not None else int(self._duty_seq[k])
             self.duty = duty
             if self._delay_line:
                 self._delay_line.append(duty)
@@ -524,6 +551,8 @@ class FakeDevice:
 def _nak_reason(msg_type: int, payload: bytes) -> int:
     """Why the firmware NAKs a frame whose COBS and CRC are good but whose message is not."""
     known = msg_type in P.MsgType._value2member_map_ and msg_type < 0x40
+    if msg_type == P.MsgType.REFERENCE and payload and payload[0] not in P.ReferenceKind._value2member_map_:
+        return P.NakReason.BAD_VALUE
     if msg_type == P.MsgType.WAVE and payload and (
             payload[0] not in P.WaveKind._value2member_map_
             or (payload[0] == P.WaveKind.MULTISINE and len(payload) >= 4 and not 1 <= payload[3] <= 4)):

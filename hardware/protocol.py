@@ -1,4 +1,4 @@
-"""The bench wire protocol, version 1: pure encode/decode, COBS, CRC, and the device's duty arithmetic.
+"""The bench wire protocol, version 2: pure encode/decode, COBS, CRC, and the device's duty arithmetic.
 
 This module is the executable form of ``hardware/PROTOCOL.md`` (read that first):
 bytes in, values out, no I/O and no clock.  A frame on the wire is
@@ -14,7 +14,10 @@ frozen dataclasses (whose ``__init__`` costs several times more).
 :func:`expand` reproduces the firmware's duty sequence from a decoded WAVE
 (integers only); :func:`wave_for` and :func:`config_for` build the WAVE and
 CONFIG that make a device run a :class:`~motorsim.rig.Experiment`, and
-``expand(wave_for(e), e.n_samples, e.duty_limit) == e.duty()``.
+``expand(wave_for(e), e.n_samples, e.duty_limit) == e.duty()``.  In closed loop
+(version 2) :func:`control_for` and :func:`reference_for` build the CONTROL and
+REFERENCE of a :class:`~motorsim.control.ClosedLoopExperiment`; the device then runs
+the controller's integer step, :class:`motorsim.control.ControlLoop`, on its counts.
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ from typing import Any, NamedTuple, Union
 import numpy as np
 
 from motorsim.checks import check_int
+from motorsim.control import MAX_REFERENCE, ClosedLoopExperiment, ReferenceWords, gains_from_wire
 from motorsim.excitation import (
     MAX_AMPLITUDE,
     MAX_COMPONENTS,
@@ -50,11 +54,13 @@ __all__ = [
     "WavePrbs", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
     "decode_frame", "encode_message", "decode_message", "FrameReader", "expand", "wave_for",
     "config_for", "check_version", "msg_type_of", "wave_range_problems", "FrameSplitter", "FrameError",
+    "Control", "ControllerKind", "ReferenceKind", "ReferenceWords", "control_for", "reference_for",
+    "control_problems", "reference_problems", "controller_name", "MAX_GAINS",
     "ProtocolError", "ProtocolVersionError",
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 #: Longest payload of any frame, bytes.
 MAX_PAYLOAD = 60
 #: Longest encoded frame (without its delimiter) a receiver accepts, bytes.
@@ -71,6 +77,8 @@ class MsgType(enum.IntEnum):
     START = 0x04
     STOP = 0x05
     HEARTBEAT = 0x06
+    CONTROL = 0x07
+    REFERENCE = 0x08
     HELLO_ACK = 0x81
     ACK = 0x82
     NAK = 0x83
@@ -117,6 +125,33 @@ class WaveKind(enum.IntEnum):
     PRBS = 4
 
 
+class ControllerKind(enum.IntEnum):
+    """CONTROL ``controller``: 0 runs the WAVE (open loop), the others a controller of :mod:`motorsim.control`."""
+
+    NONE = 0
+    MPC = 1
+    PI = 2
+    POSITION = 3
+    FEEDFORWARD = 4
+
+
+class ReferenceKind(enum.IntEnum):
+    """REFERENCE ``kind``."""
+
+    CONSTANT = 0
+    STEP = 1
+    MULTISINE = 2
+    TRAPEZOID = 3
+
+
+#: Most gains in one CONTROL (its payload: 3 + 4 n bytes).
+MAX_GAINS = 14
+_KIND_NAMES = {ControllerKind.MPC: "mpc", ControllerKind.PI: "pi", ControllerKind.POSITION: "position",
+               ControllerKind.FEEDFORWARD: "feedforward"}
+_REFERENCE_NAMES = {ReferenceKind.CONSTANT: "constant", ReferenceKind.STEP: "step",
+                    ReferenceKind.MULTISINE: "multisine", ReferenceKind.TRAPEZOID: "trapezoid"}
+
+
 class SampleFlag(enum.IntFlag):
     """SAMPLE ``flags`` bits."""
 
@@ -156,7 +191,7 @@ class Heartbeat(NamedTuple):
 
 class HelloAck(NamedTuple):
     """HELLO_ACK (0x81): the device's protocol and firmware versions, clock (Hz), MCUSR at boot,
-    max payload, board name."""
+    max payload, board name, encoder counts per revolution (0: not known to the device)."""
 
     version: int
     firmware_version: int
@@ -164,6 +199,16 @@ class HelloAck(NamedTuple):
     reset_cause: int
     max_payload: int
     board: str
+    counts_per_rev: int = 0
+
+
+class Control(NamedTuple):
+    """CONTROL (0x07): a :class:`ControllerKind`, the reference preview in samples, the Q16 gains
+    in the order of :data:`motorsim.control.GAIN_ORDER`."""
+
+    controller: int
+    preview: int
+    gains: tuple
 
 
 class Ack(NamedTuple):
@@ -264,7 +309,8 @@ class WavePrbs(NamedTuple):
 
 Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs]
 _WAVE_TYPES = (WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs)
-Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave]
+Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave, Control,
+                ReferenceWords]
 
 # type -> (class, struct) for the fixed-length messages
 _FIXED: dict[int, tuple[Any, struct.Struct]] = {
@@ -273,7 +319,7 @@ _FIXED: dict[int, tuple[Any, struct.Struct]] = {
     MsgType.START: (Start, struct.Struct("<")),
     MsgType.STOP: (Stop, struct.Struct("<")),
     MsgType.HEARTBEAT: (Heartbeat, struct.Struct("<")),
-    MsgType.HELLO_ACK: (HelloAck, struct.Struct("<BHIBB8s")),
+    MsgType.HELLO_ACK: (HelloAck, struct.Struct("<BHIBB8sI")),
     MsgType.ACK: (Ack, struct.Struct("<BB")),
     MsgType.NAK: (Nak, struct.Struct("<BBB")),
     MsgType.SAMPLE: (Sample, struct.Struct("<IIihB")),
@@ -294,6 +340,14 @@ _WAVE_FIXED: dict[int, tuple[Any, struct.Struct]] = {
 _PRBS_WIRE = (1, 0, 2, 4, 3)
 _MS_HEAD = struct.Struct("<hB")
 _MS_COMPONENT = struct.Struct("<hII")
+_CONTROL_HEAD = struct.Struct("<BBB")
+_REFERENCE_FIXED: dict[int, struct.Struct] = {
+    ReferenceKind.CONSTANT: struct.Struct("<i"),
+    ReferenceKind.STEP: struct.Struct("<iiI"),
+    ReferenceKind.TRAPEZOID: struct.Struct("<iIII"),
+}
+_REF_MS_HEAD = struct.Struct("<iB")
+_REF_MS_COMPONENT = struct.Struct("<iII")
 _SAMPLE_STRUCT = _FIXED[MsgType.SAMPLE][1]
 _SAMPLE_BODY = 2 + _SAMPLE_STRUCT.size + 2
 
@@ -399,6 +453,10 @@ def msg_type_of(msg: Message) -> MsgType:
     cls = type(msg)
     if cls in _WAVE_KIND:
         return MsgType.WAVE
+    if cls is Control:
+        return MsgType.CONTROL
+    if cls is ReferenceWords:
+        return MsgType.REFERENCE
     if cls not in _TYPE_OF:
         raise TypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), got {cls.__name__}")
     return MsgType(_TYPE_OF[cls])
@@ -409,13 +467,17 @@ def encode_message(msg: Message, frame_seq: int) -> bytes:
     t = msg_type_of(msg)
     if isinstance(msg, _WAVE_TYPES):
         return encode_frame(MsgType.WAVE, frame_seq, _wave_payload(msg))
+    if isinstance(msg, Control):
+        return encode_frame(t, frame_seq, _control_payload(msg))
+    if isinstance(msg, ReferenceWords):
+        return encode_frame(t, frame_seq, _reference_payload(msg))
     cls = type(msg)
     fields = tuple(msg)
     if isinstance(msg, HelloAck):
         board = msg.board.encode("ascii")
         if len(board) > 8:
             raise ValueError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
-        fields = fields[:-1] + (board.ljust(8, b"\x00"),)
+        fields = fields[:5] + (board.ljust(8, b"\x00"),) + fields[6:]
     try:
         payload = _FIXED[t][1].pack(*fields)
     except struct.error as exc:
@@ -440,6 +502,70 @@ def _wave_payload(wave: Wave) -> bytes:
         raise ValueError(f"{type(wave).__name__} field out of range: {exc} (got {wave!r})") from None
 
 
+def _control_payload(msg: Control) -> bytes:
+    gains = tuple(msg.gains)
+    if len(gains) > MAX_GAINS:
+        raise ValueError(f"gains must hold at most {MAX_GAINS} entries, got {len(gains)}")
+    try:
+        return _CONTROL_HEAD.pack(msg.controller, msg.preview, len(gains)) + struct.pack(f"<{len(gains)}i", *gains)
+    except struct.error as exc:
+        raise ValueError(f"Control field out of range: {exc} (got {msg!r})") from None
+
+
+def _reference_payload(words: ReferenceWords) -> bytes:
+    kinds = {name: kind for kind, name in _REFERENCE_NAMES.items()}
+    if words.kind not in kinds:
+        raise ValueError(f"reference kind must be one of {', '.join(kinds)}, got {words.kind!r}")
+    kind = kinds[words.kind]
+    try:
+        if kind == ReferenceKind.MULTISINE:
+            comps = tuple(words.components)
+            if not 1 <= len(comps) <= MAX_COMPONENTS:
+                raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
+            return (bytes((kind,)) + _REF_MS_HEAD.pack(words.level, len(comps))
+                    + b"".join(_REF_MS_COMPONENT.pack(*c) for c in comps))
+        fields = {ReferenceKind.CONSTANT: (words.level,), ReferenceKind.STEP: (words.before, words.level, words.start),
+                  ReferenceKind.TRAPEZOID: (words.level, words.start, words.ramp, words.hold)}[kind]
+        return bytes((kind,)) + _REFERENCE_FIXED[kind].pack(*fields)
+    except struct.error as exc:
+        raise ValueError(f"REFERENCE field out of range: {exc} (got {words!r})") from None
+
+
+def _decode_control(payload: bytes) -> Control:
+    if len(payload) < _CONTROL_HEAD.size:
+        raise FrameError(f"CONTROL payload must be 3 + 4 n bytes, got {len(payload)}")
+    controller, preview, n = _CONTROL_HEAD.unpack_from(payload)
+    if len(payload) != _CONTROL_HEAD.size + 4 * n:
+        raise FrameError(f"CONTROL with n = {n} must be {_CONTROL_HEAD.size + 4 * n} bytes, got {len(payload)}")
+    return Control(controller, preview, struct.unpack_from(f"<{n}i", payload, _CONTROL_HEAD.size))
+
+
+def _decode_reference(payload: bytes) -> ReferenceWords:
+    if not payload:
+        raise FrameError("REFERENCE payload must hold at least the kind byte, got 0 bytes")
+    kind, rest = payload[0], payload[1:]
+    if kind == ReferenceKind.MULTISINE:
+        n = rest[4] if len(rest) >= _REF_MS_HEAD.size else -1
+        if not 1 <= n <= MAX_COMPONENTS or len(rest) != _REF_MS_HEAD.size + n * _REF_MS_COMPONENT.size:
+            raise FrameError(f"REFERENCE multisine must be 5 + 12 n bytes after the kind with n in "
+                             f"1...{MAX_COMPONENTS}, got {len(rest)} bytes")
+        level, _ = _REF_MS_HEAD.unpack_from(rest)
+        comps = tuple(_REF_MS_COMPONENT.unpack_from(rest, _REF_MS_HEAD.size + j * _REF_MS_COMPONENT.size)
+                      for j in range(n))
+        return ReferenceWords("multisine", level, components=comps)
+    st = _REFERENCE_FIXED.get(kind)
+    if st is None:
+        raise FrameError(f"unknown REFERENCE kind {kind}")
+    if len(rest) != st.size:
+        raise FrameError(f"REFERENCE kind {kind} must have {st.size} bytes after the kind, got {len(rest)}")
+    f = st.unpack(rest)
+    if kind == ReferenceKind.CONSTANT:
+        return ReferenceWords("constant", f[0])
+    if kind == ReferenceKind.STEP:
+        return ReferenceWords("step", f[1], f[0], f[2])
+    return ReferenceWords("trapezoid", f[0], 0, f[1], f[2], f[3])
+
+
 def decode_message(msg_type: int, payload: bytes) -> Message:
     """The message of a decoded frame.
 
@@ -452,13 +578,17 @@ def decode_message(msg_type: int, payload: bytes) -> Message:
     if entry is None:
         if msg_type == MsgType.WAVE:
             return _decode_wave(payload)
+        if msg_type == MsgType.CONTROL:
+            return _decode_control(payload)
+        if msg_type == MsgType.REFERENCE:
+            return _decode_reference(payload)
         raise FrameError(f"unknown frame type {msg_type:#04x}")
     cls, st = entry
     if len(payload) != st.size:
         raise FrameError(f"{cls.__name__} payload must be {st.size} bytes, got {len(payload)}")
     fields = st.unpack(payload)
     if cls is HelloAck:
-        fields = fields[:-1] + (fields[-1].rstrip(b"\x00").decode("ascii", "replace"),)
+        fields = fields[:5] + (fields[5].rstrip(b"\x00").decode("ascii", "replace"),) + fields[6:]
     return cls._make(fields)
 
 
@@ -672,7 +802,58 @@ def wave_for(experiment: Experiment) -> Wave:
                      f"chirp, prbs), got {type(ex).__name__}")
 
 
-def config_for(experiment: Experiment, *, decoding: int = 4, watchdog_ms: int = 500) -> Config:
+def control_for(experiment: ClosedLoopExperiment) -> Control:
+    """The CONTROL that makes a device run ``experiment``'s controller (its gains in wire order)."""
+    if not isinstance(experiment, ClosedLoopExperiment):
+        raise TypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
+    c = experiment.controller
+    kinds = {name: kind for kind, name in _KIND_NAMES.items()}
+    gains = c.gains()
+    return Control(kinds[c.kind], c.preview, tuple(gains.values()))
+
+
+def reference_for(experiment: ClosedLoopExperiment) -> ReferenceWords:
+    """The REFERENCE of ``experiment``: its reference's integer words in the controller's unit."""
+    if not isinstance(experiment, ClosedLoopExperiment):
+        raise TypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
+    c = experiment.controller
+    return experiment.reference.words(experiment.sample_period, c.reference_scale)
+
+
+def control_problems(msg: Control) -> list[str]:
+    """Problems a device would NAK with BAD_VALUE in a CONTROL (unknown controller, gain count, preview)."""
+    if msg.controller == ControllerKind.NONE:
+        return [] if not msg.gains else [f"controller 0 (none) takes no gains, got {len(msg.gains)}"]
+    if msg.controller not in _KIND_NAMES:
+        return [f"controller must be in 0...{max(_KIND_NAMES)}, got {msg.controller}"]
+    bad = []
+    try:
+        gains_from_wire(_KIND_NAMES[ControllerKind(msg.controller)], msg.gains)
+    except ValueError as exc:
+        bad.append(str(exc))
+    if msg.preview > MAX_GAINS:
+        bad.append(f"preview must be <= {MAX_GAINS} samples, got {msg.preview}")
+    return bad
+
+
+def reference_problems(words: ReferenceWords) -> list[str]:
+    """Problems a device would NAK with BAD_VALUE in a REFERENCE (values beyond +-65535, ramp 0)."""
+    values = [words.level, words.before] + [c[0] for c in words.components]
+    bad = [f"reference values must satisfy |x| <= {MAX_REFERENCE}, got {x}" for x in values if abs(x) > MAX_REFERENCE]
+    if sum(abs(c[0]) for c in words.components) > MAX_REFERENCE:
+        bad.append(f"reference amplitudes must sum to at most {MAX_REFERENCE}")
+    if words.kind == "trapezoid" and words.ramp < 1:
+        bad.append(f"ramp must be >= 1 sample, got {words.ramp}")
+    return bad
+
+
+def controller_name(kind: int) -> str:
+    """The :data:`motorsim.control.CONTROLLERS` name of CONTROL ``controller`` ``kind`` (1...4)."""
+    return _KIND_NAMES[ControllerKind(kind)]
+
+
+def config_for(experiment: Experiment | ClosedLoopExperiment, *, decoding: int = 4,
+               watchdog_ms: int = 500) -> Config:
     """The CONFIG of ``experiment`` (sample period rounded to whole µs, which must be exact to 1 ns).
 
     Parameters
@@ -684,7 +865,7 @@ def config_for(experiment: Experiment, *, decoding: int = 4, watchdog_ms: int = 
     watchdog_ms : int
         Host-silence watchdog in ms; 0 disables it, else 50...60 000.
     """
-    if not isinstance(experiment, Experiment):
+    if not isinstance(experiment, (Experiment, ClosedLoopExperiment)):
         raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
     period_us = round(experiment.sample_period * 1e6)
     if abs(period_us * 1e-6 - experiment.sample_period) > 1e-9 or not 100 <= period_us <= 1_000_000:

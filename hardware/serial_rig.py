@@ -11,7 +11,9 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   received) and ``loss_fraction``, with the link's ``host_link_frames_lost`` and
   ``host_rx_errors`` (frames with a bad CRC or COBS) and END's ``device_*`` counters;
 - every SAMPLE's duty is checked against :func:`hardware.protocol.expand` of the
-  WAVE sent, and END's counters against what arrived (:class:`RigCheckError`);
+  WAVE sent (in closed loop: against the controller's integer step run here on the
+  counts received, until the first lost sample), and END's counters against what
+  arrived (:class:`RigCheckError`);
 - the device going silent or never advancing ``seq`` for ``timeout`` s, or the run
   passing its deadline (duration + :func:`run_margin`) (:class:`RigTimeoutError`), the port failing
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
@@ -33,6 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from motorsim.checks import check_int, check_real
+from motorsim.control import ClosedLoopExperiment
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -84,8 +87,9 @@ class SerialRig:
         pyserial-compatible object (``read``, ``write``, ``in_waiting``), which is not closed.
     baudrate : int
         Line rate, default 250 000 (115 200 is the safe choice at <= 250 Hz).
-    counts_per_rev : int
-        Encoder counts per revolution after decoding (the device does not know it).
+    counts_per_rev : int, optional
+        Encoder counts per revolution after decoding.  Default: what the device reports in
+        HELLO_ACK, else 16667; a value given here that differs from the device's is an error.
     decoding : {1, 2, 4}
         Quadrature decoding the device applies.
     watchdog_ms : int
@@ -110,7 +114,7 @@ class SerialRig:
     (100, 'true', [0.0, 10.0, 20.0, 30.0], False)
     """
 
-    def __init__(self, port, baudrate: int = 250_000, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+    def __init__(self, port, baudrate: int = 250_000, *, counts_per_rev: int | None = None,
                  decoding: int = 4, watchdog_ms: int = 500, timeout: float = 1.0, hello_timeout: float = 5.0,
                  command_timeout: float = 0.5):
         if isinstance(port, str):
@@ -119,7 +123,8 @@ class SerialRig:
         elif not all(hasattr(port, a) for a in ("read", "write")):
             raise TypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
         baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
-        counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
+        if counts_per_rev is not None:
+            counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
             raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
         if not (watchdog_ms == 0 or (isinstance(watchdog_ms, int) and 50 <= watchdog_ms <= 60_000)):
@@ -129,7 +134,8 @@ class SerialRig:
             check_real(name, value, positive=True)
         self.port = port
         self.baudrate = baudrate
-        self.counts_per_rev = counts_per_rev
+        self.requested_counts_per_rev = counts_per_rev
+        self.counts_per_rev = counts_per_rev or DEFAULT_COUNTS_PER_REV
         self.decoding = decoding
         self.watchdog_ms = watchdog_ms
         self.timeout = float(timeout)
@@ -232,6 +238,7 @@ class SerialRig:
             for i, msg in enumerate(msgs):
                 if isinstance(msg, P.HelloAck):
                     P.check_version(msg.version)
+                    self._adopt_counts_per_rev(msg.counts_per_rev)
                     self.device = msg
                     self._backlog = msgs[i + 1:]
                     return
@@ -243,6 +250,16 @@ class SerialRig:
                     f"the device on {self.port_name} never answered HELLO ({sent} sent over "
                     f"{self.hello_timeout:g} s): check the port, the baud rate ({self.baudrate}) and that "
                     f"the motorid firmware (protocol version {P.PROTOCOL_VERSION}) is flashed")
+
+    def _adopt_counts_per_rev(self, reported: int) -> None:
+        """Use the encoder resolution the device reports (0: it does not know), refusing a contradiction."""
+        if not reported:
+            return
+        requested = self.requested_counts_per_rev
+        if requested is not None and requested != reported:
+            raise ValueError(f"counts_per_rev {requested} was given but the device on {self.port_name} reports "
+                             f"{reported} counts per revolution; drop --counts-per-rev or fix the device's setting")
+        self.counts_per_rev = reported
 
     def _command(self, msg) -> None:
         """Send ``msg`` until ACKed (3 tries, ``command_timeout`` each); NAK raises.
@@ -328,14 +345,16 @@ class SerialRig:
         """Fraction of the line the SAMPLE frames take at ``sample_period`` s (21 bytes, 8N1 = 210 bits each)."""
         return _SAMPLE_BITS / sample_period / self.baudrate
 
-    def run(self, experiment: Experiment, *, on_sample: Callable[[RecordedSample], None] | None = None
-            ) -> Recording:
+    def run(self, experiment: Experiment | ClosedLoopExperiment, *,
+            on_sample: Callable[[RecordedSample], None] | None = None) -> Recording:
         """Run ``experiment`` on the device and return its recording.
 
         Parameters
         ----------
-        experiment : Experiment
-            What to run; its sample period must be a whole number of µs (100 µs...1 s).
+        experiment : Experiment or ClosedLoopExperiment
+            What to run; its sample period must be a whole number of µs (100 µs...1 s).  In
+            closed loop the device runs the controller (CONTROL, REFERENCE) and the recording
+            gains the ``reference`` column.
         on_sample : callable, optional
             Called with each :class:`RecordedSample` as it arrives (incremental recording,
             running estimates, progress); an exception in it ends the run (STOP is sent).
@@ -347,7 +366,7 @@ class SerialRig:
             device's clock from the run's start; metadata hold the device's END counters
             (``device_*``), the host's (``host_*``) and ``complete: true``.
         """
-        if not isinstance(experiment, Experiment):
+        if not isinstance(experiment, (Experiment, ClosedLoopExperiment)):
             raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         load = self.line_load(experiment.sample_period)
         if load > 1:
@@ -356,14 +375,23 @@ class SerialRig:
                              f"than baudrate {self.baudrate}; use a longer sample period or a faster line "
                              f"(250 000 baud up to 500 Hz, 500 000 at 1 kHz)")
         config = P.config_for(experiment, decoding=self.decoding, watchdog_ms=self.watchdog_ms)
-        wave = P.wave_for(experiment)
-        expected = experiment.duty()
+        setup: list = []
+        if isinstance(experiment, ClosedLoopExperiment):
+            setup = [P.control_for(experiment), P.reference_for(experiment)]
+        else:
+            setup = [P.wave_for(experiment)]
         self.open()
-        run = _RunState(experiment, expected, self)
+        if isinstance(experiment, ClosedLoopExperiment):
+            designed = experiment.controller.model.counts_per_rev
+            if designed != self.counts_per_rev:
+                raise ValueError(f"the controller was designed for {designed} counts per revolution, "
+                                 f"the rig on {self.port_name} has {self.counts_per_rev}")
+        run = _RunState(experiment, self)
         started = ended = False
         try:
             self._command(config)
-            self._command(wave)
+            for msg in setup:
+                self._command(msg)
             run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
@@ -464,10 +492,18 @@ class _Heartbeats:
 class _RunState:
     """What one run has received (private to SerialRig.run)."""
 
-    def __init__(self, experiment: Experiment, expected: np.ndarray, rig: "SerialRig"):
+    def __init__(self, experiment: Experiment | ClosedLoopExperiment, rig: "SerialRig"):
         self._rig = rig
         self.experiment = experiment
-        self.expected = expected
+        self.loop = None
+        self.reference = None
+        if isinstance(experiment, ClosedLoopExperiment):
+            self.loop = experiment.controller.start(experiment.reference_samples(), experiment.duty_limit)
+            self.reference = experiment.reference_values()
+            self.expected = np.zeros(experiment.n_samples, dtype=np.int64)   # filled as counts arrive
+        else:
+            self.expected = experiment.duty()
+        self.unverified = 0
         self.dt = experiment.sample_period
         self.seq: list[int] = []
         self.time: list[float] = []
@@ -516,6 +552,12 @@ class _RunState:
                     self._unwrapped += (msg.time_us - self._prev_us) & 0xFFFFFFFF
                     self._prev_us = msg.time_us
                     t = self._t_offset + self._unwrapped * 1e-6
+                if self.loop is not None:
+                    if k == self.last_index + 1 and not self.unverified:
+                        self.expected[k] = self.loop.step(k, msg.counts)
+                    else:   # after a lost sample the host no longer knows the controller's state
+                        self.unverified += 1
+                        self.expected[k] = msg.duty
                 if msg.duty != self.expected[k]:
                     if not self.duty_mismatches:
                         self.first_mismatch = f"sample {k}: device applied {msg.duty}, expected {self.expected[k]}"
@@ -561,7 +603,7 @@ class _RunState:
         """END ``e`` against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
         problems = []
         if self.duty_mismatches:
-            problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's "
+            problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's (or the controller's) "
                             f"(first: {self.first_mismatch})")
         if self.out_of_order:
             problems.append(f"{self.out_of_order} samples arrived out of order or beyond n_samples")
@@ -604,7 +646,8 @@ class _RunState:
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
         meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
-                    host_duty_mismatches=str(self.duty_mismatches), flagged_encoder_errors=str(self.encoder_flags),
+                    host_duty_mismatches=str(self.duty_mismatches), host_unverified_duties=str(self.unverified),
+                    flagged_encoder_errors=str(self.encoder_flags),
                     flagged_late_ticks=str(self.late_flags))
         if self.end is not None:
             e = self.end
@@ -619,4 +662,6 @@ class _RunState:
         return Recording(time=np.array(self.time[:n]), duty=np.array(self.duty[:n], dtype=np.int64),
                          sample_period=self.dt, counts=np.array(self.counts[:n], dtype=np.int64),
                          seq=np.array(self.seq[:n], dtype=np.int64), counts_per_rev=rig.counts_per_rev,
-                         metadata=meta)
+                         metadata=meta,
+                         reference=None if self.reference is None
+                         else self.reference[np.array(self.seq[:n], dtype=int)])

@@ -15,6 +15,7 @@ _WHERE = {
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
     "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",
     "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",
+    "fit_reference_iv": "closed_loop",
     "design_sine": "design", "predicted_stderr": "design", "DesignPoint": "design", "SineDesign": "design",
     "fit_percent": "validation", "nrmse_fit": "validation", "simulated_speed": "validation",
     "ValidationReport": "validation", "validate": "validation",

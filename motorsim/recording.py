@@ -33,6 +33,10 @@ its median interval per ``seq`` step must be within :data:`TIME_BASE_TOLERANCE` 
 Only a regular file of at most :data:`MAX_RECORDING_BYTES` is read; a byte-order mark, a
 NUL byte, a cell with ``_`` digit separators, a count beyond 64 bits and a torn last line
 (no final newline) are refused, each with its own message.
+A closed-loop run adds
+``reference``: what the controller tracked at ``time_s[k]``, in the unit named by the
+metadata ``reference_unit`` (``rad/s`` for a speed controller, ``rad`` of angle since
+the first sample for a position controller).
 """
 from __future__ import annotations
 
@@ -61,7 +65,7 @@ __all__ = ["Recording", "RecordingFormatError", "read_recording", "write_recordi
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
-COLUMNS = ("seq", "time_s", "duty", "counts", "angle_rad", "speed_rad_s")
+COLUMNS = ("seq", "time_s", "duty", "counts", "angle_rad", "speed_rad_s", "reference")
 _ALIASES = {"dt": "sample_period", "ppr": "counts_per_rev"}
 _INT_COLUMNS = ("seq", "counts")
 #: Largest relative disagreement allowed between the median interval of ``time_s`` (per step
@@ -167,6 +171,8 @@ class Recording:
         Encoder counts per revolution.
     metadata : mapping of str to str, optional
         Free-form ``key: value`` pairs (``input_unit``, ``source``, ...).
+    reference : array_like, optional
+        What a controller tracked at ``time[k]`` (closed-loop runs; unit in metadata ``reference_unit``).
 
     Examples
     --------
@@ -187,15 +193,18 @@ class Recording:
     seq: np.ndarray
     counts_per_rev: int | None
     metadata: Mapping[str, str]
+    reference: np.ndarray | None
 
     def __init__(self, time: ArrayLike, duty: ArrayLike, sample_period: float, counts: ArrayLike | None = None,
                  angle: ArrayLike | None = None, speed: ArrayLike | None = None, seq: ArrayLike | None = None,
-                 counts_per_rev: int | None = None, metadata: Mapping[str, str] | None = None):
+                 counts_per_rev: int | None = None, metadata: Mapping[str, str] | None = None,
+                 reference: ArrayLike | None = None):
         t = _as_array("time", time, float)
         n = len(t)
         columns = {"time": t, "duty": _as_array("duty", duty, float, n),
                    "angle": _optional_array("angle", angle, n), "speed": _optional_array("speed", speed, n),
-                   "counts": _integer_array("counts", counts, n)}
+                   "counts": _integer_array("counts", counts, n),
+                   "reference": _optional_array("reference", reference, n)}
         seq_array = _integer_array("seq", seq, n)
         if seq_array is None:
             seq_array = np.arange(n, dtype=np.int64)
@@ -210,7 +219,7 @@ class Recording:
                 raise ValueError("counts_per_rev must be a positive integer when counts are given, got None")
             counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         object.__setattr__(self, "counts_per_rev", counts_per_rev)
-        for name in ("time", "duty", "angle", "speed"):
+        for name in ("time", "duty", "angle", "speed", "reference"):
             _check_finite(name, columns[name])
         _check_increasing(t, seq_array)
         _check_time_base(t, seq_array, self.sample_period)
@@ -300,7 +309,8 @@ class Recording:
         def cut(x):
             return None if x is None else x[start:stop]
         return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
-                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
+                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq),
+                                   reference=cut(self.reference))
 
     def implausible_samples(self) -> list[ImplausibleSample]:
         """Rows no motor can produce: a speed or time step far beyond the rest of the run.
@@ -362,18 +372,19 @@ def _metadata_lines(rec: Recording) -> list[str]:
 
 def _columns(rec: Recording) -> list[str]:
     cols = ["seq", "time_s", "duty"]
-    optional = (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed))
+    optional = (("counts", rec.counts), ("angle_rad", rec.angle), ("speed_rad_s", rec.speed),
+                ("reference", rec.reference))
     cols += [c for c, v in optional if v is not None]
     return cols
 
 
 def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | None = None) -> Iterable[str]:
     columns = {"seq": rec.seq, "time_s": rec.time, "duty": rec.duty, "counts": rec.counts,
-               "angle_rad": rec.angle, "speed_rad_s": rec.speed}
+               "angle_rad": rec.angle, "speed_rad_s": rec.speed, "reference": rec.reference}
     data = {c: arr for c, arr in columns.items() if arr is not None}
     integral_duty = bool(np.all(rec.duty == np.round(rec.duty)))
     fmt = {"seq": lambda x: str(int(x)), "counts": lambda x: str(int(x)),
-           "time_s": repr, "angle_rad": repr, "speed_rad_s": repr,
+           "time_s": repr, "angle_rad": repr, "speed_rad_s": repr, "reference": repr,
            "duty": (lambda x: str(int(x))) if integral_duty else repr}
     stop = len(rec) if stop is None else stop
     for k in range(start, stop):
@@ -852,7 +863,7 @@ def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
         rec = Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
                         counts=values.get("counts"), angle=values.get("angle_rad"),
                         speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                        metadata=extra)
+                        metadata=extra, reference=values.get("reference"))
     except (ValueError, TypeError) as exc:
         raise RecordingFormatError(f"{name}: {exc}") from None
     if check_samples:

@@ -1,21 +1,25 @@
 """One interface for the simulator and the bench: ``Rig.run(experiment) -> Recording``.
 
 An :class:`Experiment` says what to do (excitation, sample period, duration, duty
-limit); a rig does it and returns a :class:`~motorsim.recording.Recording`.
+limit); a rig does it and returns a :class:`~motorsim.recording.Recording`.  A
+:class:`~motorsim.control.ClosedLoopExperiment` runs a controller instead of an
+excitation: the duty is computed at each sample from the counts just read.
 :class:`SimRig` is the simulated bench; ``hardware.SerialRig`` is the Arduino one.
 Nothing here is simulation-specific except :class:`SimRig` itself.
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .checks import check_int, check_real
+from .control import ClosedLoopExperiment, ControlLoop
 from .excitation import DUTY_LIMIT, Excitation
 from .knobs import Knob, knob, knobs_of
-from .plant import Motor, simulate
+from .plant import Motor, simulate, zoh_matrices
 from .recording import Recording
 from .sensors import Encoder
 
@@ -74,7 +78,7 @@ class Experiment:
 class Rig(Protocol):
     """Anything that runs an :class:`Experiment` and returns its :class:`Recording`."""
 
-    def run(self, experiment: Experiment) -> Recording:
+    def run(self, experiment: Experiment | ClosedLoopExperiment) -> Recording:
         ...
 
 
@@ -132,13 +136,14 @@ class SimRig:
             raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
                             f"got {self.rng!r}")
 
-    def run(self, experiment: Experiment) -> Recording:
+    def run(self, experiment: Experiment | ClosedLoopExperiment) -> Recording:
         """Simulate ``experiment`` and return what the bench would record.
 
         Parameters
         ----------
-        experiment : Experiment
-            What to run.
+        experiment : Experiment or ClosedLoopExperiment
+            What to run; in closed loop the controller's integer step computes each duty
+            from the counts read at that sample, and the recording gains the ``reference`` column.
 
         Examples
         --------
@@ -147,6 +152,8 @@ class SimRig:
         >>> len(rec), rec.counts[:5].tolist(), rec.metadata["true_a"]
         (200, [0, 0, 0, 4, 12], '25.0')
         """
+        if isinstance(experiment, ClosedLoopExperiment):
+            return self._run_closed_loop(experiment)
         if not isinstance(experiment, Experiment):
             raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         n, dt = experiment.n_samples, experiment.sample_period
@@ -161,6 +168,57 @@ class SimRig:
         speed = traj.speed[keep] if self.record_speed else None
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
                          speed=speed, seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
+
+    def _run_closed_loop(self, experiment: ClosedLoopExperiment) -> Recording:
+        """The closed-loop run: encoder, controller step and exact plant interval, sample by sample."""
+        n, dt = experiment.n_samples, experiment.sample_period
+        time = jittered_times(n, dt, self.jitter, self.rng)
+        noise = np.zeros(n)
+        if self.encoder.angle_noise > 0 and self.rng is not None:
+            noise = self.rng.normal(0.0, self.encoder.angle_noise, n)
+        loop = experiment.controller.start(experiment.reference_samples(), experiment.duty_limit)
+        duty, counts, speed = _closed_loop(self.motor, self.encoder, loop, time, noise, self.initial_speed)
+        keep = kept_samples(n, self.drop_rate, self.rng)
+        k = np.arange(n)
+        meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
+                **recorded_knobs(self.encoder), **recorded_knobs(self)}
+        return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
+                         speed=speed[keep] if self.record_speed else None, seq=k[keep],
+                         counts_per_rev=self.encoder.counts_per_rev, metadata=meta,
+                         reference=experiment.reference_values()[keep])
+
+
+def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.ndarray, noise: np.ndarray,
+                 initial_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Duty, counts and true speed of a closed-loop run (the plant's intervals are exact ZOH)."""
+    n = len(time)
+    h = np.diff(time)
+    duty = np.zeros(n, dtype=np.int64)
+    counts = np.zeros(n, dtype=np.int64)
+    speed = np.zeros(n)
+    scale, offset = encoder.counts_per_rev / (2.0 * math.pi), encoder.count_offset
+    pending = [0] * motor.input_delay
+    e, g, p, q = (x.tolist() for x in zoh_matrices(motor.a, motor.b, h))
+    bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
+    linear, dead_zone = motor.friction == 0, motor.dead_zone
+    w, th = float(initial_speed), 0.0
+    for k in range(n):
+        counts[k] = c = math.floor((th + noise[k]) * scale) + offset
+        speed[k] = w
+        duty[k] = u = loop.step(k, c)
+        if k == n - 1:
+            break
+        pending.append(u)
+        v = float(pending.pop(0))
+        if dead_zone and v:  # Motor.drive, on one sample
+            v = 0.0 if abs(v) <= dead_zone else v - math.copysign(dead_zone, v)
+        if linear:
+            v += motor.bias / motor.b
+            w, th = e[k] * w + g[k] * v, th + p[k] * w + q[k] * v
+        else:
+            traj = simulate(bare, [v, v], [0.0, h[k]], initial_speed=w, initial_angle=th)
+            w, th = float(traj.speed[1]), float(traj.angle[1])
+    return duty, counts, speed
 
 
 def motor_metadata(motor: Motor) -> dict[str, str]:

@@ -82,6 +82,11 @@ def _live() -> tuple[AddArguments, Run]:
     return live.add_live_arguments, live.run_live
 
 
+def _control() -> tuple[AddArguments, Run]:
+    from . import control
+    return control.add_control_arguments, control.run_control
+
+
 COMMANDS: dict[str, Command] = {
     "simulate": Command("simulate the bench and write a recording (format v1)", _simulate),
     "identify": Command("identify a and b from recordings", _identify),
@@ -91,6 +96,7 @@ COMMANDS: dict[str, Command] = {
     "sweep": Command("sweep scenarios: grid x estimators x Monte Carlo repetitions", _sweep),
     "design": Command("recommend the sine that minimises the Cramér-Rao bound of a and b", _design),
     "live": Command("run an experiment on the bench (or 'fake://'), record it live, identify", _live),
+    "control": Command("design a controller from a model and predict its closed-loop response", _control),
 }
 
 

@@ -7,6 +7,8 @@ to an optional live plot.  After the run the recording is identified with
 ``identify.fit`` (default: ``identify.DEFAULT_METHOD``).
 
 ``--port 'fake://?a=25&b=3'`` runs the emulated Arduino, so this works without a board.
+With ``--controller`` the device runs that controller (designed from ``--a/--b`` or
+``--model``) against ``--reference`` instead of the excitation.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import NoReturn
 
 from motorsim.knobs import knobs_of
 from motorsim.sensors import Encoder
@@ -47,7 +50,11 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
                    help="give up after this long without a new sample during a run, silent or not (default 1 s); "
                         "a run also gives up after its duration + 10 %% + 2 s + this timeout")
+    parser.set_defaults(counts_per_rev=None)   # default: what the device reports, else 16667
     add_experiment_arguments(parser)
+    from .control import add_controller_arguments, add_model_arguments
+    add_controller_arguments(parser)
+    add_model_arguments(parser)
     parser.add_argument("--out", default=None, metavar="FILE.csv",
                         help="path of the recording to write (default live-YYYYMMDD-HHMMSS.csv in the current "
                              "folder, named on stderr; checked before the motor starts; an existing file is "
@@ -130,17 +137,14 @@ def default_out_path(now: float | None = None) -> str:
 
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
-    from hardware.errors import RigError
-    from hardware.serial_rig import SerialRig
     from identify.recursive import RunningEstimator
-    from motorsim.recording import RecordingWriter
 
-    experiment = experiment_from_args(args)
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
     if args.out is None:
         args.out = default_out_path()
         print_to_stderr(f"recording to {args.out}")
+    rig, experiment, writer = _open_rig_and_writer(args, experiment_from_args(args))
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=None if not args.quiet and experiment.n_samples > 0 else False)
@@ -148,9 +152,6 @@ def run_live(args: argparse.Namespace) -> int:
     if args.plot:
         from .plots import LivePlot
         plot = LivePlot(experiment, counts_per_rev=args.counts_per_rev, fallback_path=f"{args.out}.live.png")
-    # made before the port is opened: an --out that cannot be written stops here, before the motor turns
-    writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev, overwrite=args.overwrite,
-                             metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
 
     def on_sample(s) -> None:
         writer.append(s.seq, s.time_s, s.duty, s.counts)
@@ -160,29 +161,15 @@ def run_live(args: argparse.Namespace) -> int:
             plot.add(s, running)
 
     try:
-        with SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
-                       watchdog_ms=args.watchdog_ms, timeout=args.timeout) as rig:
-            recording = rig.run(experiment, on_sample=on_sample)
-    except BaseException as exc:   # a rig error, a write error, Ctrl-C, SIGTERM: keep what arrived
+        try:
+            with rig:
+                recording = rig.run(experiment, on_sample=on_sample)
+        except BaseException as exc:   # a rig error, a write error, Ctrl-C, SIGTERM: keep what arrived
+            progress.close()
+            _keep_and_reraise(exc, writer)
+        progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
         progress.close()
-        reason = describe_interrupt(exc) if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        kept = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
-        if isinstance(exc, RigError):
-            raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
-        if isinstance(exc, OSError):      # the recording could not be written: the rig sent STOP
-            raise CommandError(f"{exc}; the motor was stopped; {kept}" if kept else str(exc)) from None
-        if kept:
-            print_to_stderr(f"motorid: {kept}")
-        if plot is not None:
-            plot.close()
-        raise
-    progress.set(experiment.n_samples, lambda: _estimate_note(running), force=True)
-    progress.close()
-    try:
-        path, problem = writer.close(True, metadata=recording.metadata), ""
-    except OSError as exc:         # a full disk at the end: the whole run is still in memory
-        path, problem = writer.path, f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}"
-    try:
+        path, problem = _close_writer(writer, recording)
         status = _report(args, recording, path, running, plot)
     finally:
         if plot is not None:
@@ -190,6 +177,62 @@ def run_live(args: argparse.Namespace) -> int:
     if problem:
         raise CommandError(problem)
     return status
+
+
+def _open_rig_and_writer(args: argparse.Namespace, experiment):
+    """Open the port (handshake only: the motor does not turn) and the recording writer.
+
+    The device reports its encoder's counts per revolution in the handshake; a closed-loop
+    experiment is designed with it.  The writer is made before the motor turns, so an
+    ``--out`` that cannot be written stops here.  Returns ``(rig, experiment, writer)``.
+    """
+    from hardware.errors import RigError
+    from hardware.serial_rig import SerialRig
+    from motorsim.recording import RecordingWriter
+
+    rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
+                    watchdog_ms=args.watchdog_ms, timeout=args.timeout)
+    try:
+        rig.open()
+    except RigError as exc:
+        raise CommandError(str(exc)) from None
+    args.counts_per_rev = rig.counts_per_rev
+    try:
+        if args.controller:
+            from .control import closed_loop_from_args
+            experiment = closed_loop_from_args(args, experiment.sample_period, rig.counts_per_rev)
+        writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
+                                 overwrite=args.overwrite,
+                                 metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
+    except BaseException:
+        rig.close()
+        raise
+    return rig, experiment, writer
+
+
+def _keep_and_reraise(exc: BaseException, writer) -> NoReturn:
+    """Keep what arrived before ``exc`` ended the run, say where, and raise the error to report."""
+    from hardware.errors import RigError
+    reason = describe_interrupt(exc) if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+    kept = _keep_what_arrived(writer, getattr(exc, "recording", None), reason)
+    if isinstance(exc, RigError):
+        raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None
+    if isinstance(exc, OSError):      # the recording could not be written: the rig sent STOP
+        raise CommandError(f"{exc}; the motor was stopped; {kept}" if kept else str(exc)) from None
+    if kept:
+        print_to_stderr(f"motorid: {kept}")
+    raise exc
+
+
+def _close_writer(writer, recording) -> tuple[Path, str]:
+    """Write the final recording; on a write failure (a full disk) rescue it and return the problem."""
+    try:
+        if recording.reference is not None:    # the rows written as they came do not carry the reference
+            return writer.close_with(recording), ""
+        path = writer.close(True, metadata=recording.metadata)
+        return (path if path is not None else Path(writer.path)), ""
+    except OSError as exc:         # the whole run is still in memory
+        return Path(writer.path), f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}"
 
 
 def _loss_note(m) -> str:

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["plot_run", "plot_overlay", "plot_validation", "plot_sweep_frequency", "plot_sweep_heatmap",
-           "plot_design", "axis_label", "LivePlot"]
+           "plot_design", "plot_prediction", "plot_tracking", "axis_label", "LivePlot"]
 
 #: Dots per inch of the PNGs.
 DPI = 110
@@ -428,3 +428,43 @@ class LivePlot:
         self._draw()
         if not self.window:
             self._plt.close(self.fig)
+
+
+def plot_prediction(prediction, path=None, *, title: str = "") -> Figure:
+    """A controller's predicted output and duty against its reference (``Controller.predict``)."""
+    fig = _figure(8, 4.8)
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    ax.plot(prediction.time, prediction.reference, color="0.3", lw=0.8, ls="--", label="reference")
+    ax.plot(prediction.time, prediction.output, color="tab:red", lw=0.9,
+            label=f"predicted (tracking RMS {prediction.tracking_rms:.3g})")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_ylabel("output [rad/s, or rad for position]")
+    ax2.plot(prediction.time, prediction.duty, color="tab:blue", lw=0.8)
+    ax2.set_ylabel("duty")
+    ax2.set_xlabel("time [s]")
+    ax.set_title(title)
+    return _finish(fig, path)
+
+
+def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float = 0.6) -> Figure:
+    """Closed-loop runs against their reference: measured (solid) and predicted (dotted) output of each design.
+
+    ``rows`` carry ``design``, ``recording`` and ``prediction`` (``scenarios.control.ClosedLoopRow``).
+    """
+    fig = _figure(8, 5.2)
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    first = rows[0].recording
+    ax.plot(first.time, first.reference, color="0.2", lw=1.2, ls="--", label="reference")
+    for row, color in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange")):
+        rec = row.recording
+        label = f"{row.design}: measured RMS {row.measured_rms:.3g} (predicted {row.prediction.tracking_rms:.3g})"
+        ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.9, label=label)
+        ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
+        ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
+    ax.set_ylabel("ω [rad/s]")
+    ax.legend(loc="upper right", fontsize=7)
+    ax2.set_ylabel("duty")
+    ax2.set_xlabel(f"time [s] (first {window:g} s)")
+    ax2.set_xlim(first.time[0], first.time[0] + min(window, first.time[-1] - first.time[0]))
+    ax.set_title(title)
+    return _finish(fig, path)

@@ -46,6 +46,7 @@ SLOW = {
 #: test id or module -> what it runs under the emulator
 FIRMWARE = {
     "tests/hardware/test_firmware_emulation.py": "the firmware ELF under simavr, frame by frame",
+    "tests/hardware/test_firmware_closed_loop.py": "the firmware's controllers under simavr",
     "tests/scenarios/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
         "motorid live on avr-sim://",
 }

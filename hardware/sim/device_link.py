@@ -117,8 +117,8 @@ class DeviceLink:
         raise TimeoutError(f"no ACK/NAK for {msg!r}")
 
     def run(self, config, wave, *, timeout: float = 20.0, heartbeat: float | None = 0.05,
-            on_sample=None) -> RunResult:
-        """CONFIG, WAVE, START, then collect until END.
+            on_sample=None, setup=()) -> RunResult:
+        """CONFIG, WAVE, the ``setup`` messages, START, then collect until END.
 
         Parameters
         ----------
@@ -126,6 +126,8 @@ class DeviceLink:
             The CONFIG message.
         wave : Wave
             The WAVE message.
+        setup : sequence of messages
+            Sent (and acknowledged) after the WAVE: CONTROL and REFERENCE for a closed loop.
         timeout : float
             Wall-clock seconds to wait for END.
         heartbeat : float or None
@@ -134,7 +136,7 @@ class DeviceLink:
             ``on_sample(link, sample)`` for each SAMPLE as it arrives (e.g. to send STOP).
         """
         start = len(self.received)
-        for msg in (config, wave, P.Start()):
+        for msg in (config, wave, *setup, P.Start()):
             reply = self.command(msg)
             if not isinstance(reply, P.Ack):
                 raise RuntimeError(f"{msg!r} refused: {reply!r}")

@@ -9,6 +9,7 @@
 ``firmware`` :mod:`~scenarios.benchmarks.firmware`: the Arduino firmware under simavr
 ``parse``    :mod:`~scenarios.benchmarks.parse`: reading a large recording against pandas.read_csv
 ``startup``  :mod:`~scenarios.benchmarks.startup`: ``motorid --help`` and ``identify`` against ``import control``
+``control``  :mod:`~scenarios.benchmarks.control`: closed-loop simulated runs against the open loop
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -73,6 +74,11 @@ def _startup(argv: Sequence[str]) -> int:
     return bench_startup(argv)
 
 
+def _control(argv: Sequence[str]) -> int:
+    from .control import bench_control
+    return bench_control(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -87,6 +93,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "parse": Benchmark(_parse, "read_recording of a 2-million-row recording vs pandas.read_csv: time, peak memory"),
     "startup": Benchmark(_startup, "motorid --help and motorid identify small.csv against python -c 'import control' "
                                    "(subprocesses, medians)"),
+    "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
 }
 
 

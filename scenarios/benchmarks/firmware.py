@@ -1,9 +1,10 @@
-"""Measure the firmware under emulation: size, sample rates per baud rate, encoder ceiling, speed.
+"""Measure the firmware under emulation: size, sample rates per baud rate, encoder ceiling, controllers, speed.
 
 Run from the repository root (it builds what it needs)::
 
     motorid bench firmware                  # everything, ~3 min
     motorid bench firmware --only encoder   # (or python -m scenarios.benchmarks.firmware)
+    motorid bench firmware --only control   # each controller's cost per sample, highest rate
 
 Prints Markdown tables (the figures in ``hardware/firmware/README.md`` come from here).
 Every figure is measured under simavr, which is cycle-counted but not cycle-exact for every
@@ -23,7 +24,8 @@ from hardware import protocol as P
 from hardware.sim.device_link import DeviceLink
 from hardware.sim.launcher import build, open_avr_sim
 
-__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "emulation_speed", "bench_firmware"]
+__all__ = ["firmware_size", "link_capacity", "encoder_ceiling", "controller_cost", "emulation_speed",
+           "bench_firmware"]
 
 _FLASH, _RAM = 32768, 2048
 
@@ -121,6 +123,64 @@ def encoder_ceiling(decodings=(4, 2, 1), start: float = 40_000, step: float = 10
     return rows
 
 
+def _overruns(link: DeviceLink, period_us: int, controller: str | None, duration: float) -> int:
+    """Late ticks of one run at ``period_us`` (open loop: a sine WAVE; else the controller on a sine)."""
+    from motorsim.control import ClosedLoopExperiment, PlantModel, design_controller, parse_reference
+    n = max(50, int(duration * 1e6 / period_us))
+    inc = round(20.0 * period_us * 1e-6 / (2 * np.pi) * 2**32) % 2**32
+    wave = P.WaveMultisine(0, ((100, 0, inc),))
+    setup: list = []
+    if controller is not None:
+        model = PlantModel(25.0, 3.0, period_us * 1e-6, 16667)
+        spec = "sine:5,1" if controller == "position" else "sine:20,8"
+        settings = {"feedforward": True} if controller == "pi+feedforward" else {}
+        c = design_controller(controller.split("+")[0], model, **settings)
+        exp = ClosedLoopExperiment(c, parse_reference(spec), n * period_us * 1e-6)
+        setup = [P.control_for(exp), P.reference_for(exp)]
+    run = link.run(P.Config(period_us, n, 255, 4, 500), wave, setup=setup, timeout=60.0)
+    if run.end is None:
+        raise RuntimeError(f"no END at {period_us} µs ({controller or 'open loop'})")
+    return run.end.tick_overruns
+
+
+def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "feedforward"),
+                    duration: float = 0.2, baudrate: int = 500000) -> list[dict]:
+    """The shortest sample period (µs, to 1 µs) with zero late ticks, open loop and per controller.
+
+    In closed loop the sample interrupt runs the controller's step instead of the WAVE's
+    (a one-component sine), so the difference between a controller's shortest period and the
+    open loop's is the step's cost per sample beyond the sine's, with everything else the
+    interrupts and the line do at that rate (samples beyond the line's capacity are dropped
+    and counted; late ticks are what is measured).
+
+    Parameters
+    ----------
+    controllers : sequence of str
+        ``mpc``, ``pi``, ``pi+feedforward``, ``position``, ``feedforward``.
+    duration : float
+        Emulated seconds per trial run.
+    baudrate : int
+        Firmware build and line rate.
+    """
+    build(baudrate)
+    periods: list[tuple[str, int]] = []
+    with open_avr_sim("avr-sim://?" + urlencode({"a": 25, "b": 3, "speed": 0}), baudrate, 0.02) as port:
+        link = DeviceLink(port)
+        link.hello(timeout=5.0)
+        for controller in (None, *controllers):
+            lo, hi = 99, 2000       # lo fails (below the 100 µs minimum), hi holds
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if _overruns(link, mid, controller, duration) == 0:
+                    hi = mid
+                else:
+                    lo = mid
+            periods.append((controller or "open loop (sine WAVE)", hi))
+    base = periods[0][1]
+    return [{"controller": name, "period_us": p, "rate_hz": 1e6 / p, "cost_us": p - base,
+             "cost_cycles": 16 * (p - base)} for name, p in periods]
+
+
 def emulation_speed(duration: float = 2.0) -> list[dict]:
     """Emulated seconds per wall second, running free (speed=0), during a 500 Hz sine run.
 
@@ -145,13 +205,13 @@ def bench_firmware(argv: Sequence[str] | None = None) -> int:
     Parameters
     ----------
     argv : list of str, optional
-        ``--only size|link|encoder|speed`` (repeatable).
+        ``--only size|link|encoder|control|speed`` (repeatable).
     """
     parser = argparse.ArgumentParser(prog="motorid bench firmware", description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["size", "link", "encoder", "speed"], action="append",
+    parser.add_argument("--only", choices=["size", "link", "encoder", "control", "speed"], action="append",
                         help="measure only this (repeatable; default all)")
     args = parser.parse_args(None if argv is None else list(argv))
-    only = set(args.only or ["size", "link", "encoder", "speed"])
+    only = set(args.only or ["size", "link", "encoder", "control", "speed"])
     if "size" in only:
         s = firmware_size()
         print(f"flash {s['flash']} B ({100 * s['flash'] / _FLASH:.1f} % of {_FLASH}), "
@@ -168,6 +228,13 @@ def bench_firmware(argv: Sequence[str] | None = None) -> int:
         for r in encoder_ceiling():
             print(f"| x{r['decoding']} | {r['ceiling_4x_counts_s']} | {r['ceiling_decoded_counts_s']} "
                   f"| {r['first_failure']} |", flush=True)
+        print()
+    if "control" in only:
+        print("| controller | shortest period without late ticks (µs) | highest rate (Hz) | "
+              "step's cost per sample (µs, cycles at 16 MHz) |\n|---|---|---|---|")
+        for r in controller_cost():
+            print(f"| {r['controller']} | {r['period_us']} | {r['rate_hz']:.0f} | "
+                  f"{r['cost_us']} µs, {r['cost_cycles']} cycles |", flush=True)
         print()
     if "speed" in only:
         print("| case | emulated s per wall s |\n|---|---|")

@@ -1,7 +1,7 @@
 """The bench firmware, compiled for the Uno and run byte for byte under simavr (``avr-sim://``).
 
 Each test starts the harness (``hardware/sim/motorid_avr_sim.c``) with a motor, opens its
-pseudo-terminal and talks protocol v1 to the real firmware: through the real ``SerialRig``
+pseudo-terminal and talks protocol v2 to the real firmware: through the real ``SerialRig``
 where a host would, frame by frame (``DeviceLink``) where the test needs exact bytes.
 Emulated time is capped at wall time, so every run costs its duration in wall time: the
 runs are short (0.5-3 s).
@@ -88,7 +88,8 @@ def _fit_output_error(counts: np.ndarray, duty: np.ndarray, h: float, counts_per
 def test_hello_ack_reports_protocol_version_clock_and_power_on_reset(sine_run):
     device, _ = sine_run
     assert device.version == P.PROTOCOL_VERSION
-    assert device.firmware_version == 0x0100   # 1.0 (major << 8 | minor)
+    assert device.firmware_version == 0x0200   # 2.0 (major << 8 | minor)
+    assert device.counts_per_rev == 0          # config.h leaves ENCODER_COUNTS_PER_REV unset
     assert device.f_cpu_hz == 16_000_000
     assert device.max_payload == P.MAX_PAYLOAD
     assert device.board == "uno"

@@ -58,14 +58,18 @@ def test_cobs_decode_rejects_malformed_blocks(bad):
 # ------------------------------------------------------------------ frames and messages
 _MESSAGES = [
     P.Hello(1), P.Config(5000, 2000, 255, 4, 500), P.Start(), P.Stop(), P.Heartbeat(),
-    P.HelloAck(1, 0x0102, 16_000_000, 2, 60, "uno"), P.Ack(0x02, 7), P.Nak(0x04, 9, P.NakReason.NOT_CONFIGURED),
+    P.HelloAck(2, 0x0102, 16_000_000, 2, 60, "uno", 16667), P.Ack(0x02, 7), P.Nak(0x04, 9, P.NakReason.NOT_CONFIGURED),
     P.Sample(123456, 4_000_000_000, -2_000_000_000, -255, 3), P.End(0, 2000, 1, 2, 3, 4), P.Fault(1, 77),
     P.Boot(1, 1), P.WaveConstant(-100), P.WaveStep(0, 100, 200),
     P.WaveMultisine(5, ((200, 0, 34_359_738), (-50, 2**32 - 1, 1))), P.WaveChirp(0, 200, 5, 100_000, -3),
     P.WavePrbs(200, -200, 10, 3, 1),
+    P.Control(1, 1, (14642, -206745, 0, 0, -21450)), P.Control(2, 0, (1397, 198)),
+    P.ReferenceWords("constant", -65535), P.ReferenceWords("step", 100, -5, 40),
+    P.ReferenceWords("trapezoid", 400, 0, 10, 100, 50),
+    P.ReferenceWords("multisine", 7, components=((4244, 0, 34_359_738), (-1000, 2**32 - 1, 1))),
 ]
 
-_LENGTHS = {P.Hello: 1, P.Config: 13, P.Start: 0, P.Stop: 0, P.Heartbeat: 0, P.HelloAck: 17, P.Ack: 2,
+_LENGTHS = {P.Hello: 1, P.Config: 13, P.Start: 0, P.Stop: 0, P.Heartbeat: 0, P.HelloAck: 21, P.Ack: 2,
             P.Nak: 3, P.Sample: 15, P.End: 17, P.Fault: 5, P.Boot: 2, P.WaveConstant: 3, P.WaveStep: 9,
             P.WaveChirp: 17, P.WavePrbs: 10}
 
@@ -78,6 +82,10 @@ def test_every_message_round_trips_with_the_documented_length(msg):
     assert frame_seq == 200
     # PROTOCOL.md's table: payload lengths (WAVE: 1 kind byte + the kind's fields; multisine 3 + 10 n)
     expected = _LENGTHS.get(type(msg), 1 + 3 + 10 * len(getattr(msg, "components", ())))
+    if isinstance(msg, P.Control):        # PROTOCOL.md: 3 + 4 n
+        expected = 3 + 4 * len(msg.gains)
+    elif isinstance(msg, P.ReferenceWords):   # kind byte + 4, 12, 16, or 5 + 12 n
+        expected = 1 + {"constant": 4, "step": 12, "trapezoid": 16}.get(msg.kind, 5 + 12 * len(msg.components))
     assert len(payload) == expected
     assert P.decode_message(t, payload) == msg
 
@@ -138,7 +146,7 @@ def test_protocol_errors_subclass_value_error():
 
 def test_version_mismatch_names_both_versions():
     P.check_version(P.PROTOCOL_VERSION)
-    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 1"):
+    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 2"):
         P.check_version(7)
 
 

@@ -212,7 +212,7 @@ def test_ctrl_c_during_a_run_sends_stop_and_propagates():
 
 # ------------------------------------------------------------------ handshake
 def test_wrong_protocol_version_is_refused_naming_both_versions():
-    with _fake(FaultPlan(version=2)) as dev, pytest.raises(ProtocolVersionError, match=r"version 2.*version 1"):
+    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 2"):
         SerialRig(dev.port_name).open()
 
 

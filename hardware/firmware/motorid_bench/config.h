@@ -66,5 +66,10 @@
 #ifndef BOARD_NAME
 #define BOARD_NAME "uno"
 #endif
+// Encoder counts per revolution after x4 decoding, reported in HELLO_ACK so the host uses it
+// (0: not set here; the host then uses its own --counts-per-rev).
+#ifndef ENCODER_COUNTS_PER_REV
+#define ENCODER_COUNTS_PER_REV 0
+#endif
 
 #endif

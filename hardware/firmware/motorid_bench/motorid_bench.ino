@@ -1,7 +1,9 @@
 // motorid bench firmware for an Arduino Uno (ATmega328P, 16 MHz).
 //
-// Implements hardware/PROTOCOL.md (protocol version 1) exactly: COBS frames with CRC-16,
-// CONFIG/WAVE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
+// Implements hardware/PROTOCOL.md (protocol version 2) exactly: COBS frames with CRC-16,
+// CONFIG/WAVE/CONTROL/REFERENCE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
+// In closed loop (a CONTROL naming a controller) each tick computes its duty from the counts
+// it has just read with the controller's integer step (motorsim/control.py is the reference).
 //
 // Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt snapshots the
 // encoder count and micros(), applies the duty computed during the previous tick, queues the
@@ -22,8 +24,8 @@
 
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
-#define PROTOCOL_VERSION 1
-#define FIRMWARE_VERSION 0x0100  // major << 8 | minor: 1.0
+#define PROTOCOL_VERSION 2
+#define FIRMWARE_VERSION 0x0200  // major << 8 | minor: 2.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -34,6 +36,8 @@
 #define T_START 0x04
 #define T_STOP 0x05
 #define T_HEARTBEAT 0x06
+#define T_CONTROL 0x07
+#define T_REFERENCE 0x08
 #define T_HELLO_ACK 0x81
 #define T_ACK 0x82
 #define T_NAK 0x83
@@ -64,6 +68,20 @@
 #define WAVE_PRBS 4
 #define MAX_COMPONENTS 4
 #define MAX_LEVEL 1023
+
+#define CTRL_NONE 0
+#define CTRL_MPC 1
+#define CTRL_PI 2
+#define CTRL_POSITION 3
+#define CTRL_FEEDFORWARD 4
+#define MAX_GAINS 14
+#define REF_CONSTANT 0
+#define REF_STEP 1
+#define REF_MULTISINE 2
+#define REF_TRAPEZOID 3
+#define MAX_REFERENCE 65535L
+#define GAIN_BITS 16
+#define SPEED_REFERENCE_SCALE 16   // 2^SPEED_REFERENCE_BITS: speed references in 1/16 count per sample
 
 #define FLAG_ENCODER_ERROR 0x01
 #define FLAG_LATE 0x02
@@ -187,6 +205,41 @@ struct WaveState {
   uint8_t bit;
 };
 
+// CONTROL: the controller and its Q16 gains in wire order (PROTOCOL.md "Closed loop").
+struct Control {
+  uint8_t kind;
+  uint8_t preview;
+  uint8_t n;
+  int32_t gains[MAX_GAINS];
+};
+
+struct RefComponent {
+  int32_t amplitude;
+  uint32_t phase0;
+  uint32_t phase_inc;
+};
+
+// REFERENCE: the integer reference the controller tracks.
+struct Reference {
+  uint8_t kind;
+  int32_t level;        // CONSTANT level, STEP after, MULTISINE offset, TRAPEZOID plateau
+  int32_t before;       // STEP
+  uint32_t start;       // STEP switch, TRAPEZOID first sample
+  uint32_t ramp;        // TRAPEZOID
+  uint32_t hold;        // TRAPEZOID
+  uint8_t n;            // MULTISINE
+  RefComponent comp[MAX_COMPONENTS];
+};
+
+// Running state of the controller (reset at START; only the Timer 1 ISR touches it then).
+struct ControlState {
+  int32_t previous;
+  int32_t origin;
+  int64_t integral;
+  int16_t history[MAX_GAINS];
+  uint8_t n_history;
+};
+
 struct Response {
   uint8_t type;       // T_ACK, T_NAK or T_HELLO_ACK
   uint8_t ref_type;
@@ -244,7 +297,10 @@ volatile uint8_t queue_tail = 0;      // next slot to read (loop)
 Config cfg;
 Wave wave;
 WaveState ws;
-uint8_t have_config = 0, have_wave = 0;
+uint8_t have_config = 0, have_wave = 0, have_reference = 0;
+Control control;
+Reference reference;
+ControlState cs;
 
 // Link (loop only)
 uint8_t rx_buf[MAX_ENCODED];
@@ -422,6 +478,105 @@ static int32_t wave_next(void) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Closed loop (PROTOCOL.md "Closed loop"; motorsim/control.py ControlLoop is the reference).
+
+// floor(a / b) for b > 0 (C's division truncates towards zero).
+static int32_t floor_div(int64_t a, uint32_t b) {
+  int64_t q = a / (int64_t)b;
+  if (a < 0 && q * (int64_t)b != a) q--;
+  return (int32_t)q;
+}
+
+// The reference at sample j, from its integer words.
+static int32_t reference_at(uint32_t j) {
+  switch (reference.kind) {
+    case REF_STEP:
+      return j < reference.start ? reference.before : reference.level;
+    case REF_MULTISINE: {
+      int32_t acc = 0;  // sum |amplitude| <= 65535, so |acc| < 65535 * 32768 < 2^31
+      for (uint8_t c = 0; c < reference.n; c++) {
+        const RefComponent *k = &reference.comp[c];
+        acc += k->amplitude * (int32_t)sine_q15(k->phase0 + j * k->phase_inc);
+      }
+      return reference.level + ((acc + 16384) >> 15);
+    }
+    case REF_TRAPEZOID: {
+      int32_t i = (int32_t)j - (int32_t)reference.start;
+      int32_t nr = (int32_t)reference.ramp, nh = (int32_t)reference.hold;
+      int32_t m = i < nr + nh ? i : 2 * nr + nh - i;
+      if (m < 0) m = 0;
+      if (m > nr) m = nr;
+      if (nr <= 32767) {  // |level * m| < 65536 * 32768: 32-bit arithmetic suffices
+        int32_t a = reference.level * m;
+        int32_t q = a / nr;
+        return (a < 0 && q * nr != a) ? q - 1 : q;
+      }
+      return floor_div((int64_t)reference.level * m, (uint32_t)nr);
+    }
+    default:  // REF_CONSTANT
+      return reference.level;
+  }
+}
+
+static inline int8_t sign_of(int32_t x) { return (x > 0) - (x < 0); }
+
+// The feedforward's sum kn r(k+P) + kc r(k+P-1) + k0 + kf sign r(k+P), gains at g.
+static int64_t feedforward_sum(uint32_t k, const int32_t *g) {
+  int32_t r1 = reference_at(k + control.preview);
+  int32_t r0 = reference_at(k + control.preview - 1);
+  return (int64_t)g[0] * r1 + (int64_t)g[1] * r0 + g[2] + (int64_t)g[3] * sign_of(r1);
+}
+
+static inline int64_t round_shift(int64_t acc) { return (acc + (1L << (GAIN_BITS - 1))) >> GAIN_BITS; }
+
+static int16_t clip_duty(int64_t u) {
+  if (u > cfg.duty_limit) return cfg.duty_limit;
+  if (u < -cfg.duty_limit) return -cfg.duty_limit;
+  return (int16_t)u;
+}
+
+static void control_reset(void) {
+  memset(&cs, 0, sizeof(cs));
+  cs.n_history = control.kind == CTRL_MPC ? control.n - 4 : 1;
+}
+
+// The duty of sample k from the counts read at k (integer arithmetic only).
+static int16_t control_step(uint32_t k, int32_t counts) {
+  if (k == 0) cs.previous = cs.origin = counts;
+  int32_t y = counts - cs.previous;
+  cs.previous = counts;
+  const int32_t *g = control.gains;
+  int64_t acc;
+  switch (control.kind) {
+    case CTRL_MPC: {
+      int32_t r = reference_at(k + control.preview);
+      acc = (int64_t)g[0] * r + (int64_t)g[1] * y + g[2] + (int64_t)g[3] * sign_of(r);
+      for (uint8_t m = 0; m < cs.n_history; m++) acc += (int64_t)g[4 + m] * cs.history[m];
+      break;
+    }
+    case CTRL_PI: {
+      int32_t err = reference_at(k) - y * SPEED_REFERENCE_SCALE;
+      int64_t integral = cs.integral + err;
+      acc = (int64_t)g[0] * err + (int64_t)g[1] * integral;
+      if (control.n == 6) acc += feedforward_sum(k, g + 2);
+      int64_t raw = round_shift(acc);
+      if (!((raw > cfg.duty_limit && err > 0) || (raw < -cfg.duty_limit && err < 0))) cs.integral = integral;
+      break;
+    }
+    case CTRL_POSITION:
+      acc = (int64_t)g[0] * (reference_at(k) - (counts - cs.origin)) - (int64_t)g[1] * y;
+      break;
+    default:  // CTRL_FEEDFORWARD
+      acc = feedforward_sum(k, g);
+      break;
+  }
+  int16_t u = clip_duty(round_shift(acc));
+  for (uint8_t m = cs.n_history - 1; m > 0; m--) cs.history[m] = cs.history[m - 1];
+  cs.history[0] = u;
+  return u;
+}
+
+// ---------------------------------------------------------------------------------------------
 // Sample clock: Timer 1, CTC, prescaler 8 (0.5 us). Periods above 32.768 ms are split into
 // sub_count sub-intervals (sub_long of length q + 1, the rest q) so every tick stays exact.
 
@@ -491,8 +646,9 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     stop_run(END_COMPLETE);
     return;
   }
-  // 2. apply the duty computed during the previous tick
-  int16_t duty = next_duty;
+  // 2. apply the duty computed during the previous tick, or in closed loop the controller's
+  //    duty from the counts just read
+  int16_t duty = control.kind ? control_step(tick_index, counts) : next_duty;
   apply_duty(duty);
   // 3. queue the sample, or drop and count it (only this ISR writes the queue head)
   uint8_t flags = tick_late;
@@ -526,7 +682,7 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     return;
   }
   // 4. compute the next duty
-  int16_t upcoming = wave_next();
+  int16_t upcoming = control.kind ? 0 : wave_next();
   cli();
   next_duty = upcoming;
   if (sub_count == 1 && (TIFR1 & _BV(OCF1A))) {  // the next tick is already due: it is late
@@ -671,6 +827,80 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len, uint8_t check_only) {
   return 0;
 }
 
+// Validate and store a CONTROL payload; returns 0 or a NAK reason.
+static uint8_t parse_control(const uint8_t *p, uint8_t len, uint8_t check_only) {
+  if (len < 3) return NAK_BAD_LENGTH;
+  uint8_t kind = p[0], preview = p[1], n = p[2];
+  if (n > MAX_GAINS || len != 3 + 4 * n) return NAK_BAD_LENGTH;
+  uint8_t ok = kind == CTRL_NONE ? n == 0
+             : kind == CTRL_MPC ? n >= 5
+             : kind == CTRL_PI ? (n == 2 || n == 6)
+             : kind == CTRL_POSITION ? n == 2
+             : kind == CTRL_FEEDFORWARD ? n == 4 : 0;
+  if (!ok || preview > MAX_GAINS) return NAK_BAD_VALUE;
+  if (check_only) return 0;
+  control.kind = kind;
+  control.preview = preview;
+  control.n = n;
+  for (uint8_t i = 0; i < n; i++) control.gains[i] = (int32_t)get_u32(p + 3 + 4 * i);
+  return 0;
+}
+
+static uint8_t ref_ok(int32_t x) { return x >= -MAX_REFERENCE && x <= MAX_REFERENCE; }
+
+// Validate and store a REFERENCE payload; returns 0, a NAK reason, or INVALID_BAD_VALUE.
+static uint8_t parse_reference(const uint8_t *p, uint8_t len, uint8_t check_only) {
+  if (len < 1) return NAK_BAD_LENGTH;
+  Reference r;
+  memset(&r, 0, sizeof(r));
+  r.kind = p[0];
+  p++;
+  len--;
+  switch (r.kind) {
+    case REF_CONSTANT:
+      if (len != 4) return NAK_BAD_LENGTH;
+      r.level = (int32_t)get_u32(p);
+      break;
+    case REF_STEP:
+      if (len != 12) return NAK_BAD_LENGTH;
+      r.before = (int32_t)get_u32(p);
+      r.level = (int32_t)get_u32(p + 4);
+      r.start = get_u32(p + 8);
+      break;
+    case REF_MULTISINE: {
+      if (len < 5) return NAK_BAD_LENGTH;
+      r.level = (int32_t)get_u32(p);
+      r.n = p[4];
+      if (r.n < 1 || r.n > MAX_COMPONENTS) return INVALID_BAD_VALUE;
+      if (len != 5 + 12 * r.n) return NAK_BAD_LENGTH;
+      int32_t total = 0;
+      for (uint8_t j = 0; j < r.n; j++) {
+        const uint8_t *c = p + 5 + 12 * j;
+        r.comp[j].amplitude = (int32_t)get_u32(c);
+        r.comp[j].phase0 = get_u32(c + 4);
+        r.comp[j].phase_inc = get_u32(c + 8);
+        if (!ref_ok(r.comp[j].amplitude)) return NAK_BAD_VALUE;
+        total += r.comp[j].amplitude < 0 ? -r.comp[j].amplitude : r.comp[j].amplitude;
+      }
+      if (total > MAX_REFERENCE) return NAK_BAD_VALUE;
+      break;
+    }
+    case REF_TRAPEZOID:
+      if (len != 16) return NAK_BAD_LENGTH;
+      r.level = (int32_t)get_u32(p);
+      r.start = get_u32(p + 4);
+      r.ramp = get_u32(p + 8);
+      r.hold = get_u32(p + 12);
+      if (r.ramp < 1 || r.ramp > 0x3FFFFFFFUL || r.hold > 0x3FFFFFFFUL) return NAK_BAD_VALUE;
+      break;
+    default:
+      return INVALID_BAD_VALUE;
+  }
+  if (!ref_ok(r.level) || !ref_ok(r.before)) return NAK_BAD_VALUE;
+  if (!check_only) reference = r;
+  return 0;
+}
+
 static uint8_t parse_config(const uint8_t *p) {
   Config c;
   c.sample_period_us = get_u32(p);
@@ -684,13 +914,19 @@ static uint8_t parse_config(const uint8_t *p) {
   if (c.decoding != 1 && c.decoding != 2 && c.decoding != 4) return NAK_BAD_VALUE;
   if (c.watchdog_ms != 0 && (c.watchdog_ms < 50 || c.watchdog_ms > 60000U)) return NAK_BAD_VALUE;
   cfg = c;
+  control.kind = CTRL_NONE;  // CONFIG returns to open loop; CONTROL comes after it
   return 0;
 }
 
 static void start_run(void) {
   setup_encoder(cfg.decoding);
-  wave_reset();
-  int16_t first = wave_next();
+  int16_t first = 0;
+  if (control.kind) {
+    control_reset();
+  } else {
+    wave_reset();
+    first = wave_next();
+  }
   timer_plan(cfg.sample_period_us);
   cli();
   queue_head = queue_tail = 0;
@@ -746,11 +982,37 @@ static void handle_frame(uint8_t type, uint8_t frame_seq, const uint8_t *p, uint
       else { have_wave = 1; respond(T_ACK, type, frame_seq, 0); }
       return;
     }
+    case T_CONTROL: {
+      uint8_t r = parse_control(p, len, busy);
+      if (r == NAK_BAD_LENGTH) break;
+      host_alive();
+      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
+      if (r) respond(T_NAK, type, frame_seq, r);
+      else respond(T_ACK, type, frame_seq, 0);
+      return;
+    }
+    case T_REFERENCE: {
+      uint8_t r = parse_reference(p, len, busy);
+      if (r == NAK_BAD_LENGTH) break;
+      if (r == INVALID_BAD_VALUE) {
+        rx_errors++;
+        respond(T_NAK, type, frame_seq, NAK_BAD_VALUE);
+        return;
+      }
+      host_alive();
+      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
+      if (r) respond(T_NAK, type, frame_seq, r);
+      else { have_reference = 1; respond(T_ACK, type, frame_seq, 0); }
+      return;
+    }
     case T_START:
       if (len != 0) break;
       host_alive();
       if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
-      if (!have_config || !have_wave) { respond(T_NAK, type, frame_seq, NAK_NOT_CONFIGURED); return; }
+      if (!have_config || !(control.kind ? have_reference : have_wave)) {
+        respond(T_NAK, type, frame_seq, NAK_NOT_CONFIGURED);
+        return;
+      }
       respond(T_ACK, type, frame_seq, 0);
       start_run();
       return;
@@ -808,7 +1070,7 @@ static void receive_byte(uint8_t b) {
 // Transmit: at most one frame per loop() pass, in priority order.
 
 static void transmit(void) {
-  uint8_t p[17];
+  uint8_t p[21];
   if (boot_pending) {
     // A lone 0x00 first: if the reset cut a frame short, the host drops that partial frame
     // here instead of gluing it to BOOT (zero-length frames are ignored).
@@ -834,7 +1096,8 @@ static void transmit(void) {
         *q++ = *name ? *name : 0;
         if (*name) name++;
       }
-      ok = send_frame(T_HELLO_ACK, p, 17);
+      put_u32(q, ENCODER_COUNTS_PER_REV);
+      ok = send_frame(T_HELLO_ACK, p, 21);
     } else if (r->type == T_ACK) {
       p[0] = r->ref_type;
       p[1] = r->ref_frame_seq;

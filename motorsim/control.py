@@ -1,0 +1,1026 @@
+"""Controllers designed from a model, with the fixed-point step every rig runs.
+
+A controller is designed once, in floating point, from the numbers of a motor model
+(:class:`PlantModel`: ``a``, ``b``, ``friction``, ``bias``, ``input_delay``,
+``sample_period``, ``counts_per_rev``; built from an identified estimate, a
+:class:`~motorsim.plant.Motor` or plain numbers).  The design ends in a handful of
+integer gains (Q16: a gain ``G`` stands for ``G / 2**16``), and the per-sample step
+uses integers only, so that the simulator and a microcontroller compute the *same*
+duty from the same counts.  The step here is the reference implementation.
+
+Integer units of the step
+-------------------------
+* measured speed ``y_k = counts_k - counts_{k-1}`` in counts per sample (the backward
+  difference of the encoder, the average speed over the last interval);
+* speed references in :data:`SPEED_REFERENCE_LSB` = 1/16 count per sample;
+* position references in counts, relative to the count at the first sample;
+* duty: an integer, ``u_k = clip((acc + 2**15) >> 16, -duty_limit, duty_limit)`` where
+  ``acc`` is an integer sum of gain-times-signal products (64-bit on the device).
+
+Exact model of the measured speed
+---------------------------------
+With ``e = exp(-a h)`` and the ZOH coefficients ``g, p, q`` of :func:`~motorsim.plant.zoh_matrices`,
+the averaged speed ``y_k = (angle_k - angle_{k-1}) / h`` obeys exactly::
+
+    y_{k+1} = e y_k + beta1 v_{k-D} + beta2 v_{k-D-1},   beta1 = q / h,  beta2 = (p g - e q) / h,
+
+``beta1 + beta2 = g``, where ``v = u + (bias - friction sign(omega)) / b`` is the drive and
+``D`` the input delay.  :meth:`PlantModel.speed_transfer_function` is this model in counts
+per sample; every controller's :meth:`~Controller.predict` closes the loop on it with
+python-control (``feedback``, ``forced_response``), delay included, using the quantised gains.
+
+Controllers
+-----------
+:class:`OneStepMPC` (``mpc``), :class:`PISpeed` (``pi``, optionally with feedforward),
+:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``).
+:class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, NamedTuple, Sequence
+
+import numpy as np
+
+from .checks import check_int, check_real
+from .excitation import DUTY_LIMIT, MAX_COMPONENTS, multisine_duty, phase_increment
+from .plant import Motor, zoh_matrices
+
+if TYPE_CHECKING:
+    import control
+
+__all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
+           "Feedforward", "ControlLoop",
+           "ReferenceWords", "reference_values", "gains_from_wire", "GAIN_ORDER", "Prediction",
+           "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
+           "tracking_error", "feedforward_gains", "settings_from", "GAIN_BITS", "SPEED_REFERENCE_BITS",
+           "SPEED_REFERENCE_LSB", "MAX_REFERENCE"]
+
+#: Fraction bits of every gain: an integer gain ``G`` stands for ``G / 2**GAIN_BITS``.
+GAIN_BITS = 16
+#: Fraction bits of a speed reference: its unit is ``2**-SPEED_REFERENCE_BITS`` count per sample.
+SPEED_REFERENCE_BITS = 4
+#: Speed reference unit in counts per sample.
+SPEED_REFERENCE_LSB = 1.0 / (1 << SPEED_REFERENCE_BITS)
+#: Largest magnitude of a reference in its integer unit (the device's 32-bit sine sum stays exact).
+MAX_REFERENCE = 65535
+_HALF = 1 << (GAIN_BITS - 1)
+
+
+def _q(x: float) -> int:
+    """``x`` as a Q16 integer gain."""
+    if not math.isfinite(x) or abs(x) * (1 << GAIN_BITS) >= 2**47:
+        raise ValueError(f"gain {x!r} does not fit the fixed-point step (|gain| < 2**31)")
+    return int(round(x * (1 << GAIN_BITS)))
+
+
+def _sign(x: int) -> int:
+    return (x > 0) - (x < 0)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The model
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class PlantModel:
+    """The numbers a controller is designed from.
+
+    Parameters
+    ----------
+    a : float
+        Pole in 1/s, > 0.
+    b : float
+        Gain in (rad/s^2)/duty, nonzero.
+    sample_period : float
+        Controller sample period in s, > 0.
+    counts_per_rev : int
+        Encoder counts per revolution.
+    friction : float, optional
+        Coulomb friction ``c`` in rad/s^2, >= 0.
+    bias : float, optional
+        Constant acceleration ``d`` in rad/s^2.
+    input_delay : int, optional
+        Whole samples between a duty and the motor, >= 0.
+
+    Examples
+    --------
+    >>> m = PlantModel(25.0, 3.0, 0.005, 16667)
+    >>> round(m.speed_scale, 4)   # counts per sample per rad/s
+    13.2632
+    """
+
+    a: float
+    b: float
+    sample_period: float
+    counts_per_rev: int
+    friction: float = 0.0
+    bias: float = 0.0
+    input_delay: int = 0
+
+    def __post_init__(self):
+        motor = Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay)
+        for name in ("a", "b", "friction", "bias", "input_delay"):
+            object.__setattr__(self, name, getattr(motor, name))
+        if self.input_delay > 50:
+            raise ValueError(f"input_delay must be <= 50 samples for a controller, got {self.input_delay!r}")
+        object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
+        object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
+
+    @classmethod
+    def from_source(cls, source: Any, sample_period: float | None = None,
+                    counts_per_rev: int | None = None) -> "PlantModel":
+        """A model from an identified estimate, a :class:`Motor` or a :class:`PlantModel`.
+
+        Parameters
+        ----------
+        source : Estimate, Motor or PlantModel
+            Anything with ``a`` and ``b``; an estimate's ``extra`` gives ``friction``,
+            ``bias`` and ``input_delay``, a Motor's fields give them directly.
+        sample_period : float, optional
+            Controller sample period in s (default: the source's, if it has one).
+        counts_per_rev : int, optional
+            Encoder resolution (default: the source's, if it has one).
+        """
+        if isinstance(source, PlantModel):
+            return dataclasses.replace(source, sample_period=sample_period or source.sample_period,
+                                       counts_per_rev=counts_per_rev or source.counts_per_rev)
+        if not (hasattr(source, "a") and hasattr(source, "b")):
+            raise TypeError(f"source must be an Estimate, a Motor or a PlantModel, got {type(source).__name__}")
+        extra = dict(getattr(source, "extra", {}) or {})
+        for name in ("friction", "bias", "input_delay"):
+            if hasattr(source, name) and not isinstance(source, type):
+                extra.setdefault(name, getattr(source, name))
+        sample_period = sample_period if sample_period is not None else getattr(source, "sample_period", None)
+        if sample_period is None:
+            raise ValueError("sample_period must be given when the source has none, got None")
+        if counts_per_rev is None:
+            raise ValueError("counts_per_rev must be given for a controller, got None")
+        return cls(float(source.a), float(source.b), sample_period, counts_per_rev,
+                   friction=float(extra.get("friction", 0.0)), bias=float(extra.get("bias", 0.0)),
+                   input_delay=int(extra.get("input_delay", 0)))
+
+    @property
+    def speed_scale(self) -> float:
+        """Counts per sample per rad/s: ``counts_per_rev sample_period / (2 pi)``."""
+        return self.counts_per_rev * self.sample_period / (2.0 * math.pi)
+
+    @property
+    def angle_scale(self) -> float:
+        """Counts per rad: ``counts_per_rev / (2 pi)``."""
+        return self.counts_per_rev / (2.0 * math.pi)
+
+    def speed_coefficients(self) -> tuple[float, float, float, float]:
+        """``(e, g, beta1, beta2)`` of the exact model (module docstring), in counts per sample per duty."""
+        e, g, p, q = (float(x) for x in zoh_matrices(self.a, self.b, self.sample_period))
+        h, s = self.sample_period, self.speed_scale
+        return e, g * s, q / h * s, (p * g - e * q) / h * s
+
+    def drive_offset(self, sign: int) -> float:
+        """``(bias - friction sign) / b`` in duty: what the drive adds when the speed has ``sign``."""
+        return (self.bias - self.friction * sign) / self.b
+
+    def speed_transfer_function(self) -> control.TransferFunction:
+        """Duty to measured speed (counts per sample), ``(beta1 z + beta2) / (z^(D+1) (z - e))``."""
+        import control
+        e, _, b1, b2 = self.speed_coefficients()
+        den = np.polymul(np.r_[1.0, np.zeros(self.input_delay + 1)], [1.0, -e])
+        return control.tf([b1, b2], den, self.sample_period)
+
+    def metadata(self) -> dict[str, str]:
+        """The model as recording metadata ``model_NAME``."""
+        return {f"model_{f.name}": repr(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# References
+# ----------------------------------------------------------------------------------------------------------
+
+_REFERENCE_HELP = ("constant:LEVEL  step:AFTER[,AT_TIME[,BEFORE]]  sine:FREQ,AMP[,PHASE][@OFFSET]  "
+                   "multisine:F,A,P;F,A,P...[@OFFSET]  trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME]")
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """A reference wave in physical units (rad/s for speed, rad for position), integer-exact on a device.
+
+    Parameters
+    ----------
+    kind : str
+        ``constant``, ``step``, ``sine``, ``multisine`` or ``trapezoid``.
+    level : float
+        Constant level; step value after the switch; trapezoid plateau; sine offset.
+    frequencies, amplitudes, phases : tuple of float
+        Sine components (rad/s, physical unit, rad); ``sine`` has one, ``multisine`` up to 4.
+    at_time : float
+        Step switch or trapezoid start in s (rounded to a sample).
+    before : float
+        Step value before the switch.
+    ramp_time, hold_time : float
+        Trapezoid ramp and plateau durations in s (rounded to samples).
+
+    Notes
+    -----
+    :meth:`samples` turns the wave into integers of the controller's reference unit:
+    levels ``L = round(level scale)``; sines as the excitations compute them
+    (``multisine_duty`` of :mod:`motorsim.excitation`, amplitudes ``round(A scale)``);
+    trapezoid ramps ``floor(L i / n_ramp)``.
+
+    Examples
+    --------
+    >>> r = parse_reference("trapezoid:10,0.02,0.01")
+    >>> r.samples(11, 0.005, 1.0).tolist()   # the level is held from 0.02 s to 0.03 s
+    [0, 2, 5, 7, 10, 10, 10, 7, 5, 2, 0]
+    """
+
+    kind: str
+    level: float = 0.0
+    frequencies: tuple = ()
+    amplitudes: tuple = ()
+    phases: tuple = ()
+    at_time: float = 0.0
+    before: float = 0.0
+    ramp_time: float = 0.0
+    hold_time: float = 0.0
+    kinds: ClassVar[tuple[str, ...]] = ("constant", "step", "sine", "multisine", "trapezoid")
+
+    def __post_init__(self):
+        if self.kind not in self.kinds:
+            raise ValueError(f"reference kind must be one of {', '.join(self.kinds)}, got {self.kind!r}")
+        for name in ("level", "at_time", "before", "ramp_time", "hold_time"):
+            object.__setattr__(self, name, check_real(name, getattr(self, name)))
+        f = tuple(check_real("frequencies", x, positive=True) for x in self.frequencies)
+        a = tuple(check_real("amplitudes", x) for x in self.amplitudes)
+        p = tuple(check_real("phases", x) for x in self.phases) or (0.0,) * len(f)
+        if self.kind in ("sine", "multisine") and not (1 <= len(f) <= MAX_COMPONENTS and len(a) == len(f) == len(p)):
+            raise ValueError(f"a {self.kind} reference needs 1...{MAX_COMPONENTS} components of equal length, "
+                             f"got {len(f)} frequencies, {len(a)} amplitudes, {len(p)} phases")
+        if self.kind == "trapezoid" and self.ramp_time <= 0:
+            raise ValueError(f"ramp_time must be > 0 s for a trapezoid, got {self.ramp_time!r}")
+        if min(self.at_time, self.hold_time) < 0:
+            raise ValueError(f"at_time and hold_time must be >= 0 s, got {self.at_time!r}, {self.hold_time!r}")
+        object.__setattr__(self, "frequencies", f)
+        object.__setattr__(self, "amplitudes", a)
+        object.__setattr__(self, "phases", p)
+
+    def samples(self, n_samples: int, sample_period: float, scale: float) -> np.ndarray:
+        """The integer reference for samples ``0 ... n_samples-1`` (int64).
+
+        Parameters
+        ----------
+        n_samples : int
+            Number of samples.
+        sample_period : float
+            Sample period in s.
+        scale : float
+            Integer units per physical unit (e.g. 1/16 count per sample per rad/s).
+        """
+        return reference_values(self.words(sample_period, scale), n_samples)
+
+    def words(self, sample_period: float, scale: float) -> ReferenceWords:
+        """The integers a device generates this reference from (see :func:`reference_values`).
+
+        Parameters
+        ----------
+        sample_period : float
+            Sample period in s.
+        scale : float
+            Integer units per physical unit.
+        """
+        dt = check_real("sample_period", sample_period, positive=True)
+
+        def lsb(x: float, name: str) -> int:
+            v = int(round(x * scale))
+            if abs(v) > MAX_REFERENCE:
+                raise ValueError(f"reference {name} {x!r} is {v} units of the controller's reference, "
+                                 f"beyond the device's limit +-{MAX_REFERENCE}")
+            return v
+
+        if self.kind == "constant":
+            return ReferenceWords("constant", lsb(self.level, "level"))
+        if self.kind == "step":
+            return ReferenceWords("step", lsb(self.level, "after"), lsb(self.before, "before"),
+                                  int(round(self.at_time / dt)))
+        if self.kind == "trapezoid":
+            return ReferenceWords("trapezoid", lsb(self.level, "level"), 0, int(round(self.at_time / dt)),
+                                  max(1, int(round(self.ramp_time / dt))), int(round(self.hold_time / dt)))
+        amps = [lsb(x, "amplitude") for x in self.amplitudes]
+        if sum(abs(x) for x in amps) > MAX_REFERENCE:
+            raise ValueError(f"reference amplitudes sum to {sum(abs(x) for x in amps)} units, "
+                             f"beyond the device's limit {MAX_REFERENCE}")
+        comps = []
+        for f, amp, ph in zip(self.frequencies, amps, self.phases):
+            if f * dt >= math.pi:
+                raise ValueError(f"reference frequencies must be below pi/sample_period = {math.pi / dt:.6g} "
+                                 f"rad/s, got {f!r}")
+            comps.append((amp, int(round(ph / (2 * math.pi) * 2**32)) % 2**32, phase_increment(f, dt)))
+        return ReferenceWords("multisine", lsb(self.level, "offset"), components=tuple(comps))
+
+    def describe(self) -> str:
+        """A one-line spec that :func:`parse_reference` reads back."""
+        if self.kind == "constant":
+            return f"constant:{self.level!r}"
+        if self.kind == "step":
+            return f"step:{self.level!r},{self.at_time!r},{self.before!r}"
+        if self.kind == "trapezoid":
+            return f"trapezoid:{self.level!r},{self.ramp_time!r},{self.hold_time!r},{self.at_time!r}"
+        parts = ";".join(f"{f!r},{a!r},{p!r}" for f, a, p in zip(self.frequencies, self.amplitudes, self.phases))
+        return f"{self.kind}:{parts}" + (f"@{self.level!r}" if self.level else "")
+
+
+class ReferenceWords(NamedTuple):
+    """A reference as the integers a device generates it from (the REFERENCE message of protocol v2).
+
+    ``kind`` is ``constant``, ``step``, ``multisine`` (a sine is one component) or ``trapezoid``;
+    ``level`` is the constant, the step value after ``start``, the sines' offset or the
+    trapezoid's plateau; ``before`` the step value before ``start``; ``start`` the step's switch
+    or the trapezoid's first sample; ``ramp`` and ``hold`` the trapezoid's ramp and plateau in
+    samples; ``components`` the sines' ``(amplitude, phase0, phase_inc)`` words.
+    """
+
+    kind: str
+    level: int = 0
+    before: int = 0
+    start: int = 0
+    ramp: int = 1
+    hold: int = 0
+    components: tuple = ()
+
+
+def reference_values(words: ReferenceWords, n_samples: int) -> np.ndarray:
+    """The integer reference of samples ``0 ... n_samples-1`` (int64), as a device computes it.
+
+    constant: ``level``; step: ``before`` for ``k < start``, else ``level``; multisine:
+    :func:`~motorsim.excitation.multisine_duty` of the components, plus ``level``; trapezoid,
+    with ``i = k - start``: ``floor(level min(max(i, 0), ramp) / ramp)`` while ``i < ramp + hold``,
+    then ``floor(level min(max(2 ramp + hold - i, 0), ramp) / ramp)`` (floor division, 64-bit).
+
+    Parameters
+    ----------
+    words : ReferenceWords
+        The reference's integers.
+    n_samples : int
+        Number of samples.
+    """
+    n = check_int("n_samples", n_samples, 0, 2**32 - 1)
+    k = np.arange(n, dtype=np.int64)
+    if words.kind == "constant":
+        return np.full(n, words.level, dtype=np.int64)
+    if words.kind == "step":
+        return np.where(k < words.start, words.before, words.level).astype(np.int64)
+    if words.kind == "multisine":
+        return multisine_duty(words.components, words.level, n)
+    if words.kind == "trapezoid":
+        nr = check_int("ramp", words.ramp, 1, 2**32 - 1)
+        i = k - words.start
+        up = (words.level * np.clip(i, 0, nr)) // nr
+        down = (words.level * np.clip(2 * nr + words.hold - i, 0, nr)) // nr
+        return np.where(i < nr + words.hold, up, down).astype(np.int64)
+    raise ValueError(f"reference kind must be constant, step, multisine or trapezoid, got {words.kind!r}")
+
+
+def parse_reference(spec: str) -> Reference:
+    """Read a reference from its one-line form (see :meth:`Reference.describe`).
+
+    Parameters
+    ----------
+    spec : str
+        ``constant:LEVEL``, ``step:AFTER[,AT_TIME[,BEFORE]]``, ``sine:FREQ,AMP[,PHASE][@OFFSET]``,
+        ``multisine:F,A,P;...[@OFFSET]`` or ``trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME]``;
+        levels and amplitudes in rad/s (speed controllers) or rad (position).
+
+    Examples
+    --------
+    >>> parse_reference("sine:10,20@5").describe()
+    'sine:10.0,20.0,0.0@5.0'
+    """
+    if not isinstance(spec, str) or ":" not in spec:
+        raise ValueError(f"reference must look like KIND:ARGS ({_REFERENCE_HELP}), got {spec!r}")
+    kind, _, args = spec.partition(":")
+    kind = kind.strip().lower()
+    offset = 0.0
+    if "@" in args:
+        args, _, off = args.partition("@")
+        offset = _numbers(off, spec)[0] if off.strip() else 0.0
+    if kind in ("sine", "multisine"):
+        comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
+        if not comps or any(not 2 <= len(c) <= 3 for c in comps) or (kind == "sine" and len(comps) != 1):
+            raise ValueError(f"reference {spec!r}: {kind} takes FREQ,AMP[,PHASE] per component")
+        return Reference(kind, offset, tuple(c[0] for c in comps), tuple(c[1] for c in comps),
+                         tuple(c[2] if len(c) > 2 else 0.0 for c in comps))
+    v = _numbers(args, spec)
+    forms = {"constant": (1, 1), "step": (1, 3), "trapezoid": (3, 4)}
+    if kind not in forms:
+        raise ValueError(f"reference kind must be one of {', '.join(Reference.kinds)}, got {kind!r}")
+    lo, hi = forms[kind]
+    if not lo <= len(v) <= hi:
+        raise ValueError(f"reference {spec!r}: expected {_REFERENCE_HELP}")
+    if kind == "constant":
+        return Reference("constant", v[0])
+    if kind == "step":
+        return Reference("step", v[0], at_time=v[1] if len(v) > 1 else 0.0, before=v[2] if len(v) > 2 else 0.0)
+    return Reference("trapezoid", v[0], ramp_time=v[1], hold_time=v[2], at_time=v[3] if len(v) > 3 else 0.0)
+
+
+def _numbers(text: str, spec: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"reference {spec!r}: expected comma-separated numbers; forms: {_REFERENCE_HELP}") from None
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Controllers
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Prediction:
+    """A closed-loop response predicted from the model (linear: no duty limit, no quantisation).
+
+    Attributes
+    ----------
+    time : ndarray
+        Sample instants in s.
+    reference : ndarray
+        The reference in physical units (rad/s or rad), as the device quantises it.
+    output : ndarray
+        Predicted measured speed (rad/s, differenced counts) or angle from the start (rad).
+    duty : ndarray
+        Predicted duty (unrounded, unclipped).
+    tracking_rms : float
+        RMS of ``reference - output`` over samples 1 ... n-1, in the reference's unit.
+    """
+
+    time: np.ndarray
+    reference: np.ndarray
+    output: np.ndarray
+    duty: np.ndarray
+    tracking_rms: float
+
+
+class ControlLoop:
+    """One run of a controller: the integer step, sample by sample (the device's arithmetic).
+
+    Parameters
+    ----------
+    kind : str
+        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+    gains : mapping of str to int
+        The Q16 gains by name (:meth:`Controller.gains`, or :func:`gains_from_wire`).
+    preview : int
+        Samples of reference the step looks ahead.
+    reference : sequence of int or ndarray
+        The integer reference, at least ``n_samples + preview`` long.
+    duty_limit : int
+        Duty clamp, 0...255.
+    """
+
+    def __init__(self, kind: str, gains: Mapping[str, int], preview: int, reference: Sequence[int] | np.ndarray,
+                 duty_limit: int = DUTY_LIMIT):
+        if kind not in GAIN_ORDER:
+            raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+        self.gains = {k: int(v) for k, v in gains.items()}
+        self.reference = [int(x) for x in reference]
+        self.preview = check_int("preview", preview, 0, 255)
+        self.limit = check_int("duty_limit", duty_limit, 0, DUTY_LIMIT)
+        self.ku = [self.gains[f"ku{m}"] for m in range(1, len(self.gains) + 1) if f"ku{m}" in self.gains]
+        self.history = [0] * max(1, len(self.ku))
+        self.integral = 0
+        self.previous: int | None = None
+        self.origin = 0
+        self.law = getattr(self, "_" + kind)
+        self.with_feedforward = "kn" in self.gains
+
+    def step(self, k: int, counts: int) -> int:
+        """The duty to apply from sample ``k`` on, given the encoder's ``counts`` read at ``k``."""
+        if self.previous is None:
+            self.previous = self.origin = counts
+        y = counts - self.previous
+        self.previous = counts
+        u = self.law(k, counts, y)
+        self.history = [u] + self.history[:-1]
+        return u
+
+    def _clip(self, acc: int) -> int:
+        u = (acc + _HALF) >> GAIN_BITS
+        return -self.limit if u < -self.limit else (self.limit if u > self.limit else u)
+
+    def _mpc(self, k: int, counts: int, y: int) -> int:
+        g, r = self.gains, self.reference[k + self.preview]
+        acc = g["kr"] * r + g["ky"] * y + g["k0"] + g["kf"] * _sign(r)
+        for gain, u in zip(self.ku, self.history):
+            acc += gain * u
+        return self._clip(acc)
+
+    def _feedforward_sum(self, k: int) -> int:
+        g, r1 = self.gains, self.reference[k + self.preview]
+        return g["kn"] * r1 + g["kc"] * self.reference[k + self.preview - 1] + g["k0"] + g["kf"] * _sign(r1)
+
+    def _feedforward(self, k: int, counts: int, y: int) -> int:
+        return self._clip(self._feedforward_sum(k))
+
+    def _pi(self, k: int, counts: int, y: int) -> int:
+        g = self.gains
+        err = self.reference[k] - (y << SPEED_REFERENCE_BITS)
+        integral = self.integral + err
+        acc = g["kp"] * err + g["ki"] * integral
+        if self.with_feedforward:
+            acc += self._feedforward_sum(k)
+        raw = (acc + _HALF) >> GAIN_BITS
+        if not ((raw > self.limit and err > 0) or (raw < -self.limit and err < 0)):
+            self.integral = integral  # anti-windup: no integration further into the limit
+        return self._clip(acc)
+
+    def _position(self, k: int, counts: int, y: int) -> int:
+        g = self.gains
+        return self._clip(g["kp"] * (self.reference[k] - (counts - self.origin)) - g["kd"] * y)
+
+
+@dataclasses.dataclass(frozen=True)
+class Controller:
+    """Base class: a controller designed from a :class:`PlantModel`.
+
+    Subclasses set ``kind`` and ``quantity`` and define :meth:`gains` (the fixed-point
+    parameters a device receives) and :meth:`laws` (the same law as transfer functions).
+    """
+
+    model: PlantModel
+    kind: ClassVar[str] = ""
+    quantity: ClassVar[str] = "speed"
+
+    def __post_init__(self):
+        if not isinstance(self.model, PlantModel):
+            raise TypeError(f"model must be a PlantModel, got {type(self.model).__name__}")
+
+    @property
+    def preview(self) -> int:
+        """Samples of reference the step looks ahead (``input_delay + 1`` for model-based laws, else 0)."""
+        return self.model.input_delay + 1
+
+    @property
+    def reference_scale(self) -> float:
+        """Integer reference units per physical unit (per rad/s, or per rad for position)."""
+        if self.quantity == "angle":
+            return self.model.angle_scale
+        return self.model.speed_scale / SPEED_REFERENCE_LSB
+
+    @property
+    def reference_unit(self) -> str:
+        """``rad/s`` (speed controllers) or ``rad`` (position)."""
+        return "rad" if self.quantity == "angle" else "rad/s"
+
+    def gains(self) -> dict[str, int]:  # pragma: no cover - abstract
+        """The fixed-point parameters of the step, by name (Q16 integers)."""
+        raise NotImplementedError
+
+    def settings(self) -> dict[str, float | bool]:
+        """The design knobs (every field but the model)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "model"}
+
+    def laws(self) -> tuple[control.TransferFunction, control.TransferFunction]:  # pragma: no cover
+        """``(Cr, Cy)``: duty from the previewed reference and from the measurement, ``u = Cr r + Cy y``."""
+        raise NotImplementedError
+
+    def start(self, reference: Sequence[int] | np.ndarray, duty_limit: int = DUTY_LIMIT) -> ControlLoop:
+        """A fresh :class:`ControlLoop` on the integer ``reference``."""
+        return ControlLoop(self.kind, self.gains(), self.preview, reference, duty_limit)
+
+    def plant(self) -> control.TransferFunction:
+        """Duty to what the controller measures: speed in counts/sample, or counts for position."""
+        import control
+        p = self.model.speed_transfer_function()
+        if self.quantity == "angle":
+            p = p * control.tf([1.0, 0.0], [1.0, -1.0], self.model.sample_period)
+        return p
+
+    def closed_loop(self) -> tuple[control.TransferFunction, control.TransferFunction]:
+        """``(T_y, T_u)``: previewed reference to measured output and to duty, via ``control.feedback``."""
+        import control
+        cr, cy = self.laws()
+        p = self.plant()
+        sensitivity = control.feedback(control.tf([1.0], [1.0], self.model.sample_period), p * cy, sign=1)
+        t_u = sensitivity * cr
+        return p * t_u, t_u
+
+    def is_stable(self) -> bool:
+        """Whether every closed-loop pole lies inside the unit circle."""
+        import control
+        cr, cy = self.laws()
+        loop = control.feedback(-(self.plant() * cy), 1)
+        return bool(np.all(np.abs(loop.poles()) < 1.0 - 1e-12))
+
+    def predict(self, reference: Reference, duration: float) -> Prediction:
+        """The closed-loop response to ``reference`` over ``duration`` s (``control.forced_response``).
+
+        Parameters
+        ----------
+        reference : Reference
+            The wave, in rad/s (speed controllers) or rad (position).
+        duration : float
+            Run length in s (``round(duration / sample_period)`` samples).
+        """
+        import control
+        h = self.model.sample_period
+        n = int(round(check_real("duration", duration, positive=True) / h))
+        r = reference.samples(n + self.preview, h, self.reference_scale).astype(float)
+        t = np.arange(n) * h
+        t_y, t_u = self.closed_loop()
+        r_ahead = r[self.preview:self.preview + n]
+        y = control.forced_response(t_y, timepts=t, inputs=r_ahead).outputs
+        u = control.forced_response(t_u, timepts=t, inputs=r_ahead).outputs
+        scale = self.model.angle_scale if self.quantity == "angle" else self.model.speed_scale
+        ref = r[:n] / self.reference_scale
+        out = np.asarray(y, dtype=float) / scale
+        rms = float(np.sqrt(np.mean((ref[1:] - out[1:]) ** 2))) if n > 1 else math.nan
+        return Prediction(t, ref, out, np.asarray(u, dtype=float), rms)
+
+    def metadata(self) -> dict[str, str]:
+        """Recording metadata: ``controller``, its knobs, gains and the model it was designed from."""
+        meta = {"controller": self.kind, "controlled": self.quantity, "reference_unit": self.reference_unit}
+        meta.update({f"controller_{k}": repr(v) for k, v in self.settings().items()})
+        meta["controller_gains"] = " ".join(f"{k}={v}" for k, v in self.gains().items())
+        meta.update(self.model.metadata())
+        return meta
+
+
+def _fir(coefficients: Sequence[float], dt: float) -> control.TransferFunction:
+    """``c0 + c1 z^-1 + ... + cm z^-m`` as a transfer function in z."""
+    import control
+    den = np.r_[1.0, np.zeros(len(coefficients) - 1)]
+    return control.tf(list(coefficients), den, dt)
+
+
+def _as_real(x: int) -> float:
+    return x / (1 << GAIN_BITS)
+
+
+@dataclasses.dataclass(frozen=True)
+class OneStepMPC(Controller):
+    """One-step model predictive control of the speed (the plan of the article's section 6).
+
+    At each sample, the integer duty ``u_k`` in ``-duty_limit ... duty_limit`` that minimises
+    ``J(u) = (r_{k+D+1} - y_hat_{k+D+1})^2 + duty_weight u^2``, where ``y_hat`` is the exact
+    model's prediction of the measured speed (module docstring) ``D + 1`` samples ahead
+    (the first sample the duty can affect), friction taken with the reference's sign.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    duty_weight : float
+        lambda in (rad/s)^2 per duty^2, >= 0 (default 1e-4).
+
+    Notes
+    -----
+    ``y_hat = f + beta1 u`` with ``f`` known at sample ``k``, so ``J`` is a convex quadratic
+    in one variable, symmetric about ``u* = beta1 (r - f) / (beta1^2 + lambda)``.  Over the
+    integers of an interval its minimum is therefore the integer nearest ``u*`` clipped to
+    the interval: ``J`` grows with the distance to ``u*`` on both sides, so rounding picks
+    the nearest integer, and when ``u*`` lies outside the interval ``J`` is monotone on it
+    and the limit nearest ``u*`` wins.  No search is needed: the step is one linear form
+    in ``r``, ``y_k`` and the past duties, rounded and clipped.
+
+    The cost weighs the whole duty, so the model's bias and friction are compensated by
+    the fraction ``beta1^2 / (beta1^2 + lambda)`` of their duty equivalent, and a constant
+    reference keeps a steady error when ``lambda > 0`` (there is no integral action);
+    ``lambda`` near 0 approaches dead-beat control of the measured speed, whose duty rings
+    at the zero ``-beta2 / beta1`` (about -0.96 at 5 ms) of the differenced-counts model.
+
+    Examples
+    --------
+    >>> mpc = OneStepMPC(PlantModel(25.0, 3.0, 0.005, 16667))
+    >>> sorted(mpc.gains())
+    ['k0', 'kf', 'kr', 'ku1', 'ky']
+    >>> mpc.is_stable()
+    True
+    """
+
+    duty_weight: float = 1e-4
+    kind: ClassVar[str] = "mpc"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "duty_weight", check_real("duty_weight", self.duty_weight, nonnegative=True))
+
+    def _coefficients(self) -> tuple[float, list[float], float, float]:
+        """``(K, [c_1 ... c_{D+1}], e^(D+1), g S_D)`` of ``y_hat = e^(D+1) y + beta1 u + sum c_m u_{k-m} + g S_D o``."""
+        m = self.model
+        e, g, b1, b2 = m.speed_coefficients()
+        d = m.input_delay
+        c = [(e ** j * b1 if j <= d else 0.0) + e ** (j - 1) * b2 for j in range(1, d + 2)]
+        weight = self.duty_weight * m.speed_scale ** 2
+        if b1 * b1 + weight == 0:  # pragma: no cover - b != 0 makes beta1 != 0
+            raise ValueError("the model's beta1 is zero: the duty does not reach the next sample")
+        return b1 / (b1 * b1 + weight), c, e ** (d + 1), g * sum(e ** j for j in range(d + 1))
+
+    def gains(self) -> dict[str, int]:
+        k, c, e_ahead, gs = self._coefficients()
+        m = self.model
+        out = {"kr": _q(k * SPEED_REFERENCE_LSB), "ky": _q(-k * e_ahead),
+               "k0": _q(-k * gs * m.bias / m.b), "kf": _q(k * gs * m.friction / m.b)}
+        out.update({f"ku{j}": _q(-k * cj) for j, cj in enumerate(c, 1)})
+        return out
+
+    def laws(self):
+        gains, dt = self.gains(), self.model.sample_period
+        ku = [_as_real(gains[f"ku{j}"]) for j in range(1, self.model.input_delay + 2)]
+        den = _fir([1.0, *(-x for x in ku)], dt)
+        return _fir([_as_real(gains["kr"])], dt) / den, _fir([_as_real(gains["ky"])], dt) / den
+
+
+@dataclasses.dataclass(frozen=True)
+class Feedforward(Controller):
+    """Speed feedforward from the model alone: the duty that makes the model follow the reference.
+
+    ``u_k = (r_{k+D+1} - e r_{k+D}) / g + (friction sign(r_{k+D+1}) - bias) / b``: the exact
+    ZOH form of ``u = (d omega_ref/dt + a omega_ref - bias + friction sign omega_ref) / b``.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+
+    Examples
+    --------
+    >>> Feedforward(PlantModel(25.0, 3.0, 0.005, 16667)).gains()["kn"] >= 0
+    True
+    """
+
+    kind: ClassVar[str] = "feedforward"
+
+    def gains(self) -> dict[str, int]:
+        return feedforward_gains(self.model)
+
+    def laws(self):
+        g, dt = self.gains(), self.model.sample_period
+        return _fir([_as_real(g["kn"]), _as_real(g["kc"])], dt), _fir([0.0], dt)
+
+
+def feedforward_gains(model: PlantModel) -> dict[str, int]:
+    """Q16 gains ``kn, kc, k0, kf`` of the speed feedforward (see :class:`Feedforward`)."""
+    e, g, _, _ = model.speed_coefficients()
+    return {"kn": _q(SPEED_REFERENCE_LSB / g), "kc": _q(-e * SPEED_REFERENCE_LSB / g),
+            "k0": _q(-model.bias / model.b), "kf": _q(model.friction / model.b)}
+
+
+@dataclasses.dataclass(frozen=True)
+class PISpeed(Controller):
+    """PI speed control by pole placement on the exact ZOH model, with anti-windup.
+
+    ``u_k = kp e_k + ki sum_{j<=k} e_j`` with ``e = r - y``; both closed-loop poles of the
+    model ``y_{k+1} = e_a y_k + g u_k`` sit at ``p = exp(-sample_period / time_constant)``:
+    ``kp = (e_a - p^2) / g``, ``ki = (1 - p)^2 / g``.  The sum stops growing while the duty
+    is at the limit and the error pushes further into it (conditional integration).
+    :meth:`predict` closes the loop on the full model (differenced counts, delay).
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    time_constant : float
+        Closed-loop time constant in s, > 0 (default 0.05).
+    feedforward : bool
+        Add the model's feedforward (:class:`Feedforward`) to the PI output (default False).
+
+    Examples
+    --------
+    >>> pi = PISpeed(PlantModel(25.0, 3.0, 0.005, 16667), time_constant=0.05)
+    >>> pi.gains()
+    {'kp': 1397, 'ki': 198}
+    """
+
+    time_constant: float = 0.05
+    feedforward: bool = False
+    kind: ClassVar[str] = "pi"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
+
+    @property
+    def preview(self) -> int:
+        return self.model.input_delay + 1 if self.feedforward else 0
+
+    def gains(self) -> dict[str, int]:
+        e, g, _, _ = self.model.speed_coefficients()
+        p = math.exp(-self.model.sample_period / self.time_constant)
+        out = {"kp": _q((e - p * p) / g * SPEED_REFERENCE_LSB), "ki": _q((1 - p) ** 2 / g * SPEED_REFERENCE_LSB)}
+        if out["ki"] == 0:
+            raise ValueError(f"time_constant {self.time_constant!r} s is too slow for the fixed-point integral "
+                             f"gain (it rounds to 0); choose a shorter one")
+        if self.feedforward:
+            out.update(feedforward_gains(self.model))
+        return out
+
+    def laws(self):
+        import control
+        g, dt = self.gains(), self.model.sample_period
+        c = control.tf([_as_real(g["kp"]) + _as_real(g["ki"]), -_as_real(g["kp"])], [1.0, -1.0], dt)
+        delay = _fir([0.0] * self.preview + [1.0], dt)
+        cr = c * delay
+        if self.feedforward:
+            cr = cr + _fir([_as_real(g["kn"]), _as_real(g["kc"])], dt)
+        return cr, -(1 << SPEED_REFERENCE_BITS) * c
+
+
+@dataclasses.dataclass(frozen=True)
+class PositionPD(Controller):
+    """Position P or PD control on the counts: ``u = kp (r - counts) - kd y``.
+
+    The gains place both poles of the continuous model ``theta'' + a theta' = b u`` at
+    ``-1/time_constant``: ``kp = 1 / (b time_constant^2)`` per rad, ``kd = (2/time_constant - a) / b``
+    per rad/s (0 when negative, or with ``derivative=False``); :meth:`predict` closes the
+    loop on the exact sampled model.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    time_constant : float
+        Closed-loop time constant in s, > 0 (default 0.05).
+    derivative : bool
+        Use the speed term (PD, default) or not (P).
+
+    Examples
+    --------
+    >>> PositionPD(PlantModel(25.0, 3.0, 0.005, 16667)).is_stable()
+    True
+    """
+
+    time_constant: float = 0.05
+    derivative: bool = True
+    kind: ClassVar[str] = "position"
+    quantity: ClassVar[str] = "angle"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
+
+    @property
+    def preview(self) -> int:
+        return 0
+
+    def gains(self) -> dict[str, int]:
+        m, tau = self.model, self.time_constant
+        kd = max(0.0, (2.0 / tau - m.a) / m.b) if self.derivative else 0.0
+        return {"kp": _q(1.0 / (m.b * tau * tau) / m.angle_scale), "kd": _q(kd / m.speed_scale)}
+
+    def laws(self):
+        g, dt = self.gains(), self.model.sample_period
+        kp, kd = _as_real(g["kp"]), _as_real(g["kd"])
+        return _fir([kp], dt), _fir([-kp - kd, kd], dt)
+
+
+#: Names of each controller's gains in the order a device receives them (protocol v2 CONTROL);
+#: ``mpc`` then has ``ku1 ... ku(D+1)``, and ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
+GAIN_ORDER: dict[str, tuple[str, ...]] = {"mpc": ("kr", "ky", "k0", "kf"), "pi": ("kp", "ki"),
+                                          "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf")}
+
+
+def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
+    """The named gains of controller ``kind`` from the integers in their wire order (:data:`GAIN_ORDER`).
+
+    Parameters
+    ----------
+    kind : str
+        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+    values : sequence of int
+        The gains as sent.
+
+    Examples
+    --------
+    >>> gains_from_wire("mpc", [1, 2, 3, 4, 5, 6])
+    {'kr': 1, 'ky': 2, 'k0': 3, 'kf': 4, 'ku1': 5, 'ku2': 6}
+    """
+    if kind not in GAIN_ORDER:
+        raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+    names = list(GAIN_ORDER[kind])
+    values = [int(v) for v in values]
+    if kind == "mpc" and len(values) < 5:
+        raise ValueError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
+                         f"got {len(values)}")
+    if kind == "mpc":
+        names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
+    elif kind == "pi" and len(values) == 6:
+        names += list(GAIN_ORDER["feedforward"])
+    if len(values) != len(names):
+        raise ValueError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
+    return dict(zip(names, values))
+
+
+#: Controllers by ``kind`` (``motorid control design --controller``).
+CONTROLLERS: dict[str, type[Controller]] = {c.kind: c for c in (OneStepMPC, PISpeed, PositionPD, Feedforward)}
+
+
+def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controller:
+    """The controller ``kind`` (a key of :data:`CONTROLLERS`) designed from ``model``.
+
+    Parameters
+    ----------
+    kind : str
+        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+    model : PlantModel
+        The motor model.
+    **settings
+        The controller's knobs (``duty_weight``, ``time_constant``, ``feedforward``, ``derivative``).
+    """
+    if kind not in CONTROLLERS:
+        raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)}, got {kind!r}")
+    cls = CONTROLLERS[kind]
+    known = {f.name for f in dataclasses.fields(cls)} - {"model"}
+    unknown = set(settings) - known
+    if unknown:
+        raise ValueError(f"controller {kind!r} takes {sorted(known) or 'no settings'}, got {sorted(unknown)}")
+    return cls(model, **settings)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The closed-loop experiment
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class ClosedLoopExperiment:
+    """What a rig should run in closed loop: a controller tracking a reference.
+
+    Parameters
+    ----------
+    controller : Controller
+        The controller (its model's ``sample_period`` is the run's).
+    reference : Reference
+        The wave to track, in rad/s (speed controllers) or rad (position).
+    duration : float
+        Length of the run in s.
+    duty_limit : int
+        Duty clamp, 0...255 (default 255).
+    """
+
+    controller: Controller
+    reference: Reference
+    duration: float = 10.0
+    duty_limit: int = DUTY_LIMIT
+
+    def __post_init__(self):
+        if not isinstance(self.controller, Controller):
+            raise TypeError(f"controller must be a Controller, got {type(self.controller).__name__}")
+        if not isinstance(self.reference, Reference):
+            raise TypeError(f"reference must be a Reference, got {type(self.reference).__name__}")
+        object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
+        object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
+        if self.n_samples < 2:
+            raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
+                             f"got {self.duration!r} s")
+        self.reference_samples()  # validate the reference against the controller's units
+
+    @property
+    def sample_period(self) -> float:
+        """The controller's sample period in s."""
+        return self.controller.model.sample_period
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples, ``round(duration / sample_period)``."""
+        return int(round(self.duration / self.sample_period))
+
+    def reference_samples(self) -> np.ndarray:
+        """The integer reference, ``n_samples + controller.preview`` long (the step looks ahead)."""
+        c = self.controller
+        return self.reference.samples(self.n_samples + c.preview, self.sample_period, c.reference_scale)
+
+    def reference_values(self) -> np.ndarray:
+        """The reference at each sample in physical units (what the device tracks), length ``n_samples``."""
+        return self.reference_samples()[:self.n_samples] / self.controller.reference_scale
+
+    def metadata(self) -> dict[str, str]:
+        """Metadata lines for the recording: the reference, duty limit, duration and the controller's."""
+        return {"reference": self.reference.describe(), "duty_limit": str(self.duty_limit),
+                "duration": repr(self.duration), **self.controller.metadata()}
+
+
+def tracking_error(recording: Any) -> np.ndarray:
+    """``reference - measured`` of a closed-loop recording, samples 1 ... n-1 (rad/s or rad).
+
+    The measured quantity is the differenced-counts speed, or the angle since the first
+    sample when the metadata say ``controlled: angle``.
+
+    Parameters
+    ----------
+    recording : Recording
+        A recording with a ``reference`` column.
+    """
+    ref = getattr(recording, "reference", None)
+    if ref is None:
+        raise ValueError("recording has no reference column: it is not a closed-loop recording")
+    if recording.metadata.get("controlled") == "angle":
+        angle = recording.measured_angle()
+        out = angle - angle[0]
+    else:
+        out = recording.measured_speed()
+    err = (ref - out)[1:]
+    return err[np.isfinite(err)]
+
+
+def settings_from(values: Mapping[str, Any], kind: str) -> dict[str, Any]:
+    """The knobs of controller ``kind`` found in ``values`` (e.g. parsed CLI arguments), others ignored."""
+    known = {f.name for f in dataclasses.fields(CONTROLLERS[kind])} - {"model"}
+    return {k: v for k, v in values.items() if k in known and v is not None}

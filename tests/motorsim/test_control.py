@@ -1,0 +1,165 @@
+"""Controllers from a model: the fixed-point step, its optimality, and prediction against the simulated rig."""
+import math
+
+import numpy as np
+import pytest
+
+from motorsim import Encoder, Experiment, Motor, Recording, SimRig, Sine, read_recording, write_recording
+from motorsim.control import (
+    CONTROLLERS,
+    ClosedLoopExperiment,
+    Feedforward,
+    OneStepMPC,
+    PISpeed,
+    PlantModel,
+    PositionPD,
+    design_controller,
+    parse_reference,
+    tracking_error,
+)
+from motorsim.excitation import multisine_duty, phase_increment
+
+MODEL = PlantModel(25.0, 3.0, 0.005, 16667)
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _run(controller, spec, duration=4.0, motor=None, **rig):
+    exp = ClosedLoopExperiment(controller, parse_reference(spec), duration=duration)
+    return SimRig(motor or Motor(25.0, 3.0), **rig).run(exp)
+
+
+# The controllers track as predicted.  The prediction is linear (no duty limit, no encoder
+# quantisation); the references keep the duty below the limit, so the measured RMS differs
+# from the predicted one only by the encoder's quantisation (1 count per sample = 0.075 rad/s)
+# and the rounding of the duty: 10 % is the tolerance the controllers are held to.
+@pytest.mark.parametrize("controller, spec", [
+    (OneStepMPC(MODEL, 1e-4), "sine:10,10"),
+    (OneStepMPC(MODEL, 1e-3), "multisine:5,6;20,3"),
+    (PISpeed(MODEL, 0.05), "trapezoid:15,0.5,1,0.2"),
+    (PISpeed(MODEL, 0.05, feedforward=True), "sine:10,10"),
+    (Feedforward(MODEL), "sine:10,10"),
+    (PositionPD(MODEL, 0.05), "step:1,0.1"),
+    (PositionPD(MODEL, 0.1, derivative=False), "sine:3,1"),
+], ids=["mpc-sine", "mpc-multisine", "pi-trapezoid", "pi-ff-sine", "feedforward", "pd-step", "p-sine"])
+def test_measured_tracking_rms_within_10_percent_of_the_prediction(controller, spec):
+    rec = _run(controller, spec)
+    predicted = controller.predict(parse_reference(spec), 4.0)
+    measured = _rms(tracking_error(rec))
+    assert predicted.tracking_rms > 0.02  # well above the encoder's quantisation, so the test can fail
+    assert measured == pytest.approx(predicted.tracking_rms, rel=0.10)
+    assert np.abs(predicted.duty).max() < 255
+    np.testing.assert_allclose(rec.reference, predicted.reference, rtol=0, atol=1e-12)
+
+
+def test_mpc_step_is_the_integer_minimiser_of_its_cost():
+    """Closed form, rounded and clipped, against a brute-force search over every duty."""
+    mpc = OneStepMPC(MODEL, 2e-5)
+    e, _, b1, b2 = MODEL.speed_coefficients()
+    lam = mpc.duty_weight * MODEL.speed_scale ** 2
+    rng = np.random.default_rng(3)
+    u_all = np.arange(-255, 256)
+    diffs = []
+    for _ in range(300):
+        r = int(rng.integers(-6000, 6000))  # 1/16 count per sample
+        y, u_prev = int(rng.integers(-400, 400)), int(rng.integers(-255, 256))
+        loop = mpc.start([0, r], 255)
+        loop.history = [u_prev]
+        loop.previous = 1000 - y
+        u = loop.step(0, 1000)
+        cost = (r / 16 - (e * y + b1 * u_all + b2 * u_prev)) ** 2 + lam * u_all ** 2
+        diffs.append(u - int(u_all[np.argmin(cost)]))
+    diffs = np.abs(diffs)
+    # The Q16 gains are rounded (relative error < 2**-16 per gain), which moves the step's
+    # optimum by far less than one duty: only near-ties can round the other way.
+    assert diffs.max() <= 1 and np.mean(diffs == 0) >= 0.97
+
+
+def test_pi_anti_windup_recovers_after_saturation():
+    pi = PISpeed(MODEL, 0.05)
+    # 50 rad/s is out of reach (b/a 255 = 30.6 rad/s): 1 s at the limit, then 10 rad/s
+    rec = _run(pi, "step:10,1.0,50", duration=3.0)
+    assert np.all(rec.duty[50:200] == 255)
+    # the integral did not grow while at the limit: the duty leaves it within 2 samples of the
+    # step down (a wound-up integral of 1 s of ~20 rad/s error would hold it for seconds)
+    assert rec.duty[202] < 255
+    # and the loop settles to the encoder's quantisation (1 count per sample = 0.075 rad/s)
+    assert np.abs(rec.measured_speed()[400:] - 10.0).max() < 0.15
+
+
+def test_mpc_compensates_bias_and_friction_of_its_model():
+    motor = Motor(25.0, 3.0, friction=40.0, bias=-20.0)
+    # The cost weighs the whole duty, so a model offset o is compensated by the fraction
+    # K beta1 = beta1^2 / (beta1^2 + lambda): 0.98 at lambda = 1e-6 (0.84 at 1e-5).
+    blind = OneStepMPC(MODEL, 1e-6)
+    aware = OneStepMPC(PlantModel.from_source(motor, 0.005, 16667), 1e-6)
+    ideal = np.mean(tracking_error(_run(blind, "constant:10", 2.0))[200:])
+    err_blind = np.mean(tracking_error(_run(blind, "constant:10", 2.0, motor))[200:])
+    err_aware = np.mean(tracking_error(_run(aware, "constant:10", 2.0, motor))[200:])
+    assert abs(err_blind - ideal) > 0.2  # (friction - bias)/b = 20 duty unmodelled: 0.29 rad/s
+    assert abs(err_aware - ideal) < 0.02  # 2 % of it left: 0.006 rad/s, plus quantisation
+
+
+def test_delay_is_designed_for_and_predicted():
+    motor = Motor(25.0, 3.0, input_delay=2)
+    mpc = OneStepMPC(PlantModel.from_source(motor, 0.005, 16667), 1e-4)
+    assert mpc.preview == 3 and "ku3" in mpc.gains()
+    rec = _run(mpc, "sine:10,10", motor=motor)
+    assert _rms(tracking_error(rec)) == pytest.approx(mpc.predict(parse_reference("sine:10,10"), 4.0).tracking_rms,
+                                                      rel=0.10)
+
+
+def test_recording_keeps_reference_and_settings(tmp_path):
+    rec = _run(PISpeed(MODEL, 0.04), "sine:10,10", duration=0.5)
+    back = read_recording(write_recording(rec, tmp_path / "run.csv"))
+    np.testing.assert_array_equal(back.reference, rec.reference)
+    assert back.metadata["controller"] == "pi" and back.metadata["controller_time_constant"] == "0.04"
+    assert back.metadata["reference"] == "sine:10.0,10.0,0.0" and back.metadata["reference_unit"] == "rad/s"
+    assert back.metadata["controller_gains"].startswith("kp=")
+    assert back.slice(0, 10).reference is not None and len(back.slice(0, 10).reference) == 10
+
+
+def test_references_are_integer_exact():
+    r = parse_reference("sine:10,20,0.5@3")
+    scale = MODEL.speed_scale * 16
+    words = [(int(round(20 * scale)), int(round(0.5 / (2 * math.pi) * 2**32)), phase_increment(10, 0.005))]
+    np.testing.assert_array_equal(r.samples(500, 0.005, scale), multisine_duty(words, int(round(3 * scale)), 500))
+    step = parse_reference("step:2,0.01,-1").samples(4, 0.005, 10.0)
+    assert step.tolist() == [-10, -10, 20, 20]
+    assert parse_reference("trapezoid:-10,0.02,0").samples(9, 0.005, 1.0).tolist() == [0, -3, -5, -8, -10,
+                                                                                         -8, -5, -3, 0]
+
+
+@pytest.mark.parametrize("spec, match", [
+    ("sine:10", "FREQ,AMP"), ("ramp:1", "kind must be one of"), ("step:a", "comma-separated numbers"),
+    ("trapezoid:1,0,1", "ramp_time must be > 0"), ("constant:1e9", "beyond the device's limit"),
+])
+def test_bad_references_are_refused_with_the_rule(spec, match):
+    with pytest.raises(ValueError, match=match):
+        ClosedLoopExperiment(OneStepMPC(MODEL), parse_reference(spec), duration=1.0)
+
+
+def test_design_from_an_estimate_and_bad_settings():
+    from identify import fit
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10), 0.005, 2.0))
+    est = fit(rec)
+    model = PlantModel.from_source(est, counts_per_rev=16667)
+    assert model.sample_period == 0.005 and model.a == pytest.approx(25.0, rel=1e-4)
+    with pytest.raises(ValueError, match="controller 'pi' takes"):
+        design_controller("pi", model, duty_weight=1.0)
+    with pytest.raises(ValueError, match="controller must be one of"):
+        design_controller("lqr", model)
+    with pytest.raises(ValueError, match="counts_per_rev must be given"):
+        PlantModel.from_source(est)
+    assert set(CONTROLLERS) == {"mpc", "pi", "position", "feedforward"}
+
+
+def test_closed_loop_with_noise_drops_and_jitter_is_reproducible():
+    def run(seed):
+        return _run(OneStepMPC(MODEL), "sine:10,10", 1.0, encoder=Encoder(angle_noise=1e-3), jitter=0.1,
+                    drop_rate=0.05, rng=np.random.default_rng(seed))
+    a, b = run(4), run(4)
+    np.testing.assert_array_equal(a.duty, b.duty)
+    assert a.has_gaps and isinstance(a, Recording) and len(a.reference) == len(a)
