@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.control import ClosedLoopExperiment
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
@@ -257,7 +257,7 @@ class SerialRig:
             return
         requested = self.requested_counts_per_rev
         if requested is not None and requested != reported:
-            raise ValueError(f"counts_per_rev {requested} was given but the device on {self.port_name} reports "
+            raise ParameterError(f"counts_per_rev {requested} was given but the device on {self.port_name} reports "
                              f"{reported} counts per revolution; drop --counts-per-rev or fix the device's setting")
         self.counts_per_rev = reported
 

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from .checks import check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .excitation import DUTY_LIMIT, MAX_COMPONENTS, multisine_duty, phase_increment
 from .plant import Motor, zoh_matrices
 
@@ -71,7 +71,7 @@ _HALF = 1 << (GAIN_BITS - 1)
 def _q(x: float) -> int:
     """``x`` as a Q16 integer gain."""
     if not math.isfinite(x) or abs(x) * (1 << GAIN_BITS) >= 2**47:
-        raise ValueError(f"gain {x!r} does not fit the fixed-point step (|gain| < 2**31)")
+        raise ParameterError(f"gain {x!r} does not fit the fixed-point step (|gain| < 2**31)")
     return int(round(x * (1 << GAIN_BITS)))
 
 
@@ -124,7 +124,7 @@ class PlantModel:
         for name in ("a", "b", "friction", "bias", "input_delay"):
             object.__setattr__(self, name, getattr(motor, name))
         if self.input_delay > 50:
-            raise ValueError(f"input_delay must be <= 50 samples for a controller, got {self.input_delay!r}")
+            raise ParameterError(f"input_delay must be <= 50 samples for a controller, got {self.input_delay!r}")
         object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
         object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
 
@@ -147,16 +147,17 @@ class PlantModel:
             return dataclasses.replace(source, sample_period=sample_period or source.sample_period,
                                        counts_per_rev=counts_per_rev or source.counts_per_rev)
         if not (hasattr(source, "a") and hasattr(source, "b")):
-            raise TypeError(f"source must be an Estimate, a Motor or a PlantModel, got {type(source).__name__}")
+            raise ParameterTypeError("source must be an Estimate, a Motor or a PlantModel, "
+                                     f"got {type(source).__name__}")
         extra = dict(getattr(source, "extra", {}) or {})
         for name in ("friction", "bias", "input_delay"):
             if hasattr(source, name) and not isinstance(source, type):
                 extra.setdefault(name, getattr(source, name))
         sample_period = sample_period if sample_period is not None else getattr(source, "sample_period", None)
         if sample_period is None:
-            raise ValueError("sample_period must be given when the source has none, got None")
+            raise ParameterError("sample_period must be given when the source has none, got None")
         if counts_per_rev is None:
-            raise ValueError("counts_per_rev must be given for a controller, got None")
+            raise ParameterError("counts_per_rev must be given for a controller, got None")
         return cls(float(source.a), float(source.b), sample_period, counts_per_rev,
                    friction=float(extra.get("friction", 0.0)), bias=float(extra.get("bias", 0.0)),
                    input_delay=int(extra.get("input_delay", 0)))
@@ -247,19 +248,19 @@ class Reference:
 
     def __post_init__(self):
         if self.kind not in self.kinds:
-            raise ValueError(f"reference kind must be one of {', '.join(self.kinds)}, got {self.kind!r}")
+            raise ParameterError(f"reference kind must be one of {', '.join(self.kinds)}, got {self.kind!r}")
         for name in ("level", "at_time", "before", "ramp_time", "hold_time"):
             object.__setattr__(self, name, check_real(name, getattr(self, name)))
         f = tuple(check_real("frequencies", x, positive=True) for x in self.frequencies)
         a = tuple(check_real("amplitudes", x) for x in self.amplitudes)
         p = tuple(check_real("phases", x) for x in self.phases) or (0.0,) * len(f)
         if self.kind in ("sine", "multisine") and not (1 <= len(f) <= MAX_COMPONENTS and len(a) == len(f) == len(p)):
-            raise ValueError(f"a {self.kind} reference needs 1...{MAX_COMPONENTS} components of equal length, "
+            raise ParameterError(f"a {self.kind} reference needs 1...{MAX_COMPONENTS} components of equal length, "
                              f"got {len(f)} frequencies, {len(a)} amplitudes, {len(p)} phases")
         if self.kind == "trapezoid" and self.ramp_time <= 0:
-            raise ValueError(f"ramp_time must be > 0 s for a trapezoid, got {self.ramp_time!r}")
+            raise ParameterError(f"ramp_time must be > 0 s for a trapezoid, got {self.ramp_time!r}")
         if min(self.at_time, self.hold_time) < 0:
-            raise ValueError(f"at_time and hold_time must be >= 0 s, got {self.at_time!r}, {self.hold_time!r}")
+            raise ParameterError(f"at_time and hold_time must be >= 0 s, got {self.at_time!r}, {self.hold_time!r}")
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "amplitudes", a)
         object.__setattr__(self, "phases", p)
@@ -293,7 +294,7 @@ class Reference:
         def lsb(x: float, name: str) -> int:
             v = int(round(x * scale))
             if abs(v) > MAX_REFERENCE:
-                raise ValueError(f"reference {name} {x!r} is {v} units of the controller's reference, "
+                raise ParameterError(f"reference {name} {x!r} is {v} units of the controller's reference, "
                                  f"beyond the device's limit +-{MAX_REFERENCE}")
             return v
 
@@ -307,12 +308,12 @@ class Reference:
                                   max(1, int(round(self.ramp_time / dt))), int(round(self.hold_time / dt)))
         amps = [lsb(x, "amplitude") for x in self.amplitudes]
         if sum(abs(x) for x in amps) > MAX_REFERENCE:
-            raise ValueError(f"reference amplitudes sum to {sum(abs(x) for x in amps)} units, "
+            raise ParameterError(f"reference amplitudes sum to {sum(abs(x) for x in amps)} units, "
                              f"beyond the device's limit {MAX_REFERENCE}")
         comps = []
         for f, amp, ph in zip(self.frequencies, amps, self.phases):
             if f * dt >= math.pi:
-                raise ValueError(f"reference frequencies must be below pi/sample_period = {math.pi / dt:.6g} "
+                raise ParameterError(f"reference frequencies must be below pi/sample_period = {math.pi / dt:.6g} "
                                  f"rad/s, got {f!r}")
             comps.append((amp, int(round(ph / (2 * math.pi) * 2**32)) % 2**32, phase_increment(f, dt)))
         return ReferenceWords("multisine", lsb(self.level, "offset"), components=tuple(comps))
@@ -377,7 +378,7 @@ def reference_values(words: ReferenceWords, n_samples: int) -> np.ndarray:
         up = (words.level * np.clip(i, 0, nr)) // nr
         down = (words.level * np.clip(2 * nr + words.hold - i, 0, nr)) // nr
         return np.where(i < nr + words.hold, up, down).astype(np.int64)
-    raise ValueError(f"reference kind must be constant, step, multisine or trapezoid, got {words.kind!r}")
+    raise ParameterError(f"reference kind must be constant, step, multisine or trapezoid, got {words.kind!r}")
 
 
 def parse_reference(spec: str) -> Reference:
@@ -396,7 +397,7 @@ def parse_reference(spec: str) -> Reference:
     'sine:10.0,20.0,0.0@5.0'
     """
     if not isinstance(spec, str) or ":" not in spec:
-        raise ValueError(f"reference must look like KIND:ARGS ({_REFERENCE_HELP}), got {spec!r}")
+        raise ParameterError(f"reference must look like KIND:ARGS ({_REFERENCE_HELP}), got {spec!r}")
     kind, _, args = spec.partition(":")
     kind = kind.strip().lower()
     offset = 0.0
@@ -406,16 +407,16 @@ def parse_reference(spec: str) -> Reference:
     if kind in ("sine", "multisine"):
         comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
         if not comps or any(not 2 <= len(c) <= 3 for c in comps) or (kind == "sine" and len(comps) != 1):
-            raise ValueError(f"reference {spec!r}: {kind} takes FREQ,AMP[,PHASE] per component")
+            raise ParameterError(f"reference {spec!r}: {kind} takes FREQ,AMP[,PHASE] per component")
         return Reference(kind, offset, tuple(c[0] for c in comps), tuple(c[1] for c in comps),
                          tuple(c[2] if len(c) > 2 else 0.0 for c in comps))
     v = _numbers(args, spec)
     forms = {"constant": (1, 1), "step": (1, 3), "trapezoid": (3, 4)}
     if kind not in forms:
-        raise ValueError(f"reference kind must be one of {', '.join(Reference.kinds)}, got {kind!r}")
+        raise ParameterError(f"reference kind must be one of {', '.join(Reference.kinds)}, got {kind!r}")
     lo, hi = forms[kind]
     if not lo <= len(v) <= hi:
-        raise ValueError(f"reference {spec!r}: expected {_REFERENCE_HELP}")
+        raise ParameterError(f"reference {spec!r}: expected {_REFERENCE_HELP}")
     if kind == "constant":
         return Reference("constant", v[0])
     if kind == "step":
@@ -427,7 +428,8 @@ def _numbers(text: str, spec: str) -> list[float]:
     try:
         return [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ValueError(f"reference {spec!r}: expected comma-separated numbers; forms: {_REFERENCE_HELP}") from None
+        raise ParameterError(f"reference {spec!r}: expected comma-separated numbers; "
+                             f"forms: {_REFERENCE_HELP}") from None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -479,7 +481,7 @@ class ControlLoop:
     def __init__(self, kind: str, gains: Mapping[str, int], preview: int, reference: Sequence[int] | np.ndarray,
                  duty_limit: int = DUTY_LIMIT):
         if kind not in GAIN_ORDER:
-            raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+            raise ParameterError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
         self.gains = {k: int(v) for k, v in gains.items()}
         self.reference = [int(x) for x in reference]
         self.preview = check_int("preview", preview, 0, 255)
@@ -551,7 +553,7 @@ class Controller:
 
     def __post_init__(self):
         if not isinstance(self.model, PlantModel):
-            raise TypeError(f"model must be a PlantModel, got {type(self.model).__name__}")
+            raise ParameterTypeError(f"model must be a PlantModel, got {type(self.model).__name__}")
 
     @property
     def preview(self) -> int:
@@ -711,7 +713,7 @@ class OneStepMPC(Controller):
         c = [(e ** j * b1 if j <= d else 0.0) + e ** (j - 1) * b2 for j in range(1, d + 2)]
         weight = self.duty_weight * m.speed_scale ** 2
         if b1 * b1 + weight == 0:  # pragma: no cover - b != 0 makes beta1 != 0
-            raise ValueError("the model's beta1 is zero: the duty does not reach the next sample")
+            raise ParameterError("the model's beta1 is zero: the duty does not reach the next sample")
         return b1 / (b1 * b1 + weight), c, e ** (d + 1), g * sum(e ** j for j in range(d + 1))
 
     def gains(self) -> dict[str, int]:
@@ -807,7 +809,7 @@ class PISpeed(Controller):
         p = math.exp(-self.model.sample_period / self.time_constant)
         out = {"kp": _q((e - p * p) / g * SPEED_REFERENCE_LSB), "ki": _q((1 - p) ** 2 / g * SPEED_REFERENCE_LSB)}
         if out["ki"] == 0:
-            raise ValueError(f"time_constant {self.time_constant!r} s is too slow for the fixed-point integral "
+            raise ParameterError(f"time_constant {self.time_constant!r} s is too slow for the fixed-point integral "
                              f"gain (it rounds to 0); choose a shorter one")
         if self.feedforward:
             out.update(feedforward_gains(self.model))
@@ -894,18 +896,18 @@ def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
     {'kr': 1, 'ky': 2, 'k0': 3, 'kf': 4, 'ku1': 5, 'ku2': 6}
     """
     if kind not in GAIN_ORDER:
-        raise ValueError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
+        raise ParameterError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
     names = list(GAIN_ORDER[kind])
     values = [int(v) for v in values]
     if kind == "mpc" and len(values) < 5:
-        raise ValueError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
+        raise ParameterError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
                          f"got {len(values)}")
     if kind == "mpc":
         names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
     elif kind == "pi" and len(values) == 6:
         names += list(GAIN_ORDER["feedforward"])
     if len(values) != len(names):
-        raise ValueError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
+        raise ParameterError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
     return dict(zip(names, values))
 
 
@@ -926,12 +928,12 @@ def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controll
         The controller's knobs (``duty_weight``, ``time_constant``, ``feedforward``, ``derivative``).
     """
     if kind not in CONTROLLERS:
-        raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)}, got {kind!r}")
+        raise ParameterError(f"controller must be one of {', '.join(CONTROLLERS)}, got {kind!r}")
     cls = CONTROLLERS[kind]
     known = {f.name for f in dataclasses.fields(cls)} - {"model"}
     unknown = set(settings) - known
     if unknown:
-        raise ValueError(f"controller {kind!r} takes {sorted(known) or 'no settings'}, got {sorted(unknown)}")
+        raise ParameterError(f"controller {kind!r} takes {sorted(known) or 'no settings'}, got {sorted(unknown)}")
     return cls(model, **settings)
 
 
@@ -962,13 +964,13 @@ class ClosedLoopExperiment:
 
     def __post_init__(self):
         if not isinstance(self.controller, Controller):
-            raise TypeError(f"controller must be a Controller, got {type(self.controller).__name__}")
+            raise ParameterTypeError(f"controller must be a Controller, got {type(self.controller).__name__}")
         if not isinstance(self.reference, Reference):
-            raise TypeError(f"reference must be a Reference, got {type(self.reference).__name__}")
+            raise ParameterTypeError(f"reference must be a Reference, got {type(self.reference).__name__}")
         object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
         object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
         if self.n_samples < 2:
-            raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
+            raise ParameterError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
                              f"got {self.duration!r} s")
         self.reference_samples()  # validate the reference against the controller's units
 
@@ -1010,7 +1012,7 @@ def tracking_error(recording: Any) -> np.ndarray:
     """
     ref = getattr(recording, "reference", None)
     if ref is None:
-        raise ValueError("recording has no reference column: it is not a closed-loop recording")
+        raise ParameterError("recording has no reference column: it is not a closed-loop recording")
     if recording.metadata.get("controlled") == "angle":
         angle = recording.measured_angle()
         out = angle - angle[0]

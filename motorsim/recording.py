@@ -808,7 +808,7 @@ def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording
         rec = Recording(time=values.pop("time_s"), duty=values.pop("duty"), sample_period=sp,
                         counts=values.pop("counts", None), angle=values.pop("angle_rad", None),
                         speed=values.pop("speed_rad_s", None), seq=values.pop("seq", None),
-                        counts_per_rev=parsed.counts_per_rev, metadata=extra)
+                        counts_per_rev=parsed.counts_per_rev, metadata=extra, reference=values.pop("reference", None))
     except (ValueError, TypeError):
         return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
     if check_samples:

@@ -1,4 +1,6 @@
 """motorid control design, motorid simulate --controller, and the demo's closed-loop part."""
+import json
+
 import pytest
 
 from motorsim import read_recording
@@ -82,3 +84,26 @@ def test_live_takes_counts_per_rev_from_the_device_and_refuses_a_contradiction(t
     assert main(["live", "--port", port, "--counts-per-rev", "16667", "--duration", "0.5", "--out", str(out),
                  "--quiet"]) == 2
     assert "counts_per_rev 16667 was given but the device" in capsys.readouterr().err
+
+
+def test_control_design_from_a_saved_model_matches_the_same_numbers_given_as_flags(tmp_path, capsys):
+    # identify --save writes the model; control design --model must design exactly what --a/--b
+    # with the saved values design (gains are integers, so equality is exact).
+    run, model = tmp_path / "run.csv", tmp_path / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "4", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--input-delay", "0", "--save", str(model)]) == 0
+    capsys.readouterr()
+    saved = json.loads(model.read_text())
+    assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
+    from_file = capsys.readouterr().out
+    assert main(["control", "design", "--a", repr(saved["a"]), "--b", repr(saved["b"]), "--controller", "pi"]) == 0
+    from_flags = capsys.readouterr().out
+    gains = [line for line in from_file.splitlines() if line.startswith("fixed-point gains")]
+    assert gains and gains == [line for line in from_flags.splitlines() if line.startswith("fixed-point gains")]
+
+
+def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert main(["control", "design", "--model", str(bad), "--controller", "pi"]) == 2
+    assert "not a saved model" in capsys.readouterr().err
