@@ -6,12 +6,16 @@ named ``friction`` and the constant acceleration ``d`` is named ``bias``.
 Real motors have Coulomb friction ``c`` and a duty dead zone; fitted with the
 linear model their ``a`` and ``b`` drift with the input's frequency and
 amplitude.  This fit simulates the friction model exactly, event by event
-(zero crossings, and sticking at rest while ``|b u + d| <= c``; see
-``motorsim.plant.simulate``), against the encoder angle, with the same
-segments, offsets and initial speeds as :mod:`identify.output_error`.  The
-simulation has kinks at the events, so the Jacobian is by finite differences
-(trust-region reflective, ``a > 0``, ``c >= 0`` and dead zone ``>= 0`` as bounds),
-started from the linear output-error fit and a few friction guesses.
+(zero crossings, and sticking at rest while ``|b u + d| <= c``), with the
+vectorised response of :mod:`identify.friction_response` (no loop per sample),
+against the encoder angle, with the same segments, offsets and initial speeds as
+:mod:`identify.output_error`.  Its Jacobian is analytic, differentiated through
+the event times: the exact model's exact derivative wherever the stick/slip
+pattern does not change, so no smoothed friction law and no final polish are
+needed.  Each segment's angle offset is projected out (variable projection);
+the rest are found by trust-region reflective (``a > 0``, ``c >= 0`` and dead zone
+``>= 0`` as bounds): a few iterations from the linear output-error fit with each of
+a few friction guesses, then the best one to convergence.
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
@@ -26,15 +30,14 @@ import warnings
 
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
-from scipy.sparse import csr_matrix, lil_matrix
 
 from motorsim.checks import check_bool
-from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
 
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
 from .output_error import fit_output_error, select_delay, solve_output_error
 from .uncertainty import covariance_from_jacobian
 from .validation import segment_fit_percent
@@ -43,6 +46,8 @@ __all__ = ["fit_output_error_friction", "speed_reverses"]
 
 #: Starting (c / (|b| max|u|), dead zone / max|u|) pairs; the first two have no dead zone.
 _STARTS = ((0.05, 0.0), (0.2, 0.0), (0.05, 0.05), (0.2, 0.1))
+#: Evaluations spent on each start before the best one is continued to convergence.
+_SCOUT_EVALUATIONS = 3
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -67,11 +72,14 @@ def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: fl
 
 
 class _FrictionProblem:
-    """Residuals of the friction model on pooled segments.
+    """Residuals and analytic Jacobian of the friction model on pooled segments.
 
     The parameter vector holds the shared parameters ``names`` (``a``, ``b``,
     ``friction``, then ``bias`` and ``dead_zone`` when fitted) followed by each
-    segment's initial speed; each angle segment's offset is projected out (centred).
+    segment's initial speed; each angle segment's offset enters linearly and is
+    projected out (residual and Jacobian columns centred: variable projection,
+    Golub & Pereyra 1973).  Each segment keeps the modes of its last evaluation as
+    the start of the next (:func:`identify.friction_response.friction_response`).
     """
 
     def __init__(self, segments: list[Segment], names: tuple[str, ...]):
@@ -79,29 +87,68 @@ class _FrictionProblem:
         self.names = names
         self.n_global = len(names)
         self.n_rows = sum(len(s.time) for s in segments)
+        self.columns = [FRICTION_PARAMETERS.index(n) for n in names]
+        self.modes: list[np.ndarray | None] = [None] * len(segments)
+        self._key: bytes | None = None
+        self._value: tuple[np.ndarray, np.ndarray | None] | None = None
 
     def unpack(self, x: np.ndarray) -> tuple[float, float, float, float, float]:
         """``(a, b, friction, bias, dead_zone)`` from ``x`` (0 for what is not fitted)."""
         named = dict(zip(self.names, x[:self.n_global]))
         return named["a"], named["b"], named["friction"], named.get("bias", 0.0), named.get("dead_zone", 0.0)
 
+    def _response(self, x: np.ndarray, i: int, sensitivities: bool) -> FrictionResponse:
+        seg = self.segments[i]
+        resp = friction_response(*self.unpack(x), seg.drive, seg.time, float(x[self.n_global + i]),
+                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i])
+        self.modes[i] = resp.modes
+        return resp
+
     def outputs(self, x: np.ndarray) -> list[np.ndarray]:
         """The model's angle or speed (as each segment) at ``x``."""
-        a, b, friction, bias, zone = self.unpack(x)
-        motor = _motor(a, b, friction, bias, zone)
-        return [_simulate(motor, seg, x[self.n_global + i]) for i, seg in enumerate(self.segments)]
+        out = []
+        for i, seg in enumerate(self.segments):
+            resp = self._response(x, i, False)
+            out.append(resp.angle if seg.kind == "angle" else resp.speed)
+        return out
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        """Measured minus model output, angle segments centred, segments concatenated."""
-        a, b, friction, bias, zone = self.unpack(x)
-        out = np.empty(self.n_rows)
+    def evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals (measured minus model, angle segments centred) and, if asked, their Jacobian."""
+        key = x.tobytes()
+        if key == self._key and self._value is not None and (self._value[1] is not None or not jacobian):
+            return self._value
+        r = np.empty(self.n_rows)
+        J = np.zeros((self.n_rows, len(x))) if jacobian else None
         row = 0
         for i, seg in enumerate(self.segments):
             n = len(seg.time)
-            r = seg.output - _simulate(_motor(a, b, friction, bias, zone), seg, x[self.n_global + i])
-            out[row:row + n] = r - r.mean() if seg.kind == "angle" else r
+            resp = self._response(x, i, jacobian)
+            model, sens = ((resp.angle, resp.angle_sensitivity) if seg.kind == "angle"
+                           else (resp.speed, resp.speed_sensitivity))
+            err = seg.output - model
+            if seg.kind == "angle":
+                err = err - err.mean()
+            r[row:row + n] = err
+            if J is not None and sens is not None:
+                cols = np.column_stack([sens[:, self.columns], sens[:, -1]])
+                if seg.kind == "angle":
+                    cols = cols - cols.mean(axis=0)
+                J[row:row + n, :self.n_global] = -cols[:, :-1]
+                J[row:row + n, self.n_global + i] = -cols[:, -1]
             row += n
-        return out
+        self._key, self._value = key, (r, J)
+        return r, J
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Residuals at ``x`` (rad or rad/s, segments concatenated)."""
+        return self.evaluate(x, False)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Jacobian of :meth:`residuals` at ``x``."""
+        J = self.evaluate(x, True)[1]
+        if J is None:  # pragma: no cover - evaluate(jacobian=True) always computes it
+            raise RuntimeError("the Jacobian was not computed")
+        return J
 
     def lower_bounds(self) -> np.ndarray:
         """``a > 0``, ``friction >= 0``, ``dead_zone >= 0``; the rest free."""
@@ -111,28 +158,6 @@ class _FrictionProblem:
         if "dead_zone" in self.names:
             lower[self.n_global - 1] = 0.0
         return lower
-
-    def sparsity(self) -> csr_matrix | None:
-        """Jacobian pattern: shared parameters touch every row, a segment's initial speed only its rows
-        (so finite differences perturb all initial speeds at once); None for one segment."""
-        if len(self.segments) <= 1:
-            return None
-        pattern = lil_matrix((self.n_rows, self.n_global + len(self.segments)), dtype=int)
-        pattern[:, :self.n_global] = 1
-        row = 0
-        for i, seg in enumerate(self.segments):
-            pattern[row:row + len(seg.time), self.n_global + i] = 1
-            row += len(seg.time)
-        return pattern.tocsr()
-
-
-def _motor(a, b, friction, bias, dead_zone) -> Motor:
-    return Motor(a, b, friction=friction, bias=bias, dead_zone=dead_zone)
-
-
-def _simulate(motor: Motor, seg: Segment, initial_speed) -> np.ndarray:
-    traj = simulate(motor, seg.drive, seg.time, initial_speed=initial_speed)
-    return traj.angle if seg.kind == "angle" else traj.speed
 
 
 def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
@@ -184,7 +209,7 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     n_angle_offsets = sum(1 for s in segments if s.kind == "angle")
     dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
-    jac = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
+    jac = problem.jacobian(res.x)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
                     fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
@@ -213,20 +238,29 @@ def _starts(recs: list[Recording], problem: _FrictionProblem, input_delay: int) 
 
 
 def _best_of_starts(problem: _FrictionProblem, starts: list[np.ndarray]) -> OptimizeResult:
-    """Trust-region reflective from each start; the lowest cost wins (the first on a tie)."""
-    lower = problem.lower_bounds()
-    sparsity = problem.sparsity()
-    best: OptimizeResult | None = None
-    for x0 in starts:
-        with np.errstate(over="ignore", invalid="ignore"):
-            trial = least_squares(problem.residuals, x0, jac="2-point", method="trf", bounds=(lower, np.inf),
-                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100,
-                                  jac_sparsity=sparsity)
-        if best is None or trial.cost < best.cost:
-            best = trial
-    if best is None:
+    """Trust-region reflective with the analytic Jacobian: a few iterations from every start, then
+    the one of least cost (the first on a tie) to convergence."""
+    if not starts:
         raise ValueError("starts must hold at least one vector, got none")
-    return best
+    lower = problem.lower_bounds()
+    best: OptimizeResult | None = None
+    best_modes: list[np.ndarray | None] = []
+    for x0 in starts:
+        problem.modes = [None] * len(problem.segments)
+        trial = _solve(problem, np.maximum(x0, lower), lower, _SCOUT_EVALUATIONS)
+        if best is None or trial.cost < best.cost:
+            best, best_modes = trial, list(problem.modes)
+    assert best is not None
+    if best.status != 0:
+        return best
+    problem.modes = best_modes
+    return _solve(problem, best.x, lower, 200)
+
+
+def _solve(problem: _FrictionProblem, x0: np.ndarray, lower: np.ndarray, max_nfev: int) -> OptimizeResult:
+    with np.errstate(over="ignore", invalid="ignore"):
+        return least_squares(problem.residuals, x0, jac=problem.jacobian, method="trf", bounds=(lower, np.inf),
+                             x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:
