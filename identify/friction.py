@@ -47,7 +47,7 @@ __all__ = ["fit_output_error_friction", "speed_reverses"]
 #: Starting (c / (|b| max|u|), dead zone / max|u|) pairs; the first two have no dead zone.
 _STARTS = ((0.05, 0.0), (0.2, 0.0), (0.05, 0.05), (0.2, 0.1))
 #: Evaluations spent on each start before the best one is continued to convergence.
-_SCOUT_EVALUATIONS = 3
+_SCOUT_EVALUATIONS = 8
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
