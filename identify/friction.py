@@ -13,9 +13,14 @@ against the encoder angle, with the same segments, offsets and initial speeds as
 the event times: the exact model's exact derivative wherever the stick/slip
 pattern does not change, so no smoothed friction law and no final polish are
 needed.  Each segment's angle offset is projected out (variable projection);
-the rest are found by trust-region reflective (``a > 0``, ``c >= 0`` and dead zone
-``>= 0`` as bounds): a few iterations from the linear output-error fit with each of
-a few friction guesses, then the best one to convergence.
+the rest are found by Levenberg–Marquardt on the (tiny) normal equations with steps
+projected onto the bounds (``a > 0``, ``c >= 0``, dead zone ``>= 0``), started from an
+instrumental-variable regression of the measured speed on its own past, the duty, the
+signs of duty and speed and a constant (exact for the ZOH model between reversals; the
+encoder's noise does not bias it).  A good start matters: the cost is kinked and has
+local minima where friction and dead zone trade off; from this start a fit takes a
+handful of evaluations.  When the regression fails (too few moving samples), the
+linear output-error fit with a small friction guess is the start.
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
@@ -29,7 +34,7 @@ import math
 import warnings
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
+from scipy.optimize import OptimizeResult
 
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
@@ -44,10 +49,6 @@ from .validation import segment_fit_percent
 
 __all__ = ["fit_output_error_friction", "speed_reverses"]
 
-#: Starting (c / (|b| max|u|), dead zone / max|u|) pairs; the first two have no dead zone.
-_STARTS = ((0.05, 0.0), (0.2, 0.0), (0.05, 0.05), (0.2, 0.1))
-#: Evaluations spent on each start before the best one is continued to convergence.
-_SCOUT_EVALUATIONS = 8
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -201,7 +202,10 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     segments = prepare_segments(recs, delay)
     names = ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
     problem = _FrictionProblem(segments, names)
-    res = _best_of_starts(problem, _starts(recs, problem, delay))
+    x0 = _regression_start(problem)
+    if x0 is None:
+        x0 = _linear_start(recs, problem, delay)
+    res = _levenberg_marquardt(problem, x0)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
     if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
         raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
@@ -218,49 +222,134 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
 
 
-def _starts(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> list[np.ndarray]:
-    """Starting vectors: the linear output-error fit with a few (friction, dead zone) guesses.
+def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
+    """A starting vector from one instrumental-variable regression on the measured speed.
 
-    Friction and dead zone make the cost kinked and multi-modal, so the guesses are
-    fractions of ``b max|u|`` and of ``max|u|`` (:data:`_STARTS`).
+    Over an interval where the speed keeps its sign ``s``, the exact ZOH step is linear in the
+    regressors ``(omega_k, u_k, sign(u_k), s, 1)``: ``omega_{k+1} = e omega_k + p (b (u_k - z sign u_k)
+    + d - c s)``.  For angle data the speed averaged over each interval is used; it obeys the same
+    step with the force split over ``u_k`` and ``u_{k+1}`` (the two coefficients sum to ``p``; the
+    dead zone's ``sign u`` enters as the mean of the two signs, which nearly always agree).  Rows
+    near rest or across a reversal are left out, and rows inside the dead zone once it is known.
+    The iterations of the output-error fit remove what is left of the approximations.
+    Returns None when the regression does not give ``0 < e < 1`` and ``b != 0``.
     """
+    dead_zone = "dead_zone" in problem.names
+    fit_bias = "bias" in problem.names
+    h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
+    zone = 0.0
+    for _ in range(2 if dead_zone else 1):
+        parts = [_regression_rows(seg, dead_zone, fit_bias, zone) for seg in problem.segments]
+        X, Z, y = (np.concatenate([part[i] for part in parts]) for i in range(3))
+        n_u = parts[0][3]
+        if len(y) <= 2 * X.shape[1]:
+            return None
+        try:
+            beta = np.linalg.solve(Z.T @ X, Z.T @ y)
+        except np.linalg.LinAlgError:
+            return None
+        e = float(beta[0])
+        gain = float(np.sum(beta[1:1 + n_u]))          # p b
+        if not (0.0 < e < 1.0) or gain == 0.0:
+            return None
+        a = -math.log(e) / h
+        p = -math.expm1(-a * h) / a
+        if dead_zone:
+            zone = max(0.0, -float(beta[1 + n_u]) / gain)
+    rest = 1 + n_u + dead_zone
+    friction = max(0.0, -float(beta[rest]) / p)
+    shared = [a, gain / p, friction] + ([float(beta[rest + 1]) / p] if fit_bias else []) + ([zone] if dead_zone else [])
+    return np.concatenate([shared, [s.initial_speed_guess() for s in problem.segments]])
+
+
+def _regression_rows(seg: Segment, dead_zone: bool, fit_bias: bool,
+                     zone: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Regressors, instruments and targets of :func:`_regression_start` for one segment, and the number
+    of duty columns.  The instrument of ``omega_k`` is ``omega_{k-2}``: the encoder's error in it is
+    independent of the errors in ``omega_k`` and ``omega_{k+1}``, so the noise does not bias ``e``."""
+    lag = 2
+    if seg.kind == "angle":
+        w = np.diff(seg.output) / np.diff(seg.time)
+        duties = [seg.drive[lag:-2], seg.drive[lag + 1:-1]]
+    else:
+        w = seg.output
+        duties = [seg.drive[lag:-1]]
+    now, nxt, instrument = w[lag:-1], w[lag + 1:], w[:-lag - 1]
+    top = float(np.max(np.abs(now), initial=0.0))
+    keep = ((np.sign(now) == np.sign(nxt)) & (np.sign(instrument) == np.sign(now))
+            & (np.abs(now) > 0.02 * top) & (np.abs(nxt) > 0.02 * top))
+    if zone > 0:
+        for u in duties:
+            keep &= np.abs(u) > 1.5 * zone
+    rest = duties + ([np.mean([np.sign(u) for u in duties], axis=0)] if dead_zone else []) + [np.sign(now)]
+    rest += [np.ones_like(now)] if fit_bias else []
+    X = np.column_stack([now] + rest)[keep]
+    Z = np.column_stack([instrument] + rest)[keep]
+    return X, Z, nxt[keep], len(duties)
+
+
+def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> np.ndarray:
+    """The linear output-error fit with a small friction guess (when the regression start fails)."""
     lin = solve_output_error(recs, problem.segments, input_delay)
     a0, b0 = float(lin.result.x[0]), float(lin.result.x[1])
     if b0 == 0:
         raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    w0 = list(lin.initial_speeds())
-    fit_bias = "bias" in problem.names
-    dead_zone = "dead_zone" in problem.names
-    return [np.concatenate([[a0, b0, fc * abs(b0) * u_scale] + ([0.0] if fit_bias else [])
-                            + ([fz * u_scale] if dead_zone else []), w0])
-            for fc, fz in _STARTS[: (len(_STARTS) if dead_zone else 2)]]
+    shared = [a0, b0, 0.05 * abs(b0) * u_scale] + ([0.0] if "bias" in problem.names else [])
+    shared += [0.02 * u_scale] if "dead_zone" in problem.names else []
+    return np.concatenate([shared, lin.initial_speeds()])
 
 
-def _best_of_starts(problem: _FrictionProblem, starts: list[np.ndarray]) -> OptimizeResult:
-    """Trust-region reflective with the analytic Jacobian: a few iterations from every start, then
-    the one of least cost (the first on a tie) to convergence."""
-    if not starts:
-        raise ValueError("starts must hold at least one vector, got none")
+def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200) -> OptimizeResult:
+    """Levenberg–Marquardt on the normal equations, steps projected onto the bounds.
+
+    With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
+    solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
+    when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
+    parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
+    cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).
+    """
     lower = problem.lower_bounds()
-    best: OptimizeResult | None = None
-    best_modes: list[np.ndarray | None] = []
-    for x0 in starts:
-        problem.modes = [None] * len(problem.segments)
-        trial = _solve(problem, np.maximum(x0, lower), lower, _SCOUT_EVALUATIONS)
-        if best is None or trial.cost < best.cost:
-            best, best_modes = trial, list(problem.modes)
-    assert best is not None
-    if best.status != 0:
-        return best
-    problem.modes = best_modes
-    return _solve(problem, best.x, lower, 200)
-
-
-def _solve(problem: _FrictionProblem, x0: np.ndarray, lower: np.ndarray, max_nfev: int) -> OptimizeResult:
-    with np.errstate(over="ignore", invalid="ignore"):
-        return least_squares(problem.residuals, x0, jac=problem.jacobian, method="trf", bounds=(lower, np.inf),
-                             x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
+    x = np.maximum(x0, lower)
+    r, J = problem.evaluate(x, True)
+    cost = float(r @ r)
+    damping = 1e-4
+    status = 0
+    for _ in range(max_iterations):
+        assert J is not None
+        norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+        norms[norms == 0] = 1.0
+        Js = J / norms
+        H = Js.T @ Js
+        g = Js.T @ r
+        try:
+            step = -np.linalg.solve(H + damping * np.eye(len(x)), g) / norms
+        except np.linalg.LinAlgError:
+            damping *= 10.0
+            continue
+        scaled = step * norms
+        predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
+        if predicted <= 1e-12 * cost:
+            status = 1
+            break
+        x_new = np.maximum(x + step, lower)
+        with np.errstate(over="ignore", invalid="ignore"):
+            r_new, J_new = problem.evaluate(x_new, True)
+        cost_new = float(r_new @ r_new)
+        if np.isfinite(cost_new) and cost_new < cost:
+            small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
+            done = cost - cost_new <= 1e-10 * cost or small
+            x, r, J, cost = x_new, r_new, J_new, cost_new
+            damping = max(damping / 5.0, 1e-12)
+            if done:
+                status = 1
+                break
+        else:
+            damping *= 10.0
+            if damping > 1e12:
+                status = 2
+                break
+    return OptimizeResult(x=x, fun=r, cost=0.5 * cost, status=status)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:

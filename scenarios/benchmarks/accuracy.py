@@ -26,10 +26,11 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import math
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -43,6 +44,10 @@ __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording"
 
 _STATIC_GAIN = 0.12   # b / a in (rad/s)/duty, the article's 3/25
 _SUBSTEP_AD = 0.02    # a * delta per RK4 sub-step: local error ~ (a delta)^5/120 ~ 3e-11
+
+
+#: Goal for the time of oe-friction over oe on the same friction run.
+_FRICTION_TIME_RATIO = 5.0
 
 
 def rk4_angle(a: float, b: float, duty: np.ndarray, time_s: np.ndarray, *, initial_speed: float = 0.0) -> np.ndarray:
@@ -392,6 +397,44 @@ def _section_timing(args) -> None:
         t = jittered_times(n, dt, jitter, rng)
         rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667, rng=rng, drop_rate=drop)
         print(f"{label:>14}: {_time_fits(rec, args.repeats)}")
+    _time_friction(args)
+
+
+def _time_friction(args) -> None:
+    """oe-friction against oe on the same friction run (one 10 000-sample run each, with and without a dead zone)."""
+    from identify import available_methods, fit
+    if "oe-friction" not in available_methods():
+        return
+    a, b, dt, n, cpr = 25.0, 3.0, 0.005, 10_000, 4096
+    c = 0.25 * b * 100
+    t = np.arange(n) * dt
+    duty = Sine(10.0, 200, 0.3).duty(n, dt).astype(float)
+    print(f"oe-friction vs oe on the same run: {n} samples, a={a:g}, b={b:g}, c={c:g}, {cpr} counts, sine 10 rad/s "
+          f"(median of {args.repeats}, the two fits in turn; goal ratio <= {_FRICTION_TIME_RATIO:g})")
+    for zone in (0.0, 10.0):
+        rec = make_recording(rk4_friction_angle(a, b, c, 0.0, duty[:, None], t, dead_zone=zone)[:, 0],
+                             duty, t, dt, cpr)
+        t_oe, t_fr = _interleaved_medians([functools.partial(fit, rec, method="oe"),
+                                           functools.partial(fit, rec, method="oe-friction", dead_zone=zone > 0)],
+                                          args.repeats)
+        fr = fit(rec, method="oe-friction", dead_zone=zone > 0)
+        fa, fb = _rel(fr, a, b)
+        print(f"  dead zone {zone:4g}: oe {t_oe * 1e3:6.1f} ms, oe-friction {t_fr * 1e3:6.1f} ms, "
+              f"ratio {t_fr / t_oe:5.2f} x; oe-friction error a {_pct(fa)} b {_pct(fb)} %, "
+              f"c {_friction_of(fr):.3f} (true {c:g})")
+
+
+def _interleaved_medians(funcs: Sequence[Callable[[], object]], repeats: int) -> list[float]:
+    """Median wall-clock seconds of each function, the calls taken in turn so that all see the same load."""
+    times: list[list[float]] = [[] for _ in funcs]
+    for f in funcs:
+        f()
+    for _ in range(repeats):
+        for f, spent in zip(funcs, times):
+            t0 = time.perf_counter()
+            f()
+            spent.append(time.perf_counter() - t0)
+    return [float(np.median(spent)) for spent in times]
 
 
 def _generator_check(rng) -> float:
