@@ -112,7 +112,7 @@ def format_validation(report, name: str) -> str:
     indep = "independent of the input" if report.independence_p >= 0.05 else "CORRELATED with the input"
     return "\n".join([
         f"validation  {name}",
-        f"  fit       {report.fit_percent:.2f} % (NRMSE, held-out speed, initial state fitted)",
+        f"  fit       {report.fit_percent:.2f} % (NRMSE, held-out speed; {report.initial_state})",
         f"  residual  {white}: Ljung-Box p = {report.whiteness_p:.3g}, "
         f"{100 * report.share_outside_band:.0f} % of lags outside +-{report.band:.3g}",
         f"  residual  {indep}: p = {report.independence_p:.3g}"])
