@@ -300,8 +300,24 @@ def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay:
     return np.concatenate([shared, lin.initial_speeds()])
 
 
+def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
+    """Damped Gauss-Newton step (scaled); parameters at their lower bound that the step would push
+    below it are held there and the step is solved again for the others (an active set)."""
+    free = np.ones(len(g), bool)
+    step = np.zeros(len(g))
+    for _ in range(len(g) + 1):
+        sub = np.ix_(free, free)
+        step[:] = 0.0
+        step[free] = -np.linalg.solve(H[sub] + damping * np.eye(int(free.sum())), g[free])
+        blocked = free & at_bound & (step < 0)
+        if not blocked.any():
+            return step
+        free &= ~blocked
+    return step
+
+
 def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200) -> OptimizeResult:
-    """Levenberg–Marquardt on the normal equations, steps projected onto the bounds.
+    """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
     With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
     solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
@@ -323,7 +339,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
         H = Js.T @ Js
         g = Js.T @ r
         try:
-            step = -np.linalg.solve(H + damping * np.eye(len(x)), g) / norms
+            step = _bounded_step(H, g, damping, x <= lower) / norms
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue

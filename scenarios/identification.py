@@ -36,7 +36,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
                         help=f"estimator (default {DEFAULT_METHOD}, the most accurate available)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
-                        help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction)")
+                        help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
+                             "for them: one fit per candidate delay 0-10)")
     parser.add_argument("--fix-bias", action="store_true",
                         help="oe-friction: hold the constant acceleration (bias, rad/s^2) at 0")
     parser.add_argument("--validate", metavar="TEST", help="held-out recording: NRMSE fit and residual tests")
@@ -53,6 +54,8 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
         value = getattr(args, name)
+        if value is unset and name == "input_delay" and name in accepted:
+            value = "auto"          # the default: a missed delay biases a fit by far more than it costs
         if value is unset:
             continue
         if name not in accepted:
@@ -66,8 +69,12 @@ def run_identify(args: argparse.Namespace) -> int:
     from identify import fit, validate
     from identify.estimate import json_ready
     recs = [read_recording(f) for f in args.files]
-    est = fit(recs, method=args.method, **estimator_options(args))
+    options = estimator_options(args)
+    est = fit(recs, method=args.method, **options)
     print(format_estimate(est))
+    if options.get("input_delay") == "auto":
+        print(f"delay       {int(est.extra['input_delay'])} samples, chosen by the least output error over 0-10 "
+              "(--input-delay N fixes it)")
     out = est.to_dict()
     report = None
     if args.validate:
