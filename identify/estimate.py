@@ -47,6 +47,10 @@ class Estimate:
         Unit of ``residual_rms``.
     input_unit : str
         Unit of the input ``u`` (``duty`` on the bench).
+    covariance_method : str
+        How ``covariance`` was computed: ``"gauss-newton"`` (white residuals assumed) or
+        ``"newey-west"`` (a sandwich that allows correlated residuals), see
+        :func:`identify.uncertainty.robust_covariance`; ``""`` when not said.
     """
 
     method: str
@@ -61,6 +65,7 @@ class Estimate:
     extra: Mapping[str, float | int] = dataclasses.field(default_factory=dict)
     residual_unit: str = "rad/s"
     input_unit: str = "duty"
+    covariance_method: str = ""
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -134,6 +139,8 @@ class Estimate:
                "fit_percent": self.fit_percent, "n_samples": self.n_samples,
                "sample_period": self.sample_period, "residual_rms": self.residual_rms,
                "residual_unit": self.residual_unit, "input_unit": self.input_unit}
+        if self.covariance_method:
+            out["covariance_method"] = self.covariance_method
         out.update(self.extra)
         se = self.stderr()
         ci = self.confidence_interval(0.95)

@@ -44,7 +44,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
 from .output_error import fit_output_error, select_delay, solve_output_error
-from .uncertainty import covariance_from_jacobian
+from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
 __all__ = ["fit_output_error_friction", "speed_reverses"]
@@ -214,10 +214,11 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
     jac = problem.jacobian(res.x)
+    cov, cov_method = robust_covariance(jac, res.fun, s2, problem.n_global)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
                     fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
-                    covariance=covariance_from_jacobian(jac, s2, problem.n_global), param_names=names,
+                    covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
 

@@ -48,7 +48,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
-from .uncertainty import covariance_from_jacobian
+from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
@@ -379,7 +379,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
     s2 = float(r @ r) / max(dof, 1)
-    cov = covariance_from_jacobian(problem.jacobian(res.x), s2, problem.n_global)
+    cov, cov_method = robust_covariance(problem.jacobian(res.x), r, s2, problem.n_global)
     a, b, bias = problem.unpack(res.x)
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
@@ -390,7 +390,8 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
                     sample_period=recs[0].sample_period, residual_rms=math.sqrt(float(r @ r) / problem.n_rows),
                     fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
-                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit)
+                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
+                    covariance_method=cov_method)
 
 
 def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed: float) -> np.ndarray:

@@ -30,7 +30,11 @@ from motorsim.checks import check_int, check_real
 
 from .sensitivity import zoh_response
 
-__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian"]
+__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian",
+           "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
+
+#: Ljung–Box p-value below which the residuals count as correlated and the Newey–West covariance is used.
+WHITENESS_LEVEL = 0.01
 
 
 def quantisation_variance(counts_per_rev: int | None) -> float:
@@ -56,6 +60,89 @@ def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: 
         return np.full((keep, keep), math.inf)
     inv = (vt.T / sv**2) @ vt
     return noise_variance * inv[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int, max_lag: int) -> np.ndarray:
+    """Sandwich covariance ``B^-1 S B^-1`` of a least-squares fit with autocorrelated residuals.
+
+    ``B = J^T J`` and ``S = G_0 + sum_{l=1}^{L} (1 - l/(L+1)) (G_l + G_l^T)`` with
+    ``G_l = sum_t g_t g_{t-l}^T`` the lagged products of the scores ``g_t = J_t r_t``
+    (Newey & West 1987, Bartlett weights keep ``S`` positive semi-definite).  It needs
+    neither white nor Gaussian residuals, only that their correlation dies out within
+    ``L`` samples.  Columns are scaled to unit norm as in :func:`covariance_from_jacobian`.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (n, p)
+        Of the residuals.
+    residuals : ndarray, shape (n,)
+    keep : int
+        Leading parameters to return.
+    max_lag : int
+        ``L`` in samples, >= 0.
+    """
+    J = np.asarray(jacobian, dtype=float)
+    scale = np.linalg.norm(J, axis=0)
+    if np.any(scale == 0) or not np.all(np.isfinite(J)):
+        return np.full((keep, keep), math.inf)
+    Js = J / scale
+    _, sv, vt = np.linalg.svd(Js, full_matrices=False)
+    if sv[-1] <= sv[0] * 1e-13:
+        return np.full((keep, keep), math.inf)
+    bread = (vt.T / sv**2) @ vt
+    g = Js * np.asarray(residuals, dtype=float)[:, None]
+    meat = g.T @ g
+    for lag in range(1, min(max_lag, len(g) - 1) + 1):
+        gamma = g[lag:].T @ g[:-lag]
+        meat += (1.0 - lag / (max_lag + 1.0)) * (gamma + gamma.T)
+    cov = bread @ meat @ bread
+    return cov[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
+    """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value."""
+    from scipy import stats
+    r = np.asarray(residuals, dtype=float) - np.mean(residuals)
+    n = len(r)
+    den = float(r @ r)
+    if den == 0 or n < 8:
+        return 0, 1.0
+    lags = min(limit, n // 4)
+    spectrum = np.fft.rfft(r, 2 * n)
+    ac = np.fft.irfft(spectrum * np.conj(spectrum))[:lags + 1] / den
+    band = 1.96 / math.sqrt(n)
+    inside = np.flatnonzero(np.abs(ac[1:]) < band)
+    length = int(inside[0]) + 1 if len(inside) else lags
+    m = min(20, lags)
+    k = np.arange(1, m + 1)
+    q = n * (n + 2) * float(np.sum(ac[1:m + 1] ** 2 / (n - k)))
+    return length, float(stats.chi2.sf(q, m))
+
+
+def robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, noise_variance: float,
+                      keep: int) -> tuple[np.ndarray, str]:
+    """The Gauss–Newton covariance when the residuals look white, else the Newey–West one.
+
+    The residuals' Ljung–Box test (20 lags) decides: at p >= :data:`WHITENESS_LEVEL`
+    ``noise_variance (J^T J)^-1`` (:func:`covariance_from_jacobian`); below it the
+    sandwich of :func:`newey_west_covariance` with ``L`` twice the lag at which the
+    autocorrelation first falls inside its 95 % band (at least ``4 (n/100)^(2/9)``, the
+    Newey–West rule, at most ``n/10``).  Coarse encoders (quantisation error that stays
+    put while the shaft creeps) and timing jitter make the residuals correlated.
+
+    Returns
+    -------
+    covariance : ndarray, shape (keep, keep)
+    method : str
+        ``"gauss-newton"`` or ``"newey-west"``.
+    """
+    r = np.asarray(residuals, dtype=float)
+    n = len(r)
+    length, p_white = _correlation_length(r, max(1, n // 10))
+    if p_white >= WHITENESS_LEVEL:
+        return covariance_from_jacobian(jacobian, noise_variance, keep), "gauss-newton"
+    lag = int(min(max(2 * length, math.ceil(4 * (n / 100) ** (2 / 9))), max(1, n // 10)))
+    return newey_west_covariance(jacobian, r, keep, lag), "newey-west"
 
 
 @dataclasses.dataclass(frozen=True)

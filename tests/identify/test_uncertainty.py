@@ -82,3 +82,31 @@ def test_bad_arguments_name_the_parameter(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         cramer_rao_bound(args.pop("a"), args.pop("b"), args.pop("duty"), args.pop("sample_period"), **args)
+
+
+def test_newey_west_without_lags_is_the_white_sandwich():
+    # L = 0: (J^T J)^-1 (sum r_t^2 J_t J_t^T) (J^T J)^-1, exactly (to rounding)
+    from identify.uncertainty import newey_west_covariance
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(500, 3)) * [1.0, 100.0, 0.01]
+    r = rng.normal(size=500)
+    bread = np.linalg.inv(J.T @ J)
+    direct = bread @ ((J * r[:, None] ** 2).T @ J) @ bread
+    np.testing.assert_allclose(newey_west_covariance(J, r, 3, 0), direct, rtol=1e-9)
+
+
+def test_correlated_residuals_switch_to_newey_west_and_widen_the_interval():
+    # AR(1) residuals with coefficient 0.9: the variance of a mean is about (1 + 0.9)/(1 - 0.9) = 19 times
+    # the white formula's; Newey-West must see most of that (> 5 x) while Gauss-Newton cannot
+    from identify.uncertainty import robust_covariance
+    rng = np.random.default_rng(4)
+    e = rng.normal(size=4000)
+    r = np.empty_like(e)
+    r[0] = e[0]
+    for k in range(1, len(e)):
+        r[k] = 0.9 * r[k - 1] + e[k]
+    J = np.ones((len(r), 1))
+    white, how_white = robust_covariance(J, rng.normal(size=len(r)), 1.0, 1)
+    cov, how = robust_covariance(J, r, float(r @ r) / len(r), 1)
+    assert how_white == "gauss-newton" and how == "newey-west"
+    assert cov[0, 0] > 5 * float(r @ r) / len(r) / len(r)
