@@ -44,6 +44,7 @@ from .data import (
     prepare_segments,
     residual_unit,
 )
+from .encoder_bootstrap import encoder_bootstrap_covariance, is_coarse
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
@@ -379,19 +380,40 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
     s2 = float(r @ r) / max(dof, 1)
-    cov, cov_method = robust_covariance(problem.jacobian(res.x), r, s2, problem.n_global)
     a, b, bias = problem.unpack(res.x)
+    models = [_segment_output(float(a), float(b), bias, seg, w)
+              for seg, w in zip(problem.segments, solution.initial_speeds())]
+    cov, cov_method = _covariance(recs, solution, models, s2)
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
         extra["bias"] = float(bias)
-    models = [_segment_output(float(a), float(b), bias, seg, w)
-              for seg, w in zip(problem.segments, solution.initial_speeds())]
     return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
                     sample_period=recs[0].sample_period, residual_rms=math.sqrt(float(r @ r) / problem.n_rows),
                     fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
                     covariance_method=cov_method)
+
+
+def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: list[np.ndarray],
+                s2: float) -> tuple[np.ndarray, str]:
+    """Refits of re-quantised model angles on a coarse encoder, else Gauss–Newton or Newey–West."""
+    res, problem = solution.result, solution.problem
+    segs = problem.segments
+    cprs = [recs[s.recording].counts_per_rev for s in segs]
+    steps = [2 * math.pi / c if c else None for c in cprs]
+    placed = [m + float(np.mean(s.output - m)) if s.kind == "angle" else m for s, m in zip(segs, models)]
+    if is_coarse(segs, placed, steps):
+        def refit(new: list[Segment]) -> np.ndarray | None:
+            try:
+                out = _solve(OutputErrorProblem(new, problem.with_bias), np.array(res.x, dtype=float), "analytic")
+            except (ValueError, np.linalg.LinAlgError):
+                return None
+            return out.x if out.status > 0 else None
+        cov = encoder_bootstrap_covariance(segs, placed, steps, float(res.fun @ res.fun) / problem.n_rows, refit,
+                                           problem.n_global)
+        return cov, "encoder-bootstrap"
+    return robust_covariance(problem.jacobian(res.x), res.fun, s2, problem.n_global)
 
 
 def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed: float) -> np.ndarray:
