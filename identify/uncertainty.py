@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 
 from motorsim.checks import check_int, check_real
 
+from .friction_response import friction_response
 from .sensitivity import zoh_response
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian",
@@ -187,7 +188,8 @@ class CramerRaoBound:
 
 def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, *,
                      counts_per_rev: int | None = 16667, angle_noise: float = 0.0,
-                     time: ArrayLike | None = None, initial_speed: float = 0.0) -> CramerRaoBound:
+                     time: ArrayLike | None = None, initial_speed: float = 0.0, friction: float = 0.0,
+                     bias: float = 0.0, dead_zone: float = 0.0, input_delay: int = 0) -> CramerRaoBound:
     """Cramér–Rao bound on ``(a, b)`` from the encoder angle of one experiment.
 
     Parameters
@@ -208,6 +210,13 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
         Sample instants in s (jittered clocks); default ``k * sample_period``.
     initial_speed : float
         Speed at the first sample in rad/s (estimated as a nuisance parameter).
+    friction, bias, dead_zone : float
+        Coulomb friction ``c`` and constant acceleration ``d`` in rad/s^2 (>= 0 and any) and a
+        dead zone in input units (>= 0) of the true plant.  With friction or a dead zone the
+        bound is that of ``oe-friction``: ``c`` and ``d`` (and the dead zone when nonzero) are
+        estimated alongside, their sensitivities from :mod:`identify.friction_response`.
+    input_delay : int
+        Known input delay in samples, >= 0 (the duty before the run is 0).
 
     Returns
     -------
@@ -252,7 +261,19 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
     if variance == 0:
         raise ValueError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
                          "give the noise or the encoder resolution")
-    resp = zoh_response(a, float(b), u, t, float(initial_speed), uniform=uniform)
-    J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
+    friction = check_real("friction", friction, nonnegative=True)
+    bias = check_real("bias", bias)
+    dead_zone = check_real("dead_zone", dead_zone, nonnegative=True)
+    input_delay = check_int("input_delay", input_delay, lo=0, allow_integral_float=False)
+    if input_delay:
+        u = np.concatenate([np.zeros(min(input_delay, len(u))), u[:max(len(u) - input_delay, 0)]])
+    if friction > 0 or dead_zone > 0:
+        fr = friction_response(a, float(b), friction, bias, dead_zone, u, t, float(initial_speed), uniform=uniform)
+        assert fr.angle_sensitivity is not None
+        cols = [0, 1, 2, 3] + ([4] if dead_zone > 0 else []) + [5]
+        J = np.column_stack([fr.angle_sensitivity[:, cols], np.ones(len(u))])
+    else:
+        resp = zoh_response(a, float(b), u, t, float(initial_speed), bias=bias, uniform=uniform)
+        J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
     cov = covariance_from_jacobian(J, variance, 2)
     return CramerRaoBound(covariance=cov, n_samples=len(u), a=a, b=float(b), noise_std=math.sqrt(variance))
