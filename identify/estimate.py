@@ -67,6 +67,10 @@ class Estimate:
     data_files : tuple of (str, str)
         The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
         ``motorid identify --save``).
+    covariance_method : str
+        How ``covariance`` was computed: ``"gauss-newton"`` (white residuals assumed) or
+        ``"newey-west"`` (a sandwich that allows correlated residuals), see
+        :func:`identify.uncertainty.robust_covariance`; ``""`` when not said.
     """
 
     method: str
@@ -82,6 +86,7 @@ class Estimate:
     residual_unit: str = "rad/s"
     input_unit: str = "duty"
     data_files: tuple[tuple[str, str], ...] = ()
+    covariance_method: str = ""
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -297,6 +302,8 @@ class Estimate:
                "fit_percent": self.fit_percent, "n_samples": self.n_samples,
                "sample_period": self.sample_period, "residual_rms": self.residual_rms,
                "residual_unit": self.residual_unit, "input_unit": self.input_unit}
+        if self.covariance_method:
+            out["covariance_method"] = self.covariance_method
         out.update(self.extra)
         se = self.stderr()
         ci = self.confidence_interval(0.95)

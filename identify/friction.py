@@ -6,12 +6,21 @@ named ``friction`` and the constant acceleration ``d`` is named ``bias``.
 Real motors have Coulomb friction ``c`` and a duty dead zone; fitted with the
 linear model their ``a`` and ``b`` drift with the input's frequency and
 amplitude.  This fit simulates the friction model exactly, event by event
-(zero crossings, and sticking at rest while ``|b u + d| <= c``; see
-``motorsim.plant.simulate``), against the encoder angle, with the same
-segments, offsets and initial speeds as :mod:`identify.output_error`.  The
-simulation has kinks at the events, so the Jacobian is by finite differences
-(trust-region reflective, ``a > 0``, ``c >= 0`` and dead zone ``>= 0`` as bounds),
-started from the linear output-error fit and a few friction guesses.
+(zero crossings, and sticking at rest while ``|b u + d| <= c``), with the
+vectorised response of :mod:`identify.friction_response` (no loop per sample),
+against the encoder angle, with the same segments, offsets and initial speeds as
+:mod:`identify.output_error`.  Its Jacobian is analytic, differentiated through
+the event times: the exact model's exact derivative wherever the stick/slip
+pattern does not change, so no smoothed friction law and no final polish are
+needed.  Each segment's angle offset is projected out (variable projection);
+the rest are found by Levenberg–Marquardt on the (tiny) normal equations with steps
+projected onto the bounds (``a > 0``, ``c >= 0``, dead zone ``>= 0``), started from an
+instrumental-variable regression of the measured speed on its own past, the duty, the
+signs of duty and speed and a constant (exact for the ZOH model between reversals; the
+encoder's noise does not bias it).  A good start matters: the cost is kinked and has
+local minima where friction and dead zone trade off; from this start a fit takes a
+handful of evaluations.  When the regression fails (too few moving samples), the
+linear output-error fit with a small friction guess is the start.
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
@@ -25,24 +34,21 @@ import math
 import warnings
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
-from scipy.sparse import csr_matrix, lil_matrix
+from scipy.optimize import OptimizeResult
 
 from motorsim.checks import check_bool
-from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
 
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
 from .output_error import fit_output_error, select_delay, solve_output_error
-from .uncertainty import covariance_from_jacobian
+from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
 __all__ = ["fit_output_error_friction", "speed_reverses"]
 
-#: Starting (c / (|b| max|u|), dead zone / max|u|) pairs; the first two have no dead zone.
-_STARTS = ((0.05, 0.0), (0.2, 0.0), (0.05, 0.05), (0.2, 0.1))
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -67,11 +73,14 @@ def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: fl
 
 
 class _FrictionProblem:
-    """Residuals of the friction model on pooled segments.
+    """Residuals and analytic Jacobian of the friction model on pooled segments.
 
     The parameter vector holds the shared parameters ``names`` (``a``, ``b``,
     ``friction``, then ``bias`` and ``dead_zone`` when fitted) followed by each
-    segment's initial speed; each angle segment's offset is projected out (centred).
+    segment's initial speed; each angle segment's offset enters linearly and is
+    projected out (residual and Jacobian columns centred: variable projection,
+    Golub & Pereyra 1973).  Each segment keeps the modes of its last evaluation as
+    the start of the next (:func:`identify.friction_response.friction_response`).
     """
 
     def __init__(self, segments: list[Segment], names: tuple[str, ...]):
@@ -79,29 +88,68 @@ class _FrictionProblem:
         self.names = names
         self.n_global = len(names)
         self.n_rows = sum(len(s.time) for s in segments)
+        self.columns = [FRICTION_PARAMETERS.index(n) for n in names]
+        self.modes: list[np.ndarray | None] = [None] * len(segments)
+        self._key: bytes | None = None
+        self._value: tuple[np.ndarray, np.ndarray | None] | None = None
 
     def unpack(self, x: np.ndarray) -> tuple[float, float, float, float, float]:
         """``(a, b, friction, bias, dead_zone)`` from ``x`` (0 for what is not fitted)."""
         named = dict(zip(self.names, x[:self.n_global]))
         return named["a"], named["b"], named["friction"], named.get("bias", 0.0), named.get("dead_zone", 0.0)
 
+    def _response(self, x: np.ndarray, i: int, sensitivities: bool) -> FrictionResponse:
+        seg = self.segments[i]
+        resp = friction_response(*self.unpack(x), seg.drive, seg.time, float(x[self.n_global + i]),
+                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i])
+        self.modes[i] = resp.modes
+        return resp
+
     def outputs(self, x: np.ndarray) -> list[np.ndarray]:
         """The model's angle or speed (as each segment) at ``x``."""
-        a, b, friction, bias, zone = self.unpack(x)
-        motor = _motor(a, b, friction, bias, zone)
-        return [_simulate(motor, seg, x[self.n_global + i]) for i, seg in enumerate(self.segments)]
+        out = []
+        for i, seg in enumerate(self.segments):
+            resp = self._response(x, i, False)
+            out.append(resp.angle if seg.kind == "angle" else resp.speed)
+        return out
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        """Measured minus model output, angle segments centred, segments concatenated."""
-        a, b, friction, bias, zone = self.unpack(x)
-        out = np.empty(self.n_rows)
+    def evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals (measured minus model, angle segments centred) and, if asked, their Jacobian."""
+        key = x.tobytes()
+        if key == self._key and self._value is not None and (self._value[1] is not None or not jacobian):
+            return self._value
+        r = np.empty(self.n_rows)
+        J = np.zeros((self.n_rows, len(x))) if jacobian else None
         row = 0
         for i, seg in enumerate(self.segments):
             n = len(seg.time)
-            r = seg.output - _simulate(_motor(a, b, friction, bias, zone), seg, x[self.n_global + i])
-            out[row:row + n] = r - r.mean() if seg.kind == "angle" else r
+            resp = self._response(x, i, jacobian)
+            model, sens = ((resp.angle, resp.angle_sensitivity) if seg.kind == "angle"
+                           else (resp.speed, resp.speed_sensitivity))
+            err = seg.output - model
+            if seg.kind == "angle":
+                err = err - err.mean()
+            r[row:row + n] = err
+            if J is not None and sens is not None:
+                cols = np.column_stack([sens[:, self.columns], sens[:, -1]])
+                if seg.kind == "angle":
+                    cols = cols - cols.mean(axis=0)
+                J[row:row + n, :self.n_global] = -cols[:, :-1]
+                J[row:row + n, self.n_global + i] = -cols[:, -1]
             row += n
-        return out
+        self._key, self._value = key, (r, J)
+        return r, J
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Residuals at ``x`` (rad or rad/s, segments concatenated)."""
+        return self.evaluate(x, False)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Jacobian of :meth:`residuals` at ``x``."""
+        J = self.evaluate(x, True)[1]
+        if J is None:  # pragma: no cover - evaluate(jacobian=True) always computes it
+            raise RuntimeError("the Jacobian was not computed")
+        return J
 
     def lower_bounds(self) -> np.ndarray:
         """``a > 0``, ``friction >= 0``, ``dead_zone >= 0``; the rest free."""
@@ -111,28 +159,6 @@ class _FrictionProblem:
         if "dead_zone" in self.names:
             lower[self.n_global - 1] = 0.0
         return lower
-
-    def sparsity(self) -> csr_matrix | None:
-        """Jacobian pattern: shared parameters touch every row, a segment's initial speed only its rows
-        (so finite differences perturb all initial speeds at once); None for one segment."""
-        if len(self.segments) <= 1:
-            return None
-        pattern = lil_matrix((self.n_rows, self.n_global + len(self.segments)), dtype=int)
-        pattern[:, :self.n_global] = 1
-        row = 0
-        for i, seg in enumerate(self.segments):
-            pattern[row:row + len(seg.time), self.n_global + i] = 1
-            row += len(seg.time)
-        return pattern.tocsr()
-
-
-def _motor(a, b, friction, bias, dead_zone) -> Motor:
-    return Motor(a, b, friction=friction, bias=bias, dead_zone=dead_zone)
-
-
-def _simulate(motor: Motor, seg: Segment, initial_speed) -> np.ndarray:
-    traj = simulate(motor, seg.drive, seg.time, initial_speed=initial_speed)
-    return traj.angle if seg.kind == "angle" else traj.speed
 
 
 def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
@@ -176,7 +202,10 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     segments = prepare_segments(recs, delay)
     names = ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
     problem = _FrictionProblem(segments, names)
-    res = _best_of_starts(problem, _starts(recs, problem, delay))
+    x0 = _regression_start(problem)
+    if x0 is None:
+        x0 = _linear_start(recs, problem, delay)
+    res = _levenberg_marquardt(problem, x0)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
     if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
         raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
@@ -184,49 +213,160 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     n_angle_offsets = sum(1 for s in segments if s.kind == "angle")
     dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
-    jac = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
+    jac = problem.jacobian(res.x)
+    cov, cov_method = robust_covariance(jac, res.fun, s2, problem.n_global)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
                     fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
-                    covariance=covariance_from_jacobian(jac, s2, problem.n_global), param_names=names,
+                    covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
 
 
-def _starts(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> list[np.ndarray]:
-    """Starting vectors: the linear output-error fit with a few (friction, dead zone) guesses.
+def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
+    """A starting vector from one instrumental-variable regression on the measured speed.
 
-    Friction and dead zone make the cost kinked and multi-modal, so the guesses are
-    fractions of ``b max|u|`` and of ``max|u|`` (:data:`_STARTS`).
+    Over an interval where the speed keeps its sign ``s``, the exact ZOH step is linear in the
+    regressors ``(omega_k, u_k, sign(u_k), s, 1)``: ``omega_{k+1} = e omega_k + p (b (u_k - z sign u_k)
+    + d - c s)``.  For angle data the speed averaged over each interval is used; it obeys the same
+    step with the force split over ``u_k`` and ``u_{k+1}`` (the two coefficients sum to ``p``; the
+    dead zone's ``sign u`` enters as the mean of the two signs, which nearly always agree).  Rows
+    near rest or across a reversal are left out, and rows inside the dead zone once it is known.
+    The iterations of the output-error fit remove what is left of the approximations.
+    Returns None when the regression does not give ``0 < e < 1`` and ``b != 0``.
     """
+    dead_zone = "dead_zone" in problem.names
+    fit_bias = "bias" in problem.names
+    h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
+    zone = 0.0
+    for _ in range(2 if dead_zone else 1):
+        parts = [_regression_rows(seg, dead_zone, fit_bias, zone) for seg in problem.segments]
+        X, Z, y = (np.concatenate([part[i] for part in parts]) for i in range(3))
+        n_u = parts[0][3]
+        if len(y) <= 2 * X.shape[1]:
+            return None
+        try:
+            beta = np.linalg.solve(Z.T @ X, Z.T @ y)
+        except np.linalg.LinAlgError:
+            return None
+        e = float(beta[0])
+        gain = float(np.sum(beta[1:1 + n_u]))          # p b
+        if not (0.0 < e < 1.0) or gain == 0.0:
+            return None
+        a = -math.log(e) / h
+        p = -math.expm1(-a * h) / a
+        if dead_zone:
+            zone = max(0.0, -float(beta[1 + n_u]) / gain)
+    rest = 1 + n_u + dead_zone
+    friction = max(0.0, -float(beta[rest]) / p)
+    shared = [a, gain / p, friction] + ([float(beta[rest + 1]) / p] if fit_bias else []) + ([zone] if dead_zone else [])
+    return np.concatenate([shared, [s.initial_speed_guess() for s in problem.segments]])
+
+
+def _regression_rows(seg: Segment, dead_zone: bool, fit_bias: bool,
+                     zone: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Regressors, instruments and targets of :func:`_regression_start` for one segment, and the number
+    of duty columns.  The instrument of ``omega_k`` is ``omega_{k-2}``: the encoder's error in it is
+    independent of the errors in ``omega_k`` and ``omega_{k+1}``, so the noise does not bias ``e``."""
+    lag = 2
+    if seg.kind == "angle":
+        w = np.diff(seg.output) / np.diff(seg.time)
+        duties = [seg.drive[lag:-2], seg.drive[lag + 1:-1]]
+    else:
+        w = seg.output
+        duties = [seg.drive[lag:-1]]
+    now, nxt, instrument = w[lag:-1], w[lag + 1:], w[:-lag - 1]
+    top = float(np.max(np.abs(now), initial=0.0))
+    keep = ((np.sign(now) == np.sign(nxt)) & (np.sign(instrument) == np.sign(now))
+            & (np.abs(now) > 0.02 * top) & (np.abs(nxt) > 0.02 * top))
+    if zone > 0:
+        for u in duties:
+            keep &= np.abs(u) > 1.5 * zone
+    rest = duties + ([np.mean([np.sign(u) for u in duties], axis=0)] if dead_zone else []) + [np.sign(now)]
+    rest += [np.ones_like(now)] if fit_bias else []
+    X = np.column_stack([now] + rest)[keep]
+    Z = np.column_stack([instrument] + rest)[keep]
+    return X, Z, nxt[keep], len(duties)
+
+
+def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> np.ndarray:
+    """The linear output-error fit with a small friction guess (when the regression start fails)."""
     lin = solve_output_error(recs, problem.segments, input_delay)
     a0, b0 = float(lin.result.x[0]), float(lin.result.x[1])
     if b0 == 0:
         raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    w0 = list(lin.initial_speeds())
-    fit_bias = "bias" in problem.names
-    dead_zone = "dead_zone" in problem.names
-    return [np.concatenate([[a0, b0, fc * abs(b0) * u_scale] + ([0.0] if fit_bias else [])
-                            + ([fz * u_scale] if dead_zone else []), w0])
-            for fc, fz in _STARTS[: (len(_STARTS) if dead_zone else 2)]]
+    shared = [a0, b0, 0.05 * abs(b0) * u_scale] + ([0.0] if "bias" in problem.names else [])
+    shared += [0.02 * u_scale] if "dead_zone" in problem.names else []
+    return np.concatenate([shared, lin.initial_speeds()])
 
 
-def _best_of_starts(problem: _FrictionProblem, starts: list[np.ndarray]) -> OptimizeResult:
-    """Trust-region reflective from each start; the lowest cost wins (the first on a tie)."""
+def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
+    """Damped Gauss-Newton step (scaled); parameters at their lower bound that the step would push
+    below it are held there and the step is solved again for the others (an active set)."""
+    free = np.ones(len(g), bool)
+    step = np.zeros(len(g))
+    for _ in range(len(g) + 1):
+        sub = np.ix_(free, free)
+        step[:] = 0.0
+        step[free] = -np.linalg.solve(H[sub] + damping * np.eye(int(free.sum())), g[free])
+        blocked = free & at_bound & (step < 0)
+        if not blocked.any():
+            return step
+        free &= ~blocked
+    return step
+
+
+def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200) -> OptimizeResult:
+    """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
+
+    With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
+    solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
+    when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
+    parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
+    cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).
+    """
     lower = problem.lower_bounds()
-    sparsity = problem.sparsity()
-    best: OptimizeResult | None = None
-    for x0 in starts:
+    x = np.maximum(x0, lower)
+    r, J = problem.evaluate(x, True)
+    cost = float(r @ r)
+    damping = 1e-4
+    status = 0
+    for _ in range(max_iterations):
+        assert J is not None
+        norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+        norms[norms == 0] = 1.0
+        Js = J / norms
+        H = Js.T @ Js
+        g = Js.T @ r
+        try:
+            step = _bounded_step(H, g, damping, x <= lower) / norms
+        except np.linalg.LinAlgError:
+            damping *= 10.0
+            continue
+        scaled = step * norms
+        predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
+        if predicted <= 1e-12 * cost:
+            status = 1
+            break
+        x_new = np.maximum(x + step, lower)
         with np.errstate(over="ignore", invalid="ignore"):
-            trial = least_squares(problem.residuals, x0, jac="2-point", method="trf", bounds=(lower, np.inf),
-                                  x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100,
-                                  jac_sparsity=sparsity)
-        if best is None or trial.cost < best.cost:
-            best = trial
-    if best is None:
-        raise ValueError("starts must hold at least one vector, got none")
-    return best
+            r_new, J_new = problem.evaluate(x_new, True)
+        cost_new = float(r_new @ r_new)
+        if np.isfinite(cost_new) and cost_new < cost:
+            small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
+            done = cost - cost_new <= 1e-10 * cost or small
+            x, r, J, cost = x_new, r_new, J_new, cost_new
+            damping = max(damping / 5.0, 1e-12)
+            if done:
+                status = 1
+                break
+        else:
+            damping *= 10.0
+            if damping > 1e12:
+                status = 2
+                break
+    return OptimizeResult(x=x, fun=r, cost=0.5 * cost, status=status)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:

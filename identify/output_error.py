@@ -44,11 +44,12 @@ from .data import (
     prepare_segments,
     residual_unit,
 )
+from .encoder_bootstrap import encoder_bootstrap_covariance, is_coarse
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
-from .uncertainty import covariance_from_jacobian
+from .uncertainty import residuals_look_white, robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
 
@@ -405,17 +406,41 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
     rss = float(np.einsum("i,i->", r, r))  # not BLAS: a threaded dot is slow on a busy machine
     s2 = rss / max(dof, 1)
-    cov = solution.covariance(s2)
     a, b, bias = problem.unpack(res.x)
+    models = solution.model_outputs()
+    cov, cov_method = _covariance(recs, solution, models, s2)
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
         extra["bias"] = float(bias)
-    models = solution.model_outputs()
     return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
                     sample_period=recs[0].sample_period, residual_rms=math.sqrt(rss / problem.n_rows),
                     fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
-                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit)
+                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
+                    covariance_method=cov_method)
+
+
+def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: list[np.ndarray],
+                s2: float) -> tuple[np.ndarray, str]:
+    """Refits of re-quantised model angles on a coarse encoder, else Gauss–Newton or Newey–West."""
+    res, problem = solution.result, solution.problem
+    segs = problem.segments
+    cprs = [recs[s.recording].counts_per_rev for s in segs]
+    steps = [2 * math.pi / c if c else None for c in cprs]
+    placed = [m + float(np.mean(s.output - m)) if s.kind == "angle" else m for s, m in zip(segs, models)]
+    if is_coarse(segs, placed, steps):
+        def refit(new: list[Segment]) -> np.ndarray | None:
+            try:
+                out = _solve(OutputErrorProblem(new, problem.with_bias), np.array(res.x, dtype=float), "analytic")
+            except (ValueError, np.linalg.LinAlgError):
+                return None
+            return out.x if out.status > 0 else None
+        cov = encoder_bootstrap_covariance(segs, placed, steps, float(res.fun @ res.fun) / problem.n_rows, refit,
+                                           problem.n_global)
+        return cov, "encoder-bootstrap"
+    if residuals_look_white(res.fun):   # the common case: the fit's own (fast) Gauss-Newton covariance
+        return solution.covariance(s2), "gauss-newton"
+    return robust_covariance(problem.jacobian(res.x), res.fun, s2, problem.n_global)
 
 
 def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed: float) -> np.ndarray:

@@ -28,9 +28,14 @@ from numpy.typing import ArrayLike
 
 from motorsim.checks import check_int, check_real
 
+from .friction_response import friction_response
 from .sensitivity import zoh_response
 
-__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian"]
+__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian", "residuals_look_white",
+           "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
+
+#: Ljung–Box p-value below which the residuals count as correlated and the Newey–West covariance is used.
+WHITENESS_LEVEL = 0.01
 
 
 def quantisation_variance(counts_per_rev: int | None) -> float:
@@ -56,6 +61,95 @@ def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: 
         return np.full((keep, keep), math.inf)
     inv = (vt.T / sv**2) @ vt
     return noise_variance * inv[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int, max_lag: int) -> np.ndarray:
+    """Sandwich covariance ``B^-1 S B^-1`` of a least-squares fit with autocorrelated residuals.
+
+    ``B = J^T J`` and ``S = G_0 + sum_{l=1}^{L} (1 - l/(L+1)) (G_l + G_l^T)`` with
+    ``G_l = sum_t g_t g_{t-l}^T`` the lagged products of the scores ``g_t = J_t r_t``
+    (Newey & West 1987, Bartlett weights keep ``S`` positive semi-definite).  It needs
+    neither white nor Gaussian residuals, only that their correlation dies out within
+    ``L`` samples.  Columns are scaled to unit norm as in :func:`covariance_from_jacobian`.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (n, p)
+        Of the residuals.
+    residuals : ndarray, shape (n,)
+    keep : int
+        Leading parameters to return.
+    max_lag : int
+        ``L`` in samples, >= 0.
+    """
+    J = np.asarray(jacobian, dtype=float)
+    scale = np.linalg.norm(J, axis=0)
+    if np.any(scale == 0) or not np.all(np.isfinite(J)):
+        return np.full((keep, keep), math.inf)
+    Js = J / scale
+    _, sv, vt = np.linalg.svd(Js, full_matrices=False)
+    if sv[-1] <= sv[0] * 1e-13:
+        return np.full((keep, keep), math.inf)
+    bread = (vt.T / sv**2) @ vt
+    g = Js * np.asarray(residuals, dtype=float)[:, None]
+    meat = g.T @ g
+    for lag in range(1, min(max_lag, len(g) - 1) + 1):
+        gamma = g[lag:].T @ g[:-lag]
+        meat += (1.0 - lag / (max_lag + 1.0)) * (gamma + gamma.T)
+    cov = bread @ meat @ bread
+    return cov[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
+    """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value."""
+    from scipy import stats
+    r = np.asarray(residuals, dtype=float) - np.mean(residuals)
+    n = len(r)
+    den = float(r @ r)
+    if den == 0 or n < 8:
+        return 0, 1.0
+    lags = min(limit, n // 4)
+    spectrum = np.fft.rfft(r, 2 * n)
+    ac = np.fft.irfft(spectrum * np.conj(spectrum))[:lags + 1] / den
+    band = 1.96 / math.sqrt(n)
+    inside = np.flatnonzero(np.abs(ac[1:]) < band)
+    length = int(inside[0]) + 1 if len(inside) else lags
+    m = min(20, lags)
+    k = np.arange(1, m + 1)
+    q = n * (n + 2) * float(np.sum(ac[1:m + 1] ** 2 / (n - k)))
+    return length, float(stats.chi2.sf(q, m))
+
+
+def residuals_look_white(residuals: np.ndarray) -> bool:
+    """True when the residuals pass the Ljung–Box test :func:`robust_covariance` applies (20 lags)."""
+    r = np.asarray(residuals, dtype=float)
+    return _correlation_length(r, max(1, len(r) // 10))[1] >= WHITENESS_LEVEL
+
+
+def robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, noise_variance: float,
+                      keep: int) -> tuple[np.ndarray, str]:
+    """The Gauss–Newton covariance when the residuals look white, else the Newey–West one.
+
+    The residuals' Ljung–Box test (20 lags) decides: at p >= :data:`WHITENESS_LEVEL`
+    ``noise_variance (J^T J)^-1`` (:func:`covariance_from_jacobian`); below it the
+    sandwich of :func:`newey_west_covariance` with ``L`` twice the lag at which the
+    autocorrelation first falls inside its 95 % band (at least ``4 (n/100)^(2/9)``, the
+    Newey–West rule, at most ``n/10``).  Coarse encoders (quantisation error that stays
+    put while the shaft creeps) and timing jitter make the residuals correlated.
+
+    Returns
+    -------
+    covariance : ndarray, shape (keep, keep)
+    method : str
+        ``"gauss-newton"`` or ``"newey-west"``.
+    """
+    r = np.asarray(residuals, dtype=float)
+    n = len(r)
+    length, p_white = _correlation_length(r, max(1, n // 10))
+    if p_white >= WHITENESS_LEVEL:
+        return covariance_from_jacobian(jacobian, noise_variance, keep), "gauss-newton"
+    lag = int(min(max(2 * length, math.ceil(4 * (n / 100) ** (2 / 9))), max(1, n // 10)))
+    return newey_west_covariance(jacobian, r, keep, lag), "newey-west"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,7 +194,8 @@ class CramerRaoBound:
 
 def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, *,
                      counts_per_rev: int | None = 16667, angle_noise: float = 0.0,
-                     time: ArrayLike | None = None, initial_speed: float = 0.0) -> CramerRaoBound:
+                     time: ArrayLike | None = None, initial_speed: float = 0.0, friction: float = 0.0,
+                     bias: float = 0.0, dead_zone: float = 0.0, input_delay: int = 0) -> CramerRaoBound:
     """Cramér–Rao bound on ``(a, b)`` from the encoder angle of one experiment.
 
     Parameters
@@ -121,6 +216,13 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
         Sample instants in s (jittered clocks); default ``k * sample_period``.
     initial_speed : float
         Speed at the first sample in rad/s (estimated as a nuisance parameter).
+    friction, bias, dead_zone : float
+        Coulomb friction ``c`` and constant acceleration ``d`` in rad/s^2 (>= 0 and any) and a
+        dead zone in input units (>= 0) of the true plant.  With friction or a dead zone the
+        bound is that of ``oe-friction``: ``c`` and ``d`` (and the dead zone when nonzero) are
+        estimated alongside, their sensitivities from :mod:`identify.friction_response`.
+    input_delay : int
+        Known input delay in samples, >= 0 (the duty before the run is 0).
 
     Returns
     -------
@@ -165,7 +267,19 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
     if variance == 0:
         raise ValueError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
                          "give the noise or the encoder resolution")
-    resp = zoh_response(a, float(b), u, t, float(initial_speed), uniform=uniform)
-    J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
+    friction = check_real("friction", friction, nonnegative=True)
+    bias = check_real("bias", bias)
+    dead_zone = check_real("dead_zone", dead_zone, nonnegative=True)
+    input_delay = check_int("input_delay", input_delay, lo=0, allow_integral_float=False)
+    if input_delay:
+        u = np.concatenate([np.zeros(min(input_delay, len(u))), u[:max(len(u) - input_delay, 0)]])
+    if friction > 0 or dead_zone > 0:
+        fr = friction_response(a, float(b), friction, bias, dead_zone, u, t, float(initial_speed), uniform=uniform)
+        assert fr.angle_sensitivity is not None
+        cols = [0, 1, 2, 3] + ([4] if dead_zone > 0 else []) + [5]
+        J = np.column_stack([fr.angle_sensitivity[:, cols], np.ones(len(u))])
+    else:
+        resp = zoh_response(a, float(b), u, t, float(initial_speed), bias=bias, uniform=uniform)
+        J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
     cov = covariance_from_jacobian(J, variance, 2)
     return CramerRaoBound(covariance=cov, n_samples=len(u), a=a, b=float(b), noise_std=math.sqrt(variance))

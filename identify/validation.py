@@ -29,11 +29,12 @@ from motorsim.sensors import backward_difference
 from .data import MIN_SEGMENT_SAMPLES, Segment, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .friction_response import friction_response
 from .sensitivity import zoh_response
 
 __all__ = ["nrmse_fit", "simulated_speed", "fit_percent", "segment_speeds", "segment_fit_percent",
            "model_output", "model_residuals", "ValidationReport", "validate", "autocorrelation",
-           "cross_correlation"]
+           "cross_correlation", "initial_state_rule", "INITIAL_WINDOW_TIME_CONSTANTS"]
 
 
 def nrmse_fit(measured, simulated) -> float:
@@ -146,14 +147,28 @@ def segment_fit_percent(segments: Sequence[Segment], models: Sequence[np.ndarray
     return nrmse_fit(np.concatenate([m for _, m, _ in speeds]), np.concatenate([s for _, _, s in speeds]))
 
 
+#: Time constants ``1/a`` in the window that fixes a friction model's initial speed on held-out data.
+INITIAL_WINDOW_TIME_CONSTANTS = 2.0
+_MIN_INITIAL_WINDOW = 10   # samples
+
+
+def initial_state_rule(estimate: Estimate) -> str:
+    """How :func:`model_output` finds the initial state of each segment for this estimate (one line)."""
+    if _has_friction(estimate):
+        return (f"initial speed fitted on the first {INITIAL_WINDOW_TIME_CONSTANTS:g} time constants "
+                f"(at least {_MIN_INITIAL_WINDOW} samples) from the measured speed")
+    return "initial speed (and angle offset) by exact least squares on each segment"
+
+
+def _has_friction(estimate: Estimate) -> bool:
+    return float(estimate.extra.get("friction", 0.0)) > 0 or float(estimate.extra.get("dead_zone", 0.0)) > 0
+
+
 def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
-    """The estimate's native output (angle or speed) on one segment, initial state fitted."""
+    """The estimate's native output (angle or speed) on one segment, initial state as :func:`initial_state_rule`."""
     bias = float(estimate.extra.get("bias", 0.0))
-    friction = float(estimate.extra.get("friction", 0.0))
-    zone = float(estimate.extra.get("dead_zone", 0.0))
-    if friction > 0 or zone > 0:
-        return _friction_segment_model(Motor(estimate.a, estimate.b, friction=friction, bias=bias, dead_zone=zone),
-                                       seg)
+    if _has_friction(estimate):
+        return _friction_segment_model(estimate, seg)
     resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, bias=bias, uniform=seg.uniform)
     if seg.kind == "angle":
         A = np.column_stack([resp.angle_sensitivity[:, 2], np.ones(len(seg.time))])
@@ -163,24 +178,40 @@ def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
     return resp.speed + float(s0 @ (seg.output - resp.speed) / (s0 @ s0)) * s0
 
 
-def _friction_segment_model(motor: Motor, seg: Segment) -> np.ndarray:
-    """The friction model is not linear in the initial speed: fit it (one parameter) from the data's guess."""
-    def run(w0):
-        traj = simulate(motor, seg.drive, seg.time, initial_speed=float(w0[0]))
+def _friction_segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
+    """The friction model from an initial speed fitted on a short window at the segment's start.
+
+    The friction model is not linear in the initial speed, and a free fit of it on the whole
+    run's angle can land far from the data's start (the cost has local minima at every
+    stick/slip pattern).  The initial speed only matters for a few time constants, so it is
+    fitted there, from the measured speed, and the whole segment is then simulated from it;
+    the angle offset (linear) is the mean difference.
+    """
+    params = (estimate.a, estimate.b, float(estimate.extra.get("friction", 0.0)),
+              float(estimate.extra.get("bias", 0.0)), float(estimate.extra.get("dead_zone", 0.0)))
+    h = float(np.median(np.diff(seg.time)))
+    window = int(min(len(seg.time), max(_MIN_INITIAL_WINDOW,
+                                        math.ceil(INITIAL_WINDOW_TIME_CONSTANTS / max(estimate.a * h, 1e-12)))))
+
+    def run(w0: float, stop: int) -> np.ndarray:
+        resp = friction_response(*params, seg.drive[:stop], seg.time[:stop], w0, sensitivities=False)
         if seg.kind == "angle":
-            return traj.angle + float(np.mean(seg.output - traj.angle))
-        return traj.speed
-    w0 = least_squares(lambda w: seg.output - run(w), [seg.initial_speed_guess()], xtol=1e-10).x
-    return run(w0)
+            return resp.angle + float(np.mean(seg.output[:stop] - resp.angle))
+        return resp.speed
+
+    w0 = float(least_squares(lambda w: seg.output[:window] - run(float(w[0]), window),
+                             [seg.initial_speed_guess()], xtol=1e-10).x[0])
+    return run(w0, len(seg.time))
 
 
 def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
     """The estimate's speed on ``recording`` with each segment's initial state fitted.
 
     Held-out validation uses this: the initial speed and offset of the test data
-    are unknown, and (with ``a``, ``b``, ``bias`` fixed) the linear model is linear
-    in them, so they are solved exactly by least squares (the friction model starts
-    from the measured speed instead).
+    are unknown.  With ``a``, ``b``, ``bias`` fixed the linear model is linear in
+    them, so they are solved exactly by least squares; the friction model's initial
+    speed is fitted on a short window at the start of each segment, from the measured
+    speed (:func:`initial_state_rule`).
 
     Parameters
     ----------
@@ -262,7 +293,7 @@ class ValidationReport:
     Attributes
     ----------
     fit_percent : float
-        NRMSE fit in % of the simulated speed (initial state fitted) on the recording.
+        NRMSE fit in % of the simulated speed on the recording (initial state as ``initial_state``).
     measured_speed, simulated_speed : ndarray, shape (n,)
         rad/s, row-aligned with the recording (``nan`` where undefined).
     time : ndarray, shape (n,)
@@ -283,6 +314,8 @@ class ValidationReport:
         autocorrelation matrix, pseudo-inverted; Ljung eq. 16.53); small values
         reject "white" / "independent of the input".
     residual_unit : str
+    initial_state : str
+        How the initial state of each segment was found (:func:`initial_state_rule`).
     """
 
     fit_percent: float
@@ -298,6 +331,7 @@ class ValidationReport:
     whiteness_p: float
     independence_p: float
     residual_unit: str
+    initial_state: str = ""
 
     @property
     def share_outside_band(self) -> float:
@@ -314,7 +348,7 @@ class ValidationReport:
         return {"validation_fit_percent": self.fit_percent, "whiteness_p": self.whiteness_p,
                 "independence_p": self.independence_p, "autocorrelation_outside_band": self.share_outside_band,
                 "max_abs_cross_correlation": float(np.nanmax(np.abs(self.cross_correlation))),
-                "correlation_band": self.band}
+                "correlation_band": self.band, "initial_state": self.initial_state}
 
 
 def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> ValidationReport:
@@ -358,4 +392,5 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
                             simulated_speed=sim, residual=res, lags=np.arange(lag + 1), autocorrelation=ac,
                             cross_lags=np.arange(-lag, lag + 1), cross_correlation=cc, band=1.96 / math.sqrt(n),
                             whiteness_p=float(chi2.sf(q_white, lag)),
-                            independence_p=float(chi2.sf(q_cross, dof_cross)), residual_unit=unit)
+                            independence_p=float(chi2.sf(q_cross, dof_cross)), residual_unit=unit,
+                            initial_state=initial_state_rule(estimate))

@@ -6,8 +6,10 @@ sample arrives, else one :meth:`SimRig.run <motorsim.rig.SimRig.run>` and one
 :func:`identify.fit` per repetition -- the path users take.  Estimators with a
 batched implementation (``scenarios.batch.BATCHED_METHODS``) use it; any other
 name from ``identify.available_methods()`` is fitted with ``identify.fit`` on
-recordings of the same counts.  A fit that raises is a counted failure with
-its reason, never a crash of the sweep.
+recordings of the same counts.  Where the setting has an input delay, every
+method that takes ``input_delay`` is fitted with ``input_delay="auto"`` (one
+recording at a time).  A fit that raises is a counted failure with its reason,
+never a crash of the sweep.
 
 :func:`run_scenario` spreads the grid points over a
 ``concurrent.futures.Executor`` (processes by default, or any executor given,
@@ -153,9 +155,12 @@ def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
     return bound.stderr()
 
 
-def _fit_or_reason(recording: Recording, method: str) -> tuple[float, float, str]:
+def _fit_or_reason(recording: Recording, method: str, auto_delay: bool = False) -> tuple[float, float, str]:
+    """Fit; where the setting has an input delay, methods that take ``input_delay`` choose it ("auto")."""
+    from identify.methods import method_options
+    options = {"input_delay": "auto"} if auto_delay and "input_delay" in method_options(method) else {}
     try:
-        est = fit(recording, method=method)
+        est = fit(recording, method=method, **options)
     except Exception as exc:  # a failed fit is an outcome of the sweep, whatever the estimator raised
         return math.nan, math.nan, f"{type(exc).__name__}: {exc}".replace("\n", " ")
     return est.a, est.b, ""
@@ -189,7 +194,7 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
     exp = s.experiment()
     # Without noise, jitter or drops every repetition is the same run: simulate it once.
     distinct = repetitions if s.needs_rng else 1
-    fits = _Fits(methods, distinct)
+    fits = _Fits(methods, distinct, auto_delay=s.motor().input_delay > 0)
     batched = batch and _is_batchable(s)
     if batched:
         _run_batched(s, exp, fits, seed, point.index)
@@ -214,14 +219,17 @@ def _check_point_arguments(point: GridPoint, methods: Sequence[str], repetitions
 
 
 def _is_batchable(s: Setting) -> bool:
-    return not s.record_speed and is_batchable(s.motor(), jitter=s.jitter, drop_rate=s.drop_rate)
+    # a setting with an input delay is fitted with input_delay="auto", which the batch engine does not do
+    return (not s.record_speed and s.motor().input_delay == 0
+            and is_batchable(s.motor(), jitter=s.jitter, drop_rate=s.drop_rate))
 
 
 class _Fits:
     """Estimates of a and b and failure reasons, per method and repetition (filled in place)."""
 
-    def __init__(self, methods: Sequence[str], repetitions: int):
+    def __init__(self, methods: Sequence[str], repetitions: int, auto_delay: bool = False):
         self.methods = list(methods)
+        self.auto_delay = auto_delay
         self.a = {m: np.full(repetitions, np.nan) for m in methods}
         self.b = {m: np.full(repetitions, np.nan) for m in methods}
         self.why = {m: [""] * repetitions for m in methods}
@@ -233,7 +241,7 @@ class _Fits:
     def fit(self, r: int, recording: Recording, methods: Sequence[str]) -> None:
         """Fit repetition ``r`` with each of ``methods`` through ``identify.fit``."""
         for m in methods:
-            self.a[m][r], self.b[m][r], self.why[m][r] = _fit_or_reason(recording, m)
+            self.a[m][r], self.b[m][r], self.why[m][r] = _fit_or_reason(recording, m, self.auto_delay)
 
 
 def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:

@@ -21,15 +21,22 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
 3. Coulomb friction and a dead zone: ``oe-friction`` against ``oe``;
 4. Monte Carlo with angle noise: ``oe``'s spread and bias against the Cramér–Rao bound;
 5. the time of one ``oe`` fit of a 10 000-sample recording, analytic Jacobian
-   against finite differences (``jac="2-point"``), measured in the same run.
+   against finite differences (``jac="2-point"``), measured in the same run; and
+   ``oe-friction`` against ``oe`` on the same friction run, with and without a dead zone;
+6. interval coverage: the share of 95 % intervals that cover the truth in each regime
+   (white noise, coarse encoders, timing jitter, friction, a delay), ``--repetitions`` runs
+   each, with the covariance used and std/CRB;
+7. closed loop: every method on a P position loop and a PI speed loop.
 """
 from __future__ import annotations
 
 import argparse
+import collections
+import functools
 import itertools
 import math
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -40,10 +47,15 @@ from motorsim.rig import jittered_times
 from ..progress import Ticker
 from .timing import median_time
 
-__all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error"]
+__all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error",
+           "coverage_run", "COVERAGE_REGIMES", "closed_loop_run"]
 
 _STATIC_GAIN = 0.12   # b / a in (rad/s)/duty, the article's 3/25
 _SUBSTEP_AD = 0.02    # a * delta per RK4 sub-step: local error ~ (a delta)^5/120 ~ 3e-11
+
+
+#: Goal for the time of oe-friction over oe on the same friction run.
+_FRICTION_TIME_RATIO = 5.0
 
 
 def rk4_angle(a: float, b: float, duty: np.ndarray, time_s: np.ndarray, *, initial_speed: float = 0.0) -> np.ndarray:
@@ -342,6 +354,150 @@ def _section_monte_carlo(args) -> bool:
     return ok
 
 
+#: Regimes of the coverage table: (label, method, counts/rev, angle noise rad, jitter share of dt, friction c, delay).
+COVERAGE_REGIMES = (
+    ("white angle noise", "oe", 16667, 2e-3, 0.0, 0.0, 0),
+    ("44 counts/rev", "oe", 44, 0.0, 0.0, 0.0, 0),
+    ("100 counts/rev", "oe", 100, 0.0, 0.0, 0.0, 0),
+    ("360 counts/rev", "oe", 360, 0.0, 0.0, 0.0, 0),
+    ("timing jitter 10 %", "oe", 4096, 0.0, 0.1, 0.0, 0),
+    ("Coulomb friction", "oe-friction", 4096, 0.0, 0.0, 75.0, 0),
+    ("input delay 2", "oe", 4096, 0.0, 0.0, 0.0, 2),
+)
+_COVERAGE_GOAL = 0.90
+_NOISE_FREE_ANGLES: dict = {}   # the last regime's noise-free angle (without jitter every run shares it)
+
+
+def coverage_run(regime, duty: np.ndarray, dt: float, rng) -> tuple[bool, bool, str, float, float] | None:
+    """One run of a regime: whether the 95 % intervals of a and b cover the truth, the covariance used,
+    and the estimates of a and b.
+
+    Randomness: the encoder's phase (a uniform offset within one count), the angle noise and the
+    sample instants' jitter (the recording keeps the nominal clock, as the firmware does)."""
+    from identify import NotIdentifiableError, fit
+    label, method, cpr, noise, jitter, friction, delay = regime
+    a, b, n = 25.0, 3.0, len(duty)
+    nominal = np.arange(n) * dt
+    true_t = nominal + (rng.uniform(-jitter, jitter, n) * dt if jitter else 0.0)
+    true_t[0] = 0.0
+    key = (friction, delay, dt, duty.tobytes())
+    if jitter or key not in _NOISE_FREE_ANGLES:
+        delayed = np.concatenate([np.zeros(delay), duty[:n - delay]]) if delay else duty
+        if friction:
+            angle = rk4_friction_angle(a, b, friction, 0.0, delayed[:, None], true_t)[:, 0]
+        else:
+            angle = rk4_angle(a, b, delayed, true_t)
+        if not jitter:      # the same for every run: integrate once
+            _NOISE_FREE_ANGLES.clear()
+            _NOISE_FREE_ANGLES[key] = angle
+    else:
+        angle = _NOISE_FREE_ANGLES[key]
+    angle = angle + rng.uniform(0.0, 2 * math.pi / cpr)
+    rec = make_recording(angle, duty, nominal, dt, cpr, rng=rng, angle_noise=noise)
+    options: dict = {"input_delay": delay} if delay else {}
+    if method == "oe-friction":
+        options["dead_zone"] = False
+    try:
+        est = fit(rec, method=method, **options)
+    except NotIdentifiableError:
+        return None
+    lo_hi = est.confidence_interval(0.95)
+    return (lo_hi["a"][0] <= a <= lo_hi["a"][1], lo_hi["b"][0] <= b <= lo_hi["b"][1], est.covariance_method,
+            est.a, est.b)
+
+
+def _section_coverage(args) -> bool:
+    """Share of runs whose 95 % intervals of a and b cover the truth, per regime."""
+    dt, n = 0.005, args.coverage_samples
+    duty = Multisine((7.5, 25.0, 50.0), (90, 90, 90), (0.0, 0.7, 1.4)).duty(n, dt).astype(float)
+    print(f"\n6. interval coverage: {args.repetitions} runs per regime, a=25, b=3, {n} samples of 5 ms, "
+          f"multisine; share of 95 % intervals that cover the truth (goal >= {100 * _COVERAGE_GOAL:g} %)")
+    print(f"{'regime':>20} {'method':>12} {'runs':>5} {'a covered':>10} {'b covered':>10} {'covariance':>18} "
+          f"{'std/CRB a':>9} {'std/CRB b':>9}")
+    ok = True
+    for i, regime in enumerate(COVERAGE_REGIMES):
+        rows = []
+        for child in np.random.SeedSequence([args.seed, i]).spawn(args.repetitions):
+            out = coverage_run(regime, duty, dt, np.random.default_rng(child))
+            if out is not None:
+                rows.append(out)
+        ca = float(np.mean([r[0] for r in rows])) if rows else math.nan
+        cb = float(np.mean([r[1] for r in rows])) if rows else math.nan
+        used = collections.Counter(r[2] for r in rows).most_common(1)
+        how = f"{used[0][0]} {100 * used[0][1] / len(rows):.0f}%" if used else "-"
+        ratio = _std_over_crb(regime, duty, dt, np.array([r[3:] for r in rows]))
+        bad = not (ca >= _COVERAGE_GOAL and cb >= _COVERAGE_GOAL)
+        ok &= not bad
+        print(f"{regime[0]:>20} {regime[1]:>12} {len(rows):5d} {100 * ca:9.1f}% {100 * cb:9.1f}% {how:>18} "
+              f"{ratio[0]:9.2f} {ratio[1]:9.2f}" + ("   <-- below goal" if bad else ""))
+    print("std/CRB: spread of the estimates over the Cramér–Rao bound of the regime's model (quantisation "
+          "as white noise; nan with jitter, which the bound does not model)")
+    return ok
+
+
+def closed_loop_run(loop: str, a: float, b: float, dt: float, n: int, cpr: int, rng) -> Recording:
+    """A closed-loop recording: the duty computed each sample from the floored counts.
+
+    ``loop = "position"``: ``u = 60 (r - theta_meas)`` duty/rad tracking ``r = 3 sin(2 t)`` rad.
+    ``loop = "speed"``: PI on the differenced counts, ``u = 8 e + 40 integral(e)`` tracking
+    ``r = 10 sin(3 t) + 4`` rad/s.  Duty rounded and saturated at +-255; the plant stepped
+    exactly (ZOH) between samples; the encoder's phase random (``rng``).
+    """
+    e = math.exp(-a * dt)
+    p = (1 - e) / a
+    q = (dt - p) / a
+    step = 2 * math.pi / cpr
+    phase = rng.uniform(0.0, step)
+    w = th = 0.0
+    integral = 0.0
+    previous = 0.0
+    counts = np.empty(n, np.int64)
+    duty = np.empty(n)
+    for k in range(n):
+        counts[k] = math.floor((th + phase) / step)
+        measured = counts[k] * step
+        t = k * dt
+        if loop == "position":
+            u = 60.0 * (3.0 * math.sin(2.0 * t) - measured)
+        else:
+            speed = (measured - previous) / dt if k else 0.0
+            err = 10.0 * math.sin(3.0 * t) + 4.0 - speed
+            integral += err * dt
+            u = 8.0 * err + 40.0 * integral
+        previous = measured
+        duty[k] = u = float(min(255.0, max(-255.0, round(u))))
+        th, w = th + p * w + q * b * u, e * w + p * b * u
+    return Recording(time=np.arange(n) * dt, duty=duty, sample_period=dt, counts=counts, counts_per_rev=cpr)
+
+
+def _section_closed_loop(args) -> None:
+    """Every method on closed-loop recordings (duty computed from the measured counts)."""
+    from identify import available_methods
+    a, b, dt, n, cpr = 25.0, 3.0, 0.005, 4000, 1200
+    runs = 5
+    print(f"\n7. closed loop: a={a:g}, b={b:g}, {n} samples of {dt * 1e3:g} ms, {cpr} counts/rev; mean and "
+          f"spread of the relative error (%) over {runs} runs (encoder phase random)")
+    print(f"{'loop':>24} {'method':>12} {'a error %':>17} {'b error %':>17}")
+    for loop, label in (("position", "P position, floored"), ("speed", "PI speed, differenced")):
+        recs = [closed_loop_run(loop, a, b, dt, n, cpr, np.random.default_rng([args.seed, r])) for r in range(runs)]
+        for m in available_methods():
+            errs = np.array([_fit_or_nan(m, rec, a, b) for rec in recs]) * 100
+            mean, spread = np.nanmean(errs, axis=0), np.nanstd(errs, axis=0)
+            print(f"{label:>24} {m:>12} {mean[0]:+9.3f} +-{spread[0]:6.3f} {mean[1]:+9.3f} +-{spread[1]:6.3f}")
+
+
+def _std_over_crb(regime, duty: np.ndarray, dt: float, estimates: np.ndarray) -> tuple[float, float]:
+    """Standard deviation of the estimates of a and b over their Cramér–Rao bound (nan with jitter)."""
+    from identify import cramer_rao_bound
+    _, _, cpr, noise, jitter, friction, delay = regime
+    if jitter or len(estimates) < 2:
+        return math.nan, math.nan
+    crb = cramer_rao_bound(25.0, 3.0, duty, dt, counts_per_rev=cpr, angle_noise=noise, friction=friction,
+                           input_delay=delay).stderr()
+    sd = estimates.std(axis=0, ddof=1)
+    return float(sd[0] / crb["a"]), float(sd[1] / crb["b"])
+
+
 def naive_output_error(recording: Recording) -> tuple[float, float]:
     """The same output-error fit done plainly: all of ``(a, b, omega0, theta0)`` by Levenberg–Marquardt
     with a finite-difference Jacobian, no projection (one gap-free recording).  The timing baseline."""
@@ -393,6 +549,44 @@ def _section_timing(args) -> None:
         t = jittered_times(n, dt, jitter, rng)
         rec = make_recording(rk4_angle(a, b, duty, t), duty, t, dt, 16667, rng=rng, drop_rate=drop)
         print(f"{label:>14}: {_time_fits(rec, args.repeats)}")
+    _time_friction(args)
+
+
+def _time_friction(args) -> None:
+    """oe-friction against oe on the same friction run (one 10 000-sample run each, with and without a dead zone)."""
+    from identify import available_methods, fit
+    if "oe-friction" not in available_methods():
+        return
+    a, b, dt, n, cpr = 25.0, 3.0, 0.005, 10_000, 4096
+    c = 0.25 * b * 100
+    t = np.arange(n) * dt
+    duty = Sine(10.0, 200, 0.3).duty(n, dt).astype(float)
+    print(f"oe-friction vs oe on the same run: {n} samples, a={a:g}, b={b:g}, c={c:g}, {cpr} counts, sine 10 rad/s "
+          f"(median of {args.repeats}, the two fits in turn; goal ratio <= {_FRICTION_TIME_RATIO:g})")
+    for zone in (0.0, 10.0):
+        rec = make_recording(rk4_friction_angle(a, b, c, 0.0, duty[:, None], t, dead_zone=zone)[:, 0],
+                             duty, t, dt, cpr)
+        t_oe, t_fr = _interleaved_medians([functools.partial(fit, rec, method="oe"),
+                                           functools.partial(fit, rec, method="oe-friction", dead_zone=zone > 0)],
+                                          args.repeats)
+        fr = fit(rec, method="oe-friction", dead_zone=zone > 0)
+        fa, fb = _rel(fr, a, b)
+        print(f"  dead zone {zone:4g}: oe {t_oe * 1e3:6.1f} ms, oe-friction {t_fr * 1e3:6.1f} ms, "
+              f"ratio {t_fr / t_oe:5.2f} x; oe-friction error a {_pct(fa)} b {_pct(fb)} %, "
+              f"c {_friction_of(fr):.3f} (true {c:g})")
+
+
+def _interleaved_medians(funcs: Sequence[Callable[[], object]], repeats: int) -> list[float]:
+    """Median wall-clock seconds of each function, the calls taken in turn so that all see the same load."""
+    times: list[list[float]] = [[] for _ in funcs]
+    for f in funcs:
+        f()
+    for _ in range(repeats):
+        for f, spent in zip(funcs, times):
+            t0 = time.perf_counter()
+            f()
+            spent.append(time.perf_counter() - t0)
+    return [float(np.median(spent)) for spent in times]
 
 
 def _generator_check(rng) -> float:
@@ -437,13 +631,17 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--friction-samples", type=int, default=4000, metavar="N",
                    help="samples per friction run (default 4000)")
     p.add_argument("--repetitions", type=int, default=200, metavar="N",
-                   help="Monte Carlo repetitions (default 200)")
+                   help="Monte Carlo repetitions, and runs per regime of the coverage table (default 200)")
+    p.add_argument("--coverage-samples", type=int, default=2000, metavar="N",
+                   help="samples per run of the coverage table (default 2000)")
     p.add_argument("--angle-noise", type=float, default=2e-3, metavar="RAD",
                    help="Monte Carlo angle noise in rad (default 0.002)")
     p.add_argument("--repeats", type=int, default=15, metavar="N",
                    help="timings of each fit to take the median of (default 15)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
-    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing"], default=None,
+    p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing", "coverage",
+                                       "closedloop"],
+                   default=None,
                    help="run one section only (default all)")
     return p.parse_args(list(argv))
 
@@ -462,7 +660,8 @@ def bench_accuracy(argv: Sequence[str]) -> int:
         return True
     sections = {"sines": lambda: _section_sines(args, rng)[0], "multisine": lambda: _section_multisine(args, rng),
                 "friction": lambda: _section_friction(args, rng), "montecarlo": lambda: _section_monte_carlo(args),
-                "timing": timing}
+                "timing": timing, "coverage": lambda: _section_coverage(args),
+                "closedloop": lambda: _section_closed_loop(args) or True}
     with Ticker("bench accuracy") as ticker:      # on a terminal only, below the tables
         for i, (name, run) in enumerate(sections.items(), 1):
             if args.only in (None, name):

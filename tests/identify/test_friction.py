@@ -7,8 +7,8 @@ from identify.friction import fit_output_error_friction, speed_reverses
 from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
 
-# The friction model is simulated exactly (motorsim.simulate, event by event) and the fit uses
-# a finite-difference Jacobian; on noise-free angles the fit stops within ~1e-6 relative.
+# The friction model is simulated exactly (event by event) with an analytic Jacobian; on noise-free
+# angles the fit stops within ~1e-6 relative.
 CLOSE = 1e-5
 
 

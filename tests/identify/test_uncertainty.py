@@ -82,3 +82,56 @@ def test_bad_arguments_name_the_parameter(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         cramer_rao_bound(args.pop("a"), args.pop("b"), args.pop("duty"), args.pop("sample_period"), **args)
+
+
+def test_newey_west_without_lags_is_the_white_sandwich():
+    # L = 0: (J^T J)^-1 (sum r_t^2 J_t J_t^T) (J^T J)^-1, exactly (to rounding)
+    from identify.uncertainty import newey_west_covariance
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(500, 3)) * [1.0, 100.0, 0.01]
+    r = rng.normal(size=500)
+    bread = np.linalg.inv(J.T @ J)
+    direct = bread @ ((J * r[:, None] ** 2).T @ J) @ bread
+    np.testing.assert_allclose(newey_west_covariance(J, r, 3, 0), direct, rtol=1e-9)
+
+
+def test_correlated_residuals_switch_to_newey_west_and_widen_the_interval():
+    # AR(1) residuals with coefficient 0.9: the variance of a mean is about (1 + 0.9)/(1 - 0.9) = 19 times
+    # the white formula's; Newey-West must see most of that (> 5 x) while Gauss-Newton cannot
+    from identify.uncertainty import robust_covariance
+    rng = np.random.default_rng(4)
+    e = rng.normal(size=4000)
+    r = np.empty_like(e)
+    r[0] = e[0]
+    for k in range(1, len(e)):
+        r[k] = 0.9 * r[k - 1] + e[k]
+    J = np.ones((len(r), 1))
+    white, how_white = robust_covariance(J, rng.normal(size=len(r)), 1.0, 1)
+    cov, how = robust_covariance(J, r, float(r @ r) / len(r), 1)
+    assert how_white == "gauss-newton" and how == "newey-west"
+    assert cov[0, 0] > 5 * float(r @ r) / len(r) / len(r)
+
+
+def test_bound_with_a_known_delay_is_the_bound_of_the_delayed_duty():
+    # the delay shifts the duty (zeros before the run): exactly the bound of the shifted duty
+    from identify import cramer_rao_bound
+    t = np.arange(2000) * 0.005
+    duty = np.round(150 * np.sin(25 * t) + 60 * np.sin(60 * t + 1))
+    shifted = np.concatenate([np.zeros(2), duty[:-2]])
+    delayed = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=1200, input_delay=2).covariance
+    np.testing.assert_allclose(delayed, cramer_rao_bound(25.0, 3.0, shifted, 0.005, counts_per_rev=1200).covariance,
+                               rtol=1e-12)
+
+
+def test_friction_bound_is_at_least_the_linear_one():
+    # with friction the bound estimates c and d alongside, so it cannot be below the bound of the same
+    # experiment on a linear plant of equal a, b and fewer nuisance parameters by much; and it is finite
+    from identify import cramer_rao_bound
+    t = np.arange(2000) * 0.005
+    duty = np.round(150 * np.sin(25 * t) + 60 * np.sin(60 * t + 1))
+    fr = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=4096, friction=1e-6).stderr()
+    lin = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=4096).stderr()
+    # a vanishing friction leaves the angle's sensitivities to a and b those of the linear plant; the extra
+    # columns for c and d can only raise the bound (Schur complement)
+    assert fr["a"] >= lin["a"] * (1 - 1e-9) and fr["b"] >= lin["b"] * (1 - 1e-9)
+    assert np.isfinite(fr["a"]) and np.isfinite(fr["b"])

@@ -56,3 +56,16 @@ def test_bad_delay_value_is_refused(runs, capsys):
     with pytest.raises(SystemExit):
         main(["identify", str(runs[0]), "--input-delay", "soon"])
     assert "--input-delay must be 'auto' or an integer >= 0 (samples), got 'soon'" in capsys.readouterr().err
+
+
+def test_plain_identify_finds_a_two_sample_delay_and_says_so(tmp_path, capsys):
+    run = tmp_path / "delayed.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--multisine", "7,90,0;31,90,1", "--duration", "5",
+                 "--input-delay", "2", "--seed", "3", "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(run), "--json"]) == 0
+    out = capsys.readouterr().out
+    data = json.loads(out.strip().splitlines()[-1])
+    # with delay 0 the fit was off by -22 %; with the delay found, quantisation-only errors: 4 standard errors
+    assert data["input_delay"] == 2 and "delay       2 samples, chosen" in out
+    assert abs(data["a"] - 25.0) < 4 * data["a_stderr"] and abs(data["b"] - 3.0) < 4 * data["b_stderr"]

@@ -1,0 +1,337 @@
+"""Exact ZOH response of the Coulomb-friction motor and its analytic sensitivities, without a loop per sample.
+
+The model (``motorsim.plant``) is ``d omega/dt = -a omega + b v - c sign(omega) + d`` with
+``v`` the duty after the dead zone ``z`` (``v = u - sign(u) z`` when ``|u| > z``, else 0) and
+sticking at rest while ``|b v + d| <= c``.  Every sample interval is in one of three *modes*:
+
+* moving with sign ``s`` throughout: the linear ZOH step with the constant force
+  ``G = b v + d - s c`` (``omega' = e omega + p G``, ``theta' = theta + p omega + q G``,
+  ``e = exp(-a h)``, ``p = (1 - e)/a``, ``q = (h - p)/a``);
+* stuck at rest: nothing moves;
+* an *event*: the speed reaches zero at ``t_z = ln((omega - T)/(-T))/a`` (``T = G/a``)
+  and then sticks or restarts the other way from rest.
+
+Given the modes, the speed obeys ``omega_{k+1} = M_k omega_k + f_k`` with ``M_k = e_k``
+except at the few event and sticking intervals, so the whole run is two
+first-order linear scans (``scipy.signal.lfilter`` on a uniform clock, a blocked closed
+form on a jittered one) plus a short Python loop over the *events* only, which
+replaces the scan's step there by the exact nonlinear one.  The modes are found by a
+fixed-point iteration: simulate with the current modes, read the modes off the
+result, repeat until they agree.  Before the first disagreement the trajectory is
+exact, so each pass fixes at least one more interval; because an event resets the
+speed, a wrong mode does not spread, and with the previous evaluation's modes as the
+start (what a fit does) one or two passes suffice.
+
+Sensitivities: between events the derivatives with respect to ``(a, b, c, d, z,
+omega_0)`` obey the same linear recursions (same ``M_k``), differentiated term by
+term; at an event the step is differentiated *through the event time* ``t_z``
+(exactly, by complex-step differentiation of the closed-form event step, Squire &
+Trapp 1998, which has no cancellation), and a stuck interval has zero derivatives.
+This is the exact derivative of the exact model wherever the modes do not change,
+i.e. everywhere except on a set of measure zero — unlike a smoothed friction law,
+the fit needs no final polish and the fitted model is the one ``motorsim.simulate``
+integrates (a test checks both against it and against finite differences).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+__all__ = ["FrictionResponse", "friction_response", "FRICTION_PARAMETERS"]
+
+#: Columns of the sensitivities, in order.
+FRICTION_PARAMETERS = ("a", "b", "friction", "bias", "dead_zone", "initial_speed")
+_REST = 1e-10            # |omega| below this share of the speed scale counts as at rest
+_BLOCK_EXPONENT = 200.0  # keep exp() of partial sums far from overflow in the blocked scan
+_COMPLEX_STEP = 1e-30    # relative complex step: exact derivatives to rounding
+
+
+@dataclasses.dataclass(frozen=True)
+class FrictionResponse:
+    """Model angle and speed at the sample instants, their sensitivities and the modes.
+
+    Attributes
+    ----------
+    angle, speed : ndarray, shape (n,)
+        rad (relative to the first sample) and rad/s.
+    angle_sensitivity, speed_sensitivity : ndarray, shape (n, 6) or None
+        Derivatives with respect to :data:`FRICTION_PARAMETERS` (None when not asked).
+    modes : ndarray of int, shape (n - 1,)
+        Per interval: +1 / -1 moving with that sign, 0 stuck, +2 / -2 an event
+        from that sign; pass back as ``modes`` to start the next evaluation.
+    passes : int
+        Fixed-point passes used.
+    """
+
+    angle: np.ndarray
+    speed: np.ndarray
+    angle_sensitivity: np.ndarray | None
+    speed_sensitivity: np.ndarray | None
+    modes: np.ndarray
+    passes: int
+
+
+def _scan(cum: np.ndarray, e: np.ndarray, f: np.ndarray, x0: np.ndarray, uniform: bool) -> np.ndarray:
+    """``x[0] = x0``, ``x[k+1] = e[k] x[k] + f[k]`` column-wise; ``cum[k] = -log`` of ``prod_{j<k} e[j]``."""
+    n = len(e) + 1
+    out = np.empty((n, f.shape[1]))
+    out[0] = x0
+    if n == 1:
+        return out
+    if uniform:
+        out[1:], _ = lfilter([1.0], [1.0, -e[0]], f, axis=0, zi=(e[0] * x0)[None, :])
+        return out
+    start = 0
+    while start < n - 1:
+        stop = int(np.searchsorted(cum, cum[start] + _BLOCK_EXPONENT, side="right")) - 1
+        stop = min(max(stop, start + 1), n - 1)
+        rel = cum[start + 1:stop + 1] - cum[start]
+        acc = np.cumsum(np.exp(rel)[:, None] * f[start:stop], axis=0)
+        out[start + 1:stop + 1] = np.exp(-rel)[:, None] * (out[start] + acc)
+        start = stop
+    return out
+
+
+def _event_step(w, force, c, a, h, s, stick):
+    """Speed and angle increment over an interval whose speed reaches zero (module docstring)."""
+    target = (force - s * c) / a
+    t_zero = np.log((w - target) / (-target)) / a
+    d_angle = target * t_zero + w / a           # (w - T)(1 - exp(-a t_z)) = w at the zero
+    rest = h - t_zero
+    target2 = (force + s * c) / a                # restarting the other way from rest
+    grown = 1.0 - np.exp(-a * rest)
+    w_end = np.where(stick, 0.0 * w, target2 * grown)
+    d_angle = d_angle + np.where(stick, 0.0 * w, target2 * (rest - grown / a))
+    return w_end, d_angle
+
+
+def _event_step_scalar(w: float, force: float, c: float, a: float, h: float, s: float) -> tuple[float, float]:
+    """:func:`_event_step` for one interval, in floats (the trajectory's loop over events)."""
+    target = (force - s * c) / a
+    ratio = (w - target) / (-target) if target != 0 else 0.0
+    if not ratio >= 1.0:
+        # not an event from this state (a mode the fixed-point iteration is about to correct): plain step
+        e = math.exp(-a * h)
+        return target + (w - target) * e, target * h + (w - target) * (1.0 - e) / a
+    t_zero = math.log(ratio) / a
+    d_angle = target * t_zero + w / a
+    if abs(force) <= c:
+        return 0.0, d_angle
+    rest = h - t_zero
+    target2 = (force + s * c) / a
+    grown = -math.expm1(-a * rest)
+    return target2 * grown, d_angle + target2 * (rest - grown / a)
+
+
+def _event_partials(w, force, c, a, h, s, stick):
+    """Values and derivatives of :func:`_event_step` with respect to ``(w, force, c, a)``, by complex step."""
+    args = [np.asarray(w, float), np.asarray(force, float), np.full(len(w), c), np.full(len(w), a)]
+    w_end, d_angle = _event_step(args[0], args[1], args[2], args[3], h, s, stick)
+    dw = np.empty((len(w), 4))
+    dth = np.empty((len(w), 4))
+    for j in range(4):
+        step = _COMPLEX_STEP * np.maximum(np.abs(args[j]), 1.0)
+        perturbed = [x.astype(complex) for x in args]
+        perturbed[j] = perturbed[j] + 1j * step
+        cw, cth = _event_step(perturbed[0], perturbed[1], perturbed[2], perturbed[3], h, s, stick)
+        dw[:, j] = np.imag(cw) / step
+        dth[:, j] = np.imag(cth) / step
+    return w_end, d_angle, dw, dth
+
+
+class _Intervals:
+    """Per-interval constants of one evaluation: ``h, e, p, q`` and their ``a``-derivatives, the drive."""
+
+    def __init__(self, a, b, friction, bias, dead_zone, duty, time, uniform):
+        u = np.asarray(duty, dtype=float)[:-1]
+        self.h = np.diff(np.asarray(time, dtype=float))
+        moving = np.abs(u) > dead_zone
+        self.v = np.where(moving, u - np.sign(u) * dead_zone, 0.0)
+        self.v_zone = np.where(moving, -np.sign(u), 0.0)        # dv / d dead_zone
+        self.force = b * self.v + bias
+        self.a, self.b, self.c = a, b, friction
+        x = a * self.h
+        self.e = np.exp(-x)
+        one_minus = -np.expm1(-x)
+        small = np.abs(x) < 1e-5
+        xs = np.where(small, 1.0, x)
+        self.p = np.where(small, self.h * (1 - x / 2 + x * x / 6), one_minus / np.where(small, 1.0, a))
+        self.q = np.where(small, self.h ** 2 * (0.5 - x / 6 + x * x / 24), (self.h - self.p) / np.where(small, 1.0, a))
+        self.dp = np.where(small, self.h ** 2 * (-0.5 + x / 3), self.h * (xs * self.e - one_minus) / xs ** 2 * self.h)
+        self.dq = np.where(small, self.h ** 3 * (-1 / 6 + x / 12), (-self.dp - self.q) / np.where(small, 1.0, a))
+        self.cum = np.concatenate([[0.0], np.cumsum(x)])
+        self.uniform = uniform
+        scale = (abs(b) * float(np.max(np.abs(self.v), initial=0.0)) + abs(bias) + friction) / max(a, 1e-12)
+        self.rest = _REST * max(scale, 1e-300)
+
+
+def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
+    """The mode of every interval from the speed at its start (see :class:`FrictionResponse`)."""
+    w0 = w[:-1]
+    rest = np.abs(w0) <= iv.rest
+    s = np.where(rest, np.where(np.abs(iv.force) > iv.c, np.sign(iv.force), 0.0), np.sign(w0))
+    end = iv.e * w0 + iv.p * (iv.force - s * iv.c)
+    event = ~rest & (s * end < 0)
+    return (s * np.where(event, 2, 1)).astype(np.int8)
+
+
+def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
+    """Speed and angle for given modes; the event steps exact (module docstring)."""
+    s = np.sign(modes).astype(float)
+    moving = modes != 0
+    f = np.where(moving, iv.p * (iv.force - s * iv.c), 0.0)
+    after_stuck = np.concatenate([[False], modes[:-1] == 0])
+    special = np.flatnonzero((np.abs(modes) == 2) | ((modes == 0) & ~after_stuck))
+    base = _scan(iv.cum, iv.e, f[:, None], np.array([w_start]), iv.uniform)[:, 0]
+    decay = _special_decay(iv, special)
+    x_next = np.empty(len(special))
+    th_at = np.zeros(len(special))
+    acc = 0.0
+    a, c = iv.a, iv.c
+    for j, (m_k, b_k, b_next, dec, force, h) in enumerate(zip(
+            modes[special].tolist(), base[special].tolist(), base[special + 1].tolist(),
+            decay.tolist(), iv.force[special].tolist(), iv.h[special].tolist())):
+        x_k = b_k + acc * dec
+        if m_k == 0:
+            w_next, d_angle = 0.0, 0.0
+        else:
+            w_next, d_angle = _event_step_scalar(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0)
+        x_next[j], th_at[j] = w_next, d_angle
+        acc = w_next - b_next
+    w = _corrected(base[:, None], iv.cum, special, (x_next - base[special + 1])[:, None])[:, 0]
+    d_angle_all = np.where(moving, iv.p * w[:-1] + iv.q * (iv.force - s * iv.c), 0.0)
+    d_angle_all[special] = th_at
+    return w, d_angle_all, special
+
+
+def _corrected(base: np.ndarray, cum: np.ndarray, special: np.ndarray, jump: np.ndarray) -> np.ndarray:
+    """``base`` plus, after each special interval ``k``, its ``jump`` at ``k + 1`` decaying as the scan does."""
+    out = base.copy()
+    if not len(special):
+        return out
+    rows = np.arange(special[0] + 1, len(base))
+    last = np.searchsorted(special + 1, rows, side="right") - 1
+    start = special[last] + 1
+    out[rows] += jump[last] * np.exp(-(cum[rows] - cum[start]))[:, None]
+    return out
+
+
+def _special_decay(iv: _Intervals, special: np.ndarray) -> np.ndarray:
+    """``prod e`` from just after the previous special interval to the start of each special one."""
+    previous_end = np.concatenate([[0], special[:-1] + 1])
+    return np.exp(-(iv.cum[special] - iv.cum[previous_end]))
+
+
+def friction_response(a: float, b: float, friction: float, bias: float, dead_zone: float, duty, time,
+                      initial_speed: float = 0.0, *, uniform: bool | None = None, sensitivities: bool = True,
+                      modes: np.ndarray | None = None) -> FrictionResponse:
+    """Exact ZOH response of the friction motor and its sensitivities (module docstring).
+
+    Parameters
+    ----------
+    a : float
+        Pole in 1/s, > 0.
+    b : float
+        Gain per input unit, (rad/s^2)/duty.
+    friction : float
+        Coulomb friction ``c`` in rad/s^2, >= 0.
+    bias : float
+        Constant acceleration ``d`` in rad/s^2.
+    dead_zone : float
+        Dead zone in input units, >= 0.
+    duty : array_like, shape (n,)
+        Input held from ``time[k]`` to ``time[k+1]`` (already delayed; last value unused).
+    time : array_like, shape (n,)
+        Strictly increasing sample instants in s.
+    initial_speed : float
+        Speed at ``time[0]`` in rad/s.
+    uniform : bool, optional
+        Whether ``time`` is uniformly spaced (detected when None).
+    sensitivities : bool
+        Also compute the derivatives (default True).
+    modes : ndarray, optional
+        Start of the mode iteration (a previous response's ``modes``).
+
+    Returns
+    -------
+    FrictionResponse
+    """
+    t = np.asarray(time, dtype=float)
+    if uniform is None:
+        steps = np.diff(t)
+        uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= 1e-12 * abs(steps[0])))
+    iv = _Intervals(a, b, friction, bias, dead_zone, duty, t, uniform)
+    if modes is None or len(modes) != len(iv.h):
+        lin = _scan(iv.cum, iv.e, (iv.p * iv.force)[:, None], np.array([initial_speed]), uniform)[:, 0]
+        modes = _modes_of(iv, lin)
+    passes = 0
+    while True:     # ends: each pass makes at least one more interval's mode exact (module docstring)
+        passes += 1
+        w, d_angle, special = _trajectory(iv, modes, initial_speed)
+        new = _modes_of(iv, w)
+        if np.array_equal(new, modes) or passes > len(iv.h):
+            break
+        modes = new
+    angle = np.concatenate([[0.0], np.cumsum(d_angle)])
+    if not sensitivities:
+        return FrictionResponse(angle, w, None, None, modes, passes)
+    s_ang, s_spd = _sensitivities(iv, modes, w, special)
+    return FrictionResponse(angle, w, s_ang, s_spd, modes, passes)
+
+
+def _sensitivities(iv: _Intervals, modes: np.ndarray, w: np.ndarray, special: np.ndarray):
+    """Angle and speed derivatives with respect to :data:`FRICTION_PARAMETERS` (module docstring)."""
+    m = len(modes)
+    s = np.sign(modes).astype(float)
+    moving = (modes != 0)[:, None]
+    g = iv.force - s * iv.c
+    w0 = w[:-1]
+    dG = np.column_stack([np.zeros(m), iv.v, -s, np.ones(m), iv.b * iv.v_zone, np.zeros(m)])   # dG/dparam
+    fw = iv.p[:, None] * dG
+    fw[:, 0] += -iv.h * iv.e * w0 + iv.dp * g
+    fth = iv.q[:, None] * dG
+    fth[:, 0] += iv.dp * w0 + iv.dq * g
+    fw = np.where(moving, fw, 0.0)
+    fth = np.where(moving, fth, 0.0)
+    mult_th = np.where(moving[:, 0], iv.p, 0.0)       # d(angle increment)/d(speed at start)
+    events = special[np.abs(modes[special]) == 2]
+    if len(events):
+        sk = s[events]
+        stick = np.abs(iv.force[events]) <= iv.c
+        _, _, dw, dth = _event_partials(w0[events], iv.force[events], iv.c, iv.a, iv.h[events], sk, stick)
+        dF = np.column_stack([np.zeros(len(events)), iv.v[events], np.zeros(len(events)), np.ones(len(events)),
+                              iv.b * iv.v_zone[events], np.zeros(len(events))])
+        ev_fw = dw[:, 1:2] * dF
+        ev_fw[:, 2] += dw[:, 2]
+        ev_fw[:, 0] += dw[:, 3]
+        ev_fth = dth[:, 1:2] * dF
+        ev_fth[:, 2] += dth[:, 2]
+        ev_fth[:, 0] += dth[:, 3]
+        fth[events] = ev_fth
+        mult_th[events] = dth[:, 0]
+    else:
+        dw = np.zeros((0, 4))
+        ev_fw = np.zeros((0, 6))
+    is_event = np.abs(modes[special]) == 2
+    mult = np.zeros(len(special))
+    mult[is_event] = dw[:, 0]
+    forcing = np.zeros((len(special), 6))
+    forcing[is_event] = ev_fw
+    x0 = np.zeros(6)
+    x0[5] = 1.0
+    base = _scan(iv.cum, iv.e, fw, x0, iv.uniform)
+    decay = _special_decay(iv, special)
+    b_at, b_next = base[special], base[special + 1]
+    x_next = np.empty((len(special), 6))
+    acc = np.zeros(6)
+    for j in range(len(special)):
+        x_n = mult[j] * (b_at[j] + acc * decay[j]) + forcing[j]
+        x_next[j] = x_n
+        acc = x_n - b_next[j]
+    s_spd = _corrected(base, iv.cum, special, x_next - b_next)
+    s_ang = np.zeros((m + 1, 6))
+    s_ang[1:] = np.cumsum(mult_th[:, None] * s_spd[:-1] + fth, axis=0)
+    return s_ang, s_spd
