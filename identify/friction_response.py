@@ -38,7 +38,6 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = ["FrictionResponse", "friction_response", "FRICTION_PARAMETERS"]
 
@@ -82,6 +81,7 @@ def _scan(cum: np.ndarray, e: np.ndarray, f: np.ndarray, x0: np.ndarray, uniform
     if n == 1:
         return out
     if uniform:
+        from scipy.signal import lfilter  # imported when used: it costs most of `import control`
         out[1:], _ = lfilter([1.0], [1.0, -e[0]], f, axis=0, zi=(e[0] * x0)[None, :])
         return out
     start = 0

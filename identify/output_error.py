@@ -49,7 +49,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
-from .uncertainty import residuals_look_white, robust_covariance
+from .uncertainty import covariance_from_jacobian, residuals_look_white, robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
 

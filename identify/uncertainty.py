@@ -31,8 +31,8 @@ from motorsim.checks import check_int, check_real
 from .friction_response import friction_response
 from .sensitivity import zoh_response
 
-__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian", "residuals_look_white",
-           "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
+__all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian",
+           "residuals_look_white", "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
 
 #: Ljung–Box p-value below which the residuals count as correlated and the Newey–West covariance is used.
 WHITENESS_LEVEL = 0.01

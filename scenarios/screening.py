@@ -60,6 +60,25 @@ def _fit_outliers(est, recs: Sequence[Recording]) -> list[list[int]]:
     return [residual_outliers(est, rec) for rec in recs]
 
 
+def _confirmed(outliers: list[list[int]], recs: Sequence[Recording], method: str,
+               options: dict[str, Any]) -> list[list[int]]:
+    """The rows that are still outliers under the model refitted without them.
+
+    A corrupted sample can pull the first fit (an automatic input delay picking the wrong
+    delay, say) so far that honest rows look like outliers too; the refit without the
+    suspects is the model to judge them by.  Falls back to the first verdict when the refit
+    clears every row.
+    """
+    from identify import NotIdentifiableError, fit
+    trial = [rec.drop_rows(rows) if rows else rec for rec, rows in zip(recs, outliers)]
+    try:
+        again = _fit_outliers(fit(trial, method=method, **options), recs)
+    except NotIdentifiableError:
+        return outliers
+    confirmed = [sorted(set(first) & set(second)) for first, second in zip(outliers, again)]
+    return confirmed if any(confirmed) else outliers
+
+
 def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, drop_outliers: bool = False,
                  read: Callable[[str, bool], Recording] | None = None,
                  ) -> tuple[Any, list[Recording], list[DroppedSamples]]:
@@ -101,6 +120,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     outliers = _fit_outliers(est, recs)
     if not any(outliers):
         return est, recs, dropped
+    outliers = _confirmed(outliers, recs, method, options)
     name, rows, rec = next((n, r, rec) for n, r, rec in zip(files, outliers, recs) if r)
     reason = f"isolated residual outliers after the {method} fit"
     if not drop_outliers:
