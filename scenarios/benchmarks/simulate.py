@@ -6,11 +6,13 @@ differ by rounding, which :func:`motorsim.simulate` absorbs (``motorsim.plant.RE
 from __future__ import annotations
 
 import argparse
+import math
+import os
 from typing import Sequence
 
 import numpy as np
 
-from .timing import median_time
+from .timing import interleaved_times
 
 __all__ = ["bench_simulate"]
 
@@ -22,7 +24,7 @@ def bench_simulate(argv: Sequence[str]) -> int:
     from motorsim import Motor, Sine, simulate
     p = argparse.ArgumentParser(prog="motorid bench simulate", description=__doc__.splitlines()[0])
     p.add_argument("--samples", type=int, default=100_000, help="samples per run (default 100000)")
-    p.add_argument("--repeats", type=int, default=5, help="timings to take the median of (default 5)")
+    p.add_argument("--repeats", type=int, default=5, help="alternating rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     motor, dt, n = Motor(25.0, 3.0), 0.005, args.samples
     duty = Sine(10.0).duty(n, dt).astype(float)
@@ -32,11 +34,12 @@ def bench_simulate(argv: Sequence[str]) -> int:
     ref = control.forced_response(sysd, U=duty)
     err = max(np.max(np.abs(ref.outputs[0] - ours.angle)) / np.max(np.abs(ours.angle)),
               np.max(np.abs(ref.outputs[1] - ours.speed)) / np.max(np.abs(ours.speed)))
-    t_ours = median_time(lambda: simulate(motor, duty, t), args.repeats)
-    t_ref = median_time(lambda: control.forced_response(sysd, U=duty), args.repeats)
+    t_ours, t_ref = interleaved_times([lambda: simulate(motor, duty, t), lambda: control.forced_response(sysd, U=duty)],
+                                      args.repeats)
     print(f"samples per run          {n}")
     print(f"max relative difference  {err:.2e}")
     print(f"motorsim.simulate        {n / t_ours / 1e6:10.2f} M samples/s  ({t_ours * 1e3:.2f} ms)")
     print(f"control.forced_response  {n / t_ref / 1e6:10.2f} M samples/s  ({t_ref * 1e3:.2f} ms)")
-    print(f"ratio                    {t_ref / t_ours:10.1f} x  (goal >= 100 x)")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"ratio                    {t_ref / t_ours:10.1f} x  (goal >= 100 x; load average {load:.1f})")
     return 0 if err < 1e-9 else 1
