@@ -11,6 +11,7 @@ are printed, with the load average.
   values, fit, covariance, fit percentage);
 * one ``scipy.signal.lfilter`` pass over as many samples (the unit of the goal
   "at most 30 passes at 10^6 samples");
+* ``identify.fit(recording, method="iv")`` in the same units (its passes);
 * the reference: a plain output-error fit, ``scipy.optimize.least_squares``
   (Levenberg--Marquardt, finite differences) of ``(a, b, initial speed)`` on the exact
   ZOH model (``lfilter`` for the speed, a cumulative sum for the angle, the offset
@@ -107,7 +108,8 @@ def bench_output_error(argv: Sequence[str]) -> int:
     """Time ``oe``, ``lfilter`` and the reference per size; exit 1 if the fits disagree."""
     args = _parse(argv)
     worst = 0.0
-    print("samples     oe fit   lfilter  passes      reference  oe/ref  max rel diff  peak B/sample")
+    print("samples     oe fit   lfilter  passes      reference  oe/ref  max rel diff  peak B/sample"
+          "     iv fit  passes")
     for n in args.samples:
         worst = max(worst, _one_size(n, args.repeats))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
@@ -128,13 +130,14 @@ def _one_size(n: int, repeats: int) -> float:
     angle, duty = np.asarray(rec.measured_angle()), rec.duty.astype(float)
     start = fit(rec, method="zoh-ls")
     noise = np.random.default_rng(0).standard_normal(n)
-    t_oe, t_pass, t_ref = interleaved_times(
+    t_oe, t_pass, t_ref, t_iv = interleaved_times(
         [lambda: fit(rec, method="oe"), lambda: lfilter([1.0], [1.0, -0.9], noise),
-         lambda: reference_output_error(angle, duty, dt, (start.a, start.b))], repeats)
+         lambda: reference_output_error(angle, duty, dt, (start.a, start.b)), lambda: fit(rec, method="iv")],
+        repeats)
     est = fit(rec, method="oe")
     a, b = reference_output_error(angle, duty, dt, (start.a, start.b))
     diff = max(abs(est.a - a) / abs(a), abs(est.b - b) / abs(b))
     peak = _peak_bytes(lambda: fit(rec, method="oe"))
     print(f"{n:>8d} {t_oe * 1e3:8.1f} ms {t_pass * 1e3:6.2f} ms {t_oe / t_pass:6.1f} {t_ref * 1e3:11.1f} ms "
-          f"{t_oe / t_ref:6.2f} {diff:12.1e} {peak / n:10.0f}")
+          f"{t_oe / t_ref:6.2f} {diff:12.1e} {peak / n:10.0f} {t_iv * 1e3:9.1f} ms {t_iv / t_pass:6.1f}")
     return diff
