@@ -18,7 +18,6 @@ crossings and sticking when ``|b v + d| <= c`` at rest).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -209,10 +208,9 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
         _linear_recursion(e, g * drive, speed, initial_speed)
         angle[1:] = initial_angle + np.cumsum(p * speed[:-1] + q * drive)
         return Trajectory(t, angle, speed)
-    w, th = float(initial_speed), float(initial_angle)
-    for k in range(n - 1):
-        w, th = _friction_interval(motor.a, motor.b * v[k] + motor.bias, motor.friction, w, th, h[k])
-        speed[k + 1], angle[k + 1] = w, th
+    from .compiled import friction_run
+    friction_run(float(motor.a), motor.b * np.asarray(v, dtype=float) + motor.bias, float(motor.friction), h,
+                 speed, angle)
     return Trajectory(t, angle, speed)
 
 
@@ -230,8 +228,9 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
 
     ``speed[0]`` and ``angle[0]`` hold the initial state.  Every coefficient is its
     value at ``h[0]`` plus its first-order change, ``dh_k = h_k - h[0]``
-    (``de/dh = -a e``, ``dg/dh = b e``, ``dp/dh = e``, ``dq/dh = g``); the neglected
-    second order is at most ``RECURSION_RTOL^2`` relative, below rounding.  So no
+    (``de/dh = -a e``, ``dg/dh = b e``, ``dp/dh = e``, ``dq/dh = g``), the products of
+    ``dh`` with the state taken at the next sample (which differs by ``O(dh)``); the
+    neglected second order is at most ``RECURSION_RTOL^2`` relative, below rounding.  So no
     per-interval ``exp``: one ``lfilter`` with the constant factor, one correction pass
     as in :func:`_linear_recursion` when the intervals differ, and a cumulative sum.
     """
@@ -248,15 +247,17 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
     force = g0 * drive
     speed[1:], _ = lfilter([1.0], [1.0, -e0], force, zi=[e0 * w0])
     if spread > 0:
-        # speed_{k+1} = e0 speed_k + g0 d_k + dh_k e0 (b d_k - a speed_k), the bracket at the first pass
-        correction = (b * drive - a * speed[:-1]) * dh
-        correction *= e0
+        # speed_{k+1} = e0 speed_k + g0 d_k + dh_k e0 (b d_k - a speed_k); the bracket times e0 is
+        # b d_k - a speed_{k+1} to first order (a g0 = b (1 - e0)), taken from the first pass
+        correction = b * drive
+        correction -= a * speed[1:]
+        correction *= dh
         correction += force
         speed[1:], _ = lfilter([1.0], [1.0, -e0], correction, zi=[e0 * w0])
     step = p0 * speed[:-1]
     step += q0 * drive
     if spread > 0:
-        step += dh * (e0 * speed[:-1] + g0 * drive)
+        step += dh * speed[1:]                       # dh (e0 speed_k + g0 d_k), to first order
     np.cumsum(step, out=angle[1:])
     angle[1:] += angle[0]
     return True
@@ -327,29 +328,3 @@ def _iterated_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float
         if not change > 1e-15 * float(np.max(np.abs(new))):
             return bool(np.all(np.isfinite(new)))
     return False
-
-
-def _friction_interval(a: float, force: float, c: float, w: float, th: float, h: float) -> tuple[float, float]:
-    """Exact solution over ``h`` s of ``w' = -a w + force - c sign(w)`` with sticking at rest."""
-    remaining = h
-    while remaining > 0:
-        if w == 0.0:
-            if abs(force) <= c:
-                return 0.0, th  # stuck for the rest of the interval
-            s = 1.0 if force > 0 else -1.0
-        else:
-            s = 1.0 if w > 0 else -1.0
-        target = (force - s * c) / a  # equilibrium of this branch
-        # Does the branch reach zero speed (towards the opposite sign) within `remaining`?
-        if w != 0.0 and target * s < 0:
-            t_zero = math.log((w - target) / (0.0 - target)) / a
-            if t_zero < remaining:
-                th += target * t_zero + (w - target) * (-math.expm1(-a * t_zero)) / a
-                w = 0.0
-                remaining -= t_zero
-                continue
-        em = -math.expm1(-a * remaining)
-        th += target * remaining + (w - target) * em / a
-        w = target + (w - target) * (1.0 - em)
-        return w, th
-    return w, th

@@ -42,4 +42,32 @@ def bench_simulate(argv: Sequence[str]) -> int:
     print(f"control.forced_response  {n / t_ref / 1e6:10.2f} M samples/s  ({t_ref * 1e3:.2f} ms)")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
     print(f"ratio                    {t_ref / t_ours:10.1f} x  (goal >= 100 x; load average {load:.1f})")
-    return 0 if err < 1e-9 else 1
+    same = _friction_paths(n, args.repeats)
+    return 0 if err < 1e-9 and same else 1
+
+
+def _friction_paths(n: int, repeats: int) -> bool:
+    """Time the friction loop in Python and compiled by numba (when installed); True when they agree."""
+    from motorsim.compiled import compiled_kernel, friction_run_python
+    rng = np.random.default_rng(0)
+    h = np.full(n - 1, 0.005)
+    force = 3.0 * (120 * np.sin(2.0 * np.arange(n - 1) * 0.005) + 5 * rng.standard_normal(n - 1))
+
+    def run(kernel):
+        speed, angle = np.zeros(n), np.zeros(n)
+        kernel(25.0, force, 60.0, h, speed, angle)
+        return speed, angle
+
+    kernel = compiled_kernel()
+    if kernel is None:
+        t_py, = interleaved_times([lambda: run(friction_run_python)], repeats)
+        print(f"friction loop (Python)   {n / t_py / 1e6:10.2f} M samples/s  ({t_py * 1e3:.2f} ms); numba not "
+              "installed (motorid[fast])")
+        return True
+    t_py, t_nb = interleaved_times([lambda: run(friction_run_python), lambda: run(kernel)], repeats)
+    slow, fast = run(friction_run_python), run(kernel)
+    diff = max(float(np.max(np.abs(x - y))) / float(np.max(np.abs(x))) for x, y in zip(slow, fast))
+    print(f"friction loop (Python)   {n / t_py / 1e6:10.2f} M samples/s  ({t_py * 1e3:.2f} ms)")
+    print(f"friction loop (numba)    {n / t_nb / 1e6:10.2f} M samples/s  ({t_nb * 1e3:.2f} ms)  "
+          f"ratio {t_py / t_nb:.1f} x, max relative difference {diff:.1e}")
+    return diff < 1e-12

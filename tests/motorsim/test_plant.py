@@ -72,6 +72,7 @@ def test_dead_zone_removes_small_duty_and_shifts_the_rest():
     np.testing.assert_array_equal(motor.drive([-100, -30, 0, 29.5, 30, 31, 200]), [-70, 0, 0, 0, 0, 1, 170])
 
 
+@pytest.mark.usefixtures("kernel_path")
 class TestCoulombFriction:
     """Closed forms of w' = -a w + b u - c sign(w)."""
 
