@@ -27,6 +27,7 @@ import concurrent.futures
 import contextlib
 import csv
 import dataclasses
+import gc
 import json
 import math
 import multiprocessing
@@ -509,6 +510,14 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
         yield None, 2
         return
     own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context())
+    # Forked workers share the parent's memory until they write to it; the garbage collector
+    # writes to every object it scans, so the objects that exist now are kept out of its
+    # reach while the workers start (the pool forks them all at the first submit).
+    gc.freeze()
+    try:
+        own.submit(int).result()
+    finally:
+        gc.unfreeze()
     try:
         # A deep window keeps every worker busy while the oldest point (whose result the CSV
         # waits for) is a slow one; results are small.
