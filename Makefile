@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-EXTRAS ?= test,dask,lint
+EXTRAS ?= test,dask,lint,fast
 
 .PHONY: demo test test-fast lint venv clean
 

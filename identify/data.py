@@ -192,11 +192,12 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     if total < 3 * n_params + 4:
         raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
                                    f"record at least {3 * n_params + 4} (a few time constants) samples")
-    duty = np.concatenate([r.duty for r in recordings])
-    if np.all(duty == 0):
+    duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
+    constant = bool(duty.min() == duty.max())           # two reductions, no temporary arrays
+    if constant and duty[0] == 0:
         raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
                                    "use a sine, multisine or PRBS")
-    if np.all(duty == duty[0]):
+    if constant:
         raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
                                    "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
     for i, r in enumerate(recordings):
@@ -206,7 +207,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
 
 def _check_moves(i: int, r: Recording) -> None:
     y, kind = _measured_output(r)
-    if np.all(y == y[0]):
+    if y.min() == y.max():
         what = "encoder count" if r.counts is not None else kind
         raise NotIdentifiableError(f"recordings[{i}]: the {what} never changes (stuck at {y[0]:g}): the "
                                    "encoder is stuck or the motor did not move; check the wiring and "

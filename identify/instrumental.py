@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 from scipy.optimize import root_scalar
+from scipy.signal import lfilter
 
 from motorsim.checks import check_int
 from motorsim.recording import Recording
@@ -36,7 +37,7 @@ from .data import as_recordings, check_excitation, check_input_delay, prepare_se
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .output_error import select_delay
-from .sensitivity import zoh_response
+from .sensitivity import UNIFORM_RTOL, phi_functions, zoh_response
 from .start import initial_guess, regression_guess
 from .validation import fit_percent
 
@@ -71,6 +72,28 @@ def _model_average_speed(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np
     out[0] = 0.0
     out[1:] = np.diff(resp.angle) / np.diff(t)
     return out
+
+
+def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """:func:`_model_average_speed` on rows ``1 ... n-2``, in one ``lfilter`` pass on a uniform clock.
+
+    The model's angle increment over interval ``k`` is ``b (p w_k + q u_k)`` with
+    ``w_{k+1} = e w_k + p u_k`` (``w_0 = 0``), so the average speeds need neither the
+    angle nor its differences.
+    """
+    steps = np.diff(t)
+    if not (len(steps) and np.all(np.abs(steps - steps[0]) <= UNIFORM_RTOL * abs(steps[0]))):
+        return _model_average_speed(a, b, u, t)[1:-1]
+    h = float(steps[0])
+    p1, p2, _, _ = (float(f[0]) for f in phi_functions(np.array([a * h])))
+    p, q = h * p1, h * h * p2
+    v = np.asarray(u[:-2], dtype=float)
+    w = lfilter([0.0, p], [1.0, -math.exp(-a * h)], v)
+    w *= p
+    w += q * v
+    w *= b
+    w /= steps[:-1]
+    return w
 
 
 def _dot(x: np.ndarray, y: np.ndarray) -> float:
@@ -110,24 +133,47 @@ class _IvRegression:
     w_now: np.ndarray
     y: np.ndarray
     h: float
+    u_now: np.ndarray                  # u_k, row-aligned with w_now
+    u_before: np.ndarray               # u_{k-1}
+    moments: dict                      # dot products of the fixed columns (see :meth:`solve`)
 
     @classmethod
     def from_stretches(cls, stretches: list[Stretch], h: float) -> _IvRegression:
-        return cls(stretches, np.concatenate([w[1:-1] for w, _, _ in stretches]),
-                   np.concatenate([w[2:] for w, _, _ in stretches]), h)
+        w_now = np.concatenate([w[1:-1] for w, _, _ in stretches])
+        y = np.concatenate([w[2:] for w, _, _ in stretches])
+        u1 = np.concatenate([np.asarray(u[1:-1], dtype=float) for _, u, _ in stretches])
+        u0 = np.concatenate([np.asarray(u[:-2], dtype=float) for _, u, _ in stretches])
+        moments = {"w1": _dot(w_now, u1), "w0": _dot(w_now, u0), "y1": _dot(y, u1), "y0": _dot(y, u0),
+                   "11": _dot(u1, u1), "10": _dot(u1, u0), "00": _dot(u0, u0)}
+        return cls(stretches, w_now, y, h, u1, u0, moments)
 
     def instruments(self, a: float, b: float) -> np.ndarray:
         """The model's own noise-free averaged speed under ``(a, b)``, row-aligned with ``w_now``."""
-        return np.concatenate([_model_average_speed(a, b, u, t)[1:-1] for _, u, t in self.stretches])
+        return np.concatenate([_model_average_speed_rows(a, b, u, t) for _, u, t in self.stretches])
 
-    def solve(self, a_filter: float, x_inst: np.ndarray) -> _IvSolution:
-        """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``."""
-        v = _filtered_input(a_filter, self.stretches, self.h)
-        M = np.array([[_dot(x_inst, self.w_now), _dot(x_inst, v)], [_dot(v, self.w_now), _dot(v, v)]])
+    def instrument_moments(self, x_inst: np.ndarray) -> dict:
+        """The dot products of the instruments with the fixed columns (once per instrument)."""
+        return {"xw": _dot(x_inst, self.w_now), "xy": _dot(x_inst, self.y),
+                "x1": _dot(x_inst, self.u_now), "x0": _dot(x_inst, self.u_before)}
+
+    def solve(self, a_filter: float, x_inst: np.ndarray, x_moments: dict, columns: bool = True) -> _IvSolution:
+        """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``.
+
+        The filtered input ``v = c1 u_k + c0 u_{k-1}`` is linear in two fixed columns, so
+        ``M = Z^T Phi`` and ``Z^T y`` come from dot products taken once (no pass over the
+        data per solve); ``v`` itself is formed only with ``columns``.
+        """
+        c1, c0 = _filter_coefficients(a_filter, self.h)
+        m, xm = self.moments, x_moments
+        xv = c1 * xm["x1"] + c0 * xm["x0"]
+        vw = c1 * m["w1"] + c0 * m["w0"]
+        vv = c1 * c1 * m["11"] + 2 * c1 * c0 * m["10"] + c0 * c0 * m["00"]
+        M = np.array([[xm["xw"], xv], [vw, vv]])
         if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e12:
             raise NotIdentifiableError("iv: instruments and regressors are (nearly) collinear; the input is not "
                                        "persistently exciting (use a sine, multisine or PRBS)")
-        rhs = np.array([_dot(x_inst, self.y), _dot(v, self.y)])
+        rhs = np.array([xm["xy"], c1 * m["y1"] + c0 * m["y0"]])
+        v = c1 * self.u_now + c0 * self.u_before if columns else self.u_now[:0]
         return _IvSolution(np.linalg.solve(M, rhs), self.w_now, v, x_inst, M)
 
     def pole(self, theta: np.ndarray) -> float:
@@ -138,8 +184,8 @@ class _IvRegression:
                                        "model fits; check the sign of the input and that the motor moved")
         return -math.log(e) / self.h
 
-    def iterate(self, a: float, b: float) -> _IvSolution:
-        """One IV pass from the model ``(a, b)``.
+    def iterate(self, a: float, b: float, last: bool = True) -> _IvSolution:
+        """One IV pass from the model ``(a, b)`` (the regressor columns formed only when ``last``).
 
         Instruments from the current model; then the ``a`` inside the input filter
         must agree with the ``a`` that the solved ``e`` implies: a one-dimensional
@@ -147,15 +193,16 @@ class _IvRegression:
         ``e`` and the filter trade off).
         """
         x_inst = self.instruments(a, b)
+        xm = self.instrument_moments(x_inst)
         try:
-            root = root_scalar(lambda lg: math.log(self.pole(self.solve(math.exp(lg), x_inst).theta)) - lg,
+            root = root_scalar(lambda lg: math.log(self.pole(self.solve(math.exp(lg), x_inst, xm, False).theta)) - lg,
                                x0=math.log(a), x1=math.log(a) + 0.01, method="secant", xtol=1e-13, maxiter=50)
             a_new = math.exp(root.root) if root.converged else math.nan
         except (NotIdentifiableError, ValueError, OverflowError):
             a_new = math.nan
         if not (math.isfinite(a_new) and a_new > 0):
-            a_new = self.pole(self.solve(a, x_inst).theta)   # fall back to one substitution step
-        return self.solve(a_new, x_inst)
+            a_new = self.pole(self.solve(a, x_inst, xm, False).theta)   # fall back to one substitution step
+        return self.solve(a_new, x_inst, xm, last)
 
 
 def fit_instrumental_variables(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
@@ -200,8 +247,8 @@ def fit_instrumental_variables(recordings: Recording | list[Recording], *, input
                                    "record longer")
     guess = regression_guess(recs)
     a, b = guess if guess is not None else initial_guess(recs, prepare_segments(recs, delay))
-    for _ in range(iterations):
-        sol = regression.iterate(a, b)
+    for i in range(iterations):
+        sol = regression.iterate(a, b, last=i == iterations - 1)
         a, b = regression.pole(sol.theta), float(sol.theta[1])
     return _estimate(regression, sol, a, b, recs, delay)
 
@@ -224,9 +271,9 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
                     extra={"input_delay": delay}, input_unit=recs[0].input_unit)
 
 
-def _filtered_input(a: float, stretches: list[Stretch], h: float) -> np.ndarray:
-    """``(q u_k + (p^2 - e q) u_{k-1}) / h`` per row: the input term per unit ``b``."""
+def _filter_coefficients(a: float, h: float) -> tuple[float, float]:
+    """``(q / h, (p^2 - e q) / h)``: the filtered input per unit ``b`` is ``c1 u_k + c0 u_{k-1}``."""
     e = math.exp(-a * h)
     p = -math.expm1(-a * h) / a
     q = (h - p) / a
-    return np.concatenate([(q * u[1:-1] + (p * p - e * q) * u[:-2]) / h for _, u, _ in stretches])
+    return q / h, (p * p - e * q) / h

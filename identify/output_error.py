@@ -412,9 +412,13 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
         extra["bias"] = float(bias)
+    if solution.separable is not None:
+        fit_percent = solution.separable.speed_fit_percent(problem.segments)
+    else:
+        fit_percent = segment_fit_percent(problem.segments, models)
     return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
                     sample_period=recs[0].sample_period, residual_rms=math.sqrt(rss / problem.n_rows),
-                    fit_percent=segment_fit_percent(problem.segments, models), covariance=cov,
+                    fit_percent=fit_percent, covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
                     covariance_method=cov_method)

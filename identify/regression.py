@@ -63,24 +63,53 @@ def solve_least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.nd
     if n < p + 1:
         raise NotIdentifiableError(f"recording is too short: {n} regression rows for {p} parameters; "
                                    "record more samples")
-    scale = np.linalg.norm(A, axis=0)
+    cols = [np.ascontiguousarray(A[:, j], dtype=float) for j in range(p)]
+    scale = np.sqrt([_dot(c, c) for c in cols])
     if np.any(scale == 0):
         which = ["speed", "input"][int(np.flatnonzero(scale == 0)[0])] if p == 2 else "a regressor"
         raise NotIdentifiableError(f"{which} is identically zero: the input is not persistently exciting "
                                    "(use a sine, multisine or PRBS)")
-    x_s, _, rank, sv = np.linalg.lstsq(A / scale, y, rcond=None)
-    if rank < p or sv[-1] / sv[0] < 1e-10:
+    q, r = _thin_qr([c / s for c, s in zip(cols, scale)])
+    sv = np.linalg.svd(r, compute_uv=False)      # the singular values of the scaled A
+    if not sv[-1] > 0 or sv[-1] / sv[0] < 1e-10:
         raise NotIdentifiableError("regressors are (nearly) collinear: the input is not persistently exciting "
                                    "(use a sine, multisine or PRBS that moves the motor)")
-    x = x_s / scale
-    resid = y - A @ x
-    dof = max(n - p, 1)
-    s2 = float(resid @ resid) / dof
-    # cov = s^2 (A^T A)^{-1}, from the SVD of the scaled A (no explicit inverse of A^T A)
-    _, svals, vt = np.linalg.svd(A / scale, full_matrices=False)
-    inv = (vt.T / svals**2) @ vt
-    cov = s2 * inv / np.outer(scale, scale)
-    return x, cov, math.sqrt(float(resid @ resid) / n)
+    x = np.linalg.solve(r, [_dot(qj, y) for qj in q]) / scale
+    resid = np.array(y, dtype=float)
+    for c, xj in zip(cols, x):
+        resid -= xj * c
+    rss = _dot(resid, resid)
+    # cov = s^2 (A^T A)^{-1} = s^2 (R^T R)^{-1} of the scaled A (no explicit inverse of A^T A)
+    r_inv = np.linalg.inv(r)
+    cov = rss / max(n - p, 1) * (r_inv @ r_inv.T) / np.outer(scale, scale)
+    return x, cov, math.sqrt(rss / n)
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> float:
+    """``x . y`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine."""
+    return float(np.einsum("i,i->", x, y))
+
+
+def _thin_qr(columns: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
+    """``A = Q R`` of a few long columns by Gram--Schmidt with one reorthogonalisation.
+
+    Twice-iterated Gram--Schmidt is orthogonal to rounding (Giraud et al. 2005,
+    *Numer. Math.* 101, 87), so ``R`` is as accurate as Householder's; the
+    columns are processed with ``einsum``, not a threaded BLAS.
+    """
+    p = len(columns)
+    r = np.zeros((p, p))
+    q: list[np.ndarray] = []
+    for j, v in enumerate(columns):
+        v = v.copy()
+        for _ in range(2):
+            for i, qi in enumerate(q):
+                c = _dot(qi, v)
+                r[i, j] += c
+                v -= c * qi
+        r[j, j] = math.sqrt(_dot(v, v))
+        q.append(v / r[j, j] if r[j, j] > 0 else v)
+    return q, r
 
 
 def _finish(method, a, b, jac, cov_x, rms, n, recs) -> Estimate:

@@ -90,10 +90,11 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     for a in np.geomspace(0.5 / span, 2.0 / dt, 40):
         cols, ys = [], []
         for i, seg in enumerate(segments):
-            resp = zoh_response(a, 1.0, seg.drive, seg.time, 0.0, uniform=seg.uniform)
+            # with b = 1 and no initial speed the response is its own b-column: no sensitivities needed
+            resp = zoh_response(a, 1.0, seg.drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
             sens = resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity
             block = np.zeros((len(seg.time), 1 + 2 * len(segments)))
-            block[:, 0] = sens[:, 1]
+            block[:, 0] = resp.angle if seg.kind == "angle" else resp.speed
             block[:, 1 + 2 * i] = sens[:, 2]
             if seg.kind == "angle":
                 block[:, 2 + 2 * i] = 1.0

@@ -112,7 +112,34 @@ class SeparableSolution:
 
     def segment_residuals(self) -> list[np.ndarray]:
         """:attr:`residuals` cut into the segments."""
+        if len(self.segment_lengths) == 1:
+            return [self.residuals]
         return np.split(self.residuals, np.cumsum(self.segment_lengths)[:-1])
+
+    def speed_fit_percent(self, segments: list[Segment]) -> float:
+        """NRMSE fit (%) of the model's interval speed against the measured one, pooled over segments.
+
+        :func:`identify.validation.segment_fit_percent` of the fitted angles, from the
+        residuals: the speeds' difference is the differenced residual over the interval.
+        Each segment's interval is its mean (the clock is uniform within 1e-9 relative).
+        """
+        pieces = [(seg.output, r, float(seg.time[-1] - seg.time[0]) / (len(seg.time) - 1))
+                  for seg, r in zip(segments, self.segment_residuals())]
+        count = sum(len(y) - 1 for y, _, _ in pieces)
+        if count < 2:
+            return math.nan
+        mean = sum(float(y[-1] - y[0]) / h for y, _, h in pieces) / count
+        spread = error = 0.0
+        for y, r, h in pieces:
+            v = np.diff(y)
+            v /= h
+            v -= mean
+            spread += _dot(v, v)
+            np.subtract(r[1:], r[:-1], out=v)
+            error += _dot(v, v) / (h * h)
+        if spread == 0:
+            return math.nan
+        return 100.0 * (1.0 - math.sqrt(error / spread))
 
     def optimize_result(self) -> OptimizeResult:
         """The solution as ``scipy.optimize.least_squares`` reports one (``x = (a, b)``, ``fun``, ``nfev``)."""
@@ -125,14 +152,15 @@ class SeparableSolution:
         Scaled to unit diagonal first, like :func:`identify.uncertainty.covariance_from_jacobian`
         (whose singular-value threshold 1e-13 is 1e-26 on the eigenvalues here).
         """
-        scale = np.sqrt(np.diag(self.normal_matrix))
-        if not (np.all(scale > 0) and np.all(np.isfinite(self.normal_matrix))):
+        m = self.normal_matrix
+        if not (m[0, 0] > 0 and m[1, 1] > 0 and np.all(np.isfinite(m))):
             return np.full((2, 2), math.inf)
-        scaled = self.normal_matrix / np.outer(scale, scale)
-        eig = np.linalg.eigvalsh(scaled)
-        if eig[0] <= eig[-1] * 1e-26:
+        s0, s1 = math.sqrt(m[0, 0]), math.sqrt(m[1, 1])
+        c = float(m[0, 1]) / (s0 * s1)              # scaled: [[1, c], [c, 1]], eigenvalues 1 -+ |c|
+        if 1 - abs(c) <= (1 + abs(c)) * 1e-26:
             return np.full((2, 2), math.inf)
-        return noise_variance * np.linalg.inv(scaled) / np.outer(scale, scale)
+        k = noise_variance / (1 - c * c)
+        return np.array([[k / (s0 * s0), -k * c / (s0 * s1)], [-k * c / (s0 * s1), k / (s1 * s1)]])
 
 
 class _Segment:
@@ -156,7 +184,7 @@ class _Segment:
         self.y = seg.output - seg.output.mean()      # centred: the offset is projected out
         self.b_col = np.empty(n)                     # B*, centred
         self.g = np.empty(n)                         # direction g, centred
-        self.r = np.empty(n)                         # residual
+        self.r = self.g                              # residual: only the last evaluation, which needs no g
         self.d_col = np.empty(0)                     # D on its first K samples
         self.d_mean = 0.0
         self.d_norm2 = 0.0                           # |D - mean(D)|^2 over all n samples
@@ -174,9 +202,9 @@ def _columns(s: _Segment, a: float, direction: bool) -> None:
     h = s.h
     e, p, dp = _coefficients(a, h)
     s.factors = (p, dp, h * e * p)
-    s.f_col, _ = lfilter([1.0], [1.0, -e], s.u, zi=[0.0])   # F_k = e F_{k-1} + u_k
+    s.f_col = lfilter([1.0], [1.0, -e], s.u)     # F_k = e F_{k-1} + u_k (zero initial state)
     if direction:
-        s.g_col, _ = lfilter([1.0], [1.0, -e], s.f_col, zi=[0.0])
+        s.g_col = lfilter([1.0], [1.0, -e], s.f_col)
     b = s.b_col
     b[0] = 0.0
     np.multiply(s.f_col, -p, out=b[1:])
@@ -263,9 +291,10 @@ def _evaluate(segs: list[_Segment], a: float, direction: bool = True) -> _Point:
     for s, gamma, (bd, _) in zip(segs, point.gammas, parts):
         g = _direction(s, beta, gamma)
         gd = _dot_d(s, g)
-        gb = _dot(g, s.b_col) - gd * bd
+        g_b = _dot(g, s.b_col)
+        gb = g_b - gd * bd
         # g . r with r = y - beta B* - gamma (D - mean D) (g is centred)
-        gr += _dot(g, s.y) - beta * _dot(g, s.b_col) - gamma * gd
+        gr += _dot(g, s.y) - beta * g_b - gamma * gd
         point.gg += _dot(g, g) - gd * gd / s.d_norm2
         point.gb += gb
     curvature = point.gg - point.gb ** 2 / bb
@@ -342,7 +371,8 @@ def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | N
     if not (math.isfinite(final.b) and np.all(np.isfinite(final.gammas))):
         return None
     return SeparableSolution(a=a, b=final.b, initial_speeds=final.gammas * a,
-                             residuals=np.concatenate([s.r for s in segs]), normal_matrix=normal,
+                             residuals=segs[0].r if len(segs) == 1 else np.concatenate([s.r for s in segs]),
+                             normal_matrix=normal,
                              iterations=evaluations + count + 1, segment_lengths=tuple(s.n for s in segs))
 
 

@@ -29,6 +29,7 @@ import concurrent.futures
 import contextlib
 import csv
 import dataclasses
+import gc
 import json
 import math
 import multiprocessing
@@ -404,7 +405,8 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     workers : int, optional
         Processes to use when no ``executor`` is given (default: every core; more than the
         cores is clamped to them, see :func:`usable_workers`; 1 runs in this process).
-        Workers are forked from a fork server that has imported motorid (:func:`worker_context`).
+        Workers start warm, forked from this process or a fork server once motorid is imported
+        (:func:`worker_context`).
     executor : concurrent.futures.Executor, optional
         Any executor (e.g. Dask's ``Client(...).get_executor()``); used as given, not shut down.
     progress : bool, optional
@@ -481,12 +483,22 @@ def usable_workers(workers: int | None) -> int:
 
 
 def worker_context() -> multiprocessing.context.BaseContext:
-    """Processes forked from a fork server that has imported :data:`WORKER_PRELOAD` (spawn where there is none).
+    """How sweep workers start: forked from this process once it has imported :data:`WORKER_PRELOAD`.
 
-    The fork server is a clean single-threaded process started once, so workers neither
-    inherit the parent's threads (the danger of plain fork) nor import scipy and
-    python-control afresh (the cost of spawn: about a second of CPU each).
+    Forking the warm parent costs milliseconds per worker, so the workers compute from the
+    start (a fork server or spawn would import scipy and motorid again first: about a
+    second, serial, a quarter of a 20-repetition ``frequency-noise`` sweep).  Fork is used
+    only on Linux while this process runs no Python thread but the main one (a thread could
+    hold a lock the child inherits locked; OpenBLAS's own threads are reset by its fork
+    handler).  Otherwise the workers come from a fork server that has imported the same
+    modules (spawn where there is none).
     """
+    import importlib
+    import threading
+    for module in WORKER_PRELOAD:
+        importlib.import_module(module)
+    if sys.platform.startswith("linux") and threading.active_count() == 1:
+        return multiprocessing.get_context("fork")
     if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover - Windows
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
@@ -509,8 +521,18 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
         yield None, 2
         return
     own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context())
+    # Forked workers share the parent's memory until they write to it; the garbage collector
+    # writes to every object it scans, so the objects that exist now are kept out of its
+    # reach while the workers start (the pool forks them all at the first submit).
+    gc.freeze()
     try:
-        yield own, 2 * workers
+        try:
+            own.submit(int).result()
+        finally:
+            gc.unfreeze()
+        # A deep window keeps every worker busy while the oldest point (whose result the CSV
+        # waits for) is a slow one; results are small.
+        yield own, 8 * workers
     except BaseException:     # an error, Ctrl-C, SIGTERM: no point waits for the points in flight
         _stop_workers(own)
         raise

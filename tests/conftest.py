@@ -144,3 +144,16 @@ def motorid_commands() -> dict[tuple[str, ...], argparse.ArgumentParser]:
             if inner is not None:
                 commands.update(_subcommands(inner, path + (name,)))
     return commands
+
+
+@pytest.fixture(params=["python", "numba"])
+def kernel_path(request, monkeypatch):
+    """Run simulate's friction loop in Python (never compile) or by numba (compile at once)."""
+    from motorsim import compiled
+    if request.param == "numba":
+        if compiled.compiled_kernel() is None:
+            pytest.skip("numba is not installed (the optional 'fast' extra)")
+        monkeypatch.setattr(compiled, "COMPILE_AFTER", 0)
+    else:
+        monkeypatch.setattr(compiled, "COMPILE_AFTER", 10 ** 18)
+    return request.param

@@ -3,10 +3,15 @@
 Workload per size: the article's motor (``a = 25``, ``b = 3``) under ``200 sin(10 t)``
 at 5 ms, read by the 16667-count encoder.  Three timings on the same recording:
 
+The three are timed in alternation (a short call repeated to fill ~20 ms), so a
+change in the machine's load hits them alike; the medians over ``--repeats`` rounds
+are printed, with the load average.
+
 * ``identify.fit(recording, method="oe")``, everything included (segments, start
   values, fit, covariance, fit percentage);
 * one ``scipy.signal.lfilter`` pass over as many samples (the unit of the goal
   "at most 30 passes at 10^6 samples");
+* ``identify.fit(recording, method="iv")`` in the same units (its passes);
 * the reference: a plain output-error fit, ``scipy.optimize.least_squares``
   (Levenberg--Marquardt, finite differences) of ``(a, b, initial speed)`` on the exact
   ZOH model (``lfilter`` for the speed, a cumulative sum for the angle, the offset
@@ -19,12 +24,13 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import tracemalloc
 from typing import Sequence
 
 import numpy as np
 
-from .timing import median_time
+from .timing import interleaved_times
 
 __all__ = ["bench_output_error", "reference_output_error"]
 
@@ -77,7 +83,8 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="motorid bench oe", description=__doc__.splitlines()[0])
     p.add_argument("--samples", default="1000,10000,100000,1000000", metavar="N,N,...",
                    help="recording lengths in samples (default 1000,10000,100000,1000000)")
-    p.add_argument("--repeats", type=int, default=3, metavar="N", help="timings to take the median of (default 3)")
+    p.add_argument("--repeats", type=int, default=5, metavar="N",
+                   help="alternating rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     try:
         args.samples = [int(s) for s in args.samples.split(",")]
@@ -101,10 +108,12 @@ def bench_output_error(argv: Sequence[str]) -> int:
     """Time ``oe``, ``lfilter`` and the reference per size; exit 1 if the fits disagree."""
     args = _parse(argv)
     worst = 0.0
-    print("samples     oe fit   lfilter  passes      reference  oe/ref  max rel diff  peak B/sample")
+    print("samples     oe fit   lfilter  passes      reference  oe/ref  max rel diff  peak B/sample"
+          "     iv fit  passes")
     for n in args.samples:
         worst = max(worst, _one_size(n, args.repeats))
-    print("goals: passes <= 30 at 10^6 samples, oe/ref <= 0.5, peak <= 100 B/sample")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"goals: passes <= 30 at 10^6 samples, oe/ref <= 0.5, peak <= 100 B/sample; load average {load:.1f}")
     return 0 if worst <= AGREEMENT else 1
 
 
@@ -121,13 +130,14 @@ def _one_size(n: int, repeats: int) -> float:
     angle, duty = np.asarray(rec.measured_angle()), rec.duty.astype(float)
     start = fit(rec, method="zoh-ls")
     noise = np.random.default_rng(0).standard_normal(n)
-    t_oe = median_time(lambda: fit(rec, method="oe"), repeats)
-    t_pass = median_time(lambda: lfilter([1.0], [1.0, -0.9], noise), max(repeats, 5))
-    t_ref = median_time(lambda: reference_output_error(angle, duty, dt, (start.a, start.b)), repeats)
+    t_oe, t_pass, t_ref, t_iv = interleaved_times(
+        [lambda: fit(rec, method="oe"), lambda: lfilter([1.0], [1.0, -0.9], noise),
+         lambda: reference_output_error(angle, duty, dt, (start.a, start.b)), lambda: fit(rec, method="iv")],
+        repeats)
     est = fit(rec, method="oe")
     a, b = reference_output_error(angle, duty, dt, (start.a, start.b))
     diff = max(abs(est.a - a) / abs(a), abs(est.b - b) / abs(b))
     peak = _peak_bytes(lambda: fit(rec, method="oe"))
     print(f"{n:>8d} {t_oe * 1e3:8.1f} ms {t_pass * 1e3:6.2f} ms {t_oe / t_pass:6.1f} {t_ref * 1e3:11.1f} ms "
-          f"{t_oe / t_ref:6.2f} {diff:12.1e} {peak / n:10.0f}")
+          f"{t_oe / t_ref:6.2f} {diff:12.1e} {peak / n:10.0f} {t_iv * 1e3:9.1f} ms {t_iv / t_pass:6.1f}")
     return diff

@@ -72,6 +72,7 @@ def test_dead_zone_removes_small_duty_and_shifts_the_rest():
     np.testing.assert_array_equal(motor.drive([-100, -30, 0, 29.5, 30, 31, 200]), [-70, 0, 0, 0, 0, 1, 170])
 
 
+@pytest.mark.usefixtures("kernel_path")
 class TestCoulombFriction:
     """Closed forms of w' = -a w + b u - c sign(w)."""
 
@@ -137,6 +138,33 @@ def _speed_loop(motor, duty, t, initial_speed):
     return out
 
 
+def _state_loop(motor, duty, t, initial_speed, initial_angle):
+    """Speed and angle by the exact per-interval recursion, bias included (the reference)."""
+    e, g, p, q = zoh_matrices(motor.a, motor.b, np.diff(t))
+    drive = duty + motor.bias / motor.b
+    speed, angle = np.empty(len(t)), np.empty(len(t))
+    speed[0], angle[0] = initial_speed, initial_angle
+    for k in range(len(t) - 1):
+        speed[k + 1] = e[k] * speed[k] + g[k] * drive[k]
+        angle[k + 1] = angle[k] + p[k] * speed[k] + q[k] * drive[k]
+    return speed, angle
+
+
+@pytest.mark.parametrize("spread", [0.0, 1e-12, 3e-10], ids=["bit-equal", "1e-12", "3e-10"])
+def test_nearly_uniform_intervals_equal_the_exact_loop_in_speed_and_angle(spread):
+    # intervals within RECURSION_RTOL of each other take the constant-coefficient path with
+    # first-order corrections: speed and angle agree with the loop to rounding (1e-12 of the largest)
+    rng = np.random.default_rng(3)
+    n = 20_000
+    t = np.concatenate([[0.0], np.cumsum(0.005 * (1 + spread * rng.uniform(-1, 1, n - 1)))])
+    duty = Sine(10.0, 200).duty(n, 0.005).astype(float)
+    motor = Motor(25.0, 3.0, bias=-4.0)
+    speed, angle = _state_loop(motor, duty, t, 0.7, -1.5)
+    out = simulate(motor, duty, t, initial_speed=0.7, initial_angle=-1.5)
+    assert np.max(np.abs(out.speed - speed)) <= 1e-12 * np.max(np.abs(speed))
+    assert np.max(np.abs(out.angle - angle)) <= 1e-12 * np.max(np.abs(angle))
+
+
 @pytest.mark.parametrize("a, dt", [(25.0, 0.005), (0.05, 0.001), (200.0, 0.01)], ids=["article", "slow", "fast"])
 def test_float_time_grid_equals_the_exact_per_interval_loop(a, dt):
     # k * dt has intervals that differ by rounding (the fast path with its correction pass):
@@ -151,10 +179,15 @@ def test_float_time_grid_equals_the_exact_per_interval_loop(a, dt):
     assert np.max(np.abs(speed - exact)) <= 1e-12 * np.max(np.abs(exact))
 
 
-def test_jittered_time_grid_is_simulated_interval_by_interval():
-    # intervals 1e-6 relative apart (a real clock, outside RECURSION_RTOL): the loop's answer exactly
+@pytest.mark.parametrize("jitter", [1e-6, 1e-3, 0.3], ids=["1e-6", "1e-3", "0.3-per-sample-loop"])
+def test_jittered_time_grid_equals_the_exact_per_interval_loop(jitter):
+    # a real clock, outside RECURSION_RTOL: fixed-point passes with the midrange factor
+    # (rho = 1e-3 at 1e-3 jitter) or, for wild jitter, the per-sample loop; the loop's
+    # answer to rounding, 1e-12 of the largest speed
     rng = np.random.default_rng(5)
-    t = np.concatenate([[0.0], np.cumsum(0.005 * (1 + 1e-6 * rng.standard_normal(999)))])
+    t = np.concatenate([[0.0], np.cumsum(0.005 * (1 + jitter * rng.uniform(-1, 1, 999)))])
     duty = rng.standard_normal(1000)
     motor = Motor(25.0, 3.0)
-    np.testing.assert_array_equal(simulate(motor, duty, t, initial_speed=0.3).speed, _speed_loop(motor, duty, t, 0.3))
+    exact = _speed_loop(motor, duty, t, 0.3)
+    speed = simulate(motor, duty, t, initial_speed=0.3).speed
+    assert np.max(np.abs(speed - exact)) <= 1e-12 * np.max(np.abs(exact))

@@ -2,6 +2,9 @@
 failures are counted, estimators are found by name."""
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -238,14 +241,34 @@ def test_run_point_checks_its_arguments(small):
 
 
 def test_workers_are_clamped_to_the_cores_and_forked_warm():
-    from scenarios.sweep import WORKER_PRELOAD, available_cores, usable_workers, worker_context
+    from scenarios.sweep import WORKER_PRELOAD, available_cores, usable_workers
     cores = available_cores()
     assert usable_workers(None) == cores
     assert usable_workers(1) == 1
     assert usable_workers(10 * cores) == cores
-    context = worker_context()
-    assert context.get_start_method() in ("forkserver", "spawn")
     assert "scenarios.sweep" in WORKER_PRELOAD
+    # In a fresh single-threaded process (earlier tests may leave threads in this one): on
+    # Linux the warm parent itself is forked, having imported what a worker needs.
+    code = ("import sys; from scenarios.sweep import WORKER_PRELOAD, worker_context; "
+            "print(worker_context().get_start_method(), all(m in sys.modules for m in WORKER_PRELOAD))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout.split()
+    assert out == ["fork" if sys.platform.startswith("linux") else "forkserver", "True"]
+
+
+def test_workers_are_not_forked_from_a_threaded_parent():
+    # Another Python thread could hold a lock the forked child would inherit locked.
+    import threading
+
+    from scenarios.sweep import worker_context
+    stop = threading.Event()
+    thread = threading.Thread(target=stop.wait)
+    thread.start()
+    try:
+        assert worker_context().get_start_method() in ("forkserver", "spawn")
+    finally:
+        stop.set()
+        thread.join()
 
 
 @pytest.mark.parametrize("frequency, angle_noise", [(10.0, 0.0), (10.0, 1e-3), (120.0, 3e-4)],

@@ -1,0 +1,120 @@
+"""The friction simulation's per-sample loop, compiled by numba when it is installed.
+
+Coulomb friction makes each interval's solution depend on the sign of the speed
+(sticking at rest, a zero crossing inside the interval), so the exact simulation
+has no vectorised form: :func:`friction_run` walks the samples.  With numba
+(``pip install motorid[fast]``) the loop is compiled to machine code once a process
+has spent about as long in the Python loop as numba takes to import and compile
+(:data:`COMPILE_AFTER`; the kernel is cached on disk for later processes); without
+numba, or with ``MOTORID_NUMBA=0`` in the environment, the Python loop runs
+throughout.  Both give the same numbers to rounding (the tests run both).
+"""
+from __future__ import annotations
+
+import functools
+import math
+import os
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["friction_run", "friction_run_python", "friction_interval", "compiled_kernel", "COMPILE_AFTER"]
+
+
+def friction_interval(a: float, force: float, c: float, w: float, th: float, h: float) -> tuple[float, float]:
+    """Exact solution over ``h`` s of ``w' = -a w + force - c sign(w)`` with sticking at rest.
+
+    Parameters
+    ----------
+    a : float
+        Pole in 1/s.
+    force : float
+        ``b v + bias`` over the interval, rad/s^2.
+    c : float
+        Coulomb friction, rad/s^2.
+    w, th : float
+        Speed (rad/s) and angle (rad) at the interval's start.
+    h : float
+        Interval in s.
+
+    Returns
+    -------
+    w, th : float
+        Speed and angle at the interval's end.
+    """
+    remaining = h
+    while remaining > 0:
+        if w == 0.0:
+            if abs(force) <= c:
+                return 0.0, th  # stuck for the rest of the interval
+            s = 1.0 if force > 0 else -1.0
+        else:
+            s = 1.0 if w > 0 else -1.0
+        target = (force - s * c) / a  # equilibrium of this branch
+        # Does the branch reach zero speed (towards the opposite sign) within `remaining`?
+        if w != 0.0 and target * s < 0:
+            t_zero = math.log((w - target) / (0.0 - target)) / a
+            if t_zero < remaining:
+                th += target * t_zero + (w - target) * (-math.expm1(-a * t_zero)) / a
+                w = 0.0
+                remaining -= t_zero
+                continue
+        em = -math.expm1(-a * remaining)
+        th += target * remaining + (w - target) * em / a
+        w = target + (w - target) * (1.0 - em)
+        return w, th
+    return w, th
+
+
+def friction_run_python(a: float, force: np.ndarray, c: float, h: np.ndarray, speed: np.ndarray,
+                        angle: np.ndarray) -> None:
+    """Fill ``speed[1:]`` and ``angle[1:]`` interval by interval from ``speed[0]``, ``angle[0]``.
+
+    ``force[k]`` (rad/s^2) acts over ``h[k]`` s; see :func:`friction_interval`.
+    """
+    w, th = float(speed[0]), float(angle[0])
+    for k in range(len(h)):
+        w, th = friction_interval(a, force[k], c, w, th, h[k])
+        speed[k + 1] = w
+        angle[k + 1] = th
+
+
+#: Python-loop intervals after which :func:`friction_run` compiles the loop: importing numba
+#: and loading (or compiling) the kernel costs about as much as this many Python intervals
+#: (~0.3 s), so a process never pays more than twice the better choice made in hindsight.
+COMPILE_AFTER = 300_000
+#: Intervals this process has run in the Python loop so far.
+usage = {"python_intervals": 0}
+
+
+def friction_run(a: float, force: np.ndarray, c: float, h: np.ndarray, speed: np.ndarray,
+                 angle: np.ndarray) -> None:
+    """:func:`friction_run_python`, by the compiled kernel once this process has run
+    :data:`COMPILE_AFTER` intervals in Python and numba is available."""
+    kernel = compiled_kernel() if usage["python_intervals"] >= COMPILE_AFTER else None
+    if kernel is None:
+        friction_run_python(a, force, c, h, speed, angle)
+        usage["python_intervals"] += len(h)
+    else:
+        kernel(a, force, c, h, speed, angle)
+
+
+@functools.cache
+def compiled_kernel() -> Callable[..., None] | None:
+    """:func:`friction_run_python` compiled by numba (None without numba or with ``MOTORID_NUMBA=0``)."""
+    if os.environ.get("MOTORID_NUMBA", "1") == "0":
+        return None
+    try:
+        import numba
+    except ImportError:
+        return None
+    interval = numba.njit(cache=True)(friction_interval)
+
+    def run(a, force, c, h, speed, angle):
+        w, th = speed[0], angle[0]
+        for k in range(len(h)):
+            w, th = interval(a, force[k], c, w, th, h[k])
+            speed[k + 1] = w
+            angle[k + 1] = th
+
+    return numba.njit(cache=True)(run)
