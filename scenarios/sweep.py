@@ -506,6 +506,20 @@ def worker_context() -> multiprocessing.context.BaseContext:
     return context
 
 
+def _worker_signals() -> None:
+    """In a worker: the default signal handlers, not the ones a forked worker inherits.
+
+    The parent turns SIGTERM and SIGHUP into an orderly stop (:mod:`scenarios.interrupts`)
+    and terminates its workers itself; a worker that ran that handler would print a
+    traceback.  Ctrl-C reaches the whole process group: the parent handles it.
+    """
+    import signal
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 @contextlib.contextmanager
 def _points_executor(workers: int | None, executor: concurrent.futures.Executor | None
                      ) -> Iterator[tuple[concurrent.futures.Executor | None, int]]:
@@ -520,7 +534,8 @@ def _points_executor(workers: int | None, executor: concurrent.futures.Executor 
     if workers == 1:
         yield None, 2
         return
-    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context())
+    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context(),
+                                                 initializer=_worker_signals)
     # Forked workers share the parent's memory until they write to it; the garbage collector
     # writes to every object it scans, so the objects that exist now are kept out of its
     # reach while the workers start (the pool forks them all at the first submit).
