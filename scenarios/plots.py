@@ -451,7 +451,7 @@ def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float =
 
     ``rows`` carry ``design``, ``recording`` and ``prediction`` (``scenarios.control.ClosedLoopRow``).
     """
-    fig = _figure(8, 5.2)
+    fig = _figure(10.5, 5.2)
     ax, ax2 = fig.subplots(2, 1, sharex=True)
     first = rows[0].recording
     ax.plot(first.time, first.reference, color="0.2", lw=1.2, ls="--", label="reference")
@@ -462,7 +462,7 @@ def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float =
         ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
         ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
     ax.set_ylabel("ω [rad/s]")
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)   # outside: never over the data
     ax2.set_ylabel("duty")
     ax2.set_xlabel(f"time [s] (first {window:g} s)")
     ax2.set_xlim(first.time[0], first.time[0] + min(window, first.time[-1] - first.time[0]))
