@@ -49,7 +49,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
-from .uncertainty import covariance_from_jacobian, residuals_look_white, robust_covariance
+from .uncertainty import covariance_from_jacobian, robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
 
@@ -400,7 +400,8 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
     return OutputErrorSolution(res, problem)
 
 
-def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay: int) -> Estimate:
+def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay: int,
+              covariance: str = "auto") -> Estimate:
     res, problem = solution.result, solution.problem
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
@@ -408,7 +409,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     s2 = rss / max(dof, 1)
     a, b, bias = problem.unpack(res.x)
     models = solution.model_outputs()
-    cov, cov_method = _covariance(recs, solution, models, s2)
+    cov, cov_method = _covariance(recs, solution, models, s2, covariance)
     extra: dict[str, float] = {"input_delay": input_delay}
     if problem.with_bias:
         extra["bias"] = float(bias)
@@ -425,14 +426,17 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
 
 
 def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: list[np.ndarray],
-                s2: float) -> tuple[np.ndarray, str]:
-    """Refits of re-quantised model angles on a coarse encoder, else Gauss–Newton or Newey–West."""
+                s2: float, method: str = "auto") -> tuple[np.ndarray, str]:
+    """Refits of re-quantised model angles on a coarse encoder, else Gauss–Newton or Newey–West.
+
+    ``method="gauss-newton"`` skips the choice and returns the fit's own covariance.
+    """
     res, problem = solution.result, solution.problem
     segs = problem.segments
     cprs = [recs[s.recording].counts_per_rev for s in segs]
     steps = [2 * math.pi / c if c else None for c in cprs]
     placed = [m + float(np.mean(s.output - m)) if s.kind == "angle" else m for s, m in zip(segs, models)]
-    if is_coarse(segs, placed, steps):
+    if method == "auto" and is_coarse(segs, placed, steps):
         def refit(new: list[Segment]) -> np.ndarray | None:
             try:
                 out = _solve(OutputErrorProblem(new, problem.with_bias), np.array(res.x, dtype=float), "analytic")
@@ -442,9 +446,11 @@ def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: li
         cov = encoder_bootstrap_covariance(segs, placed, steps, float(res.fun @ res.fun) / problem.n_rows, refit,
                                            problem.n_global)
         return cov, "encoder-bootstrap"
-    if residuals_look_white(res.fun):   # the common case: the fit's own (fast) Gauss-Newton covariance
+    if method == "gauss-newton":
         return solution.covariance(s2), "gauss-newton"
-    return robust_covariance(problem.jacobian(res.x), res.fun, s2, problem.n_global)
+    # the Jacobian (a pass with sensitivities) only when the residuals are not white
+    return robust_covariance(lambda: problem.jacobian(res.x), res.fun, s2, problem.n_global,
+                             gauss_newton=lambda: solution.covariance(s2))
 
 
 def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed: float) -> np.ndarray:
@@ -454,7 +460,7 @@ def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed
 
 
 def fit_output_error(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
-                     fit_bias: bool = False, jac: str = "analytic") -> Estimate:
+                     fit_bias: bool = False, jac: str = "analytic", covariance: str = "auto") -> Estimate:
     """Output-error fit of ``a``, ``b`` on the encoder angle (the default method, ``oe``).
 
     Parameters
@@ -472,6 +478,12 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
     jac : {"analytic", "2-point", "3-point"}
         Jacobian: the analytic sensitivities (default) or finite differences
         (the baseline of ``motorid bench accuracy``).
+    covariance : {"auto", "gauss-newton"}
+        ``"auto"`` (default): intervals that hold when the noise model fails — an encoder
+        bootstrap on a coarse encoder, Newey–West when the residuals are not white (a
+        Ljung–Box test), else Gauss–Newton; ``estimate.covariance_method`` says which.
+        ``"gauss-newton"``: the fit's own ``s^2 (J^T J)^-1``, which assumes white noise
+        (cheaper: no test, no extra pass with sensitivities).
 
     Returns
     -------
@@ -503,7 +515,9 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
     input_delay = check_input_delay(input_delay)
     fit_bias = check_bool("fit_bias", fit_bias)
     check_choice("jac", jac, JACOBIANS)
+    check_choice("covariance", covariance, ("auto", "gauss-newton"))
     check_excitation(recs, 3 if fit_bias else 2)
     delay = select_delay(recs, with_bias=fit_bias) if input_delay == "auto" else int(input_delay)
     segments = prepare_segments(recs, delay)
-    return _estimate(recs, solve_output_error(recs, segments, delay, with_bias=fit_bias, jac=jac), delay)
+    return _estimate(recs, solve_output_error(recs, segments, delay, with_bias=fit_bias, jac=jac), delay,
+                     covariance)

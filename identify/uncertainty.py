@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -32,7 +33,7 @@ from .friction_response import friction_response
 from .sensitivity import zoh_response
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "quantisation_variance", "covariance_from_jacobian",
-           "residuals_look_white", "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
+           "robust_covariance", "newey_west_covariance", "WHITENESS_LEVEL"]
 
 #: Ljung–Box p-value below which the residuals count as correlated and the Newey–West covariance is used.
 WHITENESS_LEVEL = 0.01
@@ -120,22 +121,29 @@ def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     return length, float(stats.chi2.sf(q, m))
 
 
-def residuals_look_white(residuals: np.ndarray) -> bool:
-    """True when the residuals pass the Ljung–Box test :func:`robust_covariance` applies (20 lags)."""
-    r = np.asarray(residuals, dtype=float)
-    return _correlation_length(r, max(1, len(r) // 10))[1] >= WHITENESS_LEVEL
-
-
-def robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, noise_variance: float,
-                      keep: int) -> tuple[np.ndarray, str]:
+def robust_covariance(jacobian: np.ndarray | Callable[[], np.ndarray], residuals: np.ndarray,
+                      noise_variance: float, keep: int, *,
+                      gauss_newton: Callable[[], np.ndarray] | None = None) -> tuple[np.ndarray, str]:
     """The Gauss–Newton covariance when the residuals look white, else the Newey–West one.
 
     The residuals' Ljung–Box test (20 lags) decides: at p >= :data:`WHITENESS_LEVEL`
-    ``noise_variance (J^T J)^-1`` (:func:`covariance_from_jacobian`); below it the
-    sandwich of :func:`newey_west_covariance` with ``L`` twice the lag at which the
-    autocorrelation first falls inside its 95 % band (at least ``4 (n/100)^(2/9)``, the
-    Newey–West rule, at most ``n/10``).  Coarse encoders (quantisation error that stays
-    put while the shaft creeps) and timing jitter make the residuals correlated.
+    ``noise_variance (J^T J)^-1`` (:func:`covariance_from_jacobian`, or ``gauss_newton()``
+    when the caller has it cheaper); below it the sandwich of :func:`newey_west_covariance`
+    with ``L`` twice the lag at which the autocorrelation first falls inside its 95 % band
+    (at least ``4 (n/100)^(2/9)``, the Newey–West rule, at most ``n/10``).  Coarse encoders
+    (quantisation error that stays put while the shaft creeps) and timing jitter make the
+    residuals correlated.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (n, p), or callable returning it
+        A callable is evaluated only when it is needed.
+    residuals : ndarray, shape (n,)
+    noise_variance : float
+    keep : int
+        Leading parameters whose covariance is returned.
+    gauss_newton : callable, optional
+        Returns the Gauss–Newton covariance when the residuals look white.
 
     Returns
     -------
@@ -146,10 +154,15 @@ def robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, noise_varianc
     r = np.asarray(residuals, dtype=float)
     n = len(r)
     length, p_white = _correlation_length(r, max(1, n // 10))
+
+    def jac() -> np.ndarray:
+        return jacobian() if callable(jacobian) else jacobian
     if p_white >= WHITENESS_LEVEL:
-        return covariance_from_jacobian(jacobian, noise_variance, keep), "gauss-newton"
+        if gauss_newton is not None:
+            return gauss_newton(), "gauss-newton"
+        return covariance_from_jacobian(jac(), noise_variance, keep), "gauss-newton"
     lag = int(min(max(2 * length, math.ceil(4 * (n / 100) ** (2 / 9))), max(1, n // 10)))
-    return newey_west_covariance(jacobian, r, keep, lag), "newey-west"
+    return newey_west_covariance(jac(), r, keep, lag), "newey-west"
 
 
 @dataclasses.dataclass(frozen=True)
