@@ -26,7 +26,10 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
 6. interval coverage: the share of 95 % intervals that cover the truth in each regime
    (white noise, coarse encoders, timing jitter, friction, a delay), ``--repetitions`` runs
    each, with the covariance used and std/CRB;
-7. closed loop: every method on a P position loop and a PI speed loop.
+7. closed loop: every method, and ``iv-reference`` (the reference as instrument), on a
+   P position loop and a PI speed loop simulated here, and on the on-board controllers
+   (one-step MPC, PI speed, PD position) run by ``SimRig`` with the firmware's fixed-point
+   step; ``oe`` within 0.1 % of a and b on every run.
 """
 from __future__ import annotations
 
@@ -48,7 +51,7 @@ from ..progress import Ticker
 from .timing import median_time
 
 __all__ = ["bench_accuracy", "rk4_angle", "rk4_friction_angle", "make_recording", "naive_output_error",
-           "coverage_run", "COVERAGE_REGIMES", "closed_loop_run"]
+           "coverage_run", "COVERAGE_REGIMES", "closed_loop_run", "onboard_closed_loop_runs"]
 
 _STATIC_GAIN = 0.12   # b / a in (rad/s)/duty, the article's 3/25
 _SUBSTEP_AD = 0.02    # a * delta per RK4 sub-step: local error ~ (a delta)^5/120 ~ 3e-11
@@ -441,7 +444,8 @@ def closed_loop_run(loop: str, a: float, b: float, dt: float, n: int, cpr: int, 
     ``loop = "position"``: ``u = 60 (r - theta_meas)`` duty/rad tracking ``r = 3 sin(2 t)`` rad.
     ``loop = "speed"``: PI on the differenced counts, ``u = 8 e + 40 integral(e)`` tracking
     ``r = 10 sin(3 t) + 4`` rad/s.  Duty rounded and saturated at +-255; the plant stepped
-    exactly (ZOH) between samples; the encoder's phase random (``rng``).
+    exactly (ZOH) between samples; the encoder's phase random (``rng``).  The recording
+    carries the reference column (rad or rad/s).
     """
     e = math.exp(-a * dt)
     p = (1 - e) / a
@@ -453,43 +457,105 @@ def closed_loop_run(loop: str, a: float, b: float, dt: float, n: int, cpr: int, 
     previous = 0.0
     counts = np.empty(n, np.int64)
     duty = np.empty(n)
+    t = np.arange(n) * dt
+    reference = 3.0 * np.sin(2.0 * t) if loop == "position" else 10.0 * np.sin(3.0 * t) + 4.0
     for k in range(n):
         counts[k] = math.floor((th + phase) / step)
         measured = counts[k] * step
-        t = k * dt
         if loop == "position":
-            u = 60.0 * (3.0 * math.sin(2.0 * t) - measured)
+            u = 60.0 * (reference[k] - measured)
         else:
             speed = (measured - previous) / dt if k else 0.0
-            err = 10.0 * math.sin(3.0 * t) + 4.0 - speed
+            err = reference[k] - speed
             integral += err * dt
             u = 8.0 * err + 40.0 * integral
         previous = measured
         duty[k] = u = float(min(255.0, max(-255.0, round(u))))
         th, w = th + p * w + q * b * u, e * w + p * b * u
-    return Recording(time=np.arange(n) * dt, duty=duty, sample_period=dt, counts=counts, counts_per_rev=cpr)
+    return Recording(time=t, duty=duty, sample_period=dt, counts=counts, counts_per_rev=cpr,
+                     reference=reference)
 
 
-def _closed_loop_section(args) -> bool:
-    """The closed-loop table; it states figures and sets no pass/fail criterion."""
-    _section_closed_loop(args)
-    return True
+def onboard_closed_loop_runs(a: float, b: float, dt: float, duration: float, cpr: int, runs: int,
+                             seed: int) -> list[tuple[str, list[Recording]]]:
+    """Closed-loop recordings of the on-board controllers, run by ``SimRig`` as a device runs them.
+
+    Each controller of :mod:`motorsim.control` is designed from the true ``a, b`` and run with
+    its fixed-point step (the firmware's arithmetic) on floored counts of a ``cpr`` encoder,
+    no noise: the one-step MPC tracking ``10 sin(3 t + phi) + 4`` rad/s, the PI speed loop the
+    same reference, the PD position loop ``3 sin(2 t + phi)`` rad.  ``phi`` is drawn per run
+    (``numpy.random.default_rng([seed, run])``), so the runs quantise differently.
+
+    Returns
+    -------
+    list of (str, list of Recording)
+        A label and ``runs`` recordings per controller.
+    """
+    from motorsim import Encoder, Motor, SimRig
+    from motorsim.control import ClosedLoopExperiment, OneStepMPC, PISpeed, PlantModel, PositionPD, Reference
+    model = PlantModel(a, b, dt, cpr)
+    rig = SimRig(Motor(a, b), Encoder(counts_per_rev=cpr))
+    loops = (("one-step MPC, SimRig", OneStepMPC(model), 3.0, 10.0, 4.0),
+             ("PI speed, SimRig", PISpeed(model), 3.0, 10.0, 4.0),
+             ("PD position, SimRig", PositionPD(model), 2.0, 3.0, 0.0))
+    out = []
+    for label, controller, freq, amp, offset in loops:
+        phases = [float(np.random.default_rng([seed, r]).uniform(0.0, 2 * math.pi)) for r in range(runs)]
+        refs = [Reference("sine", offset, (freq,), (amp,), (phi,)) for phi in phases]
+        out.append((label, [rig.run(ClosedLoopExperiment(controller, ref, duration)) for ref in refs]))
+    return out
 
 
-def _section_closed_loop(args) -> None:
-    """Every method on closed-loop recordings (duty computed from the measured counts)."""
+#: oe's goal on closed-loop recordings: every run within this relative error of a and b.
+_CLOSED_LOOP_GOAL = 1e-3
+#: A method whose mean error passes this on a loop is flagged as biased there.
+_BIASED = 1e-2
+
+
+def _closed_loop_errors(method: str, rec: Recording, a: float, b: float) -> tuple[float, float]:
+    """Relative errors of a and b of one method (``iv-reference`` included) on one recording."""
+    if method != "iv-reference":
+        return _fit_or_nan(method, rec, a, b)
+    from identify import NotIdentifiableError, fit_reference_iv
+    try:
+        return _rel(fit_reference_iv(rec), a, b)
+    except NotIdentifiableError:
+        return math.nan, math.nan
+
+
+def _section_closed_loop(args) -> bool:
+    """Every method on closed-loop recordings (duty computed from the measured counts); oe within 0.1 %?"""
     from identify import available_methods
     a, b, dt, n, cpr = 25.0, 3.0, 0.005, 4000, 1200
-    runs = 5
-    print(f"\n7. closed loop: a={a:g}, b={b:g}, {n} samples of {dt * 1e3:g} ms, {cpr} counts/rev; mean and "
-          f"spread of the relative error (%) over {runs} runs (encoder phase random)")
-    print(f"{'loop':>24} {'method':>12} {'a error %':>17} {'b error %':>17}")
-    for loop, label in (("position", "P position, floored"), ("speed", "PI speed, differenced")):
-        recs = [closed_loop_run(loop, a, b, dt, n, cpr, np.random.default_rng([args.seed, r])) for r in range(runs)]
-        for m in available_methods():
-            errs = np.array([_fit_or_nan(m, rec, a, b) for rec in recs]) * 100
-            mean, spread = np.nanmean(errs, axis=0), np.nanstd(errs, axis=0)
-            print(f"{label:>24} {m:>12} {mean[0]:+9.3f} +-{spread[0]:6.3f} {mean[1]:+9.3f} +-{spread[1]:6.3f}")
+    runs, onboard_runs = 5, 3
+    print(f"\n7. closed loop: a={a:g}, b={b:g}, {n} samples of {dt * 1e3:g} ms, {cpr} counts/rev, floored, no "
+          f"noise; mean and spread of the relative error (%) over {runs} runs (encoder phase random) or "
+          f"{onboard_runs} runs (SimRig: reference phase random)")
+    print(f"{'loop':>24} {'method':>12} {'a error %':>18} {'b error %':>18}")
+    loops = [(label, [closed_loop_run(loop, a, b, dt, n, cpr, np.random.default_rng([args.seed, r]))
+                      for r in range(runs)])
+             for loop, label in (("position", "P position, floored"), ("speed", "PI speed, differenced"))]
+    loops += onboard_closed_loop_runs(a, b, dt, n * dt, cpr, onboard_runs, args.seed)
+    ok = True
+    methods = [*available_methods(), "iv-reference"]
+    for label, recs in loops:
+        errs = {m: np.array([_closed_loop_errors(m, rec, a, b) for rec in recs]) * 100 for m in methods}
+        mean = {m: np.nanmean(e, axis=0) for m, e in errs.items()}
+        alternative = "oe" + (", or iv-reference" if np.all(np.abs(mean["iv-reference"]) <= 100 * _BIASED) else "")
+        for m in methods:
+            spread = np.nanstd(errs[m], axis=0)
+            note = ""
+            if m == "oe" and not np.all(np.abs(errs[m]) < 100 * _CLOSED_LOOP_GOAL):
+                ok, note = False, f"   <-- beyond the {100 * _CLOSED_LOOP_GOAL:g} % goal"
+            elif np.any(np.abs(mean[m]) > 100 * _BIASED):
+                note = f"   biased: use {alternative}"
+            print(f"{label:>24} {m:>12} {mean[m][0]:+9.3f} +-{spread[0]:7.3f} {mean[m][1]:+9.3f} +-{spread[1]:7.3f}"
+                  f"{note}")
+    print(f"goal: oe within {100 * _CLOSED_LOOP_GOAL:g} % of a and b on every run.  biased: a mean error beyond "
+          f"{100 * _BIASED:g} %.  iv-reference: instrumental variables with the recorded reference as instrument "
+          f"(identify.fit_reference_iv), consistent when the measurement error is independent of the reference; "
+          f"a coarse encoder's error is not (it follows the trajectory the reference drives)")
+    return ok
 
 
 def _std_over_crb(regime, duty: np.ndarray, dt: float, estimates: np.ndarray) -> tuple[float, float]:
@@ -667,7 +733,7 @@ def bench_accuracy(argv: Sequence[str]) -> int:
     sections = {"sines": lambda: _section_sines(args, rng)[0], "multisine": lambda: _section_multisine(args, rng),
                 "friction": lambda: _section_friction(args, rng), "montecarlo": lambda: _section_monte_carlo(args),
                 "timing": timing, "coverage": lambda: _section_coverage(args),
-                "closedloop": lambda: _closed_loop_section(args)}
+                "closedloop": lambda: _section_closed_loop(args)}
     with Ticker("bench accuracy") as ticker:      # on a terminal only, below the tables
         for i, (name, run) in enumerate(sections.items(), 1):
             if args.only in (None, name):
