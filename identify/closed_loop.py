@@ -68,6 +68,14 @@ def _rows(recs: list[Recording], delay: int) -> tuple[np.ndarray, np.ndarray, np
 def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: int = 0) -> Estimate:
     """Estimate ``a`` and ``b`` from closed-loop recordings with the reference as instrument.
 
+    Consistent when the measurement error is random noise independent of the reference: with
+    10^-3 rad of angle noise on 16667 counts/rev it was within 1 % of ``a`` under one-step MPC
+    and PI over 12 seeds, where ``iv`` was off by 2–300 % (``tests/identify/test_closed_loop.py``).
+    A coarse encoder's error follows the trajectory the reference drives, so it is correlated
+    with the instrument: at 1200 counts/rev, noise-free, this estimator was off by up to 6.5 %
+    (``motorid bench accuracy --only closedloop``), and a single-sine reference is a weak
+    instrument.  ``oe`` stays within 0.1 % on the same loops: prefer it on closed-loop data.
+
     Parameters
     ----------
     recordings : Recording or sequence of Recording
