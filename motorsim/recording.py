@@ -709,19 +709,31 @@ def _split_head(data: bytes) -> tuple[list[str], int] | None:
 _FAST_BLOCK_BYTES = 1 << 21
 
 
-def _blocks(path: Path, offset: int) -> Iterator[bytes]:
-    """The file from byte ``offset`` in blocks of whole lines of about :data:`_FAST_BLOCK_BYTES`."""
-    carry = b""
-    with open(path, "rb") as f:
+def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
+    """The file from byte ``offset`` in blocks of whole lines of at most :data:`_FAST_BLOCK_BYTES`.
+
+    Every block is a view of one reused buffer, valid until the next is asked for; the last
+    one keeps whatever follows the last newline.  A line longer than the buffer raises
+    ValueError (no recording has one; the careful parser names it).
+    """
+    buffer = bytearray(_FAST_BLOCK_BYTES)
+    view = memoryview(buffer)
+    kept = 0
+    with open(path, "rb", buffering=0) as f:
         f.seek(offset)
-        while block := f.read(_FAST_BLOCK_BYTES):
-            block = carry + block
-            cut = block.rfind(b"\n") + 1
-            carry = block[cut:]
-            if cut:
-                yield block[:cut]
-    if carry:
-        yield carry
+        while got := f.readinto(view[kept:]):
+            end = kept + got
+            cut = buffer.rfind(b"\n", 0, end) + 1
+            if not cut:
+                if end == len(buffer):
+                    raise ValueError(f"a line longer than {len(buffer)} bytes")
+                kept = end
+                continue
+            yield view[:cut]
+            kept = end - cut
+            view[:kept] = view[cut:end]
+    if kept:
+        yield view[:kept]
 
 
 def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
@@ -746,7 +758,7 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int
     n = 0
     try:
         for block in _blocks(path, offset):
-            table = pyarrow.csv.read_csv(pyarrow.BufferReader(block), read_options=read_options,
+            table = pyarrow.csv.read_csv(pyarrow.py_buffer(block), read_options=read_options,
                                          convert_options=convert_options, memory_pool=pyarrow.system_memory_pool())
             k = table.num_rows
             if n + k > max_rows:
@@ -754,6 +766,7 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int
             for h, column in values.items():
                 _copy_column(table.column(h), column[n:n + k])
             n += k
+            del table       # before the buffer under ``block`` is refilled
     except Exception:   # any failure of the fast path: the careful parser names the line and the rule
         return None
     values = {h: v if n == max_rows else v[:n] for h, v in values.items()}
