@@ -114,6 +114,8 @@ def bench_parse(argv: Sequence[str]) -> int:
         results = {kind: _measure(kind, path, args.repeats if kind != "careful" else 1) for kind in kinds}
     ref, ours = results["pandas"], results["motorid"]
     print(f"file                     {size / 1e6:.1f} MB, {ours['rows']} rows")
+    if hasattr(os, "getloadavg"):   # the times depend on what else the machine runs
+        print(f"machine                  {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} (1 min)")
     for kind, label in (("pandas", "pandas.read_csv"), ("motorid", "read_recording"),
                         ("careful", "careful parser (bad files)")):
         if kind in results:
