@@ -621,7 +621,7 @@ def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Re
     """
     path = Path(path)
     scan = _scan_file(path)
-    parsed = _parse_fast(path, scan)
+    parsed = _parse_fast(path, scan) if scan.size >= FAST_PATH_MIN_BYTES else None
     if parsed is not None:
         rec = _build_fast(parsed, str(path), check_samples)
         if rec is not None:
@@ -654,6 +654,7 @@ class _FileScan(NamedTuple):
     head: bytes
     newlines: int
     ends_with_newline: bool
+    size: int
 
 
 #: Bytes read per block when a file is scanned.
@@ -685,7 +686,7 @@ def _scan_file(path: Path) -> _FileScan:
         raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    return _FileScan(head, newlines, last == b"\n")
+    return _FileScan(head, newlines, last == b"\n", total)
 
 
 def _split_head(data: bytes) -> tuple[list[str], int] | None:
@@ -850,6 +851,10 @@ def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording
 
 #: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
 MAX_RECORDING_BYTES = 1 << 30
+
+#: Files smaller than this are read by the careful parser alone: importing pyarrow costs about
+#: 0.3 s, more than the careful parser takes on such a file (about 10 000 rows).
+FAST_PATH_MIN_BYTES = 256 << 10
 
 
 def _check_regular(path: Path, st: os.stat_result) -> None:

@@ -6,6 +6,22 @@ import motorsim.recording as recording
 from motorsim import Encoder, Experiment, Motor, RecordingFormatError, SimRig, Sine, read_recording, write_recording
 
 
+@pytest.fixture(autouse=True)
+def _fast_path_for_small_files(monkeypatch):
+    # the fast path is taken only from FAST_PATH_MIN_BYTES on; these small files must take it too
+    monkeypatch.setattr(recording, "FAST_PATH_MIN_BYTES", 0)
+
+
+def test_a_small_file_is_read_without_importing_pyarrow(written, monkeypatch):
+    monkeypatch.setattr(recording, "FAST_PATH_MIN_BYTES", 1 << 30)
+    calls = []
+    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: calls.append(1))
+    rec, path = written
+    back = read_recording(path)
+    assert not calls
+    np.testing.assert_array_equal(back.counts, rec.counts)
+
+
 def _careful(monkeypatch):
     monkeypatch.setattr(recording, "_read_columns_fast", lambda *args: None)
 
