@@ -82,3 +82,18 @@ def test_intervals_cover_the_truth_while_the_shaft_sticks():
         covered_a += ci["a"][0] <= 25.0 <= ci["a"][1]
         covered_b += ci["b"][0] <= 3.0 <= ci["b"][1]
     assert covered_a >= 133 and covered_b >= 133, (covered_a, covered_b)
+
+
+def test_noise_beyond_the_rounding_keeps_the_residual_based_covariance():
+    # angle noise 2e-3 rad against a 4096-count step of 1.5e-3 rad: the residual variance is ~20 times
+    # the rounding's step^2/12, so the residuals, not the encoder, decide the covariance
+    import math
+    n, dt, cpr = 1000, 0.005, 4096
+    t = np.arange(n) * dt
+    duty = np.round(200 * np.sin(20.0 * t + 0.3))
+    angle = simulate(Motor(25.0, 3.0, friction=75.0), duty, t).angle
+    noisy = angle + np.random.default_rng(3).normal(0.0, 2e-3, n)
+    counts = np.floor(noisy * cpr / (2 * math.pi)).astype(np.int64)
+    est = fit(Recording(time=t, duty=duty, sample_period=dt, counts=counts, counts_per_rev=cpr),
+              method="oe-friction", dead_zone=False)
+    assert est.covariance_method in ("gauss-newton", "newey-west")
