@@ -12,8 +12,9 @@ variance beyond the rounding's ``step^2/12`` added as white noise, and refitted,
 
 :func:`linearised_encoder_bootstrap_covariance` replaces each refit by the one
 Gauss–Newton step from the fit that the re-quantised data's residuals call for
-(``-(J^T J)^-1 J^T r``, the Jacobian at the solution): first-order exact, no
-evaluation of the model, so hundreds of phases cost less than one evaluation.
+(``-(J^T J)^-1 J^T r``, the Jacobian at the solution), first-order exact, and the random
+phases by 64 evenly spaced ones (a quadrature of the average over the phase): no
+evaluation of the model, about 1 ms at 10 000 samples.
 ``oe-friction`` uses it whenever its angle is read by an encoder and the residuals are
 mostly rounding: while the shaft sticks near a reversal the rounding error stays put
 for many samples, which neither Gauss–Newton nor Newey–West intervals absorb (``b``'s
