@@ -9,6 +9,17 @@ spread that matters is over the encoder's unknown phase: so the fitted model's a
 is shifted by a random fraction of a count, floored like the encoder, any residual
 variance beyond the rounding's ``step^2/12`` added as white noise, and refitted,
 ``runs`` times; the covariance is that of the refits.
+
+:func:`linearised_encoder_bootstrap_covariance` replaces each refit by the one
+Gauss–Newton step from the fit that the re-quantised data's residuals call for
+(``-(J^T J)^-1 J^T r``, the Jacobian at the solution), first-order exact, and the random
+phases by 64 evenly spaced ones (a quadrature of the average over the phase): no
+evaluation of the model, about 1 ms at 10 000 samples.
+``oe-friction`` uses it whenever its angle is read by an encoder and the residuals are
+mostly rounding: while the shaft sticks near a reversal the rounding error stays put
+for many samples, which neither Gauss–Newton nor Newey–West intervals absorb (``b``'s
+95 % interval covered the truth in 88.5 % of the Coulomb-friction runs of ``motorid
+bench accuracy --only coverage`` with them).
 """
 from __future__ import annotations
 
@@ -20,7 +31,7 @@ import numpy as np
 
 from .data import Segment
 
-__all__ = ["COARSE_COUNTS", "is_coarse", "encoder_bootstrap_covariance"]
+__all__ = ["COARSE_COUNTS", "is_coarse", "encoder_bootstrap_covariance", "linearised_encoder_bootstrap_covariance"]
 
 #: Motion (counts swept by the model's angle) below which an encoder counts as coarse.
 COARSE_COUNTS = 40
@@ -67,16 +78,73 @@ def encoder_bootstrap_covariance(segments: Sequence[Segment], models: Sequence[n
     rng = np.random.default_rng(seed)
     fits = []
     for _ in range(runs):
-        new = []
-        for seg, model, step in zip(segments, models, steps):
-            extra_var = residual_variance - (step * step / 12.0 if step else 0.0)
-            noisy = model + (rng.normal(0.0, math.sqrt(extra_var), len(model)) if extra_var > 0 else 0.0)
-            if seg.kind == "angle" and step:
-                noisy = np.floor((noisy + rng.uniform(0.0, step)) / step) * step
-            new.append(dataclasses.replace(seg, output=noisy))
+        new = [dataclasses.replace(seg, output=out)
+               for seg, out in zip(segments, _requantised(segments, models, steps, residual_variance, rng))]
         x = refit(new)
         if x is not None and np.all(np.isfinite(x[:keep])):
             fits.append(np.asarray(x[:keep], dtype=float))
     if len(fits) < runs // 2:
         return np.full((keep, keep), math.inf)
     return np.atleast_2d(np.cov(np.array(fits), rowvar=False))
+
+
+def _requantised(segments: Sequence[Segment], models: Sequence[np.ndarray], steps: Sequence[float | None],
+                 residual_variance: float, rng: np.random.Generator) -> list[np.ndarray]:
+    """One bootstrap draw of each segment's output: the model plus the white noise beyond the rounding,
+    floored like the encoder after a random phase within one count."""
+    outputs = []
+    for seg, model, step in zip(segments, models, steps):
+        extra_var = residual_variance - (step * step / 12.0 if step else 0.0)
+        noisy = model + (rng.normal(0.0, math.sqrt(extra_var), len(model)) if extra_var > 0 else 0.0)
+        if seg.kind == "angle" and step:
+            noisy = np.floor((noisy + rng.uniform(0.0, step)) / step) * step
+        outputs.append(noisy)
+    return outputs
+
+
+def linearised_encoder_bootstrap_covariance(segments: Sequence[Segment], models: Sequence[np.ndarray],
+                                            steps: Sequence[float | None], residual_variance: float,
+                                            jacobian: np.ndarray, keep: int, *, runs: int = 64) -> np.ndarray:
+    """Covariance of the first ``keep`` parameters over one-step refits of re-quantised model angles.
+
+    Parameters
+    ----------
+    segments, models, steps, residual_variance
+        As for :func:`encoder_bootstrap_covariance`; angle segments' residuals are centred (their
+        offsets projected out), as the fits do.
+    jacobian : ndarray, shape (n_rows, n_params)
+        Jacobian of the residuals (measured minus model, segments concatenated) at the solution.
+    keep : int
+        Leading parameters to return.
+    runs : int
+        Encoder phases, evenly spaced over one count (a quadrature of the average over the
+        unknown phase, not random draws; default 64).
+
+    Returns
+    -------
+    ndarray, shape (keep, keep)
+        The phases' covariance of the steps plus the Gauss–Newton covariance of the white noise
+        beyond the rounding (``residual_variance - step^2/12`` when positive); ``inf`` everywhere
+        when the Jacobian is rank-deficient.
+    """
+    J = np.asarray(jacobian, dtype=float)
+    norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+    H = (J / norms).T @ (J / norms)         # columns scaled to unit norm for the rank test
+    if not (np.all(np.isfinite(H)) and np.all(norms > 0)) or np.linalg.cond(H) > 1e14:
+        return np.full((keep, keep), math.inf)
+    inverse = np.linalg.inv(H) / np.outer(norms, norms)
+    grid = (np.arange(runs) + 0.5) / runs
+    parts = []
+    white = residual_variance
+    for seg, model, step in zip(segments, models, steps):      # all phases at once: (samples, runs)
+        if seg.kind == "angle" and step:
+            white = min(white, residual_variance - step * step / 12.0)
+            # the rounded angle less the model; the model, the same for every phase, and the
+            # segment's mean (its offset: the Jacobian's columns are centred) drop out of the spread
+            parts.append(np.floor(model[:, None] / step + grid) * step)
+        else:
+            parts.append(np.zeros((len(model), runs)))
+    steps_taken = (inverse[:keep] @ J.T) @ np.concatenate(parts)
+    steps_taken -= steps_taken.mean(axis=1, keepdims=True)
+    # the white noise beyond the rounding enters linearly: its Gauss-Newton covariance adds
+    return steps_taken @ steps_taken.T / runs + max(white, 0.0) * inverse[:keep, :keep]

@@ -26,6 +26,15 @@ When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
 acceleration as ``d`` (linear model with bias, analytic Jacobian), sets
 ``c = 0`` and says so in a warning.
+
+The covariance (``covariance_method`` in the estimate and its JSON): when every
+segment is an encoder's angle and the residuals are mostly its rounding (variance at
+most :data:`ROUNDING_DOMINATED` times ``step^2/12``), ``"linearised-encoder-bootstrap"``
+(:func:`identify.encoder_bootstrap.linearised_encoder_bootstrap_covariance`): the shaft
+sticks for many samples around each reversal, and the rounding error then stays put, a
+correlation over whole stuck intervals that Gauss–Newton and Newey–West intervals miss.
+It costs one product with the Jacobian over 64 encoder phases, no model evaluation.
+Otherwise ``"gauss-newton"`` or ``"newey-west"`` (:func:`identify.uncertainty.robust_covariance`).
 """
 from __future__ import annotations
 
@@ -40,6 +49,7 @@ from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
+from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
@@ -213,14 +223,35 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     n_angle_offsets = sum(1 for s in segments if s.kind == "angle")
     dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
-    jac = problem.jacobian(res.x)
-    cov, cov_method = robust_covariance(jac, res.fun, s2, problem.n_global)
+    cov, cov_method = _covariance(recs, problem, res, s2)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
                     fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
+
+
+#: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
+#: residuals count as mostly rounding (then the linearised encoder bootstrap gives the covariance).
+ROUNDING_DOMINATED = 4.0
+
+
+def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeResult,
+                s2: float) -> tuple[np.ndarray, str]:
+    """The linearised encoder bootstrap when every angle is an encoder's and the residuals are mostly
+    its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`)."""
+    jac = problem.jacobian(res.x)
+    segs = problem.segments
+    steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
+    variance = float(res.fun @ res.fun) / problem.n_rows
+    encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
+    if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
+        ends = np.cumsum([0] + [len(s.time) for s in segs])
+        placed = [s.output - res.fun[i:j] for s, i, j in zip(segs, ends[:-1], ends[1:])]   # model + offset
+        cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
+        return cov, "linearised-encoder-bootstrap"
+    return robust_covariance(jac, res.fun, s2, problem.n_global)
 
 
 def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:

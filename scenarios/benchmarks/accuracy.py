@@ -415,7 +415,7 @@ def _section_coverage(args) -> bool:
     duty = Multisine((7.5, 25.0, 50.0), (90, 90, 90), (0.0, 0.7, 1.4)).duty(n, dt).astype(float)
     print(f"\n6. interval coverage: {args.repetitions} runs per regime, a=25, b=3, {n} samples of 5 ms, "
           f"multisine; share of 95 % intervals that cover the truth (goal >= {100 * _COVERAGE_GOAL:g} %)")
-    print(f"{'regime':>20} {'method':>12} {'runs':>5} {'a covered':>10} {'b covered':>10} {'covariance':>18} "
+    print(f"{'regime':>20} {'method':>12} {'runs':>5} {'a covered':>10} {'b covered':>10} {'covariance':>33} "
           f"{'std/CRB a':>9} {'std/CRB b':>9}")
     ok = True
     for i, regime in enumerate(COVERAGE_REGIMES):
@@ -431,7 +431,7 @@ def _section_coverage(args) -> bool:
         ratio = _std_over_crb(regime, duty, dt, np.array([r[3:] for r in rows]))
         bad = not (ca >= _COVERAGE_GOAL and cb >= _COVERAGE_GOAL)
         ok &= not bad
-        print(f"{regime[0]:>20} {regime[1]:>12} {len(rows):5d} {100 * ca:9.1f}% {100 * cb:9.1f}% {how:>18} "
+        print(f"{regime[0]:>20} {regime[1]:>12} {len(rows):5d} {100 * ca:9.1f}% {100 * cb:9.1f}% {how:>33} "
               f"{ratio[0]:9.2f} {ratio[1]:9.2f}" + ("   <-- below goal" if bad else ""))
     print("std/CRB: spread of the estimates over the Cramér–Rao bound of the regime's model (quantisation "
           "as white noise; nan with jitter, which the bound does not model)")
