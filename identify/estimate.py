@@ -68,9 +68,12 @@ class Estimate:
         The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
         ``motorid identify --save``).
     covariance_method : str
-        How ``covariance`` was computed: ``"gauss-newton"`` (white residuals assumed) or
-        ``"newey-west"`` (a sandwich that allows correlated residuals), see
-        :func:`identify.uncertainty.robust_covariance`; ``""`` when not said.
+        How ``covariance`` was computed: ``"gauss-newton"`` (white residuals assumed),
+        ``"newey-west"`` (a sandwich that allows correlated residuals, see
+        :func:`identify.uncertainty.robust_covariance`), ``"encoder-bootstrap"`` (``oe`` on a
+        coarse encoder: refits of the model re-quantised at other encoder phases) or
+        ``"linearised-encoder-bootstrap"`` (``oe-friction`` when rounding dominates the
+        residuals: one Gauss–Newton step per phase); ``""`` when not said.
     """
 
     method: str
