@@ -41,9 +41,25 @@ def test_prediction_is_the_bound_of_the_bench_sine():
     np.testing.assert_allclose([p.stderr_a, p.stderr_b], fd, rtol=1e-5)   # central differences, h = 1e-6
 
 
+def _criterion_from_the_bound(frequency, amplitude):
+    """(se_a/a)^2 + (se_b/b)^2 straight from cramer_rao_bound of the bench's integer sine (not design_sine)."""
+    n = int(round(4.0 / 0.005))
+    duty = Sine(frequency, amplitude).duty(n, 0.005)
+    se = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=1024, angle_noise=1e-3).stderr()
+    return (se["a"] / 25.0) ** 2 + (se["b"] / 3.0) ** 2
+
+
 def test_recommendation_beats_every_scanned_sine_and_the_articles(design):
     best = design.best.criterion
     assert all(best <= p.criterion for p in (*design.scan, *design.amplitudes, *design.article))
+    # independently of the scan: the criterion recomputed from the bound at the recommendation
+    # equals the one reported, and sines between the scanned ones (5 % either side) are no better
+    # than the recommendation by more than the scan's resolution allows (2 %)
+    f, amp = design.best.frequency, design.best.amplitude
+    assert _criterion_from_the_bound(f, amp) == pytest.approx(best, rel=1e-9)
+    for factor in (0.95, 1.05):
+        if 2 * 2 * np.pi / 4.0 <= f * factor <= 0.8 * np.pi / 0.005:
+            assert _criterion_from_the_bound(f * factor, amp) >= best * 0.98
     freqs = [p.frequency for p in design.scan]
     assert freqs == sorted(freqs)
     assert freqs[0] == pytest.approx(2 * 2 * np.pi / 4.0) and freqs[-1] == pytest.approx(0.8 * np.pi / 0.005)
