@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 
 from .friction_response import friction_response
 from .sensitivity import zoh_response
@@ -255,30 +255,21 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
     a = check_real("a", a, positive=True)
     b = check_real("b", b)
     if b == 0:
-        raise ValueError(f"b must be nonzero, got {b!r}")
+        raise ParameterError(f"b must be nonzero, got {b!r}")
     sample_period = check_real("sample_period", sample_period, positive=True)
     u = np.asarray(duty, dtype=float)
     if u.ndim != 1 or len(u) < 5:
-        raise ValueError(f"duty must be 1-D with at least 5 samples, got shape {u.shape}")
+        raise ParameterError(f"duty must be 1-D with at least 5 samples, got shape {u.shape}")
     if not np.all(np.isfinite(u)):
-        raise ValueError("duty must be finite")
+        raise ParameterError("duty must be finite")
     if counts_per_rev is not None:
         counts_per_rev = check_int("counts_per_rev", counts_per_rev, lo=1, allow_integral_float=False)
     angle_noise = check_real("angle_noise", angle_noise, nonnegative=True)
     initial_speed = check_real("initial_speed", initial_speed)
-    if time is None:
-        t = np.arange(len(u)) * sample_period
-        uniform = True
-    else:
-        t = np.asarray(time, dtype=float)
-        if t.shape != u.shape:
-            raise ValueError(f"time must have the shape of duty {u.shape}, got {t.shape}")
-        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-            raise ValueError("time must be finite and strictly increasing")
-        uniform = None
+    t, uniform = _bound_time(u, time, sample_period)
     variance = angle_noise ** 2 + quantisation_variance(counts_per_rev)
     if variance == 0:
-        raise ValueError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
+        raise ParameterError("angle_noise is 0 and counts_per_rev is None: a noise-free angle gives a zero bound; "
                          "give the noise or the encoder resolution")
     friction = check_real("friction", friction, nonnegative=True)
     bias = check_real("bias", bias)
@@ -286,13 +277,30 @@ def cramer_rao_bound(a: float, b: float, duty: ArrayLike, sample_period: float, 
     input_delay = check_int("input_delay", input_delay, lo=0, allow_integral_float=False)
     if input_delay:
         u = np.concatenate([np.zeros(min(input_delay, len(u))), u[:max(len(u) - input_delay, 0)]])
-    if friction > 0 or dead_zone > 0:
-        fr = friction_response(a, float(b), friction, bias, dead_zone, u, t, float(initial_speed), uniform=uniform)
-        assert fr.angle_sensitivity is not None
-        cols = [0, 1, 2, 3] + ([4] if dead_zone > 0 else []) + [5]
-        J = np.column_stack([fr.angle_sensitivity[:, cols], np.ones(len(u))])
-    else:
-        resp = zoh_response(a, float(b), u, t, float(initial_speed), bias=bias, uniform=uniform)
-        J = np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
+    J = _bound_jacobian(a, float(b), friction, bias, dead_zone, u, t, float(initial_speed), uniform)
     cov = covariance_from_jacobian(J, variance, 2)
     return CramerRaoBound(covariance=cov, n_samples=len(u), a=a, b=float(b), noise_std=math.sqrt(variance))
+
+
+def _bound_time(u: np.ndarray, time: ArrayLike | None, sample_period: float) -> tuple[np.ndarray, bool | None]:
+    """The sample instants of the bound (uniform when ``time`` is None) and whether they are uniform."""
+    if time is None:
+        return np.arange(len(u)) * sample_period, True
+    t = np.asarray(time, dtype=float)
+    if t.shape != u.shape:
+        raise ParameterError(f"time must have the shape of duty {u.shape}, got {t.shape}")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise ParameterError("time must be finite and strictly increasing")
+    return t, None
+
+
+def _bound_jacobian(a: float, b: float, friction: float, bias: float, dead_zone: float, u: np.ndarray,
+                    t: np.ndarray, initial_speed: float, uniform: bool | None) -> np.ndarray:
+    """Angle sensitivities to (a, b, the model's other parameters, initial speed) and the offset column."""
+    if friction > 0 or dead_zone > 0:
+        fr = friction_response(a, b, friction, bias, dead_zone, u, t, initial_speed, uniform=uniform)
+        assert fr.angle_sensitivity is not None
+        cols = [0, 1, 2, 3] + ([4] if dead_zone > 0 else []) + [5]
+        return np.column_stack([fr.angle_sensitivity[:, cols], np.ones(len(u))])
+    resp = zoh_response(a, b, u, t, initial_speed, bias=bias, uniform=uniform)
+    return np.column_stack([resp.angle_sensitivity[:, :3], np.ones(len(u))])
