@@ -22,6 +22,7 @@ import argparse
 import os
 import sys
 import traceback
+import warnings
 from typing import Callable, NamedTuple, Sequence
 
 from motorsim.files import OutputFileError
@@ -158,13 +159,19 @@ def _quiet_broken_pipe() -> int:
     return 141                                   # 128 + SIGPIPE, the shell's status for the same case
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the command line shows it: ``motorid: warning: ...`` on stderr."""
+    print_to_stderr(f"motorid: warning: {message}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses)."""
     from .interrupts import describe_interrupt, exit_status, signals_as_interrupts
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with signals_as_interrupts():
+        with signals_as_interrupts(), warnings.catch_warnings():
+            warnings.showwarning = _show_warning    # one line, not the source line that warned
             return args.run(args)
     except KeyboardInterrupt as exc:
         print_to_stderr(f"motorid: {describe_interrupt(exc)}")

@@ -136,3 +136,18 @@ def test_identify_refuses_the_same_file_pooled_twice(tmp_path, capsys):
     assert "same file" in capsys.readouterr().err
     assert main(["identify", str(path), str(copy)]) == 2
     assert "same content" in capsys.readouterr().err
+
+
+def test_a_warning_is_one_line_naming_motorid_not_a_source_line(tmp_path, capsys):
+    # the real PRBS run never reverses: oe-friction warns that friction merges into the bias
+    import warnings as _warnings
+    from pathlib import Path
+    prbs = Path(__file__).parents[1] / "data" / "undcmotor" / "DCmotor_prbs_open_exp.csv"
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("default")        # the suite turns warnings into errors; a user's run does not
+        assert main(["identify", str(prbs), "--time", "t:s", "--input", "u:V", "--speed", "y:deg/s",
+                     "--method", "oe-friction", "--input-delay", "1"]) == 0
+    err = capsys.readouterr().err
+    warned = [line for line in err.splitlines() if "warning" in line.lower()]
+    assert warned and all(line.startswith("motorid: warning: ") for line in warned)
+    assert ".py:" not in err
