@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .excitation import DUTY_LIMIT, MAX_COMPONENTS, multisine_duty, phase_increment
+from .excitation import DUTY_LIMIT, MAX_COMPONENTS, multisine_duty, phase_increment, spec_numbers, split_spec
 from .plant import Motor, zoh_matrices
 
 if TYPE_CHECKING:
@@ -396,14 +396,7 @@ def parse_reference(spec: str) -> Reference:
     >>> parse_reference("sine:10,20@5").describe()
     'sine:10.0,20.0,0.0@5.0'
     """
-    if not isinstance(spec, str) or ":" not in spec:
-        raise ParameterError(f"reference must look like KIND:ARGS ({_REFERENCE_HELP}), got {spec!r}")
-    kind, _, args = spec.partition(":")
-    kind = kind.strip().lower()
-    offset = 0.0
-    if "@" in args:
-        args, _, off = args.partition("@")
-        offset = _numbers(off, spec)[0] if off.strip() else 0.0
+    kind, args, offset = split_spec(spec, "reference", _REFERENCE_HELP)
     if kind in ("sine", "multisine"):
         comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
         if not comps or any(not 2 <= len(c) <= 3 for c in comps) or (kind == "sine" and len(comps) != 1):
@@ -425,11 +418,7 @@ def parse_reference(spec: str) -> Reference:
 
 
 def _numbers(text: str, spec: str) -> list[float]:
-    try:
-        return [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise ParameterError(f"reference {spec!r}: expected comma-separated numbers; "
-                             f"forms: {_REFERENCE_HELP}") from None
+    return spec_numbers(text, spec, "reference", _REFERENCE_HELP)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -810,7 +799,7 @@ class PISpeed(Controller):
         out = {"kp": _q((e - p * p) / g * SPEED_REFERENCE_LSB), "ki": _q((1 - p) ** 2 / g * SPEED_REFERENCE_LSB)}
         if out["ki"] == 0:
             raise ParameterError(f"time_constant {self.time_constant!r} s is too slow for the fixed-point integral "
-                             f"gain (it rounds to 0); choose a shorter one")
+                                 "gain (it rounds to 0); choose a shorter one")
         if self.feedforward:
             out.update(feedforward_gains(self.model))
         return out

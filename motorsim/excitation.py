@@ -24,12 +24,12 @@ from typing import ClassVar, Sequence
 
 import numpy as np
 
-from .checks import check_int, check_real
+from .checks import ParameterError, check_int, check_real
 
 __all__ = [
     "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
     "sine_table", "sine_q15", "phase_increment", "multisine_duty", "chirp_duty", "prbs_bits",
-    "parse_excitation",
+    "parse_excitation", "split_spec", "spec_numbers",
     "DUTY_LIMIT", "MAX_AMPLITUDE", "MAX_COMPONENTS", "PRBS_MASKS",
 ]
 
@@ -452,11 +452,33 @@ _PARSE_HELP = ("sine:FREQ[,AMP[,PHASE]]  multisine:F,A,P;F,A,P...  chirp:F0,F1[,
                "prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]  step:AFTER[,AT_TIME[,BEFORE]]  constant:LEVEL")
 
 
-def _numbers(text: str, spec: str) -> list[float]:
+def split_spec(spec: str, what: str, forms: str) -> tuple[str, str, float]:
+    """Split a one-line spec ``KIND:ARGS[@OFFSET]`` (an excitation, a controller's reference).
+
+    Returns the lower-cased kind, the argument text and the offset (0 when there is none).
+    ``what`` names the spec and ``forms`` lists its accepted forms in the error messages.
+    """
+    if not isinstance(spec, str) or ":" not in spec:
+        raise ParameterError(f"{what} must look like KIND:ARGS ({forms}), got {spec!r}")
+    kind, _, args = spec.partition(":")
+    offset = 0.0
+    if "@" in args:
+        args, _, off = args.partition("@")
+        if off.strip():
+            offset = spec_numbers(off, spec, what, forms)[0]
+    return kind.strip().lower(), args, offset
+
+
+def spec_numbers(text: str, spec: str, what: str, forms: str) -> list[float]:
+    """The comma-separated numbers of ``text`` (part of ``spec``), or an error naming ``what`` and ``forms``."""
     try:
         return [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ValueError(f"excitation {spec!r}: expected comma-separated numbers; forms: {_PARSE_HELP}") from None
+        raise ParameterError(f"{what} {spec!r}: expected comma-separated numbers; forms: {forms}") from None
+
+
+def _numbers(text: str, spec: str) -> list[float]:
+    return spec_numbers(text, spec, "excitation", _PARSE_HELP)
 
 
 def _ints(values: Sequence[float]) -> list:
@@ -535,14 +557,7 @@ def parse_excitation(spec: str) -> Excitation:
     >>> parse_excitation("prbs:200,-200,9,3").describe()
     'prbs:200,-200,9,3,1'
     """
-    if not isinstance(spec, str) or ":" not in spec:
-        raise ValueError(f"excitation must look like KIND:ARGS ({_PARSE_HELP}), got {spec!r}")
-    kind, _, args = spec.partition(":")
-    kind = kind.strip().lower()
-    offset = 0.0
-    if "@" in args:
-        args, _, off = args.partition("@")
-        offset = _numbers(off, spec)[0]
+    kind, args, offset = split_spec(spec, "excitation", _PARSE_HELP)
     if kind not in _PARSERS:
         raise ValueError(f"excitation kind must be one of {', '.join(_PARSERS)}, got {kind!r}")
     return _PARSERS[kind](args, spec, offset)

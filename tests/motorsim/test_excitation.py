@@ -129,3 +129,12 @@ def test_describe_and_parse_round_trip(spec):
 def test_bad_excitations_are_refused_with_the_rule(build, match):
     with pytest.raises((ValueError, TypeError), match=match):
         build()
+
+
+def test_an_empty_offset_is_no_offset_in_excitations_and_references_alike():
+    # one parser splits KIND:ARGS[@OFFSET] for both (an empty offset used to be an IndexError here)
+    from motorsim.control import parse_reference
+    assert parse_excitation("sine:10,200@").describe() == parse_excitation("sine:10,200").describe()
+    assert parse_reference("sine:10,20@").describe() == parse_reference("sine:10,20").describe()
+    with pytest.raises(ValueError, match="excitation 'sine:10@x': expected comma-separated numbers"):
+        parse_excitation("sine:10@x")
