@@ -39,12 +39,13 @@ import math
 
 import numpy as np
 
+from .sensitivity import first_order_scan
+
 __all__ = ["FrictionResponse", "friction_response", "FRICTION_PARAMETERS"]
 
 #: Columns of the sensitivities, in order.
 FRICTION_PARAMETERS = ("a", "b", "friction", "bias", "dead_zone", "initial_speed")
 _REST = 1e-10            # |omega| below this share of the speed scale counts as at rest
-_BLOCK_EXPONENT = 200.0  # keep exp() of partial sums far from overflow in the blocked scan
 _COMPLEX_STEP = 1e-30    # relative complex step: exact derivatives to rounding
 
 
@@ -71,28 +72,6 @@ class FrictionResponse:
     speed_sensitivity: np.ndarray | None
     modes: np.ndarray
     passes: int
-
-
-def _scan(cum: np.ndarray, e: np.ndarray, f: np.ndarray, x0: np.ndarray, uniform: bool) -> np.ndarray:
-    """``x[0] = x0``, ``x[k+1] = e[k] x[k] + f[k]`` column-wise; ``cum[k] = -log`` of ``prod_{j<k} e[j]``."""
-    n = len(e) + 1
-    out = np.empty((n, f.shape[1]))
-    out[0] = x0
-    if n == 1:
-        return out
-    if uniform:
-        from scipy.signal import lfilter  # imported when used: it costs most of `import control`
-        out[1:], _ = lfilter([1.0], [1.0, -e[0]], f, axis=0, zi=(e[0] * x0)[None, :])
-        return out
-    start = 0
-    while start < n - 1:
-        stop = int(np.searchsorted(cum, cum[start] + _BLOCK_EXPONENT, side="right")) - 1
-        stop = min(max(stop, start + 1), n - 1)
-        rel = cum[start + 1:stop + 1] - cum[start]
-        acc = np.cumsum(np.exp(rel)[:, None] * f[start:stop], axis=0)
-        out[start + 1:stop + 1] = np.exp(-rel)[:, None] * (out[start] + acc)
-        start = stop
-    return out
 
 
 def _event_step(w, force, c, a, h, s, stick):
@@ -162,6 +141,7 @@ class _Intervals:
         self.q = np.where(small, self.h ** 2 * (0.5 - x / 6 + x * x / 24), (self.h - self.p) / np.where(small, 1.0, a))
         self.dp = np.where(small, self.h ** 2 * (-0.5 + x / 3), self.h * (xs * self.e - one_minus) / xs ** 2 * self.h)
         self.dq = np.where(small, self.h ** 3 * (-1 / 6 + x / 12), (-self.dp - self.q) / np.where(small, 1.0, a))
+        self.decay = x
         self.cum = np.concatenate([[0.0], np.cumsum(x)])
         self.uniform = uniform
         scale = (abs(b) * float(np.max(np.abs(self.v), initial=0.0)) + abs(bias) + friction) / max(a, 1e-12)
@@ -185,7 +165,7 @@ def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
     f = np.where(moving, iv.p * (iv.force - s * iv.c), 0.0)
     after_stuck = np.concatenate([[False], modes[:-1] == 0])
     special = np.flatnonzero((np.abs(modes) == 2) | ((modes == 0) & ~after_stuck))
-    base = _scan(iv.cum, iv.e, f[:, None], np.array([w_start]), iv.uniform)[:, 0]
+    base = first_order_scan(iv.decay, f[:, None], np.array([w_start]), iv.uniform)[:, 0]
     decay = _special_decay(iv, special)
     x_next = np.empty(len(special))
     th_at = np.zeros(len(special))
@@ -265,7 +245,7 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
         uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= 1e-12 * abs(steps[0])))
     iv = _Intervals(a, b, friction, bias, dead_zone, duty, t, uniform)
     if modes is None or len(modes) != len(iv.h):
-        lin = _scan(iv.cum, iv.e, (iv.p * iv.force)[:, None], np.array([initial_speed]), uniform)[:, 0]
+        lin = first_order_scan(iv.decay, (iv.p * iv.force)[:, None], np.array([initial_speed]), uniform)[:, 0]
         modes = _modes_of(iv, lin)
     passes = 0
     while True:     # ends: each pass makes at least one more interval's mode exact (module docstring)
@@ -322,7 +302,7 @@ def _sensitivities(iv: _Intervals, modes: np.ndarray, w: np.ndarray, special: np
     forcing[is_event] = ev_fw
     x0 = np.zeros(6)
     x0[5] = 1.0
-    base = _scan(iv.cum, iv.e, fw, x0, iv.uniform)
+    base = first_order_scan(iv.decay, fw, x0, iv.uniform)
     decay = _special_decay(iv, special)
     b_at, b_next = base[special], base[special + 1]
     x_next = np.empty((len(special), 6))

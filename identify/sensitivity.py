@@ -29,7 +29,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL"]
+__all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL", "first_order_scan"]
 
 #: Relative spread of the sample intervals under which a clock counts as uniform (as
 #: :class:`identify.data.Segment` decides): a float grid ``k * dt`` differs by rounding only.
@@ -85,7 +85,7 @@ def phi_functions(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     return p1, p2, d1, d2
 
 
-def _scan(decay: np.ndarray, forcing: np.ndarray, x0: np.ndarray, uniform: bool) -> np.ndarray:
+def first_order_scan(decay: np.ndarray, forcing: np.ndarray, x0: np.ndarray, uniform: bool) -> np.ndarray:
     """``x[0] = x0``, ``x[k+1] = exp(-decay[k]) x[k] + forcing[k]`` for columns of ``forcing``.
 
     ``decay`` has shape (n-1,), ``forcing`` (n-1, m), ``x0`` (m,); returns (n, m).
@@ -204,10 +204,10 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     e_pow = np.exp(-tau)        # E_k = prod_{j<k} e_j
     # speed per unit b and per unit bias (zero initial speed): w[k+1] = e w[k] + p v
     if bias == 0 and not sensitivities:
-        w_b = _scan(x, (p * v)[:, None], np.zeros(1), uniform)[:, 0]
+        w_b = first_order_scan(x, (p * v)[:, None], np.zeros(1), uniform)[:, 0]
         w_d = np.zeros(n)
     else:
-        w_bd = _scan(x, np.column_stack([p * v, np.broadcast_to(p, v.shape)]), np.zeros(2), uniform)
+        w_bd = first_order_scan(x, np.column_stack([p * v, np.broadcast_to(p, v.shape)]), np.zeros(2), uniform)
         w_b, w_d = w_bd[:, 0], w_bd[:, 1]
     speed = b * w_b + bias * w_d + initial_speed * e_pow
     force = b * v + bias
@@ -222,7 +222,7 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
                         angle_initial_speed_a=th_0 * np.nan, speed_initial_speed_a=e_pow * np.nan)
     # d speed / d a: forcing (de/da) w + (dp/da) force, de/da = -h e
     e = np.exp(-x)
-    w_a = _scan(x, (-h * e * speed[:-1] + dp * force)[:, None], np.zeros(1), uniform)[:, 0]
+    w_a = first_order_scan(x, (-h * e * speed[:-1] + dp * force)[:, None], np.zeros(1), uniform)[:, 0]
     th_a = np.zeros(n)
     th_b = np.zeros(n)
     th_d = np.zeros(n)
