@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 from motorsim.checks import check_int
 from motorsim.recording import Recording
@@ -131,6 +130,7 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
 
     grid = np.linspace(math.log(1e-3 / h), math.log(20.0 / h), 80)
     values = np.array([mismatch(g) for g in grid])
+    from scipy.optimize import brentq  # imported when used: slow to import
     roots = [brentq(mismatch, grid[i], grid[i + 1], xtol=1e-14)
              for i in np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)]
     if not roots:

@@ -41,9 +41,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
@@ -56,6 +56,9 @@ from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_r
 from .output_error import fit_output_error, select_delay, solve_output_error
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 __all__ = ["fit_output_error_friction", "speed_reverses"]
 
@@ -397,6 +400,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             if damping > 1e12:
                 status = 2
                 break
+    from scipy.optimize import OptimizeResult  # imported when used: slow to import
     return OptimizeResult(x=x, fun=r, cost=0.5 * cost, status=status)
 
 

@@ -27,11 +27,10 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.optimize import root_scalar
-from scipy.signal import lfilter
 
 from motorsim.checks import check_int
 from motorsim.recording import Recording
+from motorsim.recursion import first_order_filter
 
 from .data import as_recordings, check_excitation, check_input_delay, prepare_segments
 from .errors import NotIdentifiableError
@@ -75,7 +74,7 @@ def _model_average_speed(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np
 
 
 def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """:func:`_model_average_speed` on rows ``1 ... n-2``, in one ``lfilter`` pass on a uniform clock.
+    """:func:`_model_average_speed` on rows ``1 ... n-2``, in one first-order filter pass on a uniform clock.
 
     The model's angle increment over interval ``k`` is ``b (p w_k + q u_k)`` with
     ``w_{k+1} = e w_k + p u_k`` (``w_0 = 0``), so the average speeds need neither the
@@ -88,7 +87,8 @@ def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) 
     p1, p2, _, _ = (float(f[0]) for f in phi_functions(np.array([a * h])))
     p, q = h * p1, h * h * p2
     v = np.asarray(u[:-2], dtype=float)
-    w = lfilter([0.0, p], [1.0, -math.exp(-a * h)], v)
+    w = np.zeros(len(v))                             # w_0 = 0, w_{k+1} = e w_k + p u_k
+    w[1:] = first_order_filter(math.exp(-a * h), p * v[:-1])
     w *= p
     w += q * v
     w *= b
@@ -195,6 +195,7 @@ class _IvRegression:
         x_inst = self.instruments(a, b)
         xm = self.instrument_moments(x_inst)
         try:
+            from scipy.optimize import root_scalar  # imported when used: slow to import
             root = root_scalar(lambda lg: math.log(self.pole(self.solve(math.exp(lg), x_inst, xm, False).theta)) - lg,
                                x0=math.log(a), x1=math.log(a) + 0.01, method="secant", xtol=1e-13, maxiter=50)
             a_new = math.exp(root.root) if root.converged else math.nan

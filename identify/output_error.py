@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
 
 from motorsim.checks import check_bool, check_choice, check_int
 from motorsim.recording import Recording
@@ -52,6 +52,9 @@ from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian, robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
            "MAX_AUTO_DELAY", "JACOBIANS"]
@@ -256,18 +259,31 @@ class OutputErrorProblem:
 
 
 @dataclasses.dataclass(frozen=True)
+class SolverResult:
+    """What an optimiser found: ``x`` the parameters, ``fun`` the residuals, ``nfev`` its evaluations.
+
+    The fields of ``scipy.optimize.OptimizeResult`` that a fit reads, kept without
+    importing ``scipy.optimize`` (slow to import) where variable projection solves the fit.
+    """
+
+    x: np.ndarray
+    fun: np.ndarray
+    nfev: int
+
+
+@dataclasses.dataclass(frozen=True)
 class OutputErrorSolution:
     """A converged output-error fit: the optimiser's result and the problem it solved.
 
     Attributes
     ----------
-    result : scipy.optimize.OptimizeResult
+    result : SolverResult
         ``x`` holds ``(a, b[, bias])``; ``fun`` the residuals.
     problem : OutputErrorProblem
         The segments and the model.
     """
 
-    result: OptimizeResult
+    result: SolverResult
     problem: OutputErrorProblem
     separable: SeparableSolution | None = None
 
@@ -295,6 +311,7 @@ class OutputErrorSolution:
 def _solve(problem: OutputErrorProblem, x0: np.ndarray, jac: str) -> OptimizeResult:
     jac_arg = problem.jacobian if jac == "analytic" else jac
     with np.errstate(over="ignore", invalid="ignore"):
+        from scipy.optimize import least_squares  # imported when used: slow to import
         return least_squares(problem.residuals, x0, jac=jac_arg, method="lm", x_scale="jac",
                              xtol=1e-11, ftol=1e-11, gtol=1e-11, max_nfev=200 * len(x0))
 
@@ -377,7 +394,8 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
             start = initial_guess(recordings, segments)[0]
         separable = solve_separable(segments, start)
         if separable is not None:
-            return OutputErrorSolution(separable.optimize_result(), problem, separable)
+            result = SolverResult(np.array([separable.a, separable.b]), separable.residuals, separable.iterations)
+            return OutputErrorSolution(result, problem, separable)
     a0, b0 = initial_guess(recordings, segments)
     x0 = np.array([a0, b0] + ([0.0] if with_bias else []))
     res = _solve(problem, x0, jac)
@@ -397,7 +415,7 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
             f"output-error fit landed on a = {a:.6g} 1/s, i.e. theta1 = exp(-a dt) = {theta1:.6g} not in (0, 1): "
             "no stable first-order model fits; check the sign of the input, that the motor moved, "
             "and try input_delay='auto' or oe-friction")
-    return OutputErrorSolution(res, problem)
+    return OutputErrorSolution(SolverResult(np.asarray(res.x), np.asarray(res.fun), int(res.nfev)), problem)
 
 
 def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay: int,

@@ -36,7 +36,6 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from motorsim.checks import check_int, check_real
 from motorsim.plant import zoh_matrices
@@ -227,6 +226,7 @@ class RunningEstimator:
             a0 = -math.log(x[0]) / self._h
             start = (a0, a0 * (x[1] + x[2]) / (1.0 - x[0]))
         try:
+            from scipy.optimize import least_squares  # imported when used: slow to import
             sol = least_squares(lambda ab: S @ self._beta(ab[0], ab[1]) - t, start,
                                 bounds=([1e-9, -np.inf], [np.inf, np.inf]), x_scale="jac")
         except ValueError:     # e.g. a start outside the bounds after a bad stretch of data

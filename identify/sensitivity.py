@@ -12,8 +12,8 @@ by their power series for small ``x``, so nothing cancels when ``a h`` is tiny).
 Differentiating the recursions gives recursions for the sensitivities of angle
 and speed with respect to ``a``, ``b`` and the initial speed ``omega_0``; they
 share the factor ``e_k``, so all of them are first-order linear recursions,
-solved without a Python loop per sample (``scipy.signal.lfilter`` for a uniform
-clock, a blocked closed form ``x_k = E_k (x_0 + sum_j f_j / E_{j+1})`` for a
+solved without a Python loop per sample (:func:`motorsim.recursion.first_order_filter`
+for a uniform clock, a blocked closed form ``x_k = E_k (x_0 + sum_j f_j / E_{j+1})`` for a
 jittered one).  The angle at the first sample is taken as 0: callers fit or
 project out an angle offset.
 
@@ -28,6 +28,8 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
+
+from motorsim.recursion import first_order_filter
 
 __all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL", "first_order_scan"]
 
@@ -98,8 +100,7 @@ def first_order_scan(decay: np.ndarray, forcing: np.ndarray, x0: np.ndarray, uni
         return out
     if uniform:
         e = math.exp(-decay[0])
-        from scipy.signal import lfilter  # imported when used: it costs most of `import control`
-        out[1:], _ = lfilter([1.0], [1.0, -e], forcing, axis=0, zi=(e * np.asarray(x0, float))[None, :])
+        first_order_filter(e, forcing, x0, out=out[1:])
         return out
     s = np.concatenate([[0.0], np.cumsum(decay)])  # s[k] = a (t_k - t_0), increasing for a > 0
     start = 0

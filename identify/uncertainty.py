@@ -103,7 +103,7 @@ def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int
 
 def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value."""
-    from scipy import stats
+    from scipy.special import chdtrc  # the chi-square survival function, lighter than scipy.stats
     r = np.asarray(residuals, dtype=float) - np.mean(residuals)
     n = len(r)
     den = float(r @ r)
@@ -118,7 +118,7 @@ def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     m = min(20, lags)
     k = np.arange(1, m + 1)
     q = n * (n + 2) * float(np.sum(ac[1:m + 1] ** 2 / (n - k)))
-    return length, float(stats.chi2.sf(q, m))
+    return length, float(chdtrc(m, q))
 
 
 def robust_covariance(jacobian: np.ndarray | Callable[[], np.ndarray], residuals: np.ndarray,

@@ -18,8 +18,6 @@ import math
 from typing import Sequence
 
 import numpy as np
-from scipy.linalg import toeplitz
-from scipy.optimize import least_squares
 
 from motorsim.checks import check_int
 from motorsim.plant import Motor, simulate
@@ -187,6 +185,7 @@ def _friction_segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
     fitted there, from the measured speed, and the whole segment is then simulated from it;
     the angle offset (linear) is the mean difference.
     """
+    from scipy.optimize import least_squares  # imported when used: slow to import
     params = (estimate.a, estimate.b, float(estimate.extra.get("friction", 0.0)),
               float(estimate.extra.get("bias", 0.0)), float(estimate.extra.get("dead_zone", 0.0)))
     h = float(np.median(np.diff(seg.time)))
@@ -381,16 +380,17 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     # cross-correlation test (Ljung 1999, eq. 16.53): N r^T R_u^{-1} r, R_u the input's autocorrelation
     # (Toeplitz over the 2 lag + 1 lags); a sine's R_u is singular, so the degrees of freedom are its rank
     ru = autocorrelation(inp, 2 * lag)
+    from scipy.linalg import toeplitz  # imported when used: slow to import
     R = toeplitz(ru[:2 * lag + 1])
     vals, vecs = np.linalg.eigh(R)
     keep = vals > 1e-8 * vals.max()
     proj = vecs[:, keep].T @ cc
     q_cross = n * float(np.sum(proj ** 2 / vals[keep]))
     dof_cross = int(keep.sum())
-    from scipy.stats import chi2  # imported when used (slow to import)
+    from scipy.special import chdtrc  # the chi-square survival function, lighter than scipy.stats
     return ValidationReport(fit_percent=nrmse_fit(meas, sim), time=recording.time, measured_speed=meas,
                             simulated_speed=sim, residual=res, lags=np.arange(lag + 1), autocorrelation=ac,
                             cross_lags=np.arange(-lag, lag + 1), cross_correlation=cc, band=1.96 / math.sqrt(n),
-                            whiteness_p=float(chi2.sf(q_white, lag)),
-                            independence_p=float(chi2.sf(q_cross, dof_cross)), residual_unit=unit,
+                            whiteness_p=float(chdtrc(lag, q_white)),
+                            independence_p=float(chdtrc(dof_cross, q_cross)), residual_unit=unit,
                             initial_state=initial_state_rule(estimate))

@@ -15,7 +15,7 @@ small least squares, and the residual ``r(a)`` is minimised over the scalar
 ``a`` by Gauss--Newton with Kaufman's Jacobian (Golub & Pereyra 2003, *Inverse
 Problems* 19, R1, sec. 3): the step is ``(g . r) / |P g|^2`` with ``g = b dB/da +
 omega0 dW/da`` and ``P`` the projection onto the complement of the linear
-columns.  One evaluation costs two ``lfilter`` passes (``w`` and ``dw/da``) and a
+columns.  One evaluation costs two first-order filter passes (``w`` and ``dw/da``) and a
 few vector operations, written into arrays allocated once.
 
 The minimiser is the one of :class:`identify.output_error.OutputErrorProblem`
@@ -28,8 +28,8 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.optimize import OptimizeResult
-from scipy.signal import lfilter
+
+from motorsim.recursion import first_order_filter
 
 from .data import Segment
 from .sensitivity import phi_functions
@@ -141,11 +141,6 @@ class SeparableSolution:
             return math.nan
         return 100.0 * (1.0 - math.sqrt(error / spread))
 
-    def optimize_result(self) -> OptimizeResult:
-        """The solution as ``scipy.optimize.least_squares`` reports one (``x = (a, b)``, ``fun``, ``nfev``)."""
-        return OptimizeResult(x=np.array([self.a, self.b]), fun=self.residuals, nfev=self.iterations, status=1,
-                              success=True, message="relative step in a below STEP_RTOL")
-
     def covariance(self, noise_variance: float) -> np.ndarray:
         """``noise_variance (J^T J)^{-1}`` over ``(a, b)``, ``inf`` when ``J^T J`` is singular.
 
@@ -189,8 +184,8 @@ class _Segment:
         self.d_mean = 0.0
         self.d_norm2 = 0.0                           # |D - mean(D)|^2 over all n samples
         self.factors = (0.0, 0.0, 0.0)               # p, dp/da, h e p of the last evaluation
-        self.f_col = np.empty(0)                     # lfilter(u)
-        self.g_col = np.empty(0)                     # lfilter(lfilter(u))
+        self.f_col = np.empty(n - 1)                 # u filtered by 1/(1 - e z^-1)
+        self.g_col = np.empty(n - 1)                 # u filtered twice
 
 
 #: ``a tau`` beyond which ``exp(-a tau)`` is below 1e-17 relative: treated as 0.
@@ -202,9 +197,9 @@ def _columns(s: _Segment, a: float, direction: bool) -> None:
     h = s.h
     e, p, dp = _coefficients(a, h)
     s.factors = (p, dp, h * e * p)
-    s.f_col = lfilter([1.0], [1.0, -e], s.u)     # F_k = e F_{k-1} + u_k (zero initial state)
+    first_order_filter(e, s.u, out=s.f_col)      # F_k = e F_{k-1} + u_k (zero initial state)
     if direction:
-        s.g_col = lfilter([1.0], [1.0, -e], s.f_col)
+        first_order_filter(e, s.f_col, out=s.g_col)
     b = s.b_col
     b[0] = 0.0
     np.multiply(s.f_col, -p, out=b[1:])

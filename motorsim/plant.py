@@ -24,6 +24,7 @@ import numpy as np
 
 from .checks import check_int, check_real
 from .knobs import knob
+from .recursion import first_order_filter
 
 if TYPE_CHECKING:
     import control
@@ -231,10 +232,10 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
     (``de/dh = -a e``, ``dg/dh = b e``, ``dp/dh = e``, ``dq/dh = g``), the products of
     ``dh`` with the state taken at the next sample (which differs by ``O(dh)``); the
     neglected second order is at most ``RECURSION_RTOL^2`` relative, below rounding.  So no
-    per-interval ``exp``: one ``lfilter`` with the constant factor, one correction pass
+    per-interval ``exp``: one first-order filter pass
+    (:func:`motorsim.recursion.first_order_filter`) with the constant factor, one correction pass
     as in :func:`_linear_recursion` when the intervals differ, and a cumulative sum.
     """
-    from scipy.signal import lfilter
     if not len(h):
         return True
     h0 = float(h[0])
@@ -245,7 +246,7 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
     e0, g0, p0, q0 = (float(c) for c in zoh_matrices(a, b, h0))
     w0 = float(speed[0])
     force = g0 * drive
-    speed[1:], _ = lfilter([1.0], [1.0, -e0], force, zi=[e0 * w0])
+    first_order_filter(e0, force, w0, out=speed[1:])
     if spread > 0:
         # speed_{k+1} = e0 speed_k + g0 d_k + dh_k e0 (b d_k - a speed_k); the bracket times e0 is
         # b d_k - a speed_{k+1} to first order (a g0 = b (1 - e0)), taken from the first pass
@@ -253,7 +254,7 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
         correction -= a * speed[1:]
         correction *= dh
         correction += force
-        speed[1:], _ = lfilter([1.0], [1.0, -e0], correction, zi=[e0 * w0])
+        first_order_filter(e0, correction, w0, out=speed[1:])
     step = p0 * speed[:-1]
     step += q0 * drive
     if spread > 0:
@@ -268,8 +269,8 @@ def _linear_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float) 
 
     When every ``e[k]`` is within :data:`RECURSION_RTOL` (relative) of ``e[0]``, the
     recursion is rewritten as ``out[k+1] = e[0] out[k] + (f[k] + (e[k] - e[0]) out[k])``
-    and solved by ``lfilter`` with the constant factor, the bracket evaluated at a first
-    pass's ``out``.  The error of that first pass is ``O(RECURSION_RTOL)`` relative, and
+    and solved by :func:`motorsim.recursion.first_order_filter` with the constant factor, the
+    bracket evaluated at a first pass's ``out``.  The error of that first pass is ``O(RECURSION_RTOL)`` relative, and
     the bracket multiplies it by ``e[k] - e[0]`` again, so the second pass is exact to
     ``O(RECURSION_RTOL^2)``, i.e. to rounding (a test checks it against the loop to 1e-12).
     Bit-equal factors take one pass.
@@ -279,12 +280,11 @@ def _linear_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float) 
         de = e - e0
         spread = float(np.max(np.abs(de)))
         if spread <= RECURSION_RTOL * abs(e0):
-            from scipy.signal import lfilter
-            out[1:], _ = lfilter([1.0], [1.0, -e0], f, zi=[e0 * x0])
+            first_order_filter(e0, f, x0, out=out[1:])
             if spread > 0:
                 de *= out[:-1]
                 de += f
-                out[1:], _ = lfilter([1.0], [1.0, -e0], de, zi=[e0 * x0])
+                first_order_filter(e0, de, x0, out=out[1:])
             return
         if _iterated_recursion(e, f, out, x0):
             return
@@ -306,23 +306,22 @@ def _iterated_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float
     """``out[k+1] = e[k] out[k] + f[k]`` for factors that vary (a jittered clock), by fixed-point passes.
 
     With ``c`` the factors' midrange, ``out[k+1] = c out[k] + (f[k] + (e[k] - c) out[k])``
-    is solved by ``lfilter`` with the constant ``c``, the bracket taken from the previous
-    pass.  The error shrinks by ``rho = max|e - c| / (1 - |c|)`` per pass; passes stop
+    is solved by :func:`motorsim.recursion.first_order_filter` with the constant ``c``, the bracket
+    taken from the previous pass.  The error shrinks by ``rho = max|e - c| / (1 - |c|)`` per pass; passes stop
     when one changes nothing above 1e-15 of the largest value, so the result is the
     loop's to rounding (a test checks 1e-12).  Returns False, having done nothing
     useful, when ``rho`` exceeds :data:`CONTRACTION_LIMIT` or it does not settle.
     """
-    from scipy.signal import lfilter
     lo, hi = float(np.min(e)), float(np.max(e))
     c = 0.5 * (lo + hi)
     de = e - c
     if not (abs(c) < 1 and 0.5 * (hi - lo) <= CONTRACTION_LIMIT * (1 - abs(c))):
         return False
-    out[1:], _ = lfilter([1.0], [1.0, -c], f, zi=[c * x0])
+    first_order_filter(c, f, x0, out=out[1:])
     for _ in range(MAX_PASSES):
         forcing = de * out[:-1]
         forcing += f
-        new, _ = lfilter([1.0], [1.0, -c], forcing, zi=[c * x0])
+        new = first_order_filter(c, forcing, x0)
         change = float(np.max(np.abs(new - out[1:])))
         out[1:] = new
         if not change > 1e-15 * float(np.max(np.abs(new))):

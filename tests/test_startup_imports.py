@@ -1,4 +1,5 @@
-"""Heavy dependencies load only where they are used: not for ``motorid --help``, nor on importing the packages.
+"""Heavy dependencies load only where they are used: not for ``motorid --help``, nor on importing the packages,
+nor to identify a short recording (its first-order filter passes are numpy's, ``motorsim.recursion``).
 
 Checked in a fresh interpreter (``sys.modules`` after the import), not by timing; the times
 are ``motorid bench startup``'s.
@@ -10,7 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-HEAVY = ("control", "matplotlib", "scipy.signal", "serial")
+HEAVY = ("control", "matplotlib", "scipy.signal", "scipy.stats", "serial")
 
 CASES = {
     "motorid --help": "import scenarios.cli, contextlib, io\n"
@@ -21,6 +22,17 @@ CASES = {
                                "    scenarios.cli.main(['identify', '--help'])",
     "import identify": "import identify\nfrom identify import fit, available_methods, Estimate",
     "import motorsim": "import motorsim\nfrom motorsim.columns import import_recording",
+    # what `motorid bench startup` times: a 400-sample run, identified with the command's defaults
+    # (oe, automatic input delay, outlier screening, robust covariance) and printed
+    "motorid identify short.csv": "import contextlib, io, os, tempfile\n"
+                                  "from motorsim import Experiment, Motor, SimRig, Sine, write_recording\n"
+                                  "import scenarios.cli\n"
+                                  "folder = tempfile.mkdtemp()\n"
+                                  "path = write_recording(SimRig(Motor(25.0, 3.0)).run(\n"
+                                  "    Experiment(Sine(10.0, 200), 0.005, 2.0)), os.path.join(folder, 'short.csv'))\n"
+                                  "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+                                  "    code = scenarios.cli.main(['identify', str(path)])\n"
+                                  "assert code == 0 and 'method      oe' in out.getvalue(), (code, out.getvalue())",
 }
 
 

@@ -1,0 +1,126 @@
+"""The first-order linear recursion ``y[k] = e y[k-1] + x[k]``, without a Python loop per sample.
+
+Every model in motorid is first order, so every simulation, residual and sensitivity
+comes down to this recursion with a constant factor ``e = exp(-a h)``.
+:func:`first_order_filter` solves it with ``scipy.signal.lfilter`` on long records
+and, below :data:`SHORT_RECORD` samples, with a blocked scan in numpy: importing
+``scipy.signal`` takes about half a second (most of what ``import control`` costs),
+several times what a command needs to read and fit a short recording, while the
+scan costs a few tens of microseconds per pass there (1.5 to 3 times an ``lfilter``
+pass).  Both agree with the sequential loop to rounding (a few units in 1e-16 of
+the largest value, tested against ``lfilter`` and the plain loop).
+
+The scan: the record is cut into blocks of :data:`BLOCK` samples; within every
+block the solution from a zero state is one product with the lower-triangular
+matrix ``P[i, j] = e^(i-j)`` (all blocks in one ``matmul``); the block ends then
+obey the same recursion with factor ``e^BLOCK``, solved the same way, and each
+block adds its incoming state times ``e^(i+1)``.  For ``|e| <= 1`` every power is
+at most 1, so nothing is amplified.  A result that is not finite everywhere (a
+non-finite forcing, or an unstable factor overflowing) is recomputed by ``lfilter``,
+whose sequential order keeps what the loop would give.
+
+Examples
+--------
+>>> import numpy as np
+>>> from motorsim.recursion import first_order_filter
+>>> first_order_filter(0.5, np.array([1.0, 0.0, 0.0, 2.0]), initial=4.0)
+array([3.   , 1.5  , 0.75 , 2.375])
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["first_order_filter", "SHORT_RECORD", "BLOCK"]
+
+#: Records shorter than this (samples along the recursion) use the numpy scan, longer
+#: ones ``scipy.signal.lfilter``.
+SHORT_RECORD = 8192
+#: Block length of the numpy scan (32 was the fastest of 16, 32, 64 and 128 at every length measured).
+BLOCK = 32
+
+_OFFSET = np.arange(BLOCK)[:, None] - np.arange(BLOCK)[None, :]
+#: ``P[i, j] = powers[_POWER_INDEX[i, j]]``: ``e^(i-j)`` on and below the diagonal, the
+#: zero kept in ``powers[BLOCK + 1]`` above it.
+_POWER_INDEX = np.where(_OFFSET >= 0, _OFFSET, BLOCK + 1)
+_EXPONENTS = np.arange(BLOCK + 2, dtype=float)
+
+def first_order_filter(e: float, x: np.ndarray, initial: float | np.ndarray = 0.0,
+                       out: np.ndarray | None = None) -> np.ndarray:
+    """``y[k] = e y[k-1] + x[k]`` along axis 0, with ``y[-1] = initial``.
+
+    The same as ``scipy.signal.lfilter([1], [1, -e], x, axis=0, zi=e * initial)`` (its
+    first output), to rounding.
+
+    Parameters
+    ----------
+    e : float
+        The constant factor (``exp(-a h)`` for a pole ``a`` in 1/s and a sample period
+        ``h`` in s).
+    x : ndarray, shape (n,) or (n, m)
+        The forcing; a 2-D array is ``m`` independent recursions, one per column.
+    initial : float or ndarray, shape (m,)
+        The state before the first sample.
+    out : ndarray, optional
+        Where to write ``y`` (the shape of ``x``, not overlapping it), so that a caller
+        iterating over the same record allocates nothing.
+
+    Returns
+    -------
+    ndarray
+        ``y``, of the shape of ``x`` (``out`` when given).
+    """
+    x = np.asarray(x, dtype=float)
+    if len(x) == 0:
+        return x.copy() if out is None else out
+    columns = x.reshape(len(x), -1)
+    # the scan writes through reshaped views, so only a contiguous ``out`` is written in place
+    target = out.reshape(columns.shape) if out is not None and out.flags.c_contiguous else None
+    start = np.zeros(columns.shape[1])
+    start += initial                                 # a scalar or one value per column
+    if len(x) < SHORT_RECORD:
+        with np.errstate(all="ignore"):              # overflow is caught below, as a non-finite result
+            y = _blocked_scan(float(e), columns, start, target)
+            if math.isfinite(float(y.sum())):        # a sum that overflows only sends finite data to lfilter
+                if out is None:
+                    return y.reshape(x.shape)
+                if target is None:
+                    out[...] = y.reshape(x.shape)
+                return out
+        # a non-finite forcing or factor: within a block it would spread to earlier samples
+        # (0 * inf), so such records take lfilter, which keeps the loop's order
+    from scipy.signal import lfilter  # imported when used: it costs most of `import control`
+    y, _ = lfilter([1.0], [1.0, -e], columns, axis=0, zi=(e * start)[None, :])
+    if out is None:
+        return y.reshape(x.shape)
+    out[...] = y.reshape(x.shape)
+    return out
+
+
+def _blocked_scan(e: float, x: np.ndarray, start: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
+    """The numpy scan of the module docstring; ``x`` (n, m) with n >= 1, ``start`` (m,), into ``y``."""
+    n, m = x.shape
+    powers = np.power(e, _EXPONENTS)                             # e^0 ... e^BLOCK, and a zero
+    powers[BLOCK + 1] = 0.0
+    within = powers[_POWER_INDEX]
+    if y is None:
+        y = np.empty((n, m))
+    if n <= BLOCK:                                               # one block
+        np.matmul(within[:n, :n], x, out=y)
+        y += powers[1:n + 1, None] * start
+        return y
+    blocks, tail = divmod(n, BLOCK)
+    full = blocks * BLOCK
+    body = y[:full].reshape(blocks, BLOCK, m)
+    np.matmul(within, x[:full].reshape(blocks, BLOCK, m), out=body)   # each block from a zero state
+    if tail:
+        np.matmul(within[:tail, :tail], x[full:], out=y[full:])
+    parts = blocks + (1 if tail else 0)
+    incoming = np.empty((parts, m))                              # the state before each block
+    incoming[0] = start
+    incoming[1:] = _blocked_scan(float(powers[BLOCK]), y[BLOCK - 1:full:BLOCK][:parts - 1], start)
+    body += incoming[:blocks, None, :] * powers[1:BLOCK + 1, None]
+    if tail:
+        y[full:] += incoming[blocks] * powers[1:tail + 1, None]
+    return y
