@@ -113,8 +113,9 @@ class SimRig:
     jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1", recorded=True)
     drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1",
                             recorded=True)
-    initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample")
-    record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)")
+    initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample", recorded=True)
+    record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)",
+                              recorded=True)
     rng: np.random.Generator | None = None
 
     def __post_init__(self):

@@ -37,7 +37,7 @@ class Encoder:
 
     counts_per_rev: int = knob(DEFAULT_COUNTS_PER_REV, unit="counts/rev",
                                help="encoder counts per revolution after quadrature decoding")
-    count_offset: int = knob(0, unit="counts", help="count reported at angle 0")
+    count_offset: int = knob(0, unit="counts", help="count reported at angle 0", recorded=True)
     angle_noise: float = knob(0.0, unit="rad", help="std of Gaussian angle noise before the encoder floors it",
                               recorded=True)
 
