@@ -115,14 +115,6 @@ class _FrictionProblem:
         self.modes[i] = resp.modes
         return resp
 
-    def outputs(self, x: np.ndarray) -> list[np.ndarray]:
-        """The model's angle or speed (as each segment) at ``x``."""
-        out = []
-        for i, seg in enumerate(self.segments):
-            resp = self._response(x, i, False)
-            out.append(resp.angle if seg.kind == "angle" else resp.speed)
-        return out
-
     def evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """Residuals (measured minus model, angle segments centred) and, if asked, their Jacobian."""
         key = x.tobytes()
@@ -223,10 +215,12 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     n_angle_offsets = sum(1 for s in segments if s.kind == "angle")
     dof = problem.n_rows - len(res.x) - n_angle_offsets
     s2 = float(res.fun @ res.fun) / max(dof, 1)
-    cov, cov_method = _covariance(recs, problem, res, s2)
+    ends = np.cumsum([0] + [len(s.time) for s in segments])
+    placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
+    cov, cov_method = _covariance(recs, problem, res, s2, placed)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
-                    fit_percent=segment_fit_percent(segments, problem.outputs(res.x)),
+                    fit_percent=segment_fit_percent(segments, placed),
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
@@ -237,18 +231,17 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
 ROUNDING_DOMINATED = 4.0
 
 
-def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeResult,
-                s2: float) -> tuple[np.ndarray, str]:
+def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeResult, s2: float,
+                placed: list[np.ndarray]) -> tuple[np.ndarray, str]:
     """The linearised encoder bootstrap when every angle is an encoder's and the residuals are mostly
-    its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`)."""
-    jac = problem.jacobian(res.x)
+    its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`).
+    ``placed``: each segment's fitted model output (angles with their offset)."""
+    jac = res.jac
     segs = problem.segments
     steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
     variance = float(res.fun @ res.fun) / problem.n_rows
     encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
     if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
-        ends = np.cumsum([0] + [len(s.time) for s in segs])
-        placed = [s.output - res.fun[i:j] for s, i, j in zip(segs, ends[:-1], ends[1:])]   # model + offset
         cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
         return cov, "linearised-encoder-bootstrap"
     return robust_covariance(jac, res.fun, s2, problem.n_global)
@@ -397,7 +390,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             if damping > 1e12:
                 status = 2
                 break
-    return OptimizeResult(x=x, fun=r, cost=0.5 * cost, status=status)
+    return OptimizeResult(x=x, fun=r, jac=J, cost=0.5 * cost, status=status)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:
