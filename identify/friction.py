@@ -20,7 +20,14 @@ signs of duty and speed and a constant (exact for the ZOH model between reversal
 encoder's noise does not bias it).  A good start matters: the cost is kinked and has
 local minima where friction and dead zone trade off; from this start a fit takes a
 handful of evaluations.  When the regression fails (too few moving samples), the
-linear output-error fit with a small friction guess is the start.
+linear output-error fit with a small friction guess is the start.  On long data
+(:data:`PREFIX_MIN_ROWS`) the first iterations run on the first quarter of every segment
+(:func:`_prefix_start`), and the fit stops once a step would move the parameters by less
+than :data:`FINAL_STEP` standard errors, taking that step without evaluating it: three
+evaluations on all rows instead of five or six.  Stick/slip kinks leave nearby local minima
+a fraction of a standard error apart, so this can land on a neighbour of the minimum that
+iterating to rounding would reach (a test bounds the difference: at most one residual
+variance of cost).
 
 When the speed never reverses or comes to rest, ``-c sign(omega)`` is a
 constant and cannot be told from ``d``: the fit then reports the net constant
@@ -209,7 +216,7 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     x0 = _regression_start(problem)
     if x0 is None:
         x0 = _linear_start(recs, problem, delay)
-    res = _levenberg_marquardt(problem, x0)
+    res = _levenberg_marquardt(problem, _prefix_start(problem, x0))
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
     if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
         raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
@@ -325,6 +332,49 @@ def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay:
     return np.concatenate([shared, lin.initial_speeds()])
 
 
+#: Rows from which the first iterations run on the first :data:`PREFIX_SHARE` of every segment.
+PREFIX_MIN_ROWS = 8000
+#: Share of every segment (its first rows) that the first iterations of a long fit use.
+PREFIX_SHARE = 0.25
+#: Sign changes of the measured speed the prefix needs (reversals or rests to tell friction apart).
+PREFIX_REVERSALS = 4
+#: Standard errors of the prefix's fit (as :data:`FINAL_STEP`) below which its step is its last.
+PREFIX_STEP = 10.0
+#: Largest ratio of the mean square residual on all rows to the prefix's at the prefix's parameters.
+PREFIX_MISFIT = 4.0
+
+
+def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
+    """The start refined by the fit on the first rows of every segment, on long data.
+
+    Far from the minimum each iteration only needs the rough direction; the first
+    :data:`PREFIX_SHARE` of every segment gives it at that share of the cost, to within
+    :data:`PREFIX_STEP` of its standard errors (a few of the whole data's), and the fit on
+    all rows then takes one or two iterations.  Returns ``x0`` on short data, when the prefix
+    has fewer than :data:`PREFIX_REVERSALS` sign changes of the speed, when its fit fails,
+    or when its parameters leave a mean square residual on all rows more than
+    :data:`PREFIX_MISFIT` times the prefix's own (the rest of the data is not what the
+    prefix saw; the whole fit then starts where it would without the prefix).  That check is
+    the whole fit's first evaluation: its residuals and Jacobian stay cached.
+    """
+    if problem.n_rows < PREFIX_MIN_ROWS:
+        return x0
+    heads = [dataclasses.replace(s, time=s.time[:n], drive=s.drive[:n], output=s.output[:n])
+             for s in problem.segments for n in [max(math.ceil(PREFIX_SHARE * len(s.time)), min(len(s.time), 10))]]
+    changes = sum(int(np.count_nonzero(np.diff(np.sign(np.diff(s.output) if s.kind == "angle" else s.output))))
+                  for s in heads)
+    if changes < PREFIX_REVERSALS:
+        return x0
+    head = _FrictionProblem(heads, problem.names)
+    with np.errstate(over="ignore", invalid="ignore"):
+        res = _levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
+        if not np.all(np.isfinite(res.x)):
+            return x0
+        r = problem.evaluate(res.x, True)[0]
+    misfit = float(r @ r) / problem.n_rows
+    return res.x if misfit <= PREFIX_MISFIT * float(res.fun @ res.fun) / head.n_rows else x0
+
+
 def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
     """Damped Gauss-Newton step (scaled); parameters at their lower bound that the step would push
     below it are held there and the step is solved again for the others (an active set)."""
@@ -343,12 +393,13 @@ def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.nda
 
 #: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
 #: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
-#: friction runs of ``motorid bench accuracy`` the step after one of 0.025 standard errors was
-#: 2e-5 of them: stopping there returns the point the next evaluation would have confirmed.
-FINAL_STEP = 0.05
+#: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
+#: 0.0023 of them, after one of 0.025 it was 2e-5: what stopping leaves is far below the spread.
+FINAL_STEP = 0.2
 
 
-def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200) -> OptimizeResult:
+def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
+                         final_step: float | None = None) -> OptimizeResult:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
     With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
@@ -356,13 +407,14 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
     parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
     cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).  It also
-    stops when the step would move the parameters by less than :data:`FINAL_STEP` standard
-    errors: the step promises ``delta^T J^T J delta``, which is ``FINAL_STEP^2`` times the
-    residuals' variance ``cost / dof`` at that length.  That last step is taken without a new
+    stops when the step would move the parameters by less than ``final_step`` (default
+    :data:`FINAL_STEP`) standard errors: the step promises ``delta^T J^T J delta``, which is
+    ``final_step^2`` times the residuals' variance ``cost / dof`` at that length.  That last step is taken without a new
     evaluation (the residuals moved by ``J delta``): near the minimum Gauss–Newton converges
-    about quadratically, so what is left after it is far below ``FINAL_STEP`` standard errors
+    about quadratically, so what is left after it is far below ``final_step`` standard errors
     (noise-free data never stop this way: their residuals shrink with the step).
     """
+    final_step = FINAL_STEP if final_step is None else final_step
     lower = problem.lower_bounds()
     x = np.maximum(x0, lower)
     r, J = problem.evaluate(x, True)
@@ -383,7 +435,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             continue
         scaled = step * norms
         predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
-        if predicted <= max(1e-12 * cost, FINAL_STEP ** 2 * cost / problem.dof):
+        if predicted <= max(1e-12 * cost, final_step ** 2 * cost / problem.dof):
             if predicted > 1e-12 * cost:
                 x_new = np.maximum(x + step, lower)
                 r = r + J @ (x_new - x)
