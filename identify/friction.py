@@ -142,11 +142,13 @@ class _FrictionProblem:
                 err = err - err.mean()
             r[row:row + n] = err
             if J is not None and sens is not None:
-                cols = np.column_stack([sens[:, self.columns], sens[:, -1]])
+                cols = sens[:, self.columns + [len(FRICTION_PARAMETERS) - 1]]    # a copy
                 if seg.kind == "angle":
-                    cols = cols - cols.mean(axis=0)
-                J[row:row + n, :self.n_global] = -cols[:, :-1]
-                J[row:row + n, self.n_global + i] = -cols[:, -1]
+                    np.subtract(cols.mean(axis=0), cols, out=cols)      # centred, negated
+                else:
+                    np.negative(cols, out=cols)
+                J[row:row + n, :self.n_global] = cols[:, :-1]
+                J[row:row + n, self.n_global + i] = cols[:, -1]
             row += n
         self._key, self._value = key, (r, J)
         return r, J
@@ -270,10 +272,12 @@ def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
     fit_bias = "bias" in problem.names
     h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
     zone = 0.0
+    parts = [_regression_rows(seg, dead_zone, fit_bias) for seg in problem.segments]
+    X_all, Z_all, y_all, keep_all, duty_all = (np.concatenate([part[i] for part in parts]) for i in range(5))
+    n_u = parts[0][5]
     for _ in range(2 if dead_zone else 1):
-        parts = [_regression_rows(seg, dead_zone, fit_bias, zone) for seg in problem.segments]
-        X, Z, y = (np.concatenate([part[i] for part in parts]) for i in range(3))
-        n_u = parts[0][3]
+        keep = keep_all & (duty_all > 1.5 * zone) if zone > 0 else keep_all
+        X, Z, y = X_all[keep], Z_all[keep], y_all[keep]
         if len(y) <= 2 * X.shape[1]:
             return None
         try:
@@ -294,11 +298,13 @@ def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
     return np.concatenate([shared, [s.initial_speed_guess() for s in problem.segments]])
 
 
-def _regression_rows(seg: Segment, dead_zone: bool, fit_bias: bool,
-                     zone: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Regressors, instruments and targets of :func:`_regression_start` for one segment, and the number
-    of duty columns.  The instrument of ``omega_k`` is ``omega_{k-2}``: the encoder's error in it is
-    independent of the errors in ``omega_k`` and ``omega_{k+1}``, so the noise does not bias ``e``."""
+def _regression_rows(seg: Segment, dead_zone: bool,
+                     fit_bias: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Regressors, instruments and targets of :func:`_regression_start` for one segment, the rows to
+    keep (both speeds away from rest, no reversal), the smallest ``|duty|`` of each row (rows inside a
+    dead zone are left out once it is known) and the number of duty columns.  The instrument of
+    ``omega_k`` is ``omega_{k-2}``: the encoder's error in it is independent of the errors in
+    ``omega_k`` and ``omega_{k+1}``, so the noise does not bias ``e``."""
     lag = 2
     if seg.kind == "angle":
         w = np.diff(seg.output) / np.diff(seg.time)
@@ -310,14 +316,12 @@ def _regression_rows(seg: Segment, dead_zone: bool, fit_bias: bool,
     top = float(np.max(np.abs(now), initial=0.0))
     keep = ((np.sign(now) == np.sign(nxt)) & (np.sign(instrument) == np.sign(now))
             & (np.abs(now) > 0.02 * top) & (np.abs(nxt) > 0.02 * top))
-    if zone > 0:
-        for u in duties:
-            keep &= np.abs(u) > 1.5 * zone
+    smallest_duty = np.min(np.abs(duties), axis=0)
     rest = duties + ([np.mean([np.sign(u) for u in duties], axis=0)] if dead_zone else []) + [np.sign(now)]
     rest += [np.ones_like(now)] if fit_bias else []
-    X = np.column_stack([now] + rest)[keep]
-    Z = np.column_stack([instrument] + rest)[keep]
-    return X, Z, nxt[keep], len(duties)
+    X = np.column_stack([now] + rest)
+    Z = np.column_stack([instrument] + rest)
+    return X, Z, nxt, keep, smallest_duty, len(duties)
 
 
 def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> np.ndarray:
