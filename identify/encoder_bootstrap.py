@@ -14,7 +14,8 @@ variance beyond the rounding's ``step^2/12`` added as white noise, and refitted,
 Gauss–Newton step from the fit that the re-quantised data's residuals call for
 (``-(J^T J)^-1 J^T r``, the Jacobian at the solution), first-order exact, and the random
 phases by 64 evenly spaced ones (a quadrature of the average over the phase): no
-evaluation of the model, about 1 ms at 10 000 samples.
+evaluation of the model, and the rounding at all phases binned by the phase at which each
+sample rounds up (:func:`rounding_steps`), not a floor per sample and phase.
 ``oe-friction`` uses it whenever its angle is read by an encoder and the residuals are
 mostly rounding: while the shaft sticks near a reversal the rounding error stays put
 for many samples, which neither Gauss–Newton nor Newey–West intervals absorb (``b``'s
@@ -31,7 +32,8 @@ import numpy as np
 
 from .data import Segment
 
-__all__ = ["COARSE_COUNTS", "is_coarse", "encoder_bootstrap_covariance", "linearised_encoder_bootstrap_covariance"]
+__all__ = ["COARSE_COUNTS", "is_coarse", "encoder_bootstrap_covariance", "linearised_encoder_bootstrap_covariance",
+           "rounding_steps"]
 
 #: Motion (counts swept by the model's angle) below which an encoder counts as coarse.
 COARSE_COUNTS = 40
@@ -133,18 +135,45 @@ def linearised_encoder_bootstrap_covariance(segments: Sequence[Segment], models:
     if not (np.all(np.isfinite(H)) and np.all(norms > 0)) or np.linalg.cond(H) > 1e14:
         return np.full((keep, keep), math.inf)
     inverse = np.linalg.inv(H) / np.outer(norms, norms)
-    grid = (np.arange(runs) + 0.5) / runs
-    parts = []
+    weights = inverse[:keep] @ J.T          # each row: one parameter's Gauss-Newton step per unit residual
+    spread = np.zeros((keep, runs))
     white = residual_variance
-    for seg, model, step in zip(segments, models, steps):      # all phases at once: (samples, runs)
+    row = 0
+    for seg, model, step in zip(segments, models, steps):
+        n = len(model)
         if seg.kind == "angle" and step:
             white = min(white, residual_variance - step * step / 12.0)
-            # the rounded angle less the model; the model, the same for every phase, and the
-            # segment's mean (its offset: the Jacobian's columns are centred) drop out of the spread
-            parts.append(np.floor(model[:, None] / step + grid) * step)
-        else:
-            parts.append(np.zeros((len(model), runs)))
-    steps_taken = (inverse[:keep] @ J.T) @ np.concatenate(parts)
-    steps_taken -= steps_taken.mean(axis=1, keepdims=True)
+            spread += step * rounding_steps(weights[:, row:row + n], np.asarray(model, dtype=float) / step, runs)
+        row += n
+    # the model, the same for every phase, and the segment's mean (its offset: the Jacobian's
+    # columns are centred) drop out of the spread
+    spread -= spread.mean(axis=1, keepdims=True)
     # the white noise beyond the rounding enters linearly: its Gauss-Newton covariance adds
-    return steps_taken @ steps_taken.T / runs + max(white, 0.0) * inverse[:keep, :keep]
+    return spread @ spread.T / runs + max(white, 0.0) * inverse[:keep, :keep]
+
+
+def rounding_steps(weights: np.ndarray, counts: np.ndarray, runs: int) -> np.ndarray:
+    """``weights @ floor(counts[:, None] + phases)`` less ``weights @ floor(counts)``, for ``runs`` phases.
+
+    The phases are ``(j + 0.5) / runs``, ``j = 0 .. runs - 1``.  Sample ``i`` rounds up one count
+    more exactly from the phase ``j >= runs (1 - frac(counts_i)) - 1/2`` on, so each column is a
+    running sum over the phases of the weights binned by that first phase: ``O(n)``, where the
+    product with the ``(n, runs)`` matrix of floors costs ``O(n runs)``.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (k, n)
+        Per-sample weights (e.g. rows of ``(J^T J)^-1 J^T``).
+    counts : ndarray, shape (n,)
+        Model angle in encoder counts (angle over the encoder step).
+    runs : int
+        Phases, >= 1.
+
+    Returns
+    -------
+    ndarray, shape (k, runs)
+    """
+    frac = counts - np.floor(counts)
+    first = np.clip(np.ceil(runs * (1.0 - frac) - 0.5), 0, runs).astype(np.intp)
+    binned = np.stack([np.bincount(first, weights=w, minlength=runs + 1) for w in np.atleast_2d(weights)])
+    return np.cumsum(binned[:, :runs], axis=1)

@@ -12,10 +12,11 @@ sticking at rest while ``|b v + d| <= c``.  Every sample interval is in one of t
   and then sticks or restarts the other way from rest.
 
 Given the modes, the speed obeys ``omega_{k+1} = M_k omega_k + f_k`` with ``M_k = e_k``
-except at the few event and sticking intervals, so the whole run is two
-first-order linear scans (``scipy.signal.lfilter`` on a uniform clock, a blocked closed
-form on a jittered one) plus a short Python loop over the *events* only, which
-replaces the scan's step there by the exact nonlinear one.  The modes are found by a
+except at the few event and sticking intervals, so the whole run is a first-order
+linear scan (:func:`motorsim.recursion.first_order_filter` on a uniform clock, a blocked
+closed form on a jittered one), a short Python loop over the *events* only, which replaces the scan's
+step there by the exact nonlinear one, and the scan again with those steps put in
+its forcing.  On a uniform clock ``e, p, q`` are computed once.  The modes are found by a
 fixed-point iteration: simulate with the current modes, read the modes off the
 result, repeat until they agree.  Before the first disagreement the trajectory is
 exact, so each pass fixes at least one more interval; because an event resets the
@@ -27,6 +28,8 @@ omega_0)`` obey the same linear recursions (same ``M_k``), differentiated term b
 term; at an event the step is differentiated *through the event time* ``t_z``
 (exactly, by complex-step differentiation of the closed-form event step, Squire &
 Trapp 1998, which has no cancellation), and a stuck interval has zero derivatives.
+Being linear, the corrections at the events form one lower-bidiagonal system (one
+LAPACK call instead of a loop), and a second scan spreads them.
 This is the exact derivative of the exact model wherever the modes do not change,
 i.e. everywhere except on a set of measure zero — unlike a smoothed friction law,
 the fit needs no final polish and the fitted model is the one ``motorsim.simulate``
@@ -122,30 +125,44 @@ def _event_partials(w, force, c, a, h, s, stick):
 
 
 class _Intervals:
-    """Per-interval constants of one evaluation: ``h, e, p, q`` and their ``a``-derivatives, the drive."""
+    """Per-interval constants of one evaluation: ``h, e, p, q`` and their ``a``-derivatives, the drive.
+
+    On a uniform clock the constants are computed once and broadcast (read-only views).
+    """
 
     def __init__(self, a, b, friction, bias, dead_zone, duty, time, uniform):
         u = np.asarray(duty, dtype=float)[:-1]
-        self.h = np.diff(np.asarray(time, dtype=float))
+        h = np.diff(np.asarray(time, dtype=float))
+        m = len(h)
         moving = np.abs(u) > dead_zone
-        self.v = np.where(moving, u - np.sign(u) * dead_zone, 0.0)
-        self.v_zone = np.where(moving, -np.sign(u), 0.0)        # dv / d dead_zone
+        sign_u = np.sign(u)
+        self.v = np.where(moving, u - sign_u * dead_zone, 0.0)
+        self.v_zone = np.where(moving, -sign_u, 0.0)        # dv / d dead_zone
         self.force = b * self.v + bias
         self.a, self.b, self.c = a, b, friction
-        x = a * self.h
-        self.e = np.exp(-x)
-        one_minus = -np.expm1(-x)
-        small = np.abs(x) < 1e-5
-        xs = np.where(small, 1.0, x)
-        self.p = np.where(small, self.h * (1 - x / 2 + x * x / 6), one_minus / np.where(small, 1.0, a))
-        self.q = np.where(small, self.h ** 2 * (0.5 - x / 6 + x * x / 24), (self.h - self.p) / np.where(small, 1.0, a))
-        self.dp = np.where(small, self.h ** 2 * (-0.5 + x / 3), self.h * (xs * self.e - one_minus) / xs ** 2 * self.h)
-        self.dq = np.where(small, self.h ** 3 * (-1 / 6 + x / 12), (-self.dp - self.q) / np.where(small, 1.0, a))
-        self.decay = x
-        self.cum = np.concatenate([[0.0], np.cumsum(x)])
-        self.uniform = uniform
+        self.uniform = bool(uniform) and m > 0
+        once = h[:1] if self.uniform else h
+        self.h, self.e, self.p, self.q, self.dp, self.dq = (
+            np.broadcast_to(x, (m,)) if self.uniform else x for x in _interval_constants(a, once))
+        self.decay = a * self.h
+        self.cum = np.concatenate([[0.0], np.cumsum(self.decay)])
         scale = (abs(b) * float(np.max(np.abs(self.v), initial=0.0)) + abs(bias) + friction) / max(a, 1e-12)
         self.rest = _REST * max(scale, 1e-300)
+
+
+def _interval_constants(a: float, h: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``h, e = exp(-a h), p = (1 - e)/a, q = (h - p)/a, dp/da, dq/da`` (power series for small ``a h``)."""
+    x = a * h
+    e = np.exp(-x)
+    one_minus = -np.expm1(-x)
+    small = np.abs(x) < 1e-5
+    xs = np.where(small, 1.0, x)
+    a_s = np.where(small, 1.0, a)
+    p = np.where(small, h * (1 - x / 2 + x * x / 6), one_minus / a_s)
+    q = np.where(small, h ** 2 * (0.5 - x / 6 + x * x / 24), (h - p) / a_s)
+    dp = np.where(small, h ** 2 * (-0.5 + x / 3), h * (xs * e - one_minus) / xs ** 2 * h)
+    dq = np.where(small, h ** 3 * (-1 / 6 + x / 12), (-dp - q) / a_s)
+    return h, e, p, q, dp, dq
 
 
 def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
@@ -162,11 +179,14 @@ def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
     """Speed and angle for given modes; the event steps exact (module docstring)."""
     s = np.sign(modes).astype(float)
     moving = modes != 0
-    f = np.where(moving, iv.p * (iv.force - s * iv.c), 0.0)
+    g = iv.force - s * iv.c
+    f = np.where(moving, iv.p * g, 0.0)
     after_stuck = np.concatenate([[False], modes[:-1] == 0])
     special = np.flatnonzero((np.abs(modes) == 2) | ((modes == 0) & ~after_stuck))
-    base = first_order_scan(iv.decay, f[:, None], np.array([w_start]), iv.uniform)[:, 0]
+    start = np.array([w_start])
+    base = first_order_scan(iv.decay, f[:, None], start, iv.uniform)[:, 0]
     decay = _special_decay(iv, special)
+    x_at = np.empty(len(special))
     x_next = np.empty(len(special))
     th_at = np.zeros(len(special))
     acc = 0.0
@@ -179,24 +199,23 @@ def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
             w_next, d_angle = 0.0, 0.0
         else:
             w_next, d_angle = _event_step_scalar(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0)
-        x_next[j], th_at[j] = w_next, d_angle
+        x_at[j], x_next[j], th_at[j] = x_k, w_next, d_angle
         acc = w_next - b_next
-    w = _corrected(base[:, None], iv.cum, special, (x_next - base[special + 1])[:, None])[:, 0]
-    d_angle_all = np.where(moving, iv.p * w[:-1] + iv.q * (iv.force - s * iv.c), 0.0)
+    w = _rescanned(iv, f[:, None], start, special, x_at[:, None], x_next[:, None])[:, 0]
+    d_angle_all = np.where(moving, iv.p * w[:-1] + iv.q * g, 0.0)
     d_angle_all[special] = th_at
     return w, d_angle_all, special
 
 
-def _corrected(base: np.ndarray, cum: np.ndarray, special: np.ndarray, jump: np.ndarray) -> np.ndarray:
-    """``base`` plus, after each special interval ``k``, its ``jump`` at ``k + 1`` decaying as the scan does."""
-    out = base.copy()
-    if not len(special):
-        return out
-    rows = np.arange(special[0] + 1, len(base))
-    last = np.searchsorted(special + 1, rows, side="right") - 1
-    start = special[last] + 1
-    out[rows] += jump[last] * np.exp(-(cum[rows] - cum[start]))[:, None]
-    return out
+def _rescanned(iv: _Intervals, forcing: np.ndarray, start: np.ndarray, special: np.ndarray,
+               x_at: np.ndarray, x_next: np.ndarray) -> np.ndarray:
+    """The scan again with each special interval's step replaced: from ``x_at`` to ``x_next``.
+
+    ``forcing`` is overwritten: on a special interval ``k`` it becomes ``x_next - e_k x_at``, so
+    that the linear step ``e_k x_k + forcing_k`` lands on ``x_next`` (``x_k = x_at`` to rounding).
+    """
+    forcing[special] = x_next - iv.e[special][:, None] * x_at
+    return first_order_scan(iv.decay, forcing, start, iv.uniform)
 
 
 def _special_decay(iv: _Intervals, special: np.ndarray) -> np.ndarray:
@@ -264,54 +283,88 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
 
 def _sensitivities(iv: _Intervals, modes: np.ndarray, w: np.ndarray, special: np.ndarray):
     """Angle and speed derivatives with respect to :data:`FRICTION_PARAMETERS` (module docstring)."""
-    m = len(modes)
     s = np.sign(modes).astype(float)
-    moving = (modes != 0)[:, None]
-    g = iv.force - s * iv.c
+    moving = modes != 0
+    p = np.where(moving, iv.p, 0.0)
     w0 = w[:-1]
-    dG = np.column_stack([np.zeros(m), iv.v, -s, np.ones(m), iv.b * iv.v_zone, np.zeros(m)])   # dG/dparam
-    fw = iv.p[:, None] * dG
-    fw[:, 0] += -iv.h * iv.e * w0 + iv.dp * g
-    fth = iv.q[:, None] * dG
-    fth[:, 0] += iv.dp * w0 + iv.dq * g
-    fw = np.where(moving, fw, 0.0)
-    fth = np.where(moving, fth, 0.0)
-    mult_th = np.where(moving[:, 0], iv.p, 0.0)       # d(angle increment)/d(speed at start)
-    events = special[np.abs(modes[special]) == 2]
+    g = iv.force - s * iv.c
+    fw = _force_columns(iv, s, p)                       # forcing of the speed's sensitivities
+    fw[:, 0] = np.where(moving, iv.dp * g - iv.h * iv.e * w0, 0.0)
+    fth = _force_columns(iv, s, np.where(moving, iv.q, 0.0))      # of the angle increments'
+    fth[:, 0] = np.where(moving, iv.dp * w0 + iv.dq * g, 0.0)
+    mult_th = p                                         # d(angle increment)/d(speed at start)
+    is_event = np.abs(modes[special]) == 2
+    events = special[is_event]
+    mult = np.zeros(len(special))                       # stuck: nothing carries over
+    forcing = np.zeros((len(special), len(FRICTION_PARAMETERS)))
     if len(events):
-        sk = s[events]
-        stick = np.abs(iv.force[events]) <= iv.c
-        _, _, dw, dth = _event_partials(w0[events], iv.force[events], iv.c, iv.a, iv.h[events], sk, stick)
-        dF = np.column_stack([np.zeros(len(events)), iv.v[events], np.zeros(len(events)), np.ones(len(events)),
-                              iv.b * iv.v_zone[events], np.zeros(len(events))])
-        ev_fw = dw[:, 1:2] * dF
-        ev_fw[:, 2] += dw[:, 2]
-        ev_fw[:, 0] += dw[:, 3]
-        ev_fth = dth[:, 1:2] * dF
-        ev_fth[:, 2] += dth[:, 2]
-        ev_fth[:, 0] += dth[:, 3]
+        dw, ev_fw, dth, ev_fth = _event_columns(iv, w0, s, events)
         fth[events] = ev_fth
         mult_th[events] = dth[:, 0]
-    else:
-        dw = np.zeros((0, 4))
-        ev_fw = np.zeros((0, 6))
-    is_event = np.abs(modes[special]) == 2
-    mult = np.zeros(len(special))
-    mult[is_event] = dw[:, 0]
-    forcing = np.zeros((len(special), 6))
-    forcing[is_event] = ev_fw
-    x0 = np.zeros(6)
-    x0[5] = 1.0
+        mult[is_event] = dw[:, 0]
+        forcing[is_event] = ev_fw
+    x0 = np.zeros(len(FRICTION_PARAMETERS))
+    x0[-1] = 1.0
     base = first_order_scan(iv.decay, fw, x0, iv.uniform)
-    decay = _special_decay(iv, special)
-    b_at, b_next = base[special], base[special + 1]
-    x_next = np.empty((len(special), 6))
-    acc = np.zeros(6)
-    for j in range(len(special)):
-        x_n = mult[j] * (b_at[j] + acc * decay[j]) + forcing[j]
-        x_next[j] = x_n
-        acc = x_n - b_next[j]
-    s_spd = _corrected(base, iv.cum, special, x_next - b_next)
-    s_ang = np.zeros((m + 1, 6))
-    s_ang[1:] = np.cumsum(mult_th[:, None] * s_spd[:-1] + fth, axis=0)
+    x_at, x_next = _special_states(mult, forcing, _special_decay(iv, special), base[special], base[special + 1])
+    s_spd = _rescanned(iv, fw, x0, special, x_at, x_next)
+    s_ang = np.zeros_like(s_spd)
+    np.cumsum(mult_th[:, None] * s_spd[:-1] + fth, axis=0, out=s_ang[1:])
     return s_ang, s_spd
+
+
+def _force_columns(iv: _Intervals, s: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """``gain`` times the derivatives of the force ``G = b v + d - s c`` with respect to the parameters
+    (the ``a`` column left for the caller, the initial speed's is zero)."""
+    out = np.empty((len(gain), len(FRICTION_PARAMETERS)))
+    out[:, 1] = gain * iv.v
+    out[:, 2] = -gain * s
+    out[:, 3] = gain
+    out[:, 4] = (iv.b * gain) * iv.v_zone
+    out[:, 5] = 0.0
+    return out
+
+
+def _event_columns(iv: _Intervals, w0: np.ndarray, s: np.ndarray, events: np.ndarray):
+    """At the event intervals: the end speed's derivative with respect to the start speed and its forcing
+    columns, and the same for the angle increment (through the event time, :func:`_event_partials`)."""
+    k = len(events)
+    stick = np.abs(iv.force[events]) <= iv.c
+    _, _, dw, dth = _event_partials(w0[events], iv.force[events], iv.c, iv.a, iv.h[events], s[events], stick)
+    d_force = np.zeros((k, len(FRICTION_PARAMETERS)))  # d(b v + d)/dparam
+    d_force[:, 1] = iv.v[events]
+    d_force[:, 3] = 1.0
+    d_force[:, 4] = iv.b * iv.v_zone[events]
+    columns = []
+    for partial in (dw, dth):
+        col = partial[:, 1:2] * d_force
+        col[:, 2] += partial[:, 2]
+        col[:, 0] += partial[:, 3]
+        columns.append(col)
+    return dw, columns[0], dth, columns[1]
+
+
+def _special_states(mult: np.ndarray, forcing: np.ndarray, decay: np.ndarray, base_at: np.ndarray,
+                    base_next: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """States at the start and at the end of each special interval ``j`` (rows), given the plain scan.
+
+    The scan's state at a special interval is off by the previous special interval's jump
+    ``acc`` decayed over the moving stretch between them; the step there is
+    ``x_next = mult x_at + forcing``.  So ``acc_j = mult_j decay_j acc_{j-1} + (mult_j base_at_j
+    + forcing_j - base_next_j)``: one lower-bidiagonal system, solved by forward substitution
+    (LAPACK ``dtbtrs``, the same arithmetic as a loop over the special intervals).
+    """
+    k = len(mult)
+    if k == 0:
+        return np.zeros_like(base_at), np.zeros_like(base_at)
+    from scipy.linalg.lapack import dtbtrs  # imported when used (start-up time)
+    carry = mult * decay
+    bands = np.zeros((2, k))
+    bands[1, :-1] = -carry[1:]
+    rhs = np.asfortranarray(mult[:, None] * base_at + forcing - base_next)
+    acc, info = dtbtrs(bands, rhs, uplo="L", diag="U")
+    if info != 0:  # pragma: no cover - a unit-diagonal triangular system is never singular
+        raise np.linalg.LinAlgError(f"dtbtrs failed with info = {info}")
+    x_at = base_at.copy()
+    x_at[1:] += acc[:-1] * decay[1:, None]
+    return x_at, mult[:, None] * x_at + forcing
