@@ -51,7 +51,13 @@ from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian, robust_covariance
 from .validation import segment_fit_percent
-from .variable_projection import SeparableSolution, is_separable, regression_start, solve_separable
+from .variable_projection import (
+    SeparableSolution,
+    is_separable,
+    regression_start,
+    solve_separable,
+    static_gain_ceiling,
+)
 
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
@@ -343,14 +349,33 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
         segs = prepare_segments(recs, delay, skip=max_delay)
         if not segs:
             break
-        try:
-            fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
-        except NotIdentifiableError:
-            continue
-        rss = float(np.einsum("i,i->", fun, fun))
+        rss = _candidate_residual_sum(recs, segs, delay, with_bias)
         if rss < best[0]:
             best = (rss, delay)
     return best[1]
+
+
+def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool) -> float:
+    """The least residual sum of squares of candidate delay ``delay`` (``inf`` when nothing fits).
+
+    Where Gauss--Newton in ``a`` runs off to ever larger poles (the rows prefer no lag at
+    all, as a wrong delay's often do), it is stopped at
+    :func:`identify.variable_projection.static_gain_ceiling`, where the model equals its
+    limit (a static gain) to rounding, and scored there, instead of being followed to
+    overflow by the general fit.
+    """
+    if is_separable(segs, with_bias):
+        start = regression_start(segs)
+        if start is None:
+            start = initial_guess(recs, segs)[0]
+        separable = solve_separable(segs, start, ceiling=static_gain_ceiling(segs))
+        if separable is not None:
+            return float(np.einsum("i,i->", separable.residuals, separable.residuals))
+    try:
+        fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
+    except NotIdentifiableError:
+        return math.inf
+    return float(np.einsum("i,i->", fun, fun))
 
 
 def solve_output_error(recordings: list[Recording], segments: list[Segment], input_delay: int, *,

@@ -34,7 +34,7 @@ from motorsim.recursion import first_order_filter
 from .data import Segment
 from .sensitivity import phi_functions
 
-__all__ = ["SeparableSolution", "solve_separable", "is_separable", "regression_start"]
+__all__ = ["SeparableSolution", "solve_separable", "is_separable", "regression_start", "static_gain_ceiling"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -309,6 +309,17 @@ def _normal_matrix(point: _Point) -> np.ndarray:
     return np.array([[aa, ab], [ab, point.bb / a ** 2]])
 
 
+def static_gain_ceiling(segments: list[Segment]) -> float:
+    """The pole (1/s) beyond which the model equals its limit ``a -> inf`` to rounding.
+
+    That limit is a static gain with no lag: the angle ``theta_k = theta_0 + (b/a) h S_k``
+    plus a step after the first sample.  The last term to vanish is the lag
+    ``-(b/a^2) u_{k-1}``, ``1/(a h)`` relative to the gain's, so the ceiling is
+    ``a h = 1/eps`` (machine epsilon) on the shortest sample period.
+    """
+    return 1.0 / (np.finfo(float).eps * min(float(seg.time[1] - seg.time[0]) for seg in segments))
+
+
 def regression_start(segments: list[Segment]) -> float | None:
     """``a`` from ``zoh-ls``'s regression on the segments' angle increments, or None.
 
@@ -334,7 +345,7 @@ def regression_start(segments: list[Segment]) -> float | None:
     return -math.log(theta1) / float(segments[0].time[1] - segments[0].time[0])
 
 
-def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | None:
+def solve_separable(segments: list[Segment], a0: float, *, ceiling: float = math.inf) -> SeparableSolution | None:
     """Gauss--Newton on ``a`` with ``b``, the initial speeds and offsets projected out.
 
     Parameters
@@ -343,6 +354,12 @@ def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | N
         Angle segments on uniform clocks (:func:`is_separable`).
     a0 : float
         Starting pole in 1/s, > 0.
+    ceiling : float, optional
+        Pole in 1/s at which to stop when Gauss--Newton climbs past it: the solution is
+        then the fit *at* the ceiling, not a minimum.  :func:`static_gain_ceiling` is
+        where the model equals its limit ``a -> inf`` (a static gain) to rounding, so
+        stopping there gives that limit's residual without following ``a`` to overflow
+        (what ranking candidate input delays needs).
 
     Returns
     -------
@@ -352,11 +369,11 @@ def solve_separable(segments: list[Segment], a0: float) -> SeparableSolution | N
     """
     evaluations = 0
     if sum(len(seg.time) for seg in segments) >= 4 * COARSE_SAMPLES:
-        coarse = _iterate([_Segment(seg) for seg in _prefixes(segments)], float(a0), COARSE_RTOL)
+        coarse = _iterate([_Segment(seg) for seg in _prefixes(segments)], float(a0), COARSE_RTOL, ceiling)
         if coarse is not None:
             a0, evaluations = coarse[0], coarse[2]
     segs = [_Segment(s) for s in segments]
-    fine = _iterate(segs, float(a0), STEP_RTOL)
+    fine = _iterate(segs, float(a0), STEP_RTOL, ceiling)
     if fine is None:
         return None
     a, point, count = fine
@@ -381,8 +398,10 @@ def _prefixes(segments: list[Segment]) -> list[Segment]:
     return out
 
 
-def _iterate(segs: list[_Segment], a: float, rtol: float) -> tuple[float, _Point, int] | None:
-    """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative: ``(a, last point, evaluations)``."""
+def _iterate(segs: list[_Segment], a: float, rtol: float,
+             ceiling: float = math.inf) -> tuple[float, _Point, int] | None:
+    """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative, or ``a`` passes ``ceiling``
+    (then ``a = ceiling``): ``(a, last point, evaluations)``."""
     evaluations = 0
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
@@ -392,6 +411,8 @@ def _iterate(segs: list[_Segment], a: float, rtol: float) -> tuple[float, _Point
         if not math.isfinite(point.step):
             return None
         a += point.step
+        if a >= ceiling:
+            return ceiling, point, evaluations
         if abs(point.step) <= rtol * abs(a):
             break
     return (a, point, evaluations) if a > 0 else None

@@ -5,10 +5,10 @@ import pytest
 from scipy.optimize import least_squares
 
 from identify.data import as_recordings, prepare_segments
-from identify.output_error import OutputErrorProblem
+from identify.output_error import OutputErrorProblem, select_delay
 from identify.start import initial_guess
 from identify.uncertainty import covariance_from_jacobian
-from identify.variable_projection import is_separable, solve_separable
+from identify.variable_projection import is_separable, solve_separable, static_gain_ceiling
 from motorsim.excitation import Sine
 from motorsim.plant import Motor
 from motorsim.rig import Experiment, SimRig
@@ -65,3 +65,35 @@ def test_bias_speed_and_jittered_data_are_not_separable():
     assert not is_separable(jittered, with_bias=False)
     assert not is_separable(uniform, with_bias=True)
     assert is_separable(uniform, with_bias=False)
+
+
+def _wrong_delay_segments():
+    """A short sine run fitted with 8 samples of delay too many: the rows prefer no lag at all."""
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 2.0))
+    return [rec], prepare_segments([rec], 8, skip=10)
+
+
+def test_a_fit_running_off_to_a_static_gain_stops_at_the_ceiling_with_the_limits_residual():
+    recs, segments = _wrong_delay_segments()
+    start = initial_guess(recs, segments)[0]
+    assert solve_separable(segments, start) is None           # unbounded a: no minimum to return
+    ceiling = static_gain_ceiling(segments)
+    stopped = solve_separable(segments, start, ceiling=ceiling)
+    assert stopped is not None and stopped.a == ceiling
+    # the general fit follows a far up too (to ~1e12 1/s, where the lag left is ~1e-10 of the
+    # gain's); its residual sum agrees with the limit's to that order
+    problem, res = _levenberg_marquardt(segments, [start, 3.0])
+    assert res.x[0] * 0.005 > 1e6
+    rss_limit = float(stopped.residuals @ stopped.residuals)
+    assert rss_limit <= float(res.fun @ res.fun) * (1 + 1e-6)
+    assert rss_limit == pytest.approx(float(res.fun @ res.fun), rel=1e-6)
+
+
+def test_delay_selection_needs_no_general_fit_for_candidates_that_run_off(monkeypatch):
+    import scipy.optimize
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a candidate delay fell back to least_squares")
+    monkeypatch.setattr(scipy.optimize, "least_squares", refuse)
+    rig = SimRig(Motor(25.0, 3.0, input_delay=2), Encoder(4096), rng=np.random.default_rng(8))
+    assert select_delay(rig.run(Experiment(Sine(10.0, 200), 0.005, 2.0))) == 2
