@@ -73,7 +73,11 @@ class Estimate:
         :func:`identify.uncertainty.robust_covariance`), ``"encoder-bootstrap"`` (``oe`` on a
         coarse encoder: refits of the model re-quantised at other encoder phases) or
         ``"linearised-encoder-bootstrap"`` (``oe-friction`` when rounding dominates the
-        residuals: one Gauss–Newton step per phase); ``""`` when not said.
+        residuals: one Gauss–Newton step per phase), ``"instrumental-variables"`` (``iv``: the
+        IV estimator's sandwich) or ``"regression"`` (``euler-ls``, ``zoh-ls``: the least-squares
+        covariance of the speed regression; the regression's own bias, from the differenced
+        speed and for ``euler-ls`` the Euler step, is not in it, so its interval need not cover
+        the motor's ``a`` and ``b``); ``""`` when not said.
     """
 
     method: str
@@ -131,6 +135,9 @@ class Estimate:
                  f"fit         {self.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
                  f"residual    {self.residual_rms:.3g} {self.residual_unit} RMS",
                  f"samples     {self.n_samples} (sample period {self.sample_period:.6g} s)"]
+        if self.covariance_method == "regression":
+            lines.append(f"note        {self.method}'s intervals are its regression's and leave out its bias "
+                         "(the differenced speed): they need not cover the motor's a and b; use oe")
         return "\n".join(lines)
 
     @property

@@ -34,21 +34,24 @@ def test_a_small_benchmark_run_meets_the_criteria(capsys):
     assert rc == 0 and "all criteria hold" in out and "worst |oe error|" in out
 
 
-@pytest.mark.parametrize("label", ["white angle noise", "timing jitter 10 %", "44 counts/rev"])
-def test_intervals_cover_the_truth_in_a_reduced_fixed_seed_run(label):
+@pytest.mark.parametrize("label, method", [("white angle noise", "oe"), ("timing jitter 10 %", "oe"),
+                                           ("44 counts/rev", "oe"), ("44 counts/rev", "iv"),
+                                           ("timing jitter 10 %", "iv")])
+def test_intervals_cover_the_truth_in_a_reduced_fixed_seed_run(label, method):
     # 60 runs of 1000 samples: if the 95 % intervals covered 95 % of the time, fewer than 51 covering
     # runs (85 %) has binomial probability below 1e-3; jitter is the regime that needs Newey-West, 44
     # counts/rev the one that needs the encoder bootstrap (Gauss-Newton / Newey-West covered 36-46 % there)
     from motorsim.excitation import Multisine
     from scenarios.benchmarks.accuracy import COVERAGE_REGIMES, coverage_run
-    regime = next(r for r in COVERAGE_REGIMES if r[0] == label)
+    regime = next(r for r in COVERAGE_REGIMES if r[:2] == (label, method))
     duty = Multisine((7.5, 25.0, 50.0), (90, 90, 90), (0.0, 0.7, 1.4)).duty(1000, 0.005).astype(float)
     rows = [coverage_run(regime, duty, 0.005, np.random.default_rng(child))
             for child in np.random.SeedSequence(11).spawn(60)]
     rows = [r for r in rows if r is not None]
     assert len(rows) == 60
     assert sum(r[0] for r in rows) >= 51 and sum(r[1] for r in rows) >= 51
-    expected = {"timing jitter 10 %": "newey-west", "44 counts/rev": "encoder-bootstrap"}.get(label)
+    expected = {("timing jitter 10 %", "oe"): "newey-west", ("44 counts/rev", "oe"): "encoder-bootstrap"}.get(
+        (label, method))
     if expected:
         assert sum(r[2] == expected for r in rows) > 30
 
