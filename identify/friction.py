@@ -187,7 +187,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     recordings : Recording or sequence of Recording
         Pooled, as for ``oe``.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"``: chosen with the linear model).
+        Input delay in samples (``"auto"``: chosen with the linear model, with a bias unless
+        ``fix_bias``).
     fix_bias : bool
         Hold the bias ``d = 0``.
     dead_zone : bool
@@ -213,7 +214,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     fix_bias = check_bool("fix_bias", fix_bias)
     dead_zone = check_bool("dead_zone", dead_zone)
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
-    delay = select_delay(recs) if input_delay == "auto" else int(input_delay)
+    # the bias drifts the angle: a linear model without it can rank the delays wrongly
+    delay = select_delay(recs, with_bias=not fix_bias) if input_delay == "auto" else int(input_delay)
     if not speed_reverses(recs):
         return _no_reversal(recs, delay, fix_bias)
     segments = prepare_segments(recs, delay)

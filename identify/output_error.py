@@ -55,6 +55,7 @@ from .variable_projection import (
     SeparableSolution,
     is_separable,
     regression_start,
+    separable_residual_sum,
     solve_separable,
     static_gain_ceiling,
 )
@@ -364,13 +365,13 @@ def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: i
     limit (a static gain) to rounding, and scored there, instead of being followed to
     overflow by the general fit.
     """
-    if is_separable(segs, with_bias):
+    if is_separable(segs, False):               # the bias, if any, is one more linear column there
         start = regression_start(segs)
         if start is None:
             start = initial_guess(recs, segs)[0]
-        separable = solve_separable(segs, start, ceiling=static_gain_ceiling(segs))
-        if separable is not None:
-            return float(np.einsum("i,i->", separable.residuals, separable.residuals))
+        rss = separable_residual_sum(segs, start, with_bias=with_bias, ceiling=static_gain_ceiling(segs))
+        if rss is not None:
+            return rss
     try:
         fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
     except NotIdentifiableError:

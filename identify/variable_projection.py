@@ -34,7 +34,8 @@ from motorsim.recursion import first_order_filter
 from .data import Segment
 from .sensitivity import phi_functions
 
-__all__ = ["SeparableSolution", "solve_separable", "is_separable", "regression_start", "static_gain_ceiling"]
+__all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "is_separable", "regression_start",
+           "static_gain_ceiling"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -167,7 +168,7 @@ class _Segment:
     every product with a centred vector needs only those samples.
     """
 
-    def __init__(self, seg: Segment):
+    def __init__(self, seg: Segment, with_bias: bool = False):
         n = len(seg.time)
         self.n = n
         self.h = float(seg.time[1] - seg.time[0])
@@ -186,6 +187,12 @@ class _Segment:
         self.factors = (0.0, 0.0, 0.0)               # p, dp/da, h e p of the last evaluation
         self.f_col = np.empty(n - 1)                 # u filtered by 1/(1 - e z^-1)
         self.g_col = np.empty(n - 1)                 # u filtered twice
+        self.t_col: np.ndarray | None = None         # with a bias: the ramp T = tau, centred
+        if with_bias:
+            self.t_col = self.h * np.arange(n, dtype=float)
+            self.t_col -= self.t_col.mean()
+            self.t_norm2 = _dot(self.t_col, self.t_col)
+            self.t_y = _dot(self.t_col, self.y)
 
 
 #: ``a tau`` beyond which ``exp(-a tau)`` is below 1e-17 relative: treated as 0.
@@ -248,6 +255,10 @@ class _Point:
     gg: float = 0.0                                  # <g, g>' (1 and D projected out)
     gb: float = 0.0                                  # <g, B*>'
     bb: float = 0.0                                  # <B*, B*>'
+    delta: float = 0.0                               # with a bias: coefficient of the ramp T (bias / a)
+    gt: float = 0.0                                  # <g, T>'
+    bt: float = 0.0                                  # <B*, T>'
+    tt: float = 0.0                                  # <T, T>'
 
     @property
     def b(self) -> float:
@@ -258,9 +269,12 @@ def _evaluate(segs: list[_Segment], a: float, direction: bool = True) -> _Point:
     """Linear parameters at ``a`` and, with ``direction``, the Gauss--Newton step; else the residuals in ``r``.
 
     Per segment the offset is removed by centring and ``D`` by one Gram--Schmidt step;
-    ``b`` is shared, so its column ``B~ = B* - (B*.D/D.D) D`` is projected out across segments.
+    ``b`` is shared, so its column ``B~ = B* - (B*.D/D.D) D`` is projected out across
+    segments, and so is the ramp ``T~`` when the segments carry one (a bias).
     """
-    by = bb = 0.0
+    ramp = segs[0].t_col is not None
+    point = _Point(a, math.nan, np.full(len(segs), math.nan))
+    by = ty = 0.0
     parts = []
     for s in segs:
         _columns(s, a, direction)
@@ -268,31 +282,53 @@ def _evaluate(segs: list[_Segment], a: float, direction: bool = True) -> _Point:
         bd = _dot_d(s, s.b_col) / dd
         yd = _dot_d(s, s.y) / dd
         by += _dot(s.b_col, s.y) - bd * yd * dd
-        bb += _dot(s.b_col, s.b_col) - bd * bd * dd
-        parts.append((bd, yd))
-    if not bb > 0:                                   # B* in the span of 1 and D: b not identifiable here
-        return _Point(a, math.nan, np.full(len(segs), math.nan))
-    beta = by / bb
-    point = _Point(a, beta, np.array([yd - beta * bd for bd, yd in parts]), bb=bb)
+        point.bb += _dot(s.b_col, s.b_col) - bd * bd * dd
+        td = 0.0
+        if s.t_col is not None:
+            td = _dot_d(s, s.t_col) / dd
+            ty += s.t_y - td * yd * dd
+            point.tt += s.t_norm2 - td * td * dd
+            point.bt += _dot(s.b_col, s.t_col) - bd * td * dd
+        parts.append((bd, yd, td))
+    det = point.bb * point.tt - point.bt ** 2 if ramp else point.bb
+    if not det > (1e-12 * point.bb * point.tt if ramp else 0.0):
+        return point                                 # B* (or T) in the span of the others: not identifiable here
+    if ramp:
+        point.beta = (by * point.tt - ty * point.bt) / det
+        point.delta = (ty * point.bb - by * point.bt) / det
+    else:
+        point.beta = by / point.bb
+    beta, delta = point.beta, point.delta
+    point.gammas = np.array([yd - beta * bd - delta * td for bd, yd, td in parts])
     if not direction:
         for s, gamma in zip(segs, point.gammas):
             r = s.r
             np.multiply(s.b_col, -beta, out=r)
             r += s.y
+            if s.t_col is not None:
+                r -= delta * s.t_col
             r[:len(s.d_col)] -= gamma * s.d_col
-            r += gamma * s.d_mean                    # r = y - beta B* - gamma (D - mean D)
+            r += gamma * s.d_mean                    # r = y - beta B* [- delta T] - gamma (D - mean D)
         return point
     gr = 0.0
-    for s, gamma, (bd, _) in zip(segs, point.gammas, parts):
+    for s, gamma, (bd, _, td) in zip(segs, point.gammas, parts):
         g = _direction(s, beta, gamma)
         gd = _dot_d(s, g)
         g_b = _dot(g, s.b_col)
-        gb = g_b - gd * bd
-        # g . r with r = y - beta B* - gamma (D - mean D) (g is centred)
+        # g . r with r = y - beta B* [- delta T] - gamma (D - mean D) (g is centred)
         gr += _dot(g, s.y) - beta * g_b - gamma * gd
         point.gg += _dot(g, g) - gd * gd / s.d_norm2
-        point.gb += gb
-    curvature = point.gg - point.gb ** 2 / bb
+        point.gb += g_b - gd * bd
+        if s.t_col is not None:
+            g_t = _dot(g, s.t_col)
+            gr -= delta * g_t
+            point.gt += g_t - gd * td
+    if ramp:        # |P g|^2 less its part along the shared columns B~ and T~
+        explained = (point.gb ** 2 * point.tt - 2 * point.gb * point.gt * point.bt
+                     + point.gt ** 2 * point.bb) / det
+    else:
+        explained = point.gb ** 2 / point.bb
+    curvature = point.gg - explained
     point.step = gr / curvature if curvature > 0 else math.nan   # nan: no descent direction, give up
     return point
 
@@ -367,16 +403,10 @@ def solve_separable(segments: list[Segment], a0: float, *, ceiling: float = math
         None when the iteration leaves ``a > 0`` or does not converge (the caller
         then uses the general Levenberg--Marquardt fit and its diagnostics).
     """
-    evaluations = 0
-    if sum(len(seg.time) for seg in segments) >= 4 * COARSE_SAMPLES:
-        coarse = _iterate([_Segment(seg) for seg in _prefixes(segments)], float(a0), COARSE_RTOL, ceiling)
-        if coarse is not None:
-            a0, evaluations = coarse[0], coarse[2]
-    segs = [_Segment(s) for s in segments]
-    fine = _iterate(segs, float(a0), STEP_RTOL, ceiling)
-    if fine is None:
+    solved = _solve_pole(segments, a0, ceiling, with_bias=False)
+    if solved is None:
         return None
-    a, point, count = fine
+    segs, a, point, count = solved
     # the Jacobian at the last step's start is within STEP_RTOL of the final one: enough for a covariance
     normal = _normal_matrix(point)
     final = _evaluate(segs, a, direction=False)
@@ -385,7 +415,63 @@ def solve_separable(segments: list[Segment], a0: float, *, ceiling: float = math
     return SeparableSolution(a=a, b=final.b, initial_speeds=final.gammas * a,
                              residuals=segs[0].r if len(segs) == 1 else np.concatenate([s.r for s in segs]),
                              normal_matrix=normal,
-                             iterations=evaluations + count + 1, segment_lengths=tuple(s.n for s in segs))
+                             iterations=count + 1, segment_lengths=tuple(s.n for s in segs))
+
+
+def separable_residual_sum(segments: list[Segment], a0: float, *, with_bias: bool = False,
+                           ceiling: float = math.inf) -> float | None:
+    """The least residual sum of squares (rad^2) of the output-error fit, by :func:`solve_separable`'s
+    iteration; with ``with_bias``, of the model with a constant acceleration ``bias`` too.
+
+    On a uniform clock the bias's angle is ``(bias/a) (tau - W)``: the ramp ``tau`` from the
+    segment's start, shared by all segments, plus a multiple of the initial-speed column ``W``,
+    which each segment's own initial speed absorbs.  So the bias adds one linear column that
+    does not depend on ``a``, projected out like ``b``'s, and the iteration stays in ``a``
+    alone.  Only the residual is returned (what ranking candidate input delays needs); the
+    fit itself with a bias is :func:`identify.output_error.fit_output_error`'s.
+
+    Parameters
+    ----------
+    segments : list of Segment
+        Angle segments on uniform clocks (:func:`is_separable` without a bias).
+    a0 : float
+        Starting pole in 1/s, > 0.
+    with_bias : bool
+        Fit the bias too.
+    ceiling : float, optional
+        As for :func:`solve_separable`.
+
+    Returns
+    -------
+    float or None
+        None when the iteration fails.
+    """
+    solved = _solve_pole(segments, a0, ceiling, with_bias=with_bias)
+    if solved is None:
+        return None
+    segs, a, _, _ = solved
+    final = _evaluate(segs, a, direction=False)
+    if not math.isfinite(final.beta):
+        return None
+    return sum(_dot(s.r, s.r) for s in segs)
+
+
+def _solve_pole(segments: list[Segment], a0: float, ceiling: float,
+                with_bias: bool) -> tuple[list[_Segment], float, _Point, int] | None:
+    """Gauss--Newton in ``a`` (coarse phase on long recordings first): the work segments, ``a``, the
+    last point and the evaluations, or None."""
+    evaluations = 0
+    if sum(len(seg.time) for seg in segments) >= 4 * COARSE_SAMPLES:
+        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments)], float(a0), COARSE_RTOL,
+                          ceiling)
+        if coarse is not None:
+            a0, evaluations = coarse[0], coarse[2]
+    segs = [_Segment(s, with_bias) for s in segments]
+    fine = _iterate(segs, float(a0), STEP_RTOL, ceiling)
+    if fine is None:
+        return None
+    a, point, count = fine
+    return segs, a, point, evaluations + count
 
 
 def _prefixes(segments: list[Segment]) -> list[Segment]:
