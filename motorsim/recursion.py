@@ -46,6 +46,7 @@ _OFFSET = np.arange(BLOCK)[:, None] - np.arange(BLOCK)[None, :]
 _POWER_INDEX = np.where(_OFFSET >= 0, _OFFSET, BLOCK + 1)
 _EXPONENTS = np.arange(BLOCK + 2, dtype=float)
 
+
 def first_order_filter(e: float, x: np.ndarray, initial: float | np.ndarray = 0.0,
                        out: np.ndarray | None = None) -> np.ndarray:
     """``y[k] = e y[k-1] + x[k]`` along axis 0, with ``y[-1] = initial``.
@@ -79,22 +80,21 @@ def first_order_filter(e: float, x: np.ndarray, initial: float | np.ndarray = 0.
     target = out.reshape(columns.shape) if out is not None and out.flags.c_contiguous else None
     start = np.zeros(columns.shape[1])
     start += initial                                 # a scalar or one value per column
+    y = None
     if len(x) < SHORT_RECORD:
         with np.errstate(all="ignore"):              # overflow is caught below, as a non-finite result
             y = _blocked_scan(float(e), columns, start, target)
-            if math.isfinite(float(y.sum())):        # a sum that overflows only sends finite data to lfilter
-                if out is None:
-                    return y.reshape(x.shape)
-                if target is None:
-                    out[...] = y.reshape(x.shape)
-                return out
-        # a non-finite forcing or factor: within a block it would spread to earlier samples
-        # (0 * inf), so such records take lfilter, which keeps the loop's order
-    from scipy.signal import lfilter  # imported when used: it costs most of `import control`
-    y, _ = lfilter([1.0], [1.0, -e], columns, axis=0, zi=(e * start)[None, :])
+            if not math.isfinite(float(y.sum())):    # a sum that overflows only sends finite data to lfilter
+                # a non-finite forcing or factor: within a block it would spread to earlier samples
+                # (0 * inf), so such records take lfilter, which keeps the loop's order
+                y = None
+    if y is None:
+        from scipy.signal import lfilter  # imported when used: it costs most of `import control`
+        y, _ = lfilter([1.0], [1.0, -e], columns, axis=0, zi=(e * start)[None, :])
     if out is None:
         return y.reshape(x.shape)
-    out[...] = y.reshape(x.shape)
+    if y is not target:                              # lfilter's, or the scan's beside a strided ``out``
+        out[...] = y.reshape(x.shape)
     return out
 
 
