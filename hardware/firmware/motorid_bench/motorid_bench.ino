@@ -950,6 +950,27 @@ static void start_run(void) {
 // Only valid frames (known type, right length) show the host is alive (PROTOCOL.md).
 static void host_alive(void) { last_rx_ms = millis(); }
 
+// Answer a frame that sets up the next run (WAVE, CONTROL, REFERENCE) from its parser's result
+// r; on success set *have (when given).  Returns 0 for a wrong payload length, which the caller
+// answers like every other (NAK_BAD_LENGTH).  An invalid value is a receive error and does not
+// show the host is alive; a busy device refuses the frame without storing it.
+static uint8_t answer_setup(uint8_t type, uint8_t frame_seq, uint8_t r, uint8_t busy, uint8_t *have) {
+  if (r == NAK_BAD_LENGTH) return 0;
+  if (r == INVALID_BAD_VALUE) {
+    rx_errors++;
+    respond(T_NAK, type, frame_seq, NAK_BAD_VALUE);
+    return 1;
+  }
+  host_alive();
+  if (busy) respond(T_NAK, type, frame_seq, NAK_BUSY);
+  else if (r) respond(T_NAK, type, frame_seq, r);
+  else {
+    if (have) *have = 1;
+    respond(T_ACK, type, frame_seq, 0);
+  }
+  return 1;
+}
+
 static void handle_frame(uint8_t type, uint8_t frame_seq, const uint8_t *p, uint8_t len) {
   uint8_t busy = running;
   switch (type) {
@@ -968,43 +989,15 @@ static void handle_frame(uint8_t type, uint8_t frame_seq, const uint8_t *p, uint
       else { have_config = 1; respond(T_ACK, type, frame_seq, 0); }
       return;
     }
-    case T_WAVE: {
-      uint8_t r = parse_wave(p, len, busy);
-      if (r == NAK_BAD_LENGTH) break;
-      if (r == INVALID_BAD_VALUE) {
-        rx_errors++;
-        respond(T_NAK, type, frame_seq, NAK_BAD_VALUE);
-        return;
-      }
-      host_alive();
-      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
-      if (r) respond(T_NAK, type, frame_seq, r);
-      else { have_wave = 1; respond(T_ACK, type, frame_seq, 0); }
-      return;
-    }
-    case T_CONTROL: {
-      uint8_t r = parse_control(p, len, busy);
-      if (r == NAK_BAD_LENGTH) break;
-      host_alive();
-      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
-      if (r) respond(T_NAK, type, frame_seq, r);
-      else respond(T_ACK, type, frame_seq, 0);
-      return;
-    }
-    case T_REFERENCE: {
-      uint8_t r = parse_reference(p, len, busy);
-      if (r == NAK_BAD_LENGTH) break;
-      if (r == INVALID_BAD_VALUE) {
-        rx_errors++;
-        respond(T_NAK, type, frame_seq, NAK_BAD_VALUE);
-        return;
-      }
-      host_alive();
-      if (busy) { respond(T_NAK, type, frame_seq, NAK_BUSY); return; }
-      if (r) respond(T_NAK, type, frame_seq, r);
-      else { have_reference = 1; respond(T_ACK, type, frame_seq, 0); }
-      return;
-    }
+    case T_WAVE:
+      if (answer_setup(type, frame_seq, parse_wave(p, len, busy), busy, &have_wave)) return;
+      break;
+    case T_CONTROL:
+      if (answer_setup(type, frame_seq, parse_control(p, len, busy), busy, 0)) return;
+      break;
+    case T_REFERENCE:
+      if (answer_setup(type, frame_seq, parse_reference(p, len, busy), busy, &have_reference)) return;
+      break;
     case T_START:
       if (len != 0) break;
       host_alive();
