@@ -199,6 +199,15 @@ def emulation_speed(duration: float = 2.0) -> list[dict]:
     return rows
 
 
+def _table(header: list[str], rows, cells, last: bool = False) -> None:
+    """A Markdown table, each row printed as it is measured (``cells`` turns a row into its cells)."""
+    print("| " + " | ".join(header) + " |\n|" + "---|" * len(header))
+    for r in rows:
+        print("| " + " | ".join(str(c) for c in cells(r)) + " |", flush=True)
+    if not last:
+        print()
+
+
 def bench_firmware(argv: Sequence[str] | None = None) -> int:
     """Print the tables; ``argv`` as for the command line (default ``sys.argv[1:]``); returns 0.
 
@@ -217,29 +226,21 @@ def bench_firmware(argv: Sequence[str] | None = None) -> int:
         print(f"flash {s['flash']} B ({100 * s['flash'] / _FLASH:.1f} % of {_FLASH}), "
               f"RAM {s['ram']} B ({100 * s['ram'] / _RAM:.1f} % of {_RAM})\n")
     if "link" in only:
-        print("| baud | rate (Hz) | samples | dropped | late ticks | line load |\n|---|---|---|---|---|---|")
-        for r in link_capacity():
-            print(f"| {r['baudrate']} | {r['rate_hz']} | {r['samples']} | {r['dropped']} | {r['late']} "
-                  f"| {100 * r['load']:.0f} % |", flush=True)
-        print()
+        _table(["baud", "rate (Hz)", "samples", "dropped", "late ticks", "line load"], link_capacity(),
+               lambda r: [r["baudrate"], r["rate_hz"], r["samples"], r["dropped"], r["late"],
+                          f"{100 * r['load']:.0f} %"])
     if "encoder" in only:
-        print("| decoding | ceiling (4x counts/s) | decoded counts/s | first failure |\n"
-              "|---|---|---|---|")
-        for r in encoder_ceiling():
-            print(f"| x{r['decoding']} | {r['ceiling_4x_counts_s']} | {r['ceiling_decoded_counts_s']} "
-                  f"| {r['first_failure']} |", flush=True)
-        print()
+        _table(["decoding", "ceiling (4x counts/s)", "decoded counts/s", "first failure"], encoder_ceiling(),
+               lambda r: [f"x{r['decoding']}", r["ceiling_4x_counts_s"], r["ceiling_decoded_counts_s"],
+                          r["first_failure"]])
     if "control" in only:
-        print("| controller | shortest period without late ticks (µs) | highest rate (Hz) | "
-              "step's cost per sample (µs, cycles at 16 MHz) |\n|---|---|---|---|")
-        for r in controller_cost():
-            print(f"| {r['controller']} | {r['period_us']} | {r['rate_hz']:.0f} | "
-                  f"{r['cost_us']} µs, {r['cost_cycles']} cycles |", flush=True)
-        print()
+        _table(["controller", "shortest period without late ticks (µs)", "highest rate (Hz)",
+                "step's cost per sample (µs, cycles at 16 MHz)"], controller_cost(),
+               lambda r: [r["controller"], r["period_us"], f"{r['rate_hz']:.0f}",
+                          f"{r['cost_us']} µs, {r['cost_cycles']} cycles"])
     if "speed" in only:
-        print("| case | emulated s per wall s |\n|---|---|")
-        for r in emulation_speed():
-            print(f"| {r['case']} | {r['ratio']:.2f} |", flush=True)
+        _table(["case", "emulated s per wall s"], emulation_speed(), lambda r: [r["case"], f"{r['ratio']:.2f}"],
+               last=True)
     return 0
 
 
