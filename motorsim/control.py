@@ -756,7 +756,18 @@ def feedforward_gains(model: PlantModel) -> dict[str, int]:
 
 
 @dataclasses.dataclass(frozen=True)
-class PISpeed(Controller):
+class _PolePlacement(Controller):
+    """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05)."""
+
+    time_constant: float = 0.05
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
+
+
+@dataclasses.dataclass(frozen=True)
+class PISpeed(_PolePlacement):
     """PI speed control by pole placement on the exact ZOH model, with anti-windup.
 
     ``u_k = kp e_k + ki sum_{j<=k} e_j`` with ``e = r - y``; both closed-loop poles of the
@@ -781,13 +792,8 @@ class PISpeed(Controller):
     {'kp': 1397, 'ki': 198}
     """
 
-    time_constant: float = 0.05
     feedforward: bool = False
     kind: ClassVar[str] = "pi"
-
-    def __post_init__(self):
-        super().__post_init__()
-        object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
 
     @property
     def preview(self) -> int:
@@ -816,7 +822,7 @@ class PISpeed(Controller):
 
 
 @dataclasses.dataclass(frozen=True)
-class PositionPD(Controller):
+class PositionPD(_PolePlacement):
     """Position P or PD control on the counts: ``u = kp (r - counts) - kd y``.
 
     The gains place both poles of the continuous model ``theta'' + a theta' = b u`` at
@@ -839,14 +845,9 @@ class PositionPD(Controller):
     True
     """
 
-    time_constant: float = 0.05
     derivative: bool = True
     kind: ClassVar[str] = "position"
     quantity: ClassVar[str] = "angle"
-
-    def __post_init__(self):
-        super().__post_init__()
-        object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
 
     @property
     def preview(self) -> int:
