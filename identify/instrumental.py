@@ -88,7 +88,7 @@ def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) 
     p, q = h * p1, h * h * p2
     v = np.asarray(u[:-2], dtype=float)
     w = np.zeros(len(v))                             # w_0 = 0, w_{k+1} = e w_k + p u_k
-    w[1:] = first_order_filter(math.exp(-a * h), p * v[:-1])
+    first_order_filter(math.exp(-a * h), p * v[:-1], out=w[1:])
     w *= p
     w += q * v
     w *= b

@@ -366,10 +366,8 @@ def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: i
     overflow by the general fit.
     """
     if is_separable(segs, False):               # the bias, if any, is one more linear column there
-        start = regression_start(segs)
-        if start is None:
-            start = initial_guess(recs, segs)[0]
-        rss = separable_residual_sum(segs, start, with_bias=with_bias, ceiling=static_gain_ceiling(segs))
+        rss = separable_residual_sum(segs, _separable_start(recs, segs), with_bias=with_bias,
+                                     ceiling=static_gain_ceiling(segs))
         if rss is not None:
             return rss
     try:
@@ -377,6 +375,12 @@ def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: i
     except NotIdentifiableError:
         return math.inf
     return float(np.einsum("i,i->", fun, fun))
+
+
+def _separable_start(recs: list[Recording], segs: list[Segment]) -> float:
+    """Starting pole of the separable iteration: ``zoh-ls``'s regression, else the general start value."""
+    start = regression_start(segs)
+    return initial_guess(recs, segs)[0] if start is None else start
 
 
 def solve_output_error(recordings: list[Recording], segments: list[Segment], input_delay: int, *,
@@ -415,10 +419,7 @@ def solve_output_error(recordings: list[Recording], segments: list[Segment], inp
                                    f"{problem.n_global + problem.n_nuisance} parameters "
                                    f"(a, b and the initial state of {len(segments)} segments); record longer")
     if jac == "analytic" and is_separable(segments, with_bias):
-        start = regression_start(segments)
-        if start is None:
-            start = initial_guess(recordings, segments)[0]
-        separable = solve_separable(segments, start)
+        separable = solve_separable(segments, _separable_start(recordings, segments))
         if separable is not None:
             result = SolverResult(np.array([separable.a, separable.b]), separable.residuals, separable.iterations)
             return OutputErrorSolution(result, problem, separable)
