@@ -11,11 +11,13 @@ method that takes ``input_delay`` is fitted with ``input_delay="auto"`` (one
 recording at a time).  A fit that raises is a counted failure with its reason,
 never a crash of the sweep.
 
-:func:`run_scenario` spreads the grid points over a
+:func:`run_scenario` (also :func:`scenarios.run_sweep`) spreads the grid points over a
 ``concurrent.futures.Executor`` (processes by default, or any executor given,
-e.g. Dask's ``Client(...).get_executor()``), keeps at most a few points in
-flight and writes each point's rows as soon as it and all points before it are
-done, so memory does not grow with the grid.
+e.g. Dask's ``Client(...).get_executor()``; :mod:`scenarios.executors`), keeps at
+most a few points in flight and writes each point's rows as soon as it and all
+points before it are done, so memory does not grow with the grid.  The command
+line around it (``motorid sweep``: flags, table, figures) is
+:mod:`motorid.commands.sweep`.
 
 Seeds never depend on the workers: repetition ``r`` of grid point ``i`` draws
 from ``SeedSequence(seed, spawn_key=(i, r))``, which is
@@ -23,32 +25,26 @@ from ``SeedSequence(seed, spawn_key=(i, r))``, which is
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import concurrent.futures
-import contextlib
 import csv
 import dataclasses
-import gc
 import json
 import math
-import multiprocessing
 import os
-import sys
 import time
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
 from motorsim.checks import check_int
-from motorsim.files import atomic_writer, make_output_dir, safe_file_name, write_atomically
+from motorsim.files import atomic_writer, make_output_dir, write_atomically
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
-from .arguments import CommandError, print_to_stderr
 from .batch import (
     BATCHED_METHODS,
     MethodOutcome,
@@ -60,14 +56,12 @@ from .batch import (
     speed_batch,
 )
 from .batch_output_error import output_error_batch
-from .progress import ProgressBar
+from .executors import points_executor, results_in_order
 from .scenario import GridPoint, Scenario, Setting
 
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
-           "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "make_plots",
-           "format_sweep_table",
-           "add_sweep_arguments", "run_sweep", "available_cores", "usable_workers", "worker_context",
-           "WORKER_PRELOAD"]
+           "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed"]
+
 
 def setting_column(knob: str) -> str:
     """The CSV column of a bench knob: its name, except ``true_a`` and ``true_b`` for the motor's a and b."""
@@ -341,24 +335,6 @@ def _run_point_job(point: GridPoint, methods: tuple, repetitions: int, seed: int
     return run_point(point, methods, repetitions, seed)
 
 
-def _in_order(executor: concurrent.futures.Executor | None, jobs: Iterable[tuple], window: int
-              ) -> Iterator[PointResult]:
-    """Results of ``_run_point_job(*job)`` in job order, with at most ``window`` jobs in flight."""
-    if executor is None:
-        for job in jobs:
-            yield _run_point_job(*job)
-        return
-    from .interrupts import interrupts_deferred
-    pending: collections.deque = collections.deque()
-    for job in jobs:
-        with interrupts_deferred():    # a submit may start the workers
-            pending.append(executor.submit(_run_point_job, *job))
-        if len(pending) >= window:
-            yield pending.popleft().result()
-    while pending:
-        yield pending.popleft().result()
-
-
 def _format(value) -> str:
     if isinstance(value, float):
         return "" if math.isnan(value) else repr(value)
@@ -393,8 +369,8 @@ class SweepSummary:
 
 
 def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int | None = None,
-                 executor: concurrent.futures.Executor | None = None, progress: bool | None = None
-                 ) -> SweepSummary:
+                 executor: concurrent.futures.Executor | None = None,
+                 progress: Callable[[int], object] | None = None) -> SweepSummary:
     """Run a scenario and write ``sweep.csv`` and ``summary.json`` into ``out_dir``.
 
     Parameters
@@ -404,13 +380,14 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
         Created if needed.
     workers : int, optional
         Processes to use when no ``executor`` is given (default: every core; more than the
-        cores is clamped to them, see :func:`usable_workers`; 1 runs in this process).
-        Workers start warm, forked from this process or a fork server once motorid is imported
-        (:func:`worker_context`).
+        cores is clamped to them, see :func:`scenarios.executors.usable_workers`; 1 runs in
+        this process).  Workers start warm, forked from this process or a fork server once
+        motorid is imported (:func:`scenarios.executors.worker_context`).
     executor : concurrent.futures.Executor, optional
         Any executor (e.g. Dask's ``Client(...).get_executor()``); used as given, not shut down.
-    progress : bool, optional
-        Progress bar on stderr; default: only when stderr is a terminal.
+    progress : callable, optional
+        Called with the number of grid points done after each point (``motorid sweep``
+        passes its progress bar's ``set``); default: nothing is reported.
 
     Returns
     -------
@@ -431,7 +408,7 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     ...                                "bench": {"duration": 1.0},
     ...                                "grid": {"excitation.frequency": [10, 20]}})
     >>> with tempfile.TemporaryDirectory() as out:
-    ...     summary = run_scenario(scenario, out, workers=1, progress=False)
+    ...     summary = run_scenario(scenario, out, workers=1)
     ...     rows = read_sweep_csv(summary.csv_path)
     >>> summary.n_points, summary.n_rows
     (2, 4)
@@ -451,118 +428,13 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     jobs = ((p, scenario.methods, scenario.repetitions, scenario.seed) for p in scenario.points())
     t0 = time.perf_counter()
     tally = _Tally(scenario.methods)
-    with _points_executor(workers, executor) as (pool, window), \
-            ProgressBar(scenario.n_points, f"sweep {scenario.name}", enabled=progress) as bar:
-        csv_path = _write_csv(out / "sweep.csv", _in_order(pool, jobs, window), tally, bar)
+    with points_executor(workers, executor) as (pool, window):
+        csv_path = _write_csv(out / "sweep.csv", results_in_order(pool, _run_point_job, jobs, window), tally,
+                              progress)
     elapsed = time.perf_counter() - t0
     json_path = _write_summary_json(out / "summary.json", scenario, tally, elapsed, csv_path.name)
     return SweepSummary(scenario, csv_path, json_path, scenario.n_points, tally.n_rows, tally.samples,
                         dict(tally.failures), elapsed)
-
-
-#: Modules a worker needs, imported once by the fork server so that workers start warm.
-WORKER_PRELOAD = ("scenarios.sweep", "identify", "scipy.signal", "scipy.optimize")
-
-
-def available_cores() -> int:
-    """CPUs this process may run on (its affinity mask where the OS has one)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - no affinity API (macOS, Windows)
-        return os.cpu_count() or 1
-
-
-def usable_workers(workers: int | None) -> int:
-    """Worker processes for a sweep: ``workers`` (default: every core) clamped to :func:`available_cores`.
-
-    More CPU-bound processes than cores only add switching and memory, so a larger
-    request is clamped (``motorid sweep`` says so).
-    """
-    cores = available_cores()
-    return min(workers or cores, cores)
-
-
-def worker_context() -> multiprocessing.context.BaseContext:
-    """How sweep workers start: forked from this process once it has imported :data:`WORKER_PRELOAD`.
-
-    Forking the warm parent costs milliseconds per worker, so the workers compute from the
-    start (a fork server or spawn would import scipy and motorid again first: about a
-    second, serial, a quarter of a 20-repetition ``frequency-noise`` sweep).  Fork is used
-    only on Linux while this process runs no Python thread but the main one (a thread could
-    hold a lock the child inherits locked; OpenBLAS's own threads are reset by its fork
-    handler).  Otherwise the workers come from a fork server that has imported the same
-    modules (spawn where there is none).
-    """
-    import importlib
-    import threading
-    for module in WORKER_PRELOAD:
-        importlib.import_module(module)
-    if sys.platform.startswith("linux") and threading.active_count() == 1:
-        return multiprocessing.get_context("fork")
-    if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover - Windows
-        return multiprocessing.get_context("spawn")
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(list(WORKER_PRELOAD))
-    return context
-
-
-def _worker_signals() -> None:
-    """In a worker: the default signal handlers, not the ones a forked worker inherits.
-
-    The parent turns SIGTERM and SIGHUP into an orderly stop (:mod:`scenarios.interrupts`)
-    and terminates its workers itself; a worker that ran that handler would print a
-    traceback.  Ctrl-C reaches the whole process group: the parent handles it.
-    """
-    import signal
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if hasattr(signal, "SIGHUP"):
-        signal.signal(signal.SIGHUP, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-@contextlib.contextmanager
-def _points_executor(workers: int | None, executor: concurrent.futures.Executor | None
-                     ) -> Iterator[tuple[concurrent.futures.Executor | None, int]]:
-    """The executor to run points on (None: this process) and how many points to keep in flight.
-
-    A process pool made here (``workers`` > 1, no ``executor`` given) is shut down on exit.
-    """
-    if executor is not None:
-        yield executor, 2 * (os.cpu_count() or 1)
-        return
-    workers = usable_workers(workers)
-    if workers == 1:
-        yield None, 2
-        return
-    own = concurrent.futures.ProcessPoolExecutor(workers, mp_context=worker_context(),
-                                                 initializer=_worker_signals)
-    # Forked workers share the parent's memory until they write to it; the garbage collector
-    # writes to every object it scans, so the objects that exist now are kept out of its
-    # reach while the workers start (the pool forks them all at the first submit).
-    gc.freeze()
-    try:
-        try:
-            own.submit(int).result()
-        finally:
-            gc.unfreeze()
-        # A deep window keeps every worker busy while the oldest point (whose result the CSV
-        # waits for) is a slow one; results are small.
-        yield own, 8 * workers
-    except BaseException:     # an error, Ctrl-C, SIGTERM: no point waits for the points in flight
-        _stop_workers(own)
-        raise
-    finally:
-        own.shutdown()
-
-
-def _stop_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
-    """Cancel the queued points and terminate the worker processes (their points are abandoned)."""
-    # terminated before the pool lets go of them: a worker still starting up would otherwise
-    # find its pipe closed and print a traceback
-    for process in list((getattr(pool, "_processes", None) or {}).values()):   # no public handle on them
-        if process.is_alive():
-            process.terminate()
-    pool.shutdown(wait=False, cancel_futures=True)
 
 
 class _Tally:
@@ -586,7 +458,8 @@ class _Tally:
         return rows
 
 
-def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally, bar: ProgressBar) -> Path:
+def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally,
+               progress: Callable[[int], object] | None) -> Path:
     """Stream the rows of ``results`` to a temporary file that becomes ``path`` when complete.
 
     An interrupted or failed sweep leaves no CSV (and the previous one, if any, unchanged).
@@ -594,10 +467,11 @@ def _write_csv(path: Path, results: Iterable[PointResult], tally: _Tally, bar: P
     with atomic_writer(path) as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(CSV_COLUMNS)
-        for result in results:
+        for done, result in enumerate(results, 1):
             for row in tally.add(result):
                 writer.writerow([_format(row[c]) for c in CSV_COLUMNS])
-            bar.update()
+            if progress is not None:
+                progress(done)
     return path
 
 
@@ -626,169 +500,3 @@ def _parse_cell(text: str) -> float | bool:
     return float(text) if text != "" else math.nan
 
 
-def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
-    """The PNGs of a sweep: bias and spread against frequency and heatmaps of |bias| of a and b.
-
-    The bias plot is against frequency, or when frequency is not a grid axis, against the
-    first numeric axis; the heatmaps span the first two numeric grid axes (other axes held
-    at their first value).
-    """
-    from . import plots
-    out = Path(out_dir)
-    rows = read_sweep_csv(csv_path)
-    columns = list(dict.fromkeys(axis_column(a) for a in scenario.axes))
-    numeric = [c for c in columns if c != "excitation"]
-    paths = []
-    if numeric:
-        x = "frequency" if "frequency" in numeric else numeric[0]
-        others = [c for c in columns if c != x]
-        paths.append(out / f"bias_vs_{x}.png")
-        plots.plot_sweep_frequency(rows, paths[-1], others=others, x=x,
-                                   title=f"{scenario.name}: bias and spread against {x}")
-    if len(numeric) >= 2:
-        x, y = numeric[0], numeric[1]
-        fixed = {c: rows[0][c] for c in columns if c not in (x, y)}
-        sub = [r for r in rows if all(r[c] == v for c, v in fixed.items())]
-        note = ("; " + ", ".join(f"{c}={v:g}" if isinstance(v, float) else f"{c}={v}" for c, v in fixed.items())
-                if fixed else "")
-        for name in ("a", "b"):
-            paths.append(out / f"heatmap_bias_{name}.png")
-            plots.plot_sweep_heatmap(sub, x, y, paths[-1], value=f"bias_{name}_pct",
-                                     value_label=f"|bias of {name}| [% of the true {name}]",
-                                     title=f"{scenario.name}: |bias of {name}| in %{note}")
-    return paths
-
-
-def format_sweep_table(scenario: Scenario, rows: Sequence[dict]) -> str:
-    """The sweep as a table: grid values, method, mean +- std and bias of a and b, the CRB, failures."""
-    cols = list(dict.fromkeys(axis_column(a) for a in scenario.axes))
-    def cell(v):
-        return f"{v:g}" if isinstance(v, float) else str(v)
-    widths = [max(len(c), *(len(cell(r[c])) for r in rows)) for c in cols]
-    head = " ".join(f"{c:>{w}}" for c, w in zip(cols, widths)) + (
-        f" {'method':<10} {'a mean ± std':>22} {'a bias %':>9} {'CRB a':>8} "
-        f"{'b mean ± std':>22} {'b bias %':>9} {'CRB b':>8} {'fail':>5}")
-    lines = [head, "-" * len(head)]
-
-    def num(v, spec):
-        return "-" if math.isnan(v) else format(v, spec)
-    for r in rows:
-        lines.append(" ".join(f"{cell(r[c]):>{w}}" for c, w in zip(cols, widths))
-                     + f" {r['method']:<10} {num(r['mean_a'], '.4f'):>11} ± {num(r['std_a'], '.2g'):<8}"
-                     f" {num(r['bias_a_pct'], '+.3f'):>9} {num(r['crb_a'], '.2g'):>8}"
-                     f" {num(r['mean_b'], '.5f'):>11} ± {num(r['std_b'], '.2g'):<8}"
-                     f" {num(r['bias_b_pct'], '+.3f'):>9} {num(r['crb_b'], '.2g'):>8} {int(r['failures']):>5d}")
-    return "\n".join(lines)
-
-
-def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags of ``motorid sweep``."""
-    parser.add_argument("scenario", nargs="?", metavar="NAME|FILE.toml",
-                        help="a built-in scenario (see --list) or a scenario file")
-    from .budget import add_max_memory_flag
-    add_max_memory_flag(parser)
-    parser.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
-    parser.add_argument("--out", default=None, metavar="DIR",
-                        help="folder for sweep.csv, summary.json and the PNGs (default sweep-output/NAME)")
-    parser.add_argument("--workers", type=int, default=None, metavar="N",
-                        help="worker processes (default: all cores; more are clamped to the cores; "
-                             "1 runs in this process)")
-    parser.add_argument("--repetitions", type=int, default=None, metavar="N",
-                        help="Monte Carlo repetitions per grid point (default: the scenario's)")
-    parser.add_argument("--methods", default=None, metavar="all|M,M,...",
-                        help="estimators to compare instead of the scenario's (e.g. all, or oe,oe-friction)")
-    parser.add_argument("--dask", default=None, metavar="ADDRESS",
-                        help="run on a Dask cluster (scheduler address, or 'local' for a LocalCluster of "
-                             "--workers processes; gives up after 10 s without a scheduler); the scheduler "
-                             "runs code of its choosing here: use only one you trust; needs motorid[dask]")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar, no table")
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-
-
-def run_sweep(args: argparse.Namespace) -> int:
-    """``motorid sweep``: the CLI glue around :func:`run_scenario`."""
-    from .scenario import builtin_scenarios
-    if args.list:
-        for name, description in builtin_scenarios().items():
-            print(f"{name:<16} {description}")
-        return 0
-    scenario = _scenario_from_args(args)
-    from .budget import check_sweep
-    check_sweep(scenario, args.max_memory)
-    out = Path(args.out or Path("sweep-output") / safe_file_name(scenario.name, "scenario"))
-    if args.workers and not args.dask and args.workers > usable_workers(args.workers):
-        print(f"--workers {args.workers}: using {usable_workers(args.workers)}, the cores available "
-              "(more processes than cores only slow a sweep down)", file=sys.stderr)
-    if not args.quiet:
-        from .sweep_time import estimate_sweep_time
-        print_to_stderr(estimate_sweep_time(scenario, args.workers).describe(scenario))
-    with _dask_executor(args.dask, args.workers) as executor:
-        summary = run_scenario(scenario, out, workers=args.workers, executor=executor,
-                               progress=False if args.quiet else None)
-    if not args.quiet:
-        print(f"{scenario.name}: {scenario.description}")
-        print(f"{summary.n_points} points x {len(scenario.methods)} methods x {scenario.repetitions} repetitions, "
-              f"{summary.samples_simulated:,} samples simulated in {summary.elapsed:.2f} s\n")
-        rows = read_sweep_csv(summary.csv_path)
-        print(format_sweep_table(scenario, rows) if len(rows) <= 200 else f"({len(rows)} rows: see the CSV)")
-    paths = [] if args.no_plots else make_plots(scenario, summary.csv_path, out)
-    print(f"\nwrote {summary.csv_path}, {summary.json_path}" + "".join(f", {p}" for p in paths))
-    return 0
-
-
-def _scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The scenario the flags name, with ``--repetitions`` and ``--methods`` applied."""
-    from .scenario import load_scenario
-    if not args.scenario:
-        raise CommandError("sweep needs a scenario NAME or FILE.toml (see motorid sweep --list)")
-    if args.workers is not None and args.workers < 1:
-        raise CommandError(f"--workers must be >= 1, got {args.workers}")
-    scenario = load_scenario(args.scenario)
-    if args.repetitions is not None:
-        scenario = scenario.with_repetitions(args.repetitions)
-    if args.methods is not None:
-        scenario = scenario.with_methods("all" if args.methods == "all"
-                                         else [m.strip() for m in args.methods.split(",") if m.strip()])
-    return scenario
-
-
-#: Seconds ``--dask ADDRESS`` waits for the scheduler before giving up.
-DASK_CONNECT_TIMEOUT = 10.0
-
-
-def _connect_dask(client_class, address: str):
-    """A Dask client on ``address``, or a one-line :class:`CommandError` within :data:`DASK_CONNECT_TIMEOUT` s."""
-    try:
-        return client_class(address, timeout=DASK_CONNECT_TIMEOUT)
-    except (OSError, TimeoutError) as exc:
-        raise CommandError(f"--dask {address}: no Dask scheduler answered within {DASK_CONNECT_TIMEOUT:g} s "
-                           f"({type(exc).__name__}: {exc}); check the address (tcp://HOST:8786, tls://...) "
-                           f"and that the scheduler runs") from None
-    except Exception as exc:    # whatever a server that is not a Dask scheduler makes the client raise
-        raise CommandError(f"--dask {address}: the server there does not speak Dask's protocol "
-                           f"({type(exc).__name__}: {str(exc)[:200]})") from None
-
-
-@contextlib.contextmanager
-def _dask_executor(address: str | None, workers: int | None) -> Iterator[concurrent.futures.Executor | None]:
-    """A Dask client's executor for ``--dask ADDRESS`` (``local``: a LocalCluster), else None."""
-    if not address:
-        yield None
-        return
-    try:
-        from dask.distributed import Client, LocalCluster
-    except ImportError:
-        raise CommandError("--dask needs Dask: pip install 'motorid[dask]'") from None
-    cluster = None
-    if address == "local":
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                               processes=True, dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = _connect_dask(Client, address)
-    try:
-        yield client.get_executor()
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()

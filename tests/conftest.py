@@ -32,9 +32,9 @@ SLOW = {
     "tests/scenarios/test_sweep.py::test_same_csv_from_one_worker_two_processes_and_dask":
         "12 s: starts worker processes and a local Dask cluster",
     "tests/scenarios/test_sweep.py::test_cli_sweep_lists_runs_and_plots": "1.5 s: a sweep with its figures",
-    "tests/scenarios/test_demo.py::test_demo_table_matches_direct_fits_of_its_recordings":
+    "tests/motorid/test_demo.py::test_demo_table_matches_direct_fits_of_its_recordings":
         "4.5 s: the whole demo, oe-friction included",
-    "tests/scenarios/test_demo.py::test_demo_writes_the_figures": "1.5 s: the demo's figures",
+    "tests/motorid/test_demo.py::test_demo_writes_the_figures": "1.5 s: the demo's figures",
     "tests/identify/test_output_error.py::test_unstable_data_is_refused_with_theta1":
         "4.5 s: a long reference integration",
     "tests/motorsim/test_plant.py::test_nonuniform_time_equals_matrix_exponential_per_interval":
@@ -47,7 +47,7 @@ SLOW = {
 FIRMWARE = {
     "tests/hardware/test_firmware_emulation.py": "the firmware ELF under simavr, frame by frame",
     "tests/hardware/test_firmware_closed_loop.py": "the firmware's controllers under simavr",
-    "tests/scenarios/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
+    "tests/motorid/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
         "motorid live on avr-sim://",
 }
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ["motorsim", "identify", "scenarios", "hardware"]
+PACKAGES = ["motorsim", "identify", "scenarios", "hardware", "motorid"]
 
 LEFTOVERS = re.compile(
     r"\bissues?\b"                     # "issue 6", "issue-3", "the issue's bound", "the estimators issue"

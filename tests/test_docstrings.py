@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGES = ["motorsim", "identify", "scenarios", "hardware"]
+PACKAGES = ["motorsim", "identify", "scenarios", "hardware", "motorid"]
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -41,7 +41,7 @@ def test_public_parameters_are_documented(name, obj):
 
 
 def _modules() -> list[str]:
-    """Every module of the four packages, found on disk (``__init__`` as the package name)."""
+    """Every module of the five packages, found on disk (``__init__`` as the package name)."""
     names = []
     for pkg in PACKAGES:
         for path in sorted((ROOT / pkg).rglob("*.py")):

@@ -13,7 +13,7 @@ or ``make`` (a ``$ `` prompt is dropped, ``#`` comments are cut, ``;`` separates
   scaled down by :data:`SCALED`, with flags the documents describe.
 - ``make`` targets and the emulated-firmware commands are not run here, each for the reason
   in :data:`NOT_RUN` (the firmware ones run under the ``firmware`` marker in
-  ``tests/scenarios/test_live.py``).
+  ``tests/motorid/test_live.py``).
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from scenarios.cli import main
+from motorid.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = sorted(p for p in ROOT.rglob("*.md") if ".venv" not in p.parts and "build" not in p.parts)
@@ -43,7 +43,7 @@ NOT_RUN = {
     "make test": "the whole suite, this test included (CI runs it)",
     "make test-fast": "a subset of this suite",
     "make lint": "ruff and mypy, run by CI",
-    "make demo": "creates .venv and runs motorid demo (tests/scenarios/test_demo.py runs the demo)",
+    "make demo": "creates .venv and runs motorid demo (tests/motorid/test_demo.py runs the demo)",
     "make firmware": "installs the AVR toolchain with apt-get and builds the firmware (make test does)",
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
     "motorid bench firmware": "needs the firmware built with the AVR toolchain (tests/hardware/"

@@ -6,7 +6,8 @@ importing anything.  A node is a module (``identify.output_error``); a package's
 ``__init__.py`` is the package's own node (``identify``).  ``from pkg import name``
 points at ``pkg.name`` when that is a module, else at ``pkg``.
 
-Layers: ``identify -> motorsim <- hardware``; ``scenarios`` may use everything.
+Layers: ``identify -> motorsim <- hardware``; ``scenarios -> identify, motorsim``; the app,
+``motorid``, may use everything and nothing imports it.
 """
 from __future__ import annotations
 
@@ -16,13 +17,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("motorsim", "identify", "scenarios", "hardware")
+PACKAGES = ("motorsim", "identify", "scenarios", "hardware", "motorid")
 #: Project packages each package must not import.
 FORBIDDEN = {
-    "motorsim": {"identify", "scenarios", "hardware"},
-    "identify": {"scenarios", "hardware"},
-    "hardware": {"identify", "scenarios"},
-    "scenarios": set(),
+    "motorsim": {"identify", "scenarios", "hardware", "motorid"},
+    "identify": {"scenarios", "hardware", "motorid"},
+    "hardware": {"identify", "scenarios", "motorid"},
+    "scenarios": {"hardware", "motorid"},
+    "motorid": set(),
 }
 
 
@@ -133,7 +135,7 @@ GRAPH = build_graph()
 
 
 def test_the_graph_sees_the_project():
-    assert {"identify.output_error", "identify.validation", "motorsim.plant", "scenarios.cli",
+    assert {"identify.output_error", "identify.validation", "motorsim.plant", "motorid.cli",
             "hardware.serial_rig"} <= set(GRAPH)
     assert "identify.validation" in GRAPH["identify.output_error"]
 
@@ -154,3 +156,10 @@ def test_layers(package):
                  if a.split(".")[0] == package
                  for b, line in sorted(targets.items()) if b.split(".")[0] in FORBIDDEN[package]]
     assert not offenders, f"{package} must not import {sorted(FORBIDDEN[package])}:\n" + "\n".join(offenders)
+
+
+def test_nothing_outside_the_app_imports_it():
+    offenders = [f"{a} imports {b} (line {line})" for a, targets in sorted(GRAPH.items())
+                 if a.split(".")[0] != "motorid"
+                 for b, line in sorted(targets.items()) if b.split(".")[0] == "motorid"]
+    assert not offenders, "only motorid may import motorid:\n" + "\n".join(offenders)

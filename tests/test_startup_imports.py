@@ -14,24 +14,24 @@ ROOT = Path(__file__).resolve().parent.parent
 HEAVY = ("control", "matplotlib", "scipy.signal", "scipy.stats", "serial")
 
 CASES = {
-    "motorid --help": "import scenarios.cli, contextlib, io\n"
+    "motorid --help": "import motorid.cli, contextlib, io\n"
                       "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
-                      "    scenarios.cli.main(['--help'])",
-    "motorid identify --help": "import scenarios.cli, contextlib, io\n"
+                      "    motorid.cli.main(['--help'])",
+    "motorid identify --help": "import motorid.cli, contextlib, io\n"
                                "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
-                               "    scenarios.cli.main(['identify', '--help'])",
+                               "    motorid.cli.main(['identify', '--help'])",
     "import identify": "import identify\nfrom identify import fit, available_methods, Estimate",
     "import motorsim": "import motorsim\nfrom motorsim.columns import import_recording",
     # what `motorid bench startup` times: a 400-sample run, identified with the command's defaults
     # (oe, automatic input delay, outlier screening, robust covariance) and printed
     "motorid identify short.csv": "import contextlib, io, os, tempfile\n"
                                   "from motorsim import Experiment, Motor, SimRig, Sine, write_recording\n"
-                                  "import scenarios.cli\n"
+                                  "import motorid.cli\n"
                                   "folder = tempfile.mkdtemp()\n"
                                   "path = write_recording(SimRig(Motor(25.0, 3.0)).run(\n"
                                   "    Experiment(Sine(10.0, 200), 0.005, 2.0)), os.path.join(folder, 'short.csv'))\n"
                                   "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
-                                  "    code = scenarios.cli.main(['identify', str(path)])\n"
+                                  "    code = motorid.cli.main(['identify', str(path)])\n"
                                   "assert code == 0 and 'method      oe' in out.getvalue(), (code, out.getvalue())",
 }
 

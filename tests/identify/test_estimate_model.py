@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from identify import Estimate
+from motorid.cli import main
 from motorsim import Motor, simulate
-from scenarios.cli import main
 
 H = 0.005
 

@@ -9,10 +9,10 @@ import dataclasses
 
 import pytest
 
+from motorid.cli import build_parser, main
 from motorsim.plant import Motor
 from motorsim.recording import read_recording
 from motorsim.rig import bench_knobs
-from scenarios.cli import build_parser, main
 from scenarios.scenario import SETTING_KEYS, Setting, scenario_from_dict
 from scenarios.sweep import CSV_COLUMNS, run_point, setting_column
 

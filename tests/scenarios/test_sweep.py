@@ -12,11 +12,11 @@ import pytest
 import identify.methods
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
-from scenarios.cli import main
+from motorid.cli import main
+from motorid.commands.sweep import format_sweep_table
 from scenarios.scenario import load_scenario, scenario_from_dict
 from scenarios.sweep import (
     CSV_COLUMNS,
-    format_sweep_table,
     read_sweep_csv,
     repetition_seed,
     run_point,
@@ -94,7 +94,7 @@ def test_a_repetition_does_not_depend_on_how_many_there_are(small):
 
 
 def test_csv_rows_carry_the_monte_carlo_statistics_and_the_crb(small, tmp_path):
-    summary = run_scenario(small, tmp_path / "out", workers=1, progress=False)
+    summary = run_scenario(small, tmp_path / "out", workers=1)
     rows = read_sweep_csv(summary.csv_path)
     assert len(rows) == small.n_points * len(small.methods) == summary.n_rows
     with open(summary.csv_path, encoding="utf-8") as f:
@@ -126,7 +126,7 @@ def test_csv_rows_carry_the_monte_carlo_statistics_and_the_crb(small, tmp_path):
 def test_failed_fits_are_counted_with_their_reason_not_dropped(tmp_path):
     data = {"repetitions": 3, "bench": {"duration": 1.0, "angle_noise": 1e-4},
             "grid": {"excitation.spec": ["sine:10,200", "constant:0"]}}
-    summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1, progress=False)
+    summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = read_sweep_csv(summary.csv_path)
     dead = [r for r in rows if r["excitation"] == "constant:0"]
     assert len(dead) == len(identify.available_methods())
@@ -146,7 +146,7 @@ def test_estimators_are_found_by_name(monkeypatch, tmp_path):
         return dataclasses.replace(est, method="shifted", a=est.a + 1.0)
     monkeypatch.setitem(identify.methods._METHODS, "shifted", shifted)
     data = {"repetitions": 3, "seed": 1, "bench": {"duration": 1.0, "angle_noise": 2e-4}}
-    summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1, progress=False)
+    summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = {r["method"]: r for r in read_sweep_csv(summary.csv_path)}
     assert set(rows) == set(identify.available_methods())
     # the same data as the batched zoh-ls, shifted by exactly 1 (to rounding of the two fits)
@@ -155,14 +155,13 @@ def test_estimators_are_found_by_name(monkeypatch, tmp_path):
 
 
 def test_same_csv_from_one_worker_two_processes_and_dask(small, tmp_path):
-    one = run_scenario(small, tmp_path / "w1", workers=1, progress=False).csv_path.read_bytes()
-    two = run_scenario(small, tmp_path / "w2", workers=2, progress=False).csv_path.read_bytes()
+    one = run_scenario(small, tmp_path / "w1", workers=1).csv_path.read_bytes()
+    two = run_scenario(small, tmp_path / "w2", workers=2).csv_path.read_bytes()
     assert one == two
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
-        dask_csv = run_scenario(small, tmp_path / "dask", executor=client.get_executor(),
-                                progress=False).csv_path.read_bytes()
+        dask_csv = run_scenario(small, tmp_path / "dask", executor=client.get_executor()).csv_path.read_bytes()
     assert one == dask_csv
 
 
@@ -200,7 +199,7 @@ def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order(
     # Bounded memory: the sweep never submits more than `window` points ahead of the one it writes.
     import concurrent.futures
 
-    from scenarios import sweep
+    from scenarios.executors import results_in_order
 
     class Recorder(concurrent.futures.Executor):
         def __init__(self):
@@ -223,7 +222,7 @@ def test_at_most_a_window_of_points_is_in_flight_and_results_come_in_grid_order(
 
     ex = Recorder()
     jobs = [(i, (), 1, 0) for i in range(20)]
-    got = list(sweep._in_order(ex, jobs, window=3))
+    got = list(results_in_order(ex, lambda i, *_: i, jobs, window=3))
     assert got == list(range(20)) and ex.order == list(range(20))
     assert ex.most == 3
 
@@ -241,7 +240,7 @@ def test_run_point_checks_its_arguments(small):
 
 
 def test_workers_are_clamped_to_the_cores_and_forked_warm():
-    from scenarios.sweep import WORKER_PRELOAD, available_cores, usable_workers
+    from scenarios.executors import WORKER_PRELOAD, available_cores, usable_workers
     cores = available_cores()
     assert usable_workers(None) == cores
     assert usable_workers(1) == 1
@@ -249,7 +248,7 @@ def test_workers_are_clamped_to_the_cores_and_forked_warm():
     assert "scenarios.sweep" in WORKER_PRELOAD
     # In a fresh single-threaded process (earlier tests may leave threads in this one): on
     # Linux the warm parent itself is forked, having imported what a worker needs.
-    code = ("import sys; from scenarios.sweep import WORKER_PRELOAD, worker_context; "
+    code = ("import sys; from scenarios.executors import WORKER_PRELOAD, worker_context; "
             "print(worker_context().get_start_method(), all(m in sys.modules for m in WORKER_PRELOAD))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[2]).stdout.split()
@@ -260,7 +259,7 @@ def test_workers_are_not_forked_from_a_threaded_parent():
     # Another Python thread could hold a lock the forked child would inherit locked.
     import threading
 
-    from scenarios.sweep import worker_context
+    from scenarios.executors import worker_context
     stop = threading.Event()
     thread = threading.Thread(target=stop.wait)
     thread.start()

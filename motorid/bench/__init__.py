@@ -1,0 +1,97 @@
+"""The speed and accuracy benchmarks of ``motorid bench NAME``, one module each.
+
+=========== ================================================================
+``simulate`` :mod:`~motorid.bench.simulate`: ``motorsim.simulate`` against python-control
+``sweep``    :mod:`~motorid.bench.sweep`: the sweeps' batch engine against a per-run loop
+``oe``       :mod:`~motorid.bench.output_error`: the ``oe`` fit against ``lfilter`` and ``least_squares``
+``accuracy`` :mod:`~motorid.bench.accuracy`: the estimators against the truth and the CRB
+``serial``   :mod:`~motorid.bench.serial`: the host's frame reader and a pty run
+``firmware`` :mod:`~motorid.bench.firmware`: the Arduino firmware under simavr
+``parse``    :mod:`~motorid.bench.parse`: reading a large recording against pandas.read_csv
+``startup``  :mod:`~motorid.bench.startup`: ``motorid --help`` and ``identify`` against ``import control``
+``control``  :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
+=========== ================================================================
+
+Benchmarks print their figures and ratios against a baseline measured in the
+same run; tests never assert wall-clock times.  Each benchmark is a function
+``(argv: list[str]) -> int`` that parses its own flags; :data:`BENCHMARKS` maps
+its name to it and a one-line description.  Add a benchmark by adding a module
+and one entry.
+"""
+from __future__ import annotations
+
+from typing import Callable, NamedTuple, Sequence
+
+__all__ = ["BENCHMARKS", "Benchmark"]
+
+
+class Benchmark(NamedTuple):
+    """A benchmark: its entry point and what it measures."""
+
+    run: Callable[[Sequence[str]], int]
+    description: str
+
+
+# Each entry point imports its module when called, so ``motorid --help`` stays light.
+def _simulate(argv: Sequence[str]) -> int:
+    from motorid.bench.simulate import bench_simulate
+    return bench_simulate(argv)
+
+
+def _sweep(argv: Sequence[str]) -> int:
+    from motorid.bench.sweep import bench_sweep
+    return bench_sweep(argv)
+
+
+def _output_error(argv: Sequence[str]) -> int:
+    from motorid.bench.output_error import bench_output_error
+    return bench_output_error(argv)
+
+
+def _accuracy(argv: Sequence[str]) -> int:
+    from motorid.bench.accuracy import bench_accuracy
+    return bench_accuracy(argv)
+
+
+def _serial(argv: Sequence[str]) -> int:
+    from motorid.bench.serial import bench_serial
+    return bench_serial(argv)
+
+
+def _parse(argv: Sequence[str]) -> int:
+    from motorid.bench.parse import bench_parse
+    return bench_parse(argv)
+
+
+def _firmware(argv: Sequence[str]) -> int:
+    from motorid.bench.firmware import bench_firmware
+    return bench_firmware(argv)
+
+
+def _startup(argv: Sequence[str]) -> int:
+    from motorid.bench.startup import bench_startup
+    return bench_startup(argv)
+
+
+def _control(argv: Sequence[str]) -> int:
+    from motorid.bench.control import bench_control
+    return bench_control(argv)
+
+
+BENCHMARKS: dict[str, Benchmark] = {
+    "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
+    "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
+    "oe": Benchmark(_output_error, "the oe fit against bare lfilter passes and a plain least_squares output-error "
+                                   "fit, same recording; peak memory per sample"),
+    "accuracy": Benchmark(_accuracy, "oe/oe-friction against the truth on an independent integrator, Monte "
+                                     "Carlo vs the Cramér–Rao bound, oe fit time vs a finite-difference Jacobian"),
+    "serial": Benchmark(_serial, "frames decoded/s by the host reader vs the 200 000/s goal; 60 s at 1 kHz "
+                                 "through the pty"),
+    "firmware": Benchmark(_firmware, "the Arduino firmware under simavr: size, sample rates per baud, encoder "
+                                     "ceiling, speed"),
+    "parse": Benchmark(_parse, "read_recording of a 2-million-row recording vs pandas.read_csv: time, peak memory"),
+    "startup": Benchmark(_startup, "motorid --help and motorid identify small.csv against python -c 'import control' "
+                                   "(subprocesses, medians)"),
+    "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
+}
+

@@ -1,0 +1,73 @@
+"""``motorid bench simulate``: the exact ZOH simulation against python-control, answers compared.
+
+The time grid is ``k * dt`` in floating point, as recordings hold it: its intervals
+differ by rounding, which :func:`motorsim.simulate` absorbs (``motorsim.plant.RECURSION_RTOL``).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from typing import Sequence
+
+import numpy as np
+
+from motorid.bench.timing import interleaved_times
+
+__all__ = ["bench_simulate"]
+
+
+def bench_simulate(argv: Sequence[str]) -> int:
+    """Throughput of ``motorsim.simulate`` vs ``control.forced_response``; exit 1 if they differ."""
+    import control
+
+    from motorsim import Motor, Sine, simulate
+    p = argparse.ArgumentParser(prog="motorid bench simulate", description=__doc__.splitlines()[0])
+    p.add_argument("--samples", type=int, default=100_000, help="samples per run (default 100000)")
+    p.add_argument("--repeats", type=int, default=5, help="alternating rounds to take the median of (default 5)")
+    args = p.parse_args(list(argv))
+    motor, dt, n = Motor(25.0, 3.0), 0.005, args.samples
+    duty = Sine(10.0).duty(n, dt).astype(float)
+    t = np.arange(n) * dt
+    sysd = motor.discretise(dt)
+    ours = simulate(motor, duty, t)
+    ref = control.forced_response(sysd, U=duty)
+    err = max(np.max(np.abs(ref.outputs[0] - ours.angle)) / np.max(np.abs(ours.angle)),
+              np.max(np.abs(ref.outputs[1] - ours.speed)) / np.max(np.abs(ours.speed)))
+    t_ours, t_ref = interleaved_times([lambda: simulate(motor, duty, t), lambda: control.forced_response(sysd, U=duty)],
+                                      args.repeats)
+    print(f"samples per run          {n}")
+    print(f"max relative difference  {err:.2e}")
+    print(f"motorsim.simulate        {n / t_ours / 1e6:10.2f} M samples/s  ({t_ours * 1e3:.2f} ms)")
+    print(f"control.forced_response  {n / t_ref / 1e6:10.2f} M samples/s  ({t_ref * 1e3:.2f} ms)")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"ratio                    {t_ref / t_ours:10.1f} x  (goal >= 100 x; load average {load:.1f})")
+    same = _friction_paths(n, args.repeats)
+    return 0 if err < 1e-9 and same else 1
+
+
+def _friction_paths(n: int, repeats: int) -> bool:
+    """Time the friction loop in Python and compiled by numba (when installed); True when they agree."""
+    from motorsim.compiled import compiled_kernel, friction_run_python
+    rng = np.random.default_rng(0)
+    h = np.full(n - 1, 0.005)
+    force = 3.0 * (120 * np.sin(2.0 * np.arange(n - 1) * 0.005) + 5 * rng.standard_normal(n - 1))
+
+    def run(kernel):
+        speed, angle = np.zeros(n), np.zeros(n)
+        kernel(25.0, force, 60.0, h, speed, angle)
+        return speed, angle
+
+    kernel = compiled_kernel()
+    if kernel is None:
+        t_py, = interleaved_times([lambda: run(friction_run_python)], repeats)
+        print(f"friction loop (Python)   {n / t_py / 1e6:10.2f} M samples/s  ({t_py * 1e3:.2f} ms); numba not "
+              "installed (motorid[fast])")
+        return True
+    t_py, t_nb = interleaved_times([lambda: run(friction_run_python), lambda: run(kernel)], repeats)
+    slow, fast = run(friction_run_python), run(kernel)
+    diff = max(float(np.max(np.abs(x - y))) / float(np.max(np.abs(x))) for x, y in zip(slow, fast))
+    print(f"friction loop (Python)   {n / t_py / 1e6:10.2f} M samples/s  ({t_py * 1e3:.2f} ms)")
+    print(f"friction loop (numba)    {n / t_nb / 1e6:10.2f} M samples/s  ({t_nb * 1e3:.2f} ms)  "
+          f"ratio {t_py / t_nb:.1f} x, max relative difference {diff:.1e}")
+    return diff < 1e-12

@@ -1,0 +1,241 @@
+"""``motorid control design``: a controller from a model, its gains and predicted response; the closed-loop runs.
+
+The controller flags (``--controller``, ``--duty-weight``, ``--time-constant``, ``--feedforward``,
+``--derivative``, ``--reference``) are shared by ``motorid control design`` and
+``motorid simulate``; the design model comes from ``--a/--b`` (with ``--friction``,
+``--bias``, ``--input-delay``) or from a saved estimate (``--model FILE``).
+:func:`compare_designs` is the closed-loop part of ``motorid demo``: the same controller
+designed from several estimates, run on one simulated bench.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from motorid.arguments import CommandError
+from motorsim.control import (
+    CONTROLLERS,
+    ClosedLoopExperiment,
+    Controller,
+    PlantModel,
+    Prediction,
+    Reference,
+    design_controller,
+    parse_reference,
+    settings_from,
+    tracking_error,
+)
+from motorsim.recording import Recording
+from motorsim.rig import Rig
+from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+
+__all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_args", "model_from_args",
+           "load_model_file", "closed_loop_from_args",
+           "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
+
+DEFAULT_REFERENCE = "sine:10,10"
+
+
+def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
+    """Flags choosing and tuning a controller, and its reference."""
+    g = parser.add_argument_group("controller")
+    g.add_argument("--controller", choices=list(CONTROLLERS), required=required,
+                   help="mpc (one-step model predictive), pi (speed), position (P/PD on the counts), "
+                        "feedforward (speed, from the model alone)")
+    g.add_argument("--duty-weight", dest="duty_weight", type=float, default=None, metavar="LAMBDA",
+                   help="mpc: weight lambda of u^2 in (rad/s)^2 per duty^2 (default 1e-4)")
+    g.add_argument("--time-constant", dest="time_constant", type=float, default=None, metavar="S",
+                   help="pi, position: closed-loop time constant in s (default 0.05)")
+    g.add_argument("--feedforward", action="store_true", default=None,
+                   help="pi: add the model's feedforward to the PI output")
+    g.add_argument("--derivative", choices=("true", "false"), default=None,
+                   help="position: use the speed term (PD, default true) or not (P)")
+    g.add_argument("--reference", default=DEFAULT_REFERENCE, metavar="KIND:ARGS",
+                   help="what to track, in rad/s (speed) or rad (position): constant:LEVEL, "
+                        "step:AFTER[,AT_TIME[,BEFORE]], sine:FREQ,AMP[,PHASE][@OFFSET], multisine:F,A,P;..., "
+                        f"trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME] (default {DEFAULT_REFERENCE})")
+    g.add_argument("--model", default=None, metavar="FILE.json",
+                   help="design from this saved estimate instead of --a/--b")
+
+
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``."""
+    m = parser.add_argument_group("model (what the controller is designed from)")
+    m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
+    m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
+    m.add_argument("--friction", type=float, default=0.0, help="Coulomb friction c in rad/s^2 (default 0)")
+    m.add_argument("--bias", type=float, default=0.0, help="constant acceleration d in rad/s^2 (default 0)")
+    m.add_argument("--input-delay", dest="input_delay", type=int, default=0,
+                   help="input delay in samples (default 0)")
+
+
+def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int
+                          ) -> ClosedLoopExperiment:
+    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``."""
+    if not args.model and (args.a is None or args.b is None):
+        raise CommandError("give the model the controller is designed from: --a and --b, or --model FILE.json")
+    args.sample_period, args.counts_per_rev = sample_period, counts_per_rev
+    controller = controller_from_args(args, model_from_args(args))
+    return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
+
+
+def load_model_file(path: str) -> Any:
+    """The estimate saved in ``path`` by ``motorid identify --save`` (``Estimate.from_json``)."""
+    from identify.estimate import Estimate
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CommandError(f"--model {path}: cannot read: {exc.strerror}") from None
+    try:
+        return Estimate.from_json(text)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise CommandError(f"--model {path}: not a saved model: {exc}") from None
+
+
+def model_from_args(args: argparse.Namespace) -> PlantModel:
+    """The design model: ``--model FILE`` if given, else the motor flags; ``--sample-period``, ``--counts-per-rev``."""
+    source: Any
+    if getattr(args, "model", None):
+        source = load_model_file(args.model)
+    else:
+        source = {"a": args.a, "b": args.b, **{k: getattr(args, k, 0) or 0 for k in ("friction", "bias",
+                                                                                       "input_delay")}}
+        source = PlantModel(source["a"], source["b"], args.sample_period, args.counts_per_rev,
+                            friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"])
+    return PlantModel.from_source(source, args.sample_period, args.counts_per_rev)
+
+
+def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Controller:
+    """The controller ``--controller`` designed from ``model`` with the tuning flags given."""
+    values = dict(vars(args))
+    if values.get("derivative") is not None:
+        values["derivative"] = values["derivative"] == "true"
+    kind = args.controller
+    given = {k for k in ("duty_weight", "time_constant", "feedforward", "derivative") if values.get(k) is not None}
+    settings = settings_from(values, kind)
+    ignored = given - set(settings)
+    if ignored:
+        flags = ", ".join("--" + k.replace("_", "-") for k in sorted(ignored))
+        raise CommandError(f"{flags} {'does' if len(ignored) == 1 else 'do'} not apply to --controller {kind}")
+    return design_controller(kind, model, **settings)
+
+
+@dataclasses.dataclass(frozen=True)
+class ClosedLoopRow:
+    """One design of the closed-loop comparison: where its model came from, predicted and measured tracking."""
+
+    design: str
+    model: PlantModel
+    prediction: Prediction
+    recording: Recording
+
+    @property
+    def measured_rms(self) -> float:
+        """RMS tracking error measured on the rig, in the reference's unit."""
+        err = tracking_error(self.recording)
+        return float(np.sqrt(np.mean(err ** 2)))
+
+
+def compare_designs(rig: Rig, designs: Sequence[tuple[str, Any]], kind: str, reference: Reference,
+                    duration: float, sample_period: float, counts_per_rev: int,
+                    **settings: Any) -> list[ClosedLoopRow]:
+    """Design controller ``kind`` from each ``(name, model source)``, predict, and run it on ``rig``.
+
+    Parameters
+    ----------
+    rig : Rig
+        The bench every design runs on.
+    designs : sequence of (str, Estimate or Motor or PlantModel)
+        Name of the design and what it is designed from.
+    kind : str
+        Controller (a key of :data:`motorsim.control.CONTROLLERS`).
+    reference : Reference
+        What to track.
+    duration : float
+        Run length in s.
+    sample_period : float
+        Sample period in s.
+    counts_per_rev : int
+        Encoder resolution.
+    **settings
+        The controller's knobs.
+    """
+    rows = []
+    for name, source in designs:
+        model = PlantModel.from_source(source, sample_period, counts_per_rev)
+        controller = design_controller(kind, model, **settings)
+        prediction = controller.predict(reference, duration)
+        rec = rig.run(ClosedLoopExperiment(controller, reference, duration))
+        rows.append(ClosedLoopRow(name, model, prediction, rec))
+    return rows
+
+
+def format_closed_loop_table(rows: Sequence[ClosedLoopRow]) -> str:
+    """Design, model, predicted and measured tracking RMS, and how far the measurement is from the prediction."""
+    unit = rows[0].recording.metadata.get("reference_unit", "") if rows else ""
+    head = (f"{'design':<10} {'a [1/s]':>9} {'b':>8} {'predicted RMS':>14} {'measured RMS':>13} "
+            f"{'meas/pred':>10}   [{unit}]")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        pred, meas = r.prediction.tracking_rms, r.measured_rms
+        ratio = meas / pred if pred > 0 else math.nan
+        lines.append(f"{r.design:<10} {r.model.a:>9.4f} {r.model.b:>8.5f} {pred:>14.4f} {meas:>13.4f} {ratio:>10.3f}")
+    return "\n".join(lines)
+
+
+def add_control_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``motorid control design``: the model, the controller, the prediction."""
+    sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    p = sub.add_parser("design", help="design a controller from a model: gains, poles, predicted response",
+                       description="design a controller from a model: gains, poles, predicted response")
+    add_model_arguments(p)
+    m = p.add_argument_group("sampling")
+    m.add_argument("--sample-period", dest="sample_period", type=float, default=None,
+                   help="controller sample period in s (default: the model file's, else 0.005)")
+    m.add_argument("--counts-per-rev", dest="counts_per_rev", type=int, default=DEFAULT_COUNTS_PER_REV,
+                   help=f"encoder counts per revolution (default {DEFAULT_COUNTS_PER_REV})")
+    add_controller_arguments(p, required=True)
+    p.add_argument("--duration", type=float, default=2.0, help="length of the predicted response in s (default 2)")
+    p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
+
+
+def run_control(args: argparse.Namespace) -> int:
+    """Print the controller's gains, closed-loop poles and predicted tracking of the reference."""
+    if not args.model and (args.a is None or args.b is None):
+        raise CommandError("give the model: --a and --b, or --model FILE.json")
+    if not args.model and args.sample_period is None:
+        args.sample_period = 0.005
+    model = model_from_args(args)
+    controller = controller_from_args(args, model)
+    reference = parse_reference(args.reference)
+    prediction = controller.predict(reference, args.duration)
+    _, t_u = controller.closed_loop()
+    print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/duty, friction = {model.friction:g}, "
+          f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay}, dt = {model.sample_period:g} s, "
+          f"{model.counts_per_rev} counts/rev")
+    print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
+    print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    poles = np.sort_complex(_loop_poles(controller))
+    print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
+          f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
+    largest = float(np.abs(prediction.duty).max())
+    print(f"predicted over {args.duration:g} s of {reference.describe()}: tracking RMS "
+          f"{prediction.tracking_rms:.4g} {controller.reference_unit}, largest duty {largest:.1f}")
+    if largest > 255:
+        print("note: the predicted duty exceeds 255; the device clips it and the prediction no longer holds")
+    if args.plot:
+        from motorid import plots
+        plots.plot_prediction(prediction, args.plot, title=f"{controller.kind}: predicted")
+        print(f"figure: {args.plot}")
+    return 0
+
+
+def _loop_poles(controller: Controller) -> np.ndarray:
+    import control
+    _, cy = controller.laws()
+    return control.feedback(-(controller.plant() * cy), 1).poles()

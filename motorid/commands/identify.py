@@ -1,0 +1,148 @@
+"""``motorid identify``: fit a and b to recordings, optionally validate on a held-out run."""
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any, Callable
+
+from motorid.arguments import CommandError, print_to_stderr
+from motorid.commands.importing import add_column_arguments, column_flags_given, import_from_args
+from motorid.progress import Ticker
+from motorsim.recording import Recording, read_recording
+
+__all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
+
+#: Flags passed to the estimator: flag -> (keyword, value when the flag is not given).
+_OPTION_FLAGS = {"--input-delay": ("input_delay", None), "--fix-bias": ("fix_bias", False)}
+
+
+def _input_delay(text: str) -> int | str:
+    if text == "auto":
+        return "auto"
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--input-delay must be 'auto' or an integer >= 0 (samples), got {text!r}")
+    return value
+
+
+def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``motorid identify``."""
+    from identify import DEFAULT_METHOD, available_methods
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="recordings (format v1), or foreign files with the column flags; several are pooled")
+    parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
+                        help=f"estimator (default {DEFAULT_METHOD}, the most accurate available)")
+    parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
+                        help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
+                             "for them: one fit per candidate delay 0-10)")
+    parser.add_argument("--fix-bias", action="store_true",
+                        help="oe-friction: hold the constant acceleration (bias, rad/s^2) at 0")
+    parser.add_argument("--validate", metavar="TEST", help="held-out recording: NRMSE fit and residual tests")
+    parser.add_argument("--report", metavar="FILE.png",
+                        help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
+                             "(on TEST, else on the first FILE)")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
+    parser.add_argument("--drop-outliers", action="store_true",
+                        help="drop corrupted samples (implausible jumps, isolated residual outliers) as gaps, "
+                             "refit and list them, instead of refusing the file")
+    parser.add_argument("--save", metavar="MODEL.json",
+                        help="write the model (parameters, covariance, delay, sample period in s, units, method, "
+                             "data files with sha256) for Estimate.from_json")
+    add_column_arguments(parser, required=False)
+
+
+def read_inputs(paths: list[str], args: argparse.Namespace) -> list:
+    """Recordings (format v1), or foreign files mapped by the column flags when any is given."""
+    if column_flags_given(args):
+        return [import_from_args(p, args) for p in paths]
+    return [read_recording(p) for p in paths]
+
+
+def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None:
+    """How ``identify`` reads its files: the column mapping when any column flag is given."""
+    if not column_flags_given(args):
+        return None
+    return lambda path, check_samples: import_from_args(path, args)
+
+
+def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword options the flags give the estimator; a flag the method does not take is an error."""
+    from identify.methods import method_options
+    accepted = method_options(args.method)
+    options = {}
+    for flag, (name, unset) in _OPTION_FLAGS.items():
+        value = getattr(args, name)
+        if value is unset and name == "input_delay" and name in accepted:
+            value = "auto"          # the default: a missed delay biases a fit by far more than it costs
+        if value is unset:
+            continue
+        if name not in accepted:
+            raise CommandError(f"{flag} is not supported by method {args.method!r}")
+        options[name] = value
+    return options
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    """Fit, print the estimate (and the validation), write the report figure if asked.
+
+    With ``--json`` standard output holds exactly one JSON document and the human text goes to
+    standard error, so the output pipes into ``python -m json.tool`` or ``jq``.
+    """
+    from identify import validate
+    from identify.estimate import json_ready
+    from motorid.screening import read_and_fit
+    say = print_to_stderr if args.json else print
+    with Ticker(f"identify: {args.method} fit on {len(args.files)} recording(s)"):   # a line only after 1 s
+        est, recs, dropped = read_and_fit(args.files, args.method, estimator_options(args),
+                                          drop_outliers=args.drop_outliers, read=_reader(args))
+    for d in dropped:
+        say(f"dropped     {d}")
+    say(format_estimate(est))
+    if args.save:
+        from identify.estimate import with_data_files
+        from motorsim.files import write_atomically
+        est = with_data_files(est, [*args.files])
+        write_atomically(args.save, est.to_json() + "\n")
+        say(f"model       {args.save}")
+    if estimator_options(args).get("input_delay") == "auto":
+        say(f"delay       {int(est.extra['input_delay'])} samples, chosen by the least output error over 0-10 "
+            "(--input-delay N fixes it)")
+    out = est.to_dict()
+    if dropped:
+        out["dropped_samples"] = {d.file: d.seq for d in dropped}
+    report = None
+    if args.validate:
+        report = validate(est, read_inputs([args.validate], args)[0])
+        say(format_validation(report, args.validate))
+        out.update(report.summary())
+    if args.report:
+        from motorid.plots import plot_validation
+        if report is None:
+            report = validate(est, recs[0])
+        where = args.validate or args.files[0]
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}")
+        say(f"report      {args.report}")
+    if args.json:
+        print(json.dumps(json_ready(out)))
+    return 0
+
+
+def format_estimate(est) -> str:
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval): ``str(est)``."""
+    return str(est)
+
+
+def format_validation(report, name: str) -> str:
+    """Human-readable summary of a ValidationReport."""
+    white = "white" if report.is_white() else "NOT white (model misses dynamics or friction)"
+    indep = "independent of the input" if report.independence_p >= 0.05 else "CORRELATED with the input"
+    return "\n".join([
+        f"validation  {name}",
+        f"  fit       {report.fit_percent:.2f} % (NRMSE, held-out speed; {report.initial_state})",
+        f"  residual  {white}: Ljung-Box p = {report.whiteness_p:.3g}, "
+        f"{100 * report.share_outside_band:.0f} % of lags outside +-{report.band:.3g}",
+        f"  residual  {indep}: p = {report.independence_p:.3g}"])

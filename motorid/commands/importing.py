@@ -1,0 +1,76 @@
+"""``motorid import``: a lab's own file (text table or MATLAB ``.mat``) to recording format v1.
+
+The column flags (``--time t:ms --input u:V --speed y:deg/s``, or ``--angle``/``--counts``
+with ``--counts-per-rev``) are shared with ``motorid identify``, which reads foreign files
+directly when they are given.  Units and the timing rule: :mod:`motorsim.units`.
+"""
+from __future__ import annotations
+
+import argparse
+import warnings
+
+from motorid.arguments import CommandError, print_to_stderr
+from motorsim.columns import import_recording
+from motorsim.recording import Recording, write_recording
+from motorsim.units import ANGLE_UNITS, INPUT_UNITS, SPEED_UNITS, TIME_UNITS
+
+__all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "add_import_arguments", "run_import"]
+
+_QUANTITIES = ("time", "input", "speed", "angle", "counts")
+
+
+def _units(units) -> str:
+    return ", ".join(u for u in units if u not in ("μs",)).replace("%", "%%")   # argparse formats help with %
+
+
+def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> None:
+    """``--time``, ``--input``, ``--speed``, ``--angle``, ``--counts``, ``--counts-per-rev``."""
+    group = parser.add_argument_group("columns of a foreign file (NAME or 0-based INDEX, then :UNIT)")
+    group.add_argument("--time", required=required, metavar="COL[:UNIT]",
+                       help=f"time column; unit {_units(TIME_UNITS)} (default s)")
+    group.add_argument("--input", required=required, metavar="COL[:UNIT]",
+                       help=f"input column; unit {_units(INPUT_UNITS)} (default duty; kept as the metadata "
+                            "input_unit, values unchanged)")
+    group.add_argument("--speed", metavar="COL[:UNIT]",
+                       help=f"measured speed column; unit {_units(SPEED_UNITS)} (default rad/s)")
+    group.add_argument("--angle", metavar="COL[:UNIT]",
+                       help=f"measured angle column; unit {_units(ANGLE_UNITS)} (default rad)")
+    group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
+    group.add_argument("--counts-per-rev", dest="import_counts_per_rev", type=int, metavar="N",
+                       help="encoder resolution of --counts (or --angle COL:counts), counts/rev")
+
+
+def column_flags_given(args: argparse.Namespace) -> bool:
+    """True when any column flag was given (the files are then foreign, not format v1)."""
+    return any(getattr(args, q, None) is not None for q in _QUANTITIES)
+
+
+def import_from_args(path: str, args: argparse.Namespace) -> Recording:
+    """Import ``path`` with the column flags; a non-uniform clock is said on stderr."""
+    if args.time is None or args.input is None:
+        raise CommandError("a foreign file needs --time COL[:UNIT] and --input COL[:UNIT]")
+    if args.speed is None and args.angle is None and args.counts is None:
+        raise CommandError("a foreign file needs one of --speed, --angle, --counts")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        rec = import_recording(path, time=args.time, input=args.input, speed=args.speed, angle=args.angle,
+                               counts=args.counts, counts_per_rev=args.import_counts_per_rev)
+    for w in caught:
+        print_to_stderr(f"motorid: note: {path}: {w.message}")
+    return rec
+
+
+def add_import_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``motorid import``."""
+    parser.add_argument("file", metavar="FILE", help="text table (CSV, TSV, whitespace; header or none) or .mat")
+    add_column_arguments(parser, required=True)
+    parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording (format v1)")
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Import the file and write it as a recording."""
+    rec = import_from_args(args.file, args)
+    path = write_recording(rec, args.out)
+    print_to_stderr(f"wrote {len(rec)} samples (sample period {rec.sample_period:.6g} s, input in "
+                    f"{rec.input_unit}) to {path}")
+    return 0

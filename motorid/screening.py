@@ -1,0 +1,132 @@
+"""Recordings read for a fit, screened for corrupted samples and for the same file given twice.
+
+``motorid identify`` reads its files through :func:`read_and_fit`: a row no motor can
+produce (:func:`motorsim.plausibility.implausible_samples`) or an isolated residual outlier
+after the fit (:func:`identify.outliers.residual_outliers`) is refused, naming the file and
+the row's ``seq``; with ``--drop-outliers`` such rows are dropped as gaps, the fit is
+repeated, and every dropped row is reported.  Pooling the same data twice would halve the
+variance the standard errors claim, so a file given twice is refused.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+from typing import Any, Callable, NamedTuple, Sequence
+
+from motorid.arguments import CommandError
+from motorsim.recording import Recording, read_recording
+
+__all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates"]
+
+
+class DroppedSamples(NamedTuple):
+    """Rows dropped from one file before the fit, by ``seq``, and why."""
+
+    file: str
+    seq: list[int]
+    reason: str
+
+    def __str__(self) -> str:
+        shown = ", ".join(map(str, self.seq[:10])) + (", ..." if len(self.seq) > 10 else "")
+        return f"{self.file}: seq {shown} ({self.reason})"
+
+
+def refuse_duplicates(files: Sequence[str]) -> None:
+    """Refuse a file given twice, by path or by identical content."""
+    seen: dict[Any, str] = {}
+    for name in files:
+        try:
+            st = os.stat(name)
+            key: Any = (st.st_dev, st.st_ino)
+            if key in seen:
+                raise CommandError(f"{name} is the same file as {seen[key]}; pooling data twice would understate "
+                                   "the standard errors")
+            seen[key] = name
+            if stat.S_ISREG(st.st_mode) and st.st_size <= 1 << 28:
+                with open(name, "rb") as f:
+                    digest = hashlib.sha256(f.read()).hexdigest()
+                if digest in seen:
+                    raise CommandError(f"{name} has the same content as {seen[digest]}; pooling data twice would "
+                                       "understate the standard errors")
+                seen[digest] = name
+        except OSError:
+            continue  # the reader names the problem
+
+
+def _fit_outliers(est, recs: Sequence[Recording]) -> list[list[int]]:
+    from identify.outliers import residual_outliers
+    return [residual_outliers(est, rec) for rec in recs]
+
+
+def _confirmed(outliers: list[list[int]], recs: Sequence[Recording], method: str,
+               options: dict[str, Any]) -> list[list[int]]:
+    """The rows that are still outliers under the model refitted without them.
+
+    A corrupted sample can pull the first fit (an automatic input delay picking the wrong
+    delay, say) so far that honest rows look like outliers too; the refit without the
+    suspects is the model to judge them by.  Falls back to the first verdict when the refit
+    clears every row.
+    """
+    from identify import NotIdentifiableError, fit
+    trial = [rec.drop_rows(rows) if rows else rec for rec, rows in zip(recs, outliers)]
+    try:
+        again = _fit_outliers(fit(trial, method=method, **options), recs)
+    except NotIdentifiableError:
+        return outliers
+    confirmed = [sorted(set(first) & set(second)) for first, second in zip(outliers, again)]
+    return confirmed if any(confirmed) else outliers
+
+
+def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, drop_outliers: bool = False,
+                 read: Callable[[str, bool], Recording] | None = None,
+                 ) -> tuple[Any, list[Recording], list[DroppedSamples]]:
+    """Read ``files``, screen them, fit ``method``; returns the estimate, the recordings fitted, the drops.
+
+    Parameters
+    ----------
+    files : sequence of str
+        Recordings (format v1), pooled.
+    method : str
+        Estimator name.
+    options : dict
+        Estimator keyword options.
+    drop_outliers : bool, optional
+        Drop implausible rows and isolated residual outliers as gaps (and refit) instead of refusing.
+    read : callable, optional
+        ``read(path, check_samples) -> Recording``; default :func:`~motorsim.recording.read_recording`
+        (a lab's own files come through the column mapping of ``motorid import``).
+
+    Raises
+    ------
+    CommandError
+        A file given twice, or an isolated residual outlier without ``drop_outliers``.
+    """
+    from identify import fit
+    refuse_duplicates(files)
+    if read is None:
+        def read(path: str, check_samples: bool) -> Recording:
+            return read_recording(path, check_samples=check_samples)
+    recs = [read(f, not drop_outliers) for f in files]
+    dropped: list[DroppedSamples] = []
+    if drop_outliers:
+        for i, (name, rec) in enumerate(zip(files, recs)):
+            bad = rec.implausible_samples()
+            if bad:
+                dropped.append(DroppedSamples(name, [s.seq for s in bad], "implausible: " + bad[0].reason))
+                recs[i] = rec.drop_rows(s.row for s in bad)
+    est = fit(recs, method=method, **options)
+    outliers = _fit_outliers(est, recs)
+    if not any(outliers):
+        return est, recs, dropped
+    outliers = _confirmed(outliers, recs, method, options)
+    name, rows, rec = next((n, r, rec) for n, r, rec in zip(files, outliers, recs) if r)
+    reason = f"isolated residual outliers after the {method} fit"
+    if not drop_outliers:
+        raise CommandError(f"{name}: {reason} at seq {', '.join(str(int(rec.seq[k])) for k in rows[:10])}; "
+                           "a corrupted sample? fix the file, or re-run with --drop-outliers to drop them as gaps")
+    for i, rows in enumerate(outliers):
+        if rows:
+            dropped.append(DroppedSamples(files[i], [int(recs[i].seq[k]) for k in rows], reason))
+            recs[i] = recs[i].drop_rows(rows)
+    return fit(recs, method=method, **options), recs, dropped

@@ -1,0 +1,109 @@
+"""motorid control design, motorid simulate --controller, and the demo's closed-loop part."""
+import json
+
+import pytest
+
+from motorid.cli import main
+from motorsim import read_recording
+from motorsim.control import PlantModel, design_controller
+
+
+def test_control_design_prints_the_fixed_point_gains_and_plots(tmp_path, capsys):
+    png = tmp_path / "pred.png"
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--time-constant", "0.03",
+                 "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    gains = design_controller("pi", PlantModel(25.0, 3.0, 0.005, 16667), time_constant=0.03).gains()
+    assert f"kp = {gains['kp']}, ki = {gains['ki']}" in out and "(stable)" in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--controller", "mpc"], "give the model: --a and --b"),
+    (["--a", "25", "--b", "3", "--controller", "position", "--duty-weight", "1"], "--duty-weight does not apply"),
+    (["--a", "25", "--b", "3", "--controller", "mpc", "--reference", "sine:10"], "FREQ,AMP"),
+    (["--a", "-1", "--b", "3", "--controller", "mpc"], "a must be"),
+], ids=["no-model", "wrong-knob", "bad-reference", "bad-a"])
+def test_control_design_errors_name_the_flag(argv, message, capsys):
+    assert main(["control", "design", *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_simulate_closed_loop_writes_reference_and_settings(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--controller", "mpc", "--duty-weight", "2e-4",
+                 "--reference", "sine:10,10", "--duration", "2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    rec = read_recording(out)
+    assert rec.reference is not None and rec.metadata["controller"] == "mpc"
+    assert rec.metadata["controller_duty_weight"] == "0.0002"
+    measured, predicted = (float(x) for x in text.split("measured ")[1].split(" rad/s")[0].split(", predicted "))
+    assert measured == pytest.approx(predicted, rel=0.10)
+    assert main(["simulate", "--a", "25", "--b", "3", "--sine", "10", "--controller", "pi", "--out", str(out)]) == 2
+    assert "exclude each other" in capsys.readouterr().err
+
+
+def test_demo_closed_loop_part_follows_the_unchanged_open_loop_table(tmp_path, capsys):
+    argv = ["demo", "--duration", "4", "--methods", "euler-ls,oe", "--no-plots"]
+    assert main([*argv, "--no-control", "--out", str(tmp_path / "a")]) == 0
+    open_loop = capsys.readouterr().out
+    assert main([*argv, "--out", str(tmp_path / "b")]) == 0
+    full = capsys.readouterr().out
+    assert full.replace(str(tmp_path / "b"), str(tmp_path / "a")).startswith(open_loop)
+    rows = {line.split()[0]: [float(x) for x in line.split()[1:]]
+            for line in (tmp_path / "b" / "closed_loop.txt").read_text().splitlines()[2:]}
+    assert set(rows) == {"truth", "euler-ls", "oe"}
+    # oe's model is the truth to 1e-4: its prediction holds to the encoder's quantisation
+    assert rows["oe"][4] == pytest.approx(1.0, abs=0.01)
+    # the article's biased a and b mispredict their own loop by more than 5 %
+    assert abs(rows["euler-ls"][4] - 1.0) > 0.05
+    assert read_recording(tmp_path / "b" / "closed_loop_oe.csv").metadata["controller"] == "mpc"
+
+
+def test_live_runs_a_controller_on_the_device_and_keeps_the_reference(tmp_path, capsys):
+    out = tmp_path / "live.csv"
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--controller", "pi", "--a", "25", "--b", "3",
+                 "--reference", "step:10,0.1", "--duration", "1", "--out", str(out), "--quiet"]) == 0
+    rec = read_recording(out)
+    assert rec.metadata["controller"] == "pi" and rec.metadata["host_duty_mismatches"] == "0"
+    # the reference is quantised to 1/16 count per sample: 1 / (16 x 13.26) = 0.0047 rad/s
+    assert rec.reference is not None and rec.reference[-1] == pytest.approx(10.0, abs=0.005)
+    assert abs(rec.measured_speed()[-50:].mean() - 10.0) < 0.1   # PI: no steady error (encoder 0.075 rad/s)
+    capsys.readouterr()
+    assert main(["live", "--port", "fake://?speed=0", "--controller", "pi", "--duration", "1",
+                 "--out", str(out), "--quiet"]) == 2
+    assert "give the model the controller is designed from" in capsys.readouterr().err
+
+
+def test_live_takes_counts_per_rev_from_the_device_and_refuses_a_contradiction(tmp_path, capsys):
+    out = tmp_path / "live.csv"
+    port = "fake://?a=25&b=3&speed=0&counts_per_rev=1200"
+    assert main(["live", "--port", port, "--duration", "0.5", "--out", str(out), "--quiet"]) == 0
+    assert read_recording(out).counts_per_rev == 1200
+    capsys.readouterr()
+    assert main(["live", "--port", port, "--counts-per-rev", "16667", "--duration", "0.5", "--out", str(out),
+                 "--quiet"]) == 2
+    assert "counts_per_rev 16667 was given but the device" in capsys.readouterr().err
+
+
+def test_control_design_from_a_saved_model_matches_the_same_numbers_given_as_flags(tmp_path, capsys):
+    # identify --save writes the model; control design --model must design exactly what --a/--b
+    # with the saved values design (gains are integers, so equality is exact).
+    run, model = tmp_path / "run.csv", tmp_path / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "4", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--input-delay", "0", "--save", str(model)]) == 0
+    capsys.readouterr()
+    saved = json.loads(model.read_text())
+    assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
+    from_file = capsys.readouterr().out
+    assert main(["control", "design", "--a", repr(saved["a"]), "--b", repr(saved["b"]), "--controller", "pi"]) == 0
+    from_flags = capsys.readouterr().out
+    gains = [line for line in from_file.splitlines() if line.startswith("fixed-point gains")]
+    assert gains and gains == [line for line in from_flags.splitlines() if line.startswith("fixed-point gains")]
+
+
+def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert main(["control", "design", "--model", str(bad), "--controller", "pi"]) == 2
+    assert "not a saved model" in capsys.readouterr().err

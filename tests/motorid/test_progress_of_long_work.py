@@ -1,0 +1,78 @@
+"""Long work shows progress on a terminal, stays quiet in pipes, and a sweep says its run time first."""
+import io
+import math
+import re
+import sys
+
+import pytest
+
+from motorid.cli import main
+from motorid.commands.demo import article_experiments, run_article
+from motorid.progress import Ticker
+from motorsim import Motor, SimRig
+from motorsim.recording import write_recording
+from scenarios.scenario import scenario_from_dict
+from scenarios.sweep_time import estimate_sweep_time
+
+
+def test_demo_counts_its_runs_and_fits_on_a_terminal(capsys):
+    exps = article_experiments((10, 20), duration=0.5)
+    run_article(SimRig(Motor(25.0, 3.0)), exps, ["zoh-ls", "oe"], progress=True)
+    err = capsys.readouterr().err
+    assert "demo [" in err and "6/6 steps" in err            # 2 runs + 2 x 2 fits
+
+
+def test_demo_is_quiet_in_a_pipe(capsys):
+    run_article(SimRig(Motor(25.0, 3.0)), article_experiments((10,), duration=0.5), ["zoh-ls"])
+    assert capsys.readouterr().err == ""                     # pytest's stderr is not a terminal
+
+
+def test_sweep_time_estimate_is_points_times_repetitions_times_one_run_and_fit():
+    scenario = scenario_from_dict({"name": "t", "repetitions": 7, "methods": ["zoh-ls", "oe"],
+                                   "bench": {"duration": 0.5}, "grid": {"excitation.frequency": [10, 20, 30]}})
+    est = estimate_sweep_time(scenario, workers=2)
+    assert set(est.fits) == {"zoh-ls", "oe"} and est.workers == 2
+    assert est.seconds == pytest.approx(3 * 7 * (est.run + sum(est.fits.values())) / 2, rel=1e-12)
+    assert all(math.isfinite(t) and t > 0 for t in est.fits.values())
+    assert "3 points x 2 methods x 7 repetitions, estimated" in est.describe(scenario)
+
+
+def test_sweep_announces_its_run_time_unless_quiet(tmp_path, capsys):
+    args = ["sweep", "article", "--repetitions", "1", "--methods", "zoh-ls", "--workers", "1", "--no-plots"]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    assert "sweep article: 8 points x 1 methods x 1 repetitions, estimated" in capsys.readouterr().err
+    assert main([*args, "--out", str(tmp_path / "b"), "--quiet"]) == 0
+    assert "estimated" not in capsys.readouterr().err
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_ticker_draws_on_a_terminal_and_wipes_its_line_before_standard_output(capsys):
+    term = _Terminal()
+    with Ticker("identify: oe-friction fit", stream=term, delay=0, interval=60) as ticker:
+        assert re.fullmatch(r"\r\033\[Kidentify: oe-friction fit, \d+ s", term.getvalue())
+        ticker.set_note("section 1 of 5: sines")
+        print("a table row")
+        assert term.getvalue().endswith("\r\033[K")          # wiped before the row was printed
+        ticker.draw()
+        assert re.search(r"identify: oe-friction fit, \d+ s  section 1 of 5: sines$", term.getvalue())
+    assert term.getvalue().endswith("\r\033[K") and type(sys.stdout).__name__ != "_ClearingStdout"
+    assert capsys.readouterr().out == "a table row\n"
+
+
+def test_ticker_is_silent_in_a_pipe_and_leaves_standard_output_alone():
+    pipe = io.StringIO()
+    before = sys.stdout
+    with Ticker("bench accuracy", stream=pipe, delay=0):
+        assert sys.stdout is before
+    assert pipe.getvalue() == ""
+
+
+def test_identify_in_a_pipe_shows_no_ticker(tmp_path, capsys):
+    rec = SimRig(Motor(25.0, 3.0)).run(article_experiments((10,), duration=0.5)[0])
+    write_recording(rec, tmp_path / "r.csv")
+    assert main(["identify", str(tmp_path / "r.csv"), "--method", "oe"]) == 0
+    assert "identify: oe fit" not in capsys.readouterr().err
