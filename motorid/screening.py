@@ -15,7 +15,8 @@ import stat
 from typing import Any, Callable, NamedTuple, Sequence
 
 from motorid.arguments import CommandError
-from motorsim.recording import Recording, read_recording
+from motorsim.reading import read_recording
+from motorsim.recording import Recording
 
 __all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates"]
 
@@ -94,7 +95,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     drop_outliers : bool, optional
         Drop implausible rows and isolated residual outliers as gaps (and refit) instead of refusing.
     read : callable, optional
-        ``read(path, check_samples) -> Recording``; default :func:`~motorsim.recording.read_recording`
+        ``read(path, check_samples) -> Recording``; default :func:`~motorsim.reading.read_recording`
         (a lab's own files come through the column mapping of ``motorid import``).
 
     Raises

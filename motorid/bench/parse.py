@@ -59,10 +59,10 @@ else:
         import pyarrow.csv  # noqa: F401
     except ImportError:
         pass
-    from motorsim.recording import read_recording
+    from motorsim.reading import read_recording
     if kind == "careful":
-        import motorsim.recording as recording
-        recording._parse_fast = lambda data, name: None
+        import motorsim.reading as reading
+        reading._parse_fast = lambda data, name: None
     read = lambda: len(read_recording(path))
 before = start()
 t0 = time.perf_counter()

@@ -24,8 +24,9 @@ from motorid.arguments import CommandError, add_bench_arguments, add_knob_flag, 
 from motorid.progress import ProgressBar
 from motorsim.excitation import Sine
 from motorsim.knobs import knobs_of
-from motorsim.recording import Recording, write_recording
+from motorsim.recording import Recording
 from motorsim.rig import Experiment, Rig
+from motorsim.writing import write_recording
 
 #: Methods whose simulated speed ``overlay.png`` draws over the measured one: the article's
 #: Euler least squares and the output-error fit (all methods run when neither did).

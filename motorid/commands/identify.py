@@ -8,7 +8,8 @@ from typing import Any, Callable
 from motorid.arguments import CommandError, print_to_stderr
 from motorid.commands.importing import add_column_arguments, column_flags_given, import_from_args
 from motorid.progress import Ticker
-from motorsim.recording import Recording, read_recording
+from motorsim.reading import read_recording
+from motorsim.recording import Recording
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
 

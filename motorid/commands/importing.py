@@ -11,8 +11,9 @@ import warnings
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.columns import import_recording
-from motorsim.recording import Recording, write_recording
+from motorsim.recording import Recording
 from motorsim.units import ANGLE_UNITS, INPUT_UNITS, SPEED_UNITS, TIME_UNITS
+from motorsim.writing import write_recording
 
 __all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "add_import_arguments", "run_import"]
 

@@ -1,6 +1,6 @@
 """``motorid live``: run an experiment on the bench, record it as it arrives, identify a and b.
 
-The samples go three ways as they arrive: to a :class:`~motorsim.recording.RecordingWriter`
+The samples go three ways as they arrive: to a :class:`~motorsim.writing.RecordingWriter`
 (so a fault or Ctrl-C leaves a valid recording marked ``complete: false``), to a
 running RLS estimate (:mod:`identify.recursive`) shown in the progress line, and
 to an optional live plot.  After the run the recording is identified with
@@ -121,7 +121,7 @@ def _rescue(recording, path) -> str:
     import os
     import tempfile
 
-    from motorsim.recording import write_recording
+    from motorsim.writing import write_recording
     rescue = Path(tempfile.gettempdir()) / f"motorid-rescued-{os.getpid()}-{Path(path).name}"
     try:
         write_recording(recording, rescue)
@@ -193,7 +193,7 @@ def _open_rig_and_writer(args: argparse.Namespace, experiment):
     """
     from hardware.errors import RigError
     from hardware.serial_rig import SerialRig
-    from motorsim.recording import RecordingWriter
+    from motorsim.writing import RecordingWriter
 
     rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
                     watchdog_ms=args.watchdog_ms, timeout=args.timeout)

@@ -17,7 +17,7 @@ from motorid.arguments import (
     sim_rig_from_args,
 )
 from motorid.budget import SIMULATE_BYTES_PER_SAMPLE, add_max_memory_flag, check_memory
-from motorsim.recording import write_recording
+from motorsim.writing import write_recording
 
 __all__ = ["add_simulate_arguments", "run_simulate"]
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from motorid.cli import main
-from motorsim.recording import read_recording
+from motorsim.reading import read_recording
 
 DATA = Path(__file__).parents[1] / "data" / "undcmotor"
 PRBS = str(DATA / "DCmotor_prbs_open_exp.csv")

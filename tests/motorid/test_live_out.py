@@ -3,7 +3,7 @@ import re
 
 from motorid.cli import main
 from motorid.commands.live import default_out_path
-from motorsim.recording import read_recording
+from motorsim.reading import read_recording
 
 
 def test_live_without_out_writes_a_timestamped_file_named_on_stderr(tmp_path, monkeypatch, capsys):

@@ -11,7 +11,7 @@ import pytest
 from hardware.serial_rig import SerialRig
 from motorid.cli import main
 from motorsim import read_recording
-from motorsim.recording import RecordingWriter
+from motorsim.writing import RecordingWriter
 
 LIVE = ["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet"]
 

@@ -10,7 +10,7 @@ from motorid.cli import main
 from motorid.commands.demo import article_experiments, run_article
 from motorid.progress import Ticker
 from motorsim import Motor, SimRig
-from motorsim.recording import write_recording
+from motorsim.writing import write_recording
 from scenarios.scenario import scenario_from_dict
 from scenarios.sweep_time import estimate_sweep_time
 

@@ -136,7 +136,7 @@ def test_failed_write_leaves_no_file_behind(tmp_path):
 
 
 def test_a_write_failing_after_the_temporary_file_exists_keeps_the_old_file(tmp_path, monkeypatch):
-    import motorsim.recording as recording
+    import motorsim.writing as writing
     path = write_recording(Recording(time=[0.0, 1.0], duty=[0, 1], sample_period=1.0, angle=[0.0, 1.0]),
                            tmp_path / "r.csv")
     old = path.read_bytes()
@@ -146,7 +146,20 @@ def test_a_write_failing_after_the_temporary_file_exists_keeps_the_old_file(tmp_
         seen.append(src)
         assert (tmp_path / src).exists()        # the temporary file was written
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(recording.os, "replace", failing_replace)
+    monkeypatch.setattr(writing.os, "replace", failing_replace)
     with pytest.raises(OSError, match="No space left"):
         write_recording(Recording(time=[0.0, 2.0], duty=[0, 1], sample_period=2.0, angle=[0.0, 1.0]), path)
     assert seen and path.read_bytes() == old and sorted(tmp_path.iterdir()) == [path]
+
+
+@pytest.mark.parametrize("name, new_module", [("read_recording", "motorsim.reading"),
+                                              ("write_recording", "motorsim.writing"),
+                                              ("RecordingWriter", "motorsim.writing")],
+                         ids=["read_recording", "write_recording", "RecordingWriter"])
+def test_moved_names_still_import_from_recording_with_a_warning(name, new_module):
+    import importlib
+
+    import motorsim.recording as recording
+    with pytest.warns(DeprecationWarning, match=new_module):
+        old = getattr(recording, name)
+    assert old is getattr(importlib.import_module(new_module), name)

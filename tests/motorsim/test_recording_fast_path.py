@@ -2,20 +2,20 @@
 import numpy as np
 import pytest
 
-import motorsim.recording as recording
+import motorsim.reading as reading
 from motorsim import Encoder, Experiment, Motor, RecordingFormatError, SimRig, Sine, read_recording, write_recording
 
 
 @pytest.fixture(autouse=True)
 def _fast_path_for_small_files(monkeypatch):
     # the fast path is taken only from FAST_PATH_MIN_BYTES on; these small files must take it too
-    monkeypatch.setattr(recording, "FAST_PATH_MIN_BYTES", 0)
+    monkeypatch.setattr(reading, "FAST_PATH_MIN_BYTES", 0)
 
 
 def test_a_small_file_is_read_without_importing_pyarrow(written, monkeypatch):
-    monkeypatch.setattr(recording, "FAST_PATH_MIN_BYTES", 1 << 30)
+    monkeypatch.setattr(reading, "FAST_PATH_MIN_BYTES", 1 << 30)
     calls = []
-    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: calls.append(1))
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *a: calls.append(1))
     rec, path = written
     back = read_recording(path)
     assert not calls
@@ -23,7 +23,7 @@ def test_a_small_file_is_read_without_importing_pyarrow(written, monkeypatch):
 
 
 def _careful(monkeypatch):
-    monkeypatch.setattr(recording, "_read_columns_fast", lambda *args: None)
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *args: None)
 
 
 @pytest.fixture
@@ -37,8 +37,8 @@ def written(tmp_path):
 def test_the_fast_path_is_taken_and_reads_back_bit_for_bit(written, monkeypatch):
     rec, path = written
     calls = []
-    fast = recording._read_columns_fast
-    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: calls.append(1) or fast(*a))
+    fast = reading._read_columns_fast
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *a: calls.append(1) or fast(*a))
     back = read_recording(path)
     assert calls and back.counts is not None and back.counts.dtype == np.int64
     for name in ("time", "duty", "counts", "speed", "seq"):
@@ -63,7 +63,7 @@ def test_the_careful_parser_reads_the_same_recording(written, monkeypatch):
     ("5,0.5,1,7,8", r"line 19: expected 4 values, got 5"),
 ], ids=["text", "fraction", "nan", "short", "long"])
 def test_a_bad_row_still_gets_its_line_when_the_fast_path_fails(tmp_path, bad_row, match):
-    lines = [recording.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    lines = [reading.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
     rows = [f"{k},{k * 0.1!r},1,{k}" for k in range(30)]
     rows[14] = bad_row
     path = tmp_path / "bad.csv"
@@ -73,7 +73,7 @@ def test_a_bad_row_still_gets_its_line_when_the_fast_path_fails(tmp_path, bad_ro
 
 
 def test_blank_lines_keep_the_line_numbers_of_an_implausible_row(tmp_path):
-    lines = [recording.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    lines = [reading.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
     rows = [f"{k},{k * 0.1!r},1,{k * 3}" for k in range(40)]
     rows[20] = f"20,2.0,1,{1 << 40}"
     path = tmp_path / "blank.csv"
@@ -86,10 +86,10 @@ def test_blank_lines_keep_the_line_numbers_of_an_implausible_row(tmp_path):
 def test_rows_cut_across_blocks_read_back_bit_for_bit(written, monkeypatch, block_bytes):
     # Rows are 30-60 bytes: 64 and 97 cut almost every block inside a row, whose start is carried over.
     rec, path = written
-    monkeypatch.setattr(recording, "_FAST_BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr(reading, "_FAST_BLOCK_BYTES", block_bytes)
     returned = []
-    fast = recording._read_columns_fast
-    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: returned.append(fast(*a)) or returned[-1])
+    fast = reading._read_columns_fast
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *a: returned.append(fast(*a)) or returned[-1])
     back = read_recording(path)
     assert returned and returned[0] is not None
     for name in ("time", "duty", "counts", "speed", "seq"):
@@ -98,10 +98,10 @@ def test_rows_cut_across_blocks_read_back_bit_for_bit(written, monkeypatch, bloc
 
 def test_a_row_longer_than_a_block_is_left_to_the_careful_parser(written, monkeypatch):
     rec, path = written
-    monkeypatch.setattr(recording, "_FAST_BLOCK_BYTES", 16)
+    monkeypatch.setattr(reading, "_FAST_BLOCK_BYTES", 16)
     returned = []
-    fast = recording._read_columns_fast
-    monkeypatch.setattr(recording, "_read_columns_fast", lambda *a: returned.append(fast(*a)) or returned[-1])
+    fast = reading._read_columns_fast
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *a: returned.append(fast(*a)) or returned[-1])
     back = read_recording(path)
     assert returned == [None]
     np.testing.assert_array_equal(back.counts, rec.counts)

@@ -74,8 +74,8 @@ def test_a_directory_is_refused(tmp_path):
 
 
 def test_a_file_over_the_size_limit_is_refused_without_reading_it(tmp_path, monkeypatch):
-    import motorsim.recording as recording
+    import motorsim.reading as reading
     path = write_recording(GOOD, tmp_path / "r.csv")
-    monkeypatch.setattr(recording, "MAX_RECORDING_BYTES", path.stat().st_size - 1)
+    monkeypatch.setattr(reading, "MAX_RECORDING_BYTES", path.stat().st_size - 1)
     with pytest.raises(RecordingFormatError, match=f"{path.stat().st_size} bytes is over"):
         read_recording(path)

@@ -6,7 +6,7 @@ import pytest
 
 from motorsim import Experiment, Motor, SimRig, Sine, read_recording
 from motorsim.files import OutputFileError
-from motorsim.recording import RecordingWriter
+from motorsim.writing import RecordingWriter
 
 
 def _rec():

@@ -11,7 +11,7 @@ import pytest
 
 from motorid.cli import build_parser, main
 from motorsim.plant import Motor
-from motorsim.recording import read_recording
+from motorsim.reading import read_recording
 from motorsim.rig import bench_knobs
 from scenarios.scenario import SETTING_KEYS, Setting, scenario_from_dict
 from scenarios.sweep import CSV_COLUMNS, run_point, setting_column

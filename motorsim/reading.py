@@ -1,0 +1,475 @@
+"""Reading the CSV recording format v1 (:mod:`motorsim.recording`): :func:`read_recording`.
+
+Two parsers read the same format and refuse the same files.  A large file (at least
+:data:`FAST_PATH_MIN_BYTES`) goes to a fast columnar parser (pyarrow, block by block) when the
+file is plain; anything it cannot vouch for -- blank lines, odd cells, a broken rule -- falls
+back to the careful parser, which reads line by line and names the file, the line and the
+rule of every error (``RecordingFormatError``).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import stat
+from pathlib import Path
+from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
+
+import numpy as np
+
+from .recording import COLUMNS, FORMAT_HEADER, INTEGER_COLUMNS, METADATA_ALIASES, Recording, RecordingFormatError
+
+__all__ = ["read_recording", "MAX_RECORDING_BYTES", "FAST_PATH_MIN_BYTES"]
+
+
+def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Recording:
+    """Read a format-v1 CSV file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    check_samples : bool, optional
+        Refuse rows no motor can produce (default True; see :mod:`motorsim.plausibility`).
+        With False they are kept, for the caller to find and drop.
+
+    Raises
+    ------
+    RecordingFormatError
+        For every broken rule, naming the file, the line and the rule.
+    """
+    path = Path(path)
+    scan = _scan_file(path)
+    parsed = _parse_fast(path, scan) if scan.size >= FAST_PATH_MIN_BYTES else None
+    if parsed is not None:
+        rec = _build_fast(parsed, str(path), check_samples)
+        if rec is not None:
+            return rec
+    data = _read_bounded(path)
+    _check_bytes(data, path)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RecordingFormatError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    del data
+    return _parse(text, str(path), check_samples)
+
+
+def _check_bytes(data: bytes, path: Path) -> None:
+    """Refuse a byte-order mark and NUL bytes, each with its own message."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise RecordingFormatError(f"{path}, line 1: starts with a UTF-8 byte-order mark (BOM); "
+                                   "save it as UTF-8 without BOM")
+    if b"\0" in data:
+        at = data.index(b"\0")
+        line = data.count(b"\n", 0, at) + 1
+        raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte "
+                                   f"(at byte {at}): binary data or a corrupted file, not a recording")
+
+
+class _FileScan(NamedTuple):
+    """One pass over a file in blocks: its first block, its number of newlines, whether it ends with one."""
+
+    head: bytes
+    newlines: int
+    ends_with_newline: bool
+    size: int
+
+
+#: Bytes read per block when a file is scanned.
+_SCAN_BLOCK_BYTES = 1 << 20
+
+
+def _scan_file(path: Path) -> _FileScan:
+    """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
+    head, newlines, last = b"", 0, b""
+    try:
+        with open(path, "rb") as f:
+            _check_regular(path, os.fstat(f.fileno()))
+            total = 0
+            while block := f.read(_SCAN_BLOCK_BYTES):
+                if not head:
+                    head = block
+                    _check_bytes(block, path)
+                elif b"\0" in block:
+                    line = newlines + block.count(b"\n", 0, block.index(b"\0")) + 1
+                    raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte: binary data or a "
+                                               "corrupted file, not a recording")
+                newlines += block.count(b"\n")
+                total += len(block)
+                last = block[-1:]
+                if total > MAX_RECORDING_BYTES:
+                    raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
+                                               "split it")
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
+    except OSError as exc:
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return _FileScan(head, newlines, last == b"\n", total)
+
+
+def _split_head(data: bytes) -> tuple[list[str], int] | None:
+    """The lines up to and including the header row, decoded, and the byte offset after it; None if odd."""
+    pos = 0
+    while True:
+        end = data.find(b"\n", pos)
+        if end < 0:
+            return None
+        line = data[pos:end]
+        pos = end + 1
+        if not (line.startswith(b"#") or not line.strip()):
+            break
+    try:
+        return data[:pos].decode("utf-8").splitlines(), pos
+    except UnicodeDecodeError:
+        return None
+
+
+#: Bytes the fast reader parses per block (bounds its working memory).
+_FAST_BLOCK_BYTES = 1 << 21
+
+
+def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
+    """The file from byte ``offset`` in blocks of whole lines of at most :data:`_FAST_BLOCK_BYTES`.
+
+    Every block is a view of one reused buffer, valid until the next is asked for; the last
+    one keeps whatever follows the last newline.  A line longer than the buffer raises
+    ValueError (no recording has one; the careful parser names it).
+    """
+    buffer = bytearray(_FAST_BLOCK_BYTES)
+    view = memoryview(buffer)
+    kept = 0
+    with open(path, "rb", buffering=0) as f:
+        f.seek(offset)
+        while got := f.readinto(view[kept:]):
+            end = kept + got
+            cut = buffer.rfind(b"\n", 0, end) + 1
+            if not cut:
+                if end == len(buffer):
+                    raise ValueError(f"a line longer than {len(buffer)} bytes")
+                kept = end
+                continue
+            yield view[:cut]
+            kept = end - cut
+            view[:kept] = view[cut:end]
+    if kept:
+        yield view[:kept]
+
+
+def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
+    """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
+
+    Blocks of whole lines are parsed one at a time and copied into arrays of ``max_rows``
+    (the number of lines), so the working memory is the columns plus one block.  pyarrow
+    parses floats correctly rounded: a file written by :func:`write_recording` reads back
+    bit for bit.  None also when pyarrow is not installed.
+    """
+    try:
+        import pyarrow
+        import pyarrow.csv
+    except ImportError:
+        return None
+    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=False)
+    convert_options = pyarrow.csv.ConvertOptions(
+        column_types={h: pyarrow.int64() if h in INTEGER_COLUMNS else pyarrow.float64() for h in header},
+        null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
+    values = {h: np.empty(max_rows, dtype=np.int64 if h in INTEGER_COLUMNS else np.float64)
+              for h in header if h in COLUMNS}
+    n = 0
+    try:
+        for block in _blocks(path, offset):
+            table = pyarrow.csv.read_csv(pyarrow.py_buffer(block), read_options=read_options,
+                                         convert_options=convert_options, memory_pool=pyarrow.system_memory_pool())
+            k = table.num_rows
+            if n + k > max_rows:
+                return None
+            for h, column in values.items():
+                _copy_column(table.column(h), column[n:n + k])
+            n += k
+            del table       # before the buffer under ``block`` is refilled
+    except Exception:   # any failure of the fast path: the careful parser names the line and the rule
+        return None
+    values = {h: v if n == max_rows else v[:n] for h, v in values.items()}
+    for v in values.values():
+        v.setflags(write=False)     # owned by nobody else: the Recording keeps them without a copy
+    return values if n else None
+
+
+def _copy_column(column, out: np.ndarray) -> None:
+    """Copy a pyarrow column without nulls into ``out`` straight from its data buffers.
+
+    ``ChunkedArray.to_numpy`` would initialise pyarrow's compute-function registry on its
+    first call, about 55 MB of resident memory (measured) for the life of the process.
+    """
+    i = 0
+    for chunk in column.chunks:
+        if chunk.null_count:
+            raise ValueError("a missing value")
+        k = len(chunk)
+        out[i:i + k] = np.frombuffer(chunk.buffers()[1], dtype=out.dtype, count=k, offset=chunk.offset * out.itemsize)
+        i += k
+    if i != len(out):
+        raise ValueError("a column shorter than its table")
+
+
+class _FastParse(NamedTuple):
+    """What the fast reader found: metadata, the header's line, the columns, each row's line (if known)."""
+
+    meta: dict[str, str]
+    header_line: int
+    counts_per_rev: int | None
+    values: dict[str, np.ndarray]
+    row_lines: range | None
+
+
+def _parse_fast(path: Path, scan: _FileScan) -> _FastParse | None:
+    """``path`` parsed by pyarrow's CSV reader, or None for the careful parser to name what is wrong.
+
+    Only a well-formed file takes this path: every row complete, every cell a number of its
+    column's type, a final newline (the Recording then checks the values).
+    """
+    head = _split_head(scan.head) if scan.ends_with_newline else None
+    if head is None:
+        return None
+    lines, offset = head
+    fail = _Failer(str(path))
+    meta, header_index = _parse_metadata(lines, fail)
+    header = [h.strip() for h in next(csv.reader([lines[header_index]]))]
+    _check_header(header, header_index + 1, fail)
+    cpr = _counts_per_rev(meta, fail)
+    if "counts" in header and cpr is None:
+        fail(header_index + 1, "column 'counts' needs the metadata line '# counts_per_rev: N'")
+    n_lines = scan.newlines - scan.head.count(b"\n", 0, offset)
+    values = _read_columns_fast(path, offset, header, n_lines)
+    if values is None:
+        return None
+    n = len(values["time_s"])
+    row_lines = range(header_index + 2, header_index + 2 + n) if n_lines == n else None   # no array: 8 bytes a row
+    return _FastParse(meta, header_index + 1, cpr, values, row_lines)
+
+
+def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording | None:
+    """The Recording of a fast parse; None when a rule is broken, for the careful parser to name the line."""
+    fail = _Failer(name)
+    values = parsed.values
+    sp = _sample_period(parsed.meta, values["time_s"], fail)
+    extra = {k: v for k, v in parsed.meta.items() if k not in ("sample_period", "counts_per_rev")}
+    try:
+        rec = Recording(time=values.pop("time_s"), duty=values.pop("duty"), sample_period=sp,
+                        counts=values.pop("counts", None), angle=values.pop("angle_rad", None),
+                        speed=values.pop("speed_rad_s", None), seq=values.pop("seq", None),
+                        counts_per_rev=parsed.counts_per_rev, metadata=extra, reference=values.pop("reference", None))
+    except (ValueError, TypeError):
+        return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
+    if check_samples:
+        if parsed.row_lines is None:
+            return None if rec.implausible_samples() else rec   # blank lines: the careful parser knows the lines
+        _refuse_implausible(rec, parsed.row_lines, fail)
+    return rec
+
+
+#: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
+MAX_RECORDING_BYTES = 1 << 30
+
+#: Files smaller than this are read by the careful parser alone: importing pyarrow costs about
+#: 0.3 s, more than the careful parser takes on such a file (about 10 000 rows).
+FAST_PATH_MIN_BYTES = 256 << 10
+
+
+def _check_regular(path: Path, st: os.stat_result) -> None:
+    """Refuse anything but a regular file of at most :data:`MAX_RECORDING_BYTES`."""
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
+        raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
+    if st.st_size > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
+                                   "recording may have; split it")
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
+    try:
+        with open(path, "rb") as f:
+            _check_regular(path, os.fstat(f.fileno()))
+            data = f.read(MAX_RECORDING_BYTES + 1)
+    except IsADirectoryError:
+        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
+    except OSError as exc:
+        raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > MAX_RECORDING_BYTES:
+        raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; split it")
+    return data
+
+
+def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
+    fail = _Failer(name)
+    lines = text.splitlines()
+    meta, header_index = _parse_metadata(lines, fail)
+    header, cols = _parse_rows(lines, header_index, fail, torn=bool(text) and not text.endswith(("\n", "\r")))
+    header_line = header_index + 1
+    cpr = _counts_per_rev(meta, fail)
+    if "counts" in cols and cpr is None:
+        fail(header_line, "column 'counts' needs the metadata line '# counts_per_rev: N'")
+    values = {h: np.array([v for _, v in cols[h]]) for h in header}
+    sp = _sample_period(meta, values["time_s"], fail)
+    extra = {k: v for k, v in meta.items() if k not in ("sample_period", "counts_per_rev")}
+    try:
+        rec = Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
+                        counts=values.get("counts"), angle=values.get("angle_rad"),
+                        speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
+                        metadata=extra, reference=values.get("reference"))
+    except (ValueError, TypeError) as exc:
+        raise RecordingFormatError(f"{name}: {exc}") from None
+    if check_samples:
+        _refuse_implausible(rec, [line for line, _ in cols["time_s"]], fail)
+    return rec
+
+
+def _refuse_implausible(rec: Recording, lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:
+    """Refuse the file when rows no motor can produce are found, naming their lines."""
+    bad = rec.implausible_samples()
+    if bad:
+        others = "" if len(bad) == 1 else f" (and {len(bad) - 1} more, lines " + ", ".join(
+            str(lines[s.row]) for s in bad[1:6]) + (", ..." if len(bad) > 6 else "") + ")"
+        fail(lines[bad[0].row], f"implausible sample (seq {bad[0].seq}): {bad[0].reason}{others}; "
+                                  "a corrupted row? remove it, or drop such rows as gaps "
+                                  "(motorid identify --drop-outliers)")
+
+
+class _Failer:
+    """Raises :class:`RecordingFormatError` as ``"FILE, line N: rule"``."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __call__(self, line: int, rule: str) -> NoReturn:
+        raise RecordingFormatError(f"{self.name}, line {line}: {rule}")
+
+
+def _parse_metadata(lines: list[str], fail: _Failer) -> tuple[dict[str, str], int]:
+    """The ``# key: value`` lines (aliases resolved) and the index of the header row."""
+    meta: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i][1:].strip() if lines[i].startswith("#") else ""
+        if body.startswith("motorid recording"):
+            if body != FORMAT_HEADER[1:].strip():
+                fail(i + 1, f"unsupported format {body!r}; this version reads {FORMAT_HEADER[2:]!r}")
+        elif ":" in body:
+            k, _, v = body.partition(":")
+            meta[METADATA_ALIASES.get(k.strip(), k.strip())] = v.strip()
+        i += 1
+    if i == len(lines):
+        fail(i, "no header row (expected column names such as seq,time_s,duty,counts)")
+    return meta, i
+
+
+def _check_header(header: list[str], line: int, fail: _Failer) -> None:
+    if len(set(header)) != len(header):
+        fail(line, f"duplicate column names in {header}")
+    for required in ("time_s", "duty"):
+        if required not in header:
+            fail(line, f"missing required column {required!r} (columns: {header})")
+    if not {"counts", "angle_rad", "speed_rad_s"} & set(header):
+        fail(line, f"needs at least one of the columns counts, angle_rad, speed_rad_s (columns: {header})")
+
+
+def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
+    cell = cell.strip()
+    if "_" in cell:
+        fail(line, f"column {column!r} must be a plain number (no '_' digit separators), got {cell!r}")
+    if column in INTEGER_COLUMNS:
+        try:
+            value = int(cell)
+        except ValueError:
+            fail(line, f"column {column!r} must be an integer, got {cell[:40]!r}")
+        if not -(1 << 63) <= value < (1 << 63):
+            fail(line, f"column {column!r} must fit a 64-bit integer, got {cell[:40]}{'...' if len(cell) > 40 else ''}")
+        return value
+    try:
+        v = float(cell)
+    except ValueError:
+        fail(line, f"column {column!r} must be a number, got {cell[:40]!r}")
+    if not math.isfinite(v) and column in COLUMNS:
+        fail(line, f"column {column!r} must be finite, got {cell!r}")
+    return v
+
+
+def _check_strictly_increasing(column: list[tuple[int, float]], name: str, fail: _Failer) -> None:
+    for (_, v0), (line, v1) in zip(column, column[1:]):
+        if v1 <= v0:
+            fail(line, f"{name} must be strictly increasing, got {v1!r} after {v0!r}")
+
+
+def _csv_rows(reader, header_line: int, fail: _Failer) -> Iterable[list[str]]:
+    """The csv rows, a csv error (a field over the module's limit, a stray quote) as RecordingFormatError."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            fail(header_line + reader.line_num - 1, f"not a CSV row: {exc}")
+        yield row
+
+
+def _parse_rows(lines: list[str], header_index: int, fail: _Failer, torn: bool = False
+                ) -> tuple[list[str], dict[str, list[tuple[int, float]]]]:
+    """The column names and, per column, ``(line number, value)`` of every data row.
+
+    ``torn`` says the text does not end with a newline: an error on the last line names it as torn.
+    """
+    header_line = header_index + 1
+    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+    header = [h.strip() for h in next(iter(_csv_rows(reader, header_line, fail)), [])]
+    _check_header(header, header_line, fail)
+    cols: dict[str, list[tuple[int, float]]] = {h: [] for h in header}
+    last_line = len(lines)
+    for j, row in enumerate(_csv_rows(reader, header_line, fail)):
+        line = header_line + 1 + j
+        if not row or all(not c.strip() for c in row):
+            continue
+        try:
+            if len(row) != len(header):
+                fail(line, f"expected {len(header)} values, got {len(row)}")
+            for h, cell in zip(header, row):
+                cols[h].append((line, _parse_cell(h, cell, line, fail)))
+        except RecordingFormatError as exc:
+            if line == last_line and torn:
+                fail(line, f"the last line is torn (the file ends mid-row, without a newline: a run cut off or "
+                           f"a full disk?): {str(exc).partition(': ')[2]}")
+            raise
+    if not cols["time_s"]:
+        fail(header_line, "no data rows")
+    _check_strictly_increasing(cols["time_s"], "time_s", fail)
+    if "seq" in cols:
+        _check_strictly_increasing(cols["seq"], "seq", fail)
+    return header, cols
+
+
+def _counts_per_rev(meta: Mapping[str, str], fail: _Failer) -> int | None:
+    if "counts_per_rev" not in meta:
+        return None
+    try:
+        cpr = int(meta["counts_per_rev"])
+        if cpr <= 0:
+            raise ValueError
+    except ValueError:
+        fail(1, f"counts_per_rev must be a positive integer, got {meta['counts_per_rev']!r}")
+    return cpr
+
+
+def _sample_period(meta: Mapping[str, str], time_s: np.ndarray, fail: _Failer) -> float:
+    """The metadata's sample period, else the median interval of ``time_s``."""
+    if "sample_period" in meta:
+        try:
+            sp = float(meta["sample_period"])
+            if not (math.isfinite(sp) and sp > 0):
+                raise ValueError
+        except ValueError:
+            fail(1, f"sample_period must be a number > 0 s, got {meta['sample_period']!r}")
+        return sp
+    if len(time_s) > 1:
+        return float(np.median(np.diff(time_s)))
+    fail(1, "a one-row recording needs the metadata line '# sample_period: S'")
