@@ -17,7 +17,7 @@ What it emulates, as the firmware does it
   exactly (``motorsim.simulate`` over that interval), and queues a SAMPLE.
 - Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
   ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
-  :class:`motorsim.control.ControlLoop` (the reference the firmware's C step is tested against).
+  :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against).
 - A bounded transmit queue: a sample that finds it full is dropped and counted
   (``samples_dropped``, FAULT 2 the first time), never overwritten.
 - Absolute encoder counts from boot; END with the device's counters.
@@ -49,7 +49,7 @@ from typing import Iterator
 import numpy as np
 
 from motorsim.checks import check_bool, check_int, check_real
-from motorsim.control import ControlLoop, gains_from_wire, reference_values
+from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, simulate, zoh_matrices
 from motorsim.rig import bench_knobs

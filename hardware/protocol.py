@@ -17,7 +17,7 @@ CONFIG that make a device run a :class:`~motorsim.rig.Experiment`, and
 ``expand(wave_for(e), e.n_samples, e.duty_limit) == e.duty()``.  In closed loop
 (version 2) :func:`control_for` and :func:`reference_for` build the CONTROL and
 REFERENCE of a :class:`~motorsim.control.ClosedLoopExperiment`; the device then runs
-the controller's integer step, :class:`motorsim.control.ControlLoop`, on its counts.
+the controller's integer step, :class:`motorsim.fixed_point.ControlLoop`, on its counts.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from typing import Any, NamedTuple, Union
 import numpy as np
 
 from motorsim.checks import check_int
-from motorsim.control import MAX_REFERENCE, ClosedLoopExperiment, ReferenceWords, gains_from_wire
+from motorsim.control import ClosedLoopExperiment
 from motorsim.excitation import (
     MAX_AMPLITUDE,
     MAX_COMPONENTS,
@@ -43,6 +43,7 @@ from motorsim.excitation import (
     multisine_duty,
     prbs_bits,
 )
+from motorsim.fixed_point import MAX_REFERENCE, ReferenceWords, gains_from_wire
 from motorsim.rig import Experiment
 
 from .errors import FrameError, ProtocolError, ProtocolVersionError
@@ -204,7 +205,7 @@ class HelloAck(NamedTuple):
 
 class Control(NamedTuple):
     """CONTROL (0x07): a :class:`ControllerKind`, the reference preview in samples, the Q16 gains
-    in the order of :data:`motorsim.control.GAIN_ORDER`."""
+    in the order of :data:`motorsim.fixed_point.GAIN_ORDER`."""
 
     controller: int
     preview: int

@@ -1,21 +1,13 @@
-"""Controllers designed from a model, with the fixed-point step every rig runs.
+"""Controllers designed from a model: their gains, their predicted closed loop, the references they track.
 
 A controller is designed once, in floating point, from the numbers of a motor model
 (:class:`PlantModel`: ``a``, ``b``, ``friction``, ``bias``, ``input_delay``,
 ``sample_period``, ``counts_per_rev``; built from an identified estimate, a
 :class:`~motorsim.plant.Motor` or plain numbers).  The design ends in a handful of
 integer gains (Q16: a gain ``G`` stands for ``G / 2**16``), and the per-sample step
-uses integers only, so that the simulator and a microcontroller compute the *same*
-duty from the same counts.  The step here is the reference implementation.
-
-Integer units of the step
--------------------------
-* measured speed ``y_k = counts_k - counts_{k-1}`` in counts per sample (the backward
-  difference of the encoder, the average speed over the last interval);
-* speed references in :data:`SPEED_REFERENCE_LSB` = 1/16 count per sample;
-* position references in counts, relative to the count at the first sample;
-* duty: an integer, ``u_k = clip((acc + 2**15) >> 16, -duty_limit, duty_limit)`` where
-  ``acc`` is an integer sum of gain-times-signal products (64-bit on the device).
+uses integers only: that step, shared with the firmware, and its integer units are
+:mod:`motorsim.fixed_point` (:class:`~motorsim.fixed_point.ControlLoop`, which
+:meth:`Controller.start` returns).
 
 Exact model of the measured speed
 ---------------------------------
@@ -34,49 +26,39 @@ Controllers
 :class:`OneStepMPC` (``mpc``), :class:`PISpeed` (``pi``, optionally with feedforward),
 :class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``).
 :class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
+
+One concept, controller design, in one module although it is long: the model, the
+references and the closed-loop experiment are what every controller's design and
+prediction take and give, and the four controllers share one base class.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .excitation import DUTY_LIMIT, MAX_COMPONENTS, multisine_duty, phase_increment, spec_numbers, split_spec
+from .excitation import DUTY_LIMIT, MAX_COMPONENTS, phase_increment, spec_numbers, split_spec
+from .fixed_point import (
+    MAX_REFERENCE,
+    SPEED_REFERENCE_BITS,
+    SPEED_REFERENCE_LSB,
+    ControlLoop,
+    ReferenceWords,
+    gain_value,
+    quantise_gain,
+    reference_values,
+)
 from .plant import Motor, zoh_matrices
 
 if TYPE_CHECKING:
     import control
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
-           "Feedforward", "ControlLoop",
-           "ReferenceWords", "reference_values", "gains_from_wire", "GAIN_ORDER", "Prediction",
-           "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
-           "tracking_error", "feedforward_gains", "settings_from", "GAIN_BITS", "SPEED_REFERENCE_BITS",
-           "SPEED_REFERENCE_LSB", "MAX_REFERENCE"]
-
-#: Fraction bits of every gain: an integer gain ``G`` stands for ``G / 2**GAIN_BITS``.
-GAIN_BITS = 16
-#: Fraction bits of a speed reference: its unit is ``2**-SPEED_REFERENCE_BITS`` count per sample.
-SPEED_REFERENCE_BITS = 4
-#: Speed reference unit in counts per sample.
-SPEED_REFERENCE_LSB = 1.0 / (1 << SPEED_REFERENCE_BITS)
-#: Largest magnitude of a reference in its integer unit (the device's 32-bit sine sum stays exact).
-MAX_REFERENCE = 65535
-_HALF = 1 << (GAIN_BITS - 1)
-
-
-def _q(x: float) -> int:
-    """``x`` as a Q16 integer gain."""
-    if not math.isfinite(x) or abs(x) * (1 << GAIN_BITS) >= 2**47:
-        raise ParameterError(f"gain {x!r} does not fit the fixed-point step (|gain| < 2**31)")
-    return int(round(x * (1 << GAIN_BITS)))
-
-
-def _sign(x: int) -> int:
-    return (x > 0) - (x < 0)
+           "Feedforward", "Prediction", "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
+           "tracking_error", "feedforward_gains", "settings_from"]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -330,57 +312,6 @@ class Reference:
         return f"{self.kind}:{parts}" + (f"@{self.level!r}" if self.level else "")
 
 
-class ReferenceWords(NamedTuple):
-    """A reference as the integers a device generates it from (the REFERENCE message of protocol v2).
-
-    ``kind`` is ``constant``, ``step``, ``multisine`` (a sine is one component) or ``trapezoid``;
-    ``level`` is the constant, the step value after ``start``, the sines' offset or the
-    trapezoid's plateau; ``before`` the step value before ``start``; ``start`` the step's switch
-    or the trapezoid's first sample; ``ramp`` and ``hold`` the trapezoid's ramp and plateau in
-    samples; ``components`` the sines' ``(amplitude, phase0, phase_inc)`` words.
-    """
-
-    kind: str
-    level: int = 0
-    before: int = 0
-    start: int = 0
-    ramp: int = 1
-    hold: int = 0
-    components: tuple = ()
-
-
-def reference_values(words: ReferenceWords, n_samples: int) -> np.ndarray:
-    """The integer reference of samples ``0 ... n_samples-1`` (int64), as a device computes it.
-
-    constant: ``level``; step: ``before`` for ``k < start``, else ``level``; multisine:
-    :func:`~motorsim.excitation.multisine_duty` of the components, plus ``level``; trapezoid,
-    with ``i = k - start``: ``floor(level min(max(i, 0), ramp) / ramp)`` while ``i < ramp + hold``,
-    then ``floor(level min(max(2 ramp + hold - i, 0), ramp) / ramp)`` (floor division, 64-bit).
-
-    Parameters
-    ----------
-    words : ReferenceWords
-        The reference's integers.
-    n_samples : int
-        Number of samples.
-    """
-    n = check_int("n_samples", n_samples, 0, 2**32 - 1)
-    k = np.arange(n, dtype=np.int64)
-    if words.kind == "constant":
-        return np.full(n, words.level, dtype=np.int64)
-    if words.kind == "step":
-        return np.where(k < words.start, words.before, words.level).astype(np.int64)
-    if words.kind == "multisine":
-        return multisine_duty(words.components, words.level, n)
-    if words.kind == "trapezoid":
-        nr = check_int("ramp", words.ramp, 1, 2**32 - 1)
-        i = k - words.start
-        up = (words.level * np.clip(i, 0, nr)) // nr
-        down = (words.level * np.clip(2 * nr + words.hold - i, 0, nr)) // nr
-        return np.where(i < nr + words.hold, up, down).astype(np.int64)
-    raise ParameterError(f"reference kind must be constant, step, multisine or trapezoid, got {words.kind!r}")
-
-
 def parse_reference(spec: str) -> Reference:
     """Read a reference from its one-line form (see :meth:`Reference.describe`).
 
@@ -448,84 +379,6 @@ class Prediction:
     output: np.ndarray
     duty: np.ndarray
     tracking_rms: float
-
-
-class ControlLoop:
-    """One run of a controller: the integer step, sample by sample (the device's arithmetic).
-
-    Parameters
-    ----------
-    kind : str
-        ``mpc``, ``pi``, ``position`` or ``feedforward``.
-    gains : mapping of str to int
-        The Q16 gains by name (:meth:`Controller.gains`, or :func:`gains_from_wire`).
-    preview : int
-        Samples of reference the step looks ahead.
-    reference : sequence of int or ndarray
-        The integer reference, at least ``n_samples + preview`` long.
-    duty_limit : int
-        Duty clamp, 0...255.
-    """
-
-    def __init__(self, kind: str, gains: Mapping[str, int], preview: int, reference: Sequence[int] | np.ndarray,
-                 duty_limit: int = DUTY_LIMIT):
-        if kind not in GAIN_ORDER:
-            raise ParameterError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
-        self.gains = {k: int(v) for k, v in gains.items()}
-        self.reference = [int(x) for x in reference]
-        self.preview = check_int("preview", preview, 0, 255)
-        self.limit = check_int("duty_limit", duty_limit, 0, DUTY_LIMIT)
-        self.ku = [self.gains[f"ku{m}"] for m in range(1, len(self.gains) + 1) if f"ku{m}" in self.gains]
-        self.history = [0] * max(1, len(self.ku))
-        self.integral = 0
-        self.previous: int | None = None
-        self.origin = 0
-        self.law = getattr(self, "_" + kind)
-        self.with_feedforward = "kn" in self.gains
-
-    def step(self, k: int, counts: int) -> int:
-        """The duty to apply from sample ``k`` on, given the encoder's ``counts`` read at ``k``."""
-        if self.previous is None:
-            self.previous = self.origin = counts
-        y = counts - self.previous
-        self.previous = counts
-        u = self.law(k, counts, y)
-        self.history = [u] + self.history[:-1]
-        return u
-
-    def _clip(self, acc: int) -> int:
-        u = (acc + _HALF) >> GAIN_BITS
-        return -self.limit if u < -self.limit else (self.limit if u > self.limit else u)
-
-    def _mpc(self, k: int, counts: int, y: int) -> int:
-        g, r = self.gains, self.reference[k + self.preview]
-        acc = g["kr"] * r + g["ky"] * y + g["k0"] + g["kf"] * _sign(r)
-        for gain, u in zip(self.ku, self.history):
-            acc += gain * u
-        return self._clip(acc)
-
-    def _feedforward_sum(self, k: int) -> int:
-        g, r1 = self.gains, self.reference[k + self.preview]
-        return g["kn"] * r1 + g["kc"] * self.reference[k + self.preview - 1] + g["k0"] + g["kf"] * _sign(r1)
-
-    def _feedforward(self, k: int, counts: int, y: int) -> int:
-        return self._clip(self._feedforward_sum(k))
-
-    def _pi(self, k: int, counts: int, y: int) -> int:
-        g = self.gains
-        err = self.reference[k] - (y << SPEED_REFERENCE_BITS)
-        integral = self.integral + err
-        acc = g["kp"] * err + g["ki"] * integral
-        if self.with_feedforward:
-            acc += self._feedforward_sum(k)
-        raw = (acc + _HALF) >> GAIN_BITS
-        if not ((raw > self.limit and err > 0) or (raw < -self.limit and err < 0)):
-            self.integral = integral  # anti-windup: no integration further into the limit
-        return self._clip(acc)
-
-    def _position(self, k: int, counts: int, y: int) -> int:
-        g = self.gains
-        return self._clip(g["kp"] * (self.reference[k] - (counts - self.origin)) - g["kd"] * y)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -642,10 +495,6 @@ def _fir(coefficients: Sequence[float], dt: float) -> control.TransferFunction:
     return control.tf(list(coefficients), den, dt)
 
 
-def _as_real(x: int) -> float:
-    return x / (1 << GAIN_BITS)
-
-
 @dataclasses.dataclass(frozen=True)
 class OneStepMPC(Controller):
     """One-step model predictive control of the speed (the plan of the article's section 6).
@@ -708,16 +557,16 @@ class OneStepMPC(Controller):
     def gains(self) -> dict[str, int]:
         k, c, e_ahead, gs = self._coefficients()
         m = self.model
-        out = {"kr": _q(k * SPEED_REFERENCE_LSB), "ky": _q(-k * e_ahead),
-               "k0": _q(-k * gs * m.bias / m.b), "kf": _q(k * gs * m.friction / m.b)}
-        out.update({f"ku{j}": _q(-k * cj) for j, cj in enumerate(c, 1)})
+        out = {"kr": quantise_gain(k * SPEED_REFERENCE_LSB), "ky": quantise_gain(-k * e_ahead),
+               "k0": quantise_gain(-k * gs * m.bias / m.b), "kf": quantise_gain(k * gs * m.friction / m.b)}
+        out.update({f"ku{j}": quantise_gain(-k * cj) for j, cj in enumerate(c, 1)})
         return out
 
     def laws(self):
         gains, dt = self.gains(), self.model.sample_period
-        ku = [_as_real(gains[f"ku{j}"]) for j in range(1, self.model.input_delay + 2)]
+        ku = [gain_value(gains[f"ku{j}"]) for j in range(1, self.model.input_delay + 2)]
         den = _fir([1.0, *(-x for x in ku)], dt)
-        return _fir([_as_real(gains["kr"])], dt) / den, _fir([_as_real(gains["ky"])], dt) / den
+        return _fir([gain_value(gains["kr"])], dt) / den, _fir([gain_value(gains["ky"])], dt) / den
 
 
 @dataclasses.dataclass(frozen=True)
@@ -745,14 +594,14 @@ class Feedforward(Controller):
 
     def laws(self):
         g, dt = self.gains(), self.model.sample_period
-        return _fir([_as_real(g["kn"]), _as_real(g["kc"])], dt), _fir([0.0], dt)
+        return _fir([gain_value(g["kn"]), gain_value(g["kc"])], dt), _fir([0.0], dt)
 
 
 def feedforward_gains(model: PlantModel) -> dict[str, int]:
     """Q16 gains ``kn, kc, k0, kf`` of the speed feedforward (see :class:`Feedforward`)."""
     e, g, _, _ = model.speed_coefficients()
-    return {"kn": _q(SPEED_REFERENCE_LSB / g), "kc": _q(-e * SPEED_REFERENCE_LSB / g),
-            "k0": _q(-model.bias / model.b), "kf": _q(model.friction / model.b)}
+    return {"kn": quantise_gain(SPEED_REFERENCE_LSB / g), "kc": quantise_gain(-e * SPEED_REFERENCE_LSB / g),
+            "k0": quantise_gain(-model.bias / model.b), "kf": quantise_gain(model.friction / model.b)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -802,7 +651,8 @@ class PISpeed(_PolePlacement):
     def gains(self) -> dict[str, int]:
         e, g, _, _ = self.model.speed_coefficients()
         p = math.exp(-self.model.sample_period / self.time_constant)
-        out = {"kp": _q((e - p * p) / g * SPEED_REFERENCE_LSB), "ki": _q((1 - p) ** 2 / g * SPEED_REFERENCE_LSB)}
+        out = {"kp": quantise_gain((e - p * p) / g * SPEED_REFERENCE_LSB),
+               "ki": quantise_gain((1 - p) ** 2 / g * SPEED_REFERENCE_LSB)}
         if out["ki"] == 0:
             raise ParameterError(f"time_constant {self.time_constant!r} s is too slow for the fixed-point integral "
                                  "gain (it rounds to 0); choose a shorter one")
@@ -813,11 +663,11 @@ class PISpeed(_PolePlacement):
     def laws(self):
         import control
         g, dt = self.gains(), self.model.sample_period
-        c = control.tf([_as_real(g["kp"]) + _as_real(g["ki"]), -_as_real(g["kp"])], [1.0, -1.0], dt)
+        c = control.tf([gain_value(g["kp"]) + gain_value(g["ki"]), -gain_value(g["kp"])], [1.0, -1.0], dt)
         delay = _fir([0.0] * self.preview + [1.0], dt)
         cr = c * delay
         if self.feedforward:
-            cr = cr + _fir([_as_real(g["kn"]), _as_real(g["kc"])], dt)
+            cr = cr + _fir([gain_value(g["kn"]), gain_value(g["kc"])], dt)
         return cr, -(1 << SPEED_REFERENCE_BITS) * c
 
 
@@ -856,49 +706,12 @@ class PositionPD(_PolePlacement):
     def gains(self) -> dict[str, int]:
         m, tau = self.model, self.time_constant
         kd = max(0.0, (2.0 / tau - m.a) / m.b) if self.derivative else 0.0
-        return {"kp": _q(1.0 / (m.b * tau * tau) / m.angle_scale), "kd": _q(kd / m.speed_scale)}
+        return {"kp": quantise_gain(1.0 / (m.b * tau * tau) / m.angle_scale), "kd": quantise_gain(kd / m.speed_scale)}
 
     def laws(self):
         g, dt = self.gains(), self.model.sample_period
-        kp, kd = _as_real(g["kp"]), _as_real(g["kd"])
+        kp, kd = gain_value(g["kp"]), gain_value(g["kd"])
         return _fir([kp], dt), _fir([-kp - kd, kd], dt)
-
-
-#: Names of each controller's gains in the order a device receives them (protocol v2 CONTROL);
-#: ``mpc`` then has ``ku1 ... ku(D+1)``, and ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
-GAIN_ORDER: dict[str, tuple[str, ...]] = {"mpc": ("kr", "ky", "k0", "kf"), "pi": ("kp", "ki"),
-                                          "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf")}
-
-
-def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
-    """The named gains of controller ``kind`` from the integers in their wire order (:data:`GAIN_ORDER`).
-
-    Parameters
-    ----------
-    kind : str
-        ``mpc``, ``pi``, ``position`` or ``feedforward``.
-    values : sequence of int
-        The gains as sent.
-
-    Examples
-    --------
-    >>> gains_from_wire("mpc", [1, 2, 3, 4, 5, 6])
-    {'kr': 1, 'ky': 2, 'k0': 3, 'kf': 4, 'ku1': 5, 'ku2': 6}
-    """
-    if kind not in GAIN_ORDER:
-        raise ParameterError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
-    names = list(GAIN_ORDER[kind])
-    values = [int(v) for v in values]
-    if kind == "mpc" and len(values) < 5:
-        raise ParameterError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
-                         f"got {len(values)}")
-    if kind == "mpc":
-        names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
-    elif kind == "pi" and len(values) == 6:
-        names += list(GAIN_ORDER["feedforward"])
-    if len(values) != len(names):
-        raise ParameterError(f"controller {kind!r} takes {len(names)} gains in the order {names}, got {len(values)}")
-    return dict(zip(names, values))
 
 
 #: Controllers by ``kind`` (``motorid control design --controller``).
@@ -1016,3 +829,19 @@ def settings_from(values: Mapping[str, Any], kind: str) -> dict[str, Any]:
     """The knobs of controller ``kind`` found in ``values`` (e.g. parsed CLI arguments), others ignored."""
     known = {f.name for f in dataclasses.fields(CONTROLLERS[kind])} - {"model"}
     return {k: v for k, v in values.items() if k in known and v is not None}
+
+
+#: Names of the fixed-point step this module no longer holds (old imports warn for one release).
+_MOVED = ("GAIN_BITS", "GAIN_ORDER", "gains_from_wire")
+
+
+def __getattr__(name: str):
+    # the step's other names are imported above and still resolve here; these warn and point to the new place
+    if name in _MOVED:
+        import warnings
+
+        from . import fixed_point
+        warnings.warn(f"motorsim.control.{name} moved to motorsim.fixed_point.{name}; the old name goes in the "
+                      "next release", DeprecationWarning, stacklevel=2)
+        return getattr(fixed_point, name)
+    raise AttributeError(f"module 'motorsim.control' has no attribute {name!r}")

@@ -16,8 +16,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from .checks import check_int, check_real
-from .control import ClosedLoopExperiment, ControlLoop
+from .control import ClosedLoopExperiment
 from .excitation import DUTY_LIMIT, Excitation
+from .fixed_point import ControlLoop
 from .knobs import Knob, knob, knobs_of
 from .plant import Motor, simulate, zoh_matrices
 from .recording import Recording

@@ -2,7 +2,7 @@
 
 The firmware computes each duty in its sample interrupt from the counts it has just read,
 in integer arithmetic (``motorid_bench.ino``, ``control_step``).  Here the Python reference,
-:class:`motorsim.control.ControlLoop`, is run afterwards on the counts the firmware recorded:
+:class:`motorsim.fixed_point.ControlLoop`, is run afterwards on the counts the firmware recorded:
 every duty must be the same, and the loop must track as the model predicts.
 """
 from __future__ import annotations

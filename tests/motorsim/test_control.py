@@ -163,3 +163,12 @@ def test_closed_loop_with_noise_drops_and_jitter_is_reproducible():
     a, b = run(4), run(4)
     np.testing.assert_array_equal(a.duty, b.duty)
     assert a.has_gaps and isinstance(a, Recording) and len(a.reference) == len(a)
+
+
+@pytest.mark.parametrize("name", ["GAIN_BITS", "GAIN_ORDER", "gains_from_wire"])
+def test_names_moved_to_fixed_point_still_import_from_control_with_a_warning(name):
+    import motorsim.control
+    import motorsim.fixed_point
+    with pytest.warns(DeprecationWarning, match="motorsim.fixed_point"):
+        old = getattr(motorsim.control, name)
+    assert old is getattr(motorsim.fixed_point, name)

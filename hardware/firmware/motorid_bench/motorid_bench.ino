@@ -3,7 +3,7 @@
 // Implements hardware/PROTOCOL.md (protocol version 2) exactly: COBS frames with CRC-16,
 // CONFIG/WAVE/CONTROL/REFERENCE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
 // In closed loop (a CONTROL naming a controller) each tick computes its duty from the counts
-// it has just read with the controller's integer step (motorsim/control.py is the reference).
+// it has just read with the controller's integer step (motorsim/fixed_point.py is the reference).
 //
 // Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt snapshots the
 // encoder count and micros(), applies the duty computed during the previous tick, queues the
@@ -478,7 +478,7 @@ static int32_t wave_next(void) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Closed loop (PROTOCOL.md "Closed loop"; motorsim/control.py ControlLoop is the reference).
+// Closed loop (PROTOCOL.md "Closed loop"; motorsim/fixed_point.py ControlLoop is the reference).
 
 // floor(a / b) for b > 0 (C's division truncates towards zero).
 static int32_t floor_div(int64_t a, uint32_t b) {
