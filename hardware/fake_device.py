@@ -31,6 +31,10 @@ Fault injection (:class:`FaultPlan`) acts on the device-to-host SAMPLE frames
 (bit flips, frames lost on the link, garbage bytes) and on the device itself
 (queue drops, going silent, disconnecting, a watchdog trip, never answering
 HELLO, another protocol version, time in the bootloader).
+
+One concept, the emulated device, in one module although it is long: its message
+handling, clock, queue and fault injection are the firmware's behaviour, which they
+mirror as one piece (the URL parsing at the end only builds one).
 """
 from __future__ import annotations
 

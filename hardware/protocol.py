@@ -18,6 +18,10 @@ CONFIG that make a device run a :class:`~motorsim.rig.Experiment`, and
 (version 2) :func:`control_for` and :func:`reference_for` build the CONTROL and
 REFERENCE of a :class:`~motorsim.control.ClosedLoopExperiment`; the device then runs
 the controller's integer step, :class:`motorsim.fixed_point.ControlLoop`, on its counts.
+
+One concept, the wire protocol, in one module although it is long: the messages, their
+framing and the duty and reference arithmetic are specified together in ``PROTOCOL.md``,
+change together with its version, and are tested against each other.
 """
 from __future__ import annotations
 

@@ -23,6 +23,10 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   STOP is sent and END awaited for :data:`STOP_TIMEOUT` s, so the recording attached to
   the exception (``exc.recording``, also on a ``KeyboardInterrupt``) holds the samples
   still in flight and the device's END counters (``device_end_reason`` 1: stopped by host).
+
+One concept, a run on the serial bench, in one module although it is long: the
+upload, the heartbeats, the checks of every sample and the orderly stop share one run's
+state and are only correct together.
 """
 from __future__ import annotations
 

@@ -31,6 +31,9 @@ the estimator (4 bounds of margin), not of an experiment too short to carry it.
    P position loop and a PI speed loop simulated here, and on the on-board controllers
    (one-step MPC, PI speed, PD position) run by ``SimRig`` with the firmware's fixed-point
    step; ``oe`` within 0.1 % of a and b on every run.
+
+One benchmark in one module although it is long: the sections share the independent
+integrator, the recording sizing and the table format, and run as one report.
 """
 from __future__ import annotations
 
