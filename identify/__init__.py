@@ -19,6 +19,8 @@ _WHERE = {
     "design_sine": "design", "predicted_stderr": "design", "DesignPoint": "design", "SineDesign": "design",
     "fit_percent": "validation", "nrmse_fit": "validation", "simulated_speed": "validation",
     "ValidationReport": "validation", "validate": "validation",
+    "FrequencyResponse": "frequency_response", "frequency_response": "frequency_response",
+    "zoh_speed_response": "frequency_response",
 }
 
 __all__ = list(_WHERE)
