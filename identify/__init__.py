@@ -21,6 +21,8 @@ _WHERE = {
     "ValidationReport": "validation", "validate": "validation",
     "FrequencyResponse": "frequency_response", "frequency_response": "frequency_response",
     "zoh_speed_response": "frequency_response",
+    "BestLinearApproximation": "best_linear", "best_linear_approximation": "best_linear",
+    "fit_frequency_response": "frequency_fit",
 }
 
 __all__ = list(_WHERE)
