@@ -63,7 +63,9 @@ from .sensitivity import phi_functions
 if TYPE_CHECKING:
     import control
 
-__all__ = ["FrequencyResponse", "frequency_response", "zoh_speed_response", "ESTIMATORS", "OUTPUTS",
+    from .estimate import Estimate
+
+__all__ = ["FrequencyResponse", "ModelResponse", "frequency_response", "zoh_speed_response", "ESTIMATORS", "OUTPUTS",
            "periodic_spectra", "excitation_of", "excitation_period"]
 
 #: The estimators ``frequency_response(method=...)`` accepts.
@@ -199,6 +201,33 @@ class FrequencyResponse:
         """Whether each value of ``response`` (shape (n,)) lies inside the confidence disk."""
         return np.abs(np.asarray(response) - self.response) <= self.radius(level)
 
+    def model_of(self, estimate: Estimate, name: str | None = None) -> ModelResponse:
+        """An estimate's model at these frequencies, with its variance from the estimate's covariance.
+
+        The linear part ``b/(s + a)`` with the estimate's input delay (friction, bias and dead zone
+        have no frequency response).  The variance is ``J C J^H`` with ``J`` the derivatives of the
+        response with respect to ``a`` and ``b`` (central differences) and ``C`` their covariance.
+        """
+        delay = int(estimate.extra.get("input_delay", 0))
+        g = self.model_response(estimate.a, estimate.b, delay)
+        variance = np.zeros(len(g))
+        if estimate.covariance is not None:
+            cov = np.asarray(estimate.covariance)[:2, :2]
+            jac = []
+            for i, value in enumerate((estimate.a, estimate.b)):
+                h = 1e-6 * max(abs(value), 1e-9)
+                step = np.array([h, 0.0]) if i == 0 else np.array([0.0, h])
+                up = self.model_response(estimate.a + step[0], estimate.b + step[1], delay)
+                down = self.model_response(estimate.a - step[0], estimate.b - step[1], delay)
+                jac.append((up - down) / (2 * h))
+            J = np.column_stack(jac)
+            variance = np.einsum("ni,ij,nj->n", J, cov, J.conj()).real
+        return ModelResponse(name or estimate.method, self.omega, g, np.maximum(variance, 0.0))
+
+    def departures(self, model: ModelResponse, level: float = 0.95) -> np.ndarray:
+        """Frequencies (rad/s) where ``model`` lies outside this response's confidence disk."""
+        return self.omega[~self.covers(model.response, level)]
+
     def frequency_response_data(self) -> control.FrequencyResponseData:
         """The response as ``control.FrequencyResponseData`` (omega in rad/s, discrete time ``dt``)."""
         import control
@@ -213,6 +242,35 @@ class FrequencyResponse:
                 "gain_low_db": [None if not np.isfinite(x) else float(x) for x in low],
                 "gain_high_db": high.tolist(), "phase_deg": self.phase_deg().tolist(),
                 "phase_bound_deg": self.phase_bounds_deg(level).tolist(), "coherence": self.coherence.tolist()}
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelResponse:
+    """A model's response at the frequencies of a :class:`FrequencyResponse`, with its variance.
+
+    Attributes
+    ----------
+    name : str
+        What the model is (the estimator's name, or a file).
+    omega : ndarray, shape (n,)
+        Angular frequencies in rad/s.
+    response : ndarray of complex, shape (n,)
+        The model's response in (rad/s)/duty.
+    variance : ndarray, shape (n,)
+        ``E |response - model with the true parameters|^2`` from the parameters' covariance.
+    """
+
+    name: str
+    omega: np.ndarray
+    response: np.ndarray
+    variance: np.ndarray
+
+    def radius(self, level: float = 0.95) -> np.ndarray:
+        """Radius of the model's confidence disk at ``level`` (a circular Gaussian approximation)."""
+        level = check_real("level", level, positive=True)
+        if level >= 1:
+            raise ValueError(f"level must be in (0, 1), got {level!r}")
+        return np.sqrt(self.variance * -math.log(1.0 - level))
 
 
 def excitation_of(recording: Recording):

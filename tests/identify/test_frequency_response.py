@@ -1,4 +1,5 @@
 """Frequency response from recordings: exact at the lines, honest bounds, the article's four sines, speed."""
+import dataclasses
 import math
 import time
 
@@ -149,3 +150,31 @@ def test_a_million_samples_in_half_a_second():
     frf = frequency_response(rec)
     assert time.perf_counter() - start <= 0.5
     assert frf.method == "welch"
+
+
+def test_a_models_band_comes_from_its_covariance_and_departures_are_found():
+    from identify import fit
+    rec = _run(EXCITATION, 5, encoder=Encoder(angle_noise=2e-3), rng=np.random.default_rng(7))
+    frf = frequency_response(rec)
+    est = fit(rec, method="oe")
+    model = frf.model_of(est)
+    assert model.name == "oe" and np.all(model.variance > 0)
+    assert np.all(model.radius() < frf.radius())        # a two-parameter model is tighter than each line
+    assert len(frf.departures(model)) <= 0.1 * len(frf)
+    wrong = frf.model_of(dataclasses.replace(est, a=20.0), name="a = 20")
+    assert len(frf.departures(wrong)) > 0.5 * len(frf)
+
+
+def test_undcmotor_prbs_run_gives_the_labs_static_gain_with_high_coherence():
+    from pathlib import Path
+    data = Path(__file__).parents[1] / "data" / "undcmotor" / "DCmotor_prbs_open_exp.csv"
+    t, u, y = np.loadtxt(data, delimiter=",", skiprows=1, unpack=True)
+    rec = Recording(time=t, duty=u, sample_period=0.02, speed=np.deg2rad(y), metadata={"input_unit": "V"})
+    frf = frequency_response(rec)
+    assert frf.method == "welch" and frf.output == "speed" and frf.input_unit == "V"
+    assert frf.resolution == pytest.approx(2 * math.pi / (256 * 0.02))
+    assert np.degrees(abs(frf.response[0])) == pytest.approx(159.86, rel=0.05)   # the lab's static K
+    low = frf.omega < 30
+    assert frf.coherence[low].min() > 0.95
+    # the one-sample input delay: the phase reaches about -360 degrees at the Nyquist frequency
+    assert frf.phase_deg()[-1] < -250
