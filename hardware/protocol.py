@@ -42,6 +42,7 @@ from motorsim.excitation import (
     Chirp,
     Constant,
     Multisine,
+    OddMultisine,
     Step,
     chirp_duty,
     multisine_duty,
@@ -56,7 +57,7 @@ __all__ = [
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason", "FaultCode",
     "WaveKind", "SampleFlag", "Hello", "Config", "Start", "Stop", "Heartbeat", "HelloAck", "Ack", "Nak",
     "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
-    "WavePrbs", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
+    "WavePrbs", "WaveOddMultisine", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
     "decode_frame", "encode_message", "decode_message", "FrameReader", "expand", "wave_for",
     "config_for", "check_version", "msg_type_of", "wave_range_problems", "FrameSplitter", "FrameError",
     "Control", "ControllerKind", "ReferenceKind", "ReferenceWords", "control_for", "reference_for",
@@ -65,7 +66,7 @@ __all__ = [
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 #: Longest payload of any frame, bytes.
 MAX_PAYLOAD = 60
 #: Longest encoded frame (without its delimiter) a receiver accepts, bytes.
@@ -128,6 +129,7 @@ class WaveKind(enum.IntEnum):
     MULTISINE = 2
     CHIRP = 3
     PRBS = 4
+    ODD_MULTISINE = 5
 
 
 class ControllerKind(enum.IntEnum):
@@ -312,8 +314,30 @@ class WavePrbs(NamedTuple):
     seed: int
 
 
-Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs]
-_WAVE_TYPES = (WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs)
+class WaveOddMultisine(NamedTuple):
+    """WAVE kind 5: the odd random-phase multisine of :class:`motorsim.excitation.OddMultisine`.
+
+    The device derives its lines and phases from these fields (PROTOCOL.md, "Waveforms");
+    the period is ``2**period_log2`` samples.
+    """
+
+    offset: int
+    amplitude: int
+    period_log2: int
+    max_harmonic: int
+    seed: int
+    group: int
+
+    def excitation(self) -> OddMultisine:
+        """The excitation these fields describe (ValueError when a field is out of range)."""
+        if not 4 <= self.period_log2 <= 16:
+            raise ValueError(f"period_log2 must be in 4...16, got {self.period_log2!r}")
+        return OddMultisine(1 << self.period_log2, self.max_harmonic, self.amplitude, self.seed, self.group,
+                            offset=self.offset)
+
+
+Wave = Union[WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs, WaveOddMultisine]
+_WAVE_TYPES = (WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs, WaveOddMultisine)
 Message = Union[Hello, Config, Start, Stop, Heartbeat, HelloAck, Ack, Nak, Sample, End, Fault, Boot, Wave, Control,
                 ReferenceWords]
 
@@ -334,12 +358,13 @@ _FIXED: dict[int, tuple[Any, struct.Struct]] = {
 }
 _TYPE_OF = {cls: t for t, (cls, _) in _FIXED.items()}
 _WAVE_KIND = {WaveConstant: WaveKind.CONSTANT, WaveStep: WaveKind.STEP, WaveMultisine: WaveKind.MULTISINE,
-              WaveChirp: WaveKind.CHIRP, WavePrbs: WaveKind.PRBS}
+              WaveChirp: WaveKind.CHIRP, WavePrbs: WaveKind.PRBS, WaveOddMultisine: WaveKind.ODD_MULTISINE}
 _WAVE_FIXED: dict[int, tuple[Any, struct.Struct]] = {
     WaveKind.CONSTANT: (WaveConstant, struct.Struct("<h")),
     WaveKind.STEP: (WaveStep, struct.Struct("<hhI")),
     WaveKind.CHIRP: (WaveChirp, struct.Struct("<hhIIi")),
     WaveKind.PRBS: (WavePrbs, struct.Struct("<hhBHH")),
+    WaveKind.ODD_MULTISINE: (WaveOddMultisine, struct.Struct("<hhBBHB")),
 }
 #: Wire position of each WavePrbs field (the wire order is low, high, order, seed, hold).
 _PRBS_WIRE = (1, 0, 2, 4, 3)
@@ -750,7 +775,7 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
 
     Parameters
     ----------
-    wave : WaveConstant, WaveStep, WaveMultisine, WaveChirp or WavePrbs
+    wave : WaveConstant, WaveStep, WaveMultisine, WaveChirp, WavePrbs or WaveOddMultisine
         Decoded WAVE parameters.
     n_samples : int
         Number of samples, >= 0.
@@ -767,6 +792,8 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
         raw = multisine_duty(wave.components, wave.offset, n)
     elif isinstance(wave, WaveChirp):
         raw = chirp_duty(wave.offset, wave.amplitude, wave.phase0, wave.inc0, wave.inc_step, n)
+    elif isinstance(wave, WaveOddMultisine):
+        raw = multisine_duty(wave.excitation().components(), wave.offset, n)
     elif isinstance(wave, WavePrbs):
         if wave.order not in PRBS_MASKS:
             raise ValueError(f"PRBS order must be in 2...16, got {wave.order!r}")
@@ -777,7 +804,7 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
         bits = prbs_bits(wave.order, wave.seed, -(-n // wave.hold))
         raw = np.where(np.repeat(bits, wave.hold)[:n] == 1, wave.high, wave.low).astype(np.int64)
     else:
-        raise TypeError(f"wave must be a WAVE message (WaveConstant, ..., WavePrbs), got {type(wave).__name__}")
+        raise TypeError(f"wave must be a WAVE message (WaveConstant, ..., WaveOddMultisine), got {type(wave).__name__}")
     return np.clip(raw, -duty_limit, duty_limit).astype(np.int64)
 
 
@@ -803,8 +830,11 @@ def wave_for(experiment: Experiment) -> Wave:
         return WaveChirp(ex.offset, ex.amplitude, 0, inc0, step)
     if isinstance(ex, PRBS):
         return WavePrbs(ex.high, ex.low, ex.order, ex.hold, ex.seed)
+    if isinstance(ex, OddMultisine):
+        return WaveOddMultisine(ex.offset, ex.amplitude, ex.period.bit_length() - 1, ex.max_harmonic, ex.seed,
+                                ex.group)
     raise ValueError(f"excitation must be one the device can generate (constant, step, sine, multisine, "
-                     f"chirp, prbs), got {type(ex).__name__}")
+                     f"chirp, prbs, odd-multisine), got {type(ex).__name__}")
 
 
 def control_for(experiment: ClosedLoopExperiment) -> Control:
@@ -919,5 +949,10 @@ def wave_range_problems(wave: Wave) -> list[str]:
             bad.append(f"seed must be in 1...2**order - 1, got {wave.seed}")
         if wave.hold < 1:
             bad.append(f"hold must be >= 1, got {wave.hold}")
+    elif isinstance(wave, WaveOddMultisine):
+        try:
+            wave.excitation()
+        except ValueError as exc:
+            bad.append(str(exc))
     return bad
 

@@ -17,8 +17,13 @@ _WHERE = {
     "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",
     "fit_reference_iv": "closed_loop",
     "design_sine": "design", "predicted_stderr": "design", "DesignPoint": "design", "SineDesign": "design",
+    "design_multisine": "design", "MultisineDesign": "design",
     "fit_percent": "validation", "nrmse_fit": "validation", "simulated_speed": "validation",
     "ValidationReport": "validation", "validate": "validation",
+    "FrequencyResponse": "frequency_response", "frequency_response": "frequency_response",
+    "zoh_speed_response": "frequency_response", "ModelResponse": "frequency_response",
+    "BestLinearApproximation": "best_linear", "best_linear_approximation": "best_linear",
+    "fit_frequency_response": "frequency_fit",
 }
 
 __all__ = list(_WHERE)

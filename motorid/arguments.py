@@ -88,6 +88,9 @@ EXCITATION_FLAGS = {
     "prbs": "HIGH,LOW[,ORDER[,HOLD[,SEED]]]: maximal-length PRBS between two duties, each bit held HOLD samples",
     "step": "AFTER[,AT_TIME[,BEFORE]]: step of the duty at AT_TIME s",
     "constant": "LEVEL: constant duty",
+    "odd-multisine": "PERIOD,MAX_HARMONIC,AMP[,SEED[,GROUP]]: odd random-phase multisine for the frequency "
+                     "response, a period of PERIOD samples (a power of two), odd harmonics up to MAX_HARMONIC of "
+                     "AMP duty each, one of every GROUP (default 3) left out; SEED picks the phases (0: Schroeder)",
 }
 
 
@@ -118,8 +121,9 @@ def experiment_from_args(args: argparse.Namespace) -> Experiment:
     """
     spec, given = args.excitation, f"--excitation {args.excitation}"
     for name in EXCITATION_FLAGS:
-        if getattr(args, name, None):
-            spec, given = f"{name}:{getattr(args, name)}", f"--{name} {getattr(args, name)}"
+        value = getattr(args, name.replace("-", "_"), None)
+        if value:
+            spec, given = f"{name}:{value}", f"--{name} {value}"
     try:
         experiment = Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
     except (ValueError, TypeError) as exc:

@@ -83,6 +83,11 @@ def _live() -> tuple[AddArguments, Run]:
     return live.add_live_arguments, live.run_live
 
 
+def _frequency() -> tuple[AddArguments, Run]:
+    from motorid.commands import frequency
+    return frequency.add_frequency_arguments, frequency.run_frequency
+
+
 def _control() -> tuple[AddArguments, Run]:
     from motorid.commands import control
     return control.add_control_arguments, control.run_control
@@ -98,6 +103,7 @@ COMMANDS: dict[str, Command] = {
     "design": Command("recommend the sine that minimises the Cramér-Rao bound of a and b", _design),
     "live": Command("run an experiment on the bench (or 'fake://'), record it live, identify", _live),
     "control": Command("design a controller from a model and predict its closed-loop response", _control),
+    "frequency": Command("frequency response of recordings (Bode with bounds, models, distortion)", _frequency),
 }
 
 

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["plot_run", "plot_overlay", "plot_validation", "plot_sweep_frequency", "plot_sweep_heatmap",
-           "plot_design", "plot_prediction", "plot_tracking", "axis_label", "LivePlot"]
+           "plot_design", "plot_prediction", "plot_tracking", "plot_bode", "bode_axes", "axis_label", "LivePlot"]
 
 #: Dots per inch of the PNGs.
 DPI = 110
@@ -288,15 +288,24 @@ def plot_design(frequencies, stderr_a, stderr_b, path=None, *, marks: Sequence[t
     return _finish(fig, path)
 
 
-def plot_validation(report, estimate, path=None, *, title: str = "") -> Figure:
+def plot_validation(report, estimate, path=None, *, title: str = "", frequency_response=None) -> Figure:
     """Validation figure: measured vs model speed, their difference against time, the residual
-    autocorrelation and the residual-input cross-correlation, each correlation with its 95 % band.
+    autocorrelation and the residual-input cross-correlation, each correlation with its 95 % band,
+    and, given ``frequency_response``, a Bode panel of the data with the model (:func:`bode_axes`).
 
-    ``report`` is an ``identify.validation.ValidationReport`` of ``estimate``.  The PNG is
-    written to ``path`` when given; the figure is returned.
+    ``report`` is an ``identify.validation.ValidationReport`` of ``estimate``;
+    ``frequency_response`` an ``identify.frequency_response.FrequencyResponse`` of the same
+    recording.  The PNG is written to ``path`` when given; the figure is returned.
     """
-    fig = _figure(9, 8.4)
-    grid = fig.add_gridspec(3, 2, height_ratios=(1.2, 0.8, 1))
+    bode = frequency_response is not None
+    fig = _figure(9, 11.4 if bode else 8.4)
+    grid = fig.add_gridspec(4 if bode else 3, 2, height_ratios=(1.2, 0.8, 1, 1.1) if bode else (1.2, 0.8, 1))
+    if bode:
+        gain_ax, phase_ax = fig.add_subplot(grid[3, 0]), fig.add_subplot(grid[3, 1])
+        bode_axes(gain_ax, phase_ax, frequency_response, [frequency_response.model_of(estimate)])
+        gain_ax.set_xlabel("ω [rad/s]")
+        gain_ax.set_title(f"frequency response ({frequency_response.method}) and {estimate.method}", fontsize=9)
+        gain_ax.legend(loc="lower left", fontsize=6, frameon=False)
     ax = fig.add_subplot(grid[0, :])
     ax.plot(report.time, report.measured_speed, color="0.3", lw=0.8, label="measured ω")
     ax.plot(report.time, report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
@@ -323,6 +332,83 @@ def plot_validation(report, estimate, path=None, *, title: str = "") -> Figure:
     cc.set_ylabel("cross-correlation residual–duty")
     fig.legend(*ac.get_legend_handles_labels(), loc="outside lower center", fontsize=7, frameon=False)
     fig.suptitle(title or "validation")
+    return _finish(fig, path)
+
+
+_MODEL_COLOURS = ("tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+def bode_axes(gain_ax, phase_ax, frf, models: Sequence = (), *, level: float = 0.95, distortion=None) -> None:
+    """Draw a frequency response with its bounds, models with their bands and their departures, on two axes.
+
+    ``frf`` is an ``identify.frequency_response.FrequencyResponse``, ``models`` are its
+    ``ModelResponse``s; ``distortion`` an optional ``BestLinearApproximation`` whose detection lines
+    are drawn on the gain axis (odd and even distortion, and the noise).
+    """
+    w = frf.omega
+    low, high = frf.gain_bounds_db(level)
+    phase, half = frf.phase_deg(), frf.phase_bounds_deg(level)
+    pct = f"{100 * level:g} %"
+    gain_ax.fill_between(w, np.maximum(low, frf.gain_db().min() - 40), high, color="0.6", alpha=0.35, lw=0,
+                         label=f"data, {pct} bound")
+    gain_ax.plot(w, frf.gain_db(), ".", color="0.2", ms=3, label=f"data ({frf.method})")
+    phase_ax.fill_between(w, phase - half, phase + half, color="0.6", alpha=0.35, lw=0)
+    phase_ax.plot(w, phase, ".", color="0.2", ms=3)
+    for colour, m in zip(_MODEL_COLOURS * 4, models):
+        gm = 20 * np.log10(np.abs(m.response))
+        r = m.radius(level) / np.abs(m.response)
+        pm = np.degrees(np.unwrap(np.angle(m.response)))
+        pm += 360.0 * np.round((phase[0] - pm[0]) / 360.0)
+        gain_ax.plot(w, gm, color=colour, lw=1.2, label=m.name)
+        gain_ax.fill_between(w, gm + 20 * np.log10(np.maximum(1 - r, 1e-3)), gm + 20 * np.log10(1 + r),
+                             color=colour, alpha=0.25, lw=0)
+        phase_ax.plot(w, pm, color=colour, lw=1.2)
+        dp = np.degrees(np.arcsin(np.minimum(r, 1)))
+        phase_ax.fill_between(w, pm - dp, pm + dp, color=colour, alpha=0.25, lw=0)
+        out = ~frf.covers(m.response, level)
+        if np.any(out):
+            gain_ax.plot(w[out], gm[out], "x", color=colour, ms=5, label=f"{m.name} outside the data's bound")
+    if distortion is not None:
+        # powers relative to the mean linear output per line, drawn as gains: every excited line has the
+        # same |U|, so output power / |U|^2 is a gain and the mean linear output sits at the mean |G|^2
+        shift = 10 * np.log10(np.mean(np.abs(distortion.frequency_response.response) ** 2))
+        for kind, marker in (("odd", "v"), ("even", "^")):
+            sel = distortion.detection_kind == kind
+            gain_ax.plot(distortion.detection_omega[sel], distortion.distortion_db()[sel] + shift, marker,
+                         ms=3, color="tab:red" if kind == "odd" else "tab:blue", ls="none",
+                         label=f"{kind}-order distortion")
+        gain_ax.plot(distortion.detection_omega, distortion.noise_db() + shift, "_", color="0.4", ms=4,
+                     ls="none", label="noise")
+    gain_ax.set_xscale("log")
+    gain_ax.set_ylabel(f"gain [dB re 1 (rad/s)/{frf.input_unit}]")
+    gain_ax.grid(alpha=0.3, which="both")
+    phase_ax.set_xscale("log")
+    phase_ax.set_ylabel("phase [deg]")
+    phase_ax.set_xlabel("ω [rad/s]")
+    phase_ax.grid(alpha=0.3, which="both")
+
+
+def plot_bode(frf, models: Sequence = (), path=None, *, title: str = "", level: float = 0.95,
+              distortion=None) -> Figure:
+    """Bode plot of a frequency response with its bounds and coherence, and models with their bands.
+
+    ``frf``, ``models`` and ``distortion`` as :func:`bode_axes`.  A cross marks each frequency
+    where a model leaves the data's bound.  The PNG is written to ``path`` when given.
+    """
+    fig = _figure(8, 8)
+    grid = fig.add_gridspec(3, 1, height_ratios=(1.3, 1, 0.5))
+    gain_ax = fig.add_subplot(grid[0])
+    phase_ax = fig.add_subplot(grid[1], sharex=gain_ax)
+    coh = fig.add_subplot(grid[2], sharex=gain_ax)
+    bode_axes(gain_ax, phase_ax, frf, models, level=level, distortion=distortion)
+    phase_ax.set_xlabel("")
+    coh.plot(frf.omega, frf.coherence, ".", color="0.2", ms=3)
+    coh.set_ylim(0, 1.05)
+    coh.set_ylabel("coherence")
+    coh.set_xlabel("ω [rad/s]" + (f"   (resolution {frf.resolution:.3g} rad/s)" if frf.resolution else ""))
+    coh.grid(alpha=0.3, which="both")
+    gain_ax.legend(loc="lower left", fontsize=7, frameon=False)
+    fig.suptitle(title or "frequency response duty → speed")
     return _finish(fig, path)
 
 

@@ -1,5 +1,16 @@
 """motorsim: the simulated bench (plant, excitations, encoder, recordings, rigs)."""
-from .excitation import DUTY_LIMIT, PRBS, Chirp, Constant, Excitation, Multisine, Sine, Step, parse_excitation
+from .excitation import (
+    DUTY_LIMIT,
+    PRBS,
+    Chirp,
+    Constant,
+    Excitation,
+    Multisine,
+    OddMultisine,
+    Sine,
+    Step,
+    parse_excitation,
+)
 from .plant import Motor, Trajectory, simulate
 from .reading import read_recording
 from .recording import Recording, RecordingFormatError
@@ -8,7 +19,7 @@ from .sensors import DEFAULT_COUNTS_PER_REV, Encoder, backward_difference, count
 from .writing import RecordingWriter, write_recording
 
 __all__ = [
-    "DUTY_LIMIT", "PRBS", "Chirp", "Constant", "Excitation", "Multisine", "Sine", "Step",
+    "DUTY_LIMIT", "PRBS", "Chirp", "Constant", "Excitation", "Multisine", "OddMultisine", "Sine", "Step",
     "parse_excitation", "Motor", "Trajectory", "simulate", "Recording", "RecordingFormatError",
     "read_recording", "write_recording", "RecordingWriter", "Experiment", "Rig", "SimRig", "DEFAULT_COUNTS_PER_REV",
     "Encoder", "backward_difference", "counts_to_angle",

@@ -27,10 +27,10 @@ import numpy as np
 from .checks import ParameterError, check_int, check_real
 
 __all__ = [
-    "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS",
+    "Excitation", "Constant", "Step", "Sine", "Multisine", "Chirp", "PRBS", "OddMultisine",
     "sine_table", "sine_q15", "phase_increment", "multisine_duty", "chirp_duty", "prbs_bits",
     "parse_excitation", "split_spec", "spec_numbers",
-    "DUTY_LIMIT", "MAX_AMPLITUDE", "MAX_COMPONENTS", "PRBS_MASKS",
+    "DUTY_LIMIT", "MAX_AMPLITUDE", "MAX_COMPONENTS", "MAX_ODD_LINES", "PRBS_MASKS",
 ]
 
 #: Largest duty magnitude an 8-bit PWM (Arduino ``analogWrite``) accepts.
@@ -39,6 +39,9 @@ DUTY_LIMIT = 255
 MAX_AMPLITUDE = 1023
 #: Most sine components in one multisine (firmware limit).
 MAX_COMPONENTS = 4
+#: Most odd harmonics (excited or left out) of an odd multisine: 64 lines of amplitude 1023
+#: keep the int32 sum of ``amplitude * sine_q15`` exact.
+MAX_ODD_LINES = 64
 _TABLE_BITS = 10
 _TABLE_SIZE = 1 << _TABLE_BITS
 _TWO32 = 1 << 32
@@ -448,8 +451,150 @@ class PRBS(Excitation):
         return f"prbs:{self.high},{self.low},{self.order},{self.hold},{self.seed}"
 
 
+def _lfsr_words(seed: int, n_words: int) -> list[int]:
+    """``n_words`` 16-bit words from the order-16 LFSR of :func:`prbs_bits`, least significant bit first."""
+    bits = prbs_bits(16, seed, 16 * n_words).reshape(n_words, 16).astype(np.int64)
+    return (bits << np.arange(16)).sum(axis=1).tolist()
+
+
+@dataclasses.dataclass(frozen=True)
+class OddMultisine(Excitation):
+    """Odd random-phase multisine: odd harmonics of a period, some left out to detect distortion.
+
+    The period is ``period`` samples (a power of two, so each line's phase step
+    ``h * 2**32 / period`` is an exact integer and the duty repeats exactly every period).
+    The odd harmonics ``h = 3, 5, ..., max_harmonic`` are taken in groups of ``group``
+    consecutive ones (the fundamental is always excited); one line of each group is left out
+    (a *detection line*: a linear motor puts nothing there, a nonlinear one does).  Even
+    harmonics are never excited, so output at them is even-order distortion.  The duty is the
+    :class:`Multisine` arithmetic (``hardware/PROTOCOL.md``) over the excited lines, each of
+    amplitude ``amplitude``.
+
+    Random numbers are 16-bit words of the order-16 Galois LFSR of :class:`PRBS`, least
+    significant bit first.  The left-out lines are the same for every seed (so realisations
+    share one amplitude spectrum): word ``g`` of the LFSR started at 1 leaves out line
+    ``word mod group`` of group ``g`` (an incomplete last group keeps all its lines).  The
+    phases are the realisation: word ``i`` of the LFSR started at ``seed`` is the phase of the
+    ``i``-th odd harmonic, ``word * 2**16`` (a u32 phase word).  ``seed = 0`` gives Schroeder
+    phases instead, ``-pi j (j - 1) / F`` for the ``j``-th of ``F`` excited lines (phase word
+    ``floor(-j (j - 1) 2**31 / F) mod 2**32``).
+
+    Parameters
+    ----------
+    period : int
+        Samples per period, a power of two, 16 ... 65536.
+    max_harmonic : int
+        Highest odd harmonic, odd, below ``period / 2``; at most :data:`MAX_ODD_LINES` odd lines.
+    amplitude : int
+        Amplitude of each excited line in duty units, ``1 ... 1023``.
+    seed : int, optional
+        LFSR seed 1 ... 65535 of the random phases (one realisation), or 0 (Schroeder phases).
+    group : int, optional
+        One odd line of every ``group`` consecutive ones is left out, 2 ... 16; 0 leaves none out.
+    offset : int, optional
+        Constant duty added.
+
+    Examples
+    --------
+    >>> ex = OddMultisine(period=256, max_harmonic=15, amplitude=20, seed=7)
+    >>> ex.excited_harmonics(), ex.detection_harmonics()
+    ((1, 5, 7, 9, 13, 15), (3, 11))
+    >>> ex.describe()
+    'odd-multisine:256,15,20,7,3'
+    >>> d = ex.duty(512, 0.005)
+    >>> bool((d[:256] == d[256:]).all())
+    True
+    """
+
+    period: int = 1024
+    max_harmonic: int = 31
+    amplitude: int = 20
+    seed: int = 1
+    group: int = 3
+    offset: int = 0
+    kind: ClassVar[str] = "odd-multisine"
+
+    def __post_init__(self):
+        period = check_int("period", self.period, 16, 65536)
+        if period & (period - 1):
+            raise ValueError(f"period must be a power of two (samples), got {period!r}")
+        h = check_int("max_harmonic", self.max_harmonic, 1, period // 2 - 1)
+        if h % 2 == 0:
+            raise ValueError(f"max_harmonic must be odd, got {h!r}")
+        if (h + 1) // 2 > MAX_ODD_LINES:
+            raise ValueError(f"max_harmonic must be at most {2 * MAX_ODD_LINES - 1} "
+                             f"({MAX_ODD_LINES} odd lines), got {h!r}")
+        object.__setattr__(self, "period", period)
+        object.__setattr__(self, "max_harmonic", h)
+        object.__setattr__(self, "amplitude", check_int("amplitude", self.amplitude, 1, MAX_AMPLITUDE))
+        object.__setattr__(self, "seed", check_int("seed", self.seed, 0, 65535))
+        group = check_int("group", self.group, 0, 16)
+        if group == 1:
+            raise ValueError(f"group must be 0 (no line left out) or 2...16, got {group!r}")
+        object.__setattr__(self, "group", group)
+        object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
+
+    def _odd(self) -> list[int]:
+        return list(range(1, self.max_harmonic + 1, 2))
+
+    def _left_out(self) -> set[int]:
+        odd = self._odd()[1:]  # the fundamental is always excited
+        if self.group == 0:
+            return set()
+        n_groups = -(-len(odd) // self.group)
+        picks = [w % self.group for w in _lfsr_words(1, n_groups)]
+        out = set()
+        for g, pick in enumerate(picks):
+            members = odd[g * self.group:(g + 1) * self.group]
+            if len(members) == self.group:  # an incomplete last group keeps all its lines
+                out.add(members[pick])
+        return out
+
+    def excited_harmonics(self) -> tuple[int, ...]:
+        """The excited harmonics (odd, increasing)."""
+        left_out = self._left_out()
+        return tuple(h for h in self._odd() if h not in left_out)
+
+    def detection_harmonics(self) -> tuple[int, ...]:
+        """The odd harmonics left out (nothing there but noise and odd-order distortion)."""
+        return tuple(sorted(self._left_out()))
+
+    def line_frequencies(self, sample_period: float, harmonics: Sequence[int] | None = None) -> np.ndarray:
+        """Angular frequencies in rad/s of ``harmonics`` (default the excited ones), ``2 pi h / (period dt)``."""
+        sample_period = check_real("sample_period", sample_period, positive=True)
+        h = np.asarray(self.excited_harmonics() if harmonics is None else harmonics, dtype=float)
+        return 2.0 * math.pi * h / (self.period * sample_period)
+
+    def phase_words(self) -> tuple[int, ...]:
+        """u32 start phase of each excited line (``2**32`` = one cycle)."""
+        excited = self.excited_harmonics()
+        if self.seed == 0:
+            f = len(excited)
+            return tuple((-(j * (j - 1)) * 2**31 // f) % _TWO32 for j in range(1, f + 1))
+        odd = self._odd()
+        words = _lfsr_words(self.seed, len(odd))
+        by_harmonic = dict(zip(odd, words))
+        return tuple(by_harmonic[h] << 16 for h in excited)
+
+    def components(self, sample_period: float = 1.0) -> list[tuple[int, int, int]]:
+        """``(amplitude, phase0, phase_inc)`` per excited line, as :func:`multisine_duty` takes them.
+
+        The words do not depend on the sample period (the period is counted in samples).
+        """
+        shift = 32 - (self.period.bit_length() - 1)
+        return [(self.amplitude, p, h << shift) for h, p in zip(self.excited_harmonics(), self.phase_words())]
+
+    def _raw(self, n, dt):
+        return multisine_duty(self.components(), self.offset, n)
+
+    def describe(self):
+        return (f"odd-multisine:{self.period},{self.max_harmonic},{self.amplitude},{self.seed},{self.group}"
+                + (f"@{self.offset}" if self.offset else ""))
+
+
 _PARSE_HELP = ("sine:FREQ[,AMP[,PHASE]]  multisine:F,A,P;F,A,P...  chirp:F0,F1[,AMP]  "
-               "prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]  step:AFTER[,AT_TIME[,BEFORE]]  constant:LEVEL")
+               "prbs:HIGH,LOW[,ORDER[,HOLD[,SEED]]]  step:AFTER[,AT_TIME[,BEFORE]]  constant:LEVEL  "
+               "odd-multisine:PERIOD,MAX_HARMONIC,AMP[,SEED[,GROUP]]")
 
 
 def split_spec(spec: str, what: str, forms: str) -> tuple[str, str, float]:
@@ -535,15 +680,25 @@ def _parse_constant(args: str, spec: str, offset: float) -> Excitation:
     return Constant(v[0])
 
 
+def _parse_odd_multisine(args: str, spec: str, offset: float) -> Excitation:
+    v = _ints(_numbers(args, spec))
+    if not 3 <= len(v) <= 5:
+        raise ValueError(f"excitation {spec!r}: odd-multisine takes PERIOD,MAX_HARMONIC,AMP[,SEED[,GROUP]]")
+    period, max_harmonic, amplitude, *rest = v
+    seed = rest[0] if rest else 1
+    group = rest[1] if len(rest) > 1 else 3
+    return OddMultisine(period, max_harmonic, amplitude, seed, group, offset=_ints([offset])[0])
+
+
 #: kind -> reader of ``ARGS`` (with the ``@OFFSET`` already split off).
 _PARSERS = {"sine": _parse_sine, "multisine": _parse_multisine, "chirp": _parse_chirp, "prbs": _parse_prbs,
-            "step": _parse_step, "constant": _parse_constant}
+            "step": _parse_step, "constant": _parse_constant, "odd-multisine": _parse_odd_multisine}
 
 
 def parse_excitation(spec: str) -> Excitation:
     """Read an excitation from its one-line form (``sine:10,200,0.5``; see :meth:`Excitation.describe`).
 
-    Optional ``@OFFSET`` at the end of sine, multisine and chirp adds a constant duty.
+    Optional ``@OFFSET`` at the end of sine, multisine, chirp and odd-multisine adds a constant duty.
 
     Parameters
     ----------

@@ -10,6 +10,7 @@
 ``parse``    :mod:`~motorid.bench.parse`: reading a large recording against pandas.read_csv
 ``startup``  :mod:`~motorid.bench.startup`: ``motorid --help`` and ``identify`` against ``import control``
 ``control``  :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
+``frequency`` :mod:`~motorid.bench.frequency`: the frequency response against scipy.signal csd/welch
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -78,6 +79,11 @@ def _control(argv: Sequence[str]) -> int:
     return bench_control(argv)
 
 
+def _frequency(argv: Sequence[str]) -> int:
+    from motorid.bench.frequency import bench_frequency
+    return bench_frequency(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -93,5 +99,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "startup": Benchmark(_startup, "motorid --help and motorid identify small.csv against python -c 'import control' "
                                    "(subprocesses, medians)"),
     "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
+    "frequency": Benchmark(_frequency, "frequency_response of 10^6 samples (bounds, coherence) against "
+                                       "scipy.signal.csd + welch of the same data"),
 }
 

@@ -1,6 +1,7 @@
-"""``motorid design``: the sine that pins down a and b best, next to the article's four.
+"""``motorid design``: the sine that pins down a and b best, next to the article's four, and a multisine.
 
-The computation is :func:`identify.design.design_sine`; this module is its command line.
+The computations are :func:`identify.design.design_sine` and :func:`identify.design.design_multisine`;
+this module is their command line.
 """
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.design import SineDesign, design_sine
+from identify.design import SineDesign, design_multisine, design_sine
 from motorsim.files import make_output_dir, write_atomically
 
 __all__ = ["format_design", "add_design_arguments", "run_design"]
@@ -46,6 +47,9 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="design-output", metavar="DIR",
                         help="folder for design.json and design.png (default design-output)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG")
+    parser.add_argument("--precision", type=float, default=None, metavar="PCT",
+                        help="target relative standard error of the frequency response at every line of the "
+                             "recommended multisine [%%] (default: the precision of the whole --duration)")
 
 
 def run_design(args: argparse.Namespace) -> int:
@@ -58,9 +62,18 @@ def run_design(args: argparse.Namespace) -> int:
     print(f"recommended: {b.amplitude} sin({b.frequency:.4g} t)  (duty limit {args.duty_limit}); "
           "predicted Cramér-Rao standard errors:\n")
     print(format_design(design))
+    ms = design_multisine(args.a, args.b, args.sample_period, counts_per_rev=args.counts_per_rev,
+                          angle_noise=args.angle_noise, duration=args.duration, duty_limit=args.duty_limit,
+                          precision=None if args.precision is None else args.precision / 100)
+    print(f"\nfor the frequency response (motorid frequency): --excitation {ms.excitation.describe()} "
+          f"--duration {ms.duration:g}\n  {ms.periods} periods, lines {ms.band[0]:.4g}-{ms.band[1]:.4g} rad/s; "
+          f"response within {100 * ms.line_stderr:.3g} % (one standard error) at every line; "
+          f"se(a)/a {100 * ms.stderr_a / args.a:.3g} %, se(b)/b {100 * ms.stderr_b / abs(args.b):.3g} %")
+    if args.precision is not None and ms.line_stderr > args.precision / 100:
+        print(f"  the target {args.precision:g} % needs a longer --duration than {args.duration:g} s")
     out = Path(args.out)
     make_output_dir(out)
-    write_atomically(out / "design.json", json.dumps(design.to_dict(), indent=1))
+    write_atomically(out / "design.json", json.dumps({**design.to_dict(), "multisine": ms.to_dict()}, indent=1))
     paths = [out / "design.json"]
     if not args.no_plots:
         from motorid import plots

@@ -43,8 +43,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                         help="oe-friction: hold the constant acceleration (bias, rad/s^2) at 0")
     parser.add_argument("--validate", metavar="TEST", help="held-out recording: NRMSE fit and residual tests")
     parser.add_argument("--report", metavar="FILE.png",
-                        help="figure: measured vs model speed, residual autocorrelation and cross-correlation "
-                             "(on TEST, else on the first FILE)")
+                        help="figure: measured vs model speed, residual autocorrelation and cross-correlation, "
+                             "a Bode panel of data and model (on TEST, else on the first FILE)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON document on stdout (the human-readable text goes to stderr)")
     parser.add_argument("--drop-outliers", action="store_true",
@@ -116,8 +116,9 @@ def run_identify(args: argparse.Namespace) -> int:
     if dropped:
         out["dropped_samples"] = {d.file: d.seq for d in dropped}
     report = None
-    if args.validate:
-        report = validate(est, read_inputs([args.validate], args)[0])
+    held_out = read_inputs([args.validate], args)[0] if args.validate else None
+    if held_out is not None:
+        report = validate(est, held_out)
         say(format_validation(report, args.validate))
         out.update(report.summary())
     if args.report:
@@ -125,11 +126,22 @@ def run_identify(args: argparse.Namespace) -> int:
         if report is None:
             report = validate(est, recs[0])
         where = args.validate or args.files[0]
-        plot_validation(report, est, args.report, title=f"{est.method} on {where}")
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}",
+                        frequency_response=_frequency_response(held_out if held_out is not None else recs[0]))
         say(f"report      {args.report}")
     if args.json:
         print(json.dumps(json_ready(out)))
     return 0
+
+
+def _frequency_response(recording: Recording):
+    """The report's Bode panel data, or None when the recording cannot give one (too short, gaps)."""
+    from identify.errors import NotIdentifiableError
+    from identify.frequency_response import frequency_response
+    try:
+        return frequency_response(recording)
+    except NotIdentifiableError:
+        return None
 
 
 def format_estimate(est) -> str:

@@ -48,7 +48,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 def _run_closed_loop(args: argparse.Namespace) -> int:
     from motorid.commands.control import controller_from_args, model_from_args
     from motorsim.control import ClosedLoopExperiment, parse_reference, tracking_error
-    given = [f"--{name}" for name in (*EXCITATION_FLAGS, "excitation") if getattr(args, name, None)]
+    given = [f"--{name}" for name in (*EXCITATION_FLAGS, "excitation") if getattr(args, name.replace("-", "_"), None)]
     if given:
         raise CommandError(f"{', '.join(given)} and --controller exclude each other: the controller sets the duty")
     controller = controller_from_args(args, model_from_args(args))

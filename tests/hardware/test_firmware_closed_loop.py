@@ -45,7 +45,7 @@ def runs():
     out = []
     with open_avr_sim(url, 250000, 0.02) as port, SerialRig(port, 250000, counts_per_rev=16667,
                                                             watchdog_ms=200) as rig:
-        assert rig.device.version == P.PROTOCOL_VERSION == 2
+        assert rig.device.version == P.PROTOCOL_VERSION == 3
         for controller, spec in CASES:
             exp = ClosedLoopExperiment(controller, parse_reference(spec), 1.5)
             out.append((controller, spec, exp, rig.run(exp)))

@@ -24,7 +24,7 @@ from hardware.errors import DeviceFaultError
 from hardware.serial_rig import SerialRig
 from hardware.sim.device_link import DeviceLink
 from hardware.sim.launcher import build, missing_tools, open_avr_sim
-from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Sine, Step
+from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, OddMultisine, Sine, Step
 
 A, B, COUNTS_PER_REV = 25.0, 3.0, 16667
 # 20 rad/s, amplitude 100: the speed swings +-9.4 rad/s (25 k counts/s, well under the
@@ -88,7 +88,7 @@ def _fit_output_error(counts: np.ndarray, duty: np.ndarray, h: float, counts_per
 def test_hello_ack_reports_protocol_version_clock_and_power_on_reset(sine_run):
     device, _ = sine_run
     assert device.version == P.PROTOCOL_VERSION
-    assert device.firmware_version == 0x0200   # 2.0 (major << 8 | minor)
+    assert device.firmware_version == 0x0300   # 3.0 (major << 8 | minor)
     assert device.counts_per_rev == 0          # config.h leaves ENCODER_COUNTS_PER_REV unset
     assert device.f_cpu_hz == 16_000_000
     assert device.max_payload == P.MAX_PAYLOAD
@@ -147,12 +147,16 @@ def test_every_waveform_kind_matches_the_host_bit_for_bit(built):
         Experiment(PRBS(180, -160, order=7, hold=3, seed=5), sample_period=0.001, duration=0.3),
         Experiment(Step(-90, 0.1, 60), sample_period=0.001, duration=0.3),
         Experiment(Constant(-1023), sample_period=0.001, duration=0.1, duty_limit=37),
+        Experiment(OddMultisine(256, 127, 15, 4321, offset=5), sample_period=0.002, duration=0.6),  # 43 of 64 odd lines
+        Experiment(OddMultisine(64, 31, 40, 0, 0), sample_period=0.001, duration=0.2),   # Schroeder, none left out
+        Experiment(OddMultisine(65536, 41, 30, 9, 4), sample_period=0.001, duration=0.2, duty_limit=90),
     ]
     with _rig() as (rig, _):
         for experiment in experiments:
             rec = rig.run(experiment)   # SerialRig also checks each duty against expand() on arrival
             np.testing.assert_array_equal(rec.duty, experiment.duty(), err_msg=experiment.excitation.describe())
             assert rec.metadata["host_duty_mismatches"] == "0"
+            assert rec.metadata["device_tick_overruns"] == "0", experiment.excitation.describe()
 
 
 # ------------------------------------------------------------------ STOP and watchdog

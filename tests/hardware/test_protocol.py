@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from hardware import protocol as P
 from hardware.errors import FrameError, ProtocolError, ProtocolVersionError
-from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, Sine, Step
+from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, OddMultisine, Sine, Step
 
 
 # ------------------------------------------------------------------ CRC and COBS
@@ -62,7 +62,7 @@ _MESSAGES = [
     P.Sample(123456, 4_000_000_000, -2_000_000_000, -255, 3), P.End(0, 2000, 1, 2, 3, 4), P.Fault(1, 77),
     P.Boot(1, 1), P.WaveConstant(-100), P.WaveStep(0, 100, 200),
     P.WaveMultisine(5, ((200, 0, 34_359_738), (-50, 2**32 - 1, 1))), P.WaveChirp(0, 200, 5, 100_000, -3),
-    P.WavePrbs(200, -200, 10, 3, 1),
+    P.WavePrbs(200, -200, 10, 3, 1), P.WaveOddMultisine(-5, 20, 10, 63, 65535, 3),
     P.Control(1, 1, (14642, -206745, 0, 0, -21450)), P.Control(2, 0, (1397, 198)),
     P.ReferenceWords("constant", -65535), P.ReferenceWords("step", 100, -5, 40),
     P.ReferenceWords("trapezoid", 400, 0, 10, 100, 50),
@@ -71,7 +71,7 @@ _MESSAGES = [
 
 _LENGTHS = {P.Hello: 1, P.Config: 13, P.Start: 0, P.Stop: 0, P.Heartbeat: 0, P.HelloAck: 21, P.Ack: 2,
             P.Nak: 3, P.Sample: 15, P.End: 17, P.Fault: 5, P.Boot: 2, P.WaveConstant: 3, P.WaveStep: 9,
-            P.WaveChirp: 17, P.WavePrbs: 10}
+            P.WaveChirp: 17, P.WavePrbs: 10, P.WaveOddMultisine: 10}
 
 
 @pytest.mark.parametrize("msg", _MESSAGES, ids=[type(m).__name__ for m in _MESSAGES])
@@ -88,6 +88,17 @@ def test_every_message_round_trips_with_the_documented_length(msg):
         expected = 1 + {"constant": 4, "step": 12, "trapezoid": 16}.get(msg.kind, 5 + 12 * len(msg.components))
     assert len(payload) == expected
     assert P.decode_message(t, payload) == msg
+
+
+def test_odd_multisine_fields_out_of_range_are_problems_a_device_would_nak():
+    assert P.wave_range_problems(P.WaveOddMultisine(0, 20, 10, 63, 1, 3)) == []
+    for bad, match in ((P.WaveOddMultisine(0, 20, 3, 31, 1, 3), "period_log2"),
+                       (P.WaveOddMultisine(0, 20, 10, 62, 1, 3), "max_harmonic must be odd"),
+                       (P.WaveOddMultisine(0, 0, 10, 63, 1, 3), "amplitude"),
+                       (P.WaveOddMultisine(0, 20, 10, 63, 1, 1), "group"),
+                       (P.WaveOddMultisine(2000, 20, 10, 63, 1, 3), "offset")):
+        problems = P.wave_range_problems(bad)
+        assert len(problems) == 1 and match in problems[0]
 
 
 def test_wave_payload_spans_3_to_44_bytes():
@@ -146,7 +157,7 @@ def test_protocol_errors_subclass_value_error():
 
 def test_version_mismatch_names_both_versions():
     P.check_version(P.PROTOCOL_VERSION)
-    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 2"):
+    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 3"):
         P.check_version(7)
 
 
@@ -257,7 +268,9 @@ def test_reader_accepts_exactly_what_decode_frame_and_decode_message_accept(part
 _EXCITATIONS = [Constant(-120), Constant(400), Step(150, 0.3, -40), Sine(10.0), Sine(37.0, 300, 1.2, 20),
                 Multisine((10.0, 20.0, 30.0, 40.0), (100, 60, -40, 30), (0.1, 0.2, 0.3, 0.4), 10),
                 Chirp(1.0, 300.0, 250), Chirp(200.0, 2.0, 180, -15), PRBS(200, -200, 2, 1, 1),
-                PRBS(120, -80, 7, 5, 33), PRBS(255, 0, 16, 0xACE1, 1)]
+                PRBS(120, -80, 7, 5, 33), PRBS(255, 0, 16, 0xACE1, 1),
+                OddMultisine(1024, 63, 20, 5), OddMultisine(256, 127, 9, 0, 0, offset=-7),
+                OddMultisine(65536, 127, 60, 65535, 16)]
 
 
 @pytest.mark.parametrize("excitation", _EXCITATIONS, ids=[e.describe() for e in _EXCITATIONS])

@@ -20,7 +20,7 @@ from hardware.errors import (
 from hardware.fake_device import FakeDevice, FaultPlan, parse_fake_url
 from hardware.ports import open_port, url_keys
 from hardware.serial_rig import SerialRig
-from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Rig, SimRig, Sine, Step
+from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, OddMultisine, Rig, SimRig, Sine, Step
 from motorsim.rig import bench_knobs
 
 MOTOR = Motor(25.0, 3.0)
@@ -44,7 +44,8 @@ _CONTRACT = [Experiment(Sine(10.0), 0.005, 2.0),
              Experiment(Multisine((10.0, 20.0, 30.0, 40.0), (80, 60, 40, 30), (0.0, 1.0, 2.0, 3.0)), 0.002, 1.0, 200),
              Experiment(Chirp(2.0, 200.0, 220), 0.001, 1.0),
              Experiment(PRBS(180, -180, 9, 4, 3), 0.005, 2.0),
-             Experiment(Step(150, 0.4, -30), 0.0025, 1.0)]
+             Experiment(Step(150, 0.4, -30), 0.0025, 1.0),
+             Experiment(OddMultisine(256, 63, 20, 3), 0.005, 2.56)]
 
 
 @pytest.mark.parametrize("motor", [MOTOR, Motor(8.0, 0.9, friction=4.0, bias=-1.0, dead_zone=12.0, input_delay=2)],
@@ -212,7 +213,7 @@ def test_ctrl_c_during_a_run_sends_stop_and_propagates():
 
 # ------------------------------------------------------------------ handshake
 def test_wrong_protocol_version_is_refused_naming_both_versions():
-    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 2"):
+    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 3"):
         SerialRig(dev.port_name).open()
 
 

@@ -18,7 +18,8 @@ CLEAN = SimRig(Motor(25.0, 3.0)).run(EXPERIMENT)
 
 def _device_stream() -> bytes:
     """What a correct device sends to a host whose frames have frame_seq 0 (HELLO), 1 (CONFIG), 2 (WAVE), 3 (START)."""
-    msgs = [P.Boot(2, 1), P.HelloAck(2, 0x0100, 16_000_000, 1, 60, "script"), P.Ack(P.MsgType.CONFIG, 1),
+    msgs = [P.Boot(P.PROTOCOL_VERSION, 1), P.HelloAck(P.PROTOCOL_VERSION, 0x0100, 16_000_000, 1, 60, "script"),
+            P.Ack(P.MsgType.CONFIG, 1),
             P.Ack(P.MsgType.WAVE, 2), P.Ack(P.MsgType.START, 3)]
     msgs += [P.Sample(k, (1000 + 5000 * k) & 0xFFFFFFFF, int(c), int(u), 0)
              for k, (c, u) in enumerate(zip(CLEAN.counts, CLEAN.duty))]

@@ -50,6 +50,18 @@ def test_load_from_a_file_and_spec_excitations(tmp_path):
     assert [p.setting.excitation_object().kind for p in s.points()] == ["prbs", "chirp"]
 
 
+def test_an_odd_multisine_scenario_runs_its_realisations(tmp_path):
+    path = tmp_path / "odd.toml"
+    path.write_text('methods = ["oe"]\n[bench]\nduration = 5.12\n'
+                    '[grid]\n"excitation.spec" = ["odd-multisine:256,31,20,1", "odd-multisine:256,31,20,2"]\n',
+                    encoding="utf-8")
+    points = list(load_scenario(path).points())
+    assert [p.setting.excitation_object().describe() for p in points] == [
+        "odd-multisine:256,31,20,1,3", "odd-multisine:256,31,20,2,3"]
+    exp = points[0].setting.experiment()
+    assert exp.n_samples == 1024 and (exp.duty()[:256] == exp.duty()[256:512]).all()
+
+
 @pytest.mark.parametrize("data, match", [
     (dict(BASE, colour="red"), "unknown key 'colour'"),
     (dict(BASE, motor={"a": 25.0, "c": 1.0}), "unknown key motor.c"),

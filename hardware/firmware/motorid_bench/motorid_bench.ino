@@ -24,8 +24,8 @@
 
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
-#define PROTOCOL_VERSION 2
-#define FIRMWARE_VERSION 0x0200  // major << 8 | minor: 2.0
+#define PROTOCOL_VERSION 3
+#define FIRMWARE_VERSION 0x0300  // major << 8 | minor: 3.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -66,7 +66,10 @@
 #define WAVE_MULTISINE 2
 #define WAVE_CHIRP 3
 #define WAVE_PRBS 4
+#define WAVE_ODD_MULTISINE 5
 #define MAX_COMPONENTS 4
+#define MAX_ODD_LINES 64          // odd harmonics of an odd multisine, excited or left out
+#define LFSR16_MASK 0xB400
 #define MAX_LEVEL 1023
 
 #define CTRL_NONE 0
@@ -189,9 +192,11 @@ struct Wave {
   uint32_t word_a;      // STEP step_index, CHIRP phase0
   uint32_t word_b;      // CHIRP inc0
   int32_t word_c;       // CHIRP inc_step
-  uint8_t n;            // MULTISINE components, PRBS order
-  uint16_t seed;        // PRBS
+  uint8_t n;            // MULTISINE components, PRBS order, ODD_MULTISINE period_log2
+  uint16_t seed;        // PRBS, ODD_MULTISINE
   uint16_t hold;        // PRBS
+  uint8_t max_harmonic; // ODD_MULTISINE
+  uint8_t group;        // ODD_MULTISINE
   Component comp[MAX_COMPONENTS];
 };
 
@@ -297,6 +302,14 @@ volatile uint8_t queue_tail = 0;      // next slot to read (loop)
 Config cfg;
 Wave wave;
 WaveState ws;
+// ODD_MULTISINE: the excited harmonics and their running phases (set up at START)
+uint8_t odd_harmonic[MAX_ODD_LINES];
+union OddPhase {   // a line's u32 phase; its steps change only the high half (little-endian: half[1])
+  uint32_t word;
+  uint16_t half[2];
+};
+OddPhase odd_phase[MAX_ODD_LINES];
+uint8_t odd_lines;
 uint8_t have_config = 0, have_wave = 0, have_reference = 0;
 Control control;
 Reference reference;
@@ -425,6 +438,48 @@ static const uint16_t PRBS_MASK[17] PROGMEM = {
     0, 0, 0x3, 0x6, 0xC, 0x14, 0x30, 0x60, 0xB8, 0x110, 0x240, 0x500, 0xE08, 0x1C80,
     0x3802, 0x6000, 0xB400};
 
+// The next 16-bit word of the order-16 Galois LFSR (PRBS arithmetic), least significant bit first.
+static uint16_t lfsr16_word(uint16_t *state) {
+  uint16_t word = 0;
+  for (uint8_t b = 0; b < 16; b++) {
+    uint16_t out = *state & 1;
+    *state >>= 1;
+    if (out) *state ^= LFSR16_MASK;
+    word |= out << b;
+  }
+  return word;
+}
+
+// ODD_MULTISINE lines and start phases (PROTOCOL.md "Waveforms", motorsim.excitation.OddMultisine).
+static void odd_multisine_setup(void) {
+  uint8_t n_odd = (wave.max_harmonic + 1) / 2;
+  uint8_t left_out[MAX_ODD_LINES / 8];  // a bit per odd line
+  memset(left_out, 0, sizeof(left_out));
+  if (wave.group) {
+    uint16_t state = 1;  // left-out lines: the LFSR from 1, one word per group of odd lines from 3
+    for (uint8_t first = 1; first < n_odd; first += wave.group) {
+      uint8_t pick = lfsr16_word(&state) % wave.group;
+      uint8_t i = first + pick;
+      if (first + wave.group <= n_odd) left_out[i >> 3] |= 1 << (i & 7);
+    }
+  }
+  uint16_t state = wave.seed;
+  odd_lines = 0;
+  for (uint8_t i = 0; i < n_odd; i++) {
+    uint16_t word = wave.seed ? lfsr16_word(&state) : 0;
+    if (left_out[i >> 3] & (1 << (i & 7))) continue;
+    odd_harmonic[odd_lines] = 2 * i + 1;
+    odd_phase[odd_lines].word = (uint32_t)word << 16;
+    odd_lines++;
+  }
+  if (wave.seed == 0) {  // Schroeder: -ceil(j (j - 1) 2^31 / F) mod 2^32 for the j-th of F lines
+    for (uint8_t j = 1; j <= odd_lines; j++) {
+      uint64_t x = ((uint64_t)((uint16_t)j * (j - 1))) << 31;
+      odd_phase[j - 1].word = (uint32_t)0 - (uint32_t)((x + odd_lines - 1) / odd_lines);
+    }
+  }
+}
+
 static void wave_reset(void) {
   ws.k = 0;
   for (uint8_t j = 0; j < MAX_COMPONENTS; j++) ws.phase[j] = wave.comp[j].phase0;
@@ -433,6 +488,7 @@ static void wave_reset(void) {
   ws.lfsr = wave.seed;
   ws.hold_left = 0;
   ws.bit = 0;
+  if (wave.kind == WAVE_ODD_MULTISINE) odd_multisine_setup();
 }
 
 // Duty for sample ws.k (before clamping), then advance to ws.k + 1.
@@ -467,6 +523,16 @@ static int32_t wave_next(void) {
       ws.hold_left--;
       duty = ws.bit ? wave.level_b : wave.level_a;
       break;
+    case WAVE_ODD_MULTISINE: {  // amplitude x sum, as exact as the sum of products: no overflow at 64 lines
+      int32_t sum = 0;
+      uint16_t step = 1U << (16 - wave.n);  // a harmonic's phase step is h << (32 - n) = (h * step) << 16
+      for (uint8_t j = 0; j < odd_lines; j++) {
+        sum += sine_q15(odd_phase[j].word);
+        odd_phase[j].half[1] += odd_harmonic[j] * step;   // h < 2^(n-1), so h * step < 2^15: no overflow
+      }
+      duty = wave.level_a + (((int32_t)wave.level_b * sum + 16384) >> 15);
+      break;
+    }
     default:  // WAVE_CONSTANT
       duty = wave.level_a;
       break;
@@ -819,6 +885,19 @@ static uint8_t parse_wave(const uint8_t *p, uint8_t len, uint8_t check_only) {
       if (!level_ok(w.level_a) || !level_ok(w.level_b)) return NAK_BAD_VALUE;
       if (w.n < 2 || w.n > 16 || w.hold < 1 || w.seed == 0) return NAK_BAD_VALUE;
       if (w.n < 16 && w.seed >= (1U << w.n)) return NAK_BAD_VALUE;
+      break;
+    case WAVE_ODD_MULTISINE:
+      if (len != 9) return NAK_BAD_LENGTH;
+      w.level_a = get_u16(p);
+      w.level_b = get_u16(p + 2);
+      w.n = p[4];
+      w.max_harmonic = p[5];
+      w.seed = get_u16(p + 6);
+      w.group = p[8];
+      if (!level_ok(w.level_a) || w.level_b < 1 || w.level_b > MAX_LEVEL) return NAK_BAD_VALUE;
+      if (w.n < 4 || w.n > 16 || !(w.max_harmonic & 1)) return NAK_BAD_VALUE;
+      if ((uint32_t)w.max_harmonic >= (1UL << w.n) / 2 || (w.max_harmonic + 1) / 2 > MAX_ODD_LINES) return NAK_BAD_VALUE;
+      if (w.group == 1 || w.group > 16) return NAK_BAD_VALUE;
       break;
     default:
       return INVALID_BAD_VALUE;

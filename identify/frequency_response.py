@@ -1,0 +1,573 @@
+"""Frequency response duty -> speed from recordings, with a confidence bound and coherence at each frequency.
+
+Which speed.  A ``speed`` column (a tachometer, a lab's own speed) is used as it is: its
+response is the sampled speed's, ``G(z) = (b/a)(1 - e) / (z - e)`` with ``e = exp(-a dt)``
+and ``z = exp(j omega dt)`` (the exact ZOH model).  An angle or encoder counts are turned
+into the *mean speed over the interval in which the duty is held*,
+``v_k = (theta_{k+1} - theta_k) / dt``, aligned with ``u_k`` (the recording's alignment rule).
+That is the forward difference, not the recording's backward one: the backward difference
+lags the duty by one sample, while the forward one is centred where the duty acts, so the
+half sample the zero-order hold delays and the half sample the averaging advances cancel and
+the phase compares with ``b / (j omega + a)`` without the lag.  Its exact ZOH model follows
+from ``theta_{k+1} = theta_k + dt phi1(a dt) omega_k + b dt^2 phi2(a dt) u_k``
+(``identify.sensitivity``)::
+
+    G_v(z) = phi1(a dt) G(z) + b dt phi2(a dt)
+
+so :meth:`FrequencyResponse.model_response` gives either model exactly, and at the lines of
+a periodic input the estimate equals it to rounding (``(z - 1)/dt`` times the angle's
+response; no approximation of a derivative is involved).
+
+Three estimators, chosen from the excitation recorded in the metadata (``method="auto"``):
+
+* ``periodic`` (an :class:`~motorsim.excitation.OddMultisine`, or a PRBS over at least
+  ``transient_periods + 2`` of its periods): whole periods after
+  ``transient_periods`` are cut, each period's DFT taken, the output averaged over periods;
+  the variance at each line is the period-to-period variance of the output divided by the
+  number of periods (Pintelon & Schoukens, *System Identification: A Frequency Domain
+  Approach*, 2nd ed. 2012, sec. 2.4 and 7.2).  Exact at the excited lines.
+* ``sines`` (a sine or a multisine of the article's kind, whose period need not be a whole
+  number of samples): least squares on the angle with an offset, a drift and a cosine and
+  sine at each frequency the device realised (or on the speed with an offset), the
+  variance from the residual (Ljung, *System Identification*, 2nd ed. 1999, sec. 6.2, FRA).
+  One run per frequency pools into one response.
+* ``welch`` (anything else: PRBS, chirp, steps, a lab's file): Hann-windowed segments with
+  half overlap, ``G = S_uy / S_uu``, coherence ``|S_uy|^2 / (S_uu S_yy)`` and the bound of
+  Bendat & Piersol, *Random Data*, 4th ed. 2010, eq. 9.90; the resolution is one bin,
+  ``2 pi / (segment dt)``.
+
+A noise-free coarse encoder under a periodic input rounds the same angles every period: that
+error repeats, so period-to-period variation cannot see it and the bound leaves it out (real
+angle noise, or a slow drift of the motor, makes it vary and it is then counted).
+
+The bound at each frequency is a disk in the complex plane: the true response lies within
+``radius`` of ``response`` with probability ``level`` (a circular complex Gaussian error
+whose variance is estimated with ``dof`` degrees of freedom: ``radius^2 = s^2 F(2, dof)``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from motorsim.checks import check_int, check_real
+from motorsim.excitation import MAX_AMPLITUDE, PRBS, Multisine, OddMultisine, parse_excitation
+from motorsim.recording import Recording
+
+from .data import as_recordings
+from .errors import NotIdentifiableError
+from .sensitivity import phi_functions
+
+if TYPE_CHECKING:
+    import control
+
+    from .estimate import Estimate
+
+__all__ = ["FrequencyResponse", "ModelResponse", "frequency_response", "zoh_speed_response", "ESTIMATORS", "OUTPUTS",
+           "periodic_spectra", "excitation_of", "excitation_period"]
+
+#: The estimators ``frequency_response(method=...)`` accepts.
+ESTIMATORS = ("auto", "periodic", "sines", "welch")
+#: What the response's output is: the interval-mean speed from the angle, or the sampled speed column.
+OUTPUTS = ("angle", "speed")
+
+
+def zoh_speed_response(a: float, b: float, sample_period: float, omega: np.ndarray, *, output: str = "angle",
+                       input_delay: int = 0) -> np.ndarray:
+    """The exact ZOH response of ``b/(s + a)`` duty -> speed at ``omega`` rad/s (complex).
+
+    Parameters
+    ----------
+    a, b : float
+        Pole in 1/s and gain in (rad/s^2)/duty.
+    sample_period : float
+        Sample period ``dt`` in s.
+    omega : array_like
+        Angular frequencies in rad/s.
+    output : {"angle", "speed"}
+        ``"speed"``: the sampled speed, ``(b/a)(1 - e)/(z - e)``; ``"angle"``: the mean speed
+        over the interval the duty is held, ``phi1(a dt) G(z) + b dt phi2(a dt)`` (module docstring).
+    input_delay : int
+        Whole samples of input delay, a factor ``z^-input_delay``.
+
+    Examples
+    --------
+    >>> g = zoh_speed_response(25.0, 3.0, 0.005, [1e-6])
+    >>> round(float(abs(g[0])), 6)   # the static gain b/a
+    0.12
+    """
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    dt = check_real("sample_period", sample_period, positive=True)
+    w = np.asarray(omega, dtype=float)
+    x = a * dt
+    e = math.exp(-x)
+    z = np.exp(1j * w * dt)
+    p1, p2, _, _ = phi_functions(np.array([x]))
+    g = b * dt * p1[0] / (z - e)   # (b/a)(1 - e) = b dt phi1(x)
+    if output == "angle":
+        g = p1[0] * g + b * dt * p2[0]
+    return g * z ** (-int(input_delay))
+
+
+@dataclasses.dataclass(frozen=True)
+class FrequencyResponse:
+    """An estimated frequency response duty -> speed, with its bound and coherence.
+
+    Attributes
+    ----------
+    omega : ndarray, shape (n,)
+        Angular frequencies in rad/s, increasing.
+    response : ndarray of complex, shape (n,)
+        Response in (rad/s)/duty (per input unit).
+    variance : ndarray, shape (n,)
+        ``E |response - true|^2``, estimated, in ((rad/s)/duty)^2.
+    dof : ndarray, shape (n,)
+        Degrees of freedom of ``variance`` (``inf`` when it is known).
+    coherence : ndarray, shape (n,)
+        Magnitude-squared coherence of input and output, 0 ... 1.
+    sample_period : float
+        Sample period in s.
+    output : str
+        ``"angle"`` (interval-mean speed from the angle or counts) or ``"speed"`` (the speed column).
+    method : str
+        ``"periodic"``, ``"sines"`` or ``"welch"`` (several when recordings were pooled, comma-separated).
+    resolution : float
+        Frequency resolution in rad/s (``welch``'s bin; 0 for estimates exact at their lines).
+    input_unit : str
+        Unit of the input (``duty`` on the bench).
+    """
+
+    omega: np.ndarray
+    response: np.ndarray
+    variance: np.ndarray
+    dof: np.ndarray
+    coherence: np.ndarray
+    sample_period: float
+    output: str = "angle"
+    method: str = "periodic"
+    resolution: float = 0.0
+    input_unit: str = "duty"
+
+    def __post_init__(self):
+        n = len(np.atleast_1d(self.omega))
+        for name in ("omega", "response", "variance", "dof", "coherence"):
+            arr = np.array(getattr(self, name), dtype=complex if name == "response" else float).reshape(-1)
+            if len(arr) != n:
+                raise ValueError(f"{name} must have the length of omega ({n}), got {len(arr)}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if self.output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {self.output!r}")
+
+    def __len__(self) -> int:
+        return len(self.omega)
+
+    def radius(self, level: float = 0.95) -> np.ndarray:
+        """Radius of the confidence disk around ``response`` at ``level`` (same unit as ``response``)."""
+        from scipy import stats
+        level = check_real("level", level, positive=True)
+        if level >= 1:
+            raise ValueError(f"level must be in (0, 1), got {level!r}")
+        dof = np.where(np.isfinite(self.dof), self.dof, 1e12)
+        return np.sqrt(self.variance * stats.f.ppf(level, 2, np.maximum(dof, 1.0)))
+
+    def gain_db(self) -> np.ndarray:
+        """Gain ``20 log10 |response|`` in dB."""
+        return 20.0 * np.log10(np.abs(self.response))
+
+    def phase_deg(self) -> np.ndarray:
+        """Phase in degrees, unwrapped along frequency."""
+        return np.degrees(np.unwrap(np.angle(self.response)))
+
+    def gain_bounds_db(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper gain in dB of the confidence disk (lower ``-inf`` when the disk holds 0)."""
+        mag, r = np.abs(self.response), self.radius(level)
+        with np.errstate(divide="ignore"):
+            return 20.0 * np.log10(np.maximum(mag - r, 0.0)), 20.0 * np.log10(mag + r)
+
+    def phase_bounds_deg(self, level: float = 0.95) -> np.ndarray:
+        """Half-width in degrees of the phase bound of the disk (180 when the disk holds 0)."""
+        ratio = self.radius(level) / np.abs(self.response)
+        return np.where(ratio < 1, np.degrees(np.arcsin(np.minimum(ratio, 1.0))), 180.0)
+
+    def model_response(self, a: float, b: float, input_delay: int = 0) -> np.ndarray:
+        """The exact ZOH response of ``b/(s + a)`` at ``omega`` for this response's output."""
+        return zoh_speed_response(a, b, self.sample_period, self.omega, output=self.output, input_delay=input_delay)
+
+    def covers(self, response: np.ndarray, level: float = 0.95) -> np.ndarray:
+        """Whether each value of ``response`` (shape (n,)) lies inside the confidence disk."""
+        return np.abs(np.asarray(response) - self.response) <= self.radius(level)
+
+    def model_of(self, estimate: Estimate, name: str | None = None) -> ModelResponse:
+        """An estimate's model at these frequencies, with its variance from the estimate's covariance.
+
+        The linear part ``b/(s + a)`` with the estimate's input delay (friction, bias and dead zone
+        have no frequency response).  The variance is ``J C J^H`` with ``J`` the derivatives of the
+        response with respect to ``a`` and ``b`` (central differences) and ``C`` their covariance.
+        """
+        delay = int(estimate.extra.get("input_delay", 0))
+        g = self.model_response(estimate.a, estimate.b, delay)
+        variance = np.zeros(len(g))
+        if estimate.covariance is not None:
+            cov = np.asarray(estimate.covariance)[:2, :2]
+            jac = []
+            for i, value in enumerate((estimate.a, estimate.b)):
+                h = 1e-6 * max(abs(value), 1e-9)
+                step = np.array([h, 0.0]) if i == 0 else np.array([0.0, h])
+                up = self.model_response(estimate.a + step[0], estimate.b + step[1], delay)
+                down = self.model_response(estimate.a - step[0], estimate.b - step[1], delay)
+                jac.append((up - down) / (2 * h))
+            J = np.column_stack(jac)
+            variance = np.einsum("ni,ij,nj->n", J, cov, J.conj()).real
+        return ModelResponse(name or estimate.method, self.omega, g, np.maximum(variance, 0.0))
+
+    def departures(self, model: ModelResponse, level: float = 0.95) -> np.ndarray:
+        """Frequencies (rad/s) where ``model`` lies outside this response's confidence disk."""
+        return self.omega[~self.covers(model.response, level)]
+
+    def frequency_response_data(self) -> control.FrequencyResponseData:
+        """The response as ``control.FrequencyResponseData`` (omega in rad/s, discrete time ``dt``)."""
+        import control
+        return control.FrequencyResponseData(self.response, self.omega, dt=self.sample_period)
+
+    def to_dict(self, level: float = 0.95) -> dict[str, Any]:
+        """A JSON-ready table: frequency, gain, phase, their bounds and the coherence per line."""
+        low, high = self.gain_bounds_db(level)
+        return {"output": self.output, "method": self.method, "sample_period": self.sample_period,
+                "resolution": self.resolution, "level": level, "input_unit": self.input_unit,
+                "omega": self.omega.tolist(), "gain_db": self.gain_db().tolist(),
+                "gain_low_db": [None if not np.isfinite(x) else float(x) for x in low],
+                "gain_high_db": high.tolist(), "phase_deg": self.phase_deg().tolist(),
+                "phase_bound_deg": self.phase_bounds_deg(level).tolist(), "coherence": self.coherence.tolist()}
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelResponse:
+    """A model's response at the frequencies of a :class:`FrequencyResponse`, with its variance.
+
+    Attributes
+    ----------
+    name : str
+        What the model is (the estimator's name, or a file).
+    omega : ndarray, shape (n,)
+        Angular frequencies in rad/s.
+    response : ndarray of complex, shape (n,)
+        The model's response in (rad/s)/duty.
+    variance : ndarray, shape (n,)
+        ``E |response - model with the true parameters|^2`` from the parameters' covariance.
+    """
+
+    name: str
+    omega: np.ndarray
+    response: np.ndarray
+    variance: np.ndarray
+
+    def radius(self, level: float = 0.95) -> np.ndarray:
+        """Radius of the model's confidence disk at ``level`` (a circular Gaussian approximation)."""
+        level = check_real("level", level, positive=True)
+        if level >= 1:
+            raise ValueError(f"level must be in (0, 1), got {level!r}")
+        return np.sqrt(self.variance * -math.log(1.0 - level))
+
+
+def excitation_of(recording: Recording):
+    """The excitation a recording's metadata names (``excitation: KIND:ARGS``), or None."""
+    spec = recording.metadata.get("excitation")
+    if not spec:
+        return None
+    try:
+        return parse_excitation(spec)
+    except ValueError:
+        return None
+
+
+def _output(rec: Recording) -> tuple[str, np.ndarray]:
+    """``("speed", speed column)`` or ``("angle", measured angle)``."""
+    if rec.speed is not None:
+        return "speed", np.asarray(rec.speed, dtype=float)
+    angle = rec.measured_angle()
+    if angle is None:  # pragma: no cover - a Recording always has one of the three
+        raise NotIdentifiableError("the recording has no speed, angle or counts")
+    return "angle", np.asarray(angle, dtype=float)
+
+
+def _require_contiguous(rec: Recording, what: str) -> None:
+    if rec.has_gaps:
+        raise NotIdentifiableError(f"{what} needs gap-free samples; this recording has gaps in seq "
+                                   f"(use the gap-free parts, Recording.segments(), one by one)")
+
+
+def periodic_spectra(rec: Recording, period: int, transient_periods: int = 1) -> tuple[np.ndarray, np.ndarray, str]:
+    """DFT per period of the duty and the speed, whole periods after the transient.
+
+    Returns
+    -------
+    U, Y : ndarray of complex, shape (P, period // 2 + 1)
+        ``rfft`` of each period's duty and speed (interval-mean speed from the angle, or the
+        speed column; see the module docstring).
+    output : str
+        ``"angle"`` or ``"speed"``.
+    """
+    _require_contiguous(rec, "a periodic estimate")
+    output, y = _output(rec)
+    u = np.asarray(rec.duty, dtype=float)
+    if output == "angle":
+        y = np.diff(y) / rec.sample_period  # v_k, aligned with u_k
+        u = u[:-1]
+    # the last whole periods: with the angle, v ends one sample early, so the windows end there (a window
+    # shifted by a sample shifts the phase of U and Y alike and leaves Y/U as it is)
+    n_periods = rec.n_samples // period - transient_periods
+    if n_periods < 2:
+        raise NotIdentifiableError(f"a periodic estimate needs at least 2 whole periods of {period} samples after "
+                                   f"{transient_periods} transient period(s), got {n_periods}; record longer")
+    stop = len(u)
+    start = stop - n_periods * period
+    U = np.fft.rfft(u[start:stop].reshape(n_periods, period), axis=1)
+    Y = np.fft.rfft(y[start:stop].reshape(n_periods, period), axis=1)
+    return U, Y, output
+
+
+@dataclasses.dataclass(frozen=True)
+class _Lines:
+    omega: np.ndarray
+    response: np.ndarray
+    variance: np.ndarray
+    dof: np.ndarray
+    coherence: np.ndarray
+    output: str
+    method: str
+    resolution: float = 0.0
+
+
+def excitation_period(ex) -> tuple[int, np.ndarray] | None:
+    """``(period in samples, excited harmonics)`` of a periodic excitation, or None.
+
+    An odd multisine repeats every ``period`` samples and excites its odd lines; a PRBS repeats
+    every ``(2**order - 1) hold`` samples and excites every harmonic its spectrum does not null
+    (those above a thousandth of the largest line).
+    """
+    if isinstance(ex, OddMultisine):
+        return ex.period, np.array(ex.excited_harmonics())
+    if isinstance(ex, PRBS):
+        period = ((1 << ex.order) - 1) * ex.hold
+        spectrum = np.abs(np.fft.rfft(ex.duty(period, 1.0, MAX_AMPLITUDE)))
+        spectrum[0] = 0.0
+        if period % 2 == 0:
+            spectrum[-1] = 0.0
+        return period, np.flatnonzero(spectrum > 1e-3 * spectrum.max())
+    return None
+
+
+def _periodic(rec: Recording, period: int, k: np.ndarray, transient_periods: int) -> _Lines:
+    U, Y, output = periodic_spectra(rec, period, transient_periods)
+    P = U.shape[0]
+    u_mean = U[:, k].mean(axis=0)
+    y_k = Y[:, k]
+    y_mean = y_k.mean(axis=0)
+    y_var = np.sum(np.abs(y_k - y_mean) ** 2, axis=0) / (P - 1)   # one period's variance
+    g = y_mean / u_mean
+    variance = y_var / P / np.abs(u_mean) ** 2
+    coherence = np.abs(y_mean) ** 2 / np.mean(np.abs(y_k) ** 2, axis=0)
+    return _Lines(2.0 * math.pi * k / (period * rec.sample_period), g, variance, np.full(len(k), 2.0 * (P - 1)),
+                  coherence, output, "periodic")
+
+
+def _sines(rec: Recording, ex: Multisine, transient_periods: int) -> _Lines:
+    dt = rec.sample_period
+    comps = ex.components(dt)
+    omega = np.array([inc / 2.0**32 * 2.0 * math.pi / dt for _, _, inc in comps])  # realised frequencies
+    output, y = _output(rec)
+    k = np.asarray(rec.seq, dtype=float)
+    skip = transient_periods * 2.0 * math.pi / omega.min() / dt
+    keep = k - k[0] >= skip
+    k, y, u = k[keep], y[keep], np.asarray(rec.duty, dtype=float)[keep]
+    cols = [np.ones_like(k)] + ([k - k.mean()] if output == "angle" else [])
+    n_fixed = len(cols)
+    for w in omega:
+        cols += [np.cos(w * dt * k), np.sin(w * dt * k)]
+    X = np.column_stack(cols)
+    if len(k) < 2 * X.shape[1]:
+        raise NotIdentifiableError(f"a sine fit needs at least {2 * X.shape[1]} samples after the transient "
+                                   f"({transient_periods} period(s) of the lowest frequency), got {len(k)}")
+    q, r = np.linalg.qr(X)
+    cy = np.linalg.solve(r, q.T @ y)
+    cu = np.linalg.solve(r, q.T @ u)
+    resid = y - X @ cy
+    dof = len(k) - X.shape[1]
+    s2 = float(resid @ resid) / dof
+    rinv = np.linalg.inv(r)
+    cov = s2 * (rinv @ rinv.T)
+    idx = n_fixed + 2 * np.arange(len(omega))
+    Yc = cy[idx] - 1j * cy[idx + 1]
+    Uc = cu[idx] - 1j * cu[idx + 1]
+    var_y = cov[idx, idx] + cov[idx + 1, idx + 1]
+    factor = np.ones(len(omega), dtype=complex)
+    if output == "angle":
+        factor = (np.exp(1j * omega * dt) - 1.0) / dt   # angle -> interval-mean speed, exact
+    g = Yc / Uc * factor
+    variance = var_y / np.abs(Uc) ** 2 * np.abs(factor) ** 2
+    n_cycles = np.maximum(omega * dt * len(k) / (2.0 * math.pi), 1.0)
+    coherence = np.abs(Yc) ** 2 / (np.abs(Yc) ** 2 + var_y * n_cycles)
+    return _Lines(omega, g, variance, np.full(len(omega), float(dof)), coherence, output, "sines")
+
+
+def _welch(rec: Recording, segment: int | None) -> _Lines:
+    from scipy import signal
+    _require_contiguous(rec, "a broadband (welch) estimate")
+    output, y = _output(rec)
+    u = np.asarray(rec.duty, dtype=float)
+    if output == "angle":
+        y = np.diff(y) / rec.sample_period
+        u = u[:-1]
+    n = len(u)
+    if segment is None:
+        segment = max(64, 1 << int(round(math.log2(max(n / 16, 1)))))
+    segment = check_int("segment", segment, 8)
+    if segment > n:
+        raise NotIdentifiableError(f"segment must be at most the {n} samples of the recording, got {segment}")
+    hop = segment // 2
+    n_seg = (n - segment) // hop + 1
+    window = signal.get_window("hann", segment)
+    idx = np.arange(segment)[None, :] + hop * np.arange(n_seg)[:, None]
+
+    def spectra(x: np.ndarray) -> np.ndarray:
+        seg = x[idx]
+        seg = seg - seg.mean(axis=1, keepdims=True)
+        return np.fft.rfft(seg * window, axis=1)
+
+    Uf, Yf = spectra(u), spectra(y)
+    suu = np.mean(np.abs(Uf) ** 2, axis=0)
+    syy = np.mean(np.abs(Yf) ** 2, axis=0)
+    suy = np.mean(np.conj(Uf) * Yf, axis=0)
+    lines = slice(1, segment // 2)   # no DC, no Nyquist bin
+    suu, syy, suy = suu[lines], syy[lines], suy[lines]
+    ok = suu > 0
+    g = np.where(ok, suy / np.where(ok, suu, 1.0), 0.0)
+    coherence = np.where(ok, np.abs(suy) ** 2 / np.where(ok, suu * syy, 1.0), 0.0)
+    coherence = np.clip(coherence, 0.0, 1.0)
+    # Bendat & Piersol eq. 9.90 with the effective number of averages of half-overlapped Hann segments
+    n_eff = max(n_seg * 1.89 - 0.89, 2.0) if n_seg > 1 else 1.0   # Welch (1967): ~1.9 per segment at 50 %
+    with np.errstate(divide="ignore", invalid="ignore"):
+        variance = np.where(coherence > 0, (1.0 - coherence) / coherence * np.abs(g) ** 2 / (n_eff - 1.0), np.inf)
+    omega = 2.0 * math.pi * np.arange(segment // 2 + 1)[lines] / (segment * rec.sample_period)
+    resolution = 2.0 * math.pi / (segment * rec.sample_period)
+    keep = ok & np.isfinite(variance)
+    return _Lines(omega[keep], g[keep], variance[keep], np.full(int(keep.sum()), 2.0 * (n_eff - 1.0)),
+                  coherence[keep], output, "welch", resolution)
+
+
+def _choose(rec: Recording, method: str, transient_periods: int):
+    ex = excitation_of(rec)
+    periodic = excitation_period(ex)
+    if periodic is not None and rec.n_samples // periodic[0] - transient_periods < 2:
+        periodic = None   # too few periods: a PRBS shorter than 3 periods is broadband data
+    if method == "auto":
+        if periodic is not None:
+            return "periodic", periodic
+        if isinstance(ex, Multisine):
+            return "sines", ex
+        return "welch", ex
+    if method == "periodic":
+        if periodic is None:
+            raise NotIdentifiableError(f"method 'periodic' needs a recording of an odd-multisine or PRBS excitation "
+                                       f"with at least {transient_periods + 2} whole periods, got excitation "
+                                       f"{rec.metadata.get('excitation', 'not recorded')!r} over {rec.n_samples} "
+                                       f"samples")
+        return method, periodic
+    if method == "sines" and not isinstance(ex, Multisine):
+        raise NotIdentifiableError(f"method 'sines' needs a recording of a sine or multisine excitation, "
+                                   f"got excitation {rec.metadata.get('excitation', 'not recorded')!r}")
+    return method, ex
+
+
+def _pool(parts: Sequence[_Lines]) -> _Lines:
+    """Lines of several recordings as one response; equal frequencies averaged by inverse variance."""
+    omega = np.concatenate([p.omega for p in parts])
+    order = np.argsort(omega, kind="stable")
+    cat = {f: np.concatenate([getattr(p, f) for p in parts])[order]
+           for f in ("omega", "response", "variance", "dof", "coherence")}
+    groups = np.concatenate([[True], ~np.isclose(np.diff(cat["omega"]), 0.0, atol=0.0, rtol=0.0)
+                             & (np.abs(np.diff(cat["omega"])) > 1e-12 * cat["omega"][1:])])
+    gid = np.cumsum(groups) - 1
+    n = gid[-1] + 1 if len(gid) else 0
+    weight = 1.0 / np.maximum(cat["variance"], np.finfo(float).tiny)
+    wsum = np.bincount(gid, weight, n)
+    response = (np.bincount(gid, (weight * cat["response"]).real, n)
+                + 1j * np.bincount(gid, (weight * cat["response"]).imag, n)) / wsum
+    outputs = {p.output for p in parts}
+    if len(outputs) > 1:
+        raise NotIdentifiableError("recordings with a speed column and recordings without one measure different "
+                                   "speeds (sampled vs interval mean); pool only one kind")
+    methods = ",".join(dict.fromkeys(p.method for p in parts))
+    return _Lines(cat["omega"][groups], response, 1.0 / wsum, np.bincount(gid, cat["dof"], n),
+                  np.bincount(gid, cat["coherence"] * weight, n) / wsum, outputs.pop(), methods,
+                  max(p.resolution for p in parts))
+
+
+def frequency_response(recordings: Recording | Sequence[Recording], *, method: str = "auto",
+                       transient_periods: int = 1, segment: int | None = None) -> FrequencyResponse:
+    """Frequency response duty -> speed of recordings, with its bound and coherence per frequency.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        One run, or several (one per frequency, realisations of a multisine, ...) pooled into one
+        response; lines at the same frequency are averaged by inverse variance.
+    method : {"auto", "periodic", "sines", "welch"}
+        The estimator (module docstring); ``"auto"`` picks it from each recording's ``excitation``
+        metadata: ``periodic`` for an odd multisine or a PRBS of enough periods, ``sines`` for a sine or
+        multisine, ``welch`` else.
+    transient_periods : int
+        Periods of the excitation (of its lowest frequency, for ``sines``) cut at the start of each
+        run as transient, default 1.
+    segment : int, optional
+        ``welch``'s segment length in samples (default about a sixteenth of the run, a power of two).
+
+    Returns
+    -------
+    FrequencyResponse
+        ``frequency_response_data()`` gives the ``control.FrequencyResponseData``; ``radius(level)``,
+        ``coherence`` and ``variance`` its bounds.
+
+    Raises
+    ------
+    NotIdentifiableError
+        Too short a run, gaps where the estimator needs whole periods or segments, or an excitation
+        the chosen method cannot use.
+
+    Examples
+    --------
+    >>> from motorsim import Experiment, Motor, OddMultisine, SimRig
+    >>> ex = OddMultisine(period=256, max_harmonic=31, amplitude=20)
+    >>> rig = SimRig(Motor(25.0, 3.0), record_speed=True)   # an ideal tachometer
+    >>> frf = frequency_response(rig.run(Experiment(ex, sample_period=0.005, duration=256 * 0.005 * 4)))
+    >>> frf.method, len(frf), frf.output
+    ('periodic', 11, 'speed')
+    >>> bool(np.allclose(frf.response, frf.model_response(25.0, 3.0), rtol=1e-9, atol=0))
+    True
+    """
+    if method not in ESTIMATORS:
+        raise ValueError(f"method must be one of {', '.join(ESTIMATORS)}, got {method!r}")
+    transient_periods = check_int("transient_periods", transient_periods, 0)
+    recs = as_recordings(recordings)
+    parts = []
+    for rec in recs:
+        chosen, ex = _choose(rec, method, transient_periods)
+        if chosen == "periodic":
+            period, harmonics = ex
+            parts.append(_periodic(rec, period, harmonics, transient_periods))
+        elif chosen == "sines":
+            parts.append(_sines(rec, ex, transient_periods))
+        else:
+            parts.append(_welch(rec, segment))
+    pooled = _pool(parts)
+    dts = {r.sample_period for r in recs}
+    if len(dts) > 1:
+        raise NotIdentifiableError(f"recordings pooled into one response must share their sample period, "
+                                   f"got {sorted(dts)}")
+    return FrequencyResponse(pooled.omega, pooled.response, pooled.variance, pooled.dof, pooled.coherence,
+                             recs[0].sample_period, pooled.output, pooled.method, pooled.resolution,
+                             recs[0].input_unit)

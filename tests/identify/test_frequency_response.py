@@ -1,0 +1,180 @@
+"""Frequency response from recordings: exact at the lines, honest bounds, the article's four sines, speed."""
+import dataclasses
+import math
+import time
+
+import numpy as np
+import pytest
+
+from identify.errors import NotIdentifiableError
+from identify.frequency_response import FrequencyResponse, frequency_response, zoh_speed_response
+from motorsim import PRBS, Encoder, Experiment, Motor, OddMultisine, Recording, SimRig, Sine
+from motorsim.plant import simulate
+
+A, B, DT = 25.0, 3.0, 0.005
+EXCITATION = OddMultisine(period=1024, max_harmonic=63, amplitude=20, seed=5)
+
+
+def _run(excitation, periods, **rig):
+    exp = Experiment(excitation, sample_period=DT, duration=excitation.period * DT * periods)
+    return SimRig(Motor(A, B), **rig).run(exp)
+
+
+def _ideal(rec, column):
+    """The same run read by an ideal sensor: the exact angle or the exact sampled speed."""
+    traj = simulate(Motor(A, B), rec.duty, rec.seq * DT)
+    return Recording(time=rec.time, duty=rec.duty, sample_period=DT, metadata=rec.metadata,
+                     **{column: getattr(traj, column)})
+
+
+@pytest.mark.parametrize("column", ["angle", "speed"], ids=["angle", "speed-column"])
+def test_noise_free_response_equals_the_exact_zoh_model_at_the_excited_lines(column):
+    rec = _ideal(_run(EXCITATION, 4), column)
+    frf = frequency_response(rec)
+    assert frf.method == "periodic" and frf.output == column
+    np.testing.assert_allclose(frf.omega, EXCITATION.line_frequencies(DT), rtol=1e-15)
+    truth = zoh_speed_response(A, B, DT, frf.omega, output=column)
+    np.testing.assert_allclose(frf.response, truth, rtol=1e-9)
+    np.testing.assert_allclose(frf.coherence, 1.0, atol=1e-12)
+
+
+def test_angle_output_is_the_interval_mean_speed_without_the_half_sample_lag():
+    # the forward difference v_k = (theta_{k+1} - theta_k)/dt, aligned with u_k: its model has the
+    # phase of b/(j omega + a) to O((omega dt)^2) -- the backward difference lags it by omega dt
+    w = np.array([1.0, 10.0, 40.0])
+    model = zoh_speed_response(A, B, DT, w, output="angle")
+    continuous = B / (1j * w + A)
+    assert np.max(np.abs(np.angle(model / continuous))) < (40 * DT) ** 2
+    rec = _ideal(_run(EXCITATION, 4), "angle")
+    frf = frequency_response(rec)
+    v = np.diff(rec.angle) / DT            # the estimator's output, by hand: forward difference
+    u = rec.duty[:-1].astype(float)
+    k = np.array(EXCITATION.excited_harmonics())
+    last = slice(len(u) - 1024, len(u))
+    by_hand = np.fft.rfft(v[last])[k] / np.fft.rfft(u[last])[k]
+    np.testing.assert_allclose(frf.response, by_hand, rtol=1e-12)
+    backward = np.fft.rfft(np.diff(rec.angle)[last.start - 1:last.stop - 1] / DT)[k] / np.fft.rfft(u[last])[k]
+    np.testing.assert_allclose(backward, frf.response * np.exp(-1j * frf.omega * DT), rtol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3], ids=["seed1", "seed2", "seed3"])
+def test_noisy_bounds_cover_the_true_response_at_ninety_percent_of_the_lines(seed):
+    rec = _run(EXCITATION, 6, encoder=Encoder(angle_noise=2e-3), rng=np.random.default_rng(seed))
+    frf = frequency_response(rec)
+    covered = frf.covers(frf.model_response(A, B), 0.95)
+    assert covered.mean() >= 0.90
+    assert np.all(frf.radius(0.95) > 0)
+
+
+def test_noisy_variance_is_calibrated_over_many_lines():
+    z = []
+    for seed in range(10):
+        rec = _run(EXCITATION, 6, encoder=Encoder(angle_noise=2e-3), rng=np.random.default_rng(100 + seed))
+        frf = frequency_response(rec)
+        z.append(np.abs(frf.response - frf.model_response(A, B)) ** 2 / frf.variance)
+    z = np.concatenate(z)
+    assert 0.8 < z.mean() < 1.25                  # E|error|^2 = variance
+    assert 0.92 < np.mean(z <= -math.log(0.05)) < 0.98   # and the 95 % disk holds about 95 %
+
+
+def test_the_articles_four_sines_give_a_four_point_fra_within_its_bounds():
+    recs = [SimRig(Motor(A, B), encoder=Encoder(angle_noise=1e-3), rng=np.random.default_rng(i)).run(
+        Experiment(Sine(w, 200, 0.3), sample_period=DT, duration=10.0)) for i, w in enumerate((10, 20, 30, 40))]
+    frf = frequency_response(recs)
+    assert frf.method == "sines" and len(frf) == 4
+    np.testing.assert_allclose(frf.omega, [10, 20, 30, 40], rtol=1e-7)   # as the phase accumulator realises them
+    truth = frf.model_response(A, B)
+    assert np.all(frf.covers(truth, 0.95))
+    assert np.all(frf.radius(0.95) < 0.01 * np.abs(truth))     # and the bound is tight: under 1 %
+
+
+def test_noise_free_sines_on_an_ideal_angle_match_the_model_closely():
+    recs = [_ideal(SimRig(Motor(A, B)).run(Experiment(Sine(w, 200), sample_period=DT, duration=10.0)), "angle")
+            for w in (10, 40)]
+    frf = frequency_response(recs)
+    np.testing.assert_allclose(frf.response, frf.model_response(A, B), rtol=2e-3)  # the duty's rounding leaks
+
+
+def test_prbs_over_whole_periods_is_periodic_and_exact():
+    ex = PRBS(200, -200, 8, 2)
+    exp = Experiment(ex, sample_period=DT, duration=255 * 2 * DT * 5)
+    rec = _ideal(SimRig(Motor(A, B)).run(exp), "speed")
+    frf = frequency_response(rec)
+    assert frf.method == "periodic" and len(frf) > 100
+    np.testing.assert_allclose(frf.response, frf.model_response(A, B), rtol=1e-9)
+
+
+def test_broadband_welch_estimate_with_coherence_and_resolution():
+    rng = np.random.default_rng(0)
+    exp = Experiment(PRBS(200, -200, 16, 1, seed=77), sample_period=DT, duration=100.0)
+    rec = SimRig(Motor(A, B), encoder=Encoder(angle_noise=1e-3), rng=rng).run(exp)
+    frf = frequency_response(rec, method="welch", segment=512)
+    assert frf.method == "welch"
+    assert frf.resolution == pytest.approx(2 * math.pi / (512 * DT))
+    low = frf.omega < 100
+    truth = frf.model_response(A, B)
+    np.testing.assert_allclose(frf.response[low], truth[low], rtol=0.05)
+    assert frf.coherence[low].min() > 0.9
+    assert frf.covers(truth).mean() > 0.8
+
+
+def test_frequency_response_data_and_table():
+    frf = frequency_response(_ideal(_run(EXCITATION, 3), "angle"))
+    data = frf.frequency_response_data()
+    np.testing.assert_allclose(data.omega, frf.omega)
+    np.testing.assert_allclose(np.squeeze(data.frdata), frf.response)
+    table = frf.to_dict()
+    assert set(table) >= {"omega", "gain_db", "phase_deg", "gain_low_db", "gain_high_db", "coherence"}
+    low, high = frf.gain_bounds_db()
+    assert np.all(low <= frf.gain_db()) and np.all(frf.gain_db() <= high)
+
+
+def test_errors_name_what_is_wrong():
+    with pytest.raises(ValueError, match="method must be one of"):
+        frequency_response(_run(EXCITATION, 3), method="spa")
+    with pytest.raises(NotIdentifiableError, match="at least 3 whole periods"):
+        frequency_response(_run(EXCITATION, 2), method="periodic")
+    with pytest.raises(NotIdentifiableError, match="needs a recording of a sine"):
+        frequency_response(_run(EXCITATION, 3), method="sines")
+    with pytest.raises(ValueError, match="output must be one of"):
+        FrequencyResponse([1.0], [1.0], [1.0], [1.0], [1.0], 0.01, output="torque")
+
+
+def test_a_million_samples_in_half_a_second():
+    rng = np.random.default_rng(0)
+    n = 10**6
+    rec = Recording(time=np.arange(n) * DT, duty=rng.integers(-200, 200, n), sample_period=DT,
+                    counts=np.cumsum(rng.integers(-5, 6, n)), counts_per_rev=16667)
+    frequency_response(rec)   # warm up the imports
+    start = time.perf_counter()
+    frf = frequency_response(rec)
+    assert time.perf_counter() - start <= 0.5
+    assert frf.method == "welch"
+
+
+def test_a_models_band_comes_from_its_covariance_and_departures_are_found():
+    from identify import fit
+    rec = _run(EXCITATION, 5, encoder=Encoder(angle_noise=2e-3), rng=np.random.default_rng(7))
+    frf = frequency_response(rec)
+    est = fit(rec, method="oe")
+    model = frf.model_of(est)
+    assert model.name == "oe" and np.all(model.variance > 0)
+    assert np.all(model.radius() < frf.radius())        # a two-parameter model is tighter than each line
+    assert len(frf.departures(model)) <= 0.1 * len(frf)
+    wrong = frf.model_of(dataclasses.replace(est, a=20.0), name="a = 20")
+    assert len(frf.departures(wrong)) > 0.5 * len(frf)
+
+
+def test_undcmotor_prbs_run_gives_the_labs_static_gain_with_high_coherence():
+    from pathlib import Path
+    data = Path(__file__).parents[1] / "data" / "undcmotor" / "DCmotor_prbs_open_exp.csv"
+    t, u, y = np.loadtxt(data, delimiter=",", skiprows=1, unpack=True)
+    rec = Recording(time=t, duty=u, sample_period=0.02, speed=np.deg2rad(y), metadata={"input_unit": "V"})
+    frf = frequency_response(rec)
+    assert frf.method == "welch" and frf.output == "speed" and frf.input_unit == "V"
+    assert frf.resolution == pytest.approx(2 * math.pi / (256 * 0.02))
+    assert np.degrees(abs(frf.response[0])) == pytest.approx(159.86, rel=0.05)   # the lab's static K
+    low = frf.omega < 30
+    assert frf.coherence[low].min() > 0.95
+    # the one-sample input delay: the phase reaches about -360 degrees at the Nyquist frequency
+    assert frf.phase_deg()[-1] < -250
