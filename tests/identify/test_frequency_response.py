@@ -1,7 +1,6 @@
 """Frequency response from recordings: exact at the lines, honest bounds, the article's four sines, speed."""
 import dataclasses
 import math
-import time
 
 import numpy as np
 import pytest
@@ -140,15 +139,14 @@ def test_errors_name_what_is_wrong():
         FrequencyResponse([1.0], [1.0], [1.0], [1.0], [1.0], 0.01, output="torque")
 
 
-def test_a_million_samples_in_half_a_second():
+def test_a_million_samples_take_the_welch_path():
+    # the time goal (<= 0.5 s) is measured by `motorid bench frequency`, not asserted here:
+    # tests never assert wall-clock times
     rng = np.random.default_rng(0)
     n = 10**6
     rec = Recording(time=np.arange(n) * DT, duty=rng.integers(-200, 200, n), sample_period=DT,
                     counts=np.cumsum(rng.integers(-5, 6, n)), counts_per_rev=16667)
-    frequency_response(rec)   # warm up the imports
-    start = time.perf_counter()
     frf = frequency_response(rec)
-    assert time.perf_counter() - start <= 0.5
     assert frf.method == "welch"
 
 
