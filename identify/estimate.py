@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
+from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
 from motorsim.plant import Motor, simulate
 
 if TYPE_CHECKING:
@@ -364,32 +365,112 @@ class Estimate:
 
         Raises
         ------
-        ValueError
-            When the document is not a motorid estimate (``format`` missing or another).
+        motorsim.checks.ParameterError
+            (a ``ValueError``) When the document is not a motorid estimate (``format``
+            missing or another, invalid or binary JSON, nested too deep, over
+            :data:`MAX_ESTIMATE_BYTES`, a number that is not finite where one must be), naming
+            the field; :class:`motorsim.checks.ParameterTypeError` (also a ``TypeError``) for a
+            field of the wrong kind (``"a": true``, ``"extra": []``, ``input_delay: 1.5``).
         """
-        if not text.lstrip().startswith("{") and os.path.isfile(text):
-            with open(text, encoding="utf-8") as fh:
-                text = fh.read()
+        if not isinstance(text, (str, bytes)):
+            raise ParameterTypeError(f"text must be JSON text or the path of a JSON file, got {type(text).__name__}")
+        if isinstance(text, bytes):
+            text = _decoded(text, "text")
+        if not text.lstrip().startswith("{") and os.path.exists(text):
+            from motorsim.files import read_input_bytes
+            text = _decoded(read_input_bytes(text, what="model", max_bytes=MAX_ESTIMATE_BYTES), text)
+        if len(text) > MAX_ESTIMATE_BYTES:
+            raise ParameterError(f"an estimate must be at most {MAX_ESTIMATE_BYTES} characters of JSON, "
+                                 f"got {len(text)}")
         try:
-            doc = json.loads(text)
+            doc = json.loads(text, parse_constant=_no_constant)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
+            raise ParameterError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
+        except RecursionError:
+            raise ParameterError("an estimate must be a JSON document of a few levels, got one nested "
+                                 "too deep to read") from None
         if not isinstance(doc, dict) or doc.get("format") != ESTIMATE_FORMAT:
             found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-            raise ValueError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
-        cov = doc.get("covariance")
-        units = doc.get("units", {})
+            raise ParameterError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
+        return cls(**_estimate_fields(doc))
 
-        def number(x: Any) -> float:
-            return math.nan if x is None else float(x)
-        return cls(method=doc["method"], a=float(doc["a"]), b=float(doc["b"]), n_samples=int(doc["n_samples"]),
-                   sample_period=float(doc["sample_period"]), residual_rms=number(doc["residual_rms"]),
-                   fit_percent=number(doc["fit_percent"]),
-                   covariance=None if cov is None else np.array([[number(x) for x in row] for row in cov]),
-                   param_names=tuple(doc["param_names"]),
-                   extra={k: int(v) if k == "input_delay" else number(v) for k, v in doc["extra"].items()},
-                   residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
-                   data_files=tuple((f["path"], f["sha256"]) for f in doc.get("data_files", [])))
+
+#: The largest saved estimate read, in bytes (one is about 2 kB).
+MAX_ESTIMATE_BYTES = 1 << 20
+
+
+def _decoded(data: bytes, name: str) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"an estimate must be UTF-8 JSON text; {name} is binary ({exc.reason} at byte "
+                             f"{exc.start})") from None
+
+
+def _no_constant(name: str) -> float:
+    raise ParameterError(f"an estimate must hold finite numbers or null, got {name}")
+
+
+def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :class:`Estimate` from a saved document, each field checked."""
+    def field(name: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
+        if name not in doc:
+            if default is ...:
+                raise ParameterError(f"an estimate must have the field {name!r}")
+            return default
+        value = doc[name]
+        if not isinstance(value, kind) or isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple)
+                                                                                   else (kind,)):
+            raise ParameterTypeError(f"estimate field {name!r} must be {_kind_name(kind)}, got {value!r:.80}")
+        return value
+
+    def real(name: str, value: Any, *, finite: bool = True) -> float:
+        if value is None and not finite:
+            return math.nan
+        return check_real(f"estimate field {name!r}", value, finite=finite)
+
+    names = field("param_names", list, ["a", "b"])
+    if not all(isinstance(n, str) for n in names):
+        raise ParameterTypeError(f"estimate field 'param_names' must be a list of names, got {names!r:.80}")
+    cov = field("covariance", (list, type(None)), None)
+    if cov is not None:
+        if len(cov) != len(names) or not all(isinstance(row, list) and len(row) == len(names) for row in cov):
+            raise ParameterError(f"estimate field 'covariance' must be {len(names)} rows of {len(names)} numbers, "
+                                 f"got {cov!r:.80}")
+        cov = np.array([[real("covariance", x, finite=False) for x in row] for row in cov])
+    extra: dict[str, float | int] = {}
+    for key, value in field("extra", dict, {}).items():
+        if key == "input_delay":
+            extra[key] = check_int("estimate field 'extra.input_delay'", value, lo=0, allow_integral_float=False)
+        else:
+            extra[key] = real(f"extra.{key}", value, finite=False)
+    units = field("units", dict, {})
+    for key in ("residual_rms", "input"):
+        if not isinstance(units.get(key, ""), str):
+            raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
+    files = field("data_files", list, [])
+    if not all(isinstance(f, dict) and isinstance(f.get("path"), str) and isinstance(f.get("sha256"), str)
+               for f in files):
+        raise ParameterTypeError(f"estimate field 'data_files' must be a list of {{path, sha256}}, got {files!r:.80}")
+    return dict(method=field("method", str), a=real("a", field("a", (int, float))),
+                b=real("b", field("b", (int, float))),
+                n_samples=check_int("estimate field 'n_samples'", field("n_samples", int), lo=0),
+                sample_period=check_real("estimate field 'sample_period'", field("sample_period", (int, float)),
+                                         positive=True),
+                residual_rms=real("residual_rms", field("residual_rms", (int, float, type(None)), None), finite=False),
+                fit_percent=real("fit_percent", field("fit_percent", (int, float, type(None)), None), finite=False),
+                covariance=cov, param_names=tuple(names), extra=extra,
+                residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
+                data_files=tuple((f["path"], f["sha256"]) for f in files))
+
+
+def _kind_name(kind: type | tuple[type, ...]) -> str:
+    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "an object",
+             type(None): "null"}
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if float in kinds:
+        kinds = tuple(k for k in kinds if k is not int)
+    return " or ".join(names.get(k, k.__name__) for k in kinds)
 
 
 def file_sha256(path: str | os.PathLike) -> str:

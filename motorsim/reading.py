@@ -12,12 +12,12 @@ import csv
 import io
 import math
 import os
-import stat
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
+from typing import BinaryIO, Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
 
 import numpy as np
 
+from .files import InputFileError, open_input
 from .recording import COLUMNS, FORMAT_HEADER, INTEGER_COLUMNS, METADATA_ALIASES, Recording, RecordingFormatError
 
 __all__ = ["read_recording", "MAX_RECORDING_BYTES", "FAST_PATH_MIN_BYTES"]
@@ -85,8 +85,7 @@ def _scan_file(path: Path) -> _FileScan:
     """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
     head, newlines, last = b"", 0, b""
     try:
-        with open(path, "rb") as f:
-            _check_regular(path, os.fstat(f.fileno()))
+        with _open_recording(path) as f:
             total = 0
             while block := f.read(_SCAN_BLOCK_BYTES):
                 if not head:
@@ -102,8 +101,6 @@ def _scan_file(path: Path) -> _FileScan:
                 if total > MAX_RECORDING_BYTES:
                     raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
                                                "split it")
-    except IsADirectoryError:
-        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
     return _FileScan(head, newlines, last == b"\n", total)
@@ -277,24 +274,26 @@ MAX_RECORDING_BYTES = 1 << 30
 FAST_PATH_MIN_BYTES = 256 << 10
 
 
-def _check_regular(path: Path, st: os.stat_result) -> None:
-    """Refuse anything but a regular file of at most :data:`MAX_RECORDING_BYTES`."""
-    if not stat.S_ISREG(st.st_mode):
-        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
-        raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
-    if st.st_size > MAX_RECORDING_BYTES:
-        raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
-                                   "recording may have; split it")
+def _open_recording(path: Path) -> BinaryIO:
+    """``path`` opened once it is known to be a regular file of at most :data:`MAX_RECORDING_BYTES`.
+
+    The kind is checked before the file is opened (:func:`motorsim.files.open_input`): a FIFO
+    or a device is refused at once, never waited on.
+    """
+    try:
+        return open_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
+    except InputFileError as exc:
+        rule = str(exc).removeprefix(f"recording {path}").lstrip(": ")
+        if "bytes is over" in rule:
+            rule += "; split it"
+        raise RecordingFormatError(f"{path}: {rule}") from None
 
 
 def _read_bounded(path: Path) -> bytes:
     """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
     try:
-        with open(path, "rb") as f:
-            _check_regular(path, os.fstat(f.fileno()))
+        with _open_recording(path) as f:
             data = f.read(MAX_RECORDING_BYTES + 1)
-    except IsADirectoryError:
-        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if len(data) > MAX_RECORDING_BYTES:
