@@ -122,8 +122,8 @@ def _read_bytes(path: str) -> bytes:
     try:
         return read_input_bytes(path, what="file", max_bytes=MAX_TABLE_BYTES)
     except InputFileError as exc:
-        raise ImportFormatError(str(exc).removeprefix("file ").replace(": cannot read: no such file", ": no such file")) \
-            from None
+        message = str(exc).removeprefix("file ").replace(": cannot read: no such file", ": no such file")
+        raise ImportFormatError(message) from None
     except OSError as exc:
         raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
