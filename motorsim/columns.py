@@ -122,7 +122,7 @@ def _read_bytes(path: str) -> bytes:
     try:
         return read_input_bytes(path, what="file", max_bytes=MAX_TABLE_BYTES)
     except InputFileError as exc:
-        message = str(exc).removeprefix("file ").replace(": cannot read: no such file", ": no such file")
+        message = str(exc).removeprefix("file ").replace(": cannot read: No such file or directory", ": no such file")
         raise ImportFormatError(message) from None
     except OSError as exc:
         raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None

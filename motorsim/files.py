@@ -380,7 +380,7 @@ def open_input(path: str | os.PathLike, *, what: str, max_bytes: int) -> BinaryI
     try:
         mode = os.stat(name).st_mode
     except FileNotFoundError:
-        raise InputFileError(f"{what} {name}: cannot read: no such file") from None
+        raise InputFileError(f"{what} {name}: cannot read: No such file or directory") from None
     except OSError as exc:
         raise InputFileError(f"{what} {name}: cannot read: {_reason(exc)}", exc.errno) from None
     if not stat.S_ISREG(mode):

@@ -48,7 +48,7 @@ from typing import Iterable, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .checks import check_int, check_real
+from .checks import ParameterError, check_int, check_real
 from .plausibility import ImplausibleSample, implausible_samples
 from .sensors import backward_difference, counts_to_angle
 
@@ -110,10 +110,34 @@ def _integer_array(name: str, value: ArrayLike | None, n: int) -> np.ndarray | N
     return _as_array(name, value, np.int64, n)
 
 
+#: The largest magnitude of an angle (rad), speed (rad/s), duty or reference a recording may hold:
+#: beyond it no motor is measured, and the fits' squares overflow.
+MAX_MAGNITUDE = 1e12
+#: Beyond this magnitude a float64 no longer holds every integer count: :meth:`Recording.measured_angle`
+#: then measures the counts from their median, exactly, before converting them.
+MAX_EXACT_COUNT = 2 ** 53
+#: The range of a sample period in s (a GHz sampler to one sample per few hours).
+SAMPLE_PERIOD_RANGE = (1e-9, 1e4)
+
+
 def _check_finite(name: str, arr: np.ndarray | None) -> None:
-    if arr is not None and not np.all(np.isfinite(arr)):
+    if arr is None:
+        return
+    if not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+        raise ParameterError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+    if name != "time" and len(arr) and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+        k = int(np.argmax(np.abs(arr)))
+        raise ParameterError(f"{name} must be within +-{MAX_MAGNITUDE:g} (no motor gives more), got {arr[k]!r} "
+                             f"at sample {k}")
+
+
+def _check_sample_period(sample_period: float) -> float:
+    value = check_real("sample_period", sample_period, positive=True)
+    lo, hi = SAMPLE_PERIOD_RANGE
+    if not lo <= value <= hi:
+        raise ParameterError(f"sample_period must be in {lo:g}...{hi:g} s, got {value!r}")
+    return value
 
 
 def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
@@ -205,7 +229,7 @@ class Recording:
             seq_array.setflags(write=False)
         for name, value in (*columns.items(), ("seq", seq_array)):
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "sample_period", check_real("sample_period", sample_period, positive=True))
+        object.__setattr__(self, "sample_period", _check_sample_period(sample_period))
         if counts is None and angle is None and speed is None:
             raise ValueError("a Recording needs at least one of counts, angle, speed")
         if counts is not None:
@@ -271,11 +295,22 @@ class Recording:
         return self.metadata.get("input_unit", "duty")
 
     def measured_angle(self) -> np.ndarray | None:
-        """Angle in rad: the ``angle`` column, else counts converted, else None."""
+        """Angle in rad: the ``angle`` column, else counts converted, else None.
+
+        Counts beyond +-2**53 (an offset of 2**62, say) are measured from their median count
+        first, so that no count loses its last bits in the conversion to float.
+        """
         if self.angle is not None:
             return self.angle
         if self.counts is not None and self.counts_per_rev is not None:
-            return counts_to_angle(self.counts, self.counts_per_rev)
+            counts = self.counts
+            if len(counts) and (int(counts.max()) > MAX_EXACT_COUNT or int(counts.min()) < -MAX_EXACT_COUNT):
+                # counts offset by 2**62 would lose their last bits as floats: measure them from the median
+                # count, in exact (wrapping) integer arithmetic; only the angle's offset changes
+                middle = np.partition(counts, len(counts) // 2)[len(counts) // 2]
+                with np.errstate(over="ignore"):
+                    counts = counts - middle
+            return counts_to_angle(counts, self.counts_per_rev)
         return None
 
     def measured_speed(self) -> np.ndarray:
