@@ -15,7 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from motorsim.checks import ParameterError, check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
@@ -47,7 +47,7 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
         raise ParameterError("recordings must hold at least one Recording, got none")
     for i, r in enumerate(recs):
         if not isinstance(r, Recording):
-            raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
+            raise ParameterTypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
     dts = {r.sample_period for r in recs}
     if len(dts) > 1:
         raise ParameterError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
@@ -155,6 +155,7 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
     -------
     list of Segment
     """
+    _check_delay_fits(recordings, input_delay)
     out = []
     for i, rec in enumerate(recordings):
         row = 0
@@ -173,6 +174,24 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
                                    kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
             row += n
     return out
+
+
+#: A fixed input delay must leave this many times its own length of samples in the longest gap-free run.
+DELAY_SHARE = 3
+
+
+def _check_delay_fits(recordings: Sequence[Recording], input_delay: int) -> None:
+    """Refuse an input delay the data cannot hold: the fit would pair the duty with the wrong samples."""
+    if not input_delay:
+        return
+    longest = max((len(seg) for rec in recordings for seg in rec.segments()), default=0)
+    if input_delay >= longest:
+        raise NotIdentifiableError(f"input_delay {input_delay} samples is not shorter than the longest gap-free run "
+                                   f"({longest} samples): no sample has its delayed duty; check the delay")
+    if DELAY_SHARE * input_delay > longest - input_delay:
+        raise NotIdentifiableError(f"input_delay {input_delay} samples leaves {longest - input_delay} of the longest "
+                                   f"run's {longest} samples, fewer than {DELAY_SHARE} times the delay: a fit would "
+                                   "be meaningless; check the delay or record a longer run")
 
 
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:

@@ -100,7 +100,7 @@ class Estimate:
         if self.covariance is not None:
             cov = np.array(self.covariance, dtype=float)
             if cov.shape != (len(self.param_names),) * 2:
-                raise ValueError(f"covariance must have shape {(len(self.param_names),) * 2}, got {cov.shape}")
+                raise ParameterError(f"covariance must have shape {(len(self.param_names),) * 2}, got {cov.shape}")
             cov.setflags(write=False)
             object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "extra", dict(self.extra))
@@ -189,7 +189,7 @@ class Estimate:
         b: [2.980, 3.020]
         """
         if not 0 < level < 1:
-            raise ValueError(f"level must be in (0, 1), got {level!r}")
+            raise ParameterError(f"level must be in (0, 1), got {level!r}")
         z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
         return {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
 
@@ -231,9 +231,9 @@ class Estimate:
         """
         import control
         if form not in ("continuous", "discrete"):
-            raise ValueError(f"form must be 'continuous' or 'discrete', got {form!r}")
+            raise ParameterError(f"form must be 'continuous' or 'discrete', got {form!r}")
         if delay not in (None, "pade"):
-            raise ValueError(f"delay must be None or 'pade', got {delay!r}")
+            raise ParameterError(f"delay must be None or 'pade', got {delay!r}")
         names = {"inputs": "duty", "outputs": "speed"}
         d = self.input_delay
         if form == "discrete":
@@ -244,11 +244,11 @@ class Estimate:
         if d == 0:
             return tf
         if delay is None:
-            raise ValueError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
+            raise ParameterError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
                              "which b/(s + a) cannot carry: use transfer_function('discrete') for the exact "
                              "model with z^-d, or delay='pade' for a continuous approximation")
         if not (isinstance(pade_order, int) and pade_order >= 1):
-            raise ValueError(f"pade_order must be an integer >= 1, got {pade_order!r}")
+            raise ParameterError(f"pade_order must be an integer >= 1, got {pade_order!r}")
         num, den = control.pade(d * self.sample_period, pade_order)
         return control.tf(np.polymul(num, [self.b]), np.polymul(den, [1.0, self.a]), **names)
 

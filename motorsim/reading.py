@@ -357,7 +357,12 @@ def _parse_metadata(lines: list[str], fail: _Failer) -> tuple[dict[str, str], in
                 fail(i + 1, f"unsupported format {body!r}; this version reads {FORMAT_HEADER[2:]!r}")
         elif ":" in body:
             k, _, v = body.partition(":")
-            meta[METADATA_ALIASES.get(k.strip(), k.strip())] = v.strip()
+            key = METADATA_ALIASES.get(k.strip(), k.strip())
+            if key in meta:
+                said = f"{k.strip()!r} (an alias of {key!r})" if key != k.strip() else repr(key)
+                same = "again" if meta[key] == v.strip() else f"as {v.strip()!r} after {meta[key]!r}"
+                fail(i + 1, f"metadata {said} is given {same}; give each key once")
+            meta[key] = v.strip()
         i += 1
     if i == len(lines):
         fail(i, "no header row (expected column names such as seq,time_s,duty,counts)")
@@ -376,6 +381,8 @@ def _check_header(header: list[str], line: int, fail: _Failer) -> None:
 
 def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
     cell = cell.strip()
+    if not cell.isascii():
+        fail(line, f"column {column!r} must be a plain ASCII number (digits 0-9), got {cell[:40]!r}")
     if "_" in cell:
         fail(line, f"column {column!r} must be a plain number (no '_' digit separators), got {cell!r}")
     if column in INTEGER_COLUMNS:
@@ -451,6 +458,8 @@ def _counts_per_rev(meta: Mapping[str, str], fail: _Failer) -> int | None:
     if "counts_per_rev" not in meta:
         return None
     try:
+        if not meta["counts_per_rev"].isascii():
+            raise ValueError
         cpr = int(meta["counts_per_rev"])
         if cpr <= 0:
             raise ValueError
@@ -463,6 +472,8 @@ def _sample_period(meta: Mapping[str, str], time_s: np.ndarray, fail: _Failer) -
     """The metadata's sample period, else the median interval of ``time_s``."""
     if "sample_period" in meta:
         try:
+            if not meta["sample_period"].isascii():
+                raise ValueError
             sp = float(meta["sample_period"])
             if not (math.isfinite(sp) and sp > 0):
                 raise ValueError
