@@ -16,6 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
+from motorsim.plausibility import saturated_runs
 from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
@@ -236,9 +237,15 @@ def _check_moves(i: int, r: Recording) -> None:
 def _warn_saturation(i: int, r: Recording) -> None:
     if r.input_unit != "duty":
         return
-    limit = float(r.metadata.get("duty_limit", 255))
-    share = float(np.mean(np.abs(r.duty) >= limit)) if limit > 0 else 0.0
+    limit = r.duty_limit if r.duty_limit is not None else 255.0
+    share = float(np.mean(np.abs(r.duty) >= limit))
     if share > _SATURATION_SHARE:
         warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
                       "the samples; the motor sees a square wave and the estimate rests on few "
                       "transitions: lower the amplitude", UserWarning, stacklevel=4)
+    elif r.duty_limit is not None and r.reference is None and (runs := saturated_runs(r.duty, limit)):
+        # open loop only: a controller's duty at the limit is its own choice, not a clipped excitation
+        warnings.warn(f"recordings[{i}]: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
+                      f"{sum(n for _, n in runs)} samples (the first from row {runs[0][0]}): the input the "
+                      "excitation asked for did not reach the motor there; lower the amplitude if the fit "
+                      "or its residuals look wrong", UserWarning, stacklevel=4)

@@ -181,11 +181,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     The signal handlers are in place before the parser is built (which imports every
     command), so a signal at any moment after start-up gives 128 + its number, no traceback.
     """
-    from motorid.interrupts import describe_interrupt, exit_status, signals_as_interrupts
     try:
+        from motorid.interrupts import signals_as_interrupts
         with signals_as_interrupts():
             return _parse_and_run(argv)
     except KeyboardInterrupt as exc:
+        from motorid.interrupts import describe_interrupt, exit_status
         _say(f"motorid: {describe_interrupt(exc)}")
         return exit_status(exc)
     except BrokenPipeError:

@@ -95,12 +95,12 @@ class Knob:
                     raise ParameterError(text)
                 return int(value)
             value = float(text)
-            if not math.isfinite(value):
-                raise ParameterError(text)
-            return value
         except ValueError:
-            kind = {bool: "true or false", int: "an integer", float: "a finite number"}[self.kind]
+            kind = {bool: "true or false", int: "an integer", float: "a number"}[self.kind]
             raise ParameterError(f"{self.name} must be {kind}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise ParameterError(f"{self.name} must be a finite number, got {text!r}")
+        return value
 
     def describe(self) -> str:
         """Help text with unit and default, for ``--help`` and the docs."""
