@@ -22,9 +22,8 @@ Examples
 """
 from __future__ import annotations
 
-import math
-
 import dataclasses
+import math
 from typing import Any
 
 from .checks import ParameterError, ParameterTypeError
