@@ -355,13 +355,13 @@ class Estimate:
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod
-    def from_json(cls, text: str) -> "Estimate":
+    def from_json(cls, text: str | bytes) -> "Estimate":
         """The estimate :meth:`to_json` wrote (a JSON document, or the path of a file holding one).
 
         Parameters
         ----------
-        text : str
-            JSON text, or a path to a ``.json`` file.
+        text : str or bytes
+            JSON text (bytes: UTF-8), or a path to a ``.json`` file.
 
         Raises
         ------

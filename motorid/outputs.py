@@ -56,7 +56,7 @@ def check_outputs(args: argparse.Namespace) -> None:
     motorsim.files.OutputFileError
         Naming the flag, the path and the rule.
     """
-    command = getattr(args, "command", None)
+    command = str(getattr(args, "command", ""))
     inputs = list(input_paths(args))
     for name, suffixes in FILE_OUTPUTS.get(command, {}).items():
         value = getattr(args, name, None)
