@@ -219,16 +219,9 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     if not speed_reverses(recs):
         return _no_reversal(recs, delay, fix_bias)
     segments = prepare_segments(recs, delay)
-    names = ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
-    problem = _FrictionProblem(segments, names)
-    x0 = _regression_start(problem)
-    if x0 is None:
-        x0 = _linear_start(recs, problem, delay)
-    res = _levenberg_marquardt(problem, _prefix_start(problem, x0))
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=dead_zone)
+    problem, res = solve_friction(recs, segments, names, delay)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
-        raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
-                                   "check the sign of the input and that the motor moved")
     s2 = float(res.fun @ res.fun) / problem.dof
     ends = np.cumsum([0] + [len(s.time) for s in segments])
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
@@ -239,6 +232,38 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
+
+
+def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) -> tuple[str, ...]:
+    """The shared parameters ``oe-friction`` fits: ``a, b, friction``, then ``bias`` unless fixed, ``dead_zone``."""
+    return ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
+
+
+def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
+                   input_delay: int) -> tuple[_FrictionProblem, OptimizeResult]:
+    """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
+
+    What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
+    reverse, without the covariance: the model selection (:mod:`identify.selection`) scores every
+    candidate by this fit's residuals, the same fit the estimate it returns is made from.
+
+    Raises
+    ------
+    NotIdentifiableError
+        When the fit lands on ``a <= 0``, ``b = 0`` or a non-finite value.
+    """
+    if not segments:
+        raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
+    problem = _FrictionProblem(segments, names)
+    x0 = _regression_start(problem)
+    if x0 is None:
+        x0 = _linear_start(recordings, problem, input_delay)
+    res = _levenberg_marquardt(problem, _prefix_start(problem, x0))
+    a, b = float(res.x[0]), float(res.x[1])
+    if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
+        raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
+                                   "check the sign of the input and that the motor moved")
+    return problem, res
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -434,8 +459,12 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     for _ in range(max_iterations):
         assert J is not None
         norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-        norms[norms == 0] = 1.0
+        # a column the data barely see (the initial speed of a segment that starts stuck by friction)
+        # is held, not scaled up to a step of 1e14
+        unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
+        norms[unseen] = 1.0
         Js = J / norms
+        Js[:, unseen] = 0.0
         H = Js.T @ Js
         g = Js.T @ r
         try:
