@@ -61,7 +61,7 @@ from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .output_error import fit_output_error, select_delay, solve_output_error
+from .output_error import fit_output_error, solve_output_error
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
@@ -187,8 +187,9 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     recordings : Recording or sequence of Recording
         Pooled, as for ``oe``.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"``: chosen with the linear model, with a bias unless
-        ``fix_bias``).
+        Input delay in samples (``"auto"``: chosen by this friction model's own fits in
+        ``0 ... 10``, the shortest delay within the noise of the best, see
+        :func:`identify.selection.select_model`).
     fix_bias : bool
         Hold the bias ``d = 0``.
     dead_zone : bool
@@ -214,8 +215,12 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     fix_bias = check_bool("fix_bias", fix_bias)
     dead_zone = check_bool("dead_zone", dead_zone)
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
-    # the bias drifts the angle: a linear model without it can rank the delays wrongly
-    delay = select_delay(recs, with_bias=not fix_bias) if input_delay == "auto" else int(input_delay)
+    if input_delay == "auto":     # ranked by this model itself (the shortest delay within the noise of the best)
+        from .selection import select_model
+        selection = select_model(recs, structures=("dead-zone" if dead_zone else "friction",), fix_bias=fix_bias)
+        delay = selection.chosen.input_delay
+    else:
+        delay = int(input_delay)
     if not speed_reverses(recs):
         return _no_reversal(recs, delay, fix_bias)
     segments = prepare_segments(recs, delay)

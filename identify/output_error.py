@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -55,9 +56,7 @@ from .variable_projection import (
     SeparableSolution,
     is_separable,
     regression_start,
-    separable_residual_sum,
     solve_separable,
-    static_gain_ceiling,
 )
 
 if TYPE_CHECKING:
@@ -325,10 +324,11 @@ def _solve(problem: OutputErrorProblem, x0: np.ndarray, jac: str) -> OptimizeRes
 
 def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_AUTO_DELAY, *,
                  with_bias: bool = False) -> int:
-    """The integer input delay (samples) whose output-error fit leaves the least residual.
+    """The input delay (samples) of the linear model chosen by :func:`identify.selection.select_model`.
 
-    Every candidate is fitted on the same rows (each segment from row ``max_delay``),
-    so the residual sums compare like with like.
+    Every candidate delay is fitted on the same rows (each segment from row ``max_delay``) and
+    the shortest whose fit is within the noise of the best is returned, so a delay that improves
+    the residual by less than the noise can tell is not taken.
 
     Parameters
     ----------
@@ -343,38 +343,19 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
     -------
     int
     """
+    from .selection import select_model
     recs = as_recordings(recordings)
     max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
-    best = (math.inf, 0)
-    for delay in range(max_delay + 1):
-        segs = prepare_segments(recs, delay, skip=max_delay)
-        if not segs:
-            break
-        rss = _candidate_residual_sum(recs, segs, delay, with_bias)
-        if rss < best[0]:
-            best = (rss, delay)
-    return best[1]
+    selection = select_model(recs, structures=("bias",) if with_bias else ("linear",), max_delay=max_delay)
+    _warn_about(selection)
+    return selection.chosen.input_delay
 
 
-def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool) -> float:
-    """The least residual sum of squares of candidate delay ``delay`` (``inf`` when nothing fits).
-
-    Where Gauss--Newton in ``a`` runs off to ever larger poles (the rows prefer no lag at
-    all, as a wrong delay's often do), it is stopped at
-    :func:`identify.variable_projection.static_gain_ceiling`, where the model equals its
-    limit (a static gain) to rounding, and scored there, instead of being followed to
-    overflow by the general fit.
-    """
-    if is_separable(segs, False):               # the bias, if any, is one more linear column there
-        rss = separable_residual_sum(segs, _separable_start(recs, segs), with_bias=with_bias,
-                                     ceiling=static_gain_ceiling(segs))
-        if rss is not None:
-            return rss
-    try:
-        fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
-    except NotIdentifiableError:
-        return math.inf
-    return float(np.einsum("i,i->", fun, fun))
+def _warn_about(selection) -> None:
+    """A delay at the top of the searched range, said as a warning (never returned silently)."""
+    notes = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
+    if notes:
+        warnings.warn("input_delay='auto': " + "; ".join(notes), UserWarning, stacklevel=4)
 
 
 def _separable_start(recs: list[Recording], segs: list[Segment]) -> float:
@@ -514,7 +495,8 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
         Pooled: one ``(a, b)``, an initial speed and encoder offset per gap-free segment.
     input_delay : int or "auto"
         Input delay in whole samples (default 0); ``"auto"`` picks it in
-        ``0 ... MAX_AUTO_DELAY`` by the least residual.
+        ``0 ... MAX_AUTO_DELAY``: the shortest delay whose fit is within the noise of the best
+        (:func:`identify.selection.select_model`).
     fit_bias : bool
         Also fit a constant acceleration ``bias`` (the model's ``d``):
         ``d omega/dt = -a omega + b u + d``.  For a motor that never stops (a driver

@@ -66,8 +66,8 @@ from .data import Segment, as_recordings, check_excitation, check_input_delay, p
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 
-__all__ = ["fit_selected", "select_model", "Selection", "Candidate", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL",
-           "SCREEN_LEVEL", "BLOCKS"]
+__all__ = ["fit_selected", "select_model", "residual_checks", "Selection", "Candidate", "STRUCTURES",
+           "MAX_AUTO_DELAY", "LEVEL", "SCREEN_LEVEL", "BLOCKS"]
 
 #: Largest input delay in samples the selection tries.
 MAX_AUTO_DELAY = 10
@@ -81,9 +81,9 @@ BLOCKS = 32
 #: unclear (smaller differences outside the interval only widen it).
 MATERIAL = 0.01
 #: Rows on which a candidate's first Gauss--Newton steps run on long data (its last run on all rows).
-COARSE_SAMPLES = 2000
+COARSE_SAMPLES = 1000
 #: Rows of the score test that screens friction and a dead zone (the first of every segment).
-SCREEN_SAMPLES = 5000
+SCREEN_SAMPLES = 2000
 #: Share of samples at the duty limit above which the data are called saturated.
 SATURATED_SHARE = 0.10
 #: Encoder counts the whole run must sweep for ``a`` and ``b`` to rest on more than a few steps.
@@ -405,9 +405,16 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
                      "constant acceleration (the bias d); a run through zero speed would separate them")
         linear = sorted(set(linear) | {"bias"}, key=list(STRUCTURES).index)
         nonlinear = []
+    worse = 0
     for d in delays:
-        for s in linear:
-            fitted.append(_fit_linear(recs, segments[d], d, s == "bias", refine=False))
+        here = [_fit_linear(recs, segments[d], d, s == "bias", refine=False) for s in linear]
+        fitted += here
+        worse = worse + 1 if _far_worse(here, fitted, level) else 0
+        if worse == STOP_AFTER and d < delays[-1]:
+            skipped = f"delay {d + 1}" if d + 1 == delays[-1] else f"delays {d + 1}-{delays[-1]}"
+            notes.append(f"{skipped} not fitted: the fit worsened far beyond the noise for "
+                         f"{STOP_AFTER} delays in a row past the best")
+            break
     refine = functools.partial(_refine, recs, segments, level)
     if nonlinear and linear:
         base = refine(fitted)
@@ -441,17 +448,41 @@ def _refine(recs: list[Recording], segments: dict[int, list[Segment]], level: fl
         best = _best(fitted)
         if best is None:
             return None
+        reference = best.residuals
+        assert reference is not None
         if not best.refined:
             pending = [best]
         else:
             pending = [f for f in fitted if not f.refined and f.residuals is not None and _statistic(
-                f.residuals - best.residuals, f.candidate.residual_sum - best.candidate.residual_sum,
-                best.residuals) <= REFINE_FACTOR * _threshold(f.candidate, best.candidate, level)]
+                f.residuals - reference, f.candidate.residual_sum - best.candidate.residual_sum,
+                reference) <= REFINE_FACTOR * _threshold(f.candidate, best.candidate, level)]
             if not pending:
                 return best
         for f in pending:
             c = f.candidate
             fitted[fitted.index(f)] = _fit_linear(recs, segments[c.input_delay], c.input_delay, c.structure == "bias")
+
+
+#: The delay scan stops after this many delays in a row whose every candidate is worse than the best by
+#: more than :data:`STOP_FACTOR` times the threshold.
+STOP_AFTER = 2
+STOP_FACTOR = 100.0
+
+
+def _far_worse(here: list[_Fitted], fitted: list[_Fitted], level: float) -> bool:
+    """Whether every candidate of ``here`` is far beyond the noise of the best so far."""
+    best = _best(fitted)
+    if best is None or any(f is best for f in here):
+        return False
+    assert best.residuals is not None
+    for f in here:
+        if f.residuals is None:
+            continue
+        t = _statistic(f.residuals - best.residuals, f.candidate.residual_sum - best.candidate.residual_sum,
+                       best.residuals)
+        if t <= STOP_FACTOR * _threshold(f.candidate, best.candidate, level):
+            return False
+    return True
 
 
 def _best(fitted: list[_Fitted]) -> _Fitted | None:
@@ -463,7 +494,14 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
                    structures: list[str], fix_bias: bool, linear_best: _Fitted | None) -> list[_Fitted]:
     """The most general nonlinear structure at every delay, the other near the delays it prefers."""
     general, *rest = sorted(structures, key=list(STRUCTURES).index, reverse=True)
-    out = [_fit_friction(recs, segments[d], d, general, fix_bias) for d in delays]
+    out: list[_Fitted] = []
+    worse = 0
+    for d in delays:
+        here = [_fit_friction(recs, segments[d], d, general, fix_bias)]
+        out += here
+        worse = worse + 1 if _far_worse(here, out, LEVEL) else 0
+        if worse == STOP_AFTER:
+            break
     best = _best(out)
     near: set[int] = set()
     for anchor in (best, linear_best):
@@ -641,3 +679,43 @@ def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
             notes.append(f"the input has {100 * fast / total:.2g} % of its power at or above a/5 = {est.a / 5:.3g} "
                          "rad/s: a rests on the slow response alone; add a faster component (or a step)")
     return notes
+
+
+def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float]:
+    """The fitted model's residuals on its own data, tested: whiteness, the input, the sign of the model's speed.
+
+    ``whiteness_p`` and ``input_p`` are :func:`identify.validate`'s Ljung--Box and cross-correlation
+    tests; ``sign_p`` tests the correlation of the speed residual with ``sign(omega)`` (what an
+    unmodelled Coulomb friction leaves), its variance by batch means over :data:`BLOCKS` blocks.
+    Small p-values say the model misses something; large ones that nothing was found.
+
+    Parameters
+    ----------
+    estimate : Estimate
+        A fit of ``recording`` (or of recordings pooled with it).
+    recording : Recording
+        The data.
+
+    Returns
+    -------
+    dict
+        ``whiteness_p``, ``input_p``, ``sign_p`` (nan when a test cannot be made).
+    """
+    from scipy.special import fdtrc
+
+    from .validation import model_output, validate
+    report = validate(estimate, recording)
+    measured, simulated = model_output(estimate, recording)
+    ok = np.isfinite(measured) & np.isfinite(simulated)
+    residual = (measured - simulated)[ok]
+    sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0
+    sign = sign - sign.mean()
+    sign_p = math.nan
+    blocks = _blocks(len(residual))
+    if len(blocks) > 2 and float(sign @ sign) > 0:
+        scores = np.array([float(sign[s] @ residual[s]) for s in blocks])
+        v = float(scores @ scores)
+        if v > 0:
+            m = len(blocks)
+            sign_p = float(fdtrc(1, m - 1, float(scores.sum()) ** 2 / v * (m - 1) / m))
+    return {"whiteness_p": float(report.whiteness_p), "input_p": float(report.independence_p), "sign_p": sign_p}

@@ -34,8 +34,8 @@ from motorsim.recursion import first_order_filter
 from .data import Segment
 from .sensitivity import phi_functions
 
-__all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable", "regression_start",
-           "static_gain_ceiling"]
+__all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
+           "regression_start", "static_gain_ceiling"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -47,6 +47,8 @@ STEP_RTOL = 1e-8
 #: fit's statistical error and needs one or two steps.
 COARSE_SAMPLES = 20_000
 COARSE_RTOL = 1e-5
+#: Evaluations of an unrefined candidate's coarse steps (:func:`separable_candidate`).
+COARSE_BUDGET = 4
 #: Gauss--Newton iterations before giving up (the caller then falls back to Levenberg--Marquardt).
 MAX_ITERATIONS = 30
 
@@ -471,7 +473,7 @@ def separable_candidate(segments: list[Segment], a0: float, *, with_bias: bool =
     """
     if not refine and sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
         coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments, coarse_samples)], float(a0),
-                          COARSE_RTOL, ceiling)
+                          COARSE_RTOL, ceiling, budget=COARSE_BUDGET)
         if coarse is not None:
             segs = [_Segment(seg, with_bias) for seg in segments]
             return _candidate(segs, coarse[0], False)
@@ -516,10 +518,11 @@ def _prefixes(segments: list[Segment], samples: int = COARSE_SAMPLES) -> list[Se
     return out
 
 
-def _iterate(segs: list[_Segment], a: float, rtol: float,
-             ceiling: float = math.inf) -> tuple[float, _Point, int] | None:
+def _iterate(segs: list[_Segment], a: float, rtol: float, ceiling: float = math.inf,
+             budget: int | None = None) -> tuple[float, _Point, int] | None:
     """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative, or ``a`` passes ``ceiling``
-    (then ``a = ceiling``): ``(a, last point, evaluations)``."""
+    (then ``a = ceiling``): ``(a, last point, evaluations)``.  With a ``budget``, the ``a`` reached
+    after that many evaluations is returned even when not converged."""
     evaluations = 0
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
@@ -531,6 +534,6 @@ def _iterate(segs: list[_Segment], a: float, rtol: float,
         a += point.step
         if a >= ceiling:
             return ceiling, point, evaluations
-        if abs(point.step) <= rtol * abs(a):
+        if abs(point.step) <= rtol * abs(a) or evaluations == budget:
             break
     return (a, point, evaluations) if a > 0 else None
