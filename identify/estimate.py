@@ -72,6 +72,10 @@ class Estimate:
         every candidate (structure, input delay, fit, score), the chosen one, the best, the
         runner-up, whether the choice was ``clear`` and the ``doubt`` line; None when a method
         was named.
+    model_range : mapping of str to (float, float)
+        For ``a`` and ``b`` when the selection found candidates it cannot rule out that disagree:
+        the range of their values (``inf`` when a static gain fits as well).
+        :meth:`confidence_interval` is the union of the fit's own interval and this range.
     notes : tuple of str
         What the data could not answer, one line each (the choice's doubt, saturation, too few
         encoder counts, an input too slow for ``a``, a parameter left without an interval).
@@ -105,6 +109,7 @@ class Estimate:
     covariance_method: str = ""
     selection: Mapping[str, Any] | None = None
     notes: tuple[str, ...] = ()
+    model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -116,6 +121,8 @@ class Estimate:
         object.__setattr__(self, "extra", dict(self.extra))
         object.__setattr__(self, "data_files", tuple((str(p), str(h)) for p, h in self.data_files))
         object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
+        object.__setattr__(self, "model_range", {str(k): (float(lo), float(hi))
+                                                 for k, (lo, hi) in dict(self.model_range).items()})
 
     @property
     def input_delay(self) -> int:
@@ -193,6 +200,9 @@ class Estimate:
     def confidence_interval(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
         """Two-sided normal-approximation interval per parameter, ``value +- z sigma``.
 
+        Where the model selection left candidates it cannot rule out (:attr:`model_range`), the
+        interval of ``a`` and ``b`` is the union of that one and their range.
+
         Parameters
         ----------
         level : float
@@ -216,7 +226,12 @@ class Estimate:
         if not 0 < level < 1:
             raise ValueError(f"level must be in (0, 1), got {level!r}")
         z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
-        return {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
+        out = {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
+        for n, (lo, hi) in self.model_range.items():       # candidates the data cannot rule out: the union
+            own = out.get(n, (math.nan, math.nan))
+            out[n] = (min(lo, own[0]) if math.isfinite(own[0]) else lo,
+                      max(hi, own[1]) if math.isfinite(own[1]) else hi)
+        return out
 
     def transfer_function(self, form: str = "continuous", *, delay: str | None = None,
                           pade_order: int = 3) -> control.TransferFunction:
@@ -350,6 +365,8 @@ class Estimate:
         out["notes"] = list(self.notes) + ([f"no interval for {missing}"] if missing else [])
         if self.selection is not None:
             out["selection"] = self.selection
+        if self.model_range:
+            out["model_range"] = {k: list(v) for k, v in self.model_range.items()}
         return json_ready(out)
 
     def to_json(self, *, indent: int | None = 2) -> str:
@@ -384,6 +401,8 @@ class Estimate:
                "covariance_method": self.covariance_method, "notes": list(self.notes)}
         if self.selection is not None:
             doc["selection"] = self.selection
+        if self.model_range:
+            doc["model_range"] = {k: list(v) for k, v in self.model_range.items()}
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod
@@ -425,7 +444,8 @@ class Estimate:
                    data_files=tuple((f["path"], f["sha256"]) for f in doc.get("data_files", [])),
                    covariance_method=str(doc.get("covariance_method", "")),
                    selection=doc.get("selection") if isinstance(doc.get("selection"), dict) else None,
-                   notes=tuple(str(n) for n in doc.get("notes", []) if isinstance(n, str)))
+                   notes=tuple(str(n) for n in doc.get("notes", []) if isinstance(n, str)),
+                   model_range={k: (number(v[0]), number(v[1])) for k, v in (doc.get("model_range") or {}).items()})
 
 
 def file_sha256(path: str | os.PathLike) -> str:

@@ -56,12 +56,13 @@ import numpy as np
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
+from .comparison import LEVEL, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .output_error import fit_output_error, solve_output_error
+from .output_error import MAX_AUTO_DELAY, fit_output_error, select_delay, solve_output_error
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
@@ -216,9 +217,7 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     dead_zone = check_bool("dead_zone", dead_zone)
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
     if input_delay == "auto":     # ranked by this model itself (the shortest delay within the noise of the best)
-        from .selection import select_model
-        selection = select_model(recs, structures=("dead-zone" if dead_zone else "friction",), fix_bias=fix_bias)
-        delay = selection.chosen.input_delay
+        delay = _select_delay(recs, "dead-zone" if dead_zone else "friction", fix_bias)
     else:
         delay = int(input_delay)
     if not speed_reverses(recs):
@@ -239,18 +238,44 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
 
 
+def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
+    """The shortest input delay whose friction fit is within the noise of the best (:func:`comparison.choose`);
+    the linear model's with a bias when the speed never reverses (friction is then a constant)."""
+    if not speed_reverses(recs):
+        return select_delay(recs, with_bias=not fix_bias)
+    top = largest_delay(recs, MAX_AUTO_DELAY)
+    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
+    delays = [d for d, segs in segments.items() if segs]
+    notes: list[str] = []
+    fitted = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, structure, fix_bias)],
+                         LEVEL, notes)
+    refine(fitted, lambda f: f, LEVEL)             # friction candidates are full fits already
+    selection = choose(fitted, LEVEL, notes, top, recs, segments)
+    edge = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
+    if edge:
+        warnings.warn("oe-friction input_delay='auto': " + edge[0], UserWarning, stacklevel=4)
+    return selection.chosen.input_delay
+
+
 def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) -> tuple[str, ...]:
     """The shared parameters ``oe-friction`` fits: ``a, b, friction``, then ``bias`` unless fixed, ``dead_zone``."""
     return ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
 
 
 def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
-                   input_delay: int) -> tuple[_FrictionProblem, OptimizeResult]:
+                   input_delay: int, *, thorough: bool = True) -> tuple[_FrictionProblem, OptimizeResult]:
     """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
 
     What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
     reverse, without the covariance: the model selection (:mod:`identify.selection`) scores every
     candidate by this fit's residuals, the same fit the estimate it returns is made from.
+
+    The cost is kinked and has local minima where friction and dead zone trade off.  The fit starts
+    from the instrumental-variable regression; from the linear fit too (with a little friction, a
+    dead zone of a tenth of the input, much friction) when that lands worse than the linear model
+    it contains, when the regression's ``a`` is far from the linear one, or always with ``thorough``
+    (the estimate's own fit; the selection's candidates at every delay use ``thorough=False``); the
+    least residual wins.
 
     Raises
     ------
@@ -261,14 +286,42 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
     problem = _FrictionProblem(segments, names)
     x0 = _regression_start(problem)
-    if x0 is None:
-        x0 = _linear_start(recordings, problem, input_delay)
-    res = _levenberg_marquardt(problem, _prefix_start(problem, x0))
+    results = []
+    if x0 is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
+    try:
+        linear = solve_output_error(recordings, segments, input_delay, with_bias="bias" in names)
+    except NotIdentifiableError:
+        linear = None
+    if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
+        # the kinked cost has local minima where friction and dead zone trade off: when the regression's
+        # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
+        for start in _linear_starts(problem, linear):
+            with np.errstate(over="ignore", invalid="ignore"):
+                results.append(_levenberg_marquardt(problem, start))
+    if not results:
+        raise NotIdentifiableError("oe-friction: neither the regression nor the linear fit gives a start; "
+                                   "the input does not move the motor")
+    res = min(results, key=_cost)
     a, b = float(res.x[0]), float(res.x[1])
     if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
         raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
                                    "check the sign of the input and that the motor moved")
     return problem, res
+
+
+def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: str,
+                  fix_bias: bool) -> CandidateFit:
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=structure == "dead-zone")
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            _, res = solve_friction(recs, segs, names, delay, thorough=False)
+    except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
+        return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(res.fun, float)
+    return CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), float(r @ r)), r)
+
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -360,16 +413,32 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     return X, Z, nxt, keep, smallest_duty, len(duties)
 
 
-def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> np.ndarray:
-    """The linear output-error fit with a small friction guess (when the regression start fails)."""
-    lin = solve_output_error(recs, problem.segments, input_delay)
-    a0, b0 = float(lin.result.x[0]), float(lin.result.x[1])
-    if b0 == 0:
-        raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
+def _cost(res: OptimizeResult) -> float:
+    """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
+    cost = float(res.fun @ res.fun)
+    return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
+
+
+def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear) -> bool:
+    """A fit from the regression's start that the linear model it contains beats, or a start far from it."""
+    lin_cost = float(linear.result.fun @ linear.result.fun)
+    a_lin = float(linear.result.x[0])
+    far = x0 is None or not (a_lin / 3 <= x0[0] <= 3 * a_lin)
+    return far or _cost(res) > lin_cost * (1 + 1e-9)
+
+
+def _linear_starts(problem: _FrictionProblem, linear) -> list[np.ndarray]:
+    """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
+    a0, b0 = float(linear.result.x[0]), float(linear.result.x[1])
+    if b0 == 0 or not a0 > 0:
+        return []
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    shared = [a0, b0, 0.05 * abs(b0) * u_scale] + ([0.0] if "bias" in problem.names else [])
-    shared += [0.02 * u_scale] if "dead_zone" in problem.names else []
-    return np.concatenate([shared, lin.initial_speeds()])
+    bias = [float(linear.result.x[2]) if len(linear.result.x) > 2 else 0.0] if "bias" in problem.names else []
+    dead = "dead_zone" in problem.names
+    guesses = [(0.05, 0.02), (0.0, 0.1), (0.15, 0.0)] if dead else [(0.05, 0.0), (0.15, 0.0)]
+    speeds = linear.initial_speeds()
+    return [np.concatenate([[a0, b0, c * abs(b0) * u_scale], bias, [z * u_scale] if dead else [], speeds])
+            for c, z in guesses]
 
 
 #: Rows from which the first iterations run on the first :data:`PREFIX_SHARE` of every segment.

@@ -36,6 +36,7 @@ import numpy as np
 from motorsim.checks import check_bool, check_choice, check_int
 from motorsim.recording import Recording
 
+from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
 from .data import (
     MIN_SEGMENT_SAMPLES,
     Segment,
@@ -56,7 +57,9 @@ from .variable_projection import (
     SeparableSolution,
     is_separable,
     regression_start,
+    separable_candidate,
     solve_separable,
+    static_gain_ceiling,
 )
 
 if TYPE_CHECKING:
@@ -65,8 +68,8 @@ if TYPE_CHECKING:
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
            "MAX_AUTO_DELAY", "JACOBIANS"]
 
-#: Largest input delay in samples that ``input_delay="auto"`` tries.
-MAX_AUTO_DELAY = 10
+#: Rows on which a candidate's first Gauss--Newton steps run on long data (:func:`linear_candidate`).
+COARSE_SAMPLES = 1000
 #: Jacobians :func:`fit_output_error` offers.
 JACOBIANS = ("analytic", "2-point", "3-point")
 
@@ -343,12 +346,42 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
     -------
     int
     """
-    from .selection import select_model
     recs = as_recordings(recordings)
     max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
-    selection = select_model(recs, structures=("bias",) if with_bias else ("linear",), max_delay=max_delay)
+    top = largest_delay(recs, max_delay)
+    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
+    delays = [d for d, segs in segments.items() if segs]
+    if not delays:
+        raise NotIdentifiableError(f"recording is too short for input delays up to {top} samples")
+    notes: list[str] = []
+    fitted = scan_delays(delays, lambda d: [linear_candidate(recs, segments[d], d, with_bias, refine=False)],
+                         LEVEL, notes)
+    refine(fitted, lambda f: linear_candidate(recs, segments[f.candidate.input_delay], f.candidate.input_delay,
+                                              with_bias), LEVEL)
+    selection = choose(fitted, LEVEL, notes, top, recs, segments)
     _warn_about(selection)
     return selection.chosen.input_delay
+
+
+def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
+                refine: bool = True) -> CandidateFit:
+    """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
+    (with ``refine=False`` on long data, only its first steps: see :func:`_choose`)."""
+    name = "bias" if with_bias else "linear"
+    if is_separable(segs, False):
+        found = separable_candidate(segs, _separable_start(recs, segs), with_bias=with_bias,
+                                    ceiling=static_gain_ceiling(segs), coarse_samples=COARSE_SAMPLES, refine=refine)
+        if found is not None:
+            a, b, bias, r, refined = found
+            return CandidateFit(Candidate(name, delay, a, b, float(r @ r)), r, bias, refined)
+    try:
+        solution = solve_output_error(recs, segs, delay, with_bias=with_bias)
+    except NotIdentifiableError as exc:
+        return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(solution.result.fun, float)
+    x = solution.result.x
+    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(r @ r)), r,
+                   float(x[2]) if with_bias else 0.0)
 
 
 def _warn_about(selection) -> None:
