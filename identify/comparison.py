@@ -67,6 +67,10 @@ MATERIAL = 0.01
 #: Candidates fitted coarsely whose statistic (an upper bound) is within this factor of the threshold are
 #: fitted fully before the choice.
 REFINE_FACTOR = 20.0
+#: Relative excess of residual sum over the best's below which a coarse candidate is always fitted fully,
+#: and a delay scan never stops: on long data the coarse steps' ``a`` (from a prefix) is less precise than
+#: the full data's standard error, so their statistic alone can overstate how far a candidate is.
+CLOSE = 0.01
 #: A delay scan stops after this many delays in a row whose every candidate is worse than the best by
 #: more than :data:`STOP_FACTOR` times the threshold.
 STOP_AFTER = 2
@@ -234,14 +238,18 @@ def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding:
     norm2 = float(delta @ delta)
     if excess <= 0 or norm2 == 0:
         return 0.0
-    v = sum(float(delta[s] @ reference[s]) ** 2 for s in blocks(len(delta)))
+    edges = np.linspace(0, len(delta), min(BLOCKS, len(delta)) + 1).astype(int)[:-1]
+    v = float(np.sum(np.add.reduceat(delta * reference, edges) ** 2))
     if rounding is not None:
         v += float(np.var(delta @ rounding, ddof=1))
     return excess * norm2 / v if v > 0 else math.inf
 
 
+#: Residual variance, in encoder rounding variances ``step^2/12``, above which the rounding realisations
+#: are left out (the other noise dominates and the batch means account for it).
+ROUNDING_DOMINATED = 2.0
 #: Encoder phases of the rounding realisations (:func:`_rounding_realisations`).
-PHASES = 32
+PHASES = 16
 
 
 def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals: np.ndarray) -> np.ndarray | None:
@@ -251,7 +259,8 @@ def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals:
     an encoder against the shaft is arbitrary, so these are realisations of the rounding noise the
     data could have had; on a periodic run they repeat every period, so their projection on a
     periodic difference between two models adds up coherently, which the batch means (blocks
-    assumed independent) would miss.  None unless every segment is an encoder's angle.
+    assumed independent) would miss.  None unless every segment is an encoder's angle and the
+    residuals are mostly its rounding (variance at most :data:`ROUNDING_DOMINATED` rounding variances).
     """
     steps = []
     for seg in segs:
@@ -259,6 +268,8 @@ def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals:
         if seg.kind != "angle" or not cpr or recs[seg.recording].counts is None:
             return None
         steps.append(2 * math.pi / cpr)
+    if float(residuals @ residuals) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
+        return None         # other noise dominates: the batch means see it
     phases = (np.arange(PHASES) + 0.5) / PHASES
     out = np.empty((len(residuals), PHASES))
     row = 0
@@ -288,11 +299,16 @@ def _far_worse(here: list[CandidateFit], fitted: list[CandidateFit], level: floa
     for f in here:
         if f.residuals is None:
             continue
-        t = statistic(f.residuals - best.residuals, f.candidate.residual_sum - best.candidate.residual_sum,
-                       best.residuals)
-        if t <= STOP_FACTOR * threshold(f.candidate, best.candidate, level):
+        excess = f.candidate.residual_sum - best.candidate.residual_sum
+        t = statistic(f.residuals - best.residuals, excess, best.residuals)
+        if t <= STOP_FACTOR * threshold(f.candidate, best.candidate, level) or _close(f, best):
             return False
     return True
+
+
+def _close(f: CandidateFit, best: CandidateFit) -> bool:
+    """Whether ``f``'s residual sum is within :data:`CLOSE` of the best's, relative."""
+    return f.candidate.residual_sum - best.candidate.residual_sum <= CLOSE * best.candidate.residual_sum
 
 
 def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit]], level: float,
@@ -318,7 +334,8 @@ def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Candidate
     """Fit fully, in place, the coarse candidates that could be the best or within its noise; the best.
 
     A coarse candidate's residual sum bounds its full fit's from above, so one far above the best's
-    (statistic beyond :data:`REFINE_FACTOR` times the threshold) stays far above it once fitted.
+    (statistic beyond :data:`REFINE_FACTOR` times the threshold, and residual sum more than
+    :data:`CLOSE` above, relative) stays far above it once fitted.
     """
     while True:
         best = best_fit(fitted)
@@ -329,9 +346,9 @@ def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Candidate
         if not best.refined:
             pending = [best]
         else:
-            pending = [f for f in fitted if not f.refined and f.residuals is not None and statistic(
+            pending = [f for f in fitted if not f.refined and f.residuals is not None and (_close(f, best) or statistic(
                 f.residuals - reference, f.candidate.residual_sum - best.candidate.residual_sum,
-                reference) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level)]
+                reference) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level))]
             if not pending:
                 return best
         for f in pending:

@@ -8,8 +8,9 @@
   ``friction`` (``oe-friction``: Coulomb friction ``c`` and ``d``) and ``dead-zone``
   (``oe-friction``: ``c``, ``d`` and a duty dead zone),
 
-each by the estimator that would return it, on the same rows (every segment from row ``N``), and
-returns the **simplest candidate whose fit is within the noise of the best**.
+each by the estimator that would return it, on the same rows (every segment from row ``N``; on
+long data the first :data:`SELECTION_ROWS` of them), and returns the **simplest candidate whose fit
+is within the noise of the best**, fitted on all rows.
 
 The choice is :func:`identify.comparison.choose`'s (its docstring gives the criterion).
 
@@ -169,7 +170,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     else:
         top = int(input_delay)
         delays = [top]
-    segments = {d: prepare_segments(recs, d, skip=top) for d in delays}
+    segments = {d: _first_rows(prepare_segments(recs, d, skip=top)) for d in delays}
     delays = [d for d in delays if segments[d]]
     if not delays:
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
@@ -202,6 +203,23 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+
+
+#: Rows on which the candidates are compared: on longer data, the first rows of every segment (in
+#: proportion); the chosen candidate is then fitted on all rows.
+SELECTION_ROWS = 100_000
+
+
+def _first_rows(segments: list[Segment]) -> list[Segment]:
+    """``segments`` cut to about :data:`SELECTION_ROWS` rows in all, each keeping its share."""
+    total = sum(len(s.time) for s in segments)
+    if total <= SELECTION_ROWS:
+        return segments
+    out = []
+    for seg in segments:
+        m = max(3, len(seg.time) * SELECTION_ROWS // total)
+        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
+    return out
 
 
 def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],
@@ -324,7 +342,8 @@ def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
         fast = 0.0
         total = 0.0
         for r in recs:
-            u = np.asarray(r.duty, float) - float(np.mean(r.duty))
+            u = np.array(r.duty[:SELECTION_ROWS], dtype=float)
+            u -= float(np.mean(u))
             if len(u) < 8:
                 continue
             power = np.abs(np.fft.rfft(u)) ** 2
