@@ -3,7 +3,7 @@
 Each class of recording below is one the default met badly before it chose by evidence: one sine on a
 hobby encoder (a delay-vs-lag ridge), a true input delay, Coulomb friction, a bias, a dead zone, a
 clean linear motor.  The plants are known exactly (simulated, fixed seeds), so the answer is checked
-against the truth with the acceptance rule: ``a`` and ``b`` within 1 % of the truth, or the truth
+against the truth by one rule: ``a`` and ``b`` within 1 % of the truth, or the truth
 inside intervals narrower than +-25 %.
 """
 import json
@@ -27,7 +27,7 @@ def _run(excitation=MULTISINE, *, counts=16667, noise=0.0, duration=10.0, seed=1
 
 
 def _accepted(est: Estimate, truth: dict) -> list[str]:
-    """The parameters that miss the acceptance rule (empty when both pass)."""
+    """The parameters that miss that rule (empty when both pass)."""
     ci = est.confidence_interval(0.95)
     missed = []
     for name in ("a", "b"):
