@@ -199,7 +199,7 @@ def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[Demo
 
 
 def _best_method(methods: Sequence[str] | None) -> str:
-    from identify import DEFAULT_METHOD
-    if not methods or DEFAULT_METHOD in methods:
-        return DEFAULT_METHOD
+    """The estimate the closed loop is designed from: ``oe``'s (the article's setting is linear), else the last."""
+    if not methods or "oe" in methods:
+        return "oe"
     return methods[-1]

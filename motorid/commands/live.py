@@ -65,8 +65,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                              "folder, named on stderr; checked before the motor starts; an existing file is "
                              "refused without --overwrite, a folder or a device always)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --out")
-    parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
-                        help=f"estimator after the run (default {DEFAULT_METHOD})")
+    parser.add_argument("--method", default=DEFAULT_METHOD, choices=[DEFAULT_METHOD, *available_methods()],
+                        help=f"estimator after the run (default {DEFAULT_METHOD}: delay and structure chosen by "
+                             "evidence, as motorid identify)")
     parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
                         help=f"largest share of the samples run that may be lost (link or device) before live "
                              f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
