@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from motorid.arguments import CommandError
+from motorid.arguments import CommandError, print_to_stderr
 from motorsim.control import (
     CONTROLLERS,
     ClosedLoopExperiment,
@@ -74,13 +74,23 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                    help="input delay in samples (default 0)")
 
 
-def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int
-                          ) -> ClosedLoopExperiment:
-    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``."""
+def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int, *,
+                          rig_input_delay: int = 0) -> ClosedLoopExperiment:
+    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``.
+
+    ``rig_input_delay`` is the delay the rig adds between a computed duty and its application (the
+    device's one sample): a model with less is designed with the rig's, and a note says so.
+    """
     if not args.model and (args.a is None or args.b is None):
         raise CommandError("give the model the controller is designed from: --a and --b, or --model FILE.json")
     args.sample_period, args.counts_per_rev = sample_period, counts_per_rev
-    controller = controller_from_args(args, model_from_args(args))
+    model = model_from_args(args)
+    if model.input_delay < rig_input_delay:
+        print_to_stderr(f"note: the device applies each duty {rig_input_delay} sample(s) after computing it; "
+                        f"the controller is designed with input delay {rig_input_delay} (the model had "
+                        f"{model.input_delay})")
+        model = dataclasses.replace(model, input_delay=rig_input_delay)
+    controller = controller_from_args(args, model)
     return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
 
 
