@@ -54,7 +54,8 @@ from motorsim.rig import Experiment
 from .errors import FrameError, ProtocolError, ProtocolVersionError
 
 __all__ = [
-    "PROTOCOL_VERSION", "DEVICE_INPUT_DELAY", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason", "FaultCode",
+    "PROTOCOL_VERSION", "DEVICE_INPUT_DELAY", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason",
+    "FaultCode",
     "WaveKind", "SampleFlag", "Hello", "Config", "Start", "Stop", "Heartbeat", "HelloAck", "Ack", "Nak",
     "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
     "WavePrbs", "WaveOddMultisine", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
