@@ -328,7 +328,8 @@ class Estimate:
         The fields: ``format`` (``motorid estimate v1``), ``method``, ``a``, ``b``, ``extra``
         (friction, bias, dead zone, ``input_delay``), ``param_names`` and ``covariance`` (rows in
         that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
-        ``fit_percent``, ``residual_rms`` and ``data_files`` (path and sha256 of each recording).
+        ``fit_percent``, ``residual_rms``, ``data_files`` (path and sha256 of each recording) and
+        ``feedforward`` (kS, kV, kA, k0 with intervals, :mod:`identify.feedforward`; derived, not read back).
 
         Parameters
         ----------
@@ -351,6 +352,8 @@ class Estimate:
                          "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
                "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
                "data_files": [{"path": p, "sha256": h} for p, h in self.data_files]}
+        from .feedforward import feedforward_constants
+        doc["feedforward"] = feedforward_constants(self).to_dict()     # kS, kV, kA: read back from a, b
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod

@@ -241,6 +241,8 @@ def run_control(args: argparse.Namespace) -> int:
           f"{model.counts_per_rev} counts/rev")
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
     print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    from identify.feedforward import feedforward_constants
+    print(feedforward_constants(load_model_file(args.model) if args.model else model).describe())
     poles = np.sort_complex(_loop_poles(controller))
     print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
           f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
