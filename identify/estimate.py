@@ -375,7 +375,8 @@ class Estimate:
         The fields: ``format`` (``motorid estimate v1``), ``method``, ``a``, ``b``, ``extra``
         (friction, bias, dead zone, ``input_delay``), ``param_names`` and ``covariance`` (rows in
         that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
-        ``fit_percent``, ``residual_rms`` and ``data_files`` (path and sha256 of each recording).
+        ``fit_percent``, ``residual_rms``, ``data_files`` (path and sha256 of each recording) and
+        ``feedforward`` (kS, kV, kA, k0 with intervals, :mod:`identify.feedforward`; derived, not read back).
 
         Parameters
         ----------
@@ -403,6 +404,8 @@ class Estimate:
             doc["selection"] = self.selection
         if self.model_range:
             doc["model_range"] = {k: list(v) for k, v in self.model_range.items()}
+        from .feedforward import feedforward_constants
+        doc["feedforward"] = feedforward_constants(self).to_dict()     # kS, kV, kA: read back from a, b
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod

@@ -32,6 +32,7 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
     "oe": "output_error:fit_output_error",
     "iv": "instrumental:fit_instrumental_variables",
     "oe-friction": "friction:fit_output_error_friction",
+    "iv-reference": "closed_loop:fit_reference_iv",
 }
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
@@ -39,10 +40,19 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
 DEFAULT_METHOD = "auto"
 _DEFAULT_ENTRY = "selection:fit_selected"
 
+#: methods that need a closed-loop recording's reference column
+_CLOSED_LOOP_ONLY = frozenset({"iv-reference"})
 
-def available_methods() -> list[str]:
-    """The estimators :func:`fit` can be told to use (besides the default, ``"auto"``)."""
-    return list(_METHODS)
+def available_methods(*, open_loop: bool = False) -> list[str]:
+    """The estimators :func:`fit` can be told to use (besides the default, ``"auto"``).
+
+    Parameters
+    ----------
+    open_loop : bool
+        Leave out the methods that need a closed-loop recording's reference (``iv-reference``):
+        the list "all methods" means for open-loop runs (the demo, the sweeps).
+    """
+    return [m for m in _METHODS if not (open_loop and m in _CLOSED_LOOP_ONLY)]
 
 
 def method_function(method: str) -> Callable[..., Estimate]:

@@ -50,8 +50,12 @@ def bench_selection(argv: Sequence[str]) -> int:
         rec = _recording(args.samples, friction)
         default = fit(rec)
         chosen = default.selection["chosen"] if default.selection else {}
-        t_default, t_oe = interleaved_times([lambda r=rec: fit(r), lambda r=rec: fit(r, "oe", input_delay=0)],
-                                            args.repeats)
+        def chosen_fit(r=rec):
+            return fit(r)
+
+        def oe_fit(r=rec):
+            return fit(r, "oe", input_delay=0)
+        t_default, t_oe = interleaved_times([chosen_fit, oe_fit], args.repeats)
         ratio = t_default / t_oe
         goal = "" if friction else f"   goal <= {FIT_GOAL:g} x: {'met' if ratio <= FIT_GOAL else 'MISSED'}"
         if not friction and ratio > FIT_GOAL:

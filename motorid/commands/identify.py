@@ -181,8 +181,9 @@ def format_selection(selection: dict, checks: dict[str, float]) -> str:
 
 
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval): ``str(est)``."""
-    return str(est)
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA."""
+    from identify.feedforward import feedforward_constants
+    return f"{est}\n{feedforward_constants(est).describe()}"
 
 
 def format_validation(report, name: str) -> str:
