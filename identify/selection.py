@@ -3,7 +3,8 @@
 ``identify.fit(recordings)`` and ``motorid identify FILE`` (no ``method``) call
 :func:`fit_selected`.  It fits every candidate model
 
-* input delay ``0 ... N`` samples (``N`` = :data:`MAX_AUTO_DELAY`, fewer on short data), times
+* input delay ``0 ... N`` samples (``N`` = :data:`MAX_AUTO_DELAY`, fewer on short data; from the
+  device's own delay when the recording declares one, ``input_delay_samples``), times
 * structure ``linear`` (``oe``), ``bias`` (``oe`` with a constant acceleration ``d``),
   ``friction`` (``oe-friction``: Coulomb friction ``c`` and ``d``) and ``dead-zone``
   (``oe-friction``: ``c``, ``d`` and a duty dead zone),
@@ -165,8 +166,12 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
             raise ValueError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
     notes: list[str] = []
     if input_delay == "auto":
-        top = largest_delay(recs, max_delay)
-        delays = list(range(top + 1))
+        known = _declared_delay(recs)
+        top = max(largest_delay(recs, max_delay), known)
+        delays = list(range(known, top + 1))
+        if known:
+            notes.append(f"delays below {known} sample(s) not tried: the recording says its device applies each "
+                         f"duty {known} sample(s) late (input_delay_samples)")
     else:
         top = int(input_delay)
         delays = [top]
@@ -203,6 +208,17 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+
+
+def _declared_delay(recs: list[Recording]) -> int:
+    """The input delay every recording's device declares (``input_delay_samples``), else 0."""
+    declared = []
+    for r in recs:
+        try:
+            declared.append(max(0, int(str(r.metadata.get("input_delay_samples", "0")))))
+        except ValueError:
+            declared.append(0)
+    return min(declared)
 
 
 #: Rows on which the candidates are compared: on longer data, the first rows of every segment (in

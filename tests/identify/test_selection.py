@@ -184,3 +184,15 @@ def test_a_missing_interval_is_said():
                    fit_percent=90.0, covariance=np.array([[math.nan, 0.0], [0.0, 1e-4]]))
     assert "no interval for a" in str(est)
     assert any("no interval for a" in n for n in est.to_dict()["notes"])
+
+
+def test_a_device_that_declares_its_delay_is_never_given_less():
+    # one sine on a hobby encoder cannot tell a lag from a delay; a device that says it applies each
+    # duty one sample late (input_delay_samples: 1) makes delays below 1 impossible
+    import dataclasses
+    rec = _run(Sine(10.0, 200), counts=44, input_delay=1)
+    declared = dataclasses.replace(rec, metadata={**rec.metadata, "input_delay_samples": "1"})
+    est = fit(declared)
+    assert est.input_delay >= 1 and all(c["input_delay"] >= 1 for c in est.selection["candidates"])
+    assert any("input_delay_samples" in n for n in est.notes)
+    assert not _accepted(est, {"a": A, "b": B}) or not est.selection["clear"]
