@@ -170,8 +170,8 @@ def format_selection(selection: dict, checks: dict[str, float]) -> str:
     lines.append(f"  compared  {fitted} candidate fits (structure x input delay; --json lists them)")
 
     def verdict(p: float, good: str, bad: str) -> str:
-        if not p == p:          # nan
-            return "not testable"
+        if not p == p:          # nan: e.g. the speed never changes sign
+            return f"{good}: not testable"
         return f"{good if p >= 0.01 else bad} (p = {p:.2g})"
     lines.append("  residual  " + "; ".join([
         verdict(checks["whiteness_p"], "white", "NOT white"),
