@@ -13,11 +13,14 @@ What it emulates, as the firmware does it
   HEARTBEAT; the host-silence watchdog (FAULT 1, END 2).
 - The clock and the waveform on the device: tick ``k`` snapshots the encoder,
   computes ``duty_k`` from the WAVE with :func:`hardware.protocol.expand`'s
-  integer arithmetic, holds it for one period while the motor is simulated
-  exactly (``motorsim.simulate`` over that interval), and queues a SAMPLE.
+  integer arithmetic, queues a SAMPLE, and applies ``duty_k`` at tick ``k + 1``
+  (``DEVICE_INPUT_DELAY``: the duty held from tick ``k`` to ``k + 1`` is ``duty_{k-1}``,
+  0 at ``k = 0``) while the motor is simulated exactly over each period
+  (``motorsim.simulate`` over that interval).
 - Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
   ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
-  :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against).
+  :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against),
+  applied at tick ``k + 1`` as in open loop.
 - A bounded transmit queue: a sample that finds it full is dropped and counted
   (``samples_dropped``, FAULT 2 the first time), never overwritten.
 - Absolute encoder counts from boot; END with the device's counters.
@@ -379,6 +382,8 @@ class FakeDevice:
         idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
         if idle > 0:
             self._advance_motor(0.0, idle)
+        # the firmware applies each duty at the tick after the one that computed it (DEVICE_INPUT_DELAY)
+        self._latched = 0
         self._delay_line = [0] * self.motor.input_delay
         self._k = 0
         self._t0_us = int(self.rng.integers(0, 2**32))   # micros() is wherever it is
@@ -429,12 +434,10 @@ class FakeDevice:
                 continue
             counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
             duty = self._loop.step(k, counts) if self._loop is not None else int(self._duty_seq[k])
-            self.duty = duty
-            if self._delay_line:
-                self._delay_line.append(duty)
-                drive = self._delay_line.pop(0)
-            else:
-                drive = duty
+            # the bridge holds the duty latched at the previous tick; the motor's own delay follows
+            self.duty, self._latched = self._latched, duty
+            self._delay_line.append(self.duty)
+            drive = self._delay_line.pop(0)
             self._advance_motor(float(drive), self._dt)
             time_us = (self._t0_us + k * cfg.sample_period_us) & 0xFFFFFFFF
             sample = P.Sample(k, time_us, counts, duty, 0)

@@ -54,7 +54,8 @@ from motorsim.rig import Experiment
 from .errors import FrameError, ProtocolError, ProtocolVersionError
 
 __all__ = [
-    "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason", "FaultCode",
+    "PROTOCOL_VERSION", "DEVICE_INPUT_DELAY", "MAX_PAYLOAD", "MAX_ENCODED", "MsgType", "NakReason", "EndReason",
+    "FaultCode",
     "WaveKind", "SampleFlag", "Hello", "Config", "Start", "Stop", "Heartbeat", "HelloAck", "Ack", "Nak",
     "Sample", "End", "Fault", "Boot", "WaveConstant", "WaveStep", "WaveMultisine", "WaveChirp",
     "WavePrbs", "WaveOddMultisine", "Message", "Wave", "crc16", "cobs_encode", "cobs_decode", "encode_frame",
@@ -66,7 +67,11 @@ __all__ = [
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
+#: Samples between a SAMPLE's duty and the tick that applies it: the device latches the duty it
+#: computes at tick k (from the waveform, or from the counts read at k) and applies it exactly at
+#: tick k + 1, in open and closed loop.  Recordings say so (``input_delay_samples``).
+DEVICE_INPUT_DELAY = 1
 #: Longest payload of any frame, bytes.
 MAX_PAYLOAD = 60
 #: Longest encoded frame (without its delimiter) a receiver accepts, bytes.

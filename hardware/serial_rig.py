@@ -641,6 +641,7 @@ class _RunState:
         meta = {"source": "SerialRig", **self.experiment.metadata(), "port": rig.port_name,
                 "baudrate": str(rig.baudrate), "line_load": f"{rig.line_load(self.dt):.3f}",
                 "protocol_version": str(P.PROTOCOL_VERSION),
+                "input_delay_samples": str(P.DEVICE_INPUT_DELAY),
                 "complete": "true" if complete else "false"}
         if reason:
             meta["incomplete_reason"] = " ".join(reason.split())

@@ -24,6 +24,7 @@ _WHERE = {
     "zoh_speed_response": "frequency_response", "ModelResponse": "frequency_response",
     "BestLinearApproximation": "best_linear", "best_linear_approximation": "best_linear",
     "fit_frequency_response": "frequency_fit",
+    "feedforward_constants": "feedforward", "FeedforwardConstants": "feedforward",
 }
 
 __all__ = list(_WHERE)

@@ -68,8 +68,21 @@ class Estimate:
     data_files : tuple of (str, str)
         The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
         ``motorid identify --save``).
+    selection : mapping, optional
+        How the default estimator chose this model (:func:`identify.selection.fit_selected`):
+        every candidate (structure, input delay, fit, score), the chosen one, the best, the
+        runner-up, whether the choice was ``clear`` and the ``doubt`` line; None when a method
+        was named.
+    model_range : mapping of str to (float, float)
+        For ``a`` and ``b`` when the selection found candidates it cannot rule out that disagree:
+        the range of their values (``inf`` when a static gain fits as well).
+        :meth:`confidence_interval` is the union of the fit's own interval and this range.
+    notes : tuple of str
+        What the data could not answer, one line each (the choice's doubt, saturation, too few
+        encoder counts, an input too slow for ``a``, a parameter left without an interval).
     covariance_method : str
-        How ``covariance`` was computed: ``"gauss-newton"`` (white residuals assumed),
+        How ``covariance`` was computed (``+model-spread`` when the selection widened it to cover
+        the candidates the data cannot rule out): ``"gauss-newton"`` (white residuals assumed),
         ``"newey-west"`` (a sandwich that allows correlated residuals, see
         :func:`identify.uncertainty.robust_covariance`), ``"encoder-bootstrap"`` (``oe`` on a
         coarse encoder: refits of the model re-quantised at other encoder phases) or
@@ -95,6 +108,9 @@ class Estimate:
     input_unit: str = "duty"
     data_files: tuple[tuple[str, str], ...] = ()
     covariance_method: str = ""
+    selection: Mapping[str, Any] | None = None
+    notes: tuple[str, ...] = ()
+    model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -105,6 +121,9 @@ class Estimate:
             object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "extra", dict(self.extra))
         object.__setattr__(self, "data_files", tuple((str(p), str(h)) for p, h in self.data_files))
+        object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
+        object.__setattr__(self, "model_range", {str(k): (float(lo), float(hi))
+                                                 for k, (lo, hi) in dict(self.model_range).items()})
 
     @property
     def input_delay(self) -> int:
@@ -136,10 +155,24 @@ class Estimate:
                  f"fit         {self.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
                  f"residual    {self.residual_rms:.3g} {self.residual_unit} RMS",
                  f"samples     {self.n_samples} (sample period {self.sample_period:.6g} s)"]
+        missing = self.missing_intervals()
+        if missing:
+            lines.append(f"note        no interval for {missing}")
+        lines += [f"note        {n}" for n in self.notes]
         if self.covariance_method == "regression":
             lines.append(f"note        {self.method}'s intervals are its regression's and leave out its bias "
                          "(the differenced speed): they need not cover the motor's a and b; use oe")
         return "\n".join(lines)
+
+    def missing_intervals(self) -> str:
+        """Which parameters have no finite standard error, and why, in words ("" when all have one)."""
+        se = self.stderr()
+        names = [n for n in self.param_names if not math.isfinite(se[n])]
+        if not names:
+            return ""
+        why = ("no covariance was computed" if self.covariance is None else
+               "the data do not determine them (the information matrix is singular along them)")
+        return f"{', '.join(names)}: {why}"
 
     @property
     def static_gain(self) -> float:
@@ -168,6 +201,9 @@ class Estimate:
     def confidence_interval(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
         """Two-sided normal-approximation interval per parameter, ``value +- z sigma``.
 
+        Where the model selection left candidates it cannot rule out (:attr:`model_range`), the
+        interval of ``a`` and ``b`` is the union of that one and their range.
+
         Parameters
         ----------
         level : float
@@ -191,7 +227,12 @@ class Estimate:
         if not 0 < level < 1:
             raise ParameterError(f"level must be in (0, 1), got {level!r}")
         z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
-        return {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
+        out = {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
+        for n, (lo, hi) in self.model_range.items():       # candidates the data cannot rule out: the union
+            own = out.get(n, (math.nan, math.nan))
+            out[n] = (min(lo, own[0]) if math.isfinite(own[0]) else lo,
+                      max(hi, own[1]) if math.isfinite(own[1]) else hi)
+        return out
 
     def transfer_function(self, form: str = "continuous", *, delay: str | None = None,
                           pade_order: int = 3) -> control.TransferFunction:
@@ -321,6 +362,12 @@ class Estimate:
         for name in self.param_names:
             out[f"{name}_stderr"] = se[name]
             out[f"{name}_ci95"] = list(ci[name])
+        missing = self.missing_intervals()
+        out["notes"] = list(self.notes) + ([f"no interval for {missing}"] if missing else [])
+        if self.selection is not None:
+            out["selection"] = self.selection
+        if self.model_range:
+            out["model_range"] = {k: list(v) for k, v in self.model_range.items()}
         return json_ready(out)
 
     def to_json(self, *, indent: int | None = 2) -> str:
@@ -329,7 +376,8 @@ class Estimate:
         The fields: ``format`` (``motorid estimate v1``), ``method``, ``a``, ``b``, ``extra``
         (friction, bias, dead zone, ``input_delay``), ``param_names`` and ``covariance`` (rows in
         that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
-        ``fit_percent``, ``residual_rms`` and ``data_files`` (path and sha256 of each recording).
+        ``fit_percent``, ``residual_rms``, ``data_files`` (path and sha256 of each recording) and
+        ``feedforward`` (kS, kV, kA, k0 with intervals, :mod:`identify.feedforward`; derived, not read back).
 
         Parameters
         ----------
@@ -351,7 +399,14 @@ class Estimate:
                          "friction": "rad/s^2", "bias": "rad/s^2", "dead_zone": self.input_unit,
                          "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
                "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
-               "data_files": [{"path": p, "sha256": h} for p, h in self.data_files]}
+               "data_files": [{"path": p, "sha256": h} for p, h in self.data_files],
+               "covariance_method": self.covariance_method, "notes": list(self.notes)}
+        if self.selection is not None:
+            doc["selection"] = self.selection
+        if self.model_range:
+            doc["model_range"] = {k: list(v) for k, v in self.model_range.items()}
+        from .feedforward import feedforward_constants
+        doc["feedforward"] = feedforward_constants(self).to_dict()     # kS, kV, kA: read back from a, b
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod
@@ -461,7 +516,28 @@ def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 fit_percent=real("fit_percent", field("fit_percent", (int, float, type(None)), None), finite=False),
                 covariance=cov, param_names=tuple(names), extra=extra,
                 residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
-                data_files=tuple((f["path"], f["sha256"]) for f in files))
+                data_files=tuple((f["path"], f["sha256"]) for f in files),
+                covariance_method=field("covariance_method", str, ""),
+                selection=field("selection", (dict, type(None)), None),
+                notes=tuple(_strings("notes", field("notes", list, []))),
+                model_range=_model_range(field("model_range", (dict, type(None)), None) or {}))
+
+
+def _strings(name: str, values: list) -> list[str]:
+    if not all(isinstance(v, str) for v in values):
+        raise ParameterTypeError(f"estimate field {name!r} must be a list of strings, got {values!r:.80}")
+    return values
+
+
+def _model_range(ranges: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    out = {}
+    for key, pair in ranges.items():
+        if not (isinstance(pair, list) and len(pair) == 2):
+            raise ParameterTypeError(f"estimate field 'model_range.{key}' must be [low, high], got {pair!r:.80}")
+        low, high = (math.nan if x is None else check_real(f"estimate field 'model_range.{key}'", x, finite=False)
+                     for x in pair)
+        out[key] = (low, high)
+    return out
 
 
 def _kind_name(kind: type | tuple[type, ...]) -> str:

@@ -56,12 +56,13 @@ import numpy as np
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
+from .comparison import LEVEL, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .output_error import fit_output_error, select_delay, solve_output_error
+from .output_error import MAX_AUTO_DELAY, fit_output_error, select_delay, solve_output_error
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
@@ -187,8 +188,9 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     recordings : Recording or sequence of Recording
         Pooled, as for ``oe``.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"``: chosen with the linear model, with a bias unless
-        ``fix_bias``).
+        Input delay in samples (``"auto"``: chosen by this friction model's own fits in
+        ``0 ... 10``, the shortest delay within the noise of the best, see
+        :func:`identify.selection.select_model`).
     fix_bias : bool
         Hold the bias ``d = 0``.
     dead_zone : bool
@@ -214,21 +216,16 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     fix_bias = check_bool("fix_bias", fix_bias)
     dead_zone = check_bool("dead_zone", dead_zone)
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
-    # the bias drifts the angle: a linear model without it can rank the delays wrongly
-    delay = select_delay(recs, with_bias=not fix_bias) if input_delay == "auto" else int(input_delay)
+    if input_delay == "auto":     # ranked by this model itself (the shortest delay within the noise of the best)
+        delay = _select_delay(recs, "dead-zone" if dead_zone else "friction", fix_bias)
+    else:
+        delay = int(input_delay)
     if not speed_reverses(recs):
         return _no_reversal(recs, delay, fix_bias)
     segments = prepare_segments(recs, delay)
-    names = ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
-    problem = _FrictionProblem(segments, names)
-    x0 = _regression_start(problem)
-    if x0 is None:
-        x0 = _linear_start(recs, problem, delay)
-    res = _levenberg_marquardt(problem, _prefix_start(problem, x0))
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=dead_zone)
+    problem, res = solve_friction(recs, segments, names, delay)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
-        raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
-                                   "check the sign of the input and that the motor moved")
     s2 = float(res.fun @ res.fun) / problem.dof
     ends = np.cumsum([0] + [len(s.time) for s in segments])
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
@@ -239,6 +236,92 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
                     residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
+
+
+def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
+    """The shortest input delay whose friction fit is within the noise of the best (:func:`comparison.choose`);
+    the linear model's with a bias when the speed never reverses (friction is then a constant)."""
+    if not speed_reverses(recs):
+        return select_delay(recs, with_bias=not fix_bias)
+    top = largest_delay(recs, MAX_AUTO_DELAY)
+    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
+    delays = [d for d, segs in segments.items() if segs]
+    notes: list[str] = []
+    fitted = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, structure, fix_bias)],
+                         LEVEL, notes)
+    refine(fitted, lambda f: f, LEVEL)             # friction candidates are full fits already
+    selection = choose(fitted, LEVEL, notes, top, recs, segments)
+    edge = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
+    if edge:
+        warnings.warn("oe-friction input_delay='auto': " + edge[0], UserWarning, stacklevel=4)
+    return selection.chosen.input_delay
+
+
+def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) -> tuple[str, ...]:
+    """The shared parameters ``oe-friction`` fits: ``a, b, friction``, then ``bias`` unless fixed, ``dead_zone``."""
+    return ("a", "b", "friction") + (() if fix_bias else ("bias",)) + (("dead_zone",) if dead_zone else ())
+
+
+def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
+                   input_delay: int, *, thorough: bool = True) -> tuple[_FrictionProblem, OptimizeResult]:
+    """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
+
+    What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
+    reverse, without the covariance: the model selection (:mod:`identify.selection`) scores every
+    candidate by this fit's residuals, the same fit the estimate it returns is made from.
+
+    The cost is kinked and has local minima where friction and dead zone trade off.  The fit starts
+    from the instrumental-variable regression; from the linear fit too (with a little friction, a
+    dead zone of a tenth of the input, much friction) when that lands worse than the linear model
+    it contains, when the regression's ``a`` is far from the linear one, or always with ``thorough``
+    (the estimate's own fit; the selection's candidates at every delay use ``thorough=False``); the
+    least residual wins.
+
+    Raises
+    ------
+    NotIdentifiableError
+        When the fit lands on ``a <= 0``, ``b = 0`` or a non-finite value.
+    """
+    if not segments:
+        raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
+    problem = _FrictionProblem(segments, names)
+    x0 = _regression_start(problem)
+    results = []
+    if x0 is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
+    try:
+        linear = solve_output_error(recordings, segments, input_delay, with_bias="bias" in names)
+    except NotIdentifiableError:
+        linear = None
+    if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
+        # the kinked cost has local minima where friction and dead zone trade off: when the regression's
+        # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
+        for start in _linear_starts(problem, linear):
+            with np.errstate(over="ignore", invalid="ignore"):
+                results.append(_levenberg_marquardt(problem, start))
+    if not results:
+        raise NotIdentifiableError("oe-friction: neither the regression nor the linear fit gives a start; "
+                                   "the input does not move the motor")
+    res = min(results, key=_cost)
+    a, b = float(res.x[0]), float(res.x[1])
+    if not (np.all(np.isfinite(res.x)) and a > 1e-8 and b != 0):
+        raise NotIdentifiableError(f"oe-friction landed on a = {a:.6g} 1/s (theta1 = exp(-a dt) not in (0, 1)); "
+                                   "check the sign of the input and that the motor moved")
+    return problem, res
+
+
+def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: str,
+                  fix_bias: bool) -> CandidateFit:
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=structure == "dead-zone")
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            _, res = solve_friction(recs, segs, names, delay, thorough=False)
+    except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
+        return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(res.fun, float)
+    return CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), float(r @ r)), r)
+
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -330,16 +413,32 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     return X, Z, nxt, keep, smallest_duty, len(duties)
 
 
-def _linear_start(recs: list[Recording], problem: _FrictionProblem, input_delay: int) -> np.ndarray:
-    """The linear output-error fit with a small friction guess (when the regression start fails)."""
-    lin = solve_output_error(recs, problem.segments, input_delay)
-    a0, b0 = float(lin.result.x[0]), float(lin.result.x[1])
-    if b0 == 0:
-        raise NotIdentifiableError("oe-friction: the linear start has b = 0; the input does not move the motor")
+def _cost(res: OptimizeResult) -> float:
+    """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
+    cost = float(res.fun @ res.fun)
+    return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
+
+
+def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear) -> bool:
+    """A fit from the regression's start that the linear model it contains beats, or a start far from it."""
+    lin_cost = float(linear.result.fun @ linear.result.fun)
+    a_lin = float(linear.result.x[0])
+    far = x0 is None or not (a_lin / 3 <= x0[0] <= 3 * a_lin)
+    return far or _cost(res) > lin_cost * (1 + 1e-9)
+
+
+def _linear_starts(problem: _FrictionProblem, linear) -> list[np.ndarray]:
+    """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
+    a0, b0 = float(linear.result.x[0]), float(linear.result.x[1])
+    if b0 == 0 or not a0 > 0:
+        return []
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    shared = [a0, b0, 0.05 * abs(b0) * u_scale] + ([0.0] if "bias" in problem.names else [])
-    shared += [0.02 * u_scale] if "dead_zone" in problem.names else []
-    return np.concatenate([shared, lin.initial_speeds()])
+    bias = [float(linear.result.x[2]) if len(linear.result.x) > 2 else 0.0] if "bias" in problem.names else []
+    dead = "dead_zone" in problem.names
+    guesses = [(0.05, 0.02), (0.0, 0.1), (0.15, 0.0)] if dead else [(0.05, 0.0), (0.15, 0.0)]
+    speeds = linear.initial_speeds()
+    return [np.concatenate([[a0, b0, c * abs(b0) * u_scale], bias, [z * u_scale] if dead else [], speeds])
+            for c, z in guesses]
 
 
 #: Rows from which the first iterations run on the first :data:`PREFIX_SHARE` of every segment.
@@ -434,8 +533,12 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     for _ in range(max_iterations):
         assert J is not None
         norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-        norms[norms == 0] = 1.0
+        # a column the data barely see (the initial speed of a segment that starts stuck by friction)
+        # is held, not scaled up to a step of 1e14
+        unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
+        norms[unseen] = 1.0
         Js = J / norms
+        Js[:, unseen] = 0.0
         H = Js.T @ Js
         g = Js.T @ r
         try:

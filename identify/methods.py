@@ -32,14 +32,27 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
     "oe": "output_error:fit_output_error",
     "iv": "instrumental:fit_instrumental_variables",
     "oe-friction": "friction:fit_output_error_friction",
+    "iv-reference": "closed_loop:fit_reference_iv",
 }
 
-DEFAULT_METHOD = "oe"
+#: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
+#: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
+DEFAULT_METHOD = "auto"
+_DEFAULT_ENTRY = "selection:fit_selected"
 
+#: methods that need a closed-loop recording's reference column
+_CLOSED_LOOP_ONLY = frozenset({"iv-reference"})
 
-def available_methods() -> list[str]:
-    """Names accepted by :func:`fit`."""
-    return list(_METHODS)
+def available_methods(*, open_loop: bool = False) -> list[str]:
+    """The estimators :func:`fit` can be told to use (besides the default, ``"auto"``).
+
+    Parameters
+    ----------
+    open_loop : bool
+        Leave out the methods that need a closed-loop recording's reference (``iv-reference``):
+        the list "all methods" means for open-loop runs (the demo, the sweeps).
+    """
+    return [m for m in _METHODS if not (open_loop and m in _CLOSED_LOOP_ONLY)]
 
 
 def method_function(method: str) -> Callable[..., Estimate]:
@@ -50,9 +63,9 @@ def method_function(method: str) -> Callable[..., Estimate]:
     method : str
         One of :func:`available_methods`.
     """
-    if method not in _METHODS:
-        raise ValueError(f"method must be one of {available_methods()}, got {method!r}")
-    entry = _METHODS[method]
+    if method != DEFAULT_METHOD and method not in _METHODS:
+        raise ValueError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
+    entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
     if callable(entry):
         return entry
     module, function = entry.split(":")
@@ -65,16 +78,28 @@ def method_options(method: str) -> tuple[str, ...]:
 
 
 def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, **options: Any) -> Estimate:
-    """Identify ``a`` and ``b`` with the named method.
+    """Identify ``a`` and ``b``: by default choosing the input delay and the model structure by evidence.
 
     Parameters
     ----------
     recordings : Recording or sequence of Recording
         Several recordings of the same motor are pooled into one estimate.
     method : str
-        One of :func:`available_methods`.
+        ``"auto"`` (default, what ``motorid identify`` does too): the input delay ``0 ... 10``
+        and the structure (linear, bias, Coulomb friction, dead zone) chosen by evidence
+        (:func:`identify.selection.fit_selected`; the estimate's ``selection`` says what was
+        compared).  Or one of :func:`available_methods` to force that estimator.
     **options
-        Passed to the method (e.g. ``input_delay``).
+        Passed to the method.  Each method's options:
+
+        - ``auto``: ``input_delay`` (``"auto"`` or samples), ``structures`` (subset of
+          ``("linear", "bias", "friction", "dead-zone")``), ``fix_bias``.
+        - ``oe``: ``input_delay`` (default 0, or ``"auto"``), ``fit_bias``, ``jac``, ``covariance``.
+        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``.
+        - ``iv``: ``input_delay`` (default 0, or ``"auto"``).
+        - ``euler-ls``, ``zoh-ls``: none.
+
+        :func:`method_options` lists them for a method.
 
     Returns
     -------

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -35,6 +36,7 @@ import numpy as np
 from motorsim.checks import check_bool, check_choice, check_int
 from motorsim.recording import Recording
 
+from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
 from .data import (
     MIN_SEGMENT_SAMPLES,
     Segment,
@@ -55,7 +57,7 @@ from .variable_projection import (
     SeparableSolution,
     is_separable,
     regression_start,
-    separable_residual_sum,
+    separable_candidate,
     solve_separable,
     static_gain_ceiling,
 )
@@ -66,8 +68,8 @@ if TYPE_CHECKING:
 __all__ = ["fit_output_error", "select_delay", "solve_output_error", "OutputErrorProblem", "OutputErrorSolution",
            "MAX_AUTO_DELAY", "JACOBIANS"]
 
-#: Largest input delay in samples that ``input_delay="auto"`` tries.
-MAX_AUTO_DELAY = 10
+#: Rows on which a candidate's first Gauss--Newton steps run on long data (:func:`linear_candidate`).
+COARSE_SAMPLES = 1000
 #: Jacobians :func:`fit_output_error` offers.
 JACOBIANS = ("analytic", "2-point", "3-point")
 
@@ -325,10 +327,11 @@ def _solve(problem: OutputErrorProblem, x0: np.ndarray, jac: str) -> OptimizeRes
 
 def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_AUTO_DELAY, *,
                  with_bias: bool = False) -> int:
-    """The integer input delay (samples) whose output-error fit leaves the least residual.
+    """The input delay (samples) of the linear model chosen by :func:`identify.selection.select_model`.
 
-    Every candidate is fitted on the same rows (each segment from row ``max_delay``),
-    so the residual sums compare like with like.
+    Every candidate delay is fitted on the same rows (each segment from row ``max_delay``) and
+    the shortest whose fit is within the noise of the best is returned, so a delay that improves
+    the residual by less than the noise can tell is not taken.
 
     Parameters
     ----------
@@ -345,36 +348,47 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
     """
     recs = as_recordings(recordings)
     max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
-    best = (math.inf, 0)
-    for delay in range(max_delay + 1):
-        segs = prepare_segments(recs, delay, skip=max_delay)
-        if not segs:
-            break
-        rss = _candidate_residual_sum(recs, segs, delay, with_bias)
-        if rss < best[0]:
-            best = (rss, delay)
-    return best[1]
+    top = largest_delay(recs, max_delay)
+    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
+    delays = [d for d, segs in segments.items() if segs]
+    if not delays:
+        raise NotIdentifiableError(f"recording is too short for input delays up to {top} samples")
+    notes: list[str] = []
+    fitted = scan_delays(delays, lambda d: [linear_candidate(recs, segments[d], d, with_bias, refine=False)],
+                         LEVEL, notes)
+    refine(fitted, lambda f: linear_candidate(recs, segments[f.candidate.input_delay], f.candidate.input_delay,
+                                              with_bias), LEVEL)
+    selection = choose(fitted, LEVEL, notes, top, recs, segments)
+    _warn_about(selection)
+    return selection.chosen.input_delay
 
 
-def _candidate_residual_sum(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool) -> float:
-    """The least residual sum of squares of candidate delay ``delay`` (``inf`` when nothing fits).
-
-    Where Gauss--Newton in ``a`` runs off to ever larger poles (the rows prefer no lag at
-    all, as a wrong delay's often do), it is stopped at
-    :func:`identify.variable_projection.static_gain_ceiling`, where the model equals its
-    limit (a static gain) to rounding, and scored there, instead of being followed to
-    overflow by the general fit.
-    """
-    if is_separable(segs, False):               # the bias, if any, is one more linear column there
-        rss = separable_residual_sum(segs, _separable_start(recs, segs), with_bias=with_bias,
-                                     ceiling=static_gain_ceiling(segs))
-        if rss is not None:
-            return rss
+def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
+                refine: bool = True) -> CandidateFit:
+    """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
+    (with ``refine=False`` on long data, only its first steps: see :func:`_choose`)."""
+    name = "bias" if with_bias else "linear"
+    if is_separable(segs, False):
+        found = separable_candidate(segs, _separable_start(recs, segs), with_bias=with_bias,
+                                    ceiling=static_gain_ceiling(segs), coarse_samples=COARSE_SAMPLES, refine=refine)
+        if found is not None:
+            a, b, bias, r, refined = found
+            return CandidateFit(Candidate(name, delay, a, b, float(r @ r)), r, bias, refined)
     try:
-        fun = solve_output_error(recs, segs, delay, with_bias=with_bias).result.fun
-    except NotIdentifiableError:
-        return math.inf
-    return float(np.einsum("i,i->", fun, fun))
+        solution = solve_output_error(recs, segs, delay, with_bias=with_bias)
+    except NotIdentifiableError as exc:
+        return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(solution.result.fun, float)
+    x = solution.result.x
+    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(r @ r)), r,
+                   float(x[2]) if with_bias else 0.0)
+
+
+def _warn_about(selection) -> None:
+    """A delay at the top of the searched range, said as a warning (never returned silently)."""
+    notes = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
+    if notes:
+        warnings.warn("input_delay='auto': " + "; ".join(notes), UserWarning, stacklevel=4)
 
 
 def _separable_start(recs: list[Recording], segs: list[Segment]) -> float:
@@ -514,7 +528,8 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
         Pooled: one ``(a, b)``, an initial speed and encoder offset per gap-free segment.
     input_delay : int or "auto"
         Input delay in whole samples (default 0); ``"auto"`` picks it in
-        ``0 ... MAX_AUTO_DELAY`` by the least residual.
+        ``0 ... MAX_AUTO_DELAY``: the shortest delay whose fit is within the noise of the best
+        (:func:`identify.selection.select_model`).
     fit_bias : bool
         Also fit a constant acceleration ``bias`` (the model's ``d``):
         ``d omega/dt = -a omega + b u + d``.  For a motor that never stops (a driver

@@ -128,6 +128,9 @@ class RunningEstimator:
         The regression (see the module docstring); default ``"zoh-avg"``.
     forgetting : float
         Forgetting factor lambda in (0, 1], default 1 (every row weighs the same).
+    input_delay : int
+        Samples between a sample's duty and the interval it acts on (a device that applies each
+        duty at the next tick records 1); default 0.
 
     Notes
     -----
@@ -144,7 +147,8 @@ class RunningEstimator:
     """
 
     def __init__(self, sample_period: float, counts_per_rev: int, *, model: str = "zoh-avg",
-                 forgetting: float = 1.0):
+                 forgetting: float = 1.0, input_delay: int = 0):
+        self._input_delay = check_int("input_delay", input_delay, lo=0, hi=50)
         sample_period = check_real("sample_period", sample_period, positive=True)
         counts_per_rev = check_int("counts_per_rev", counts_per_rev, lo=1, allow_integral_float=False)
         if model not in RUNNING_MODELS:
@@ -160,13 +164,19 @@ class RunningEstimator:
         self._cache: RunningEstimate | None = None
         self._last_ab: tuple[float, float] | None = None
         self._hist: list[tuple[int, float, float, float]] = []   # (seq, time, angle, duty), consecutive seqs
+        self._duties: list[float] = []      # the last input_delay duties, not acting yet
+        self._last_seq = -1
 
     def add(self, seq: int, time_s: float, duty: float, counts: int) -> None:
         """Take one sample; rows are formed only from consecutive sample indices."""
         angle = counts * self._rad_per_count
-        if self._hist and seq != self._hist[-1][0] + 1:
-            self._hist = []
-        self._hist.append((seq, time_s, angle, float(duty)))
+        if self._duties and seq != self._last_seq + 1 or self._hist and seq != self._hist[-1][0] + 1:
+            self._hist, self._duties = [], []
+        self._last_seq = seq
+        self._duties.append(float(duty))
+        if len(self._duties) <= self._input_delay:
+            return                          # the duty acting from this sample on is not known yet
+        self._hist.append((seq, time_s, angle, self._duties.pop(0)))
         if len(self._hist) > 4:
             del self._hist[0]
         hist = self._hist

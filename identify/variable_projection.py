@@ -34,8 +34,8 @@ from motorsim.recursion import first_order_filter
 from .data import Segment
 from .sensitivity import phi_functions
 
-__all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "is_separable", "regression_start",
-           "static_gain_ceiling"]
+__all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
+           "regression_start", "static_gain_ceiling"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -47,6 +47,8 @@ STEP_RTOL = 1e-8
 #: fit's statistical error and needs one or two steps.
 COARSE_SAMPLES = 20_000
 COARSE_RTOL = 1e-5
+#: Evaluations of an unrefined candidate's coarse steps (:func:`separable_candidate`).
+COARSE_BUDGET = 4
 #: Gauss--Newton iterations before giving up (the caller then falls back to Levenberg--Marquardt).
 MAX_ITERATIONS = 30
 
@@ -456,14 +458,46 @@ def separable_residual_sum(segments: list[Segment], a0: float, *, with_bias: boo
     return sum(_dot(s.r, s.r) for s in segs)
 
 
-def _solve_pole(segments: list[Segment], a0: float, ceiling: float,
-                with_bias: bool) -> tuple[list[_Segment], float, _Point, int] | None:
+def separable_candidate(segments: list[Segment], a0: float, *, with_bias: bool = False, ceiling: float = math.inf,
+                        coarse_samples: int = COARSE_SAMPLES,
+                        refine: bool = True) -> tuple[float, float, float, np.ndarray, bool] | None:
+    """``(a, b, bias, residuals, refined)`` of the output-error fit by :func:`solve_separable`'s iteration.
+
+    What scoring a candidate model needs (:mod:`identify.selection`): the fit's parameters and its
+    residual vector (rad, segments concatenated), with or without the bias column (see
+    :func:`separable_residual_sum`), no covariance.  None when the iteration fails.  The first
+    steps run on about ``coarse_samples`` rows when the data hold four times as many (as
+    :func:`solve_separable` does with :data:`COARSE_SAMPLES`); the last ones on all rows.  With
+    ``refine=False`` the coarse steps are all: the residuals are those on all rows at the coarse
+    ``a``, whose sum of squares bounds the fit's from above (``refined`` says which was done).
+    """
+    if not refine and sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
+        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments, coarse_samples)], float(a0),
+                          COARSE_RTOL, ceiling, budget=COARSE_BUDGET)
+        if coarse is not None:
+            segs = [_Segment(seg, with_bias) for seg in segments]
+            return _candidate(segs, coarse[0], False)
+    solved = _solve_pole(segments, a0, ceiling, with_bias=with_bias, coarse_samples=coarse_samples)
+    if solved is None:
+        return None
+    return _candidate(solved[0], solved[1], True)
+
+
+def _candidate(segs: list[_Segment], a: float, refined: bool) -> tuple[float, float, float, np.ndarray, bool] | None:
+    final = _evaluate(segs, a, direction=False)
+    if not (math.isfinite(final.beta) and math.isfinite(final.delta)):
+        return None
+    return a, final.b, final.delta * a, np.concatenate([s.r for s in segs]), refined
+
+
+def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: bool,
+                coarse_samples: int = COARSE_SAMPLES) -> tuple[list[_Segment], float, _Point, int] | None:
     """Gauss--Newton in ``a`` (coarse phase on long recordings first): the work segments, ``a``, the
     last point and the evaluations, or None."""
     evaluations = 0
-    if sum(len(seg.time) for seg in segments) >= 4 * COARSE_SAMPLES:
-        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments)], float(a0), COARSE_RTOL,
-                          ceiling)
+    if sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
+        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments, coarse_samples)], float(a0),
+                          COARSE_RTOL, ceiling)
         if coarse is not None:
             a0, evaluations = coarse[0], coarse[2]
     segs = [_Segment(s, with_bias) for s in segments]
@@ -474,20 +508,21 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float,
     return segs, a, point, evaluations + count
 
 
-def _prefixes(segments: list[Segment]) -> list[Segment]:
-    """The first samples of each segment, about :data:`COARSE_SAMPLES` in all (in proportion)."""
+def _prefixes(segments: list[Segment], samples: int = COARSE_SAMPLES) -> list[Segment]:
+    """The first samples of each segment, about ``samples`` in all (in proportion)."""
     total = sum(len(seg.time) for seg in segments)
     out = []
     for seg in segments:
-        m = max(3, len(seg.time) * COARSE_SAMPLES // total)
+        m = max(3, len(seg.time) * samples // total)
         out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
     return out
 
 
-def _iterate(segs: list[_Segment], a: float, rtol: float,
-             ceiling: float = math.inf) -> tuple[float, _Point, int] | None:
+def _iterate(segs: list[_Segment], a: float, rtol: float, ceiling: float = math.inf,
+             budget: int | None = None) -> tuple[float, _Point, int] | None:
     """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative, or ``a`` passes ``ceiling``
-    (then ``a = ceiling``): ``(a, last point, evaluations)``."""
+    (then ``a = ceiling``): ``(a, last point, evaluations)``.  With a ``budget``, the ``a`` reached
+    after that many evaluations is returned even when not converged."""
     evaluations = 0
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
@@ -499,6 +534,6 @@ def _iterate(segs: list[_Segment], a: float, rtol: float,
         a += point.step
         if a >= ceiling:
             return ceiling, point, evaluations
-        if abs(point.step) <= rtol * abs(a):
+        if abs(point.step) <= rtol * abs(a) or evaluations == budget:
             break
     return (a, point, evaluations) if a > 0 else None

@@ -259,7 +259,7 @@ def _check_count(name: str, value: Any, lo: int = 1) -> int:
 def _check_methods(methods) -> tuple[str, ...]:
     from identify import available_methods
     if methods == "all":
-        return tuple(available_methods())
+        return tuple(available_methods(open_loop=True))
     if isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not methods:
         raise ScenarioError(f"methods must be \"all\" or a non-empty list of names, got {methods!r}")
     for m in methods:

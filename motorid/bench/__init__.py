@@ -11,6 +11,7 @@
 ``startup``  :mod:`~motorid.bench.startup`: ``motorid --help`` and ``identify`` against ``import control``
 ``control``  :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
 ``frequency`` :mod:`~motorid.bench.frequency`: the frequency response against scipy.signal csd/welch
+``selection`` :mod:`~motorid.bench.selection`: the default (model chosen) against one ``oe`` fit and a CSV read
 =========== ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -84,6 +85,11 @@ def _frequency(argv: Sequence[str]) -> int:
     return bench_frequency(argv)
 
 
+def _selection(argv: Sequence[str]) -> int:
+    from motorid.bench.selection import bench_selection
+    return bench_selection(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -101,5 +107,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
     "frequency": Benchmark(_frequency, "frequency_response of 10^6 samples (bounds, coherence) against "
                                        "scipy.signal.csd + welch of the same data"),
+    "selection": Benchmark(_selection, "the default fit (delay and structure chosen) against one oe fit on 10^4 "
+                                       "samples; identify FILE on 10^6 rows against pandas.read_csv"),
 }
 

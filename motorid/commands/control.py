@@ -16,7 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from motorid.arguments import CommandError
+from motorid.arguments import CommandError, print_to_stderr
 from motorsim.control import (
     CONTROLLERS,
     ClosedLoopExperiment,
@@ -73,13 +73,23 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                    help="input delay in samples (default 0)")
 
 
-def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int
-                          ) -> ClosedLoopExperiment:
-    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``."""
+def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int, *,
+                          rig_input_delay: int = 0) -> ClosedLoopExperiment:
+    """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``.
+
+    ``rig_input_delay`` is the delay the rig adds between a computed duty and its application (the
+    device's one sample): a model with less is designed with the rig's, and a note says so.
+    """
     if not args.model and (args.a is None or args.b is None):
         raise CommandError("give the model the controller is designed from: --a and --b, or --model FILE.json")
     args.sample_period, args.counts_per_rev = sample_period, counts_per_rev
-    controller = controller_from_args(args, model_from_args(args))
+    model = model_from_args(args)
+    if model.input_delay < rig_input_delay:
+        print_to_stderr(f"note: the device applies each duty {rig_input_delay} sample(s) after computing it; "
+                        f"the controller is designed with input delay {rig_input_delay} (the model had "
+                        f"{model.input_delay})")
+        model = dataclasses.replace(model, input_delay=rig_input_delay)
+    controller = controller_from_args(args, model)
     return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
 
 
@@ -203,6 +213,13 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     add_controller_arguments(p, required=True)
     p.add_argument("--duration", type=float, default=2.0, help="length of the predicted response in s (default 2)")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
+    r = p.add_argument_group("robustness (plants drawn from a --model file's covariance of a and b)")
+    r.add_argument("--robust", action="store_true",
+                   help="tune the design (mpc: --duty-weight, pi and position: --time-constant) to the best "
+                        "worst-case tracking over the drawn plants instead of the point estimate")
+    r.add_argument("--repetitions", type=int, default=100, metavar="N",
+                   help="plants drawn from the covariance (default 100)")
+    r.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
 
 
 def run_control(args: argparse.Namespace) -> int:
@@ -214,6 +231,10 @@ def run_control(args: argparse.Namespace) -> int:
     model = model_from_args(args)
     controller = controller_from_args(args, model)
     reference = parse_reference(args.reference)
+    covariance = _ab_covariance(args)
+    robustness = None
+    if args.robust:
+        controller, robustness = _robust_controller(args, controller, covariance, reference)
     prediction = controller.predict(reference, args.duration)
     _, t_u = controller.closed_loop()
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/duty, friction = {model.friction:g}, "
@@ -221,6 +242,8 @@ def run_control(args: argparse.Namespace) -> int:
           f"{model.counts_per_rev} counts/rev")
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
     print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    from identify.feedforward import feedforward_constants
+    print(feedforward_constants(load_model_file(args.model) if args.model else model).describe())
     poles = np.sort_complex(_loop_poles(controller))
     print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
           f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
@@ -229,6 +252,7 @@ def run_control(args: argparse.Namespace) -> int:
           f"{prediction.tracking_rms:.4g} {controller.reference_unit}, largest duty {largest:.1f}")
     if largest > 255:
         print("note: the predicted duty exceeds 255; the device clips it and the prediction no longer holds")
+    _print_robustness(args, controller, covariance, reference, robustness)
     if args.plot:
         from motorid import plots
         plots.plot_prediction(prediction, args.plot, title=f"{controller.kind}: predicted")
@@ -240,3 +264,57 @@ def _loop_poles(controller: Controller) -> np.ndarray:
     import control
     _, cy = controller.laws()
     return control.feedback(-(controller.plant() * cy), 1).poles()
+
+
+def _ab_covariance(args: argparse.Namespace) -> np.ndarray | None:
+    """The covariance of ``(a, b)`` of the ``--model`` file, None without one."""
+    if not getattr(args, "model", None):
+        return None
+    est = load_model_file(args.model)
+    if est.covariance is None or not np.all(np.isfinite(est.covariance[:2, :2])):
+        return None
+    return np.asarray(est.covariance[:2, :2], dtype=float)
+
+
+def _robust_controller(args: argparse.Namespace, controller: Controller, covariance: np.ndarray | None,
+                       reference: Any) -> tuple[Controller, Any]:
+    from motorsim.robustness import ROBUST_KNOB, robust_design
+    if covariance is None:
+        raise CommandError("--robust needs the model's covariance: give --model FILE.json saved by "
+                           "motorid identify --save from a method with a covariance")
+    if controller.kind not in ROBUST_KNOB:
+        raise CommandError(f"--robust tunes {', '.join(sorted(ROBUST_KNOB))}, not --controller {controller.kind}")
+    settings = controller.settings()
+    return robust_design(controller.kind, controller.model, covariance, reference, args.duration,
+                         n_draws=_repetitions(args), rng=np.random.default_rng(args.seed), **settings)
+
+
+def _repetitions(args: argparse.Namespace) -> int:
+    if not 1 <= args.repetitions <= 100_000:
+        raise CommandError(f"--repetitions must be in 1...100000, got {args.repetitions!r}")
+    return int(args.repetitions)
+
+
+def _print_robustness(args: argparse.Namespace, controller: Controller, covariance: np.ndarray | None,
+                      reference: Any, robustness: Any) -> None:
+    """The margins at the point estimate and, with a covariance, across the drawn plants, and warnings."""
+    from motorsim.robustness import analyse_robustness, loop_margins
+    print(f"margins at the point estimate: {loop_margins(controller).describe()}")
+    if covariance is None:
+        print("robustness across the model's uncertainty: give --model FILE.json with a covariance")
+        return
+    if robustness is None:
+        robustness = analyse_robustness(controller, covariance, reference, args.duration,
+                                        n_draws=_repetitions(args), rng=np.random.default_rng(args.seed))
+    r = robustness
+    unit = controller.reference_unit
+    gm = r.worst_gain_margin
+    gm_text = "inf" if math.isinf(gm) else f"{20 * math.log10(gm):.3g} dB"
+    print(f"across the model's uncertainty ({r.method}, --seed {args.seed}):")
+    print(f"  tracking RMS: worst {r.worst_rms:.4g} {unit}, {r.percentile:g}th percentile {r.percentile_rms:.4g} "
+          f"{unit} (point estimate {r.tracking_rms:.4g})")
+    print(f"  smallest margins: gain {gm_text}, phase {r.worst_phase_margin:.3g} deg, "
+          f"delay {r.worst_delay_margin * 1e3:.3g} ms; unstable {100 * r.unstable:.3g} %, "
+          f"badly damped {100 * r.badly_damped:.3g} %")
+    for text in r.warnings():
+        print(f"warning: {text}")

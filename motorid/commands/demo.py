@@ -65,7 +65,7 @@ def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[s
     A progress bar on stderr counts the runs and fits (``progress``: None draws it when stderr
     is a terminal, True or False force it).
     """
-    methods = list(methods or available_methods())
+    methods = list(methods or available_methods(open_loop=True))
     recordings, rows = [], []
     with ProgressBar(len(experiments) * (1 + len(methods)), "demo", unit="steps", enabled=progress) as bar:
         for i, exp in enumerate(experiments, 1):
@@ -199,7 +199,7 @@ def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[Demo
 
 
 def _best_method(methods: Sequence[str] | None) -> str:
-    from identify import DEFAULT_METHOD
-    if not methods or DEFAULT_METHOD in methods:
-        return DEFAULT_METHOD
+    """The estimate the closed loop is designed from: ``oe``'s (the article's setting is linear), else the last."""
+    if not methods or "oe" in methods:
+        return "oe"
     return methods[-1]

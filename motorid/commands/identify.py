@@ -34,8 +34,10 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
     from identify import DEFAULT_METHOD, available_methods
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="recordings (format v1), or foreign files with the column flags; several are pooled")
-    parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
-                        help=f"estimator (default {DEFAULT_METHOD}, the most accurate available)")
+    parser.add_argument("--method", default=DEFAULT_METHOD, choices=[DEFAULT_METHOD, *available_methods()],
+                        help=f"estimator (default {DEFAULT_METHOD}: the input delay 0-10 and the structure - linear, "
+                             "bias, Coulomb friction, dead zone - chosen by evidence, as identify.fit does; "
+                             "name a method to force it)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
                         help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
                              "for them: one fit per candidate delay 0-10)")
@@ -109,10 +111,17 @@ def run_identify(args: argparse.Namespace) -> int:
         est = with_data_files(est, [*args.files])
         write_atomically(args.save, est.to_json() + "\n")
         say(f"model       {args.save}")
-    if estimator_options(args).get("input_delay") == "auto":
-        say(f"delay       {int(est.extra['input_delay'])} samples, chosen by the least output error over 0-10 "
-            "(--input-delay N fixes it)")
+    checks = None
+    if est.selection is not None:
+        from identify.selection import residual_checks
+        checks = residual_checks(est, recs[0])
+        say(format_selection(est.selection, checks))
+    elif estimator_options(args).get("input_delay") == "auto":
+        say(f"delay       {int(est.extra['input_delay'])} samples, the shortest within the noise of the best "
+            "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
+    if checks is not None:
+        out["residual_checks"] = checks
     if dropped:
         out["dropped_samples"] = {d.file: d.seq for d in dropped}
     report = None
@@ -144,9 +153,37 @@ def _frequency_response(recording: Recording):
         return None
 
 
+def format_selection(selection: dict, checks: dict[str, float]) -> str:
+    """The ``model`` section: the chosen structure, the runner-up in plain words, the residual checks."""
+    chosen = selection["chosen"]
+    lines = [f"model       {chosen['structure']}, input delay {chosen['input_delay']} samples ({chosen['method']}), "
+             f"chosen as the simplest fit within the noise of the best; "
+             + ("a clear choice" if selection["clear"] else "NOT a clear choice (see the note)")]
+    other = selection.get("runner_up")
+    if other:
+        if other["within_noise"]:
+            words = "the data cannot tell it from the chosen one"
+        else:
+            words = f"fits worse by {other['statistic']:.3g} noise units (the test's threshold is about 11)"
+        lines.append(f"  runner-up {other['structure']}, input delay {other['input_delay']}: {words}")
+    fitted = sum(1 for c in selection["candidates"] if c.get("residual_sum") is not None)
+    lines.append(f"  compared  {fitted} candidate fits (structure x input delay; --json lists them)")
+
+    def verdict(p: float, good: str, bad: str) -> str:
+        if not p == p:          # nan: e.g. the speed never changes sign
+            return f"{good}: not testable"
+        return f"{good if p >= 0.01 else bad} (p = {p:.2g})"
+    lines.append("  residual  " + "; ".join([
+        verdict(checks["whiteness_p"], "white", "NOT white"),
+        verdict(checks["input_p"], "independent of the input", "CORRELATED with the input"),
+        verdict(checks["sign_p"], "independent of sign(speed)", "CORRELATED with sign(speed): friction?")]))
+    return "\n".join(lines)
+
+
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval): ``str(est)``."""
-    return str(est)
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA."""
+    from identify.feedforward import feedforward_constants
+    return f"{est}\n{feedforward_constants(est).describe()}"
 
 
 def format_validation(report, name: str) -> str:

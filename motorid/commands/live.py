@@ -65,8 +65,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                              "folder, named on stderr; checked before the motor starts; an existing file is "
                              "refused without --overwrite, a folder or a device always)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing recording at --out")
-    parser.add_argument("--method", default=DEFAULT_METHOD, choices=available_methods(),
-                        help=f"estimator after the run (default {DEFAULT_METHOD})")
+    parser.add_argument("--method", default=DEFAULT_METHOD, choices=[DEFAULT_METHOD, *available_methods()],
+                        help=f"estimator after the run (default {DEFAULT_METHOD}: delay and structure chosen by "
+                             "evidence, as motorid identify)")
     parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
                         help=f"largest share of the samples run that may be lost (link or device) before live "
                              f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
@@ -142,6 +143,7 @@ def default_out_path(now: float | None = None) -> str:
 
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
+    from hardware.protocol import DEVICE_INPUT_DELAY
     from identify.recursive import RunningEstimator
 
     if not 0 <= args.max_loss <= 100:
@@ -150,7 +152,9 @@ def run_live(args: argparse.Namespace) -> int:
         args.out = default_out_path()
         print_to_stderr(f"recording to {args.out}")
     rig, experiment, writer = _open_rig_and_writer(args, experiment_from_args(args))
-    running = RunningEstimator(experiment.sample_period, args.counts_per_rev)
+    # the device applies each duty one tick after its sample
+    delay = DEVICE_INPUT_DELAY
+    running = RunningEstimator(experiment.sample_period, args.counts_per_rev, input_delay=delay)
     progress = ProgressBar(experiment.n_samples, "live", unit="samples", interval=0.25,
                            enabled=None if not args.quiet and experiment.n_samples > 0 else False)
     plot = None
@@ -192,6 +196,7 @@ def _open_rig_and_writer(args: argparse.Namespace, experiment):
     ``--out`` that cannot be written stops here.  Returns ``(rig, experiment, writer)``.
     """
     from hardware.errors import RigError
+    from hardware.protocol import DEVICE_INPUT_DELAY
     from hardware.serial_rig import SerialRig
     from motorsim.writing import RecordingWriter
 
@@ -205,10 +210,12 @@ def _open_rig_and_writer(args: argparse.Namespace, experiment):
     try:
         if args.controller:
             from motorid.commands.control import closed_loop_from_args
-            experiment = closed_loop_from_args(args, experiment.sample_period, rig.counts_per_rev)
+            experiment = closed_loop_from_args(args, experiment.sample_period, rig.counts_per_rev,
+                                               rig_input_delay=DEVICE_INPUT_DELAY)
         writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
                                  overwrite=args.overwrite,
-                                 metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port})
+                                 metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port,
+                                           "input_delay_samples": str(DEVICE_INPUT_DELAY)})
     except BaseException:
         rig.close()
         raise
@@ -261,7 +268,11 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
         raise CommandError(f"{m['samples_lost']} of the {m['samples_ticked']} samples were lost "
                            f"({loss_pct:.3g} %), above --max-loss {args.max_loss:g} %; {path} is kept but not "
                            f"identified: check the cable and the baud rate, or raise --max-loss")
-    estimate = fit(recording, method=args.method)
+    from hardware.protocol import DEVICE_INPUT_DELAY
+    from identify.methods import method_options
+    # the device applies each duty one tick after its sample: a known delay, not one to search for
+    options = {"input_delay": DEVICE_INPUT_DELAY} if "input_delay" in method_options(args.method) else {}
+    estimate = fit(recording, method=args.method, **options)
     if plot is not None:
         plot.show_fit(recording, estimate)
     print(format_estimate(estimate))

@@ -18,7 +18,8 @@ from motorsim.control import (
     tracking_error,
 )
 
-MODEL = PlantModel(25.0, 3.0, 0.005, 16667)
+#: designed for the device's one-sample delay (it applies each duty at the next tick)
+MODEL = PlantModel(25.0, 3.0, 0.005, 16667, input_delay=P.DEVICE_INPUT_DELAY)
 
 
 def _rms(x):
@@ -35,7 +36,7 @@ def test_fake_device_tracks_as_predicted_and_as_simrig_duty_for_duty(controller,
     # the host re-ran the integer step on every count received and found the device's duty
     assert rec.metadata["host_duty_mismatches"] == "0" and rec.metadata["host_unverified_duties"] == "0"
     # same motor, same integer step: the simulated rig gives the same duties and counts
-    sim = SimRig(Motor(25.0, 3.0)).run(exp)
+    sim = SimRig(Motor(25.0, 3.0, input_delay=P.DEVICE_INPUT_DELAY)).run(exp)
     np.testing.assert_array_equal(rec.duty, sim.duty)
     np.testing.assert_array_equal(rec.counts - rec.counts[0], sim.counts - sim.counts[0])
     predicted = controller.predict(parse_reference(spec), 2.0).tracking_rms

@@ -24,6 +24,11 @@ from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, OddMult
 from motorsim.rig import bench_knobs
 
 MOTOR = Motor(25.0, 3.0)
+
+
+def _as_seen_through_the_device(motor: Motor) -> Motor:
+    """The motor SimRig must simulate to record what the device records: it applies each duty one tick later."""
+    return dataclasses.replace(motor, input_delay=motor.input_delay + P.DEVICE_INPUT_DELAY)
 EXPERIMENT = Experiment(Sine(10.0), 0.005, 2.0)      # 400 samples
 
 
@@ -52,7 +57,7 @@ _CONTRACT = [Experiment(Sine(10.0), 0.005, 2.0),
                          ids=["linear", "friction-deadzone-delay"])
 @pytest.mark.parametrize("experiment", _CONTRACT, ids=[e.excitation.describe() for e in _CONTRACT])
 def test_contract_serial_rig_on_the_emulated_device_records_what_simrig_simulates(experiment, motor):
-    sim = SimRig(motor).run(experiment)
+    sim = SimRig(_as_seen_through_the_device(motor)).run(experiment)
     with _fake(motor=motor) as dev, SerialRig(dev.port_name) as rig:
         assert isinstance(rig, Rig)
         rec = rig.run(experiment)
@@ -71,7 +76,7 @@ def test_contract_serial_rig_on_the_emulated_device_records_what_simrig_simulate
 def test_contract_holds_in_real_time_with_heartbeats():
     # Real time for 1 s with a 200 ms watchdog: only the heartbeats can keep the run alive.
     exp = Experiment(Sine(20.0), 0.002, 1.0)
-    sim = SimRig(MOTOR).run(exp)
+    sim = SimRig(_as_seen_through_the_device(MOTOR)).run(exp)
     with _fake(speed=1.0) as dev, SerialRig(dev.port_name, watchdog_ms=200) as rig:
         rec = rig.run(exp)
     assert np.array_equal(rec.duty, sim.duty) and np.max(np.abs(rec.counts - sim.counts)) <= 1
@@ -80,7 +85,7 @@ def test_contract_holds_in_real_time_with_heartbeats():
 
 # ------------------------------------------------------------------ faults on the link: nothing corrupted passes
 def _clean():
-    return SimRig(MOTOR).run(EXPERIMENT)
+    return SimRig(_as_seen_through_the_device(MOTOR)).run(EXPERIMENT)
 
 
 def _assert_rows_are_true(rec, clean):
@@ -213,7 +218,7 @@ def test_ctrl_c_during_a_run_sends_stop_and_propagates():
 
 # ------------------------------------------------------------------ handshake
 def test_wrong_protocol_version_is_refused_naming_both_versions():
-    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 3"):
+    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 4"):
         SerialRig(dev.port_name).open()
 
 

@@ -63,3 +63,11 @@ def test_iv_reference_refuses_open_loop_and_constant_references():
         fit_reference_iv(SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10), 0.005, 2.0)))
     with pytest.raises(NotIdentifiableError, match="constant"):
         fit_reference_iv(_closed("pi", {}, "constant:10"))
+
+
+def test_iv_reference_is_a_registered_method_and_left_out_of_open_loop_lists():
+    from identify import available_methods
+    rec = _closed(*LOOPS[2], noise=1e-3)
+    est = fit(rec, method="iv-reference", input_delay=0)
+    assert est.method == "iv-reference" and est.a == pytest.approx(25.0, rel=1e-2)
+    assert "iv-reference" in available_methods() and "iv-reference" not in available_methods(open_loop=True)

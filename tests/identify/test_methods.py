@@ -21,7 +21,7 @@ def test_every_registered_name_resolves_to_an_estimator_of_this_package(method):
 
 
 def test_an_unknown_name_is_refused_with_the_known_ones():
-    with pytest.raises(ValueError, match=r"method must be one of \['euler-ls'.*got 'ols'"):
+    with pytest.raises(ValueError, match=r"method must be one of \['auto', 'euler-ls'.*got 'ols'"):
         method_function("ols")
 
 

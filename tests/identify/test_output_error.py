@@ -196,9 +196,9 @@ def test_bad_options_name_the_parameter(reference, kwargs, match):
         fit_output_error(_rec(_sine(np.arange(100) * 0.005, 10.0), np.arange(100.0)), **kwargs)
 
 
-def test_oe_is_the_default_method():
+def test_the_default_chooses_among_models_and_oe_can_be_forced():
     from identify import DEFAULT_METHOD, available_methods
-    assert DEFAULT_METHOD == "oe" and "oe" in available_methods()
+    assert DEFAULT_METHOD == "auto" and "oe" in available_methods() and "auto" not in available_methods()
 
 
 @pytest.mark.parametrize("kind", ["angle", "speed"])

@@ -87,3 +87,22 @@ def test_held_out_validation_equals_a_simulation_from_the_measured_initial_speed
     # speed agrees within 0.1 percentage point (measured: 95.071 % vs 95.071 %)
     assert rep.fit_percent == pytest.approx(nrmse_fit(step.speed[d:], model[d:]), abs=0.1)
     assert "least squares" in rep.initial_state
+
+
+def test_the_default_picks_the_structure_that_predicts_the_held_out_step_best():
+    # every structure at its own best delay, scored on the held-out step run; the default
+    # (chosen on the PRBS run alone) must predict it as well as the best of them (within 0.05 point)
+    from identify import validate
+    prbs, step = load_undc("DCmotor_prbs_open_exp.csv"), load_undc("DCmotor_step_open_exp.csv")
+    default = fit(prbs)
+    scores = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # oe-friction: the motor never reverses
+        for name, method, options in (("linear", "oe", {}), ("bias", "oe", {"fit_bias": True}),
+                                      ("friction", "oe-friction", {"dead_zone": False}),
+                                      ("dead-zone", "oe-friction", {})):
+            est = fit(prbs, method, input_delay="auto", **options)
+            scores[name] = validate(est, step).fit_percent
+    assert validate(default, step).fit_percent >= max(scores.values()) - 0.05
+    assert default.selection["chosen"]["input_delay"] == 1          # the lab's own model has one sample
+    assert abs(math.degrees(default.static_gain) / K_STATIC - 1) < 0.02

@@ -67,5 +67,5 @@ def test_plain_identify_finds_a_two_sample_delay_and_says_so(tmp_path, capsys):
     captured = capsys.readouterr()
     data = json.loads(captured.out)        # --json: stdout is one JSON document, the text goes to stderr
     # with delay 0 the fit was off by -22 %; with the delay found, quantisation-only errors: 4 standard errors
-    assert data["input_delay"] == 2 and "delay       2 samples, chosen" in captured.err
+    assert data["input_delay"] == 2 and "model       linear, input delay 2 samples (oe), chosen" in captured.err
     assert abs(data["a"] - 25.0) < 4 * data["a_stderr"] and abs(data["b"] - 3.0) < 4 * data["b_stderr"]

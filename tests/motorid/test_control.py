@@ -107,3 +107,26 @@ def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsy
     bad.write_text("{}")
     assert main(["control", "design", "--model", str(bad), "--controller", "pi"]) == 2
     assert "not a saved model" in capsys.readouterr().err
+
+
+def test_control_design_prints_margins_and_the_robustness_of_a_saved_model(tmp_path, capsys):
+    import numpy as np
+
+    from identify import fit
+    from motorid.cli import main
+    from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+    rec = SimRig(Motor(25.0, 3.0, input_delay=1), Encoder(angle_noise=2e-3),
+                 rng=np.random.default_rng(1)).run(Experiment(Sine(10.0), 0.005, 1.0))
+    path = tmp_path / "model.json"
+    path.write_text(fit(rec, method="oe", input_delay=1).to_json())
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+                 "--repetitions", "30"]) == 0
+    out = capsys.readouterr().out
+    assert "margins at the point estimate: gain margin" in out and "Monte Carlo: 30 plants" in out
+    assert "warning:" in out and "badly damped" in out          # 6 degrees of phase margin with the delay
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+                 "--repetitions", "30", "--robust"]) == 0
+    out = capsys.readouterr().out
+    assert "time_constant = 0.01," not in out and "warning:" not in out
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--robust"]) == 2
+    assert "--robust needs the model's covariance" in capsys.readouterr().err

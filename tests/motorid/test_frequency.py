@@ -20,7 +20,7 @@ def _simulate(tmp_path, name, *extra):
 def test_frequency_of_two_realisations_with_friction_names_the_distortion(tmp_path, capsys):
     runs = [_simulate(tmp_path, f"ms{s}.csv", "--excitation", f"odd-multisine:512,63,20,{s}", "--friction", "40",
                       "--seed", str(s)) for s in (1, 2)]
-    assert main(["identify", str(runs[0]), "--save", str(tmp_path / "oe.json")]) == 0
+    assert main(["identify", str(runs[0]), "--method", "oe", "--save", str(tmp_path / "oe.json")]) == 0
     capsys.readouterr()
     plot = tmp_path / "bode.png"
     assert main(["frequency", *map(str, runs), "--model", str(tmp_path / "oe.json"), "--plot", str(plot),

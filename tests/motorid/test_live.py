@@ -86,8 +86,8 @@ def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys, 
 
 
 def test_a_wrong_protocol_version_is_a_clear_error(tmp_path, capsys):
-    status, out = _live(tmp_path, "fake://?version=4", "--duration", "1")
-    assert status == 2 and "version 4" in capsys.readouterr().err and not out.exists()
+    status, out = _live(tmp_path, "fake://?version=3", "--duration", "1")
+    assert status == 2 and "version 3" in capsys.readouterr().err and not out.exists()
 
 
 def test_an_unavailable_port_scheme_is_a_clear_error(tmp_path, capsys, monkeypatch):

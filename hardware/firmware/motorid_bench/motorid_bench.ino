@@ -1,13 +1,16 @@
 // motorid bench firmware for an Arduino Uno (ATmega328P, 16 MHz).
 //
-// Implements hardware/PROTOCOL.md (protocol version 2) exactly: COBS frames with CRC-16,
+// Implements hardware/PROTOCOL.md (protocol version 4) exactly: COBS frames with CRC-16,
 // CONFIG/WAVE/CONTROL/REFERENCE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
 // In closed loop (a CONTROL naming a controller) each tick computes its duty from the counts
 // it has just read with the controller's integer step (motorsim/fixed_point.py is the reference).
 //
-// Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt snapshots the
-// encoder count and micros(), applies the duty computed during the previous tick, queues the
-// SAMPLE, then computes the next duty with interrupts re-enabled (the encoder may preempt it).
+// Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt applies the duty
+// latched at the previous tick and snapshots the encoder count and micros() (a fixed number of
+// cycles after the compare, whatever the controller), computes this sample's duty (the
+// waveform's or the controller's, with interrupts re-enabled: the encoder may preempt it),
+// queues the SAMPLE and latches the duty for the next tick: an exact zero-order hold with a
+// one-sample delay, the same in open and closed loop.
 // loop() only parses received bytes and sends at most one frame per pass.
 // The encoder is decoded by a pin-change interrupt that reads the port register directly.
 // Wiring, flashing and measured figures: hardware/firmware/README.md.
@@ -24,8 +27,8 @@
 
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
-#define PROTOCOL_VERSION 3
-#define FIRMWARE_VERSION 0x0300  // major << 8 | minor: 3.0
+#define PROTOCOL_VERSION 4
+#define FIRMWARE_VERSION 0x0400  // major << 8 | minor: 4.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -701,8 +704,9 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
   }
   if (!running) return;
   TIMSK1 = 0;
-  // 1. snapshot, atomically
+  // 1. apply the duty latched at the previous tick (duty 0 at tick 0), then snapshot, atomically
   cli();
+  if (tick_index < cfg.n_samples) apply_duty(next_duty);
   int32_t counts = enc_count;
   uint32_t errors = enc_errors;
   uint32_t now_us = micros();
@@ -712,10 +716,9 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     stop_run(END_COMPLETE);
     return;
   }
-  // 2. apply the duty computed during the previous tick, or in closed loop the controller's
-  //    duty from the counts just read
-  int16_t duty = control.kind ? control_step(tick_index, counts) : next_duty;
-  apply_duty(duty);
+  // 2. this sample's duty: the controller's from the counts just read, or the waveform's;
+  //    applied at the next tick
+  int16_t duty = control.kind ? control_step(tick_index, counts) : (int16_t)wave_next();
   // 3. queue the sample, or drop and count it (only this ISR writes the queue head)
   uint8_t flags = tick_late;
   tick_late = 0;
@@ -747,10 +750,9 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     stop_run(END_FAULT);
     return;
   }
-  // 4. compute the next duty
-  int16_t upcoming = control.kind ? 0 : wave_next();
+  // 4. latch the duty for the next tick
   cli();
-  next_duty = upcoming;
+  next_duty = duty;
   if (sub_count == 1 && (TIFR1 & _BV(OCF1A))) {  // the next tick is already due: it is late
     tick_late = FLAG_LATE;
     if (tick_overruns != 0xFFFF) tick_overruns++;
@@ -999,18 +1001,16 @@ static uint8_t parse_config(const uint8_t *p) {
 
 static void start_run(void) {
   setup_encoder(cfg.decoding);
-  int16_t first = 0;
   if (control.kind) {
     control_reset();
   } else {
     wave_reset();
-    first = wave_next();
   }
   timer_plan(cfg.sample_period_us);
   cli();
   queue_head = queue_tail = 0;
   tick_index = 0;
-  next_duty = first;
+  next_duty = 0;
   tick_late = 0;
   tick_overruns = 0;
   samples_dropped = 0;

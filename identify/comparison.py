@@ -1,0 +1,410 @@
+"""Candidate models compared by the evidence: the simplest one within the noise of the best.
+
+The machinery of the model choice, shared by the default estimator
+(:mod:`identify.selection`: input delay x structure) and by the estimators' own
+``input_delay="auto"`` (``oe``, ``oe-friction``: the delay alone, each ranked by its own fits).
+The callers fit the candidates; this module scores and chooses, and imports no estimator.
+
+The criterion
+-------------
+Residuals of real benches are coloured (encoder rounding that stays put while the shaft is
+slow, unmodelled dynamics), so the white-noise likelihood ratio, AIC or BIC would call tiny
+improvements significant and pick the biggest model or the longest delay (the failure this
+module replaces: a delay of 10 samples "better" than 0 by 0.01 point of fit).  Instead each
+candidate ``c`` is compared with the best fit (least residual sum ``S*``, residuals ``r*``) along
+the one direction that separates them, ``Delta = r_c - r*``:
+
+    T_c = (S_c - S*) |Delta|^2 / V_c,      V_c = sum_blocks (Delta_j . r*_j)^2
+
+``V_c`` is the batch-means (Newey--West with :data:`BLOCKS` blocks) estimate of the variance
+of ``Delta . e`` under the noise actually present: with white noise ``T_c`` is the classic
+``(S_c - S*)/sigma^2``; where the noise is slow along ``Delta`` (a ridge where a lag and a
+delay look alike, a coarse encoder on a slow sine) ``V_c`` grows and the two models become
+indistinguishable, as they are.  ``c`` is *within the noise* when ``T_c`` is below the
+``1 - level`` quantile of ``k F(k, BLOCKS - k)`` (``k`` the difference in parameter counts, at
+least 1; the F rather than the chi-square because ``V_c`` is itself estimated from the blocks),
+``level`` = :data:`LEVEL`.  Simplest means fewest parameters (a nonzero delay counts as one),
+then the shorter delay.  We chose this over held-out prediction (which needs a fit per
+candidate and fold: several times the cost) because every candidate is then scored by the very
+fit that would be returned, once.
+
+Doubt
+-----
+When the candidates within the noise give materially different ``a`` or ``b`` (outside the
+chosen fit's own 95 % interval): the range of ``a`` and ``b`` over those candidates is kept
+with the estimate (``model_range``), its intervals become the union of the chosen fit's own and
+that range (so they cover every candidate the data cannot rule out; the covariance stays the
+chosen fit's), and when they differ by more than :data:`MATERIAL` relative the choice is called
+unclear and a note says which experiment would separate them.  A delay at the top of the
+searched range is never returned without a note.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from motorsim.recording import Recording
+
+from .data import Segment
+from .errors import NotIdentifiableError
+
+__all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
+           "best_fit", "blocks", "choose", "largest_delay", "refine", "scan_delays", "separating_experiment",
+           "statistic", "threshold"]
+
+#: Largest input delay in samples the selection tries.
+MAX_AUTO_DELAY = 10
+#: Level of the test that calls a candidate worse than the best (see the module docstring).
+LEVEL = 0.001
+#: Blocks of the batch-means variance.
+BLOCKS = 32
+#: Relative difference in ``a`` or ``b`` from which candidates the data cannot separate make the choice
+#: unclear (smaller differences outside the interval only widen it).
+MATERIAL = 0.01
+#: Candidates fitted coarsely whose statistic (an upper bound) is within this factor of the threshold are
+#: fitted fully before the choice.
+REFINE_FACTOR = 20.0
+#: Relative excess of residual sum over the best's below which a coarse candidate is always fitted fully,
+#: and a delay scan never stops: on long data the coarse steps' ``a`` (from a prefix) is less precise than
+#: the full data's standard error, so their statistic alone can overstate how far a candidate is.
+CLOSE = 0.01
+#: A delay scan stops after this many delays in a row whose every candidate is worse than the best by
+#: more than :data:`STOP_FACTOR` times the threshold.
+STOP_AFTER = 2
+STOP_FACTOR = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class _Structure:
+    name: str
+    method: str
+    options: Mapping[str, Any]
+    n_params: int
+    text: str
+
+
+#: The candidate structures, simplest first.
+STRUCTURES: dict[str, _Structure] = {s.name: s for s in (
+    _Structure("linear", "oe", {}, 2, "linear (oe)"),
+    _Structure("bias", "oe", {"fit_bias": True}, 3, "linear with a constant acceleration d (oe, fit_bias)"),
+    _Structure("friction", "oe-friction", {"dead_zone": False}, 4, "Coulomb friction c and bias d (oe-friction)"),
+    _Structure("dead-zone", "oe-friction", {}, 5, "friction c, bias d and a duty dead zone (oe-friction)"),
+)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One model the selection fitted (or left out), and how it scored.
+
+    Attributes
+    ----------
+    structure : str
+        A key of :data:`STRUCTURES`.
+    input_delay : int
+        Samples.
+    a, b : float
+        The candidate's fit on the common rows (nan when it failed).
+    residual_sum : float
+        Its residual sum of squares on the common rows (nan when it failed).
+    statistic : float
+        ``T_c`` against the best candidate (0 for the best itself).
+    within_noise : bool
+        Whether the data cannot tell it from the best.
+    note : str
+        Why it failed, when it did.
+    """
+
+    structure: str
+    input_delay: int
+    a: float
+    b: float
+    residual_sum: float
+    statistic: float = math.nan
+    within_noise: bool = False
+    note: str = ""
+
+    @property
+    def n_params(self) -> int:
+        """Shared parameters, a nonzero delay counted as one more."""
+        return STRUCTURES[self.structure].n_params + (self.input_delay > 0)
+
+    @property
+    def method(self) -> str:
+        """The estimator that fits this candidate."""
+        return STRUCTURES[self.structure].method
+
+    def options(self) -> dict[str, Any]:
+        """``fit(recordings, method, **options)`` reproduces the candidate on all rows."""
+        return {"input_delay": self.input_delay, **STRUCTURES[self.structure].options}
+
+    @property
+    def label(self) -> str:
+        return f"{self.structure}, delay {self.input_delay}"
+
+    def to_dict(self) -> dict:
+        return {"structure": self.structure, "input_delay": self.input_delay, "method": self.method,
+                "a": self.a, "b": self.b, "residual_sum": self.residual_sum, "statistic": self.statistic,
+                "within_noise": self.within_noise, **({"note": self.note} if self.note else {})}
+
+
+@dataclasses.dataclass(frozen=True)
+class Selection:
+    """What :func:`select_model` compared and chose.
+
+    Attributes
+    ----------
+    candidates : tuple of Candidate
+        Every candidate fitted, in the order tried.
+    chosen : Candidate
+        The simplest candidate within the noise of the best.
+    best : Candidate
+        The candidate with the least residual sum.
+    runner_up : Candidate or None
+        The next simplest candidate within the noise (else the best of the others).
+    clear : bool
+        False when candidates the data cannot separate give materially different ``a`` or ``b``
+        (set by :func:`fit_selected`, which knows the chosen fit's interval).
+    doubt : str
+        One line saying what the data cannot separate, the range and what would separate it.
+    notes : tuple of str
+        What the data cannot answer, and what the selection left out and why.
+    level : float
+        Level of the test.
+    """
+
+    candidates: tuple[Candidate, ...]
+    chosen: Candidate
+    best: Candidate
+    runner_up: Candidate | None
+    clear: bool = True
+    doubt: str = ""
+    notes: tuple[str, ...] = ()
+    level: float = LEVEL
+
+    def comparison(self) -> str:
+        """The runner-up against the chosen model, in plain words."""
+        other = self.runner_up
+        if other is None:
+            return "no other candidate fitted"
+        if other.within_noise:
+            return (f"the data cannot tell {other.label} from it (T = {other.statistic:.3g}, "
+                    f"threshold {threshold(other, self.best, self.level):.3g}); the simpler one is kept")
+        return (f"{other.label} fits worse by T = {other.statistic:.3g} noise units "
+                f"(threshold {threshold(other, self.best, self.level):.3g})")
+
+    def to_dict(self) -> dict:
+        """JSON-ready: every candidate with its score, the chosen one, whether the choice was clear."""
+        return {"criterion": "simplest candidate within the noise of the best (batch-means test)",
+                "level": self.level, "chosen": self.chosen.to_dict(), "best": self.best.to_dict(),
+                "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
+                "clear": self.clear, "doubt": self.doubt, "notes": list(self.notes),
+                "candidates": [c.to_dict() for c in self.candidates]}
+
+
+@dataclasses.dataclass(eq=False)
+class CandidateFit:
+    """A candidate's fit on the common rows: its residuals (None when it failed), the bias, and
+    whether it is the full fit or only coarse steps (whose residual sum bounds the full one's)."""
+
+    candidate: Candidate
+    residuals: np.ndarray | None
+    bias: float = 0.0
+    refined: bool = True          # False: a coarse fit, whose residual sum bounds the candidate's from above
+
+
+def threshold(c: Candidate, best: Candidate, level: float) -> float:
+    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
+    k = max(best.n_params - c.n_params, 1)
+    return k * float(fdtri(k, BLOCKS - k, 1.0 - level))
+
+
+def largest_delay(recs: list[Recording], max_delay: int) -> int:
+    """``max_delay``, less on short data: at least 20 rows per delay tried in the shortest segment."""
+    longest = max(len(seg) for rec in recs for seg in rec.segments())
+    return max(0, min(max_delay, longest // 20))
+
+
+def blocks(n: int) -> list[slice]:
+    edges = np.linspace(0, n, min(BLOCKS, n) + 1).astype(int)
+    return [slice(i, j) for i, j in zip(edges[:-1], edges[1:]) if j > i]
+
+
+def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding: np.ndarray | None = None) -> float:
+    """``T = excess |delta|^2 / V`` with ``V`` the batch-means variance of ``delta . e`` (module docstring),
+    plus the variance of ``delta . e`` over the encoder's rounding at other phases when given."""
+    norm2 = float(delta @ delta)
+    if excess <= 0 or norm2 == 0:
+        return 0.0
+    edges = np.linspace(0, len(delta), min(BLOCKS, len(delta)) + 1).astype(int)[:-1]
+    v = float(np.sum(np.add.reduceat(delta * reference, edges) ** 2))
+    if rounding is not None:
+        v += float(np.var(delta @ rounding, ddof=1))
+    return excess * norm2 / v if v > 0 else math.inf
+
+
+#: Residual variance, in encoder rounding variances ``step^2/12``, above which the rounding realisations
+#: are left out (the other noise dominates and the batch means account for it).
+ROUNDING_DOMINATED = 2.0
+#: Encoder phases of the rounding realisations (:func:`_rounding_realisations`).
+PHASES = 16
+
+
+def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals: np.ndarray) -> np.ndarray | None:
+    """The encoder's rounding error of the model ``segs' output - residuals`` at :data:`PHASES` phases.
+
+    Columns ``-step frac(theta/step + phi)``, centred per segment like the residuals.  The phase of
+    an encoder against the shaft is arbitrary, so these are realisations of the rounding noise the
+    data could have had; on a periodic run they repeat every period, so their projection on a
+    periodic difference between two models adds up coherently, which the batch means (blocks
+    assumed independent) would miss.  None unless every segment is an encoder's angle and the
+    residuals are mostly its rounding (variance at most :data:`ROUNDING_DOMINATED` rounding variances).
+    """
+    steps = []
+    for seg in segs:
+        cpr = recs[seg.recording].counts_per_rev
+        if seg.kind != "angle" or not cpr or recs[seg.recording].counts is None:
+            return None
+        steps.append(2 * math.pi / cpr)
+    if float(residuals @ residuals) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
+        return None         # other noise dominates: the batch means see it
+    phases = (np.arange(PHASES) + 0.5) / PHASES
+    out = np.empty((len(residuals), PHASES))
+    row = 0
+    for seg, step in zip(segs, steps):
+        n = len(seg.output)
+        model = (seg.output - residuals[row:row + n]) / step
+        block = np.add.outer(model, phases)
+        block -= np.floor(block)
+        block *= -step
+        block -= block.mean(axis=0)
+        out[row:row + n] = block
+        row += n
+    return out
+
+
+def best_fit(fitted: list[CandidateFit]) -> CandidateFit | None:
+    ok = [f for f in fitted if f.residuals is not None]
+    return min(ok, key=lambda f: f.candidate.residual_sum) if ok else None
+
+
+def _far_worse(here: list[CandidateFit], fitted: list[CandidateFit], level: float) -> bool:
+    """Whether every candidate of ``here`` is far beyond the noise of the best so far."""
+    best = best_fit(fitted)
+    if best is None or any(f is best for f in here):
+        return False
+    assert best.residuals is not None
+    for f in here:
+        if f.residuals is None:
+            continue
+        excess = f.candidate.residual_sum - best.candidate.residual_sum
+        t = statistic(f.residuals - best.residuals, excess, best.residuals)
+        if t <= STOP_FACTOR * threshold(f.candidate, best.candidate, level) or _close(f, best):
+            return False
+    return True
+
+
+def _close(f: CandidateFit, best: CandidateFit) -> bool:
+    """Whether ``f``'s residual sum is within :data:`CLOSE` of the best's, relative."""
+    return f.candidate.residual_sum - best.candidate.residual_sum <= CLOSE * best.candidate.residual_sum
+
+
+def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit]], level: float,
+                notes: list[str]) -> list[CandidateFit]:
+    """Fit ``fit_at(d)`` for each delay in turn; stop when the fit has worsened far beyond the noise of the
+    best for :data:`STOP_AFTER` delays in a row (the delays left out are said in ``notes``)."""
+    fitted: list[CandidateFit] = []
+    worse = 0
+    for d in delays:
+        here = fit_at(d)
+        fitted += here
+        worse = worse + 1 if _far_worse(here, fitted, level) else 0
+        if worse == STOP_AFTER and d < delays[-1]:
+            skipped = f"delay {d + 1}" if d + 1 == delays[-1] else f"delays {d + 1}-{delays[-1]}"
+            notes.append(f"{skipped} not fitted: the fit worsened far beyond the noise for "
+                         f"{STOP_AFTER} delays in a row past the best")
+            break
+    return fitted
+
+
+def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit],
+           level: float) -> CandidateFit | None:
+    """Fit fully, in place, the coarse candidates that could be the best or within its noise; the best.
+
+    A coarse candidate's residual sum bounds its full fit's from above, so one far above the best's
+    (statistic beyond :data:`REFINE_FACTOR` times the threshold, and residual sum more than
+    :data:`CLOSE` above, relative) stays far above it once fitted.
+    """
+    while True:
+        best = best_fit(fitted)
+        if best is None:
+            return None
+        reference = best.residuals
+        assert reference is not None
+        if not best.refined:
+            pending = [best]
+        else:
+            pending = [f for f in fitted if not f.refined and f.residuals is not None and (_close(f, best) or statistic(
+                f.residuals - reference, f.candidate.residual_sum - best.candidate.residual_sum,
+                reference) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level))]
+            if not pending:
+                return best
+        for f in pending:
+            fitted[fitted.index(f)] = refit(f)
+
+
+def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int | None, recs: list[Recording],
+            segments: dict[int, list[Segment]]) -> Selection:
+    best = best_fit(fitted)
+    if best is None:
+        reasons = "; ".join(sorted({f.candidate.note for f in fitted if f.candidate.note}))
+        raise NotIdentifiableError(f"no candidate model could be fitted: {reasons}")
+    reference = best.residuals
+    assert reference is not None
+    rounding = rounding_realisations(recs, segments[best.candidate.input_delay], reference)
+    scored: list[Candidate] = []
+    for f in fitted:
+        c = f.candidate
+        if f.residuals is None or len(f.residuals) != len(reference):
+            scored.append(c)
+            continue
+        t = 0.0 if f is best else statistic(f.residuals - reference, c.residual_sum - best.candidate.residual_sum,
+                                             reference, rounding)
+        scored.append(dataclasses.replace(c, statistic=t, within_noise=t <= threshold(c, best.candidate, level)))
+    best_c = scored[fitted.index(best)]
+    within = [c for c in scored if c.within_noise]
+    order = list(STRUCTURES)
+
+    def simplicity(c: Candidate) -> tuple:
+        return (c.n_params, c.input_delay, order.index(c.structure))
+    chosen = min(within, key=simplicity)
+    others = [c for c in within if c is not chosen]
+    runner_up = min(others, key=simplicity) if others else min(
+        (c for c in scored if c is not chosen and math.isfinite(c.statistic)), key=lambda c: c.statistic, default=None)
+    if top is not None and top > 0:
+        if chosen.input_delay == top:
+            notes.append(f"the chosen delay is the largest tried ({top} samples): the true delay may be longer; "
+                         "pass input_delay (--input-delay N) to fit a longer one")
+        elif best_c.input_delay == top and best_c is not chosen:
+            notes.append(f"the least residual is at the largest delay tried ({top} samples), but no better than "
+                         f"{chosen.label} within the noise")
+    return Selection(candidates=tuple(scored), chosen=chosen, best=best_c, runner_up=runner_up, notes=tuple(notes),
+                     level=level)
+
+
+def separating_experiment(chosen: Candidate, others: Sequence[Candidate]) -> str:
+    kinds = []
+    if any(c.input_delay != chosen.input_delay for c in others):
+        kinds.append("a lag and an input delay look alike: a second frequency (a multisine) or a step "
+                     "would separate them")
+    structures = {c.structure for c in others} | {chosen.structure}
+    if {"friction", "dead-zone"} <= structures:
+        kinds.append("friction and a dead zone look alike: slow reversals with small inputs would separate them")
+    elif len(structures) > 1:
+        kinds.append("the structures look alike here: runs at several amplitudes, through zero speed, "
+                      "would separate them")
+    return "; ".join(kinds) or "a longer or richer run would separate them"
+
+

@@ -1,0 +1,412 @@
+"""The default estimator: input delay and model structure chosen by the evidence in the data.
+
+``identify.fit(recordings)`` and ``motorid identify FILE`` (no ``method``) call
+:func:`fit_selected`.  It fits every candidate model
+
+* input delay ``0 ... N`` samples (``N`` = :data:`MAX_AUTO_DELAY`, fewer on short data; from the
+  device's own delay when the recording declares one, ``input_delay_samples``), times
+* structure ``linear`` (``oe``), ``bias`` (``oe`` with a constant acceleration ``d``),
+  ``friction`` (``oe-friction``: Coulomb friction ``c`` and ``d``) and ``dead-zone``
+  (``oe-friction``: ``c``, ``d`` and a duty dead zone),
+
+each by the estimator that would return it, on the same rows (every segment from row ``N``; on
+long data the first :data:`SELECTION_ROWS` of them), and returns the **simplest candidate whose fit
+is within the noise of the best**, fitted on all rows.
+
+The choice is :func:`identify.comparison.choose`'s (its docstring gives the criterion).
+
+Friction and dead zone are fitted only when a score (Lagrange multiplier) test on the best
+linear candidate finds their directions in its residuals (same batch-means variance, level
+:data:`SCREEN_LEVEL`), and only when the speed reverses or rests (otherwise friction is a
+constant acceleration, the bias).  The screen is what keeps the default within a few ``oe``
+fits on a linear motor; the report says when it left them out and why.
+
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from typing import Sequence
+
+import numpy as np
+
+from motorsim.recording import Recording
+
+from .comparison import (
+    LEVEL,
+    MATERIAL,
+    MAX_AUTO_DELAY,
+    STRUCTURES,
+    Candidate,
+    CandidateFit,
+    Selection,
+    best_fit,
+    blocks,
+    choose,
+    largest_delay,
+    refine,
+    scan_delays,
+    separating_experiment,
+)
+from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments
+from .errors import NotIdentifiableError
+from .estimate import Estimate
+from .friction import friction_candidate, speed_reverses
+from .output_error import linear_candidate
+
+__all__ = ["fit_selected", "select_model", "residual_checks", "SCREEN_LEVEL"]
+
+#: Rows of the score test that screens friction and a dead zone (the first of every segment).
+SCREEN_SAMPLES = 2000
+#: Level of the score test that decides whether friction and a dead zone are fitted at all.
+SCREEN_LEVEL = 0.05
+#: Share of samples at the duty limit above which the data are called saturated.
+SATURATED_SHARE = 0.10
+#: Encoder counts the whole run must sweep for ``a`` and ``b`` to rest on more than a few steps.
+MIN_COUNTS_SWEPT = 50
+#: Share of the input's power at or above ``a / 5`` below which ``a`` rests on the static gain alone.
+MIN_FAST_POWER = 0.01
+
+
+def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> float:
+    """p-value of the score test for friction and a dead zone at the linear candidate ``base``.
+
+    Their sensitivities at ``c = 0`` and ``z = 0`` are the linear model's responses to the
+    accelerations ``-sign(omega)`` (the model's speed over each interval) and ``-b sign(u)``;
+    with each segment's initial speed and offset, and ``a``, ``b``, ``d``, projected out, their
+    correlation with the residuals is tested with the batch-means variance (Hotelling's T^2).
+    """
+    from scipy.special import fdtrc
+
+    from .output_error import OutputErrorProblem
+    from .sensitivity import zoh_response
+    from .variable_projection import _prefixes
+    if sum(len(s.time) for s in segs) > SCREEN_SAMPLES:
+        segs = _prefixes(segs, SCREEN_SAMPLES)
+    problem = OutputErrorProblem(segs, with_bias=True)
+    x = np.array([base.a, base.b, bias])
+    with np.errstate(over="ignore", invalid="ignore"):
+        r, J, starts = problem.evaluate(x, jacobian=True)
+    columns = []
+    for seg, w0 in zip(segs, starts):
+        resp = zoh_response(base.a, base.b, seg.drive, seg.time, float(w0), bias=bias, uniform=seg.uniform)
+        moving = np.append(-np.sign(resp.speed[:-1] + resp.speed[1:]), 0.0)
+        outputs = []
+        for drive, gain in ((moving, 1.0), (-np.sign(seg.drive), base.b)):
+            g = zoh_response(base.a, gain, drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
+            outputs.append(g.angle if seg.kind == "angle" else g.speed)
+        G = np.column_stack(outputs)
+        s0 = (resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity)[:, 2].copy()
+        if seg.kind == "angle":
+            G -= G.mean(axis=0)
+            s0 -= s0.mean()
+        ss = float(s0 @ s0)
+        if ss > 0:
+            G -= np.outer(s0, (s0 @ G) / ss)
+        columns.append(G)
+    G = np.vstack(columns)
+    if J is None or not (np.all(np.isfinite(G)) and np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        return 0.0                   # cannot screen: fit them
+    G -= J @ np.linalg.lstsq(J, G, rcond=None)[0]
+    keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
+    G = G[:, keep]
+    k = G.shape[1]
+    parts = blocks(len(r))
+    if k == 0 or len(parts) <= k + 1:
+        return 1.0
+    scores = np.array([G[s].T @ r[s] for s in parts])
+    total = scores.sum(axis=0)
+    V = scores.T @ scores
+    try:
+        t2 = float(total @ np.linalg.solve(V, total))
+    except np.linalg.LinAlgError:
+        return 0.0
+    m = len(parts)
+    return float(fdtrc(k, m - k, max(t2, 0.0) * (m - k) / (k * (m - 1))))
+
+
+def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
+                 input_delay: int | str = "auto", max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
+                 level: float = LEVEL) -> Selection:
+    """Fit the candidate models and choose the simplest one within the noise of the best.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled, as for every estimator.
+    structures : sequence of str, optional
+        Keys of :data:`STRUCTURES` to consider (default all).  Friction and dead zone are
+        screened first (module docstring) only when a linear structure is among them.
+    input_delay : int or "auto"
+        ``"auto"`` (default) tries ``0 ... max_delay``; an integer fixes the delay.
+    max_delay : int
+        Largest delay tried, samples.
+    fix_bias : bool
+        Hold the bias at 0 in the friction structures.
+    level : float
+        Level of the test, in (0, 0.5).
+
+    Returns
+    -------
+    Selection
+    """
+    from motorsim.checks import check_bool, check_int, check_real
+
+    recs = as_recordings(recordings)
+    input_delay = check_input_delay(input_delay)
+    max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
+    fix_bias = check_bool("fix_bias", fix_bias)
+    level = check_real("level", level)
+    if not 0 < level < 0.5:
+        raise ValueError(f"level must be in (0, 0.5), got {level!r}")
+    wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
+    for s in wanted:
+        if s not in STRUCTURES:
+            raise ValueError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
+    notes: list[str] = []
+    if input_delay == "auto":
+        known = _declared_delay(recs)
+        top = max(largest_delay(recs, max_delay), known)
+        delays = list(range(known, top + 1))
+        if known:
+            notes.append(f"delays below {known} sample(s) not tried: the recording says its device applies each "
+                         f"duty {known} sample(s) late (input_delay_samples)")
+    else:
+        top = int(input_delay)
+        delays = [top]
+    segments = {d: _first_rows(prepare_segments(recs, d, skip=top)) for d in delays}
+    delays = [d for d in delays if segments[d]]
+    if not delays:
+        raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
+                                   "stretch is left; record longer or fix the dropped samples")
+    fitted: list[CandidateFit] = []
+    linear = [s for s in wanted if s in ("linear", "bias")]
+    nonlinear = [s for s in wanted if s in ("friction", "dead-zone")]
+    if nonlinear and not speed_reverses(recs):
+        notes.append("friction and dead zone not fitted: the speed never reverses or rests, so they act as a "
+                     "constant acceleration (the bias d); a run through zero speed would separate them")
+        linear = sorted(set(linear) | {"bias"}, key=list(STRUCTURES).index)
+        nonlinear = []
+    fitted += scan_delays(delays, lambda d: [linear_candidate(recs, segments[d], d, s == "bias", refine=False)
+                                             for s in linear], level, notes)
+
+    def refit(f: CandidateFit) -> CandidateFit:
+        d = f.candidate.input_delay
+        return linear_candidate(recs, segments[d], d, f.candidate.structure == "bias")
+    if nonlinear and linear:
+        base = refine(fitted, refit, level)
+        if base is None:
+            p = 0.0
+        else:
+            p = _screen_nonlinear(segments[base.candidate.input_delay], base.candidate, base.bias)
+        if p >= SCREEN_LEVEL:
+            notes.append(f"friction and dead zone not fitted: the linear model's residuals show no sign of "
+                         f"them (score test p = {p:.2g})")
+            nonlinear = []
+    if nonlinear:
+        fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
+    refine(fitted, refit, level)
+    return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+
+
+def _declared_delay(recs: list[Recording]) -> int:
+    """The input delay every recording's device declares (``input_delay_samples``), else 0."""
+    declared = []
+    for r in recs:
+        try:
+            declared.append(max(0, int(str(r.metadata.get("input_delay_samples", "0")))))
+        except ValueError:
+            declared.append(0)
+    return min(declared)
+
+
+#: Rows on which the candidates are compared: on longer data, the first rows of every segment (in
+#: proportion); the chosen candidate is then fitted on all rows.
+SELECTION_ROWS = 100_000
+
+
+def _first_rows(segments: list[Segment]) -> list[Segment]:
+    """``segments`` cut to about :data:`SELECTION_ROWS` rows in all, each keeping its share."""
+    total = sum(len(s.time) for s in segments)
+    if total <= SELECTION_ROWS:
+        return segments
+    out = []
+    for seg in segments:
+        m = max(3, len(seg.time) * SELECTION_ROWS // total)
+        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
+    return out
+
+
+def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],
+                   structures: list[str], fix_bias: bool, linear_best: CandidateFit | None,
+                   level: float) -> list[CandidateFit]:
+    """The most general nonlinear structure at every delay, the other near the delays it prefers."""
+    general, *rest = sorted(structures, key=list(STRUCTURES).index, reverse=True)
+    out = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, general, fix_bias)], level, [])
+    best = best_fit(out)
+    near: set[int] = set()
+    for anchor in (best, linear_best):
+        if anchor is not None:
+            d = anchor.candidate.input_delay
+            near |= {x for x in (d - 1, d, d + 1) if x in segments}
+    for s in rest:
+        out += [friction_candidate(recs, segments[d], d, s, fix_bias) for d in sorted(near)]
+    return out
+
+
+def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: int | str = "auto",
+                 structures: Sequence[str] | None = None, fix_bias: bool = False) -> Estimate:
+    """The default estimator: delay and structure chosen by evidence, fitted on all rows.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled, as for every estimator.
+    input_delay : int or "auto"
+        ``"auto"`` (default) chooses it in ``0 ... MAX_AUTO_DELAY``; an integer fixes it.
+    structures : sequence of str, optional
+        Keys of :data:`STRUCTURES` to choose among (default all).
+    fix_bias : bool
+        Hold the bias at 0 in the friction structures.
+
+    Returns
+    -------
+    Estimate
+        The chosen candidate's estimate, made by its own method on all rows (``method`` is
+        ``"oe"`` or ``"oe-friction"``, so ``fit(recordings, est.method, **options)`` with the
+        candidate's options reproduces it), with ``selection`` holding every candidate and its
+        score and ``notes`` what the data cannot answer.  When candidates the data cannot
+        separate disagree, their range of ``a`` and ``b`` is the estimate's ``model_range`` and
+        every interval (:meth:`Estimate.confidence_interval`) is the union of the chosen fit's
+        own and that range.
+
+    Examples
+    --------
+    A multisine through a motor with a 2-sample input delay:
+
+    >>> from identify import fit
+    >>> from motorsim import Experiment, Motor, Multisine, SimRig
+    >>> rec = SimRig(Motor(25.0, 3.0, input_delay=2)).run(
+    ...     Experiment(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3)), 0.005, 10.0))
+    >>> est = fit(rec)
+    >>> print(f"{est.method}, delay {est.input_delay}, a = {est.a:.3f}, b = {est.b:.4f}")
+    oe, delay 2, a = 25.000, b = 3.0000
+    >>> est.selection["chosen"]["structure"], est.selection["clear"]
+    ('linear', True)
+    """
+    from .methods import method_function
+    recs = as_recordings(recordings)
+    check_excitation(recs, 2)
+    selection = select_model(recs, structures=structures, input_delay=input_delay, fix_bias=fix_bias)
+    chosen = selection.chosen
+    options = chosen.options()
+    if chosen.method == "oe-friction" and fix_bias:
+        options["fix_bias"] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # the selection says it once, in its notes
+        est = method_function(chosen.method)(recs, **options)
+    within = [c for c in selection.candidates if c.within_noise and c is not chosen and math.isfinite(c.a)]
+    ci = est.confidence_interval(0.95)
+    material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
+    notes = list(selection.notes) + _data_notes(recs, est)
+    if material:
+        est, doubt = _widen(est, chosen, material)
+        if any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
+               for c in material):
+            selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    selection = dataclasses.replace(selection, notes=tuple(notes))
+    return dataclasses.replace(est, selection=selection.to_dict(), notes=tuple(
+        ([selection.doubt] if selection.doubt else []) + notes))
+
+
+def _widen(est: Estimate, chosen: Candidate, material: list[Candidate]) -> tuple[Estimate, str]:
+    """The estimate whose intervals cover ``material`` too (``model_range``); the doubt line."""
+    ranges = {}
+    for name in ("a", "b"):
+        values = [float(est.value(name))] + [getattr(c, name) for c in material]
+        ranges[name] = (min(values), max(values))
+    top = max(c.a for c in material)
+    a_text = (f"a from {ranges['a'][0]:.4g} 1/s to unbounded (a static gain fits as well)"
+              if top >= 1e6 * max(est.a, 1.0) else f"a in [{ranges['a'][0]:.4g}, {ranges['a'][1]:.4g}] 1/s")
+    doubt = (f"the data cannot tell {chosen.label} from {', '.join(c.label for c in material[:4])}"
+             f"{' and others' if len(material) > 4 else ''}: {a_text}, "
+             f"b in [{ranges['b'][0]:.4g}, {ranges['b'][1]:.4g}]; the intervals cover them all; "
+             + separating_experiment(chosen, material))
+    if top >= 1e6 * max(est.a, 1.0):
+        ranges["a"] = (ranges["a"][0], math.inf)
+    return dataclasses.replace(est, model_range=ranges), doubt
+
+
+def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
+    """What the recordings cannot answer, said plainly (saturation, few counts, a too slow input)."""
+    notes = []
+    duty = np.concatenate([r.duty for r in recs])
+    if recs[0].input_unit == "duty":
+        limit = float(recs[0].metadata.get("duty_limit", 255))
+        share = float(np.mean(np.abs(duty) >= limit)) if limit > 0 else 0.0
+        if share > SATURATED_SHARE:
+            notes.append(f"the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of the samples: the "
+                         "model only sees what the driver delivered; lower the amplitude if the driver clips")
+    counts = [r.counts for r in recs if r.counts is not None]
+    if counts:
+        swept = max(float(np.max(c) - np.min(c)) for c in counts)
+        if swept < MIN_COUNTS_SWEPT:
+            notes.append(f"the encoder sweeps only {swept:.0f} counts in the whole run: a and b rest on a few "
+                         "steps; run longer or faster, or use a finer encoder")
+    if est.a > 0 and math.isfinite(est.a):
+        fast = 0.0
+        total = 0.0
+        for r in recs:
+            u = np.array(r.duty[:SELECTION_ROWS], dtype=float)
+            u -= float(np.mean(u))
+            if len(u) < 8:
+                continue
+            power = np.abs(np.fft.rfft(u)) ** 2
+            omega = 2 * math.pi * np.fft.rfftfreq(len(u), r.sample_period)
+            total += float(power[1:].sum())
+            fast += float(power[1:][omega[1:] >= est.a / 5].sum())
+        if total > 0 and fast / total < MIN_FAST_POWER:
+            notes.append(f"the input has {100 * fast / total:.2g} % of its power at or above a/5 = {est.a / 5:.3g} "
+                         "rad/s: a rests on the slow response alone; add a faster component (or a step)")
+    return notes
+
+
+def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float]:
+    """The fitted model's residuals on its own data, tested: whiteness, the input, the sign of the model's speed.
+
+    ``whiteness_p`` and ``input_p`` are :func:`identify.validate`'s Ljung--Box and cross-correlation
+    tests; ``sign_p`` tests the correlation of the speed residual with ``sign(omega)`` (what an
+    unmodelled Coulomb friction leaves), its variance by batch means over :data:`BLOCKS` blocks.
+    Small p-values say the model misses something; large ones that nothing was found.
+
+    Parameters
+    ----------
+    estimate : Estimate
+        A fit of ``recording`` (or of recordings pooled with it).
+    recording : Recording
+        The data.
+
+    Returns
+    -------
+    dict
+        ``whiteness_p``, ``input_p``, ``sign_p`` (nan when a test cannot be made).
+    """
+    from scipy.special import fdtrc
+
+    from .validation import model_output, validate
+    report = validate(estimate, recording)
+    measured, simulated = model_output(estimate, recording)
+    ok = np.isfinite(measured) & np.isfinite(simulated)
+    residual = (measured - simulated)[ok]
+    sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0
+    sign = sign - sign.mean()
+    sign_p = math.nan
+    parts = blocks(len(residual))
+    if len(parts) > 2 and float(sign @ sign) > 0:
+        scores = np.array([float(sign[s] @ residual[s]) for s in parts])
+        v = float(scores @ scores)
+        if v > 0:
+            m = len(parts)
+            sign_p = float(fdtrc(1, m - 1, float(scores.sum()) ** 2 / v * (m - 1) / m))
+    return {"whiteness_p": float(report.whiteness_p), "input_p": float(report.independence_p), "sign_p": sign_p}

@@ -1,0 +1,66 @@
+"""``motorid identify FILE`` with no method: the same selection as ``identify.fit``, its evidence shown."""
+import json
+
+import numpy as np
+import pytest
+
+from identify import fit
+from motorid.cli import main
+from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+from motorsim.reading import read_recording
+from motorsim.writing import write_recording
+
+
+def _friction_run(tmp_path, name="friction.csv"):
+    rig = SimRig(Motor(25.0, 3.0, friction=100.0), Encoder(angle_noise=1e-4), rng=np.random.default_rng(4))
+    return write_recording(rig.run(Experiment(Sine(10.0, 200), 0.005, 10.0)), tmp_path / name)
+
+
+def test_the_command_and_python_give_the_same_answer_and_show_the_evidence(tmp_path, capsys):
+    path = _friction_run(tmp_path)
+    assert main(["identify", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    est = fit(read_recording(path))
+    assert data["a"] == est.a and data["b"] == est.b and data["method"] == est.method == "oe-friction"
+    selection = data["selection"]
+    assert selection["chosen"]["structure"] == "friction" and selection["clear"]
+    assert all({"structure", "input_delay", "statistic", "within_noise"} <= set(c) for c in selection["candidates"])
+    assert set(data["residual_checks"]) == {"whiteness_p", "input_p", "sign_p"}
+    err = captured.err
+    assert "model       friction, input delay 0 samples (oe-friction)" in err
+    assert "  runner-up " in err and "  residual  " in err
+
+
+def test_a_friction_run_is_not_called_corrupted_but_a_corrupted_sample_still_is(tmp_path, capsys):
+    path = _friction_run(tmp_path)
+    assert main(["identify", str(path)]) == 0            # the linear model's large residuals were no corruption
+    lines = path.read_text(encoding="utf-8").splitlines()
+    k = lines.index("seq,time_s,duty,counts") + 1 + 1000
+    row = lines[k].split(",")
+    row[3] = str(int(row[3]) ^ (1 << 12))
+    lines[k] = ",".join(row)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    capsys.readouterr()
+    assert main(["identify", str(path)]) == 2
+    assert "seq 1000" in capsys.readouterr().err
+
+
+def test_an_unclear_choice_says_so_and_widens_the_interval(tmp_path, capsys):
+    rig = SimRig(Motor(25.0, 3.0), Encoder(44), rng=np.random.default_rng(1))
+    path = write_recording(rig.run(Experiment(Sine(10.0, 200), 0.005, 10.0)), tmp_path / "hobby.csv")
+    assert main(["identify", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert not data["selection"]["clear"] and "NOT a clear choice" in captured.err
+    assert data["a_ci95"][1] >= max(c["a"] for c in data["selection"]["candidates"] if c["within_noise"])
+    assert any("a second frequency" in n for n in data["notes"])
+
+
+@pytest.mark.parametrize("flag", [["--method", "oe"], ["--input-delay", "0"]])
+def test_a_method_or_a_delay_can_still_be_forced(tmp_path, capsys, flag):
+    path = _friction_run(tmp_path)
+    assert main(["identify", str(path), "--json", *flag]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["input_delay"] == 0
+    assert (data["method"] == "oe") == (flag[0] == "--method")
