@@ -55,8 +55,10 @@ def test_a_hostile_flag_is_one_line_with_status_2(tmp_path, capsys, monkeypatch,
 def test_b_zero_in_a_saved_model_is_a_user_error(tmp_path, capsys):
     from identify.estimate import Estimate
     model = tmp_path / "m.json"
-    model.write_text(Estimate(method="oe", a=25.0, b=0.0, n_samples=10, sample_period=0.005, residual_rms=0.0,
+    import json
+    doc = json.loads(Estimate(method="oe", a=25.0, b=3.0, n_samples=10, sample_period=0.005, residual_rms=0.0,
                               fit_percent=99.0).to_json())
+    model.write_text(json.dumps({**doc, "b": 0.0}))
     assert "b must be nonzero" in _error(capsys, ["control", "design", "--controller", "pi", "--model", str(model)])
 
 
