@@ -110,3 +110,16 @@ def test_controllers_refuse_what_cannot_be_designed_or_predicted(make, match):
     from motorsim import control
     with pytest.raises(ParameterError, match=match):
         make(control)
+
+
+@pytest.mark.parametrize("max_lag", [3, 40, 900])
+def test_newey_west_lag_sums_by_fft_equal_the_direct_sums(max_lag):
+    from identify.uncertainty import _weighted_lag_products
+    rng = np.random.default_rng(3)
+    g = rng.standard_normal((3000, 3))
+    g[:, 1] += np.convolve(g[:, 0], np.ones(25) / 25, "same")
+    direct = np.zeros((3, 3))
+    for lag in range(1, max_lag + 1):
+        gamma = g[lag:].T @ g[:-lag]
+        direct += (1 - lag / (max_lag + 1)) * (gamma + gamma.T)
+    np.testing.assert_allclose(_weighted_lag_products(g, max_lag), direct, rtol=1e-10, atol=1e-9)
