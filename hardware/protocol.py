@@ -1,4 +1,4 @@
-"""The bench wire protocol, version 2: pure encode/decode, COBS, CRC, and the device's duty arithmetic.
+"""The bench wire protocol (version: PROTOCOL_VERSION): pure encode/decode, COBS, CRC, and the device's duty arithmetic.
 
 This module is the executable form of ``hardware/PROTOCOL.md`` (read that first):
 bytes in, values out, no I/O and no clock.  A frame on the wire is
