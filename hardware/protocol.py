@@ -1,4 +1,4 @@
-"""The bench wire protocol, version 2: pure encode/decode, COBS, CRC, and the device's duty arithmetic.
+"""The bench wire protocol (version: PROTOCOL_VERSION): pure encode/decode, COBS, CRC, and the device's duty arithmetic.
 
 This module is the executable form of ``hardware/PROTOCOL.md`` (read that first):
 bytes in, values out, no I/O and no clock.  A frame on the wire is
@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 #: Samples between a SAMPLE's duty and the tick that applies it: the device latches the duty it
 #: computes at tick k (from the waveform, or from the counts read at k) and applies it exactly at
 #: tick k + 1, in open and closed loop.  Recordings say so (``input_delay_samples``).
@@ -145,6 +145,8 @@ class ControllerKind(enum.IntEnum):
     PI = 2
     POSITION = 3
     FEEDFORWARD = 4
+    LQR = 5
+    LQR_POSITION = 6
 
 
 class ReferenceKind(enum.IntEnum):
@@ -159,7 +161,8 @@ class ReferenceKind(enum.IntEnum):
 #: Most gains in one CONTROL (its payload: 3 + 4 n bytes).
 MAX_GAINS = 14
 _KIND_NAMES = {ControllerKind.MPC: "mpc", ControllerKind.PI: "pi", ControllerKind.POSITION: "position",
-               ControllerKind.FEEDFORWARD: "feedforward"}
+               ControllerKind.FEEDFORWARD: "feedforward", ControllerKind.LQR: "lqr",
+               ControllerKind.LQR_POSITION: "lqr-position"}
 _REFERENCE_NAMES = {ReferenceKind.CONSTANT: "constant", ReferenceKind.STEP: "step",
                     ReferenceKind.MULTISINE: "multisine", ReferenceKind.TRAPEZOID: "trapezoid"}
 
@@ -890,7 +893,7 @@ def reference_problems(words: ReferenceWords) -> list[str]:
 
 
 def controller_name(kind: int) -> str:
-    """The :data:`motorsim.control.CONTROLLERS` name of CONTROL ``controller`` ``kind`` (1...4)."""
+    """The :data:`motorsim.control.CONTROLLERS` name of CONTROL ``controller`` ``kind`` (1...6)."""
     return _KIND_NAMES[ControllerKind(kind)]
 
 

@@ -24,12 +24,13 @@ python-control (``feedback``, ``forced_response``), delay included, using the qu
 Controllers
 -----------
 :class:`OneStepMPC` (``mpc``), :class:`PISpeed` (``pi``, optionally with feedforward),
-:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``).
+:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``), :class:`LQRSpeed` (``lqr``)
+and :class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
 :class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
 
 One concept, controller design, in one module although it is long: the model, the
 references and the closed-loop experiment are what every controller's design and
-prediction take and give, and the four controllers share one base class.
+prediction take and give, and the controllers share one base class.
 """
 from __future__ import annotations
 
@@ -57,8 +58,8 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
-           "Feedforward", "Prediction", "ClosedLoopExperiment", "CONTROLLERS", "design_controller",
-           "tracking_error", "feedforward_gains", "settings_from"]
+           "Feedforward", "LQRSpeed", "LQRPosition", "Prediction", "ClosedLoopExperiment", "CONTROLLERS",
+           "design_controller", "tracking_error", "feedforward_gains", "settings_from"]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -572,10 +573,7 @@ class OneStepMPC(Controller):
         return out
 
     def laws(self):
-        gains, dt = self.gains(), self.model.sample_period
-        ku = [gain_value(gains[f"ku{j}"]) for j in range(1, self.model.input_delay + 2)]
-        den = _fir([1.0, *(-x for x in ku)], dt)
-        return _fir([gain_value(gains["kr"])], dt) / den, _fir([gain_value(gains["ky"])], dt) / den
+        return _delay_line_laws(self.gains(), self.model)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -723,8 +721,175 @@ class PositionPD(_PolePlacement):
         return _fir([kp], dt), _fir([-kp - kd, kd], dt)
 
 
+def _delay_line_matrices(model: PlantModel) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` of the exact speed model with the input delay in the state.
+
+    The state is ``x_k = [y_k, u_{k-1}, ..., u_{k-D-1}]`` (speed in counts per sample and the
+    ``D + 1`` duties the motor has still to feel), the input ``u_k``; ``A`` shifts the duties
+    along and ``y_{k+1} = e y_k + beta1 u_{k-D} + beta2 u_{k-D-1}`` (module docstring).
+    """
+    e, _, b1, b2 = model.speed_coefficients()
+    d = model.input_delay
+    n = d + 2
+    a = np.zeros((n, n))
+    b = np.zeros((n, 1))
+    a[0, 0] = e
+    if d == 0:
+        b[0, 0] = b1
+    else:
+        a[0, d] = b1
+    a[0, d + 1] = b2
+    b[1, 0] = 1.0
+    for m in range(2, n):
+        a[m, m - 1] = 1.0
+    return a, b
+
+
+def _lqr(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
+    """The state-feedback gain ``K`` (``u = -K x``) minimising ``sum x'Qx + r u^2`` (discrete Riccati)."""
+    from scipy.linalg import solve_discrete_are
+    try:
+        p = solve_discrete_are(a, b, q, np.array([[r]]))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise ParameterError(f"the LQR design has no solution for this model and weight: {exc}") from None
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a).ravel()
+
+
+@dataclasses.dataclass(frozen=True)
+class _LQR(Controller):
+    """An LQR: the weight of ``u^2`` against the controlled quantity's square (> 0)."""
+
+    duty_weight: float = 1e-3
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "duty_weight", check_real("duty_weight", self.duty_weight, positive=True))
+
+
+@dataclasses.dataclass(frozen=True)
+class LQRSpeed(_LQR):
+    """Speed LQR on the exact ZOH model with the input delay augmented into the state.
+
+    The state is the measured speed and the ``D + 1`` duties still in the delay line (the
+    device's own sample of delay included, through the model's ``input_delay``); the gain
+    ``K`` minimises ``sum omega_k^2 + duty_weight u_k^2`` (discrete Riccati equation, SciPy).
+    The step is ``u_k = kr r_{k+D+1} + ky y_k + sum_m ku_m u_{k-m} + k0 + kf sign(r_{k+D+1})``,
+    ``ky`` and ``ku_m`` the quantised ``-K``; ``kr`` makes the steady speed equal the reference
+    and ``k0``, ``kf`` cancel the model's bias and friction there, both computed from the
+    quantised feedback gains.  The step is the one of :class:`OneStepMPC` (one linear form
+    in the reference, the speed and the past duties): only the design differs.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    duty_weight : float
+        Weight of ``u^2`` in (rad/s)^2 per duty^2, > 0 (default 1e-3).
+
+    Examples
+    --------
+    >>> lqr = LQRSpeed(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1))
+    >>> sorted(lqr.gains())
+    ['k0', 'kf', 'kr', 'ku1', 'ku2', 'ky']
+    >>> lqr.is_stable()
+    True
+    """
+
+    duty_weight: float = 1e-3
+    kind: ClassVar[str] = "lqr"
+
+    def state_gain(self) -> np.ndarray:
+        """``K`` of ``u = -K x`` in the model's integer units (counts per sample, duty)."""
+        a, b = _delay_line_matrices(self.model)
+        q = np.zeros_like(a)
+        q[0, 0] = 1.0
+        return _lqr(a, b, q, self.duty_weight * self.model.speed_scale ** 2)
+
+    def gains(self) -> dict[str, int]:
+        m = self.model
+        k = self.state_gain()
+        ky = quantise_gain(-k[0])
+        ku = [quantise_gain(-x) for x in k[1:]]
+        e, g, _, _ = m.speed_coefficients()
+        hold = 1.0 - sum(gain_value(x) for x in ku)     # what is left of u at steady state
+        out = {"kr": quantise_gain(((1.0 - e) / g * hold - gain_value(ky)) * SPEED_REFERENCE_LSB), "ky": ky,
+               "k0": quantise_gain(-m.bias / m.b * hold), "kf": quantise_gain(m.friction / m.b * hold)}
+        out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
+        return out
+
+    def laws(self):
+        return _delay_line_laws(self.gains(), self.model)
+
+
+@dataclasses.dataclass(frozen=True)
+class LQRPosition(_LQR):
+    """Position LQR on the counts, with the input delay augmented into the state.
+
+    The state is the angle (counts since the first sample), the measured speed and the
+    ``D + 1`` duties still in the delay line; ``K`` minimises
+    ``sum theta_k^2 + duty_weight u_k^2`` (theta in rad).  The step is
+    ``u_k = kp (r_{k+D+1} - theta_k) + ky y_k + sum_m ku_m u_{k-m} + k0``: ``kp`` the
+    quantised angle gain, ``ky`` and ``ku_m`` the quantised ``-K``, ``k0`` the model's bias
+    cancelled at standstill.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    duty_weight : float
+        Weight of ``u^2`` in rad^2 per duty^2, > 0 (default 1e-6).
+
+    Examples
+    --------
+    >>> LQRPosition(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1)).is_stable()
+    True
+    """
+
+    duty_weight: float = 1e-6
+    kind: ClassVar[str] = "lqr-position"
+    quantity: ClassVar[str] = "angle"
+
+    def state_gain(self) -> np.ndarray:
+        """``K`` of ``u = -K x``, ``x = [theta, y, u_{k-1}, ..., u_{k-D-1}]`` in counts and duty."""
+        a_speed, b_speed = _delay_line_matrices(self.model)
+        n = a_speed.shape[0] + 1
+        a = np.zeros((n, n))
+        a[1:, 1:] = a_speed
+        a[0, 0] = 1.0
+        a[0, 1:] = a_speed[0]               # theta_{k+1} = theta_k + y_{k+1}
+        b = np.vstack([b_speed[:1], b_speed])
+        q = np.zeros_like(a)
+        q[0, 0] = 1.0
+        return _lqr(a, b, q, self.duty_weight * self.model.angle_scale ** 2)
+
+    def gains(self) -> dict[str, int]:
+        k = self.state_gain()
+        ku = [quantise_gain(-x) for x in k[2:]]
+        hold = 1.0 - sum(gain_value(x) for x in ku)
+        out = {"kp": quantise_gain(k[0]), "ky": quantise_gain(-k[1]),
+               "k0": quantise_gain(-self.model.bias / self.model.b * hold)}
+        out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
+        return out
+
+    def laws(self):
+        return _delay_line_laws(self.gains(), self.model, position=True)
+
+
+def _delay_line_laws(gains: Mapping[str, int], model: PlantModel, *, position: bool = False):
+    """``(Cr, Cy)`` of ``u (1 - sum_m ku_m z^-m) = kr r + ky y`` (speed) or
+    ``= kp (r - theta) + ky (1 - z^-1) theta`` (position, where the measurement is theta)."""
+    dt = model.sample_period
+    ku = [gain_value(gains[f"ku{j}"]) for j in range(1, model.input_delay + 2)]
+    den = _fir([1.0, *(-x for x in ku)], dt)
+    ky = gain_value(gains["ky"])
+    if position:
+        kp = gain_value(gains["kp"])
+        return _fir([kp], dt) / den, _fir([ky - kp, -ky], dt) / den
+    return _fir([gain_value(gains["kr"])], dt) / den, _fir([ky], dt) / den
+
 #: Controllers by ``kind`` (``motorid control design --controller``).
-CONTROLLERS: dict[str, type[Controller]] = {c.kind: c for c in (OneStepMPC, PISpeed, PositionPD, Feedforward)}
+CONTROLLERS: dict[str, type[Controller]] = {c.kind: c for c in (OneStepMPC, PISpeed, PositionPD, Feedforward,
+                                                                 LQRSpeed, LQRPosition)}
 
 
 def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controller:
@@ -733,7 +898,7 @@ def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controll
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr`` or ``lqr-position``.
     model : PlantModel
         The motor model.
     **settings

@@ -29,7 +29,8 @@ from .checks import ParameterError, check_int
 from .excitation import DUTY_LIMIT, multisine_duty
 
 __all__ = ["GAIN_BITS", "SPEED_REFERENCE_BITS", "SPEED_REFERENCE_LSB", "MAX_REFERENCE", "quantise_gain", "gain_value",
-           "ReferenceWords", "reference_values", "ControlLoop", "GAIN_ORDER", "gains_from_wire"]
+           "ReferenceWords", "reference_values", "ControlLoop", "GAIN_ORDER", "DELAY_LINE_KINDS",
+           "gains_from_wire"]
 
 #: Fraction bits of every gain: an integer gain ``G`` stands for ``G / 2**GAIN_BITS``.
 GAIN_BITS = 16
@@ -110,7 +111,7 @@ class ControlLoop:
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr`` or ``lqr-position``.
     gains : mapping of str to int
         The Q16 gains by name (:meth:`Controller.gains`, or :func:`gains_from_wire`).
     preview : int
@@ -134,7 +135,7 @@ class ControlLoop:
         self.integral = 0
         self.previous: int | None = None
         self.origin = 0
-        self.law = getattr(self, "_" + kind)
+        self.law = getattr(self, "_" + kind.replace("-", "_"))
         self.with_feedforward = "kn" in self.gains
 
     def step(self, k: int, counts: int) -> int:
@@ -154,6 +155,16 @@ class ControlLoop:
     def _mpc(self, k: int, counts: int, y: int) -> int:
         g, r = self.gains, self.reference[k + self.preview]
         acc = g["kr"] * r + g["ky"] * y + g["k0"] + g["kf"] * _sign(r)
+        for gain, u in zip(self.ku, self.history):
+            acc += gain * u
+        return self._clip(acc)
+
+    #: The speed LQR's step is the MPC's linear form (gains ``kr, ky, k0, kf, ku1 ...``).
+    _lqr = _mpc
+
+    def _lqr_position(self, k: int, counts: int, y: int) -> int:
+        g = self.gains
+        acc = g["kp"] * (self.reference[k + self.preview] - (counts - self.origin)) + g["ky"] * y + g["k0"]
         for gain, u in zip(self.ku, self.history):
             acc += gain * u
         return self._clip(acc)
@@ -188,9 +199,13 @@ def gain_value(x: int) -> float:
 
 
 #: Names of each controller's gains in the order a device receives them (protocol v2 CONTROL);
-#: ``mpc`` then has ``ku1 ... ku(D+1)``, and ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
+#: ``mpc``, ``lqr`` and ``lqr-position`` then have ``ku1 ... ku(D+1)`` (:data:`DELAY_LINE_KINDS`), and
+#: ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
 GAIN_ORDER: dict[str, tuple[str, ...]] = {"mpc": ("kr", "ky", "k0", "kf"), "pi": ("kp", "ki"),
-                                          "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf")}
+                                          "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf"),
+                                          "lqr": ("kr", "ky", "k0", "kf"), "lqr-position": ("kp", "ky", "k0")}
+#: Controllers whose gains end in one ``ku`` per past duty they weigh (at least one).
+DELAY_LINE_KINDS = ("mpc", "lqr", "lqr-position")
 
 
 def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
@@ -199,7 +214,7 @@ def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position`` or ``feedforward``.
+        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr`` or ``lqr-position``.
     values : sequence of int
         The gains as sent.
 
@@ -212,10 +227,10 @@ def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
         raise ParameterError(f"kind must be one of {', '.join(GAIN_ORDER)}, got {kind!r}")
     names = list(GAIN_ORDER[kind])
     values = [int(v) for v in values]
-    if kind == "mpc" and len(values) < 5:
-        raise ParameterError(f"controller 'mpc' takes at least 5 gains in the order {names + ['ku1', '...']}, "
-                         f"got {len(values)}")
-    if kind == "mpc":
+    if kind in DELAY_LINE_KINDS and len(values) < len(names) + 1:
+        raise ParameterError(f"controller {kind!r} takes at least {len(names) + 1} gains in the order "
+                             f"{names + ['ku1', '...']}, got {len(values)}")
+    if kind in DELAY_LINE_KINDS:
         names += [f"ku{m}" for m in range(1, len(values) - len(names) + 1)]
     elif kind == "pi" and len(values) == 6:
         names += list(GAIN_ORDER["feedforward"])

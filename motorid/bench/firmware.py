@@ -132,7 +132,7 @@ def _overruns(link: DeviceLink, period_us: int, controller: str | None, duration
     setup: list = []
     if controller is not None:
         model = PlantModel(25.0, 3.0, period_us * 1e-6, 16667)
-        spec = "sine:5,1" if controller == "position" else "sine:20,8"
+        spec = "sine:5,1" if controller.endswith("position") else "sine:20,8"
         settings = {"feedforward": True} if controller == "pi+feedforward" else {}
         c = design_controller(controller.split("+")[0], model, **settings)
         exp = ClosedLoopExperiment(c, parse_reference(spec), n * period_us * 1e-6)
@@ -143,7 +143,7 @@ def _overruns(link: DeviceLink, period_us: int, controller: str | None, duration
     return run.end.tick_overruns
 
 
-def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "feedforward"),
+def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "feedforward", "lqr", "lqr-position"),
                     duration: float = 0.2, baudrate: int = 500000) -> list[dict]:
     """The shortest sample period (µs, to 1 µs) with zero late ticks, open loop and per controller.
 
@@ -156,7 +156,7 @@ def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "fee
     Parameters
     ----------
     controllers : sequence of str
-        ``mpc``, ``pi``, ``pi+feedforward``, ``position``, ``feedforward``.
+        ``mpc``, ``pi``, ``pi+feedforward``, ``position``, ``feedforward``, ``lqr``, ``lqr-position``.
     duration : float
         Emulated seconds per trial run.
     baudrate : int

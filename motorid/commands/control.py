@@ -45,9 +45,11 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
     g = parser.add_argument_group("controller")
     g.add_argument("--controller", choices=list(CONTROLLERS), required=required,
                    help="mpc (one-step model predictive), pi (speed), position (P/PD on the counts), "
-                        "feedforward (speed, from the model alone)")
+                        "feedforward (speed, from the model alone), lqr (speed LQR, input delay in the state), "
+                        "lqr-position (position LQR)")
     g.add_argument("--duty-weight", dest="duty_weight", type=float, default=None, metavar="LAMBDA",
-                   help="mpc: weight lambda of u^2 in (rad/s)^2 per duty^2 (default 1e-4)")
+                   help="mpc, lqr: weight lambda of u^2 in (rad/s)^2 per duty^2 (default 1e-4, lqr 1e-3); "
+                        "lqr-position: in rad^2 per duty^2 (default 1e-6)")
     g.add_argument("--time-constant", dest="time_constant", type=float, default=None, metavar="S",
                    help="pi, position: closed-loop time constant in s (default 0.05)")
     g.add_argument("--feedforward", action="store_true", default=None,
@@ -215,7 +217,8 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
     r = p.add_argument_group("robustness (plants drawn from a --model file's covariance of a and b)")
     r.add_argument("--robust", action="store_true",
-                   help="tune the design (mpc: --duty-weight, pi and position: --time-constant) to the best "
+                   help="tune the design (mpc, lqr, lqr-position: --duty-weight, pi and position: "
+                        "--time-constant) to the best "
                         "worst-case tracking over the drawn plants instead of the point estimate")
     r.add_argument("--repetitions", type=int, default=100, metavar="N",
                    help="plants drawn from the covariance (default 100)")

@@ -10,6 +10,8 @@ from hardware.serial_rig import SerialRig
 from motorsim import Encoder, Experiment, Motor, SimRig, Sine
 from motorsim.control import (
     ClosedLoopExperiment,
+    LQRPosition,
+    LQRSpeed,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -28,7 +30,8 @@ def _rms(x):
 
 @pytest.mark.parametrize("controller, spec", [
     (OneStepMPC(MODEL), "sine:10,10"), (PISpeed(MODEL), "sine:10,10"), (PositionPD(MODEL), "step:1,0.1"),
-], ids=["mpc", "pi", "position"])
+    (LQRSpeed(MODEL), "sine:10,10"), (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
+], ids=["mpc", "pi", "position", "lqr", "lqr-position"])
 def test_fake_device_tracks_as_predicted_and_as_simrig_duty_for_duty(controller, spec):
     exp = ClosedLoopExperiment(controller, parse_reference(spec), 2.0)
     with SerialRig("fake://?a=25&b=3&speed=0") as rig:
@@ -69,6 +72,9 @@ def test_counts_per_rev_comes_from_the_device_and_a_contradiction_is_an_error():
 def test_bad_control_and_reference_are_refused_and_config_returns_to_open_loop():
     assert "takes at least 5 gains" in P.control_problems(P.Control(P.ControllerKind.MPC, 1, (1, 2, 3)))[0]
     assert P.control_problems(P.Control(9, 0, (1,)))
+    assert "takes at least 4 gains" in P.control_problems(P.Control(P.ControllerKind.LQR_POSITION, 1, (1, 2, 3)))[0]
+    lqr = ClosedLoopExperiment(LQRPosition(MODEL), parse_reference("constant:1"))
+    assert not P.control_problems(P.control_for(lqr))
     assert P.reference_problems(P.ReferenceWords("constant", 70000))
     assert not P.control_problems(P.control_for(ClosedLoopExperiment(OneStepMPC(MODEL), parse_reference("constant:1"))))
     with SerialRig("fake://?a=25&b=3&speed=0") as rig:

@@ -18,6 +18,8 @@ from hardware.sim.launcher import build, missing_tools, open_avr_sim
 from motorsim.control import (
     ClosedLoopExperiment,
     Feedforward,
+    LQRPosition,
+    LQRSpeed,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -32,7 +34,9 @@ pytestmark = pytest.mark.firmware
 MODEL = PlantModel(25.0, 3.0, 0.005, 16667, input_delay=P.DEVICE_INPUT_DELAY)
 CASES = [(OneStepMPC(MODEL), "sine:10,10"), (PISpeed(MODEL), "sine:10,10"),
          (PISpeed(MODEL, 0.05, feedforward=True), "trapezoid:15,0.3,0.5,0.1"),
-         (PositionPD(MODEL), "step:1,0.1"), (Feedforward(MODEL), "multisine:10,5;30,3")]
+         (PositionPD(MODEL), "step:1,0.1"), (Feedforward(MODEL), "multisine:10,5;30,3"),
+         (LQRSpeed(MODEL), "sine:10,10"), (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1")]
+IDS = ["mpc", "pi", "pi-ff", "position", "feedforward", "lqr", "lqr-position"]
 
 
 @pytest.fixture(scope="module")
@@ -46,14 +50,14 @@ def runs():
     out = []
     with open_avr_sim(url, 250000, 0.02) as port, SerialRig(port, 250000, counts_per_rev=16667,
                                                             watchdog_ms=200) as rig:
-        assert rig.device.version == P.PROTOCOL_VERSION == 4
+        assert rig.device.version == P.PROTOCOL_VERSION == 5
         for controller, spec in CASES:
             exp = ClosedLoopExperiment(controller, parse_reference(spec), 1.5)
             out.append((controller, spec, exp, rig.run(exp)))
     return out
 
 
-@pytest.mark.parametrize("case", range(len(CASES)), ids=["mpc", "pi", "pi-ff", "position", "feedforward"])
+@pytest.mark.parametrize("case", range(len(CASES)), ids=IDS)
 def test_firmware_duty_equals_the_python_reference_step(runs, case):
     controller, _, exp, rec = runs[case]
     assert not rec.has_gaps and len(rec) == exp.n_samples
@@ -64,7 +68,7 @@ def test_firmware_duty_equals_the_python_reference_step(runs, case):
     assert len(set(rec.duty.tolist())) > 20   # the controller really moved the duty
 
 
-@pytest.mark.parametrize("case", [0, 1], ids=["mpc", "pi"])
+@pytest.mark.parametrize("case", [0, 1, 5, 6], ids=["mpc", "pi", "lqr", "lqr-position"])
 def test_firmware_loop_tracks_within_10_percent_of_the_prediction(runs, case):
     controller, spec, exp, rec = runs[case]
     predicted = controller.predict(parse_reference(spec), exp.duration).tracking_rms
@@ -74,7 +78,7 @@ def test_firmware_loop_tracks_within_10_percent_of_the_prediction(runs, case):
     assert measured == pytest.approx(predicted, rel=0.10)
 
 
-@pytest.mark.parametrize("case", range(len(CASES)), ids=["mpc", "pi", "pi-ff", "position", "feedforward"])
+@pytest.mark.parametrize("case", range(len(CASES)), ids=IDS)
 def test_oe_identifies_the_on_board_closed_loop_recordings(runs, case):
     from identify import fit
     _, _, _, rec = runs[case]

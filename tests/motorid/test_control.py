@@ -43,6 +43,24 @@ def test_simulate_closed_loop_writes_reference_and_settings(tmp_path, capsys):
     assert "exclude each other" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("kind, reference, unit", [("lqr", "sine:10,10", "rad/s"),
+                                                   ("lqr-position", "trapezoid:3,0.3,0.5,0.1", "rad")])
+def test_lqr_is_designed_simulated_and_predicted_from_the_command_line(kind, reference, unit, tmp_path, capsys):
+    common = ["--a", "25", "--b", "3", "--input-delay", "1", "--controller", kind, "--reference", reference,
+              "--duration", "1.5"]
+    assert main(["control", "design", *common]) == 0
+    text = capsys.readouterr().out
+    gains = design_controller(kind, PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1)).gains()
+    assert "fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in gains.items()) in text
+    assert "(stable)" in text and "margins at the point estimate: gain margin" in text
+    out = tmp_path / "run.csv"
+    assert main(["simulate", *common, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert read_recording(out).metadata["controller"] == kind
+    measured, predicted = (float(x) for x in text.split("measured ")[1].split(f" {unit}")[0].split(", predicted "))
+    assert measured == pytest.approx(predicted, rel=0.10)
+
+
 def test_demo_closed_loop_part_follows_the_unchanged_open_loop_table(tmp_path, capsys):
     argv = ["demo", "--duration", "4", "--methods", "euler-ls,oe", "--no-plots"]
     assert main([*argv, "--no-control", "--out", str(tmp_path / "a")]) == 0

@@ -9,6 +9,8 @@ from motorsim.control import (
     CONTROLLERS,
     ClosedLoopExperiment,
     Feedforward,
+    LQRPosition,
+    LQRSpeed,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -43,7 +45,12 @@ def _run(controller, spec, duration=4.0, motor=None, **rig):
     (Feedforward(MODEL), "sine:10,10"),
     (PositionPD(MODEL, 0.05), "step:1,0.1"),
     (PositionPD(MODEL, 0.1, derivative=False), "sine:3,1"),
-], ids=["mpc-sine", "mpc-multisine", "pi-trapezoid", "pi-ff-sine", "feedforward", "pd-step", "p-sine"])
+    (LQRSpeed(MODEL), "sine:10,10"),
+    (LQRSpeed(MODEL, 1e-2), "multisine:5,6;20,3"),
+    (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
+    (LQRPosition(MODEL, 1e-5), "sine:3,1"),
+], ids=["mpc-sine", "mpc-multisine", "pi-trapezoid", "pi-ff-sine", "feedforward", "pd-step", "p-sine", "lqr-sine",
+        "lqr-multisine", "lqr-position-trapezoid", "lqr-position-sine"])
 def test_measured_tracking_rms_within_10_percent_of_the_prediction(controller, spec):
     rec = _run(controller, spec)
     predicted = controller.predict(parse_reference(spec), 4.0)
@@ -111,6 +118,56 @@ def test_delay_is_designed_for_and_predicted():
                                                       rel=0.10)
 
 
+@pytest.mark.parametrize("design", [LQRSpeed, LQRPosition], ids=["lqr", "lqr-position"])
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_lqr_gain_is_python_controls_dlqr_on_the_model_with_the_delay_in_the_state(design, delay):
+    import control
+    motor = Motor(25.0, 3.0, input_delay=delay)
+    lqr = design(PlantModel.from_source(motor, 0.005, 16667))
+    e, _, b1, b2 = lqr.model.speed_coefficients()
+    n = delay + 2                                   # [y, u(k-1) ... u(k-D-1)]
+    a, b = np.zeros((n, n)), np.zeros((n, 1))
+    a[0, 0], b[1, 0] = e, 1.0
+    a[0, delay + 1] += b2
+    if delay:
+        a[0, delay] += b1
+    else:
+        b[0, 0] = b1
+    a[2:, 1:-1] = np.eye(n - 2)
+    scale = lqr.model.speed_scale
+    if lqr.quantity == "angle":                     # [theta, y, ...]: theta(k+1) = theta(k) + y(k+1)
+        a = np.block([[np.ones((1, 1)), a[:1]], [np.zeros((n, 1)), a]])
+        b = np.vstack([b[:1], b])
+        scale = lqr.model.angle_scale
+    q = np.zeros_like(a)
+    q[0, 0] = 1.0 / scale ** 2
+    k, _, poles = control.dlqr(a, b, q, lqr.duty_weight)
+    np.testing.assert_allclose(lqr.state_gain(), k.ravel(), rtol=1e-6)
+    # the step's laws close the same loop: its poles are the LQR's, to the gains' quantisation (the
+    # delay line's multiple pole at 0 splits by about (2**-16)**(1/m) for an m-fold pole: left out)
+    loop = control.feedback(-(lqr.plant() * lqr.laws()[1]), 1).poles()
+    nonzero = np.sort_complex(loop[np.abs(loop) > 0.1])
+    np.testing.assert_allclose(nonzero, np.sort_complex(poles[np.abs(poles) > 0.1]), atol=2e-3)
+    assert lqr.is_stable() and lqr.preview == delay + 1
+
+
+def test_lqr_tracks_a_delayed_motor_as_predicted_and_cancels_its_bias_and_friction():
+    motor = Motor(25.0, 3.0, input_delay=2)
+    lqr = LQRSpeed(PlantModel.from_source(motor, 0.005, 16667))
+    assert lqr.preview == 3 and "ku3" in lqr.gains()
+    rec = _run(lqr, "sine:10,10", motor=motor)
+    assert _rms(tracking_error(rec)) == pytest.approx(lqr.predict(parse_reference("sine:10,10"), 4.0).tracking_rms,
+                                                      rel=0.10)
+    # the steady speed is the reference: kr and k0, kf are computed from the quantised feedback gains
+    motor = Motor(25.0, 3.0, friction=40.0, bias=-20.0, input_delay=2)
+    lqr = LQRSpeed(PlantModel.from_source(motor, 0.005, 16667))
+    steady = tracking_error(_run(lqr, "constant:10", 2.0, motor))[200:]
+    assert abs(np.mean(steady)) < 0.02
+    position = LQRPosition(PlantModel.from_source(Motor(25.0, 3.0, bias=-20.0), 0.005, 16667))
+    rec = _run(position, "constant:2", 2.0, Motor(25.0, 3.0, bias=-20.0))
+    assert abs(np.mean(tracking_error(rec)[200:])) < 2 * 2 * math.pi / 16667   # two counts
+
+
 def test_recording_keeps_reference_and_settings(tmp_path):
     rec = _run(PISpeed(MODEL, 0.04), "sine:10,10", duration=0.5)
     back = read_recording(write_recording(rec, tmp_path / "run.csv"))
@@ -150,10 +207,10 @@ def test_design_from_an_estimate_and_bad_settings():
     with pytest.raises(ValueError, match="controller 'pi' takes"):
         design_controller("pi", model, duty_weight=1.0)
     with pytest.raises(ValueError, match="controller must be one of"):
-        design_controller("lqr", model)
+        design_controller("lqg", model)
     with pytest.raises(ValueError, match="counts_per_rev must be given"):
         PlantModel.from_source(est)
-    assert set(CONTROLLERS) == {"mpc", "pi", "position", "feedforward"}
+    assert set(CONTROLLERS) == {"mpc", "pi", "position", "feedforward", "lqr", "lqr-position"}
 
 
 def test_closed_loop_with_noise_drops_and_jitter_is_reproducible():

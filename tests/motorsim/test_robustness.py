@@ -10,6 +10,8 @@ from motorsim.checks import ParameterError
 from motorsim.control import (
     ClosedLoopExperiment,
     Feedforward,
+    LQRPosition,
+    LQRSpeed,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -20,11 +22,13 @@ from motorsim.control import (
 from motorsim.robustness import analyse_robustness, draw_models, loop_margins, robust_design
 
 MODELS = [PlantModel(25.0, 3.0, 0.005, 16667), PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1)]
-DESIGNS = [OneStepMPC, PISpeed, PositionPD, lambda m: PISpeed(m, 0.01), lambda m: OneStepMPC(m, 1e-3)]
+DESIGNS = [OneStepMPC, PISpeed, PositionPD, lambda m: PISpeed(m, 0.01), lambda m: OneStepMPC(m, 1e-3), LQRSpeed,
+           LQRPosition]
 
 
 @pytest.mark.parametrize("model", MODELS, ids=["delay0", "delay1"])
-@pytest.mark.parametrize("design", DESIGNS, ids=["mpc", "pi", "position", "pi-fast", "mpc-weighted"])
+@pytest.mark.parametrize("design", DESIGNS, ids=["mpc", "pi", "position", "pi-fast", "mpc-weighted", "lqr",
+                                                 "lqr-position"])
 def test_margins_equal_python_control_stability_margins_on_the_same_loop(model, design):
     controller = design(model)
     _, cy = controller.laws()
@@ -39,7 +43,8 @@ def test_margins_equal_python_control_stability_margins_on_the_same_loop(model, 
         assert m.delay_margin == pytest.approx(np.radians(pm) / wgc, rel=1e-6)
 
 
-@pytest.mark.parametrize("design", [PISpeed, PositionPD, OneStepMPC], ids=["pi", "position", "mpc"])
+@pytest.mark.parametrize("design", [PISpeed, PositionPD, OneStepMPC, LQRSpeed, LQRPosition],
+                         ids=["pi", "position", "mpc", "lqr", "lqr-position"])
 def test_delay_margin_separates_the_stable_from_the_unstable_extra_delays(design):
     controller = design(MODELS[0])
     samples = loop_margins(controller).delay_margin / controller.model.sample_period

@@ -1,6 +1,6 @@
 // motorid bench firmware for an Arduino Uno (ATmega328P, 16 MHz).
 //
-// Implements hardware/PROTOCOL.md (protocol version 4) exactly: COBS frames with CRC-16,
+// Implements hardware/PROTOCOL.md (protocol version 5) exactly: COBS frames with CRC-16,
 // CONFIG/WAVE/CONTROL/REFERENCE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
 // In closed loop (a CONTROL naming a controller) each tick computes its duty from the counts
 // it has just read with the controller's integer step (motorsim/fixed_point.py is the reference).
@@ -27,8 +27,8 @@
 
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
-#define PROTOCOL_VERSION 4
-#define FIRMWARE_VERSION 0x0400  // major << 8 | minor: 4.0
+#define PROTOCOL_VERSION 5
+#define FIRMWARE_VERSION 0x0500  // major << 8 | minor: 5.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -80,6 +80,8 @@
 #define CTRL_PI 2
 #define CTRL_POSITION 3
 #define CTRL_FEEDFORWARD 4
+#define CTRL_LQR 5
+#define CTRL_LQR_POSITION 6
 #define MAX_GAINS 14
 #define REF_CONSTANT 0
 #define REF_STEP 1
@@ -606,7 +608,8 @@ static int16_t clip_duty(int64_t u) {
 
 static void control_reset(void) {
   memset(&cs, 0, sizeof(cs));
-  cs.n_history = control.kind == CTRL_MPC ? control.n - 4 : 1;
+  cs.n_history = control.kind == CTRL_MPC || control.kind == CTRL_LQR ? control.n - 4
+               : control.kind == CTRL_LQR_POSITION ? control.n - 3 : 1;
 }
 
 // The duty of sample k from the counts read at k (integer arithmetic only).
@@ -617,7 +620,8 @@ static int16_t control_step(uint32_t k, int32_t counts) {
   const int32_t *g = control.gains;
   int64_t acc;
   switch (control.kind) {
-    case CTRL_MPC: {
+    case CTRL_MPC:
+    case CTRL_LQR: {  // one linear form; only the design of the gains differs
       int32_t r = reference_at(k + control.preview);
       acc = (int64_t)g[0] * r + (int64_t)g[1] * y + g[2] + (int64_t)g[3] * sign_of(r);
       for (uint8_t m = 0; m < cs.n_history; m++) acc += (int64_t)g[4 + m] * cs.history[m];
@@ -634,6 +638,10 @@ static int16_t control_step(uint32_t k, int32_t counts) {
     }
     case CTRL_POSITION:
       acc = (int64_t)g[0] * (reference_at(k) - (counts - cs.origin)) - (int64_t)g[1] * y;
+      break;
+    case CTRL_LQR_POSITION:
+      acc = (int64_t)g[0] * (reference_at(k + control.preview) - (counts - cs.origin)) + (int64_t)g[1] * y + g[2];
+      for (uint8_t m = 0; m < cs.n_history; m++) acc += (int64_t)g[3 + m] * cs.history[m];
       break;
     default:  // CTRL_FEEDFORWARD
       acc = feedforward_sum(k, g);
@@ -917,7 +925,9 @@ static uint8_t parse_control(const uint8_t *p, uint8_t len, uint8_t check_only) 
              : kind == CTRL_MPC ? n >= 5
              : kind == CTRL_PI ? (n == 2 || n == 6)
              : kind == CTRL_POSITION ? n == 2
-             : kind == CTRL_FEEDFORWARD ? n == 4 : 0;
+             : kind == CTRL_FEEDFORWARD ? n == 4
+             : kind == CTRL_LQR ? n >= 5
+             : kind == CTRL_LQR_POSITION ? n >= 4 : 0;
   if (!ok || preview > MAX_GAINS) return NAK_BAD_VALUE;
   if (check_only) return 0;
   control.kind = kind;
