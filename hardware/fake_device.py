@@ -55,7 +55,7 @@ from typing import Iterator
 
 import numpy as np
 
-from motorsim.checks import check_bool, check_int, check_real
+from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, simulate, zoh_matrices
@@ -121,7 +121,7 @@ class FaultPlan:
         for name in ("flip_rate", "drop_rate", "garbage_rate", "queue_drop_rate"):
             v = check_real(name, getattr(self, name), nonnegative=True)
             if v >= 1:
-                raise ValueError(f"{name} must be a probability in [0, 1), got {v!r}")
+                raise ParameterError(f"{name} must be a probability in [0, 1), got {v!r}")
             object.__setattr__(self, name, v)
         for name in ("stall_at", "repeat_at", "disconnect_at", "watchdog_trip_at"):
             if getattr(self, name) is not None:
@@ -164,19 +164,19 @@ class FakeDevice:
     def __init__(self, motor: Motor, encoder: Encoder | None = None, faults: FaultPlan | None = None, *,
                  speed: float = 1.0, queue_size: int = 16, rng: np.random.Generator | None = None):
         if not isinstance(motor, Motor):
-            raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")
+            raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
         self.motor = motor
         self.encoder = encoder if encoder is not None else Encoder()
         if not isinstance(self.encoder, Encoder):
-            raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
+            raise ParameterTypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
         self.faults = faults if faults is not None else FaultPlan()
         if not isinstance(self.faults, FaultPlan):
-            raise TypeError(f"faults must be a FaultPlan, got {type(self.faults).__name__}")
+            raise ParameterTypeError(f"faults must be a FaultPlan, got {type(self.faults).__name__}")
         self.speed = check_real("speed", speed, nonnegative=True)
         self.queue_size = check_int("queue_size", queue_size, 1, 10_000)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         if not isinstance(self.rng, np.random.Generator):
-            raise TypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
+            raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
         self._zoh: tuple[float, ...] | None = None
         self.duty = 0
@@ -618,19 +618,19 @@ def parse_fake_url(url: str) -> FakeDevice:
     """
     parsed = urllib.parse.urlsplit(url)
     if parsed.scheme != "fake":
-        raise ValueError(f"url must start with fake://, got {url!r}")
+        raise ParameterError(f"url must start with fake://, got {url!r}")
     query = dict(urllib.parse.parse_qsl(parsed.query, keep_blank_values=True))
     for old, new in _RENAMED_KEYS.items():
         if old in query:
-            raise ValueError(f"fake:// url key {old!r} is now called {new!r}")
+            raise ParameterError(f"fake:// url key {old!r} is now called {new!r}")
     knobs = {k.name: k for k in _url_knobs()}
     unknown = set(query) - set(knobs)
     if unknown:
-        raise ValueError(f"fake:// url has unknown keys {sorted(unknown)}; known: {sorted(knobs)}")
+        raise ParameterError(f"fake:// url has unknown keys {sorted(unknown)}; known: {sorted(knobs)}")
     try:
         values = {name: knobs[name].parse(text) for name, text in query.items()}
     except ValueError as exc:
-        raise ValueError(f"fake:// url key {exc}") from None
+        raise ParameterError(f"fake:// url key {exc}") from None
 
     def fields_of(cls: type) -> dict:
         return {k.name: values[k.name] for k in knobs_of(cls) if k.name in values}

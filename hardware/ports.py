@@ -50,7 +50,7 @@ def url_keys(scheme: str) -> tuple[str, ...]:
     ('a', 'b', 'friction', 'counts_per_rev')
     """
     if scheme not in _URL_KEYS:
-        raise ValueError(f"scheme must be one of {sorted(_URL_KEYS)}, got {scheme!r}")
+        raise ParameterError(f"scheme must be one of {sorted(_URL_KEYS)}, got {scheme!r}")
     module_name, _, func = _URL_KEYS[scheme].partition(":")
     return getattr(importlib.import_module(module_name), func)()
 

@@ -32,7 +32,7 @@ from typing import Any, NamedTuple, Union
 
 import numpy as np
 
-from motorsim.checks import check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.control import ClosedLoopExperiment
 from motorsim.excitation import (
     MAX_AMPLITUDE,
@@ -339,7 +339,7 @@ class WaveOddMultisine(NamedTuple):
     def excitation(self) -> OddMultisine:
         """The excitation these fields describe (ValueError when a field is out of range)."""
         if not 4 <= self.period_log2 <= 16:
-            raise ValueError(f"period_log2 must be in 4...16, got {self.period_log2!r}")
+            raise ParameterError(f"period_log2 must be in 4...16, got {self.period_log2!r}")
         return OddMultisine(1 << self.period_log2, self.max_harmonic, self.amplitude, self.seed, self.group,
                             offset=self.offset)
 
@@ -452,11 +452,11 @@ def encode_frame(msg_type: int, frame_seq: int, payload: bytes = b"") -> bytes:
         ``msg_type`` or ``frame_seq`` outside 0...255, or ``payload`` longer than :data:`MAX_PAYLOAD`.
     """
     if not 0 <= msg_type <= 255:
-        raise ValueError(f"msg_type must be in 0...255, got {msg_type!r}")
+        raise ParameterError(f"msg_type must be in 0...255, got {msg_type!r}")
     if not 0 <= frame_seq <= 255:
-        raise ValueError(f"frame_seq must be in 0...255, got {frame_seq!r}")
+        raise ParameterError(f"frame_seq must be in 0...255, got {frame_seq!r}")
     if len(payload) > MAX_PAYLOAD:
-        raise ValueError(f"payload must be at most {MAX_PAYLOAD} bytes, got {len(payload)}")
+        raise ParameterError(f"payload must be at most {MAX_PAYLOAD} bytes, got {len(payload)}")
     body = bytes((msg_type, frame_seq)) + bytes(payload)
     return cobs_encode(body + crc16(body).to_bytes(2, "little")) + b"\x00"
 
@@ -496,7 +496,8 @@ def msg_type_of(msg: Message) -> MsgType:
     if cls is ReferenceWords:
         return MsgType.REFERENCE
     if cls not in _TYPE_OF:
-        raise TypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), got {cls.__name__}")
+        raise ParameterTypeError(f"msg must be a protocol message (Hello, Config, ..., WaveConstant, ...), "
+                                 f"got {cls.__name__}")
     return MsgType(_TYPE_OF[cls])
 
 
@@ -514,12 +515,12 @@ def encode_message(msg: Message, frame_seq: int) -> bytes:
     if isinstance(msg, HelloAck):
         board = msg.board.encode("ascii")
         if len(board) > 8:
-            raise ValueError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
+            raise ParameterError(f"board must be at most 8 ASCII characters, got {msg.board!r}")
         fields = fields[:5] + (board.ljust(8, b"\x00"),) + fields[6:]
     try:
         payload = _FIXED[t][1].pack(*fields)
     except struct.error as exc:
-        raise ValueError(f"{cls.__name__} field out of range: {exc} (got {msg!r})") from None
+        raise ParameterError(f"{cls.__name__} field out of range: {exc} (got {msg!r})") from None
     return encode_frame(t, frame_seq, payload)
 
 
@@ -529,7 +530,7 @@ def _wave_payload(wave: Wave) -> bytes:
         if isinstance(wave, WaveMultisine):
             comps = tuple(wave.components)
             if not 1 <= len(comps) <= MAX_COMPONENTS:
-                raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
+                raise ParameterError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
             return (bytes((kind,)) + _MS_HEAD.pack(wave.offset, len(comps))
                     + b"".join(_MS_COMPONENT.pack(*c) for c in comps))
         fields = tuple(wave)
@@ -537,36 +538,36 @@ def _wave_payload(wave: Wave) -> bytes:
             fields = tuple(fields[i] for i in _PRBS_WIRE)
         return bytes((kind,)) + _WAVE_FIXED[kind][1].pack(*fields)
     except struct.error as exc:
-        raise ValueError(f"{type(wave).__name__} field out of range: {exc} (got {wave!r})") from None
+        raise ParameterError(f"{type(wave).__name__} field out of range: {exc} (got {wave!r})") from None
 
 
 def _control_payload(msg: Control) -> bytes:
     gains = tuple(msg.gains)
     if len(gains) > MAX_GAINS:
-        raise ValueError(f"gains must hold at most {MAX_GAINS} entries, got {len(gains)}")
+        raise ParameterError(f"gains must hold at most {MAX_GAINS} entries, got {len(gains)}")
     try:
         return _CONTROL_HEAD.pack(msg.controller, msg.preview, len(gains)) + struct.pack(f"<{len(gains)}i", *gains)
     except struct.error as exc:
-        raise ValueError(f"Control field out of range: {exc} (got {msg!r})") from None
+        raise ParameterError(f"Control field out of range: {exc} (got {msg!r})") from None
 
 
 def _reference_payload(words: ReferenceWords) -> bytes:
     kinds = {name: kind for kind, name in _REFERENCE_NAMES.items()}
     if words.kind not in kinds:
-        raise ValueError(f"reference kind must be one of {', '.join(kinds)}, got {words.kind!r}")
+        raise ParameterError(f"reference kind must be one of {', '.join(kinds)}, got {words.kind!r}")
     kind = kinds[words.kind]
     try:
         if kind == ReferenceKind.MULTISINE:
             comps = tuple(words.components)
             if not 1 <= len(comps) <= MAX_COMPONENTS:
-                raise ValueError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
+                raise ParameterError(f"components must hold 1...{MAX_COMPONENTS} entries, got {len(comps)}")
             return (bytes((kind,)) + _REF_MS_HEAD.pack(words.level, len(comps))
                     + b"".join(_REF_MS_COMPONENT.pack(*c) for c in comps))
         fields = {ReferenceKind.CONSTANT: (words.level,), ReferenceKind.STEP: (words.before, words.level, words.start),
                   ReferenceKind.TRAPEZOID: (words.level, words.start, words.ramp, words.hold)}[kind]
         return bytes((kind,)) + _REFERENCE_FIXED[kind].pack(*fields)
     except struct.error as exc:
-        raise ValueError(f"REFERENCE field out of range: {exc} (got {words!r})") from None
+        raise ParameterError(f"REFERENCE field out of range: {exc} (got {words!r})") from None
 
 
 def _decode_control(payload: bytes) -> Control:
@@ -804,15 +805,16 @@ def expand(wave: Wave, n_samples: int, duty_limit: int) -> np.ndarray:
         raw = multisine_duty(wave.excitation().components(), wave.offset, n)
     elif isinstance(wave, WavePrbs):
         if wave.order not in PRBS_MASKS:
-            raise ValueError(f"PRBS order must be in 2...16, got {wave.order!r}")
+            raise ParameterError(f"PRBS order must be in 2...16, got {wave.order!r}")
         if not 0 < wave.seed < (1 << wave.order):
-            raise ValueError(f"PRBS seed must be in 1...{(1 << wave.order) - 1}, got {wave.seed!r}")
+            raise ParameterError(f"PRBS seed must be in 1...{(1 << wave.order) - 1}, got {wave.seed!r}")
         if wave.hold < 1:
-            raise ValueError(f"PRBS hold must be >= 1, got {wave.hold!r}")
+            raise ParameterError(f"PRBS hold must be >= 1, got {wave.hold!r}")
         bits = prbs_bits(wave.order, wave.seed, -(-n // wave.hold))
         raw = np.where(np.repeat(bits, wave.hold)[:n] == 1, wave.high, wave.low).astype(np.int64)
     else:
-        raise TypeError(f"wave must be a WAVE message (WaveConstant, ..., WaveOddMultisine), got {type(wave).__name__}")
+        raise ParameterTypeError(f"wave must be a WAVE message (WaveConstant, ..., WaveOddMultisine), "
+                                 f"got {type(wave).__name__}")
     return np.clip(raw, -duty_limit, duty_limit).astype(np.int64)
 
 
@@ -825,7 +827,7 @@ def wave_for(experiment: Experiment) -> Wave:
         The excitation is of a kind the protocol cannot carry.
     """
     if not isinstance(experiment, Experiment):
-        raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+        raise ParameterTypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
     ex, dt, n = experiment.excitation, experiment.sample_period, experiment.n_samples
     if isinstance(ex, Constant):
         return WaveConstant(ex.level)
@@ -841,14 +843,14 @@ def wave_for(experiment: Experiment) -> Wave:
     if isinstance(ex, OddMultisine):
         return WaveOddMultisine(ex.offset, ex.amplitude, ex.period.bit_length() - 1, ex.max_harmonic, ex.seed,
                                 ex.group)
-    raise ValueError(f"excitation must be one the device can generate (constant, step, sine, multisine, "
+    raise ParameterError(f"excitation must be one the device can generate (constant, step, sine, multisine, "
                      f"chirp, prbs, odd-multisine), got {type(ex).__name__}")
 
 
 def control_for(experiment: ClosedLoopExperiment) -> Control:
     """The CONTROL that makes a device run ``experiment``'s controller (its gains in wire order)."""
     if not isinstance(experiment, ClosedLoopExperiment):
-        raise TypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
+        raise ParameterTypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
     c = experiment.controller
     kinds = {name: kind for kind, name in _KIND_NAMES.items()}
     gains = c.gains()
@@ -858,7 +860,7 @@ def control_for(experiment: ClosedLoopExperiment) -> Control:
 def reference_for(experiment: ClosedLoopExperiment) -> ReferenceWords:
     """The REFERENCE of ``experiment``: its reference's integer words in the controller's unit."""
     if not isinstance(experiment, ClosedLoopExperiment):
-        raise TypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
+        raise ParameterTypeError(f"experiment must be a ClosedLoopExperiment, got {type(experiment).__name__}")
     c = experiment.controller
     return experiment.reference.words(experiment.sample_period, c.reference_scale)
 
@@ -909,17 +911,17 @@ def config_for(experiment: Experiment | ClosedLoopExperiment, *, decoding: int =
         Host-silence watchdog in ms; 0 disables it, else 50...60 000.
     """
     if not isinstance(experiment, (Experiment, ClosedLoopExperiment)):
-        raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+        raise ParameterTypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
     period_us = round(experiment.sample_period * 1e6)
     if abs(period_us * 1e-6 - experiment.sample_period) > 1e-9 or not 100 <= period_us <= 1_000_000:
-        raise ValueError(f"sample_period must be a whole number of microseconds in 100...1 000 000 µs "
+        raise ParameterError(f"sample_period must be a whole number of microseconds in 100...1 000 000 µs "
                          f"for the bench, got {experiment.sample_period!r} s")
     if decoding not in (1, 2, 4):
-        raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
+        raise ParameterError(f"decoding must be 1, 2 or 4, got {decoding!r}")
     if not (watchdog_ms == 0 or 50 <= watchdog_ms <= 60_000):
-        raise ValueError(f"watchdog_ms must be 0 (off) or in 50...60 000 ms, got {watchdog_ms!r}")
+        raise ParameterError(f"watchdog_ms must be 0 (off) or in 50...60 000 ms, got {watchdog_ms!r}")
     if experiment.n_samples > 0xFFFFFFFF:
-        raise ValueError(f"duration gives {experiment.n_samples} samples, more than a u32 holds")
+        raise ParameterError(f"duration gives {experiment.n_samples} samples, more than a u32 holds")
     return Config(period_us, experiment.n_samples, experiment.duty_limit, decoding, watchdog_ms)
 
 

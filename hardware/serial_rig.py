@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from motorsim.checks import ParameterError, check_int, check_real
+from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
 from motorsim.control import ClosedLoopExperiment
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
@@ -123,16 +123,16 @@ class SerialRig:
                  command_timeout: float = 0.5):
         if isinstance(port, str):
             if not port:
-                raise ValueError("port must be a device path or URL, got ''")
+                raise ParameterError("port must be a device path or URL, got ''")
         elif not all(hasattr(port, a) for a in ("read", "write")):
-            raise TypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
+            raise ParameterTypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
         baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
         if counts_per_rev is not None:
             counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
-            raise ValueError(f"decoding must be 1, 2 or 4, got {decoding!r}")
+            raise ParameterError(f"decoding must be 1, 2 or 4, got {decoding!r}")
         if not (watchdog_ms == 0 or (isinstance(watchdog_ms, int) and 50 <= watchdog_ms <= 60_000)):
-            raise ValueError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
+            raise ParameterError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
         for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
                             ("command_timeout", command_timeout)):
             check_real(name, value, positive=True)
@@ -371,10 +371,10 @@ class SerialRig:
             (``device_*``), the host's (``host_*``) and ``complete: true``.
         """
         if not isinstance(experiment, (Experiment, ClosedLoopExperiment)):
-            raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+            raise ParameterTypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         load = self.line_load(experiment.sample_period)
         if load > 1:
-            raise ValueError(f"sample_period {experiment.sample_period!r} s needs "
+            raise ParameterError(f"sample_period {experiment.sample_period!r} s needs "
                              f"{_SAMPLE_BITS / experiment.sample_period:.0f} baud for the SAMPLE frames alone, more "
                              f"than baudrate {self.baudrate}; use a longer sample period or a faster line "
                              f"(250 000 baud up to 500 Hz, 500 000 at 1 kHz)")
@@ -388,7 +388,7 @@ class SerialRig:
         if isinstance(experiment, ClosedLoopExperiment):
             designed = experiment.controller.model.counts_per_rev
             if designed != self.counts_per_rev:
-                raise ValueError(f"the controller was designed for {designed} counts per revolution, "
+                raise ParameterError(f"the controller was designed for {designed} counts per revolution, "
                                  f"the rig on {self.port_name} has {self.counts_per_rev}")
         run = _RunState(experiment, self)
         started = ended = False

@@ -15,7 +15,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from motorsim.checks import ParameterError, check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int
+from motorsim.plausibility import saturated_runs
 from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
@@ -47,7 +48,7 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
         raise ParameterError("recordings must hold at least one Recording, got none")
     for i, r in enumerate(recs):
         if not isinstance(r, Recording):
-            raise TypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
+            raise ParameterTypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
     dts = {r.sample_period for r in recs}
     if len(dts) > 1:
         raise ParameterError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
@@ -155,6 +156,7 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
     -------
     list of Segment
     """
+    _check_delay_fits(recordings, input_delay)
     out = []
     for i, rec in enumerate(recordings):
         row = 0
@@ -173,6 +175,24 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
                                    kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
             row += n
     return out
+
+
+#: A fixed input delay must leave this many times its own length of samples in the longest gap-free run.
+DELAY_SHARE = 3
+
+
+def _check_delay_fits(recordings: Sequence[Recording], input_delay: int) -> None:
+    """Refuse an input delay the data cannot hold: the fit would pair the duty with the wrong samples."""
+    if not input_delay:
+        return
+    longest = max((len(seg) for rec in recordings for seg in rec.segments()), default=0)
+    if input_delay >= longest:
+        raise NotIdentifiableError(f"input_delay {input_delay} samples is not shorter than the longest gap-free run "
+                                   f"({longest} samples): no sample has its delayed duty; check the delay")
+    if DELAY_SHARE * input_delay > longest - input_delay:
+        raise NotIdentifiableError(f"input_delay {input_delay} samples leaves {longest - input_delay} of the longest "
+                                   f"run's {longest} samples, fewer than {DELAY_SHARE} times the delay: a fit would "
+                                   "be meaningless; check the delay or record a longer run")
 
 
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
@@ -217,9 +237,15 @@ def _check_moves(i: int, r: Recording) -> None:
 def _warn_saturation(i: int, r: Recording) -> None:
     if r.input_unit != "duty":
         return
-    limit = float(r.metadata.get("duty_limit", 255))
-    share = float(np.mean(np.abs(r.duty) >= limit)) if limit > 0 else 0.0
+    limit = r.duty_limit if r.duty_limit is not None else 255.0
+    share = float(np.mean(np.abs(r.duty) >= limit))
     if share > _SATURATION_SHARE:
         warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
                       "the samples; the motor sees a square wave and the estimate rests on few "
                       "transitions: lower the amplitude", UserWarning, stacklevel=4)
+    elif r.duty_limit is not None and r.reference is None and (runs := saturated_runs(r.duty, limit)):
+        # open loop only: a controller's duty at the limit is its own choice, not a clipped excitation
+        warnings.warn(f"recordings[{i}]: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
+                      f"{sum(n for _, n in runs)} samples (the first from row {runs[0][0]}): the input the "
+                      "excitation asked for did not reach the motor there; lower the amplitude if the fit "
+                      "or its residuals look wrong", UserWarning, stacklevel=4)

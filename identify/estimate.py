@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
+from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
 from motorsim.plant import Motor, simulate
 
 if TYPE_CHECKING:
@@ -115,7 +116,7 @@ class Estimate:
         if self.covariance is not None:
             cov = np.array(self.covariance, dtype=float)
             if cov.shape != (len(self.param_names),) * 2:
-                raise ValueError(f"covariance must have shape {(len(self.param_names),) * 2}, got {cov.shape}")
+                raise ParameterError(f"covariance must have shape {(len(self.param_names),) * 2}, got {cov.shape}")
             cov.setflags(write=False)
             object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "extra", dict(self.extra))
@@ -224,7 +225,7 @@ class Estimate:
         b: [2.980, 3.020]
         """
         if not 0 < level < 1:
-            raise ValueError(f"level must be in (0, 1), got {level!r}")
+            raise ParameterError(f"level must be in (0, 1), got {level!r}")
         z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
         out = {n: (float(self.value(n) - z * s), float(self.value(n) + z * s)) for n, s in self.stderr().items()}
         for n, (lo, hi) in self.model_range.items():       # candidates the data cannot rule out: the union
@@ -271,9 +272,9 @@ class Estimate:
         """
         import control
         if form not in ("continuous", "discrete"):
-            raise ValueError(f"form must be 'continuous' or 'discrete', got {form!r}")
+            raise ParameterError(f"form must be 'continuous' or 'discrete', got {form!r}")
         if delay not in (None, "pade"):
-            raise ValueError(f"delay must be None or 'pade', got {delay!r}")
+            raise ParameterError(f"delay must be None or 'pade', got {delay!r}")
         names = {"inputs": "duty", "outputs": "speed"}
         d = self.input_delay
         if form == "discrete":
@@ -284,11 +285,11 @@ class Estimate:
         if d == 0:
             return tf
         if delay is None:
-            raise ValueError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
+            raise ParameterError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
                              "which b/(s + a) cannot carry: use transfer_function('discrete') for the exact "
                              "model with z^-d, or delay='pade' for a continuous approximation")
         if not (isinstance(pade_order, int) and pade_order >= 1):
-            raise ValueError(f"pade_order must be an integer >= 1, got {pade_order!r}")
+            raise ParameterError(f"pade_order must be an integer >= 1, got {pade_order!r}")
         num, den = control.pade(d * self.sample_period, pade_order)
         return control.tf(np.polymul(num, [self.b]), np.polymul(den, [1.0, self.a]), **names)
 
@@ -409,46 +410,143 @@ class Estimate:
         return json.dumps(json_ready(doc), indent=indent)
 
     @classmethod
-    def from_json(cls, text: str) -> "Estimate":
+    def from_json(cls, text: str | bytes) -> "Estimate":
         """The estimate :meth:`to_json` wrote (a JSON document, or the path of a file holding one).
 
         Parameters
         ----------
-        text : str
-            JSON text, or a path to a ``.json`` file.
+        text : str or bytes
+            JSON text (bytes: UTF-8), or a path to a ``.json`` file.
 
         Raises
         ------
-        ValueError
-            When the document is not a motorid estimate (``format`` missing or another).
+        motorsim.checks.ParameterError
+            (a ``ValueError``) When the document is not a motorid estimate (``format``
+            missing or another, invalid or binary JSON, nested too deep, over
+            :data:`MAX_ESTIMATE_BYTES`, a number that is not finite where one must be), naming
+            the field; :class:`motorsim.checks.ParameterTypeError` (also a ``TypeError``) for a
+            field of the wrong kind (``"a": true``, ``"extra": []``, ``input_delay: 1.5``).
         """
-        if not text.lstrip().startswith("{") and os.path.isfile(text):
-            with open(text, encoding="utf-8") as fh:
-                text = fh.read()
+        if not isinstance(text, (str, bytes)):
+            raise ParameterTypeError(f"text must be JSON text or the path of a JSON file, got {type(text).__name__}")
+        if isinstance(text, bytes):
+            text = _decoded(text, "text")
+        if not text.lstrip().startswith("{") and os.path.exists(text):
+            from motorsim.files import read_input_bytes
+            text = _decoded(read_input_bytes(text, what="model", max_bytes=MAX_ESTIMATE_BYTES), text)
+        if len(text) > MAX_ESTIMATE_BYTES:
+            raise ParameterError(f"an estimate must be at most {MAX_ESTIMATE_BYTES} characters of JSON, "
+                                 f"got {len(text)}")
         try:
-            doc = json.loads(text)
+            doc = json.loads(text, parse_constant=_no_constant)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
+            raise ParameterError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
+        except RecursionError:
+            raise ParameterError("an estimate must be a JSON document of a few levels, got one nested "
+                                 "too deep to read") from None
         if not isinstance(doc, dict) or doc.get("format") != ESTIMATE_FORMAT:
             found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-            raise ValueError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
-        cov = doc.get("covariance")
-        units = doc.get("units", {})
+            raise ParameterError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
+        return cls(**_estimate_fields(doc))
 
-        def number(x: Any) -> float:
-            return math.nan if x is None else float(x)
-        return cls(method=doc["method"], a=float(doc["a"]), b=float(doc["b"]), n_samples=int(doc["n_samples"]),
-                   sample_period=float(doc["sample_period"]), residual_rms=number(doc["residual_rms"]),
-                   fit_percent=number(doc["fit_percent"]),
-                   covariance=None if cov is None else np.array([[number(x) for x in row] for row in cov]),
-                   param_names=tuple(doc["param_names"]),
-                   extra={k: int(v) if k == "input_delay" else number(v) for k, v in doc["extra"].items()},
-                   residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
-                   data_files=tuple((f["path"], f["sha256"]) for f in doc.get("data_files", [])),
-                   covariance_method=str(doc.get("covariance_method", "")),
-                   selection=doc.get("selection") if isinstance(doc.get("selection"), dict) else None,
-                   notes=tuple(str(n) for n in doc.get("notes", []) if isinstance(n, str)),
-                   model_range={k: (number(v[0]), number(v[1])) for k, v in (doc.get("model_range") or {}).items()})
+
+#: The largest saved estimate read, in bytes (one is about 2 kB).
+MAX_ESTIMATE_BYTES = 1 << 20
+
+
+def _decoded(data: bytes, name: str) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"an estimate must be UTF-8 JSON text; {name} is binary ({exc.reason} at byte "
+                             f"{exc.start})") from None
+
+
+def _no_constant(name: str) -> float:
+    raise ParameterError(f"an estimate must hold finite numbers or null, got {name}")
+
+
+def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :class:`Estimate` from a saved document, each field checked."""
+    def field(name: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
+        if name not in doc:
+            if default is ...:
+                raise ParameterError(f"an estimate must have the field {name!r}")
+            return default
+        value = doc[name]
+        if not isinstance(value, kind) or isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple)
+                                                                                   else (kind,)):
+            raise ParameterTypeError(f"estimate field {name!r} must be {_kind_name(kind)}, got {value!r:.80}")
+        return value
+
+    def real(name: str, value: Any, *, finite: bool = True) -> float:
+        if value is None and not finite:
+            return math.nan
+        return check_real(f"estimate field {name!r}", value, finite=finite)
+
+    names = field("param_names", list, ["a", "b"])
+    if not all(isinstance(n, str) for n in names):
+        raise ParameterTypeError(f"estimate field 'param_names' must be a list of names, got {names!r:.80}")
+    cov = field("covariance", (list, type(None)), None)
+    if cov is not None:
+        if len(cov) != len(names) or not all(isinstance(row, list) and len(row) == len(names) for row in cov):
+            raise ParameterError(f"estimate field 'covariance' must be {len(names)} rows of {len(names)} numbers, "
+                                 f"got {cov!r:.80}")
+        cov = np.array([[real("covariance", x, finite=False) for x in row] for row in cov])
+    extra: dict[str, float | int] = {}
+    for key, value in field("extra", dict, {}).items():
+        if key == "input_delay":
+            extra[key] = check_int("estimate field 'extra.input_delay'", value, lo=0, allow_integral_float=False)
+        else:
+            extra[key] = real(f"extra.{key}", value, finite=False)
+    units = field("units", dict, {})
+    for key in ("residual_rms", "input"):
+        if not isinstance(units.get(key, ""), str):
+            raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
+    files = field("data_files", list, [])
+    if not all(isinstance(f, dict) and isinstance(f.get("path"), str) and isinstance(f.get("sha256"), str)
+               for f in files):
+        raise ParameterTypeError(f"estimate field 'data_files' must be a list of {{path, sha256}}, got {files!r:.80}")
+    return dict(method=field("method", str), a=real("a", field("a", (int, float))),
+                b=real("b", field("b", (int, float))),
+                n_samples=check_int("estimate field 'n_samples'", field("n_samples", int), lo=0),
+                sample_period=check_real("estimate field 'sample_period'", field("sample_period", (int, float)),
+                                         positive=True),
+                residual_rms=real("residual_rms", field("residual_rms", (int, float, type(None)), None), finite=False),
+                fit_percent=real("fit_percent", field("fit_percent", (int, float, type(None)), None), finite=False),
+                covariance=cov, param_names=tuple(names), extra=extra,
+                residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
+                data_files=tuple((f["path"], f["sha256"]) for f in files),
+                covariance_method=field("covariance_method", str, ""),
+                selection=field("selection", (dict, type(None)), None),
+                notes=tuple(_strings("notes", field("notes", list, []))),
+                model_range=_model_range(field("model_range", (dict, type(None)), None) or {}))
+
+
+def _strings(name: str, values: list) -> list[str]:
+    if not all(isinstance(v, str) for v in values):
+        raise ParameterTypeError(f"estimate field {name!r} must be a list of strings, got {values!r:.80}")
+    return values
+
+
+def _model_range(ranges: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    out = {}
+    for key, pair in ranges.items():
+        if not (isinstance(pair, list) and len(pair) == 2):
+            raise ParameterTypeError(f"estimate field 'model_range.{key}' must be [low, high], got {pair!r:.80}")
+        low, high = (math.nan if x is None else check_real(f"estimate field 'model_range.{key}'", x, finite=False)
+                     for x in pair)
+        out[key] = (low, high)
+    return out
+
+
+def _kind_name(kind: type | tuple[type, ...]) -> str:
+    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "an object",
+             type(None): "null"}
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if float in kinds:
+        kinds = tuple(k for k in kinds if k is not int)
+    return " or ".join(names.get(k, k.__name__) for k in kinds)
 
 
 def file_sha256(path: str | os.PathLike) -> str:

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from motorsim.checks import ParameterError
+
 __all__ = ["FeedforwardConstants", "feedforward_constants"]
 
 
@@ -48,7 +50,7 @@ class FeedforwardConstants:
     def confidence_interval(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
         """Normal intervals ``(low, high)`` of each constant at ``level`` (nan without a standard error)."""
         if not 0 < level < 1:
-            raise ValueError(f"level must be in (0, 1), got {level!r}")
+            raise ParameterError(f"level must be in (0, 1), got {level!r}")
         z = NormalDist().inv_cdf(0.5 + level / 2)   # (scipy.stats costs identify's start-up)
         return {k: (getattr(self, k) - z * s, getattr(self, k) + z * s) for k, s in self.stderr.items()}
 
@@ -96,7 +98,7 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
     """
     a, b = float(estimate.a), float(estimate.b)
     if b == 0:
-        raise ValueError("b must be nonzero for feedforward constants, got 0.0")
+        raise ParameterError("b must be nonzero for feedforward constants, got 0.0")
     extra = dict(getattr(estimate, "extra", {}) or {})
     c, d = float(extra.get("friction", 0.0)), float(extra.get("bias", 0.0))
     names = tuple(getattr(estimate, "param_names", ("a", "b")))

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.plant import zoh_matrices
 
 __all__ = ["RecursiveLeastSquares", "RunningEstimator", "RunningEstimate", "RUNNING_MODELS"]
@@ -63,7 +63,7 @@ class RecursiveLeastSquares:
         n_params = check_int("n_params", n_params, lo=1, allow_integral_float=False)
         forgetting = check_real("forgetting", forgetting, positive=True)
         if forgetting > 1:
-            raise ValueError(f"forgetting must be in (0, 1], got {forgetting!r}")
+            raise ParameterError(f"forgetting must be in (0, 1], got {forgetting!r}")
         initial_covariance = check_real("initial_covariance", initial_covariance, positive=True)
         self._theta = np.zeros(n_params)
         self._P = np.eye(n_params) * float(initial_covariance)
@@ -84,9 +84,9 @@ class RecursiveLeastSquares:
         """Take one row: regressor ``phi`` (length ``n_params``) and target ``y``."""
         phi = np.asarray(phi, dtype=float)
         if phi.shape != self._theta.shape:
-            raise ValueError(f"phi must have shape {self._theta.shape}, got {phi.shape}")
+            raise ParameterError(f"phi must have shape {self._theta.shape}, got {phi.shape}")
         if not (np.all(np.isfinite(phi)) and math.isfinite(y)):
-            raise ValueError(f"phi and y must be finite, got {phi!r} and {y!r}")
+            raise ParameterError(f"phi and y must be finite, got {phi!r} and {y!r}")
         Pphi = self._P @ phi
         gain = Pphi / (self._lambda + phi @ Pphi)
         self._theta += gain * (y - phi @ self._theta)
@@ -152,7 +152,7 @@ class RunningEstimator:
         sample_period = check_real("sample_period", sample_period, positive=True)
         counts_per_rev = check_int("counts_per_rev", counts_per_rev, lo=1, allow_integral_float=False)
         if model not in RUNNING_MODELS:
-            raise ValueError(f"model must be one of {list(RUNNING_MODELS)}, got {model!r}")
+            raise ParameterError(f"model must be one of {list(RUNNING_MODELS)}, got {model!r}")
         self.model = model
         self._h = float(sample_period)
         self._rad_per_count = 2.0 * math.pi / counts_per_rev

@@ -93,12 +93,44 @@ def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int
         return np.full((keep, keep), math.inf)
     bread = (vt.T / sv**2) @ vt
     g = Js * np.asarray(residuals, dtype=float)[:, None]
-    meat = g.T @ g
-    for lag in range(1, min(max_lag, len(g) - 1) + 1):
-        gamma = g[lag:].T @ g[:-lag]
-        meat += (1.0 - lag / (max_lag + 1.0)) * (gamma + gamma.T)
+    meat = g.T @ g + _weighted_lag_products(g, max_lag)
     cov = bread @ meat @ bread
     return cov[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+#: Above this many lags the Newey–West sums go through the FFT (O(p^2 n log n), not O(p^2 n L)).
+_DIRECT_LAGS = 32
+
+
+def _weighted_lag_products(g: np.ndarray, max_lag: int) -> np.ndarray:
+    """``sum_{l=1}^{L} (1 - l/(L+1)) (G_l + G_l^T)`` with ``G_l = g[l:]^T g[:-l]``, ``L = min(max_lag, n - 1)``.
+
+    A few lags are summed directly; many (a long correlated record) through the cross-correlations of
+    the columns by FFT, so millions of samples with thousands of lags take seconds, not hours.
+    """
+    n, p = g.shape
+    lags = min(max_lag, n - 1)
+    out = np.zeros((p, p))
+    if lags < 1:
+        return out
+    weights = 1.0 - np.arange(1, lags + 1) / (max_lag + 1.0)
+    if lags <= _DIRECT_LAGS:
+        for lag, w in zip(range(1, lags + 1), weights):
+            gamma = g[lag:].T @ g[:-lag]
+            out += w * (gamma + gamma.T)
+        return out
+    size = 1 << int(2 * n - 1).bit_length()
+    spectra = np.fft.rfft(g, size, axis=0)
+    for i in range(p):
+        for j in range(i, p):
+            # irfft(F_i conj(F_j))[l] = sum_t g[t + l, i] g[t, j] = G_l[i, j]
+            cross = np.fft.irfft(spectra[:, i] * np.conj(spectra[:, j]), size)
+            forward = float(weights @ cross[1:lags + 1])                  # sum_l w_l G_l[i, j]
+            backward = float(weights @ cross[size - lags:][::-1])         # sum_l w_l G_l[j, i]
+            out[i, j] += forward + backward
+            if i != j:
+                out[j, i] += backward + forward
+    return out
 
 
 def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:

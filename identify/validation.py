@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from motorsim.checks import check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
 from motorsim.sensors import backward_difference
@@ -46,7 +46,7 @@ def nrmse_fit(measured, simulated) -> float:
     y = np.asarray(measured, dtype=float)
     ys = np.asarray(simulated, dtype=float)
     if y.shape != ys.shape:
-        raise ValueError(f"measured and simulated must have equal shapes, got {y.shape} and {ys.shape}")
+        raise ParameterError(f"measured and simulated must have equal shapes, got {y.shape} and {ys.shape}")
     ok = np.isfinite(y) & np.isfinite(ys)
     if ok.sum() < 2:
         return math.nan
@@ -367,7 +367,7 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     ValidationReport
     """
     if not isinstance(recording, Recording):
-        raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+        raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     max_lag = check_int("max_lag", max_lag, lo=1, allow_integral_float=False)
     meas, sim = model_output(estimate, recording)
     res, inp, unit = model_residuals(estimate, recording)

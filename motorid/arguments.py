@@ -42,6 +42,17 @@ def _flag_type(k: Knob) -> Callable[[str], Any]:
     return parse
 
 
+def _seed(text: str) -> int:
+    """``--seed``: an integer >= 0 (numpy's generators take no negative seed)."""
+    try:
+        value = int(text) if text.strip().isascii() else -1
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--seed must be an integer >= 0, got {text!r}")
+    return value
+
+
 def add_knob_flag(group: Any, k: Knob, default: Any = None) -> None:
     """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own)."""
     value = k.default if default is None else default
@@ -67,7 +78,7 @@ def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> Non
     for cls in (Motor, Encoder, SimRig):
         for k in knobs_of(cls):
             add_knob_flag(g, k, defaults.get(k.name))
-    g.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+    g.add_argument("--seed", type=_seed, default=0, help="seed of the noise, jitter and drops (default 0)")
 
 
 def sim_rig_from_args(args: argparse.Namespace) -> SimRig:
@@ -122,10 +133,15 @@ def experiment_from_args(args: argparse.Namespace) -> Experiment:
     spec, given = args.excitation, f"--excitation {args.excitation}"
     for name in EXCITATION_FLAGS:
         value = getattr(args, name.replace("-", "_"), None)
-        if value:
+        if value is not None:
+            if not value.strip():
+                raise CommandError(f"--{name} needs {EXCITATION_FLAGS[name].split(':')[0]}, got {value!r}")
             spec, given = f"{name}:{value}", f"--{name} {value}"
+    if spec is not None and not spec.strip():
+        raise CommandError(f"--excitation needs KIND:ARGS (e.g. sine:10,200), got {spec!r}")
     try:
-        experiment = Experiment(parse_excitation(spec or "sine:10,200,0"), **_values(args, Experiment))
+        experiment = Experiment(parse_excitation("sine:10,200,0" if spec is None else spec),
+                                **_values(args, Experiment))
     except (ValueError, TypeError) as exc:
         raise CommandError(f"experiment flags: {exc}") from exc
     warn_if_clipped(experiment, given)

@@ -26,9 +26,6 @@ import warnings
 from typing import Callable, NamedTuple, Sequence
 
 import motorid
-from motorid.arguments import CommandError, print_to_stderr
-from motorsim.files import OutputFileError
-from motorsim.recording import RecordingFormatError
 
 __all__ = ["main", "build_parser", "COMMANDS", "Command", "user_error_types"]
 
@@ -131,13 +128,16 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     """
     from hardware.errors import ProtocolError, RigError
     from identify.errors import NotIdentifiableError
+    from motorid.arguments import CommandError
     from motorsim.checks import ParameterError
+    from motorsim.recording import RecordingFormatError
     from scenarios.scenario import ScenarioError
     return (CommandError, RecordingFormatError, ScenarioError, NotIdentifiableError, ParameterError,
             ProtocolError, RigError, OSError)
 
 
 def _one_line(exc: BaseException) -> str:
+    from motorsim.files import OutputFileError
     text = " ".join(str(exc).split())
     if isinstance(exc, OSError) and not isinstance(exc, OutputFileError) and exc.filename is not None \
             and exc.strerror:
@@ -157,32 +157,59 @@ def _quiet_broken_pipe() -> int:
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning as the command line shows it: ``motorid: warning: ...`` on stderr."""
+    from motorid.arguments import print_to_stderr
     print_to_stderr(f"motorid: warning: {message}")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses)."""
-    from motorid.interrupts import describe_interrupt, exit_status, signals_as_interrupts
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _parse_and_run(argv: Sequence[str] | None) -> int:
+    from motorid.outputs import check_outputs
+    args = build_parser().parse_args(argv)
     try:
-        with signals_as_interrupts(), warnings.catch_warnings():
+        with warnings.catch_warnings():
             warnings.showwarning = _show_warning    # one line, not the source line that warned
+            check_outputs(args)
             return args.run(args)
+    except (KeyboardInterrupt, BrokenPipeError):
+        raise
+    except Exception as exc:
+        return _report_error(exc, args.traceback)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses).
+
+    The signal handlers are in place before the parser is built (which imports every
+    command), so a signal at any moment after start-up gives 128 + its number, no traceback.
+    """
+    try:
+        from motorid.interrupts import signals_as_interrupts
+        with signals_as_interrupts():
+            return _parse_and_run(argv)
     except KeyboardInterrupt as exc:
-        print_to_stderr(f"motorid: {describe_interrupt(exc)}")
+        from motorid.interrupts import describe_interrupt, exit_status
+        _say(f"motorid: {describe_interrupt(exc)}")
         return exit_status(exc)
     except BrokenPipeError:
         return _quiet_broken_pipe()
-    except Exception as exc:
-        if args.traceback:
-            traceback.print_exc()
-        if isinstance(exc, user_error_types()):
-            print_to_stderr(f"motorid: error: {_one_line(exc)}")
-            return 2
-        print_to_stderr(f"motorid: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
-                        "(a bug: re-run with --traceback to see where, and report it)")
-        return 1
+
+
+def _say(line: str) -> None:
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _report_error(exc: Exception, show_traceback: bool) -> int:
+    """One line for ``exc``: a user error (status 2) or a bug (status 1)."""
+    if show_traceback:
+        traceback.print_exc()
+    if isinstance(exc, user_error_types()):
+        _say(f"motorid: error: {_one_line(exc)}")
+        return 2
+    _say(f"motorid: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
+         "(a bug: re-run with --traceback to see where, and report it)")
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

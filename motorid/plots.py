@@ -38,8 +38,22 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _finish(fig: Figure, path) -> Figure:
+    """Write ``fig`` to ``path`` (if given) in the format its extension names, atomically.
+
+    The figure is drawn into memory first, so a link, FIFO or device at ``path`` is never
+    opened, and the file that appears is exactly ``path``: no extension is added.
+    """
     if path is not None:
-        fig.savefig(path, dpi=DPI)
+        import io
+
+        from motorsim.files import FIGURE_SUFFIXES, OutputFileError, write_bytes_atomically
+        suffix = Path(path).suffix.lower()
+        if suffix not in FIGURE_SUFFIXES:
+            raise OutputFileError(f"figure {path}: the extension names the format written; "
+                                  f"give one of {', '.join(FIGURE_SUFFIXES)}")
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format=suffix[1:], dpi=DPI)
+        write_bytes_atomically(path, buffer.getvalue())
     return fig
 
 

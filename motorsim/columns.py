@@ -112,9 +112,25 @@ def _number(cell: str) -> float | None:
         return None
 
 
+#: The largest foreign file read, in bytes (that of a recording).
+MAX_TABLE_BYTES = 1 << 30
+
+
+def _read_bytes(path: str) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_TABLE_BYTES` (FIFOs and devices refused, not waited on)."""
+    from .files import InputFileError, read_input_bytes
+    try:
+        return read_input_bytes(path, what="file", max_bytes=MAX_TABLE_BYTES)
+    except InputFileError as exc:
+        message = str(exc).removeprefix("file ").replace(": cannot read: No such file or directory", ": no such file")
+        raise ImportFormatError(message) from None
+    except OSError as exc:
+        raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
 def _read_text(path: str) -> Table:
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
+        text = _read_bytes(path).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and s.lstrip()[0] not in "#%"]
@@ -146,13 +162,20 @@ def _read_text(path: str) -> Table:
 
 
 def _read_mat(path: str) -> Table:
+    import io as bytes_io
+
     from scipy import io
+    raw = _read_bytes(path)
+    if not raw:
+        raise ImportFormatError(f"{path}: an empty file (0 bytes), not a MATLAB .mat file")
     try:
-        data = io.loadmat(path, squeeze_me=False)
+        data = io.loadmat(bytes_io.BytesIO(raw), squeeze_me=False)
     except NotImplementedError:
         return _read_mat_hdf5(path)
-    except ValueError as exc:
-        raise ImportFormatError(f"{path}: not a MATLAB .mat file scipy can read ({exc})") from None
+    except Exception as exc:   # noqa: BLE001 -- scipy's reader raises a zoo on a damaged file (MatReadError,
+        # OSError "could not read bytes", IndexError, UnboundLocalError, MemoryError for a huge declared size...)
+        raise ImportFormatError(f"{path}: a damaged or truncated MATLAB .mat file scipy cannot read "
+                                f"({type(exc).__name__}: {exc})") from None
     return _table_from_variables(path, {k: v for k, v in data.items() if not k.startswith("__")})
 
 
@@ -209,8 +232,6 @@ def read_table(path: str | os.PathLike) -> Table:
         Naming the file, the line and the column of what cannot be read.
     """
     path = os.fspath(path)
-    if not Path(path).is_file():
-        raise ImportFormatError(f"{path}: no such file")
     if path.lower().endswith(".mat"):
         return _read_mat(path)
     return _read_text(path)

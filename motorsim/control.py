@@ -66,6 +66,10 @@ __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepM
 # The model
 # ----------------------------------------------------------------------------------------------------------
 
+#: The most samples :meth:`Controller.predict` simulates (10 s at 1 MHz; a few seconds of work).
+MAX_PREDICTION_SAMPLES = 10_000_000
+
+
 @dataclasses.dataclass(frozen=True)
 class PlantModel:
     """The numbers a controller is designed from.
@@ -275,11 +279,11 @@ class Reference:
         dt = check_real("sample_period", sample_period, positive=True)
 
         def lsb(x: float, name: str) -> int:
-            v = int(round(x * scale))
-            if abs(v) > MAX_REFERENCE:
-                raise ParameterError(f"reference {name} {x!r} is {v} units of the controller's reference, "
-                                 f"beyond the device's limit +-{MAX_REFERENCE}")
-            return v
+            units = x * scale
+            if not abs(units) <= MAX_REFERENCE:     # also an overflow to inf
+                raise ParameterError(f"reference {name} {x!r} is {units:.4g} units of the controller's reference, "
+                                     f"beyond the device's limit +-{MAX_REFERENCE}")
+            return int(round(units))
 
         if self.kind == "constant":
             return ReferenceWords("constant", lsb(self.level, "level"))
@@ -467,7 +471,12 @@ class Controller:
         """
         import control
         h = self.model.sample_period
-        n = int(round(check_real("duration", duration, positive=True) / h))
+        n_float = check_real("duration", duration, positive=True) / h
+        if n_float > MAX_PREDICTION_SAMPLES:
+            raise ParameterError(f"duration / sample_period must give at most {MAX_PREDICTION_SAMPLES:,} samples "
+                                 f"for a prediction, got {duration!r} s / {h!r} s = {n_float:.3g}; shorten the "
+                                 "duration or lengthen the sample period")
+        n = int(round(n_float))
         r = reference.samples(n + self.preview, h, self.reference_scale).astype(float)
         t = np.arange(n) * h
         t_y, t_u = self.closed_loop()

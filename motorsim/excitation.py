@@ -609,17 +609,30 @@ def split_spec(spec: str, what: str, forms: str) -> tuple[str, str, float]:
     offset = 0.0
     if "@" in args:
         args, _, off = args.partition("@")
-        if off.strip():
-            offset = spec_numbers(off, spec, what, forms)[0]
+        numbers = spec_numbers(off, spec, what, forms) if off.strip() else [0.0]   # an empty offset is none
+        if len(numbers) != 1:
+            raise ParameterError(f"{what} {spec!r}: @ takes one OFFSET; forms: {forms}")
+        offset = numbers[0]
     return kind.strip().lower(), args, offset
 
 
 def spec_numbers(text: str, spec: str, what: str, forms: str) -> list[float]:
-    """The comma-separated numbers of ``text`` (part of ``spec``), or an error naming ``what`` and ``forms``."""
+    """The comma-separated numbers of ``text`` (part of ``spec``), or an error naming ``what`` and ``forms``.
+
+    Every item must be a finite number in ASCII digits: an empty item (``10,,200``) is refused,
+    not skipped, since skipping it would move the numbers after it to other parameters.
+    """
+    items = text.split(",")
+    if not text.strip():
+        items = []
     try:
-        return [float(x) for x in text.split(",") if x.strip()]
+        values = [float(x) for x in items if x.strip() and x.isascii() and "_" not in x]
     except ValueError:
-        raise ParameterError(f"{what} {spec!r}: expected comma-separated numbers; forms: {forms}") from None
+        values = []
+    if len(values) != len(items) or not all(math.isfinite(v) for v in values):
+        raise ParameterError(f"{what} {spec!r}: expected comma-separated numbers (finite, digits 0-9, none "
+                             f"left empty); forms: {forms}")
+    return values
 
 
 def _numbers(text: str, spec: str) -> list[float]:
@@ -641,7 +654,10 @@ def _parse_sine(args: str, spec: str, offset: float) -> Excitation:
 
 
 def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
-    comps = [_numbers(c, spec) for c in args.split(";") if c.strip()]
+    parts = args.split(";")
+    if parts and not parts[-1].strip():
+        parts = parts[:-1]                    # one trailing ';' is harmless
+    comps = [_numbers(c, spec) for c in parts]
     if not comps or any(not 1 <= len(c) <= 3 for c in comps):
         raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
     return Multisine(tuple(c[0] for c in comps),
@@ -714,5 +730,10 @@ def parse_excitation(spec: str) -> Excitation:
     """
     kind, args, offset = split_spec(spec, "excitation", _PARSE_HELP)
     if kind not in _PARSERS:
-        raise ValueError(f"excitation kind must be one of {', '.join(_PARSERS)}, got {kind!r}")
-    return _PARSERS[kind](args, spec, offset)
+        raise ParameterError(f"excitation kind must be one of {', '.join(_PARSERS)}, got {kind!r}")
+    try:
+        return _PARSERS[kind](args, spec, offset)
+    except ParameterError:
+        raise
+    except (ValueError, TypeError) as exc:     # a rule of the excitation itself, said for this spec
+        raise ParameterError(f"excitation {spec!r}: {exc}") from None

@@ -14,6 +14,16 @@ Every file motorid writes goes through here:
 - files are created with mode ``0o666`` less the user's umask, as any program's files are;
 - every failure is an :class:`OutputFileError` (an ``OSError``) whose message names the
   file, the reason, and what became of the old file.
+
+The one rule for a command's outputs (:func:`check_output_path`, applied before any work):
+a regular file or nothing (a symbolic link, a folder, a device, a FIFO refused), never one
+of the command's own inputs, and, where the format follows the name (figures), an extension
+that names the format written, so the path reported is the path written.  A refusal names
+the flag.
+
+Inputs are opened by :func:`open_input`: the kind is checked before the file is opened (a
+FIFO would block ``open`` until a writer comes), then the size, so no read waits forever or
+fills the memory.
 """
 from __future__ import annotations
 
@@ -23,10 +33,11 @@ import re
 import secrets
 import stat
 from pathlib import Path
-from typing import Iterator, TextIO
+from typing import BinaryIO, Iterable, Iterator, Sequence, TextIO
 
-__all__ = ["OutputFileError", "open_exclusive", "atomic_writer", "write_atomically", "check_output_file",
-           "make_output_dir", "safe_file_name"]
+__all__ = ["OutputFileError", "InputFileError", "open_exclusive", "atomic_writer", "write_atomically",
+           "write_bytes_atomically", "check_output_file", "check_output_path", "make_output_dir", "safe_file_name",
+           "open_input", "read_input_bytes", "same_file", "FIGURE_SUFFIXES"]
 
 _EXCLUSIVE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
@@ -40,6 +51,25 @@ class OutputFileError(OSError):
 
     def __str__(self) -> str:
         return self.message
+
+
+class InputFileError(OSError, ValueError):
+    """A file given as input cannot be read as one: missing, not a regular file, or too large.
+
+    An ``OSError`` (a path that cannot be read) and a ``ValueError`` (a wrong argument), so
+    callers that catch either see it.
+    """
+
+    def __init__(self, message: str, errno: int | None = None):
+        super().__init__(errno, message) if errno is not None else super().__init__(message)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+#: Extensions of the figure formats motorid writes (matplotlib's, by the extension).
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 def _reason(exc: OSError) -> str:
@@ -95,6 +125,20 @@ def _temporary_beside(path: Path) -> tuple[Path, TextIO]:
         except FileExistsError:
             continue
     raise OutputFileError(f"cannot write {path}: no free temporary name beside it")  # pragma: no cover
+
+
+def _kind(mode: int, folder: str = "a folder") -> str:
+    if stat.S_ISDIR(mode):
+        return folder
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    return "not a regular file"
 
 
 @contextlib.contextmanager
@@ -162,6 +206,78 @@ def write_atomically(path: str | os.PathLike, text: str) -> Path:
         f.write(text)
     return Path(path)
 
+
+def write_bytes_atomically(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` as :func:`write_atomically` writes text (temporary file, then rename)."""
+    with atomic_writer(path) as f:
+        f.flush()
+        f.buffer.write(data)
+    return Path(path)
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether the paths ``a`` and ``b`` name one file (a link followed, the same inode)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def check_output_path(path: str | os.PathLike, *, flag: str, inputs: Iterable[str | os.PathLike] = (),
+                      suffixes: Sequence[str] | None = None) -> Path:
+    """The one rule for a file a command writes, checked before any work.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to be written.
+    flag : str
+        The flag that gave ``path`` (every message names it).
+    inputs : iterable of path-like
+        The command's input files: ``path`` must be none of them.
+    suffixes : sequence of str, optional
+        The extensions that name a format written (figures); ``path`` must end with one.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    OutputFileError
+        ``path`` is a symbolic link, a folder, a device, a FIFO or a socket; it is one of
+        ``inputs``; its extension is not one of ``suffixes``; or its folder cannot take it.
+
+    Examples
+    --------
+    >>> check_output_path("fit.png", flag="--report", suffixes=FIGURE_SUFFIXES)
+    PosixPath('fit.png')
+    >>> check_output_path("fit", flag="--report", suffixes=FIGURE_SUFFIXES)
+    Traceback (most recent call last):
+    ...
+    motorsim.files.OutputFileError: --report fit: the extension names the format written; give one of .png, .pdf, .svg
+    """
+    path = Path(path)
+    if not str(path).strip():
+        raise OutputFileError(f"{flag}: an empty path; give a file name")
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        got = f" (got {path.suffix!r})" if path.suffix else ""
+        raise OutputFileError(f"{flag} {path}: the extension names the format written; give one of "
+                              f"{', '.join(suffixes)}{got}")
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        raise OutputFileError(f"{flag} {path}: {_reason(exc)}", exc.errno) from None
+    if mode is not None and not stat.S_ISREG(mode):
+        raise OutputFileError(f"{flag} {path} is {_kind(mode)}, not a regular file: an output must be a regular "
+                              "file or a new name (never replaced, never followed)")
+    for source in inputs:
+        if mode is not None and same_file(path, source):
+            raise OutputFileError(f"{flag} {path} is an input of this command ({source}); "
+                                  "give another name, the input is never overwritten")
+    return check_output_file(path, flag=flag)
 
 def check_output_file(path: str | os.PathLike, *, overwrite: bool = True, flag: str = "--out") -> Path:
     """Check, before any work, that ``path`` can be written: its folder exists and takes a new file.
@@ -234,3 +350,61 @@ def safe_file_name(name: str, default: str = "unnamed") -> str:
     cleaned = re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).strip("._")
     cleaned = re.sub(r"_*\.\._*", "_", cleaned)
     return cleaned[:100] or default
+
+
+
+def open_input(path: str | os.PathLike, *, what: str, max_bytes: int) -> BinaryIO:
+    """``path`` opened for reading bytes, once it is known to be a regular file of at most ``max_bytes``.
+
+    The kind is checked before opening: opening a FIFO waits for a writer, reading a device
+    such as ``/dev/zero`` never ends.  The file is opened without blocking and checked again
+    (it may have been swapped meanwhile).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    what : str
+        What the file is to the caller (``"--model"``, ``"recording"``), for messages.
+    max_bytes : int
+        The largest size accepted.
+
+    Raises
+    ------
+    InputFileError
+        Missing, unreadable, not a regular file (saying what it is), or over ``max_bytes``.
+    """
+    name = os.fspath(path)
+    if not str(name).strip():
+        raise InputFileError(f"{what}: an empty path; give a file")
+    try:
+        mode = os.stat(name).st_mode
+    except FileNotFoundError:
+        raise InputFileError(f"{what} {name}: cannot read: No such file or directory") from None
+    except OSError as exc:
+        raise InputFileError(f"{what} {name}: cannot read: {_reason(exc)}", exc.errno) from None
+    if not stat.S_ISREG(mode):
+        raise InputFileError(f"{what} {name}: not a regular file ({_kind(mode, 'a directory')}); give a file")
+    try:
+        fd = os.open(name, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise InputFileError(f"{what} {name}: cannot read: {_reason(exc)}", exc.errno) from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise InputFileError(f"{what} {name}: not a regular file ({_kind(st.st_mode, 'a directory')}); give a file")
+    if st.st_size > max_bytes:
+        os.close(fd)
+        raise InputFileError(f"{what} {name}: {st.st_size} bytes is over the {max_bytes} bytes it may have")
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+def read_input_bytes(path: str | os.PathLike, *, what: str, max_bytes: int) -> bytes:
+    """The bytes of ``path`` through :func:`open_input`; a file that grew past ``max_bytes`` is refused too."""
+    with open_input(path, what=what, max_bytes=max_bytes) as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise InputFileError(f"{what} {os.fspath(path)}: over the {max_bytes} bytes it may have")
+    return data

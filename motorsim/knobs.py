@@ -23,7 +23,10 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
+
+from .checks import ParameterError, ParameterTypeError
 
 __all__ = ["Knob", "knob", "knobs_of"]
 
@@ -76,22 +79,27 @@ class Knob:
     def parse(self, text: str) -> Any:
         """Convert a command-line or URL string to this knob's type, naming the knob on failure."""
         try:
+            if not text.isascii():
+                raise ParameterError(text)      # float() would read digits of any script
             if self.kind is bool:
                 low = text.strip().lower()
                 if low in ("1", "true", "yes", "on"):
                     return True
                 if low in ("0", "false", "no", "off"):
                     return False
-                raise ValueError(text)
+                raise ParameterError(text)
             if self.kind is int:
                 value = float(text)
                 if not value.is_integer():
-                    raise ValueError(text)
+                    raise ParameterError(text)
                 return int(value)
-            return float(text)
+            value = float(text)
         except ValueError:
             kind = {bool: "true or false", int: "an integer", float: "a number"}[self.kind]
-            raise ValueError(f"{self.name} must be {kind}, got {text!r}") from None
+            raise ParameterError(f"{self.name} must be {kind}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise ParameterError(f"{self.name} must be a finite number, got {text!r}")
+        return value
 
     def describe(self) -> str:
         """Help text with unit and default, for ``--help`` and the docs."""
@@ -120,14 +128,14 @@ def knob(default: Any = dataclasses.MISSING, *, unit: str, help: str, kind: type
     if kind is None:
         kind = float if default is dataclasses.MISSING else type(default)
     if kind not in (int, float, bool):
-        raise TypeError(f"kind must be int, float or bool, got {kind!r}")
+        raise ParameterTypeError(f"kind must be int, float or bool, got {kind!r}")
     return dataclasses.field(default=default, metadata={_UNIT: unit, _HELP: help, _KIND: kind, _RECORDED: recorded})
 
 
 def knobs_of(cls: type) -> tuple[Knob, ...]:
     """The knobs a dataclass declares, in field order."""
     if not dataclasses.is_dataclass(cls):
-        raise TypeError(f"cls must be a dataclass, got {cls!r}")
+        raise ParameterTypeError(f"cls must be a dataclass, got {cls!r}")
     return tuple(Knob(f.name, cls, f.metadata[_KIND], f.default, f.metadata[_UNIT], f.metadata[_HELP],
                       f.metadata.get(_RECORDED, False))
                  for f in dataclasses.fields(cls) if _HELP in f.metadata)

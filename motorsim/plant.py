@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .checks import check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .knobs import knob
 from .recursion import first_order_filter
 
@@ -65,7 +65,7 @@ class Motor:
         object.__setattr__(self, "a", check_real("a", self.a, positive=True))
         b = check_real("b", self.b)
         if b == 0:
-            raise ValueError(f"b must be nonzero, got {self.b!r}")
+            raise ParameterError(f"b must be nonzero, got {self.b!r}")
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "friction", check_real("friction", self.friction, nonnegative=True))
         object.__setattr__(self, "bias", check_real("bias", self.bias))
@@ -184,16 +184,16 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     [0.0, 2.654, 4.722, 6.332, 7.585]
     """
     if not isinstance(motor, Motor):
-        raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")
+        raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
     u = np.asarray(duty, dtype=float)
     t = np.asarray(time, dtype=float)
     if u.ndim != 1 or t.shape != u.shape:
-        raise ValueError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
+        raise ParameterError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(t))):
-        raise ValueError("duty and time must be finite")
+        raise ParameterError("duty and time must be finite")
     h = np.diff(t)
     if np.any(h <= 0):
-        raise ValueError("time must be strictly increasing")
+        raise ParameterError("time must be strictly increasing")
     v = motor.drive(delayed_duty(u, motor.input_delay, duty_before))[:-1] if len(u) else u
     n = len(t)
     angle = np.empty(n)

@@ -15,6 +15,15 @@ Rules
   count at row ``k`` makes the speed jump at ``k`` and back at ``k + 1``; only ``k`` is named.
 * **Time**: a row whose interval per ``seq`` step exceeds :data:`INTERVAL_FACTOR` sample
   periods (jitter keeps it below 2).
+* **Duty beyond its limit**: a row whose duty exceeds the recording's declared duty limit
+  (the ``duty_limit`` metadata): the bench clamps every duty it applies.
+* **Duty spike**: a row whose duty jumps away from both neighbours, on the same side, by more
+  than :data:`DUTY_SPIKE_FACTOR` times the run's 99th-percentile step of the duty (its largest
+  1 %, at least 3 steps, left out; at least one duty unit): no excitation motorid knows makes
+  a one-sample excursion that large, a corrupted cell does.
+
+:func:`saturated_runs` finds the runs of samples at the duty limit (the model's linear
+input no longer reaches the motor there); they are reported, with their number of samples.
 """
 from __future__ import annotations
 
@@ -22,13 +31,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["ImplausibleSample", "implausible_samples", "spike_rows", "SPEED_FACTOR",
-           "INTERVAL_FACTOR"]
+__all__ = ["ImplausibleSample", "implausible_samples", "spike_rows", "saturated_runs", "SPEED_FACTOR",
+           "INTERVAL_FACTOR", "DUTY_SPIKE_FACTOR"]
 
 #: A speed this many times the run's 99th-percentile speed is not physical.
 SPEED_FACTOR = 30.0
 #: An interval this many sample periods per ``seq`` step is not a jittered sample.
 INTERVAL_FACTOR = 10.0
+#: A one-sample duty excursion this many times the run's 99th-percentile duty step is a corrupted cell.
+DUTY_SPIKE_FACTOR = 4.0
 
 
 class ImplausibleSample(NamedTuple):
@@ -92,8 +103,49 @@ def _interval_rows(time: np.ndarray, seq: np.ndarray, sample_period: float) -> l
             for k in (np.flatnonzero(per_step > INTERVAL_FACTOR) + 1).tolist()]
 
 
+def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> list[ImplausibleSample]:
+    found: list[ImplausibleSample] = []
+    if duty_limit is not None:
+        found += [ImplausibleSample(k, int(seq[k]), f"duty {duty[k]:.6g} is beyond the recording's duty limit "
+                                                    f"+-{duty_limit:g}")
+                  for k in np.flatnonzero(np.abs(duty) > duty_limit).tolist()]
+    if len(duty) < 10:
+        return found
+    step = np.diff(duty)
+    magnitude = np.abs(step)
+    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
+    scale = max(float(np.partition(magnitude, top)[top]), 1.0)
+    away_before, away_after = step[:-1], -step[1:]          # duty[k] - duty[k-1], duty[k] - duty[k+1]
+    same_side = np.sign(away_before) == np.sign(away_after)
+    size = np.minimum(np.abs(away_before), np.abs(away_after))
+    limit = DUTY_SPIKE_FACTOR * scale
+    seen = {s.row for s in found}
+    for k in (np.flatnonzero(same_side & (size > limit)) + 1).tolist():
+        if k not in seen:
+            found.append(ImplausibleSample(k, int(seq[k]), f"duty {duty[k]:.6g} jumps {size[k - 1]:.4g} away from "
+                                                           f"both neighbours, {size[k - 1] / scale:.3g} times the "
+                                                           f"run's 99th-percentile duty step {scale:.4g} (limit "
+                                                           f"{DUTY_SPIKE_FACTOR:g} times)"))
+    return found
+
+
+def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]:
+    """The runs of at least two consecutive samples at ``|duty| >= duty_limit``, as ``(first row, length)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> saturated_runs(np.array([0, 255, 255, 255, 10, -255, 3]), 255)
+    [(1, 3)]
+    """
+    at = np.abs(np.asarray(duty, float)) >= duty_limit
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(np.int8), [0]])))
+    return [(int(a), int(b - a)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= 2]
+
+
 def implausible_samples(time: np.ndarray, seq: np.ndarray, speed: np.ndarray, sample_period: float,
-                        speed_floor: float = 0.0) -> list[ImplausibleSample]:
+                        speed_floor: float = 0.0, *, duty: np.ndarray | None = None,
+                        duty_limit: float | None = None) -> list[ImplausibleSample]:
     """The rows that no motor or sampler can produce (see the module's rules).
 
     :meth:`motorsim.Recording.implausible_samples` calls this on a recording's columns.
@@ -110,6 +162,10 @@ def implausible_samples(time: np.ndarray, seq: np.ndarray, speed: np.ndarray, sa
         Nominal sample period in s.
     speed_floor : float, optional
         Smallest speed scale in rad/s, e.g. one encoder count per sample period (default 0).
+    duty : ndarray, shape (n,), optional
+        The input; when given, its spikes are rows too.
+    duty_limit : float, optional
+        The declared duty limit; a duty beyond it is a row too.
 
     Returns
     -------
@@ -127,4 +183,7 @@ def implausible_samples(time: np.ndarray, seq: np.ndarray, speed: np.ndarray, sa
     found = {s.row: s for s in _interval_rows(time, seq, sample_period)}
     for s in _speed_rows(speed, seq, speed_floor):
         found.setdefault(s.row, s)
+    if duty is not None:
+        for s in _duty_rows(np.asarray(duty, float), seq, duty_limit):
+            found.setdefault(s.row, s)
     return [found[k] for k in sorted(found)]

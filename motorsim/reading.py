@@ -12,12 +12,12 @@ import csv
 import io
 import math
 import os
-import stat
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
+from typing import BinaryIO, Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
 
 import numpy as np
 
+from .files import InputFileError, open_input
 from .recording import COLUMNS, FORMAT_HEADER, INTEGER_COLUMNS, METADATA_ALIASES, Recording, RecordingFormatError
 
 __all__ = ["read_recording", "MAX_RECORDING_BYTES", "FAST_PATH_MIN_BYTES"]
@@ -85,8 +85,7 @@ def _scan_file(path: Path) -> _FileScan:
     """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
     head, newlines, last = b"", 0, b""
     try:
-        with open(path, "rb") as f:
-            _check_regular(path, os.fstat(f.fileno()))
+        with _open_recording(path) as f:
             total = 0
             while block := f.read(_SCAN_BLOCK_BYTES):
                 if not head:
@@ -102,8 +101,6 @@ def _scan_file(path: Path) -> _FileScan:
                 if total > MAX_RECORDING_BYTES:
                     raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
                                                "split it")
-    except IsADirectoryError:
-        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
     return _FileScan(head, newlines, last == b"\n", total)
@@ -277,24 +274,26 @@ MAX_RECORDING_BYTES = 1 << 30
 FAST_PATH_MIN_BYTES = 256 << 10
 
 
-def _check_regular(path: Path, st: os.stat_result) -> None:
-    """Refuse anything but a regular file of at most :data:`MAX_RECORDING_BYTES`."""
-    if not stat.S_ISREG(st.st_mode):
-        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
-        raise RecordingFormatError(f"{path}: not a regular file ({kind}); give a recording file")
-    if st.st_size > MAX_RECORDING_BYTES:
-        raise RecordingFormatError(f"{path}: {st.st_size} bytes is over the {MAX_RECORDING_BYTES} bytes a "
-                                   "recording may have; split it")
+def _open_recording(path: Path) -> BinaryIO:
+    """``path`` opened once it is known to be a regular file of at most :data:`MAX_RECORDING_BYTES`.
+
+    The kind is checked before the file is opened (:func:`motorsim.files.open_input`): a FIFO
+    or a device is refused at once, never waited on.
+    """
+    try:
+        return open_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
+    except InputFileError as exc:
+        rule = str(exc).removeprefix(f"recording {path}").lstrip(": ")
+        if "bytes is over" in rule:
+            rule += "; split it"
+        raise RecordingFormatError(f"{path}: {rule}") from None
 
 
 def _read_bounded(path: Path) -> bytes:
     """The bytes of a regular file of at most :data:`MAX_RECORDING_BYTES`, or RecordingFormatError."""
     try:
-        with open(path, "rb") as f:
-            _check_regular(path, os.fstat(f.fileno()))
+        with _open_recording(path) as f:
             data = f.read(MAX_RECORDING_BYTES + 1)
-    except IsADirectoryError:
-        raise RecordingFormatError(f"{path}: not a regular file (a directory); give a recording file") from None
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if len(data) > MAX_RECORDING_BYTES:
@@ -358,7 +357,12 @@ def _parse_metadata(lines: list[str], fail: _Failer) -> tuple[dict[str, str], in
                 fail(i + 1, f"unsupported format {body!r}; this version reads {FORMAT_HEADER[2:]!r}")
         elif ":" in body:
             k, _, v = body.partition(":")
-            meta[METADATA_ALIASES.get(k.strip(), k.strip())] = v.strip()
+            key = METADATA_ALIASES.get(k.strip(), k.strip())
+            if key in meta:
+                said = f"{k.strip()!r} (an alias of {key!r})" if key != k.strip() else repr(key)
+                same = "again" if meta[key] == v.strip() else f"as {v.strip()!r} after {meta[key]!r}"
+                fail(i + 1, f"metadata {said} is given {same}; give each key once")
+            meta[key] = v.strip()
         i += 1
     if i == len(lines):
         fail(i, "no header row (expected column names such as seq,time_s,duty,counts)")
@@ -377,6 +381,8 @@ def _check_header(header: list[str], line: int, fail: _Failer) -> None:
 
 def _parse_cell(column: str, cell: str, line: int, fail: _Failer) -> float:
     cell = cell.strip()
+    if not cell.isascii():
+        fail(line, f"column {column!r} must be a plain ASCII number (digits 0-9), got {cell[:40]!r}")
     if "_" in cell:
         fail(line, f"column {column!r} must be a plain number (no '_' digit separators), got {cell!r}")
     if column in INTEGER_COLUMNS:
@@ -452,6 +458,8 @@ def _counts_per_rev(meta: Mapping[str, str], fail: _Failer) -> int | None:
     if "counts_per_rev" not in meta:
         return None
     try:
+        if not meta["counts_per_rev"].isascii():
+            raise ValueError
         cpr = int(meta["counts_per_rev"])
         if cpr <= 0:
             raise ValueError
@@ -464,6 +472,8 @@ def _sample_period(meta: Mapping[str, str], time_s: np.ndarray, fail: _Failer) -
     """The metadata's sample period, else the median interval of ``time_s``."""
     if "sample_period" in meta:
         try:
+            if not meta["sample_period"].isascii():
+                raise ValueError
             sp = float(meta["sample_period"])
             if not (math.isfinite(sp) and sp > 0):
                 raise ValueError

@@ -48,8 +48,8 @@ from typing import Iterable, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .checks import check_int, check_real
-from .plausibility import ImplausibleSample, implausible_samples
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .plausibility import ImplausibleSample, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
 
 __all__ = ["Recording", "RecordingFormatError", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES", "INTEGER_COLUMNS",
@@ -85,9 +85,9 @@ def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) ->
     else:
         arr = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
-        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
+        raise ParameterError(f"{name} must be 1-D, got shape {arr.shape}")
     if n is not None and len(arr) != n:
-        raise ValueError(f"{name} must have the same length as time ({n}), got {len(arr)}")
+        raise ParameterError(f"{name} must have the same length as time ({n}), got {len(arr)}")
     arr.setflags(write=False)
     return arr
 
@@ -104,16 +104,40 @@ def _integer_array(name: str, value: ArrayLike | None, n: int) -> np.ndarray | N
     raw = np.asarray(value)
     if raw.dtype.kind == "f":
         if not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
-            raise ValueError(f"{name} must hold integers, got non-integer values")
+            raise ParameterError(f"{name} must hold integers, got non-integer values")
     elif raw.dtype.kind not in "iu":
-        raise TypeError(f"{name} must hold integers, got dtype {raw.dtype}")
+        raise ParameterTypeError(f"{name} must hold integers, got dtype {raw.dtype}")
     return _as_array(name, value, np.int64, n)
 
 
+#: The largest magnitude of an angle (rad), speed (rad/s), duty or reference a recording may hold:
+#: beyond it no motor is measured, and the fits' squares overflow.
+MAX_MAGNITUDE = 1e12
+#: Beyond this magnitude a float64 no longer holds every integer count: :meth:`Recording.measured_angle`
+#: then measures the counts from their median, exactly, before converting them.
+MAX_EXACT_COUNT = 2 ** 53
+#: The range of a sample period in s (a GHz sampler to one sample per few hours).
+SAMPLE_PERIOD_RANGE = (1e-9, 1e4)
+
+
 def _check_finite(name: str, arr: np.ndarray | None) -> None:
-    if arr is not None and not np.all(np.isfinite(arr)):
+    if arr is None:
+        return
+    if not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+        raise ParameterError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
+    if name != "time" and len(arr) and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+        k = int(np.argmax(np.abs(arr)))
+        raise ParameterError(f"{name} must be within +-{MAX_MAGNITUDE:g} (no motor gives more), got {arr[k]!r} "
+                             f"at sample {k}")
+
+
+def _check_sample_period(sample_period: float) -> float:
+    value = check_real("sample_period", sample_period, positive=True)
+    lo, hi = SAMPLE_PERIOD_RANGE
+    if not lo <= value <= hi:
+        raise ParameterError(f"sample_period must be in {lo:g}...{hi:g} s, got {value!r}")
+    return value
 
 
 def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
@@ -126,7 +150,7 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
     del per_step
     ratio = interval / sample_period
     if abs(ratio - 1) > TIME_BASE_TOLERANCE:
-        raise ValueError(
+        raise ParameterError(
             f"time and sample_period disagree: time advances {interval:.6g} s per sample (median over "
             f"{len(time) - 1} intervals) but sample_period is {sample_period!r} s, a factor {ratio:.4g} "
             f"(allowed: within {TIME_BASE_TOLERANCE:.0%}); is time in seconds, and is the period right?")
@@ -135,9 +159,9 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
 def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
     if len(time) > 1 and np.any(np.diff(time) <= 0):
         k = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 1
-        raise ValueError(f"time must be strictly increasing, got {time[k]!r} after {time[k-1]!r} at sample {k}")
+        raise ParameterError(f"time must be strictly increasing, got {time[k]!r} after {time[k-1]!r} at sample {k}")
     if len(seq) > 1 and np.any(np.diff(seq) <= 0):
-        raise ValueError("seq must be strictly increasing")
+        raise ParameterError("seq must be strictly increasing")
 
 
 @dataclasses.dataclass(frozen=True, eq=False, init=False)
@@ -205,12 +229,12 @@ class Recording:
             seq_array.setflags(write=False)
         for name, value in (*columns.items(), ("seq", seq_array)):
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "sample_period", check_real("sample_period", sample_period, positive=True))
+        object.__setattr__(self, "sample_period", _check_sample_period(sample_period))
         if counts is None and angle is None and speed is None:
-            raise ValueError("a Recording needs at least one of counts, angle, speed")
+            raise ParameterError("a Recording needs at least one of counts, angle, speed")
         if counts is not None:
             if counts_per_rev is None:
-                raise ValueError("counts_per_rev must be a positive integer when counts are given, got None")
+                raise ParameterError("counts_per_rev must be a positive integer when counts are given, got None")
             counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         object.__setattr__(self, "counts_per_rev", counts_per_rev)
         for name in ("time", "duty", "angle", "speed", "reference"):
@@ -220,7 +244,7 @@ class Recording:
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):
-            raise TypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
+            raise ParameterTypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
         object.__setattr__(self, "metadata", {str(k): str(v) for k, v in metadata.items()})
 
     @classmethod
@@ -271,11 +295,22 @@ class Recording:
         return self.metadata.get("input_unit", "duty")
 
     def measured_angle(self) -> np.ndarray | None:
-        """Angle in rad: the ``angle`` column, else counts converted, else None."""
+        """Angle in rad: the ``angle`` column, else counts converted, else None.
+
+        Counts beyond +-2**53 (an offset of 2**62, say) are measured from their median count
+        first, so that no count loses its last bits in the conversion to float.
+        """
         if self.angle is not None:
             return self.angle
         if self.counts is not None and self.counts_per_rev is not None:
-            return counts_to_angle(self.counts, self.counts_per_rev)
+            counts = self.counts
+            if len(counts) and (int(counts.max()) > MAX_EXACT_COUNT or int(counts.min()) < -MAX_EXACT_COUNT):
+                # counts offset by 2**62 would lose their last bits as floats: measure them from the median
+                # count, in exact (wrapping) integer arithmetic; only the angle's offset changes
+                middle = np.partition(counts, len(counts) // 2)[len(counts) // 2]
+                with np.errstate(over="ignore"):
+                    counts = counts - middle
+            return counts_to_angle(counts, self.counts_per_rev)
         return None
 
     def measured_speed(self) -> np.ndarray:
@@ -307,7 +342,7 @@ class Recording:
                                    reference=cut(self.reference))
 
     def implausible_samples(self) -> list[ImplausibleSample]:
-        """Rows no motor can produce: a speed or time step far beyond the rest of the run.
+        """Rows no motor can produce: a speed, time or duty step far beyond the rest of the run.
 
         See :mod:`motorsim.plausibility` for the rules; one count per sample period is the
         smallest speed scale of a counts recording.
@@ -325,7 +360,22 @@ class Recording:
         floor = 0.0
         if self.counts is not None and self.counts_per_rev is not None:
             floor = 2 * np.pi / self.counts_per_rev / self.sample_period
-        return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor)
+        return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor,
+                                   duty=self.duty, duty_limit=self.duty_limit)
+
+    @property
+    def duty_limit(self) -> float | None:
+        """The duty limit the metadata declare (``duty_limit``), or None."""
+        try:
+            value = float(self.metadata.get("duty_limit", "nan"))
+        except ValueError:
+            return None
+        return value if np.isfinite(value) and value > 0 else None
+
+    def saturated_samples(self) -> int:
+        """How many samples sit at the declared duty limit in runs of two or more (0 without a limit)."""
+        limit = self.duty_limit
+        return 0 if limit is None else sum(n for _, n in saturated_runs(self.duty, limit))
 
     def drop_rows(self, rows: Iterable[int]) -> "Recording":
         """This recording without ``rows`` (0-based): they become gaps in ``seq``.

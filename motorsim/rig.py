@@ -15,7 +15,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .checks import check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import ClosedLoopExperiment
 from .excitation import DUTY_LIMIT, Excitation
 from .fixed_point import ControlLoop
@@ -51,12 +51,12 @@ class Experiment:
 
     def __post_init__(self):
         if not isinstance(self.excitation, Excitation):
-            raise TypeError(f"excitation must be an Excitation, got {type(self.excitation).__name__}")
+            raise ParameterTypeError(f"excitation must be an Excitation, got {type(self.excitation).__name__}")
         object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
         object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
         object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
         if self.n_samples < 2:
-            raise ValueError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
+            raise ParameterError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
                              f"got {self.duration!r} s")
         self.duty()  # validate the excitation against this sample period (Nyquist, ...)
 
@@ -121,21 +121,21 @@ class SimRig:
 
     def __post_init__(self):
         if not isinstance(self.motor, Motor):
-            raise TypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
+            raise ParameterTypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
         if not isinstance(self.encoder, Encoder):
-            raise TypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
+            raise ParameterTypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
         jitter = check_real("jitter", self.jitter, nonnegative=True)
         if jitter >= 1:
-            raise ValueError(f"jitter must be < 1 (a fraction of the sample period), got {jitter!r}")
+            raise ParameterError(f"jitter must be < 1 (a fraction of the sample period), got {jitter!r}")
         drop = check_real("drop_rate", self.drop_rate, nonnegative=True)
         if drop >= 1:
-            raise ValueError(f"drop_rate must be < 1, got {drop!r}")
+            raise ParameterError(f"drop_rate must be < 1, got {drop!r}")
         object.__setattr__(self, "jitter", jitter)
         object.__setattr__(self, "drop_rate", drop)
         object.__setattr__(self, "initial_speed", check_real("initial_speed", self.initial_speed))
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
-            raise TypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
+            raise ParameterTypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
                             f"got {self.rng!r}")
 
     def run(self, experiment: Experiment | ClosedLoopExperiment) -> Recording:
@@ -157,7 +157,7 @@ class SimRig:
         if isinstance(experiment, ClosedLoopExperiment):
             return self._run_closed_loop(experiment)
         if not isinstance(experiment, Experiment):
-            raise TypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
+            raise ParameterTypeError(f"experiment must be an Experiment, got {type(experiment).__name__}")
         n, dt = experiment.n_samples, experiment.sample_period
         duty = experiment.duty()
         k = np.arange(n)
@@ -265,7 +265,7 @@ def kept_samples(n_samples: int, drop_rate: float, rng: np.random.Generator | No
     keep = np.ones(n_samples, dtype=bool)
     if drop_rate > 0:
         if rng is None:
-            raise TypeError("rng must be a numpy.random.Generator when drop_rate > 0, got None")
+            raise ParameterTypeError("rng must be a numpy.random.Generator when drop_rate > 0, got None")
         keep[1:] = rng.random(n_samples - 1) >= drop_rate
     return keep
 
@@ -279,7 +279,7 @@ def jittered_times(n_samples: int, sample_period: float, jitter: float,
     t = np.arange(n_samples) * sample_period
     if jitter:
         if rng is None:
-            raise TypeError("rng must be a numpy.random.Generator when jitter > 0, got None")
+            raise ParameterTypeError("rng must be a numpy.random.Generator when jitter > 0, got None")
         t = t + rng.uniform(-0.5, 0.5, n_samples) * jitter * sample_period
         t -= t[0]
     return t

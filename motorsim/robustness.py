@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .checks import ParameterError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import Controller, PlantModel, Reference, design_controller
 
 __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robust_design", "draw_models",
@@ -221,7 +221,7 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
         raise ParameterError(f"covariance must be a finite 2 x 2 array of (a, b), got shape {cov.shape}")
     n_draws = check_int("n_draws", n_draws, 1, 10**6)
     if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
+        raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
     out: list[PlantModel] = []
     while len(out) < n_draws:
         for a, b in rng.multivariate_normal([model.a, model.b], cov, size=n_draws - len(out)):

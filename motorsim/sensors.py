@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .checks import check_int, check_real
+from .checks import ParameterTypeError, check_int, check_real
 from .knobs import knob
 
 __all__ = ["Encoder", "counts_to_angle", "backward_difference", "DEFAULT_COUNTS_PER_REV"]
@@ -51,7 +51,7 @@ class Encoder:
         angle = np.asarray(angle, dtype=float)
         if self.angle_noise > 0:
             if not isinstance(rng, np.random.Generator):
-                raise TypeError(f"rng must be a numpy.random.Generator when angle_noise > 0, got {rng!r}")
+                raise ParameterTypeError(f"rng must be a numpy.random.Generator when angle_noise > 0, got {rng!r}")
             angle = angle + rng.normal(0.0, self.angle_noise, angle.shape)
         return np.floor(angle * (self.counts_per_rev / (2.0 * math.pi))).astype(np.int64) + self.count_offset
 

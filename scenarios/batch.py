@@ -32,6 +32,7 @@ from typing import Callable
 
 import numpy as np
 
+from motorsim.checks import ParameterError, ParameterTypeError
 from motorsim.plant import Motor, delayed_duty, zoh_matrices
 
 __all__ = ["MethodOutcome", "BATCHED_METHODS", "simulate_batch", "encoder_counts_batch", "speed_batch",
@@ -71,12 +72,12 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
     closed form to ``angle[k] = (speed[0] - speed[k])/a + (b dt/a) sum_{j<k} v[j]``.
     """
     if not isinstance(motor, Motor):
-        raise TypeError(f"motor must be a Motor, got {type(motor).__name__}")
+        raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
     if not is_batchable(motor):
-        raise ValueError(f"motor must be linear (friction == 0 and bias == 0) for the batch engine, got {motor!r}")
+        raise ParameterError(f"motor must be linear (friction == 0 and bias == 0) for the batch engine, got {motor!r}")
     u = np.asarray(duty, dtype=float)
     if u.ndim not in (1, 2) or u.shape[-1] < 2:
-        raise ValueError(f"duty must have shape (n_samples,) or (repetitions, n_samples) with n_samples >= 2, "
+        raise ParameterError(f"duty must have shape (n_samples,) or (repetitions, n_samples) with n_samples >= 2, "
                          f"got {u.shape}")
     if motor.input_delay or motor.dead_zone:
         u2 = np.atleast_2d(u)
@@ -121,7 +122,7 @@ def encoder_counts_batch(angle: np.ndarray, counts_per_rev: int, angle_noise: fl
     angle = np.atleast_2d(angle)
     if angle_noise > 0:
         if rngs is None or len(rngs) != angle.shape[0]:
-            raise ValueError(f"rngs must hold one Generator per repetition ({angle.shape[0]}) when angle_noise > 0")
+            raise ParameterError(f"rngs must hold one Generator per repetition ({angle.shape[0]}) when angle_noise > 0")
         noisy = np.empty(angle.shape)
         for r, rng in enumerate(rngs):
             noisy[r] = angle[r] + rng.normal(0.0, angle_noise, angle.shape[1])
@@ -285,7 +286,7 @@ def fit_batch(methods, speed: np.ndarray, duty: np.ndarray, sample_period: float
     """
     for m in methods:
         if m not in BATCHED_METHODS:
-            raise ValueError(f"methods must be batched methods {list(BATCHED_METHODS)}, got {m!r}")
+            raise ParameterError(f"methods must be batched methods {list(BATCHED_METHODS)}, got {m!r}")
     theta1, theta2, failure = regression_batch(speed, duty)
     out = {}
     for m in methods:

@@ -40,7 +40,7 @@ import numpy as np
 
 from identify import fit
 from identify.uncertainty import cramer_rao_bound
-from motorsim.checks import check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.files import atomic_writer, make_output_dir, write_atomically
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
@@ -204,12 +204,12 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
 def _check_point_arguments(point: GridPoint, methods: Sequence[str], repetitions: int) -> list[str]:
     from identify import available_methods
     if not isinstance(point, GridPoint):
-        raise TypeError(f"point must be a GridPoint, got {type(point).__name__}")
+        raise ParameterTypeError(f"point must be a GridPoint, got {type(point).__name__}")
     check_int("repetitions", repetitions, lo=1, allow_integral_float=False)
     methods = list(methods)
     unknown = [m for m in methods if m not in available_methods()]
     if not methods or unknown:
-        raise ValueError(f"methods must be a non-empty list of names among {available_methods()}, got {methods!r}")
+        raise ParameterError(f"methods must be a non-empty list of names among {available_methods()}, got {methods!r}")
     return methods
 
 
@@ -420,7 +420,7 @@ def run_scenario(scenario: Scenario, out_dir: str | os.PathLike, *, workers: int
     20.0 oe 25.00 0
     """
     if not isinstance(scenario, Scenario):
-        raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
+        raise ParameterTypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
     if workers is not None:
         check_int("workers", workers, lo=1, allow_integral_float=False)
     out = Path(out_dir)

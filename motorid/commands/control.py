@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -98,14 +97,16 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
 
 def load_model_file(path: str) -> Any:
     """The estimate saved in ``path`` by ``motorid identify --save`` (``Estimate.from_json``)."""
-    from identify.estimate import Estimate
+    from identify.estimate import MAX_ESTIMATE_BYTES, Estimate
+    from motorsim.files import read_input_bytes
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        data = read_input_bytes(path, what="--model", max_bytes=MAX_ESTIMATE_BYTES)
     except OSError as exc:
-        raise CommandError(f"--model {path}: cannot read: {exc.strerror}") from None
+        raise CommandError(str(exc) if exc.strerror is None else f"--model {path}: cannot read: {exc.strerror}") \
+            from None
     try:
-        return Estimate.from_json(text)
-    except (ValueError, KeyError, TypeError) as exc:
+        return Estimate.from_json(data)
+    except (ValueError, TypeError) as exc:
         raise CommandError(f"--model {path}: not a saved model: {exc}") from None
 
 

@@ -60,14 +60,10 @@ def format_frequency_table(frf, models=(), level: float = 0.95) -> str:
 
 
 def _models(paths: list[str], frf) -> list:
-    from identify.estimate import Estimate
+    from motorid.commands.control import load_model_file
     models = []
     for path in paths:
-        try:
-            with open(path, encoding="utf-8") as f:
-                est = Estimate.from_json(f.read())
-        except OSError as exc:
-            raise CommandError(f"--model {path}: {exc.strerror or exc}") from exc
+        est = load_model_file(path)
         if not math.isclose(est.sample_period, frf.sample_period, rel_tol=1e-6):
             raise CommandError(f"--model {path}: sample period {est.sample_period!r} s differs from the data's "
                                f"{frf.sample_period!r} s")

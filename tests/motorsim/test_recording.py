@@ -1,4 +1,6 @@
 """Recording format v1: round trip, metadata rules, and every bad-file case."""
+import os
+
 import numpy as np
 import pytest
 
@@ -96,9 +98,13 @@ def test_unreadable_and_non_utf8_files(tmp_path, monkeypatch):
     readable = write_recording(Recording(time=[0.0, 1.0], duty=[0, 1], sample_period=1.0, angle=[0.0, 1.0]),
                                tmp_path / "denied.csv")
 
-    def denied(*args, **kwargs):
-        raise PermissionError(13, "Permission denied", str(readable))
-    monkeypatch.setattr("builtins.open", denied)   # root reads any file: a refusal has to be simulated
+    real_open = os.open
+
+    def denied(path, *args, **kwargs):
+        if os.fspath(path) == str(readable):
+            raise PermissionError(13, "Permission denied", str(readable))
+        return real_open(path, *args, **kwargs)
+    monkeypatch.setattr(os, "open", denied)   # root reads any file: a refusal has to be simulated
     with pytest.raises(RecordingFormatError, match="denied.csv: cannot read: Permission denied"):
         read_recording(readable)
     monkeypatch.undo()

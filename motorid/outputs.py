@@ -1,0 +1,74 @@
+"""The files each command writes, checked against the one output rule before the command runs.
+
+:data:`FILE_OUTPUTS` lists, per command, the flags that name a file it writes and whether the
+extension names the format (figures); :data:`FOLDER_OUTPUTS` the flags that name a folder;
+:data:`INPUT_ATTRIBUTES` the arguments that name its inputs.  :func:`check_outputs` applies
+:func:`motorsim.files.check_output_path` to every file output given: a regular file or a new
+name (never a link, a folder, a device or a FIFO), never one of the command's inputs, and for a
+figure an extension that names the format written.  ``motorid`` calls it for every command
+before the command's own work, so a new command's outputs are one line here.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from typing import Iterator
+
+from motorsim.files import FIGURE_SUFFIXES, OutputFileError, check_output_path, same_file
+
+__all__ = ["FILE_OUTPUTS", "FOLDER_OUTPUTS", "INPUT_ATTRIBUTES", "check_outputs", "input_paths"]
+
+#: command -> {argument name: extensions that name the format written, or None}
+FILE_OUTPUTS: dict[str, dict[str, tuple[str, ...] | None]] = {
+    "simulate": {"out": None},
+    "import": {"out": None},
+    "live": {"out": None},
+    "identify": {"save": None, "report": FIGURE_SUFFIXES},
+    "frequency": {"plot": FIGURE_SUFFIXES},
+    "control": {"plot": FIGURE_SUFFIXES},
+}
+
+#: command -> arguments naming a folder the command writes into.
+FOLDER_OUTPUTS: dict[str, tuple[str, ...]] = {"demo": ("out",), "design": ("out",), "sweep": ("out",)}
+
+#: Arguments that name input files, in any command that has them.
+INPUT_ATTRIBUTES = ("files", "file", "validate", "model", "scenario")
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def input_paths(args: argparse.Namespace) -> Iterator[str]:
+    """The paths of ``args`` that name existing input files."""
+    for name in INPUT_ATTRIBUTES:
+        value = getattr(args, name, None)
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, str) and item and os.path.exists(item):
+                yield item
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an output of ``args.command`` that breaks the output rule.
+
+    Raises
+    ------
+    motorsim.files.OutputFileError
+        Naming the flag, the path and the rule.
+    """
+    command = str(getattr(args, "command", ""))
+    inputs = list(input_paths(args))
+    for name, suffixes in FILE_OUTPUTS.get(command, {}).items():
+        value = getattr(args, name, None)
+        if isinstance(value, str):
+            check_output_path(value, flag=_flag(name), inputs=inputs, suffixes=suffixes)
+    for name in FOLDER_OUTPUTS.get(command, ()):
+        value = getattr(args, name, None)
+        if isinstance(value, str):
+            if not value.strip():
+                raise OutputFileError(f"{_flag(name)}: an empty path; give a folder")
+            if os.path.exists(value) and not os.path.isdir(value):
+                raise OutputFileError(f"{_flag(name)} {value} is a file, not a folder")
+            for source in inputs:
+                if same_file(value, source):
+                    raise OutputFileError(f"{_flag(name)} {value} is an input of this command")

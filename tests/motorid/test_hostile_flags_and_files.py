@@ -1,0 +1,140 @@
+"""Hostile flags and recordings on the command line: one line, status 2, nothing silently believed."""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import pytest
+
+from motorid.cli import main
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "r.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "5", "--out", str(path)]) == 0
+    return path
+
+
+def _error(capsys, argv) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "internal error" not in err, err
+    return err
+
+
+def _system_exit(capsys, argv) -> str:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["control", "design", "--a", "25", "--b", "0", "--controller", "pi"], "b must be nonzero"),
+    (["control", "design", "--a", "25", "--b", "3", "--controller", "mpc", "--reference", "step:1e308"],
+     "reference"),
+    (["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--sample-period", "1e-9"], "samples"),
+    (["live", "--port", "fake://?a=25&b=3&speed=0", "--sample-period", "1e-6", "--duration", "1", "--quiet"],
+     "sample_period"),
+    (["live", "--port", "fake://?a=25&b=3&speed=0", "--watchdog-ms", "-5", "--duration", "1", "--quiet"],
+     "watchdog_ms"),
+    (["live", "--port", "", "--duration", "1", "--quiet"], "port"),
+    (["simulate", "--a", "25", "--b", "3", "--sine", "", "--out", "x.csv"], "--sine"),
+    (["simulate", "--a", "25", "--b", "3", "--step", "", "--out", "x.csv"], "--step"),
+    (["simulate", "--a", "25", "--b", "3", "--excitation", "", "--out", "x.csv"], "--excitation"),
+], ids=["b=0", "step 1e308", "sample period 1e-9", "live 1 MHz", "negative watchdog", "empty port",
+        "empty sine", "empty step", "empty excitation"])
+def test_a_hostile_flag_is_one_line_with_status_2(tmp_path, capsys, monkeypatch, argv, said):
+    monkeypatch.chdir(tmp_path)
+    err = _error(capsys, argv)
+    assert said in err
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_b_zero_in_a_saved_model_is_a_user_error(tmp_path, capsys):
+    from identify.estimate import Estimate
+    model = tmp_path / "m.json"
+    import json
+    doc = json.loads(Estimate(method="oe", a=25.0, b=3.0, n_samples=10, sample_period=0.005, residual_rms=0.0,
+                              fit_percent=99.0).to_json())
+    model.write_text(json.dumps({**doc, "b": 0.0}))
+    assert "b must be nonzero" in _error(capsys, ["control", "design", "--controller", "pi", "--model", str(model)])
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["simulate", "--a", "25", "--b", "3", "--seed", "-1", "--out", "x.csv"], "--seed must be an integer >= 0"),
+    (["simulate", "--a", "25", "--b", "3", "--duration", "inf", "--out", "x.csv"], "duration must be a finite"),
+    (["simulate", "--a", "٢٥", "--b", "3", "--out", "x.csv"], "a must be a number"),
+], ids=["seed -1", "infinite duration", "Arabic-Indic digits"])
+def test_a_malformed_number_is_named_as_such(tmp_path, capsys, monkeypatch, argv, said):
+    monkeypatch.chdir(tmp_path)
+    assert said in _system_exit(capsys, argv)
+
+
+def _edit(recording: Path, tmp_path: Path, row: int, column: int, value: str, name: str = "edited.csv") -> Path:
+    lines = recording.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("seq"))
+    cells = lines[header + 1 + row].split(",")
+    cells[column] = value
+    lines[header + 1 + row] = ",".join(cells)
+    out = tmp_path / name
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("value", ["100", "-200", "300", "1e6"])
+def test_one_corrupted_duty_cell_is_refused_and_dropped_with_drop_outliers(recording, tmp_path, capsys, value):
+    path = _edit(recording, tmp_path, 400, 2, value)
+    err = _error(capsys, ["identify", str(path)])
+    assert "seq 400" in err and "duty" in err
+    assert main(["identify", str(path), "--drop-outliers", "--json"]) == 0
+    import json
+    out = json.loads(capsys.readouterr().out)
+    assert out["dropped_samples"] == {str(path): [400]}
+    assert out["a"] == pytest.approx(25.0, rel=1e-3)
+
+
+def test_a_non_ascii_digit_in_a_recording_is_refused_at_its_line(recording, tmp_path, capsys):
+    path = _edit(recording, tmp_path, 10, 3, "١٢")
+    assert "ASCII" in _error(capsys, ["identify", str(path)])
+
+
+@pytest.mark.parametrize("lines", [["# counts_per_rev: 1000"], ["# ppr: 1000"], ["# sample_period: 0.005"],
+                                   ["# dt: 0.004"]],
+                         ids=["counts_per_rev twice", "ppr alias", "sample_period twice", "dt alias"])
+def test_a_metadata_key_given_twice_or_by_alias_is_refused(recording, tmp_path, capsys, lines):
+    text = recording.read_text().splitlines()
+    path = tmp_path / "twice.csv"
+    path.write_text("\n".join([text[0], *lines, *text[1:]]) + "\n")
+    assert "given" in _error(capsys, ["identify", str(path)])
+
+
+def test_a_duty_clipped_at_its_limit_is_reported_with_its_samples(tmp_path, capsys):
+    path = tmp_path / "sat.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--sine", "10,300", "--out", str(path)]) == 0
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")           # as on the command line: shown, not raised
+        assert main(["identify", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "clipped at its limit" in err and "samples" in err
+
+
+@pytest.mark.parametrize("delay", ["500", "2000"])
+def test_an_input_delay_the_file_cannot_hold_is_refused_by_name(recording, capsys, delay):
+    err = _error(capsys, ["identify", str(recording), "--input-delay", delay])
+    assert f"input_delay {delay}" in err and "too short" not in err
+
+
+def test_a_time_base_scaled_by_1e_300_is_refused(recording, tmp_path, capsys):
+    lines = recording.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("seq"))
+    out = [line for line in lines[:header] if not line.startswith(("# sample_period", "# dt"))] + [lines[header]]
+    for line in lines[header + 1:]:
+        c = line.split(",")
+        c[1] = repr(float(c[1]) * 1e-300)
+        out.append(",".join(c))
+    path = tmp_path / "tiny.csv"
+    path.write_text("\n".join(out) + "\n")
+    assert "sample_period" in _error(capsys, ["identify", str(path)])
