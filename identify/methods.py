@@ -19,6 +19,7 @@ import importlib
 import inspect
 from typing import Any, Callable
 
+from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .estimate import Estimate
@@ -64,7 +65,7 @@ def method_function(method: str) -> Callable[..., Estimate]:
         One of :func:`available_methods`.
     """
     if method != DEFAULT_METHOD and method not in _METHODS:
-        raise ValueError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
+        raise ParameterError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
     entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
     if callable(entry):
         return entry

@@ -151,7 +151,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     -------
     Selection
     """
-    from motorsim.checks import check_bool, check_int, check_real
+    from motorsim.checks import ParameterError, check_bool, check_int, check_real
 
     recs = as_recordings(recordings)
     input_delay = check_input_delay(input_delay)
@@ -159,11 +159,11 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     fix_bias = check_bool("fix_bias", fix_bias)
     level = check_real("level", level)
     if not 0 < level < 0.5:
-        raise ValueError(f"level must be in (0, 0.5), got {level!r}")
+        raise ParameterError(f"level must be in (0, 0.5), got {level!r}")
     wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
     for s in wanted:
         if s not in STRUCTURES:
-            raise ValueError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
+            raise ParameterError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
     notes: list[str] = []
     if input_delay == "auto":
         known = _declared_delay(recs)

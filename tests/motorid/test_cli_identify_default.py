@@ -64,3 +64,12 @@ def test_a_method_or_a_delay_can_still_be_forced(tmp_path, capsys, flag):
     data = json.loads(capsys.readouterr().out)
     assert data["input_delay"] == 0
     assert (data["method"] == "oe") == (flag[0] == "--method")
+
+
+def test_a_large_input_is_announced_with_an_estimate_first(tmp_path, capsys, monkeypatch):
+    import motorid.commands.identify as command
+    path = _friction_run(tmp_path)
+    monkeypatch.setattr(command, "LONG_INPUT_BYTES", 1000)      # this small file stands for a large one
+    assert main(["identify", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("identify: ") and "expect about" in err.splitlines()[0]
