@@ -6,9 +6,9 @@ import json
 from typing import Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
-from motorid.commands.importing import add_column_arguments, column_flags_given, import_from_args
+from motorid.commands.importing import (add_column_arguments, column_flags_given, import_from_args,
+                                       read_motorid_recording)
 from motorid.progress import Ticker
-from motorsim.reading import read_recording
 from motorsim.recording import Recording
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
@@ -60,13 +60,13 @@ def read_inputs(paths: list[str], args: argparse.Namespace) -> list:
     """Recordings (format v1), or foreign files mapped by the column flags when any is given."""
     if column_flags_given(args):
         return [import_from_args(p, args) for p in paths]
-    return [read_recording(p) for p in paths]
+    return [read_motorid_recording(p) for p in paths]
 
 
 def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None:
     """How ``identify`` reads its files: the column mapping when any column flag is given."""
     if not column_flags_given(args):
-        return None
+        return read_motorid_recording
     return lambda path, check_samples: import_from_args(path, args)
 
 

@@ -11,11 +11,13 @@ import warnings
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.columns import import_recording
-from motorsim.recording import Recording
+from motorsim.reading import read_recording
+from motorsim.recording import FORMAT_HEADER, Recording, RecordingFormatError
 from motorsim.units import ANGLE_UNITS, INPUT_UNITS, SPEED_UNITS, TIME_UNITS
 from motorsim.writing import write_recording
 
-__all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "add_import_arguments", "run_import"]
+__all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "read_motorid_recording",
+           "add_import_arguments", "run_import"]
 
 _QUANTITIES = ("time", "input", "speed", "angle", "counts")
 
@@ -59,6 +61,27 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
     return rec
+
+
+def _is_motorid_recording(path: str) -> bool:
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return fh.readline().strip().startswith(FORMAT_HEADER)
+    except OSError:
+        return True                   # the reader says what is wrong with the path
+
+
+def read_motorid_recording(path: str, check_samples: bool = True) -> Recording:
+    """A recording (format v1); a file that is not one is refused naming the column flags and ``motorid import``."""
+    try:
+        return read_recording(path, check_samples=check_samples)
+    except RecordingFormatError as exc:
+        if _is_motorid_recording(path):
+            raise
+        raise CommandError(f"{exc}: {path} is not a motorid recording; name its columns with --time COL[:UNIT] "
+                           "--input COL[:UNIT] and one of --speed, --angle, --counts (e.g. --time t:ms --input u:V "
+                           "--speed y:deg/s), or convert it once with motorid import FILE --time ... --out "
+                           "recording.csv") from None
 
 
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
