@@ -23,7 +23,8 @@ from .checks import ParameterError
 from .recording import Recording, RecordingFormatError
 from .units import DEFAULT_UNITS, UNITS
 
-__all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES", "unit_in_name"]
+__all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
+           "unit_in_name"]
 
 class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""

@@ -12,8 +12,6 @@ import re
 import tokenize
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ["motorsim", "identify", "scenarios", "hardware", "motorid"]
 

@@ -9,7 +9,7 @@ with each model's simulated speed; the printed estimates are those of this run.
 """
 from identify import fit
 from motorid import plots
-from motorsim import Experiment, Motor, Sine, SimRig
+from motorsim import Experiment, Motor, SimRig, Sine
 
 rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=10.0))
 estimates = {method: fit(rec, method=method) for method in ("euler-ls", "oe")}

@@ -9,7 +9,7 @@ overlap), the middle one each run's tracking error, where the designs part, the 
 from identify import fit
 from motorid import plots
 from motorid.commands.control import compare_designs, format_closed_loop_table
-from motorsim import Experiment, Motor, Sine, SimRig
+from motorsim import Experiment, Motor, SimRig, Sine
 from motorsim.control import parse_reference
 
 truth = Motor(25.0, 3.0)

@@ -6,8 +6,12 @@ import json
 from typing import Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
-from motorid.commands.importing import (add_column_arguments, column_flags_given, import_from_args,
-                                       read_motorid_recording)
+from motorid.commands.importing import (
+    add_column_arguments,
+    column_flags_given,
+    import_from_args,
+    read_motorid_recording,
+)
 from motorid.progress import Ticker
 from motorsim.recording import Recording
 

@@ -56,7 +56,7 @@ def test_a_dense_run_is_drawn_as_an_envelope_above_a_window_of_samples(runs):
     top, bottom = fig.axes[:2]                      # then their twins, the speed axes
     assert "envelope" in top.get_title()
     assert len(top.get_lines()) == 2 and len(top.get_lines()[0].get_xdata()) < 100   # max and min per slice
-    assert bottom.get_xlabel() == "time [s]" and bottom.get_ylabel() == "input η [duty]"   # in the recording's input unit
+    assert bottom.get_xlabel() == "time [s]" and bottom.get_ylabel() == "input η [duty]"
     assert fig.axes[2].get_ylabel() == fig.axes[3].get_ylabel() == "ω [rad/s]"
     assert max(bottom.get_lines()[0].get_xdata()) <= 0.5
     sparse = plots.plot_run(recs[0], window=0.5)    # 10 rad/s for 4 s: 6 periods, drawn sample by sample
