@@ -7,6 +7,8 @@ directly when they are given.  Units and the timing rule: :mod:`motorsim.units`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import warnings
 
 from motorid.arguments import CommandError, print_to_stderr
@@ -41,6 +43,10 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
     group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
     group.add_argument("--counts-per-rev", dest="import_counts_per_rev", type=int, metavar="N",
                        help="encoder resolution of --counts (or --angle COL:counts), counts/rev")
+    group.add_argument("--input-limit", dest="input_limit", type=float, metavar="LIMIT",
+                       help="largest input magnitude the drive accepts, in the input's unit (e.g. 12 for "
+                            "u:V, 100 for u:%%); kept as the metadata input_limit, carried into the model "
+                            "and checked by control design (default for duty: 255)")
 
 
 def column_flags_given(args: argparse.Namespace) -> bool:
@@ -60,6 +66,11 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
                                counts=args.counts, counts_per_rev=args.import_counts_per_rev)
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
+    limit = getattr(args, "input_limit", None)
+    if limit is not None:
+        if not (math.isfinite(limit) and limit > 0):
+            raise CommandError(f"--input-limit must be a number > 0 {rec.input_unit}, got {limit!r}")
+        rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_limit": f"{limit:g}"})
     return rec
 
 
@@ -95,6 +106,7 @@ def run_import(args: argparse.Namespace) -> int:
     """Import the file and write it as a recording."""
     rec = import_from_args(args.file, args)
     path = write_recording(rec, args.out)
+    limit = "" if rec.input_limit is None else f", limit +-{rec.input_limit:g} {rec.input_unit}"
     print_to_stderr(f"wrote {len(rec)} samples (sample period {rec.sample_period:.6g} s, input in "
-                    f"{rec.input_unit}) to {path}")
+                    f"{rec.input_unit}{limit}) to {path}")
     return 0
