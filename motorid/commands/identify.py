@@ -154,12 +154,5 @@ def format_estimate(est) -> str:
 
 
 def format_validation(report, name: str) -> str:
-    """Human-readable summary of a ValidationReport."""
-    white = "white" if report.is_white() else "NOT white (model misses dynamics or friction)"
-    indep = "independent of the input" if report.independence_p >= 0.05 else "CORRELATED with the input"
-    return "\n".join([
-        f"validation  {name}",
-        f"  fit       {report.fit_percent:.2f} % (NRMSE, held-out speed; {report.initial_state})",
-        f"  residual  {white}: Ljung-Box p = {report.whiteness_p:.3g}, "
-        f"{100 * report.share_outside_band:.0f} % of lags outside +-{report.band:.3g}",
-        f"  residual  {indep}: p = {report.independence_p:.3g}"])
+    """Human-readable summary of a ValidationReport (its ``str``, indented under the file's name)."""
+    return "\n".join([f"validation  {name}", *(f"  {line}" for line in str(report).splitlines())])

@@ -60,7 +60,7 @@ def test_the_input_limit_travels_from_the_recording_through_json():
     import dataclasses
 
     import identify
-    from motorsim import Experiment, Motor, Sine, SimRig
+    from motorsim import Experiment, Motor, SimRig, Sine
     rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
     rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_unit": "V", "input_limit": "12"})
     for method in ("oe", "euler-ls", "iv", "oe-friction"):
