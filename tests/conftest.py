@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: test id -> why it is slow (seconds measured alone on a 2-core machine)
 SLOW = {
+    "tests/motorid/test_article_figures.py": "6 s: the whole demo, its closed loop included, once for the module",
     "tests/scenarios/test_sweep.py::test_same_csv_from_one_worker_two_processes_and_dask":
         "12 s: starts worker processes and a local Dask cluster",
     "tests/scenarios/test_sweep.py::test_cli_sweep_lists_runs_and_plots": "1.5 s: a sweep with its figures",

@@ -49,6 +49,12 @@ NOT_RUN = {
     "make demo": "creates .venv and runs motorid demo (tests/motorid/test_demo.py runs the demo)",
     "make firmware": "installs the AVR toolchain with apt-get and builds the firmware (make test does)",
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
+    # benchmarks whose output a page shows ({motorid-output} :any-status:): make docs runs them in CI;
+    # their goals depend on the machine's load, and they start processes or run in real time
+    "motorid bench startup": "starts each command as a subprocess, repeatedly (make docs runs it)",
+    "motorid bench parse": "reads a large file in fresh processes, twice per reader (make docs runs it)",
+    "motorid bench serial --frames": "a real-time run through a pty (make docs runs it)",
+    "motorid bench sweep --repetitions": "a python-control loop per run as its baseline (make docs runs it)",
     "motorid bench firmware": "needs the firmware built with the AVR toolchain (tests/hardware/"
                               "test_firmware_emulation.py measures the same under the firmware marker)",
     "motorid live --port 'avr-sim://": "needs the firmware built with the AVR toolchain: the firmware-marked "

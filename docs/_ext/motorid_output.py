@@ -10,7 +10,8 @@ The command is shown, then what it printed on stdout (``:stderr:`` adds stderr).
 one page run in order in one temporary folder that sees the repository's ``tests/`` (so
 ``tests/data/...`` paths work and ``simulate`` writes what ``identify`` reads), as the
 documented-commands test runs them. A command that exits with another status than ``:status:``
-(default 0) fails the build.
+(default 0) fails the build; ``:any-status:`` shows a benchmark's figures whatever it says of its
+goals (a benchmark exits 1 when this machine missed one).
 """
 from __future__ import annotations
 
@@ -61,7 +62,8 @@ def run_documented(command: str, cwd: Path, *, stderr: bool = False) -> tuple[in
 
 class MotoridOutput(Directive):
     has_content = True
-    option_spec = {"stderr": directives.flag, "status": directives.nonnegative_int, "hide-command": directives.flag}
+    option_spec = {"stderr": directives.flag, "status": directives.nonnegative_int, "hide-command": directives.flag,
+                   "any-status": directives.flag}
 
     def run(self):
         env = self.state.document.settings.env
@@ -69,7 +71,7 @@ class MotoridOutput(Directive):
         for command in (line.strip() for line in self.content if line.strip()):
             status, text = run_documented(command, _workdir(env), stderr="stderr" in self.options)
             expected = self.options.get("status", 0)
-            if status != expected:
+            if status != expected and "any-status" not in self.options:
                 raise self.error(f"{command!r} exited with status {status} (expected {expected}):\n{text[-2000:]}")
             shown = text.rstrip() if "hide-command" in self.options else f"$ {command}\n{text.rstrip()}"
             block = nodes.literal_block(shown, shown)
