@@ -118,7 +118,8 @@ def estimate_sweep_time(scenario: Scenario, workers: int | None = None) -> Sweep
         method_function(method)                      # import the estimator's module outside the timing
     wanted = set(_probe_indices(scenario.n_points))
     points = [p for i, p in enumerate(scenario.points()) if i in wanted]
-    runs, per_method = [], {m: [] for m in scenario.methods}
+    runs: list[float] = []
+    per_method: dict[str, list[float]] = {m: [] for m in scenario.methods}
     point_costs = []
     for point in points:
         setting = point.setting
