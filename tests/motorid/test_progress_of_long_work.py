@@ -3,8 +3,6 @@ import io
 import re
 import sys
 
-import pytest
-
 from motorid.cli import main
 from motorid.commands.demo import article_experiments, run_article
 from motorid.progress import Ticker
