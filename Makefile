@@ -1,14 +1,15 @@
 # Two entry points for a fresh machine: `make demo` and `make test`.
 # Each creates .venv and installs motorid into it when needed; `make test` also builds the
 # firmware and its AVR emulator (installing the Debian packages they need, see hardware/avr.mk).
-# For development (docs/develop.md): `make test-fast` (no slow or firmware tests) and `make lint`.
+# For development (docs/develop.md): `make test-fast` (no slow or firmware tests), `make lint` and
+# `make docs` (the documentation site in build/docs/html, warnings as errors).
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-EXTRAS ?= test,dask,lint,fast
+EXTRAS ?= test,dask,lint,fast,docs
 
-.PHONY: demo test test-fast lint venv clean
+.PHONY: demo test test-fast lint docs venv clean
 
 # Reinstalled when the dependencies (pyproject.toml) or the extras (this file) change.
 $(STAMP): pyproject.toml Makefile
@@ -35,8 +36,15 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
+# The documentation site, built from scratch: every page, example and command output re-run;
+# any warning fails the build.
+docs: $(STAMP)
+	rm -rf build/docs docs/auto_examples docs/reference/generated
+	MPLBACKEND=Agg $(BIN)/python -m sphinx -b html -W --keep-going -q docs build/docs/html
+	@echo "docs: build/docs/html/index.html"
+
 clean:
-	rm -rf $(VENV) demo-output build *.egg-info .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) demo-output build docs/auto_examples docs/reference/generated *.egg-info .pytest_cache .mypy_cache .ruff_cache .hypothesis
 	rm -rf hardware/firmware/build hardware/sim/build
 
 # Firmware build and AVR emulation: firmware, avr-sim, firmware-deps; `test` needs them.

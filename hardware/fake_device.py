@@ -149,7 +149,7 @@ class FakeDevice:
     rng : numpy.random.Generator, optional
         Source of angle noise and injected faults; default ``default_rng(0)``.
 
-    Attributes (read them from tests; they are updated by the device thread)
+    Attributes
     ----------
     duty : int
         Duty applied to the motor now.

@@ -145,4 +145,5 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
     resid = w_next - e * w_now - b * (q * u[:, 0] + (p * p - e * q) * u[:, 1]) / h
     return Estimate(method="iv-reference", a=a, b=b, n_samples=len(w_next), sample_period=h,
                     residual_rms=float(np.sqrt(np.mean(resid ** 2))),
-                    fit_percent=fit_percent(a, b, recs, input_delay=delay), extra={"input_delay": delay})
+                    fit_percent=fit_percent(a, b, recs, input_delay=delay), extra={"input_delay": delay},
+                    input_unit=recs[0].input_unit, input_limit=recs[0].input_limit)

@@ -92,6 +92,10 @@ class Estimate:
         covariance of the speed regression; the regression's own bias, from the differenced
         speed and for ``euler-ls`` the Euler step, is not in it, so its interval need not cover
         the motor's ``a`` and ``b``); ``""`` when not said.
+    input_limit : float, optional
+        Largest input magnitude the drive accepts, in ``input_unit`` (255 for duty on the bench,
+        the recording's ``input_limit`` for a lab's file); None when unknown. Control design
+        warns when a controller needs more.
     """
 
     method: str
@@ -111,6 +115,7 @@ class Estimate:
     selection: Mapping[str, Any] | None = None
     notes: tuple[str, ...] = ()
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    input_limit: float | None = None
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -124,6 +129,34 @@ class Estimate:
         object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
         object.__setattr__(self, "model_range", {str(k): (float(lo), float(hi))
                                                  for k, (lo, hi) in dict(self.model_range).items()})
+        if self.input_limit is not None:
+            limit = float(self.input_limit)
+            if not (math.isfinite(limit) and limit > 0):
+                raise ParameterError(f"input_limit must be a finite number > 0 {self.input_unit} or None, "
+                                 f"got {self.input_limit!r}")
+            object.__setattr__(self, "input_limit", limit)
+
+    def _repr_html_(self) -> str:
+        """A table of the parameters with their standard errors and 95 % intervals (notebooks)."""
+        import html
+        se = self.stderr()
+        ci = self.confidence_interval(0.95)
+        units = {"a": "1/s", "b": f"(rad/s²)/{self.input_unit}", "friction": "rad/s²", "bias": "rad/s²",
+                 "dead_zone": self.input_unit, "input_delay": "samples"}
+        rows = []
+        for name in ("a", "b", *self.extra):
+            err = se.get(name, math.nan)
+            lo, hi = ci.get(name, (math.nan, math.nan))
+            cells = [name, f"{self.value(name):.6g}", units.get(name, ""),
+                     f"{err:.2g}" if math.isfinite(err) else "",
+                     f"[{lo:.6g}, {hi:.6g}]" if math.isfinite(err) else ""]
+            rows.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+        caption = (f"{html.escape(self.method)}: fit {self.fit_percent:.2f} %, {self.n_samples} samples at "
+                   f"{self.sample_period:.6g} s")
+        if self.input_limit is not None:
+            caption += f", input limit ±{self.input_limit:g} {html.escape(self.input_unit)}"
+        return ("<table><caption>" + caption + "</caption><tr><th>parameter</th><th>value</th><th>unit</th>"
+                "<th>stderr</th><th>95 % CI</th></tr>" + "".join(rows) + "</table>")
 
     @property
     def input_delay(self) -> int:
@@ -159,6 +192,8 @@ class Estimate:
         if missing:
             lines.append(f"note        no interval for {missing}")
         lines += [f"note        {n}" for n in self.notes]
+        if self.input_limit is not None:
+            lines.append(f"input limit +-{self.input_limit:g} {self.input_unit}")
         if self.covariance_method == "regression":
             lines.append(f"note        {self.method}'s intervals are its regression's and leave out its bias "
                          "(the differenced speed): they need not cover the motor's a and b; use oe")
@@ -353,7 +388,7 @@ class Estimate:
         out = {"method": self.method, "a": self.a, "b": self.b, "static_gain": self.static_gain,
                "fit_percent": self.fit_percent, "n_samples": self.n_samples,
                "sample_period": self.sample_period, "residual_rms": self.residual_rms,
-               "residual_unit": self.residual_unit, "input_unit": self.input_unit}
+               "residual_unit": self.residual_unit, "input_unit": self.input_unit, "input_limit": self.input_limit}
         if self.covariance_method:
             out["covariance_method"] = self.covariance_method
         out.update(self.extra)
@@ -378,6 +413,7 @@ class Estimate:
         that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
         ``fit_percent``, ``residual_rms``, ``data_files`` (path and sha256 of each recording) and
         ``feedforward`` (kS, kV, kA, k0 with intervals, :mod:`identify.feedforward`; derived, not read back).
+        ``input_limit`` (the largest input the drive accepts, in the input unit; null when unknown).
 
         Parameters
         ----------
@@ -398,6 +434,7 @@ class Estimate:
                "units": {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "input": self.input_unit,
                          "friction": "rad/s^2", "bias": "rad/s^2", "dead_zone": self.input_unit,
                          "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
+               "input_limit": self.input_limit,
                "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
                "data_files": [{"path": p, "sha256": h} for p, h in self.data_files],
                "covariance_method": self.covariance_method, "notes": list(self.notes)}
@@ -520,7 +557,14 @@ def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 covariance_method=field("covariance_method", str, ""),
                 selection=field("selection", (dict, type(None)), None),
                 notes=tuple(_strings("notes", field("notes", list, []))),
-                model_range=_model_range(field("model_range", (dict, type(None)), None) or {}))
+                model_range=_model_range(field("model_range", (dict, type(None)), None) or {}),
+                input_limit=_input_limit(field("input_limit", (int, float, type(None)), None)))
+
+
+def _input_limit(value: Any) -> float | None:
+    if value is None:
+        return None
+    return check_real("estimate field 'input_limit'", value, positive=True)
 
 
 def _strings(name: str, values: list) -> list[str]:

@@ -2,7 +2,7 @@
 
 The model is the exact ZOH response of ``b/(s + a)`` for the response's output
 (:func:`identify.frequency_response.zoh_speed_response`), the residual at each line is
-weighted by the line's standard error, and ``(a, b)`` minimise
+weighted by the line's standard error, and ``(a, b)`` minimise::
 
     sum_k |G_k - G(e^{j omega_k dt}; a, b)|^2 / var_k
 

@@ -235,7 +235,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
                     fit_percent=segment_fit_percent(segments, placed),
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
-                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit)
+                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
+                    input_limit=recs[0].input_limit)
 
 
 def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:

@@ -269,7 +269,7 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
     return Estimate(method="iv", a=a, b=b, n_samples=len(y), sample_period=h,
                     residual_rms=math.sqrt(rss / len(y)),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), covariance=cov,
-                    extra={"input_delay": delay}, input_unit=recs[0].input_unit,
+                    extra={"input_delay": delay}, input_unit=recs[0].input_unit, input_limit=recs[0].input_limit,
                     covariance_method="instrumental-variables")
 
 

@@ -481,6 +481,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
                     fit_percent=fit_percent, covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
+                    input_limit=recs[0].input_limit,
                     covariance_method=cov_method)
 
 

@@ -117,7 +117,8 @@ def _finish(method, a, b, jac, cov_x, rms, n, recs) -> Estimate:
     return Estimate(method=method, a=float(a), b=float(b), n_samples=int(n),
                     sample_period=recs[0].sample_period, residual_rms=rms,
                     fit_percent=fit_percent(float(a), float(b), recs) if a > 0 else math.nan,
-                    covariance=cov, input_unit=recs[0].input_unit, covariance_method="regression")
+                    covariance=cov, input_unit=recs[0].input_unit,
+                    input_limit=recs[0].input_limit, covariance_method="regression")
 
 
 def fit_euler_ls(recordings) -> Estimate:

@@ -315,6 +315,12 @@ class ValidationReport:
     residual_unit : str
     initial_state : str
         How the initial state of each segment was found (:func:`initial_state_rule`).
+    input_unit : str
+        Unit of the recording's input (the estimate's, which :func:`validate` checks).
+    largest_input : float
+        Largest input magnitude in the recording, in ``input_unit``.
+    input_limit : float or None
+        The recording's input limit in ``input_unit`` (None when unknown).
     """
 
     fit_percent: float
@@ -331,6 +337,34 @@ class ValidationReport:
     independence_p: float
     residual_unit: str
     initial_state: str = ""
+    input_unit: str = "duty"
+    largest_input: float = math.nan
+    input_limit: float | None = None
+
+    def __repr__(self) -> str:
+        return (f"ValidationReport(fit_percent={self.fit_percent:.4g}, whiteness_p={self.whiteness_p:.3g}, "
+                f"independence_p={self.independence_p:.3g}, n_samples={len(self.time)})")
+
+    def _lines(self) -> list[tuple[str, str]]:
+        white = "white" if self.is_white() else "NOT white (the model misses dynamics or friction)"
+        indep = "independent of the input" if self.independence_p >= 0.05 else "CORRELATED with the input"
+        limit = "" if self.input_limit is None else f" (limit +-{self.input_limit:g} {self.input_unit})"
+        return [("fit", f"{self.fit_percent:.2f} % (NRMSE of the simulated speed; {self.initial_state})"),
+                ("residual", f"{white}: Ljung-Box p = {self.whiteness_p:.3g}, "
+                             f"{100 * self.share_outside_band:.0f} % of lags outside +-{self.band:.3g}"),
+                ("residual", f"{indep}: p = {self.independence_p:.3g}"),
+                ("input", f"up to {self.largest_input:.4g} {self.input_unit}{limit}"),
+                ("samples", f"{len(self.time)}")]
+
+    def __str__(self) -> str:
+        """The fit, the two residual tests and the input, one line each (no arrays)."""
+        return "\n".join(f"{name:<9} {text}" for name, text in self._lines())
+
+    def _repr_html_(self) -> str:
+        """The same lines as :meth:`__str__`, as an HTML table (notebooks)."""
+        import html
+        rows = "".join(f"<tr><th>{html.escape(n)}</th><td>{html.escape(t)}</td></tr>" for n, t in self._lines())
+        return f"<table><caption>validation</caption>{rows}</table>"
 
     @property
     def share_outside_band(self) -> float:
@@ -369,6 +403,9 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     if not isinstance(recording, Recording):
         raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     max_lag = check_int("max_lag", max_lag, lo=1, allow_integral_float=False)
+    if recording.input_unit != estimate.input_unit:
+        raise ValueError(f"recording input_unit must be the estimate's ({estimate.input_unit}), "
+                         f"got {recording.input_unit!r}: a model of one input unit cannot explain another")
     meas, sim = model_output(estimate, recording)
     res, inp, unit = model_residuals(estimate, recording)
     n = len(res)
@@ -393,4 +430,6 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
                             cross_lags=np.arange(-lag, lag + 1), cross_correlation=cc, band=1.96 / math.sqrt(n),
                             whiteness_p=float(chdtrc(lag, q_white)),
                             independence_p=float(chdtrc(dof_cross, q_cross)), residual_unit=unit,
-                            initial_state=initial_state_rule(estimate))
+                            initial_state=initial_state_rule(estimate), input_unit=recording.input_unit,
+                            largest_input=float(np.max(np.abs(recording.duty))) if len(recording) else math.nan,
+                            input_limit=recording.input_limit)

@@ -81,9 +81,9 @@ def _envelope(t: np.ndarray, y: np.ndarray, bins: int) -> tuple[np.ndarray, np.n
     return np.array(centre), np.array(lo), np.array(hi)
 
 
-def _duty_speed_axes(ax, t, duty, speed, *, envelope: int = 0) -> None:
-    """Duty (left axis, blue) and speed (right axis, red), as lines, or as min-max envelopes
-    over ``envelope`` slices of the samples when ``envelope`` > 0."""
+def _duty_speed_axes(ax, t, duty, speed, *, envelope: int = 0, input_unit: str = "duty") -> None:
+    """Input (left axis, blue, in ``input_unit``) and speed (right axis, red), as lines, or as
+    min-max envelopes over ``envelope`` slices of the samples when ``envelope`` > 0."""
     ax2 = ax.twinx()
     if envelope:
         for axis, y, color, label in ((ax, duty, "tab:blue", "duty η"), (ax2, speed, "tab:red", "ω")):
@@ -94,7 +94,7 @@ def _duty_speed_axes(ax, t, duty, speed, *, envelope: int = 0) -> None:
     else:
         ax.step(t, duty, where="post", color="tab:blue", lw=0.8, label="duty η")
         ax2.plot(t, speed, color="tab:red", lw=0.8, label="ω")
-    ax.set_ylabel("duty η [duty]", color="tab:blue")
+    ax.set_ylabel(f"input η [{input_unit}]", color="tab:blue")
     ax2.set_ylabel("ω [rad/s]", color="tab:red")
 
 
@@ -122,12 +122,13 @@ def plot_run(recording: Recording, path=None, *, title: str = "", window: float 
     fig = _figure(8, 5.6)
     top, bottom = fig.subplots(2, 1)
     dense = crossings > 60
-    _duty_speed_axes(top, t, duty, speed, envelope=max(10, crossings // 6) if dense else 0)
+    _duty_speed_axes(top, t, duty, speed, envelope=max(10, crossings // 6) if dense else 0,
+                     input_unit=recording.input_unit)
     top.set_title(f"whole run ({t[-1] - t[0]:.3g} s)" + (", min–max envelope" if dense else ""),
                   fontsize=9)
     start = t[0]
     keep = t <= start + window
-    _duty_speed_axes(bottom, t[keep], duty[keep], speed[keep])
+    _duty_speed_axes(bottom, t[keep], duty[keep], speed[keep], input_unit=recording.input_unit)
     bottom.set_title(f"first {window:g} s", fontsize=9)
     bottom.set_xlabel("time [s]")
     fig.suptitle(title or "duty and speed")
@@ -236,11 +237,11 @@ def _text_color(rgba) -> str:
 
 def plot_sweep_heatmap(rows: Sequence[dict], x: str, y: str, path=None, *, value: str = "bias_a_pct",
                        title: str = "", value_label: str = "") -> Figure:
-    """|``value``| over the grid axes ``x`` and ``y`` (CSV columns), one panel per estimator.
+    """The absolute ``value`` over the grid axes ``x`` and ``y`` (CSV columns), one panel per estimator.
 
     Cells without a successful fit are grey and marked "fail"; each cell shows its value in
     black or white, whichever reads better on the cell's colour.  The colour bar (logarithmic)
-    is titled ``value_label`` (default: ``|value|``).  The PNG is written to ``path`` when
+    is titled ``value_label`` (default: the absolute ``value``).  The PNG is written to ``path`` when
     given; the figure is returned.
     """
     from matplotlib.colors import LogNorm
@@ -547,12 +548,15 @@ def plot_prediction(prediction, path=None, *, title: str = "") -> Figure:
 
 
 def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float = 0.6) -> Figure:
-    """Closed-loop runs against their reference: measured (solid) and predicted (dotted) output of each design.
+    """Closed-loop runs against their reference: output, tracking error and input of each design.
 
-    ``rows`` carry ``design``, ``recording`` and ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
+    The top panel draws the measured (solid) and predicted (dotted) output of each design over the
+    reference; where good designs track alike those lines lie on top of each other, so the middle
+    panel draws each run's tracking error (measured minus reference), where they part. ``rows``
+    carry ``design``, ``recording`` and ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
     """
-    fig = _figure(10.5, 5.2)
-    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    fig = _figure(10.5, 7.0)
+    ax, ax_err, ax2 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1.4, 1]})
     first = rows[0].recording
     ax.plot(first.time, first.reference, color="0.2", lw=1.2, ls="--", label="reference")
     for row, color in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange")):
@@ -560,10 +564,13 @@ def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float =
         label = f"{row.design}: measured RMS {row.measured_rms:.3g} (predicted {row.prediction.tracking_rms:.3g})"
         ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.9, label=label)
         ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
+        ax_err.plot(rec.time, rec.measured_speed() - rec.reference, color=color, lw=0.9, label=row.design)
         ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
     ax.set_ylabel("ω [rad/s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)   # outside: never over the data
-    ax2.set_ylabel("duty")
+    ax_err.axhline(0.0, color="0.5", lw=0.6)
+    ax_err.set_ylabel("error [rad/s]\n(measured − reference)")
+    ax2.set_ylabel(f"input [{first.input_unit}]")
     ax2.set_xlabel(f"time [s] (first {window:g} s)")
     ax2.set_xlim(first.time[0], first.time[0] + min(window, first.time[-1] - first.time[0]))
     ax.set_title(title)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any, Mapping, NoReturn
 
@@ -22,7 +23,8 @@ from .checks import ParameterError
 from .recording import Recording, RecordingFormatError
 from .units import DEFAULT_UNITS, UNITS
 
-__all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError"]
+__all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
+           "unit_in_name"]
 
 class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
@@ -61,6 +63,8 @@ class ColumnSpec:
         column, unit = text, DEFAULT_UNITS[quantity]
         if ":" in text:
             column, unit = text.rsplit(":", 1)
+        else:
+            _refuse_unit_in_name(quantity, text.strip())
         unit = unit.strip()
         if unit not in UNITS[quantity]:
             raise ParameterError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
@@ -69,6 +73,44 @@ class ColumnSpec:
         if not column:
             raise ParameterError(f"the {quantity} column needs a name or a 0-based index, got {text!r}")
         return cls(quantity, int(column) if column.isdigit() else column, unit)
+
+
+#: the end of a column name -> the unit it says, per quantity (``time_ms``, ``speed_rpm``, ``u_pct`` ...)
+UNIT_SUFFIXES: dict[str, dict[str, str]] = {
+    "time": {"s": "s", "sec": "s", "ms": "ms", "msec": "ms", "us": "us", "usec": "us", "µs": "us", "μs": "us"},
+    "input": {"duty": "duty", "pwm": "duty", "v": "V", "volt": "V", "volts": "V", "pct": "%", "percent": "%"},
+    "speed": {"rpm": "rpm", "degs": "deg/s", "deg_s": "deg/s", "dps": "deg/s", "rads": "rad/s", "rad_s": "rad/s",
+              "revs": "rev/s", "rev_s": "rev/s", "rps": "rev/s"},
+    "angle": {"rad": "rad", "deg": "deg", "degs": "deg", "rev": "rev", "revs": "rev", "counts": "counts",
+              "cnt": "counts"},
+    "counts": {},
+}
+
+
+def unit_in_name(quantity: str, column: str) -> str | None:
+    """The unit a column's name ends with (``time_ms`` -> ``ms``), or None.
+
+    Examples
+    --------
+    >>> unit_in_name("speed", "w_degs"), unit_in_name("input", "u_pct"), unit_in_name("time", "t")
+    ('deg/s', '%', None)
+    """
+    words = [w for w in re.split(r"[_\-\s\[\]()./]+", column.lower()) if w]
+    if len(words) < 2:
+        return None
+    suffixes = UNIT_SUFFIXES.get(quantity, {})
+    return suffixes.get("_".join(words[-2:])) or suffixes.get(words[-1])
+
+
+def _refuse_unit_in_name(quantity: str, column: str) -> None:
+    """A column named with a unit but given without one would be read in the default unit: refuse it."""
+    if column.isdigit():
+        return
+    unit = unit_in_name(quantity, column)
+    if unit is not None and unit != DEFAULT_UNITS[quantity]:
+        raise ParameterError(f"the {quantity} column {column!r} is named with a unit ({unit}) but none was given, "
+                             f"so it would be read as {DEFAULT_UNITS[quantity]}: give --{quantity} {column}:{unit} "
+                             f"(or {column}:{DEFAULT_UNITS[quantity]} if it really is in {DEFAULT_UNITS[quantity]})")
 
 
 @dataclasses.dataclass(frozen=True)

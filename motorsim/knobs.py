@@ -11,8 +11,8 @@ The knob's name is the field name everywhere: TOML key and CSV column ``name``, 
 ``--name`` (``_`` becomes ``-``), URL key ``name``, recording metadata ``true_name``
 (for the motor's parameters) or ``name`` (for knobs declared ``recorded=True``).
 
-Examples
---------
+For example:
+
 >>> import dataclasses
 >>> @dataclasses.dataclass(frozen=True)
 ... class Thing:

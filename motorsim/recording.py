@@ -42,6 +42,7 @@ the first sample for a position controller).
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import Iterable, Mapping
 
@@ -293,6 +294,24 @@ class Recording:
     def input_unit(self) -> str:
         """What ``duty`` is measured in (metadata ``input_unit``, default ``duty``)."""
         return self.metadata.get("input_unit", "duty")
+
+    @property
+    def input_limit(self) -> float | None:
+        """Largest input magnitude the drive accepts, in :attr:`input_unit`, or None when unknown.
+
+        The metadata ``input_limit`` (``motorid import --input-limit``), else for an input in duty
+        the run's ``duty_limit`` (default 255); None for volts or percent without the metadata.
+        """
+        text = self.metadata.get("input_limit")
+        if text is None and self.input_unit == "duty":
+            text = self.metadata.get("duty_limit", "255")
+        if text is None or str(text).strip().lower() in ("", "none", "null"):
+            return None
+        try:
+            value = float(text)
+        except ValueError:
+            return None
+        return value if math.isfinite(value) and value > 0 else None
 
     def measured_angle(self) -> np.ndarray | None:
         """Angle in rad: the ``angle`` column, else counts converted, else None.

@@ -19,8 +19,8 @@ at most 1, so nothing is amplified.  A result that is not finite everywhere (a
 non-finite forcing, or an unstable factor overflowing) is recomputed by ``lfilter``,
 whose sequential order keeps what the loop would give.
 
-Examples
---------
+For example:
+
 >>> import numpy as np
 >>> from motorsim.recursion import first_order_filter
 >>> first_order_filter(0.5, np.array([1.0, 0.0, 0.0, 2.0]), initial=4.0)

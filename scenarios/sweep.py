@@ -60,7 +60,7 @@ from .executors import points_executor, results_in_order
 from .scenario import GridPoint, Scenario, Setting
 
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
-           "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed"]
+           "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "runs_batched"]
 
 
 def setting_column(knob: str) -> str:
@@ -190,7 +190,7 @@ def run_point(point: GridPoint, methods: Sequence[str], repetitions: int, seed: 
     # Without noise, jitter or drops every repetition is the same run: simulate it once.
     distinct = repetitions if s.needs_rng else 1
     fits = _Fits(methods, distinct, auto_delay=s.motor().input_delay > 0)
-    batched = batch and _is_batchable(s)
+    batched = batch and runs_batched(s)
     if batched:
         _run_batched(s, exp, fits, seed, point.index)
     else:
@@ -213,8 +213,12 @@ def _check_point_arguments(point: GridPoint, methods: Sequence[str], repetitions
     return methods
 
 
-def _is_batchable(s: Setting) -> bool:
-    # a setting with an input delay is fitted with input_delay="auto", which the batch engine does not do
+def runs_batched(s: Setting) -> bool:
+    """Whether :func:`run_point` runs this setting's repetitions together through the batch engine.
+
+    A setting with an input delay is fitted with ``input_delay="auto"``, which the batch engine
+    does not do, so it runs one repetition at a time.
+    """
     return (not s.record_speed and s.motor().input_delay == 0
             and is_batchable(s.motor(), jitter=s.jitter, drop_rate=s.drop_rate))
 

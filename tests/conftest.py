@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SLOW = {
     "tests/motorsim/test_robustness.py::test_robust_design_measured_rms_stays_within_its_predicted_worst_case":
         "4 s: nine candidate designs judged on 60 drawn plants, then four SimRig runs",
+    "tests/motorid/test_article_figures.py": "6 s: the whole demo, its closed loop included, once for the module",
     "tests/scenarios/test_sweep.py::test_same_csv_from_one_worker_two_processes_and_dask":
         "12 s: starts worker processes and a local Dask cluster",
     "tests/scenarios/test_sweep.py::test_cli_sweep_lists_runs_and_plots": "1.5 s: a sweep with its figures",

@@ -1,7 +1,8 @@
 """Every command the Markdown files show runs as written (or, for a synopsis, names real flags).
 
 The shell lines are taken from the code blocks (indented or fenced without a language, or
-``sh``/``console``) of every ``.md`` file of the repository: lines that start with ``motorid``
+``sh``/``console``) of every ``.md`` file of the repository, the docs site's pages and their
+``{motorid-output}`` blocks (run by ``make docs``) included: lines that start with ``motorid``
 or ``make`` (a ``$ `` prompt is dropped, ``#`` comments are cut, ``;`` separates commands).
 
 - A **synopsis** (``[optional]`` parts, ``a|b`` choices or placeholders such as ``FILE.csv``)
@@ -27,7 +28,8 @@ import pytest
 from motorid.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = sorted(p for p in ROOT.rglob("*.md") if ".venv" not in p.parts and "build" not in p.parts)
+DOCS = sorted(p for p in ROOT.rglob("*.md")
+              if not {".venv", "build", "_build", "auto_examples", "generated"} & set(p.parts))
 
 #: a command as documented -> the same command scaled down (documented flags or URL keys only)
 SCALED = {
@@ -43,9 +45,16 @@ NOT_RUN = {
     "make test": "the whole suite, this test included (CI runs it)",
     "make test-fast": "a subset of this suite",
     "make lint": "ruff and mypy, run by CI",
+    "make docs": "builds the documentation site, its {motorid-output} commands and examples included (CI runs it)",
     "make demo": "creates .venv and runs motorid demo (tests/motorid/test_demo.py runs the demo)",
     "make firmware": "installs the AVR toolchain with apt-get and builds the firmware (make test does)",
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
+    # benchmarks whose output a page shows ({motorid-output} :any-status:): make docs runs them in CI;
+    # their goals depend on the machine's load, and they start processes or run in real time
+    "motorid bench startup": "starts each command as a subprocess, repeatedly (make docs runs it)",
+    "motorid bench parse": "reads a large file in fresh processes, twice per reader (make docs runs it)",
+    "motorid bench serial --frames": "a real-time run through a pty (make docs runs it)",
+    "motorid bench sweep --repetitions": "a python-control loop per run as its baseline (make docs runs it)",
     "motorid bench firmware": "needs the firmware built with the AVR toolchain (tests/hardware/"
                               "test_firmware_emulation.py measures the same under the firmware marker)",
     "motorid live --port 'avr-sim://": "needs the firmware built with the AVR toolchain: the firmware-marked "
@@ -68,7 +77,7 @@ def _blocks(text: str):
                 fence = None
             continue
         if fence is not None:
-            if lang in ("", "sh", "bash", "shell", "console"):
+            if lang in ("", "sh", "bash", "shell", "console", "{motorid-output}"):
                 yield number, stripped
             continue
         in_indented = line.startswith("    ") and (in_indented or previous_blank)

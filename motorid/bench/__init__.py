@@ -1,18 +1,18 @@
 """The speed and accuracy benchmarks of ``motorid bench NAME``, one module each.
 
-=========== ================================================================
-``simulate`` :mod:`~motorid.bench.simulate`: ``motorsim.simulate`` against python-control
-``sweep``    :mod:`~motorid.bench.sweep`: the sweeps' batch engine against a per-run loop
-``oe``       :mod:`~motorid.bench.output_error`: the ``oe`` fit against ``lfilter`` and ``least_squares``
-``accuracy`` :mod:`~motorid.bench.accuracy`: the estimators against the truth and the CRB
-``serial``   :mod:`~motorid.bench.serial`: the host's frame reader and a pty run
-``firmware`` :mod:`~motorid.bench.firmware`: the Arduino firmware under simavr
-``parse``    :mod:`~motorid.bench.parse`: reading a large recording against pandas.read_csv
-``startup``  :mod:`~motorid.bench.startup`: ``motorid --help`` and ``identify`` against ``import control``
-``control``  :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
+============= ================================================================
+``simulate``  :mod:`~motorid.bench.simulate`: ``motorsim.simulate`` against python-control
+``sweep``     :mod:`~motorid.bench.sweep`: the sweeps' batch engine against a per-run loop
+``oe``        :mod:`~motorid.bench.output_error`: the ``oe`` fit against ``lfilter`` and ``least_squares``
+``accuracy``  :mod:`~motorid.bench.accuracy`: the estimators against the truth and the CRB
+``serial``    :mod:`~motorid.bench.serial`: the host's frame reader and a pty run
+``firmware``  :mod:`~motorid.bench.firmware`: the Arduino firmware under simavr
+``parse``     :mod:`~motorid.bench.parse`: reading a large recording against pandas.read_csv
+``startup``   :mod:`~motorid.bench.startup`: ``motorid --help`` and ``identify`` against ``import control``
+``control``   :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
 ``frequency`` :mod:`~motorid.bench.frequency`: the frequency response against scipy.signal csd/welch
 ``selection`` :mod:`~motorid.bench.selection`: the default (model chosen) against one ``oe`` fit and a CSV read
-=========== ================================================================
+============= ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
 same run; tests never assert wall-clock times.  Each benchmark is a function

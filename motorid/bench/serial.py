@@ -59,7 +59,7 @@ def bench_serial(argv: Sequence[str]) -> int:
     from hardware.serial_rig import SerialRig
     from motorsim import PRBS, Encoder, Experiment, Motor
 
-    p = argparse.ArgumentParser(prog="motorid bench serial")
+    p = argparse.ArgumentParser(prog="motorid bench serial", description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=200_000, help="frames in the decoding test (default 200000)")
     p.add_argument("--repeats", type=int, default=3, help="timings of the decoding, best kept (default 3)")
     p.add_argument("--duration", type=float, default=60.0, help="length of the pty run in s (default 60; 0 skips)")

@@ -29,6 +29,7 @@ from motorsim.control import (
     settings_from,
     tracking_error,
 )
+from motorsim.excitation import DUTY_LIMIT
 from motorsim.recording import Recording
 from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -214,6 +215,9 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"encoder counts per revolution (default {DEFAULT_COUNTS_PER_REV})")
     add_controller_arguments(p, required=True)
     p.add_argument("--duration", type=float, default=2.0, help="length of the predicted response in s (default 2)")
+    p.add_argument("--input-limit", dest="input_limit", type=float, default=None, metavar="LIMIT",
+                   help="largest input magnitude the drive accepts, in the model's input unit (default: the "
+                        "model file's input_limit; 255 for a model in duty); a design that needs more is warned of")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
     r = p.add_argument_group("robustness (plants drawn from a --model file's covariance of a and b)")
     r.add_argument("--robust", action="store_true",
@@ -231,6 +235,7 @@ def run_control(args: argparse.Namespace) -> int:
         raise CommandError("give the model: --a and --b, or --model FILE.json")
     if not args.model and args.sample_period is None:
         args.sample_period = 0.005
+    unit, limit = _input_unit_and_limit(args)
     model = model_from_args(args)
     controller = controller_from_args(args, model)
     reference = parse_reference(args.reference)
@@ -240,27 +245,54 @@ def run_control(args: argparse.Namespace) -> int:
         controller, robustness = _robust_controller(args, controller, covariance, reference)
     prediction = controller.predict(reference, args.duration)
     _, t_u = controller.closed_loop()
-    print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/duty, friction = {model.friction:g}, "
+    print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay}, dt = {model.sample_period:g} s, "
-          f"{model.counts_per_rev} counts/rev")
+          f"{model.counts_per_rev} counts/rev" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
-    print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    if unit == "duty":
+        print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    else:
+        print(f"fixed-point gains: none (the firmware's gains act on duty; this model's input is in {unit})")
     from identify.feedforward import feedforward_constants
     print(feedforward_constants(load_model_file(args.model) if args.model else model).describe())
     poles = np.sort_complex(_loop_poles(controller))
-    print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
-          f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
+    if len(poles):
+        print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
+              f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
+    else:
+        print(f"closed-loop poles: none (no feedback: the {controller.kind} output follows the model's own pole, "
+              f"-a = {-model.a:g} 1/s)")
     largest = float(np.abs(prediction.duty).max())
     print(f"predicted over {args.duration:g} s of {reference.describe()}: tracking RMS "
-          f"{prediction.tracking_rms:.4g} {controller.reference_unit}, largest duty {largest:.1f}")
-    if largest > 255:
-        print("note: the predicted duty exceeds 255; the device clips it and the prediction no longer holds")
+          f"{prediction.tracking_rms:.4g} {controller.reference_unit}, largest input {largest:.4g} {unit}")
+    if limit is not None and largest > limit:
+        print_to_stderr(f"motorid: warning: the design needs an input of up to {largest:.4g} {unit}, more than the "
+                        f"input limit +-{limit:g} {unit}: the drive clips it and the prediction no longer holds; "
+                        "slow the reference or the controller, or raise --input-limit if the drive allows it")
+    elif limit is None:
+        print_to_stderr(f"motorid: note: no input limit known for a model in {unit}: give --input-limit to check "
+                        "the design against the drive")
     _print_robustness(args, controller, covariance, reference, robustness)
     if args.plot:
         from motorid import plots
         plots.plot_prediction(prediction, args.plot, title=f"{controller.kind}: predicted")
         print(f"figure: {args.plot}")
     return 0
+
+
+def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
+    """The design model's input unit and limit: ``--input-limit``, else the model file's, else 255 for duty."""
+    unit, limit = "duty", None
+    if getattr(args, "model", None):
+        estimate = load_model_file(args.model)
+        unit, limit = estimate.input_unit, estimate.input_limit
+    if args.input_limit is not None:
+        if not (math.isfinite(args.input_limit) and args.input_limit > 0):
+            raise CommandError(f"--input-limit must be a number > 0 {unit}, got {args.input_limit!r}")
+        limit = args.input_limit
+    if limit is None and unit == "duty":
+        limit = float(DUTY_LIMIT)
+    return unit, limit
 
 
 def _loop_poles(controller: Controller) -> np.ndarray:

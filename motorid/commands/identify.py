@@ -6,9 +6,13 @@ import json
 from typing import Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
-from motorid.commands.importing import add_column_arguments, column_flags_given, import_from_args
+from motorid.commands.importing import (
+    add_column_arguments,
+    column_flags_given,
+    import_from_args,
+    read_motorid_recording,
+)
 from motorid.progress import Ticker
-from motorsim.reading import read_recording
 from motorsim.recording import Recording
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
@@ -62,13 +66,13 @@ def read_inputs(paths: list[str], args: argparse.Namespace) -> list:
     """Recordings (format v1), or foreign files mapped by the column flags when any is given."""
     if column_flags_given(args):
         return [import_from_args(p, args) for p in paths]
-    return [read_recording(p) for p in paths]
+    return [read_motorid_recording(p) for p in paths]
 
 
 def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None:
     """How ``identify`` reads its files: the column mapping when any column flag is given."""
     if not column_flags_given(args):
-        return None
+        return read_motorid_recording
     return lambda path, check_samples: import_from_args(path, args)
 
 
@@ -209,12 +213,5 @@ def format_estimate(est) -> str:
 
 
 def format_validation(report, name: str) -> str:
-    """Human-readable summary of a ValidationReport."""
-    white = "white" if report.is_white() else "NOT white (model misses dynamics or friction)"
-    indep = "independent of the input" if report.independence_p >= 0.05 else "CORRELATED with the input"
-    return "\n".join([
-        f"validation  {name}",
-        f"  fit       {report.fit_percent:.2f} % (NRMSE, held-out speed; {report.initial_state})",
-        f"  residual  {white}: Ljung-Box p = {report.whiteness_p:.3g}, "
-        f"{100 * report.share_outside_band:.0f} % of lags outside +-{report.band:.3g}",
-        f"  residual  {indep}: p = {report.independence_p:.3g}"])
+    """Human-readable summary of a ValidationReport (its ``str``, indented under the file's name)."""
+    return "\n".join([f"validation  {name}", *(f"  {line}" for line in str(report).splitlines())])

@@ -7,15 +7,19 @@ directly when they are given.  Units and the timing rule: :mod:`motorsim.units`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import warnings
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.columns import import_recording
-from motorsim.recording import Recording
+from motorsim.reading import read_recording
+from motorsim.recording import FORMAT_HEADER, Recording, RecordingFormatError
 from motorsim.units import ANGLE_UNITS, INPUT_UNITS, SPEED_UNITS, TIME_UNITS
 from motorsim.writing import write_recording
 
-__all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "add_import_arguments", "run_import"]
+__all__ = ["add_column_arguments", "column_flags_given", "import_from_args", "read_motorid_recording",
+           "add_import_arguments", "run_import"]
 
 _QUANTITIES = ("time", "input", "speed", "angle", "counts")
 
@@ -39,6 +43,10 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
     group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
     group.add_argument("--counts-per-rev", dest="import_counts_per_rev", type=int, metavar="N",
                        help="encoder resolution of --counts (or --angle COL:counts), counts/rev")
+    group.add_argument("--input-limit", dest="input_limit", type=float, metavar="LIMIT",
+                       help="largest input magnitude the drive accepts, in the input's unit (e.g. 12 for "
+                            "u:V, 100 for u:%%); kept as the metadata input_limit, carried into the model "
+                            "and checked by control design (default for duty: 255)")
 
 
 def column_flags_given(args: argparse.Namespace) -> bool:
@@ -58,7 +66,33 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
                                counts=args.counts, counts_per_rev=args.import_counts_per_rev)
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
+    limit = getattr(args, "input_limit", None)
+    if limit is not None:
+        if not (math.isfinite(limit) and limit > 0):
+            raise CommandError(f"--input-limit must be a number > 0 {rec.input_unit}, got {limit!r}")
+        rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_limit": f"{limit:g}"})
     return rec
+
+
+def _is_motorid_recording(path: str) -> bool:
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return fh.readline().strip().startswith(FORMAT_HEADER)
+    except OSError:
+        return True                   # the reader says what is wrong with the path
+
+
+def read_motorid_recording(path: str, check_samples: bool = True) -> Recording:
+    """A recording (format v1); a file that is not one is refused naming the column flags and ``motorid import``."""
+    try:
+        return read_recording(path, check_samples=check_samples)
+    except RecordingFormatError as exc:
+        if _is_motorid_recording(path):
+            raise
+        raise CommandError(f"{exc}: {path} is not a motorid recording; name its columns with --time COL[:UNIT] "
+                           "--input COL[:UNIT] and one of --speed, --angle, --counts (e.g. --time t:ms --input u:V "
+                           "--speed y:deg/s), or convert it once with motorid import FILE --time ... --out "
+                           "recording.csv") from None
 
 
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,6 +106,7 @@ def run_import(args: argparse.Namespace) -> int:
     """Import the file and write it as a recording."""
     rec = import_from_args(args.file, args)
     path = write_recording(rec, args.out)
+    limit = "" if rec.input_limit is None else f", limit +-{rec.input_limit:g} {rec.input_unit}"
     print_to_stderr(f"wrote {len(rec)} samples (sample period {rec.sample_period:.6g} s, input in "
-                    f"{rec.input_unit}) to {path}")
+                    f"{rec.input_unit}{limit}) to {path}")
     return 0

@@ -26,7 +26,7 @@ __all__ = ["add_sweep_arguments", "run_sweep", "make_plots", "format_sweep_table
 
 
 def make_plots(scenario: Scenario, csv_path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
-    """The PNGs of a sweep: bias and spread against frequency and heatmaps of |bias| of a and b.
+    """The PNGs of a sweep: bias and spread against frequency and heatmaps of the absolute bias of a and b.
 
     The bias plot is against frequency, or when frequency is not a grid axis, against the
     first numeric axis; the heatmaps span the first two numeric grid axes (other axes held

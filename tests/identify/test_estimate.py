@@ -54,3 +54,27 @@ def test_every_method_says_how_its_covariance_was_computed_and_regressions_warn_
         assert ("need not cover the motor's a and b" in str(est)) == (method in ("euler-ls", "zoh-ls"))
     lo, hi = said["euler-ls"].confidence_interval(0.95)["a"]
     assert not lo <= 25.0 <= hi
+
+
+def test_the_input_limit_travels_from_the_recording_through_json():
+    import dataclasses
+
+    import identify
+    from motorsim import Experiment, Motor, SimRig, Sine
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
+    rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_unit": "V", "input_limit": "12"})
+    for method in ("oe", "euler-ls", "iv", "oe-friction"):
+        est = identify.fit(rec, method=method)
+        assert (est.input_unit, est.input_limit) == ("V", 12.0), method
+    back = Estimate.from_json(est.to_json())
+    assert back.input_limit == 12.0 and est.to_dict()["input_limit"] == 12.0
+    assert "input limit +-12 V" in str(est) and "±12 V" in est._repr_html_()
+
+
+def test_an_estimate_without_a_known_limit_says_none():
+    est = Estimate(method="oe", a=25.0, b=3.0, n_samples=10, sample_period=0.005, residual_rms=0.0,
+                   fit_percent=99.0, input_unit="%")
+    assert est.input_limit is None and Estimate.from_json(est.to_json()).input_limit is None
+    with pytest.raises(ValueError, match="input_limit"):
+        Estimate(method="oe", a=25.0, b=3.0, n_samples=10, sample_period=0.005, residual_rms=0.0,
+                 fit_percent=99.0, input_limit=-1.0)

@@ -1,4 +1,5 @@
 """Held-out validation: NRMSE fit and the residual whiteness / independence tests."""
+import dataclasses
 import math
 
 import numpy as np
@@ -6,8 +7,10 @@ import pytest
 
 from identify import fit, validate
 from identify.validation import autocorrelation, cross_correlation, nrmse_fit
+from motorsim.excitation import Sine
 from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
+from motorsim.rig import Experiment, SimRig
 
 
 def test_correlations_have_their_defining_properties():
@@ -96,3 +99,19 @@ def test_friction_validation_equals_a_simulation_from_the_true_initial_speed(fri
     # the same parameters simulated independently from the true initial speed: within 0.1 percentage point
     assert rep.fit_percent == pytest.approx(_independent_fit(friction_estimate, held_out, initial_speed), abs=0.1)
     assert "first 2 time constants" in rep.initial_state and rep.summary()["initial_state"] == rep.initial_state
+
+
+def test_a_report_prints_and_renders_without_arrays():
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
+    report = validate(fit(rec), rec)
+    text = str(report)
+    assert "fit" in text and "Ljung-Box" in text and "up to 200 duty (limit +-255 duty)" in text
+    assert "array" not in text and "array" not in repr(report) and len(repr(report)) < 200
+    assert "<table>" in report._repr_html_() and "array" not in report._repr_html_()
+
+
+def test_a_model_is_not_validated_on_another_input_unit():
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10, 200), sample_period=0.005, duration=1.0))
+    volts = dataclasses.replace(rec, metadata={**rec.metadata, "input_unit": "V"})
+    with pytest.raises(ValueError, match="input_unit"):
+        validate(fit(rec), volts)

@@ -148,3 +148,37 @@ def test_control_design_prints_margins_and_the_robustness_of_a_saved_model(tmp_p
     assert "time_constant = 0.01," not in out and "warning:" not in out
     assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--robust"]) == 2
     assert "--robust needs the model's covariance" in capsys.readouterr().err
+
+
+@pytest.fixture
+def volt_model(tmp_path):
+    """A model fitted to the UNDCMotor PRBS run, its input in V with a 12 V drive."""
+    rec = tmp_path / "prbs.csv"
+    assert main(["import", "tests/data/undcmotor/DCmotor_prbs_open_exp.csv", "--time", "t:s", "--input", "u:V",
+                 "--speed", "y:deg/s", "--input-limit", "12", "--out", str(rec)]) == 0
+    model = tmp_path / "model.json"
+    assert main(["identify", str(rec), "--method", "oe", "--save", str(model)]) == 0
+    return model
+
+
+def test_a_volt_model_carries_its_unit_and_limit_into_the_saved_model(volt_model):
+    doc = json.loads(volt_model.read_text())
+    assert doc["units"]["input"] == "V" and doc["input_limit"] == 12
+
+
+def test_control_design_speaks_the_model_unit_and_warns_beyond_its_limit(volt_model, capsys):
+    capsys.readouterr()
+    argv = ["control", "design", "--model", str(volt_model), "--controller", "pi", "--time-constant", "0.05",
+            "--reference", "sine:10,50"]
+    assert main(argv) == 0
+    out, err = capsys.readouterr()
+    assert "(rad/s^2)/V" in out and "input limit +-12 V" in out and "(rad/s^2)/duty" not in out
+    assert "more than the input limit +-12 V" in err
+    assert main([*argv, "--input-limit", "100"]) == 0
+    assert "input limit" not in capsys.readouterr().err
+
+
+def test_feedforward_design_prints_no_empty_pole_list_as_stable(capsys):
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "feedforward"]) == 0
+    out = capsys.readouterr().out
+    assert "closed-loop poles:  (stable)" not in out and "closed-loop poles: none" in out

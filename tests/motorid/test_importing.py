@@ -78,3 +78,38 @@ def test_readme_real_motor_figures_reproduce_end_to_end(tmp_path, capsys):
         assert res["validation_fit_percent"] == pytest.approx(95.1, abs=0.05)
         assert res["input_delay"] == 1 and res["input_unit"] == "V"
     assert via_import["a"] == pytest.approx(direct["a"], rel=1e-9)
+
+
+_UNIT_NAMED = "time_ms,u_pct,speed_rpm\n0,10,0\n10,10,100\n20,20,200\n30,20,250\n40,20,300\n"
+
+
+@pytest.mark.parametrize("flags,refused,suggested", [
+    (["--time", "time_ms", "--input", "u_pct:%", "--speed", "speed_rpm:rpm"], "time_ms", "--time time_ms:ms"),
+    (["--time", "time_ms:ms", "--input", "u_pct", "--speed", "speed_rpm:rpm"], "u_pct", "--input u_pct:%"),
+    (["--time", "time_ms:ms", "--input", "u_pct:%", "--speed", "speed_rpm"], "speed_rpm", "--speed speed_rpm:rpm"),
+], ids=["time_ms", "u_pct", "speed_rpm"])
+def test_a_column_named_with_a_unit_but_given_without_one_is_refused(tmp_path, capsys, flags, refused, suggested):
+    src = tmp_path / "lab.csv"
+    src.write_text(_UNIT_NAMED)
+    assert main(["import", str(src), *flags, "--out", str(tmp_path / "rec.csv")]) == 2
+    err = capsys.readouterr().err
+    assert refused in err and suggested in err
+    assert not (tmp_path / "rec.csv").exists()
+
+
+def test_the_unit_named_columns_import_with_their_units(tmp_path):
+    src = tmp_path / "lab.csv"
+    src.write_text(_UNIT_NAMED)
+    assert main(["import", str(src), "--time", "time_ms:ms", "--input", "u_pct:%", "--speed", "speed_rpm:rpm",
+                 "--out", str(tmp_path / "rec.csv")]) == 0
+    rec = read_recording(tmp_path / "rec.csv")
+    assert rec.sample_period == pytest.approx(0.01) and rec.input_unit == "%"
+
+
+def test_identify_on_a_file_that_is_not_a_recording_names_the_column_flags_and_import(tmp_path, capsys):
+    src = tmp_path / "lab.csv"
+    src.write_text("t,u,y\n0,1,0\n0.01,1,1\n0.02,1,2\n")
+    assert main(["identify", str(src)]) == 2
+    err = capsys.readouterr().err
+    for hint in ("--time", "--input", "--speed", "motorid import"):
+        assert hint in err, hint

@@ -1,4 +1,6 @@
 """The figures, checked through the returned matplotlib Figure: labels with units, legends, lines."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -54,7 +56,7 @@ def test_a_dense_run_is_drawn_as_an_envelope_above_a_window_of_samples(runs):
     top, bottom = fig.axes[:2]                      # then their twins, the speed axes
     assert "envelope" in top.get_title()
     assert len(top.get_lines()) == 2 and len(top.get_lines()[0].get_xdata()) < 100   # max and min per slice
-    assert bottom.get_xlabel() == "time [s]" and bottom.get_ylabel() == "duty η [duty]"
+    assert bottom.get_xlabel() == "time [s]" and bottom.get_ylabel() == "input η [duty]"
     assert fig.axes[2].get_ylabel() == fig.axes[3].get_ylabel() == "ω [rad/s]"
     assert max(bottom.get_lines()[0].get_xdata()) <= 0.5
     sparse = plots.plot_run(recs[0], window=0.5)    # 10 rad/s for 4 s: 6 periods, drawn sample by sample
@@ -145,3 +147,22 @@ def test_design_figure_draws_both_errors_and_one_mark_per_frequency(tmp_path):
     assert _texts(ax.get_legend()) == ["a", "b"]
     assert len(ax.get_lines()) == 2 + 2                           # a, b and the two marks
     assert [t.get_text() for t in ax.texts] == ["recommended", "article 20"]
+
+
+def test_a_recording_in_volts_is_drawn_in_volts():
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 1.0))
+    rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_unit": "V"})
+    fig = plots.plot_run(rec)
+    assert fig.axes[0].get_ylabel() == "input η [V]"
+
+
+def test_closed_loop_figure_shows_each_design_tracking_error():
+    from motorid.commands.control import compare_designs
+    from motorsim.control import parse_reference
+    truth = Motor(25.0, 3.0)
+    rows = compare_designs(SimRig(truth), [("truth", truth), ("slow", Motor(20.0, 2.7))], "mpc",
+                           parse_reference("sine:30,10"), 0.5, 0.005, 16667, duty_weight=1e-4)
+    fig = plots.plot_tracking(rows)
+    error_axis = next(ax for ax in fig.axes if ax.get_ylabel().startswith("error"))
+    assert len(error_axis.get_lines()) == 1 + len(rows)          # the zero line, then one error per design
+    assert fig.axes[-1].get_ylabel() == "input [duty]"

@@ -1,10 +1,7 @@
 """Long work shows progress on a terminal, stays quiet in pipes, and a sweep says its run time first."""
 import io
-import math
 import re
 import sys
-
-import pytest
 
 from motorid.cli import main
 from motorid.commands.demo import article_experiments, run_article
@@ -27,14 +24,27 @@ def test_demo_is_quiet_in_a_pipe(capsys):
     assert capsys.readouterr().err == ""                     # pytest's stderr is not a terminal
 
 
-def test_sweep_time_estimate_is_points_times_repetitions_times_one_run_and_fit():
+def test_sweep_time_estimate_probes_each_method_on_points_spread_over_the_grid(monkeypatch):
+    from scenarios import sweep_time
     scenario = scenario_from_dict({"name": "t", "repetitions": 7, "methods": ["zoh-ls", "oe"],
-                                   "bench": {"duration": 0.5}, "grid": {"excitation.frequency": [10, 20, 30]}})
+                                   "bench": {"duration": 0.5, "angle_noise": 1e-4},
+                                   "grid": {"excitation.frequency": [10, 15, 20, 25, 30, 35]}})
+    probed = []
+    from scenarios import sweep
+    run_point = sweep.run_point
+
+    def spy(point, methods, repetitions, seed, **kw):
+        probed.append((point.index, tuple(methods), repetitions))
+        return run_point(point, methods, repetitions, seed, **kw)
+    monkeypatch.setattr(sweep, "run_point", spy)
+    monkeypatch.setattr(sweep_time, "effective_workers", lambda workers: 2.0)
     est = estimate_sweep_time(scenario, workers=2)
-    assert set(est.fits) == {"zoh-ls", "oe"} and est.workers == 2
-    assert est.seconds == pytest.approx(3 * 7 * (est.run + sum(est.fits.values())) / 2, rel=1e-12)
-    assert all(math.isfinite(t) and t > 0 for t in est.fits.values())
-    assert "3 points x 2 methods x 7 repetitions, estimated" in est.describe(scenario)
+    assert {i for i, _, _ in probed} == {0, 2, 3, 5}                 # the first, the last, evenly between
+    assert {m for _, m, _ in probed} == {("zoh-ls",), ("oe",)}
+    assert {r for _, _, r in probed} == {1, 2}            # batched: what a second repetition adds is timed
+    assert set(est.fits) == {"zoh-ls", "oe"} and est.workers == 2 and est.points_probed == 4
+    assert sweep_time.WORKER_STARTUP < est.seconds < sweep_time.WORKER_STARTUP + 6 * 7 * sum(est.fits.values())
+    assert "6 points x 2 methods x 7 repetitions, estimated" in est.describe(scenario)
 
 
 def test_sweep_announces_its_run_time_unless_quiet(tmp_path, capsys):

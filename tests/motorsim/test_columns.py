@@ -150,3 +150,21 @@ def test_matlab_v73_with_h5py(tmp_path):
         fh.write(b"MATLAB 7.3 MAT-file".ljust(124) + b"\x00\x02IM")
     rec = import_recording(path, time="t", input="u", speed="y")
     assert rec.sample_period == 0.1 and rec.speed.tolist() == [0.0, 1.0, 2.0]
+
+
+@pytest.mark.parametrize("quantity,name,unit", [
+    ("time", "time_ms", "ms"), ("time", "t_us", "us"), ("speed", "speed_rpm", "rpm"), ("speed", "w_degs", "deg/s"),
+    ("input", "u_pct", "%"), ("input", "u_V", "V"), ("angle", "theta_deg", "deg"),
+], ids=lambda x: str(x))
+def test_a_unit_in_the_column_name_must_be_given(quantity, name, unit):
+    from motorsim.columns import unit_in_name
+    assert unit_in_name(quantity, name) == unit
+    with pytest.raises(ValueError, match=f"{quantity} {name}:"):
+        ColumnSpec.parse(quantity, name)
+    assert ColumnSpec.parse(quantity, f"{name}:{unit}").unit == unit
+
+
+@pytest.mark.parametrize("quantity,name", [("time", "t"), ("time", "time_s"), ("speed", "omega"),
+                                           ("input", "duty"), ("speed", "0")], ids=lambda x: str(x))
+def test_a_name_without_a_foreign_unit_takes_the_default(quantity, name):
+    assert ColumnSpec.parse(quantity, name).column in (name, int(name) if name.isdigit() else name)
