@@ -35,7 +35,7 @@ from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 __all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_args", "model_from_args",
-           "load_model_file", "closed_loop_from_args",
+           "load_model_file", "closed_loop_from_args", "require_duty_model",
            "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
 
 DEFAULT_REFERENCE = "sine:10,10"
@@ -86,6 +86,7 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
     if not args.model and (args.a is None or args.b is None):
         raise CommandError("give the model the controller is designed from: --a and --b, or --model FILE.json")
     args.sample_period, args.counts_per_rev = sample_period, counts_per_rev
+    require_duty_model(args)
     model = model_from_args(args)
     if model.input_delay < rig_input_delay:
         print_to_stderr(f"note: the device applies each duty {rig_input_delay} sample(s) after computing it; "
@@ -109,6 +110,15 @@ def load_model_file(path: str) -> Any:
         return Estimate.from_json(data)
     except (ValueError, TypeError) as exc:
         raise CommandError(f"--model {path}: not a saved model: {exc}") from None
+
+
+def require_duty_model(args: argparse.Namespace) -> None:
+    """Refuse a ``--model`` whose input is not the duty for a controller that runs on a rig (it computes duty)."""
+    if getattr(args, "model", None):
+        unit = load_model_file(args.model).input_unit
+        if unit != "duty":
+            raise CommandError(f"--model {args.model}: its input is in {unit}, but a rig's controller computes "
+                               "duty: fit the model to a recording whose input is the duty")
 
 
 def model_from_args(args: argparse.Namespace) -> PlantModel:

@@ -182,3 +182,13 @@ def test_feedforward_design_prints_no_empty_pole_list_as_stable(capsys):
     assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "feedforward"]) == 0
     out = capsys.readouterr().out
     assert "closed-loop poles:  (stable)" not in out and "closed-loop poles: none" in out
+
+
+@pytest.mark.parametrize("command", [["simulate", "--a", "25", "--b", "3", "--out", "x.csv"],
+                                     ["live", "--port", "fake://?a=25&b=3", "--out", "x.csv"]])
+def test_a_rig_controller_refuses_a_model_not_in_duty(volt_model, capsys, tmp_path, command):
+    argv = [*command, "--controller", "pi", "--model", str(volt_model), "--reference", "sine:10,10"]
+    argv[argv.index("x.csv")] = str(tmp_path / "x.csv")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "its input is in V" in err and "duty" in err and not (tmp_path / "x.csv").exists()
