@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import warnings
 
 from motorid.arguments import CommandError, print_to_stderr
@@ -75,7 +76,12 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
 
 
 def _is_motorid_recording(path: str) -> bool:
+    """Whether ``path`` starts with the format's header; True for anything but a regular file (a FIFO is
+    never opened here: the reader's own refusal stands)."""
+    import stat
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return True
         with open(path, encoding="utf-8", errors="replace") as fh:
             return fh.readline().strip().startswith(FORMAT_HEADER)
     except OSError:
