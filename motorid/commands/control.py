@@ -221,8 +221,9 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     m = p.add_argument_group("sampling")
     m.add_argument("--sample-period", dest="sample_period", type=float, default=None,
                    help="controller sample period in s (default: the model file's, else 0.005)")
-    m.add_argument("--counts-per-rev", dest="counts_per_rev", type=int, default=DEFAULT_COUNTS_PER_REV,
-                   help=f"encoder counts per revolution (default {DEFAULT_COUNTS_PER_REV})")
+    m.add_argument("--counts-per-rev", dest="counts_per_rev", type=int, default=None,
+                   help=f"encoder counts per revolution of the rig the controller runs on (default "
+                        f"{DEFAULT_COUNTS_PER_REV}, said on stderr when the model comes from a file)")
     add_controller_arguments(p, required=True)
     p.add_argument("--duration", type=float, default=2.0, help="length of the predicted response in s (default 2)")
     p.add_argument("--input-limit", dest="input_limit", type=float, default=None, metavar="LIMIT",
@@ -246,6 +247,11 @@ def run_control(args: argparse.Namespace) -> int:
     if not args.model and args.sample_period is None:
         args.sample_period = 0.005
     unit, limit = _input_unit_and_limit(args)
+    if args.counts_per_rev is None:
+        args.counts_per_rev = DEFAULT_COUNTS_PER_REV
+        if args.model:
+            print_to_stderr(f"motorid: note: a saved model does not say the rig's encoder; assuming "
+                            f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")
     model = model_from_args(args)
     controller = controller_from_args(args, model)
     reference = parse_reference(args.reference)

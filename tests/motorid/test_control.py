@@ -192,3 +192,12 @@ def test_a_rig_controller_refuses_a_model_not_in_duty(volt_model, capsys, tmp_pa
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "its input is in V" in err and "duty" in err and not (tmp_path / "x.csv").exists()
+
+
+def test_a_saved_model_says_which_encoder_the_design_assumes(volt_model, capsys):
+    assert main(["control", "design", "--model", str(volt_model), "--controller", "pi"]) == 0
+    assert "assuming 16667 counts/rev (give --counts-per-rev N)" in capsys.readouterr().err
+    assert main(["control", "design", "--model", str(volt_model), "--controller", "pi", "--counts-per-rev",
+                 "1000"]) == 0
+    captured = capsys.readouterr()
+    assert "assuming" not in captured.err and "1000 counts/rev" in captured.out
