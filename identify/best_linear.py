@@ -28,7 +28,7 @@ from typing import Any, Sequence, cast
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.excitation import OddMultisine
 from motorsim.recording import Recording
 
@@ -42,7 +42,7 @@ __all__ = ["BestLinearApproximation", "best_linear_approximation"]
 def _check_level(level: float) -> float:
     level = check_real("level", level, positive=True)
     if level >= 1:
-        raise ValueError(f"level must be in (0, 1), got {level!r}")
+        raise ParameterError(f"level must be in (0, 1), got {level!r}")
     return level
 
 

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from motorsim.checks import check_int
+from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
 from .data import as_recordings, check_input_delay
@@ -106,7 +106,7 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
     recs = as_recordings(recordings)
     delay = check_input_delay(input_delay)
     if delay == "auto":
-        raise ValueError("input_delay must be an integer number of samples for iv-reference, got 'auto'")
+        raise ParameterError("input_delay must be an integer number of samples for iv-reference, got 'auto'")
     delay = check_int("input_delay", delay, 0, 10**6)
     h = recs[0].sample_period
     w_now, w_next, u, z = _rows(recs, delay)

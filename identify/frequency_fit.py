@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from motorsim.checks import check_int
+from motorsim.checks import ParameterTypeError, check_int
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
@@ -74,7 +74,7 @@ def fit_frequency_response(frf: FrequencyResponse, *, input_delay: int = 0) -> E
     """
     from scipy.optimize import least_squares
     if not isinstance(frf, FrequencyResponse):
-        raise TypeError(f"frf must be a FrequencyResponse, got {type(frf).__name__}")
+        raise ParameterTypeError(f"frf must be a FrequencyResponse, got {type(frf).__name__}")
     input_delay = check_int("input_delay", input_delay, 0)
     if len(frf) < 2:
         raise NotIdentifiableError(f"a fit of a and b needs at least 2 frequencies, got {len(frf)}")

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from motorsim.checks import check_int, check_real
+from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.excitation import MAX_AMPLITUDE, PRBS, Multisine, OddMultisine, parse_excitation
 from motorsim.recording import Recording
 
@@ -99,7 +99,7 @@ def zoh_speed_response(a: float, b: float, sample_period: float, omega: np.ndarr
     0.12
     """
     if output not in OUTPUTS:
-        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
     dt = check_real("sample_period", sample_period, positive=True)
     w = np.asarray(omega, dtype=float)
     x = a * dt
@@ -156,11 +156,11 @@ class FrequencyResponse:
         for name in ("omega", "response", "variance", "dof", "coherence"):
             arr = np.array(getattr(self, name), dtype=complex if name == "response" else float).reshape(-1)
             if len(arr) != n:
-                raise ValueError(f"{name} must have the length of omega ({n}), got {len(arr)}")
+                raise ParameterError(f"{name} must have the length of omega ({n}), got {len(arr)}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         if self.output not in OUTPUTS:
-            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {self.output!r}")
+            raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {self.output!r}")
 
     def __len__(self) -> int:
         return len(self.omega)
@@ -170,7 +170,7 @@ class FrequencyResponse:
         from scipy import stats
         level = check_real("level", level, positive=True)
         if level >= 1:
-            raise ValueError(f"level must be in (0, 1), got {level!r}")
+            raise ParameterError(f"level must be in (0, 1), got {level!r}")
         dof = np.where(np.isfinite(self.dof), self.dof, 1e12)
         return np.sqrt(self.variance * stats.f.ppf(level, 2, np.maximum(dof, 1.0)))
 
@@ -269,7 +269,7 @@ class ModelResponse:
         """Radius of the model's confidence disk at ``level`` (a circular Gaussian approximation)."""
         level = check_real("level", level, positive=True)
         if level >= 1:
-            raise ValueError(f"level must be in (0, 1), got {level!r}")
+            raise ParameterError(f"level must be in (0, 1), got {level!r}")
         return np.sqrt(self.variance * -math.log(1.0 - level))
 
 
@@ -550,7 +550,7 @@ def frequency_response(recordings: Recording | Sequence[Recording], *, method: s
     True
     """
     if method not in ESTIMATORS:
-        raise ValueError(f"method must be one of {', '.join(ESTIMATORS)}, got {method!r}")
+        raise ParameterError(f"method must be one of {', '.join(ESTIMATORS)}, got {method!r}")
     transient_periods = check_int("transient_periods", transient_periods, 0)
     recs = as_recordings(recordings)
     parts = []

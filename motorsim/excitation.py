@@ -274,13 +274,13 @@ class Multisine(Excitation):
     def __post_init__(self):
         f = tuple(check_real("frequencies", x, positive=True) for x in np.atleast_1d(self.frequencies))
         if not 1 <= len(f) <= MAX_COMPONENTS:
-            raise ValueError(f"frequencies must have 1...{MAX_COMPONENTS} components, got {len(f)}")
+            raise ParameterError(f"frequencies must have 1...{MAX_COMPONENTS} components, got {len(f)}")
         a = tuple(check_int("amplitudes", x, -MAX_AMPLITUDE, MAX_AMPLITUDE) for x in np.atleast_1d(self.amplitudes))
         if len(a) == 1 and len(f) > 1:
             a = a * len(f)
         p = tuple(check_real("phases", x) for x in np.atleast_1d(self.phases)) or (0.0,) * len(f)
         if not len(a) == len(p) == len(f):
-            raise ValueError(f"frequencies, amplitudes and phases must have equal lengths, "
+            raise ParameterError(f"frequencies, amplitudes and phases must have equal lengths, "
                              f"got {len(f)}, {len(a)} and {len(p)}")
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "amplitudes", a)
@@ -292,7 +292,7 @@ class Multisine(Excitation):
         out = []
         for f, a, p in zip(self.frequencies, self.amplitudes, self.phases):
             if f * sample_period >= math.pi:
-                raise ValueError(f"frequencies must be below the Nyquist frequency "
+                raise ParameterError(f"frequencies must be below the Nyquist frequency "
                                  f"pi/sample_period = {math.pi / sample_period:.6g} rad/s, got {f!r}")
             out.append((a, _phase_word(p), phase_increment(f, sample_period)))
         return out
@@ -390,7 +390,7 @@ class Chirp(Excitation):
         """``(inc0, inc_step)``: the u32 start step and the i32 step change per sample."""
         for name, f in (("f0", self.f0), ("f1", self.f1)):
             if f * sample_period >= math.pi:
-                raise ValueError(f"{name} must be below the Nyquist frequency "
+                raise ParameterError(f"{name} must be below the Nyquist frequency "
                                  f"pi/sample_period = {math.pi / sample_period:.6g} rad/s, got {f!r}")
         inc0 = phase_increment(self.f0, sample_period)
         inc1 = phase_increment(self.f1, sample_period)
@@ -517,12 +517,12 @@ class OddMultisine(Excitation):
     def __post_init__(self):
         period = check_int("period", self.period, 16, 65536)
         if period & (period - 1):
-            raise ValueError(f"period must be a power of two (samples), got {period!r}")
+            raise ParameterError(f"period must be a power of two (samples), got {period!r}")
         h = check_int("max_harmonic", self.max_harmonic, 1, period // 2 - 1)
         if h % 2 == 0:
-            raise ValueError(f"max_harmonic must be odd, got {h!r}")
+            raise ParameterError(f"max_harmonic must be odd, got {h!r}")
         if (h + 1) // 2 > MAX_ODD_LINES:
-            raise ValueError(f"max_harmonic must be at most {2 * MAX_ODD_LINES - 1} "
+            raise ParameterError(f"max_harmonic must be at most {2 * MAX_ODD_LINES - 1} "
                              f"({MAX_ODD_LINES} odd lines), got {h!r}")
         object.__setattr__(self, "period", period)
         object.__setattr__(self, "max_harmonic", h)
@@ -530,7 +530,7 @@ class OddMultisine(Excitation):
         object.__setattr__(self, "seed", check_int("seed", self.seed, 0, 65535))
         group = check_int("group", self.group, 0, 16)
         if group == 1:
-            raise ValueError(f"group must be 0 (no line left out) or 2...16, got {group!r}")
+            raise ParameterError(f"group must be 0 (no line left out) or 2...16, got {group!r}")
         object.__setattr__(self, "group", group)
         object.__setattr__(self, "offset", check_int("offset", self.offset, -MAX_AMPLITUDE, MAX_AMPLITUDE))
 
@@ -647,7 +647,7 @@ def _ints(values: Sequence[float]) -> list:
 def _parse_sine(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 1 <= len(v) <= 3:
-        raise ValueError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
+        raise ParameterError(f"excitation {spec!r}: sine takes FREQ[,AMP[,PHASE]]")
     amplitude = _ints(v[1:2])[0] if len(v) > 1 else 200
     phase = v[2] if len(v) > 2 else 0.0
     return Sine(v[0], amplitude, phase, offset=_ints([offset])[0])
@@ -659,7 +659,7 @@ def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
         parts = parts[:-1]                    # one trailing ';' is harmless
     comps = [_numbers(c, spec) for c in parts]
     if not comps or any(not 1 <= len(c) <= 3 for c in comps):
-        raise ValueError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
+        raise ParameterError(f"excitation {spec!r}: multisine takes F,A,P;F,A,P...")
     return Multisine(tuple(c[0] for c in comps),
                      tuple(_ints([c[1] if len(c) > 1 else 200])[0] for c in comps),
                      tuple(c[2] if len(c) > 2 else 0.0 for c in comps), _ints([offset])[0])
@@ -668,7 +668,7 @@ def _parse_multisine(args: str, spec: str, offset: float) -> Excitation:
 def _parse_chirp(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 2 <= len(v) <= 3:
-        raise ValueError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
+        raise ParameterError(f"excitation {spec!r}: chirp takes F0,F1[,AMP]")
     amplitude = _ints(v[2:3])[0] if len(v) > 2 else 200
     return Chirp(v[0], v[1], amplitude, offset=_ints([offset])[0])
 
@@ -676,14 +676,14 @@ def _parse_chirp(args: str, spec: str, offset: float) -> Excitation:
 def _parse_prbs(args: str, spec: str, offset: float) -> Excitation:
     v = _ints(_numbers(args, spec))
     if not 2 <= len(v) <= 5:
-        raise ValueError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
+        raise ParameterError(f"excitation {spec!r}: prbs takes HIGH,LOW[,ORDER[,HOLD[,SEED]]]")
     return PRBS(*v)
 
 
 def _parse_step(args: str, spec: str, offset: float) -> Excitation:
     v = _numbers(args, spec)
     if not 1 <= len(v) <= 3:
-        raise ValueError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
+        raise ParameterError(f"excitation {spec!r}: step takes AFTER[,AT_TIME[,BEFORE]]")
     at_time = v[1] if len(v) > 1 else 0.0
     before = _ints(v[2:3])[0] if len(v) > 2 else 0
     return Step(_ints(v[:1])[0], at_time, before)
@@ -692,14 +692,14 @@ def _parse_step(args: str, spec: str, offset: float) -> Excitation:
 def _parse_constant(args: str, spec: str, offset: float) -> Excitation:
     v = _ints(_numbers(args, spec))
     if len(v) != 1:
-        raise ValueError(f"excitation {spec!r}: constant takes LEVEL")
+        raise ParameterError(f"excitation {spec!r}: constant takes LEVEL")
     return Constant(v[0])
 
 
 def _parse_odd_multisine(args: str, spec: str, offset: float) -> Excitation:
     v = _ints(_numbers(args, spec))
     if not 3 <= len(v) <= 5:
-        raise ValueError(f"excitation {spec!r}: odd-multisine takes PERIOD,MAX_HARMONIC,AMP[,SEED[,GROUP]]")
+        raise ParameterError(f"excitation {spec!r}: odd-multisine takes PERIOD,MAX_HARMONIC,AMP[,SEED[,GROUP]]")
     period, max_harmonic, amplitude, *rest = v
     seed = rest[0] if rest else 1
     group = rest[1] if len(rest) > 1 else 3

@@ -17,6 +17,7 @@ from typing import BinaryIO, Iterable, Iterator, Mapping, NamedTuple, NoReturn, 
 
 import numpy as np
 
+from .checks import ParameterError
 from .files import InputFileError, open_input
 from .recording import COLUMNS, FORMAT_HEADER, INTEGER_COLUMNS, METADATA_ALIASES, Recording, RecordingFormatError
 
@@ -144,7 +145,7 @@ def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
             cut = buffer.rfind(b"\n", 0, end) + 1
             if not cut:
                 if end == len(buffer):
-                    raise ValueError(f"a line longer than {len(buffer)} bytes")
+                    raise ParameterError(f"a line longer than {len(buffer)} bytes")
                 kept = end
                 continue
             yield view[:cut]
@@ -202,12 +203,12 @@ def _copy_column(column, out: np.ndarray) -> None:
     i = 0
     for chunk in column.chunks:
         if chunk.null_count:
-            raise ValueError("a missing value")
+            raise ParameterError("a missing value")
         k = len(chunk)
         out[i:i + k] = np.frombuffer(chunk.buffers()[1], dtype=out.dtype, count=k, offset=chunk.offset * out.itemsize)
         i += k
     if i != len(out):
-        raise ValueError("a column shorter than its table")
+        raise ParameterError("a column shorter than its table")
 
 
 class _FastParse(NamedTuple):

@@ -15,6 +15,7 @@ from typing import Iterable, Mapping, TextIO
 
 import numpy as np
 
+from .checks import ParameterError, ParameterTypeError
 from .files import OutputFileError, check_output_file, open_exclusive, write_atomically
 from .recording import FORMAT_HEADER, INTEGER_COLUMNS, Recording
 
@@ -31,7 +32,7 @@ def _metadata_lines(rec: Recording) -> list[str]:
     lines = [FORMAT_HEADER]
     for k, v in meta.items():
         if "\n" in k or "\n" in v or ":" in k:
-            raise ValueError(f"metadata key {k!r} / value {v!r} must be single-line, and keys must not contain ':'")
+            raise ParameterError(f"metadata key {k!r} / value {v!r} must be single-line, and keys must not contain ':'")
         lines.append(f"# {k}: {v}")
     return lines
 
@@ -70,7 +71,7 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
         Destination; replaced if it exists.
     """
     if not isinstance(recording, Recording):
-        raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+        raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     path = Path(path)
     cols = _columns(recording)
     text = "\n".join([*_metadata_lines(recording), ",".join(cols), *_format_rows(recording, cols)]) + "\n"
@@ -152,11 +153,11 @@ class RecordingWriter:
     def append(self, seq: int, time_s: float, duty: int, counts: int) -> None:
         """Add one row (``seq`` and ``time_s`` strictly increasing)."""
         if self.closed:
-            raise ValueError(f"this RecordingWriter for {self.path} is closed")
+            raise ParameterError(f"this RecordingWriter for {self.path} is closed")
         row = (int(seq), float(time_s), int(duty), int(counts))
         last = self._rows[-1] if self._rows else self._last
         if last is not None and (row[0] <= last[0] or row[1] <= last[1]):
-            raise ValueError(f"seq and time_s must be strictly increasing, got seq {row[0]} at {row[1]!r} s "
+            raise ParameterError(f"seq and time_s must be strictly increasing, got seq {row[0]} at {row[1]!r} s "
                              f"after seq {last[0]} at {last[1]!r} s")
         self._rows.append(row)
         if time.monotonic() - self._last_flush >= self._flush_interval:
@@ -180,7 +181,7 @@ class RecordingWriter:
             self._header_written = True
             lines = header + lines
         if self._file is None:
-            raise ValueError(f"this RecordingWriter for {self.path} is closed")
+            raise ParameterError(f"this RecordingWriter for {self.path} is closed")
         try:
             self._file.write("\n".join(lines) + "\n")
             self._file.flush()
@@ -245,7 +246,7 @@ class RecordingWriter:
             The final file.
         """
         if not isinstance(recording, Recording):
-            raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+            raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
         self.closed = True
         self._rows = []
         if self._file is not None:

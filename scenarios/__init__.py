@@ -17,6 +17,8 @@ import concurrent.futures
 import os
 from typing import TYPE_CHECKING, Callable
 
+from motorsim.checks import ParameterTypeError
+
 if TYPE_CHECKING:
     from .scenario import Scenario
     from .sweep import SweepSummary
@@ -78,6 +80,7 @@ def run_sweep(scenario: Scenario | str | os.PathLike, out_dir: str | os.PathLike
     from .sweep import run_scenario
     if not isinstance(scenario, Scenario):
         if not isinstance(scenario, (str, os.PathLike)):
-            raise TypeError(f"scenario must be a Scenario, a built-in name or a path, got {type(scenario).__name__}")
+            raise ParameterTypeError(f"scenario must be a Scenario, a built-in name or a path, "
+                                     f"got {type(scenario).__name__}")
         scenario = load_scenario(scenario)
     return run_scenario(scenario, out_dir, workers=workers, executor=executor, progress=progress)

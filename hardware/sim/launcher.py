@@ -46,7 +46,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 import serial
 
-from motorsim.checks import check_choice, check_int, check_real
+from motorsim.checks import ParameterError, ParameterTypeError, check_choice, check_int, check_real
 from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.rig import bench_knobs
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -115,7 +115,7 @@ class HarnessOptions:
         object.__setattr__(self, "counts_per_rev", check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1))
         check_real("speed", self.speed, nonnegative=True)
         if not 0 <= self.boot_delay <= 10:
-            raise ValueError(f"boot_delay must be in 0...10 s, got {self.boot_delay!r}")
+            raise ParameterError(f"boot_delay must be in 0...10 s, got {self.boot_delay!r}")
         check_choice("driver", self.driver, _DRIVERS)
         object.__setattr__(self, "substep_cycles", check_int("substep_cycles", self.substep_cycles, 1, 16000))
 
@@ -166,26 +166,26 @@ def parse_avr_sim_url(url: str) -> HarnessOptions:
     2000
     """
     if not isinstance(url, str):
-        raise TypeError(f"url must be a str, got {type(url).__name__}")
+        raise ParameterTypeError(f"url must be a str, got {type(url).__name__}")
     parts = urlsplit(url)
     if parts.scheme != "avr-sim":
-        raise ValueError(f"url must start with 'avr-sim://', got {url!r}")
+        raise ParameterError(f"url must start with 'avr-sim://', got {url!r}")
     keys, knobs = url_keys(), _url_knobs()
     values: dict[str, Any] = {}
     for key, text in parse_qsl(parts.query, keep_blank_values=True, strict_parsing=False):
         key = key.replace("-", "_")
         if key not in keys:
-            raise ValueError(f"avr-sim URL key must be one of {sorted(keys)}, got {key!r} in {url!r}")
+            raise ParameterError(f"avr-sim URL key must be one of {sorted(keys)}, got {key!r} in {url!r}")
         try:
             values[key] = knobs[key].parse(text) if key in knobs else text
         except ValueError as exc:
-            raise ValueError(f"avr-sim URL key {exc}") from None
+            raise ParameterError(f"avr-sim URL key {exc}") from None
     return HarnessOptions(**values)
 
 
 def _check_baudrate(baudrate: int) -> int:
     if check_int("baudrate", baudrate, allow_integral_float=False) not in SUPPORTED_BAUDRATES:
-        raise ValueError(f"baudrate must be one of {SUPPORTED_BAUDRATES}, got {baudrate!r}")
+        raise ParameterError(f"baudrate must be one of {SUPPORTED_BAUDRATES}, got {baudrate!r}")
     return baudrate
 
 
@@ -193,7 +193,7 @@ def _variant(baudrate: int, driver: str) -> tuple[str, list[str]]:
     """Build sub-directory and -D flags of a firmware variant ("" for the default build)."""
     _check_baudrate(baudrate)
     if driver not in _DRIVERS:
-        raise ValueError(f"driver must be one of {sorted(_DRIVERS)}, got {driver!r}")
+        raise ParameterError(f"driver must be one of {sorted(_DRIVERS)}, got {driver!r}")
     parts, defs = [], []
     if baudrate != DEFAULT_BAUDRATE:
         parts.append(f"baud{baudrate}")
@@ -304,7 +304,7 @@ class AvrSimulation:
 
     def __init__(self, options: HarnessOptions | None = None, baudrate: int = DEFAULT_BAUDRATE):
         if options is not None and not isinstance(options, HarnessOptions):
-            raise TypeError(f"options must be HarnessOptions, got {type(options).__name__}")
+            raise ParameterTypeError(f"options must be HarnessOptions, got {type(options).__name__}")
         self.options = options or HarnessOptions()
         self.baudrate = _check_baudrate(baudrate)
         self.port_path: str | None = None

@@ -123,3 +123,14 @@ def test_newey_west_lag_sums_by_fft_equal_the_direct_sums(max_lag):
         gamma = g[lag:].T @ g[:-lag]
         direct += (1 - lag / (max_lag + 1)) * (gamma + gamma.T)
     np.testing.assert_allclose(_weighted_lag_products(g, max_lag), direct, rtol=1e-10, atol=1e-9)
+
+
+@pytest.mark.parametrize("call", [
+    lambda: __import__("identify").frequency_response([]),
+    lambda: __import__("scenarios").run_sweep(42, "out"),
+    lambda: __import__("identify.selection", fromlist=["x"]).select_model([], level=0.9),
+], ids=["frequency_response", "run_sweep", "select_model"])
+def test_library_entry_points_raise_our_error_types(call):
+    from motorsim.checks import ParameterError
+    with pytest.raises(ParameterError):
+        call()
