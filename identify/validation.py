@@ -404,7 +404,7 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
         raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     max_lag = check_int("max_lag", max_lag, lo=1, allow_integral_float=False)
     if recording.input_unit != estimate.input_unit:
-        raise ValueError(f"recording input_unit must be the estimate's ({estimate.input_unit}), "
+        raise ParameterError(f"recording input_unit must be the estimate's ({estimate.input_unit}), "
                          f"got {recording.input_unit!r}: a model of one input unit cannot explain another")
     meas, sim = model_output(estimate, recording)
     res, inp, unit = model_residuals(estimate, recording)
