@@ -34,7 +34,7 @@ from motorsim.recording import Recording
 
 from .data import as_recordings
 from .errors import NotIdentifiableError
-from .frequency_response import FrequencyResponse, excitation_of, periodic_spectra
+from .frequency_estimate import FrequencyResponse, excitation_of, periodic_spectra
 
 __all__ = ["BestLinearApproximation", "best_linear_approximation"]
 

@@ -1,7 +1,7 @@
 """``a`` and ``b`` fitted to a frequency response: a cross-check of the time-domain fits.
 
 The model is the exact ZOH response of ``b/(s + a)`` for the response's output
-(:func:`identify.frequency_response.zoh_speed_response`), the residual at each line is
+(:func:`identify.frequency_estimate.zoh_speed_response`), the residual at each line is
 weighted by the line's standard error, and ``(a, b)`` minimise::
 
     sum_k |G_k - G(e^{j omega_k dt}; a, b)|^2 / var_k
@@ -22,7 +22,7 @@ from motorsim.checks import ParameterTypeError, check_int
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .frequency_response import FrequencyResponse, zoh_speed_response
+from .frequency_estimate import FrequencyResponse, zoh_speed_response
 
 __all__ = ["fit_frequency_response"]
 
@@ -46,7 +46,7 @@ def fit_frequency_response(frf: FrequencyResponse, *, input_delay: int = 0) -> E
     Parameters
     ----------
     frf : FrequencyResponse
-        The data (:func:`identify.frequency_response.frequency_response`), at least 2 lines.
+        The data (:func:`identify.frequency_estimate.frequency_response`), at least 2 lines.
     input_delay : int
         Whole samples of input delay in the model, default 0.
 
@@ -65,7 +65,7 @@ def fit_frequency_response(frf: FrequencyResponse, *, input_delay: int = 0) -> E
     Examples
     --------
     >>> from motorsim import Encoder, Experiment, Motor, OddMultisine, SimRig
-    >>> from identify.frequency_response import frequency_response
+    >>> from identify.frequency_estimate import frequency_response
     >>> rig = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(0))
     >>> rec = rig.run(Experiment(OddMultisine(1024, 63, 20), sample_period=0.005, duration=1024 * 0.005 * 4))
     >>> est = fit_frequency_response(frequency_response(rec))

@@ -309,7 +309,7 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
     and, given ``frequency_response``, a Bode panel of the data with the model (:func:`bode_axes`).
 
     ``report`` is an ``identify.validation.ValidationReport`` of ``estimate``;
-    ``frequency_response`` an ``identify.frequency_response.FrequencyResponse`` of the same
+    ``frequency_response`` an ``identify.frequency_estimate.FrequencyResponse`` of the same
     recording.  The PNG is written to ``path`` when given; the figure is returned.
     """
     bode = frequency_response is not None
@@ -356,7 +356,7 @@ _MODEL_COLOURS = ("tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown
 def bode_axes(gain_ax, phase_ax, frf, models: Sequence = (), *, level: float = 0.95, distortion=None) -> None:
     """Draw a frequency response with its bounds, models with their bands and their departures, on two axes.
 
-    ``frf`` is an ``identify.frequency_response.FrequencyResponse``, ``models`` are its
+    ``frf`` is an ``identify.frequency_estimate.FrequencyResponse``, ``models`` are its
     ``ModelResponse``s; ``distortion`` an optional ``BestLinearApproximation`` whose detection lines
     are drawn on the gain axis (odd and even distortion, and the noise).
     """

@@ -20,7 +20,7 @@ def bench_frequency(argv: Sequence[str]) -> int:
     import numpy as np
     from scipy import signal
 
-    from identify.frequency_response import frequency_response
+    from identify.frequency_estimate import frequency_response
     from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
     p = argparse.ArgumentParser(prog="motorid bench frequency", description=__doc__.splitlines()[0])
     p.add_argument("--samples", type=int, default=10**6, help="samples of the run (default 1000000)")

@@ -1,6 +1,6 @@
 """``motorid frequency``: the frequency response of recordings, models overlaid, distortion when it can tell.
 
-The computations are :func:`identify.frequency_response.frequency_response` and, for odd-multisine
+The computations are :func:`identify.frequency_estimate.frequency_response` and, for odd-multisine
 runs, :func:`identify.best_linear.best_linear_approximation`; this module is their command line.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ __all__ = ["add_frequency_arguments", "run_frequency", "format_frequency_table"]
 
 def add_frequency_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid frequency``."""
-    from identify.frequency_response import ESTIMATORS
+    from identify.frequency_estimate import ESTIMATORS
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="recordings (format v1), or foreign files with the column flags; several are pooled "
                              "(one run per frequency, realisations of an odd multisine)")
@@ -74,7 +74,7 @@ def _models(paths: list[str], frf) -> list:
 def _distortion(recs) -> Any:
     """The BLA of odd-multisine runs (None for any other input)."""
     from identify.best_linear import best_linear_approximation
-    from identify.frequency_response import excitation_of
+    from identify.frequency_estimate import excitation_of
     from motorsim.excitation import OddMultisine
     if not all(isinstance(excitation_of(r), OddMultisine) for r in recs):
         return None
@@ -84,7 +84,7 @@ def _distortion(recs) -> Any:
 def run_frequency(args: argparse.Namespace) -> int:
     """Estimate, print the table (and the distortion summary), write the Bode plot if asked."""
     from identify.errors import NotIdentifiableError
-    from identify.frequency_response import frequency_response
+    from identify.frequency_estimate import frequency_response
     say = print_to_stderr if args.json else print
     recs = read_inputs(args.files, args)
     try:

@@ -151,7 +151,7 @@ def run_identify(args: argparse.Namespace) -> int:
 def _frequency_response(recording: Recording):
     """The report's Bode panel data, or None when the recording cannot give one (too short, gaps)."""
     from identify.errors import NotIdentifiableError
-    from identify.frequency_response import frequency_response
+    from identify.frequency_estimate import frequency_response
     try:
         return frequency_response(recording)
     except NotIdentifiableError:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify.errors import NotIdentifiableError
-from identify.frequency_response import FrequencyResponse, frequency_response, zoh_speed_response
+from identify.frequency_estimate import FrequencyResponse, frequency_response, zoh_speed_response
 from motorsim import PRBS, Encoder, Experiment, Motor, OddMultisine, Recording, SimRig, Sine
 from motorsim.plant import simulate
 
@@ -176,3 +176,12 @@ def test_undcmotor_prbs_run_gives_the_labs_static_gain_with_high_coherence():
     assert frf.coherence[low].min() > 0.95
     # the one-sample input delay: the phase reaches about -360 degrees at the Nyquist frequency
     assert frf.phase_deg()[-1] < -250
+
+
+def test_the_package_name_is_the_function_whatever_was_imported_first():
+    # the module is frequency_estimate, so importing it never shadows identify.frequency_response
+    import importlib
+
+    import identify
+    importlib.import_module("identify.frequency_estimate")
+    assert callable(identify.frequency_response) and identify.frequency_response is frequency_response

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from identify.design import design_multisine
-from identify.frequency_response import frequency_response
+from identify.frequency_estimate import frequency_response
 from motorid.cli import main
 from motorsim import Encoder, Experiment, Motor, SimRig, read_recording
 
