@@ -21,7 +21,7 @@ from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
-__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "Segment",
+__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "first_rows", "Segment",
            "MIN_SEGMENT_SAMPLES", "residual_unit"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
@@ -113,6 +113,19 @@ class Segment:
             return float(self.output[0])
         m = min(3, len(self.time) - 1)
         return float((self.output[m] - self.output[0]) / (self.time[m] - self.time[0]))
+
+
+def first_rows(segments: Sequence[Segment], rows: int) -> list[Segment]:
+    """The first rows of each segment, about ``rows`` in all, each keeping its share (at least 3);
+    the segments as they are when they hold no more than ``rows``."""
+    total = sum(len(seg.time) for seg in segments)
+    if total <= rows:
+        return list(segments)
+    out = []
+    for seg in segments:
+        m = max(3, len(seg.time) * rows // total)
+        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
+    return out
 
 
 def residual_unit(segments: Sequence[Segment]) -> str:

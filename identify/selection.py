@@ -49,7 +49,7 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
-from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments
+from .data import Segment, as_recordings, check_excitation, check_input_delay, first_rows, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import friction_candidate, speed_reverses
@@ -81,9 +81,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> floa
 
     from .output_error import OutputErrorProblem
     from .sensitivity import zoh_response
-    from .variable_projection import _prefixes
-    if sum(len(s.time) for s in segs) > SCREEN_SAMPLES:
-        segs = _prefixes(segs, SCREEN_SAMPLES)
+    segs = first_rows(segs, SCREEN_SAMPLES)
     problem = OutputErrorProblem(segs, with_bias=True)
     x = np.array([base.a, base.b, bias])
     with np.errstate(over="ignore", invalid="ignore"):
@@ -175,7 +173,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     else:
         top = int(input_delay)
         delays = [top]
-    segments = {d: _first_rows(prepare_segments(recs, d, skip=top)) for d in delays}
+    segments = {d: first_rows(prepare_segments(recs, d, skip=top), SELECTION_ROWS) for d in delays}
     delays = [d for d in delays if segments[d]]
     if not delays:
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
@@ -224,18 +222,6 @@ def _declared_delay(recs: list[Recording]) -> int:
 #: Rows on which the candidates are compared: on longer data, the first rows of every segment (in
 #: proportion); the chosen candidate is then fitted on all rows.
 SELECTION_ROWS = 100_000
-
-
-def _first_rows(segments: list[Segment]) -> list[Segment]:
-    """``segments`` cut to about :data:`SELECTION_ROWS` rows in all, each keeping its share."""
-    total = sum(len(s.time) for s in segments)
-    if total <= SELECTION_ROWS:
-        return segments
-    out = []
-    for seg in segments:
-        m = max(3, len(seg.time) * SELECTION_ROWS // total)
-        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
-    return out
 
 
 def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],

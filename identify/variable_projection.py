@@ -31,7 +31,7 @@ import numpy as np
 
 from motorsim.recursion import first_order_filter
 
-from .data import Segment
+from .data import Segment, first_rows
 from .sensitivity import phi_functions
 
 __all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
@@ -472,7 +472,7 @@ def separable_candidate(segments: list[Segment], a0: float, *, with_bias: bool =
     ``a``, whose sum of squares bounds the fit's from above (``refined`` says which was done).
     """
     if not refine and sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
-        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments, coarse_samples)], float(a0),
+        coarse = _iterate([_Segment(seg, with_bias) for seg in first_rows(segments, coarse_samples)], float(a0),
                           COARSE_RTOL, ceiling, budget=COARSE_BUDGET)
         if coarse is not None:
             segs = [_Segment(seg, with_bias) for seg in segments]
@@ -496,7 +496,7 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: b
     last point and the evaluations, or None."""
     evaluations = 0
     if sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
-        coarse = _iterate([_Segment(seg, with_bias) for seg in _prefixes(segments, coarse_samples)], float(a0),
+        coarse = _iterate([_Segment(seg, with_bias) for seg in first_rows(segments, coarse_samples)], float(a0),
                           COARSE_RTOL, ceiling)
         if coarse is not None:
             a0, evaluations = coarse[0], coarse[2]
@@ -506,16 +506,6 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: b
         return None
     a, point, count = fine
     return segs, a, point, evaluations + count
-
-
-def _prefixes(segments: list[Segment], samples: int = COARSE_SAMPLES) -> list[Segment]:
-    """The first samples of each segment, about ``samples`` in all (in proportion)."""
-    total = sum(len(seg.time) for seg in segments)
-    out = []
-    for seg in segments:
-        m = max(3, len(seg.time) * samples // total)
-        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
-    return out
 
 
 def _iterate(segs: list[_Segment], a: float, rtol: float, ceiling: float = math.inf,
