@@ -52,7 +52,7 @@ from .data import Segment
 from .errors import NotIdentifiableError
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
-           "best_fit", "blocks", "choose", "largest_delay", "refine", "scan_delays", "separating_experiment",
+           "best_fit", "block_sums", "choose", "largest_delay", "refine", "scan_delays", "separating_experiment",
            "statistic", "threshold"]
 
 #: Largest input delay in samples the selection tries.
@@ -227,9 +227,14 @@ def largest_delay(recs: list[Recording], max_delay: int) -> int:
     return max(0, min(max_delay, longest // 20))
 
 
-def blocks(n: int) -> list[slice]:
-    edges = np.linspace(0, n, min(BLOCKS, n) + 1).astype(int)
-    return [slice(i, j) for i, j in zip(edges[:-1], edges[1:]) if j > i]
+def block_sums(x: np.ndarray) -> np.ndarray:
+    """Sums of ``x`` along its first axis over :data:`BLOCKS` consecutive blocks of nearly equal length
+    (one per row when there are fewer rows): the pieces of every batch-means variance here."""
+    n = len(x)
+    if n == 0:
+        return np.zeros((0, *np.shape(x)[1:]))
+    starts = np.linspace(0, n, min(BLOCKS, n) + 1).astype(int)[:-1]
+    return np.add.reduceat(x, starts, axis=0)
 
 
 def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding: np.ndarray | None = None) -> float:
@@ -238,8 +243,7 @@ def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding:
     norm2 = float(delta @ delta)
     if excess <= 0 or norm2 == 0:
         return 0.0
-    edges = np.linspace(0, len(delta), min(BLOCKS, len(delta)) + 1).astype(int)[:-1]
-    v = float(np.sum(np.add.reduceat(delta * reference, edges) ** 2))
+    v = float(np.sum(block_sums(delta * reference) ** 2))
     if rounding is not None:
         v += float(np.var(delta @ rounding, ddof=1))
     return excess * norm2 / v if v > 0 else math.inf
@@ -295,15 +299,20 @@ def _far_worse(here: list[CandidateFit], fitted: list[CandidateFit], level: floa
     best = best_fit(fitted)
     if best is None or any(f is best for f in here):
         return False
-    assert best.residuals is not None
     for f in here:
         if f.residuals is None:
             continue
-        excess = f.candidate.residual_sum - best.candidate.residual_sum
-        t = statistic(f.residuals - best.residuals, excess, best.residuals)
+        t = _against(f, best)
         if t <= STOP_FACTOR * threshold(f.candidate, best.candidate, level) or _close(f, best):
             return False
     return True
+
+
+def _against(f: CandidateFit, best: CandidateFit, rounding: np.ndarray | None = None) -> float:
+    """:func:`statistic` of fit ``f`` against the best fit (both with residuals)."""
+    assert f.residuals is not None and best.residuals is not None
+    return statistic(f.residuals - best.residuals, f.candidate.residual_sum - best.candidate.residual_sum,
+                     best.residuals, rounding)
 
 
 def _close(f: CandidateFit, best: CandidateFit) -> bool:
@@ -341,14 +350,11 @@ def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Candidate
         best = best_fit(fitted)
         if best is None:
             return None
-        reference = best.residuals
-        assert reference is not None
         if not best.refined:
             pending = [best]
         else:
-            pending = [f for f in fitted if not f.refined and f.residuals is not None and (_close(f, best) or statistic(
-                f.residuals - reference, f.candidate.residual_sum - best.candidate.residual_sum,
-                reference) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level))]
+            pending = [f for f in fitted if not f.refined and f.residuals is not None and (
+                _close(f, best) or _against(f, best) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level))]
             if not pending:
                 return best
         for f in pending:
@@ -370,8 +376,7 @@ def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int 
         if f.residuals is None or len(f.residuals) != len(reference):
             scored.append(c)
             continue
-        t = 0.0 if f is best else statistic(f.residuals - reference, c.residual_sum - best.candidate.residual_sum,
-                                             reference, rounding)
+        t = 0.0 if f is best else _against(f, best, rounding)
         scored.append(dataclasses.replace(c, statistic=t, within_noise=t <= threshold(c, best.candidate, level)))
     best_c = scored[fitted.index(best)]
     within = [c for c in scored if c.within_noise]

@@ -42,7 +42,7 @@ from .comparison import (
     CandidateFit,
     Selection,
     best_fit,
-    blocks,
+    block_sums,
     choose,
     largest_delay,
     refine,
@@ -110,17 +110,16 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> floa
     keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
     G = G[:, keep]
     k = G.shape[1]
-    parts = blocks(len(r))
-    if k == 0 or len(parts) <= k + 1:
+    scores = block_sums(G * r[:, None])
+    m = len(scores)
+    if k == 0 or m <= k + 1:
         return 1.0
-    scores = np.array([G[s].T @ r[s] for s in parts])
     total = scores.sum(axis=0)
     V = scores.T @ scores
     try:
         t2 = float(total @ np.linalg.solve(V, total))
     except np.linalg.LinAlgError:
         return 0.0
-    m = len(parts)
     return float(fdtrc(k, m - k, max(t2, 0.0) * (m - k) / (k * (m - 1))))
 
 
@@ -388,11 +387,10 @@ def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float
     sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0
     sign = sign - sign.mean()
     sign_p = math.nan
-    parts = blocks(len(residual))
-    if len(parts) > 2 and float(sign @ sign) > 0:
-        scores = np.array([float(sign[s] @ residual[s]) for s in parts])
+    scores = block_sums(sign * residual)
+    m = len(scores)
+    if m > 2 and float(sign @ sign) > 0:
         v = float(scores @ scores)
         if v > 0:
-            m = len(parts)
             sign_p = float(fdtrc(1, m - 1, float(scores.sum()) ** 2 / v * (m - 1) / m))
     return {"whiteness_p": float(report.whiteness_p), "input_p": float(report.independence_p), "sign_p": sign_p}
