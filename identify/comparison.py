@@ -48,12 +48,12 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-from .data import Segment
+from .data import Segment, prepare_segments
 from .errors import NotIdentifiableError
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
-           "best_fit", "block_sums", "choose", "largest_delay", "refine", "scan_delays", "separating_experiment",
-           "statistic", "threshold"]
+           "best_fit", "block_sums", "choose", "choose_delay", "largest_delay", "refine", "scan_delays",
+           "separating_experiment", "statistic", "threshold"]
 
 #: Largest input delay in samples the selection tries.
 MAX_AUTO_DELAY = 10
@@ -336,6 +336,31 @@ def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit
                          f"{STOP_AFTER} delays in a row past the best")
             break
     return fitted
+
+
+def choose_delay(recs: list[Recording], fit_at: Callable[[list[Segment], int, bool], CandidateFit],
+                 max_delay: int, level: float, what: str) -> int:
+    """The shortest input delay whose fit is within the noise of the best, one structure's.
+
+    ``fit_at(segments, delay, refine)`` fits the candidate at ``delay`` on the common rows (only its
+    coarse steps when ``refine`` is False, where it has such steps).  The delays ``0 ... max_delay``
+    (fewer on short data) are scanned with :func:`scan_delays`, refined with :func:`refine` and
+    chosen by :func:`choose`; a delay at the top of the range is said in a warning naming ``what``.
+    """
+    import warnings
+
+    top = largest_delay(recs, max_delay)
+    segments = {d: segs for d in range(top + 1) if (segs := prepare_segments(recs, d, skip=top))}
+    if not segments:
+        raise NotIdentifiableError(f"recording is too short for input delays up to {top} samples")
+    notes: list[str] = []
+    fitted = scan_delays(list(segments), lambda d: [fit_at(segments[d], d, False)], level, notes)
+    refine(fitted, lambda f: fit_at(segments[f.candidate.input_delay], f.candidate.input_delay, True), level)
+    selection = choose(fitted, level, notes, top, recs, segments)
+    edge = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
+    if edge:
+        warnings.warn(f"{what} input_delay='auto': {edge[0]}", UserWarning, stacklevel=5)
+    return selection.chosen.input_delay
 
 
 def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit],

@@ -56,7 +56,7 @@ import numpy as np
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
+from .comparison import LEVEL, Candidate, CandidateFit, choose_delay
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
@@ -244,18 +244,9 @@ def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
     the linear model's with a bias when the speed never reverses (friction is then a constant)."""
     if not speed_reverses(recs):
         return select_delay(recs, with_bias=not fix_bias)
-    top = largest_delay(recs, MAX_AUTO_DELAY)
-    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
-    delays = [d for d, segs in segments.items() if segs]
-    notes: list[str] = []
-    fitted = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, structure, fix_bias)],
-                         LEVEL, notes)
-    refine(fitted, lambda f: f, LEVEL)             # friction candidates are full fits already
-    selection = choose(fitted, LEVEL, notes, top, recs, segments)
-    edge = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
-    if edge:
-        warnings.warn("oe-friction input_delay='auto': " + edge[0], UserWarning, stacklevel=4)
-    return selection.chosen.input_delay
+    # friction candidates are full fits whatever the refine flag: there is nothing to refine
+    return choose_delay(recs, lambda segs, d, _: friction_candidate(recs, segs, d, structure, fix_bias),
+                        MAX_AUTO_DELAY, LEVEL, "oe-friction")
 
 
 def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) -> tuple[str, ...]:

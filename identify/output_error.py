@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -36,7 +35,7 @@ import numpy as np
 from motorsim.checks import check_bool, check_choice, check_int
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose, largest_delay, refine, scan_delays
+from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from .data import (
     MIN_SEGMENT_SAMPLES,
     Segment,
@@ -348,25 +347,14 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
     """
     recs = as_recordings(recordings)
     max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
-    top = largest_delay(recs, max_delay)
-    segments = {d: prepare_segments(recs, d, skip=top) for d in range(top + 1)}
-    delays = [d for d, segs in segments.items() if segs]
-    if not delays:
-        raise NotIdentifiableError(f"recording is too short for input delays up to {top} samples")
-    notes: list[str] = []
-    fitted = scan_delays(delays, lambda d: [linear_candidate(recs, segments[d], d, with_bias, refine=False)],
-                         LEVEL, notes)
-    refine(fitted, lambda f: linear_candidate(recs, segments[f.candidate.input_delay], f.candidate.input_delay,
-                                              with_bias), LEVEL)
-    selection = choose(fitted, LEVEL, notes, top, recs, segments)
-    _warn_about(selection)
-    return selection.chosen.input_delay
+    return choose_delay(recs, lambda segs, d, full: linear_candidate(recs, segs, d, with_bias, refine=full),
+                        max_delay, LEVEL, "oe")
 
 
 def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
                 refine: bool = True) -> CandidateFit:
     """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
-    (with ``refine=False`` on long data, only its first steps: see :func:`_choose`)."""
+    (with ``refine=False`` on long data, only its first steps: see :func:`identify.comparison.refine`)."""
     name = "bias" if with_bias else "linear"
     if is_separable(segs, False):
         found = separable_candidate(segs, _separable_start(recs, segs), with_bias=with_bias,
@@ -382,13 +370,6 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
     x = solution.result.x
     return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(r @ r)), r,
                    float(x[2]) if with_bias else 0.0)
-
-
-def _warn_about(selection) -> None:
-    """A delay at the top of the searched range, said as a warning (never returned silently)."""
-    notes = [n for n in selection.notes if n.startswith("the chosen delay is the largest")]
-    if notes:
-        warnings.warn("input_delay='auto': " + "; ".join(notes), UserWarning, stacklevel=4)
 
 
 def _separable_start(recs: list[Recording], segs: list[Segment]) -> float:
