@@ -49,7 +49,7 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
-from .data import Segment, as_recordings, check_excitation, check_input_delay, first_rows, prepare_segments
+from .data import Segment, as_recordings, check_excitation, check_input_delay, delayed_segments, first_rows
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import friction_candidate, speed_reverses
@@ -172,7 +172,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     else:
         top = int(input_delay)
         delays = [top]
-    segments = {d: first_rows(prepare_segments(recs, d, skip=top), SELECTION_ROWS) for d in delays}
+    segments = delayed_segments(recs, delays, top, SELECTION_ROWS)
     delays = [d for d in delays if segments[d]]
     if not delays:
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
@@ -379,9 +379,9 @@ def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float
     """
     from scipy.special import fdtrc
 
-    from .validation import model_output, validate
+    from .validation import validate
     report = validate(estimate, recording)
-    measured, simulated = model_output(estimate, recording)
+    measured, simulated = report.measured_speed, report.simulated_speed
     ok = np.isfinite(measured) & np.isfinite(simulated)
     residual = (measured - simulated)[ok]
     sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0

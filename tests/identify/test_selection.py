@@ -196,3 +196,20 @@ def test_a_device_that_declares_its_delay_is_never_given_less():
     assert est.input_delay >= 1 and all(c["input_delay"] >= 1 for c in est.selection["candidates"])
     assert any("input_delay_samples" in n for n in est.notes)
     assert not _accepted(est, {"a": A, "b": B}) or not est.selection["clear"]
+
+
+def test_delayed_segments_equal_each_delays_own_preparation():
+    # the recordings are split once for every delay; reference: prepare_segments per delay, on a run
+    # with dropped samples (several segments) pooled with a second run, cut to fewer rows than it holds
+    from identify.data import delayed_segments, first_rows, prepare_segments
+    dropped = SimRig(Motor(A, B), Encoder(1200), drop_rate=0.01, rng=np.random.default_rng(3)).run(
+        Experiment(MULTISINE, DT, 8.0))
+    recs = [dropped, _run(duration=3.0)]
+    got = delayed_segments(recs, [0, 2, 5], 5, 900)
+    for d in (0, 2, 5):
+        want = first_rows(prepare_segments(recs, d, skip=5), 900)
+        assert len(want) > 2 and len(got[d]) == len(want)
+        for g, w in zip(got[d], want):
+            for name in ("time", "drive", "output"):
+                np.testing.assert_array_equal(getattr(g, name), getattr(w, name))
+            assert (g.kind, g.uniform, g.recording, g.start) == (w.kind, w.uniform, w.recording, w.start)
