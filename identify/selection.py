@@ -35,6 +35,7 @@ import numpy as np
 from motorsim.recording import Recording
 
 from .comparison import (
+    CLOSE,
     LEVEL,
     MATERIAL,
     MAX_AUTO_DELAY,
@@ -301,7 +302,13 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)      # the selection says it once, in its notes
         est = method_function(chosen.method)(recs, **options)
-    within = [c for c in selection.candidates if c.within_noise and c is not chosen and math.isfinite(c.a)]
+    # on a handful of encoder counts the residual is the rounding of those counts, not noise: the
+    # test's variance means little there, so every candidate whose residual sum is as small (within
+    # CLOSE of the best's) is one the data cannot rule out
+    few = _counts_swept(recs) < MIN_COUNTS_SWEPT
+    least = min((c.residual_sum for c in selection.candidates if math.isfinite(c.residual_sum)), default=math.nan)
+    within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
+        c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
     notes = list(selection.notes) + _data_notes(recs, est)
@@ -344,6 +351,12 @@ def _widen(est: Estimate, chosen: Candidate, material: list[Candidate]) -> tuple
     return dataclasses.replace(est, model_range=ranges), doubt
 
 
+def _counts_swept(recs: list[Recording]) -> float:
+    """The most encoder counts any recording sweeps (max minus min); ``inf`` without counts."""
+    counts = [r.counts for r in recs if r.counts is not None and len(r.counts)]
+    return max(float(np.max(c) - np.min(c)) for c in counts) if counts else math.inf
+
+
 def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
     """What the recordings cannot answer, said plainly (saturation, one amplitude, few counts, a too slow input)."""
     notes = []
@@ -363,12 +376,10 @@ def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
             notes.append(f"the input takes one magnitude, |u| = {top:g}, in {100 * share:.0f} % of its non-zero "
                          "samples: b is the gain at that amplitude, and a dead zone would be absorbed in it "
                          "unseen; runs at two or more amplitudes would separate them")
-    counts = [r.counts for r in recs if r.counts is not None]
-    if counts:
-        swept = max(float(np.max(c) - np.min(c)) for c in counts)
-        if swept < MIN_COUNTS_SWEPT:
-            notes.append(f"the encoder sweeps only {swept:.0f} counts in the whole run: a and b rest on a few "
-                         "steps; run longer or faster, or use a finer encoder")
+    swept = _counts_swept(recs)
+    if swept < MIN_COUNTS_SWEPT:
+        notes.append(f"the encoder sweeps only {swept:.0f} counts in the whole run: a and b rest on a few "
+                     "steps; run longer or faster, or use a finer encoder")
     if est.a > 0 and math.isfinite(est.a):
         fast = 0.0
         total = 0.0

@@ -271,3 +271,18 @@ def test_the_range_carries_each_candidates_own_interval():
     assert not _accepted(est, {"a": A, "b": B}), est.notes
     assert any(c["structure"] == "friction" and c["input_delay"] == 2 and c["within_noise"]
                for c in est.selection["candidates"])
+
+
+def test_on_a_handful_of_counts_every_candidate_as_close_as_the_best_is_covered():
+    # 40 rad/s on a 44-count encoder sweeps 5 counts: the residual is those counts' rounding, and the
+    # candidates' residual sums differ by under 1 %; every such candidate's a and b lie in the intervals
+    rig = SimRig(Motor(A, B), Encoder(44), drop_rate=0.02, rng=np.random.default_rng(3))
+    est = fit(rig.run(Experiment(Sine(40.0, 200, 0.9), DT, 10.0)))
+    assert any("sweeps only" in n for n in est.notes) and not est.selection["clear"]
+    ci = est.confidence_interval(0.95)
+    cands = est.selection["candidates"]
+    least = min(c["residual_sum"] for c in cands)
+    close = [c for c in cands if c["residual_sum"] <= 1.01 * least]
+    assert len(close) > 4
+    for c in close:
+        assert ci["a"][0] <= c["a"] <= ci["a"][1] and ci["b"][0] <= c["b"] <= ci["b"][1], c
