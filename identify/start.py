@@ -71,6 +71,18 @@ def initial_guess(recordings: Sequence[Recording], segments: Sequence[Segment]) 
     return grid_guess(segments)
 
 
+def _projected_out(s0: np.ndarray, offset: bool, *columns: np.ndarray) -> list[np.ndarray]:
+    """``columns`` less their least-squares fit on the initial-speed column ``s0`` (and a constant
+    when ``offset``); a column of zeros is no direction."""
+    if offset:
+        s0 = s0 - s0.mean()
+        columns = tuple(c - c.mean() for c in columns)
+    ss = float(s0 @ s0)
+    if ss == 0:
+        return list(columns)
+    return [c - s0 * (float(s0 @ c) / ss) for c in columns]
+
+
 def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     """Best ``a`` on a log grid with ``b`` and initial states solved linearly (robust start).
 
@@ -88,22 +100,22 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     span = max(s.time[-1] - s.time[0] for s in segments)
     best = (math.inf, 1.0, 1.0)
     for a in np.geomspace(0.5 / span, 2.0 / dt, 40):
-        cols, ys = [], []
-        for i, seg in enumerate(segments):
+        # least squares in b and every segment's initial state: the states are each segment's own, so
+        # they are projected out segment by segment and b solved on what is left (the same solution
+        # as one least-squares problem over all the columns, without its (n, 1 + 2 segments) matrix)
+        gy = gg = yy = 0.0
+        for seg in segments:
             # with b = 1 and no initial speed the response is its own b-column: no sensitivities needed
             resp = zoh_response(a, 1.0, seg.drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
-            sens = resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity
-            block = np.zeros((len(seg.time), 1 + 2 * len(segments)))
-            block[:, 0] = resp.angle if seg.kind == "angle" else resp.speed
-            block[:, 1 + 2 * i] = sens[:, 2]
-            if seg.kind == "angle":
-                block[:, 2 + 2 * i] = 1.0
-            cols.append(block)
-            ys.append(seg.output)
-        A, y = np.vstack(cols), np.concatenate(ys)
-        keep = np.linalg.norm(A, axis=0) > 0
-        sol, *_ = np.linalg.lstsq(A[:, keep], y, rcond=None)
-        rss = float(np.sum((y - A[:, keep] @ sol) ** 2))
-        if rss < best[0] and sol[0] != 0:
-            best = (rss, float(a), float(sol[0]))
+            angle = seg.kind == "angle"
+            g = resp.angle if angle else resp.speed
+            s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+            g_left, y_left = _projected_out(s0, angle, g, np.asarray(seg.output, dtype=float))
+            gy += float(g_left @ y_left)
+            gg += float(g_left @ g_left)
+            yy += float(y_left @ y_left)
+        if gg > 0 and gy != 0:
+            rss = yy - gy * gy / gg
+            if rss < best[0]:
+                best = (rss, float(a), gy / gg)
     return best[1], best[2]
