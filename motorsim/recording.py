@@ -50,11 +50,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .plausibility import ImplausibleSample, implausible_samples, saturated_runs
+from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
 
-__all__ = ["Recording", "RecordingFormatError", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES", "INTEGER_COLUMNS",
-           "TIME_BASE_TOLERANCE"]
+__all__ = ["Recording", "RecordingFormatError", "AngleUnitWarning", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES",
+           "INTEGER_COLUMNS", "TIME_BASE_TOLERANCE"]
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
@@ -72,6 +72,10 @@ TIME_BASE_TOLERANCE = 0.2
 
 class RecordingFormatError(ValueError):
     """A recording file or array breaks a rule of recording format v1."""
+
+
+class AngleUnitWarning(UserWarning):
+    """An angle column said to be in radians reads as another unit (:meth:`Recording.angle_unit_doubt`)."""
 
 
 def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
@@ -280,6 +284,11 @@ class Recording:
         note = timing_note(rec.metadata, rec.sample_period)
         if note:
             warnings.warn(note, UserWarning, stacklevel=2)
+        if columns.get("angle") is not None and columns.get("angle_unit", "rad") == "rad":
+            doubt = rec.angle_unit_doubt()
+            if doubt is not None:
+                warnings.warn(f"angle, in rad: {doubt.reason}; if it is not in radians give angle_unit="
+                              f"{doubt.unit or 'its unit'!r}", AngleUnitWarning, stacklevel=2)
         return rec
 
     def __len__(self) -> int:
@@ -381,6 +390,24 @@ class Recording:
             floor = 2 * np.pi / self.counts_per_rev / self.sample_period
         return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor,
                                    duty=self.duty, duty_limit=self.duty_limit)
+
+    def angle_unit_doubt(self) -> AngleUnitDoubt | None:
+        """Why the angle column, in rad, reads as another unit (degrees, say), or None.
+
+        The rules are :func:`motorsim.plausibility.angle_unit_doubt`'s (against the speed column,
+        an encoder's steps, a speed beyond any motor); None without an angle column.
+
+        Examples
+        --------
+        >>> t = np.arange(400) * 0.005
+        >>> degrees = np.round(400 * np.sin(3 * t)) * 360 / 1024      # a 1024-count encoder, in degrees
+        >>> rec = Recording(time=t, duty=np.round(200 * np.sin(3 * t)), sample_period=0.005, angle=degrees)
+        >>> rec.angle_unit_doubt().unit
+        'deg'
+        """
+        if self.angle is None:
+            return None
+        return angle_unit_doubt(self.angle, self.time, self.seq, self.speed)
 
     @property
     def duty_limit(self) -> float | None:
