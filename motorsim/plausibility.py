@@ -36,7 +36,7 @@ false alarm on a good recording):
   speed column says; a factor of 180/pi (or any factor beyond 1.5 either way) between the two,
   on motion that correlates (:data:`MIN_CORRELATION`), is a unit read wrong.
 * **Encoder steps**: an encoder's angle moves in whole steps of one revolution over its counts
-  per revolution.  An angle that visits at least :data:`MIN_POSITIONS` positions, all on an
+  per revolution.  An angle that spans at least :data:`MIN_POSITIONS` steps, all on an
   exact lattice of step ``q`` with ``360 / q`` a whole number of counts and ``2 pi / q`` not, is
   an encoder's angle in degrees -- when ``q`` is known well enough: the whole count resolved to
   1e-3 (the digits the file prints count against it: radians rounded to a coarse grid can stay
@@ -66,7 +66,7 @@ DUTY_SPIKE_FACTOR = 4.0
 MAX_SPEED = 2e4
 #: Correlation of the differenced angle with a speed column above which their factor is trusted.
 MIN_CORRELATION = 0.9
-#: Distinct positions an angle must visit before its steps are read as an encoder's.
+#: Steps an angle must span before its steps are read as an encoder's.
 MIN_POSITIONS = 10
 #: Steps an exact decimal lattice must span before it alone says "degrees" (a coarsely printed angle).
 MIN_EXACT_SPAN = 1000
@@ -291,12 +291,15 @@ def _against_speed(rate: np.ndarray, speed: np.ndarray | None) -> AngleUnitDoubt
 
 def _decimal_grid(values: np.ndarray) -> float:
     """The coarsest ``10**-k`` every value is a whole multiple of (how the file printed them), else 0."""
+    def on_grid(x: np.ndarray, k: int) -> bool:
+        scaled = x * 10.0 ** k
+        return bool(np.all(np.abs(scaled - np.round(scaled)) <= np.maximum(1e-6, 4 * np.spacing(np.abs(scaled)))))
     top = float(np.max(np.abs(values)))
+    head = values[:1 << 16]                           # tried on the first values, confirmed on all
     for k in range(0, 16):
-        scaled = values * 10.0 ** k
         if top * 10.0 ** k > 1e13:
             break
-        if np.all(np.abs(scaled - np.round(scaled)) <= np.maximum(1e-6, 4 * np.spacing(np.abs(scaled)))):
+        if on_grid(head, k) and on_grid(values, k):
             return 10.0 ** -k
     return 0.0
 
@@ -315,15 +318,15 @@ def _encoder_steps(angle: np.ndarray, steps: np.ndarray) -> AngleUnitDoubt | Non
     if np.max(np.abs(steps / smallest - whole)) > 0.05:
         return None                                   # not whole multiples of one step: no encoder lattice
     n = np.concatenate([[0.0], np.cumsum(whole)])     # whole steps from the first sample, exactly
-    design = np.column_stack([np.ones_like(n), n])
-    (offset, step), *_ = np.linalg.lstsq(design, angle, rcond=None)
-    error = float(np.max(np.abs(angle - offset - step * n)))
+    n_centred = n - n.mean()
+    step = float(n_centred @ (angle - angle.mean())) / max(float(n_centred @ n_centred), 1.0)   # least squares
+    error = float(np.max(np.abs(angle - angle.mean() - step * n_centred)))
     step = abs(float(step))
     span = float(n.max() - n.min())
     decade = 10.0 ** round(math.log10(step)) if step > 0 else 0.0
     if step == 0 or error > 0.02 * step or (grid and step < 2 * grid) or abs(step / decade - 1) < 1e-9:
         return None        # off the lattice, or a lattice that may be only the digits the file prints
-    if len(np.unique(n)) < MIN_POSITIONS:
+    if span < MIN_POSITIONS:
         return None        # a few positions fit many lattices, rounded radians among them
     # relative uncertainty of the step: the largest departure over the span, at least the rounding the
     # printed digits allow (half the grid: radians rounded to a coarse grid can look like an exact lattice)
