@@ -49,7 +49,15 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
-from .data import Segment, as_recordings, check_excitation, check_input_delay, first_rows, prepare_segments
+from .data import (
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    first_rows,
+    prepare_segments,
+    saturation_note,
+)
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import friction_candidate, speed_reverses
@@ -61,8 +69,6 @@ __all__ = ["fit_selected", "select_model", "residual_checks", "SCREEN_LEVEL"]
 SCREEN_SAMPLES = 2000
 #: Level of the score test that decides whether friction and a dead zone are fitted at all.
 SCREEN_LEVEL = 0.05
-#: Share of samples at the duty limit above which the data are called saturated.
-SATURATED_SHARE = 0.10
 #: Encoder counts the whole run must sweep for ``a`` and ``b`` to rest on more than a few steps.
 MIN_COUNTS_SWEPT = 50
 #: Share of the input's power at or above ``a / 5`` below which ``a`` rests on the static gain alone.
@@ -326,13 +332,9 @@ def _widen(est: Estimate, chosen: Candidate, material: list[Candidate]) -> tuple
 def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
     """What the recordings cannot answer, said plainly (saturation, few counts, a too slow input)."""
     notes = []
-    duty = np.concatenate([r.duty for r in recs])
-    if recs[0].input_unit == "duty":
-        limit = float(recs[0].metadata.get("duty_limit", 255))
-        share = float(np.mean(np.abs(duty) >= limit)) if limit > 0 else 0.0
-        if share > SATURATED_SHARE:
-            notes.append(f"the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of the samples: the "
-                         "model only sees what the driver delivered; lower the amplitude if the driver clips")
+    saturated = saturation_note(recs)      # counted, and kept in the fit: its docstring says why
+    if saturated:
+        notes.append(saturated)
     counts = [r.counts for r in recs if r.counts is not None]
     if counts:
         swept = max(float(np.max(c) - np.min(c)) for c in counts)

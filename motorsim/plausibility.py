@@ -167,7 +167,10 @@ def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> l
 
 
 def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]:
-    """The runs of at least two consecutive samples at ``|duty| >= duty_limit``, as ``(first row, length)``.
+    """The runs of at least two consecutive samples at ``|duty| = duty_limit``, as ``(first row, length)``.
+
+    A duty beyond the limit is not a clipped one (it is an implausible row when the limit is the
+    recording's ``duty_limit``); equality is to 1e-9 relative.
 
     Examples
     --------
@@ -175,7 +178,7 @@ def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]
     >>> saturated_runs(np.array([0, 255, 255, 255, 10, -255, 3]), 255)
     [(1, 3)]
     """
-    at = np.abs(np.asarray(duty, float)) >= duty_limit
+    at = np.abs(np.abs(np.asarray(duty, float)) - duty_limit) <= 1e-9 * duty_limit
     edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(np.int8), [0]])))
     return [(int(a), int(b - a)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= 2]
 

@@ -418,10 +418,27 @@ class Recording:
             return None
         return value if np.isfinite(value) and value > 0 else None
 
+    def saturated_runs(self) -> list[tuple[int, int]]:
+        """The runs of two or more samples at the input limit, as ``(first row, length)``.
+
+        The limit is the one the metadata declare (``input_limit``, else a duty's ``duty_limit``,
+        as :attr:`input_limit` reads them); no runs when none is declared: a duty beyond 255 in a
+        file that declares no limit was not clipped at 255.
+
+        Examples
+        --------
+        >>> rec = Recording(time=np.arange(8) * 0.01, duty=[0, 255, 255, 255, 10, -255, 3, 0], sample_period=0.01,
+        ...                 counts=np.arange(8), counts_per_rev=400, metadata={"duty_limit": "255"})
+        >>> rec.saturated_runs(), rec.saturated_samples()
+        ([(1, 3)], 3)
+        """
+        declared = "input_limit" in self.metadata or "duty_limit" in self.metadata
+        limit = self.input_limit if declared else None
+        return [] if limit is None else saturated_runs(self.duty, limit)
+
     def saturated_samples(self) -> int:
-        """How many samples sit at the declared duty limit in runs of two or more (0 without a limit)."""
-        limit = self.duty_limit
-        return 0 if limit is None else sum(n for _, n in saturated_runs(self.duty, limit))
+        """How many samples sit at the input limit in runs of two or more (:meth:`saturated_runs`)."""
+        return sum(n for _, n in self.saturated_runs())
 
     def drop_rows(self, rows: Iterable[int]) -> "Recording":
         """This recording without ``rows`` (0-based): they become gaps in ``seq``.

@@ -121,6 +121,27 @@ def test_a_duty_clipped_at_its_limit_is_reported_with_its_samples(tmp_path, caps
     assert "clipped at its limit" in err and "samples" in err
 
 
+@pytest.mark.parametrize("method", [[], ["--method", "oe"]], ids=["default", "oe"])
+def test_the_json_counts_the_samples_at_the_limit_and_says_they_stay_in_the_fit(tmp_path, capsys, method):
+    import json
+
+    from motorsim.reading import read_recording
+    path = tmp_path / "sat.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--sine", "10,300", "--out", str(path)]) == 0
+    n = read_recording(path).saturated_samples()
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert main(["identify", str(path), "--json", *method]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert n > 0 and out["saturated_samples"] == {str(path): n}
+    assert out["n_samples"] == 2000 and out["a"] == pytest.approx(25.0, rel=1e-3)
+    assert "stay in the fit" in captured.err
+    if not method:
+        assert any(note.startswith(f"{n} of the 2000 samples") and "kept in the fit" in note for note in out["notes"])
+
+
 @pytest.mark.parametrize("delay", ["500", "2000"])
 def test_an_input_delay_the_file_cannot_hold_is_refused_by_name(recording, capsys, delay):
     err = _error(capsys, ["identify", str(recording), "--input-delay", delay])
