@@ -52,8 +52,8 @@ from .data import Segment, prepare_segments
 from .errors import NotIdentifiableError
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
-           "best_fit", "block_sums", "choose", "choose_delay", "largest_delay", "refine", "scan_delays",
-           "separating_experiment", "statistic", "threshold"]
+           "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
+           "scan_delays", "separating_experiment", "statistic", "threshold"]
 
 #: Largest input delay in samples the selection tries.
 MAX_AUTO_DELAY = 10
@@ -237,6 +237,35 @@ def block_sums(x: np.ndarray) -> np.ndarray:
     return np.add.reduceat(x, starts, axis=0)
 
 
+def block_mean_p(scores: np.ndarray) -> float:
+    """p-value of Hotelling's T^2 test that the rows of ``scores`` (block sums, ``(m, k)`` or ``(m,)``)
+    have mean zero: ``T^2 = m xbar^T S^-1 xbar`` with ``S`` their sample covariance, and
+    ``T^2 (m - k) / (k (m - 1))`` an ``F(k, m - k)`` variate when the blocks are independent and normal.
+
+    Centring matters under the alternative: a misfit that the blocks share inflates their raw second
+    moment as much as their mean, which would hide it (that statistic cannot exceed ``m``).
+    1.0 when there are too few blocks (``m <= k + 1``) or nothing to test; 0.0 when ``S`` is singular
+    while the mean is not zero.
+    """
+    from scipy.special import fdtrc
+    x = np.asarray(scores, dtype=float)
+    x = x.reshape(len(x), -1)
+    m, k = x.shape
+    if k == 0 or m <= k + 1:
+        return 1.0
+    mean = x.mean(axis=0)
+    if not np.any(mean):
+        return 1.0
+    spread = np.atleast_2d(np.cov(x, rowvar=False, ddof=1))
+    try:
+        t2 = m * float(mean @ np.linalg.solve(spread, mean))
+    except np.linalg.LinAlgError:
+        return 0.0
+    if not math.isfinite(t2):
+        return 0.0
+    return float(fdtrc(k, m - k, max(t2, 0.0) * (m - k) / (k * (m - 1))))
+
+
 def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding: np.ndarray | None = None) -> float:
     """``T = excess |delta|^2 / V`` with ``V`` the batch-means variance of ``delta . e`` (module docstring),
     plus the variance of ``delta . e`` over the encoder's rounding at other phases when given."""
@@ -318,6 +347,16 @@ def _against(f: CandidateFit, best: CandidateFit, rounding: np.ndarray | None = 
 def _close(f: CandidateFit, best: CandidateFit) -> bool:
     """Whether ``f``'s residual sum is within :data:`CLOSE` of the best's, relative."""
     return f.candidate.residual_sum - best.candidate.residual_sum <= CLOSE * best.candidate.residual_sum
+
+
+def plausible(fitted: list[CandidateFit], level: float, factor: float = 1.0) -> list[CandidateFit]:
+    """The fits within ``factor`` times the noise of the best (the best among them): statistic at most
+    ``factor`` times the threshold, or residual sum within :data:`CLOSE` of the best's."""
+    best = best_fit(fitted)
+    if best is None:
+        return []
+    return [f for f in fitted if f.residuals is not None and (
+        f is best or _close(f, best) or _against(f, best) <= factor * threshold(f.candidate, best.candidate, level))]
 
 
 def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit]], level: float,

@@ -20,8 +20,9 @@ from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
-__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "first_rows", "Segment",
-           "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
+__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "first_rows",
+           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note",
+           "CLOSED_LOOP_SATURATED_SHARE"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -187,6 +188,36 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
                                    kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
             row += n
     return out
+
+
+def delayed_segments(recordings: Sequence[Recording], delays: Sequence[int], skip: int,
+                     rows: int) -> dict[int, list[Segment]]:
+    """``first_rows(prepare_segments(recordings, d, skip=skip), rows)`` for every ``d`` in ``delays``.
+
+    Every delay is at most ``skip``, so every delay's segments hold the same rows and differ only
+    in their drive: the recordings are split, converted and checked once, and each delay takes its
+    drive from the duty ``d`` rows earlier.
+
+    Parameters
+    ----------
+    recordings : sequence of Recording
+        The runs, already checked by :func:`as_recordings`.
+    delays : sequence of int
+        Input delays in samples, each in ``0 ... skip``.
+    skip : int
+        Rows left out at the start of every segment.
+    rows : int
+        Rows kept in all (:func:`first_rows`).
+    """
+    if not delays:
+        return {}
+    if min(delays) < 0 or max(delays) > skip:
+        raise ParameterError(f"delays must lie in 0 ... skip = {skip}, got {min(delays)} ... {max(delays)}")
+    _check_delay_fits(recordings, max(delays))    # the rule grows with the delay: the largest decides
+    base = first_rows(prepare_segments(recordings, 0, skip=skip), rows)
+    return {d: [dataclasses.replace(seg, drive=np.asarray(
+        recordings[seg.recording].duty[seg.start - d:seg.start - d + len(seg.time)], float)) for seg in base]
+        for d in delays}
 
 
 #: A fixed input delay must leave this many times its own length of samples in the longest gap-free run.

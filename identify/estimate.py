@@ -96,6 +96,11 @@ class Estimate:
         Largest input magnitude the drive accepts, in ``input_unit`` (255 for duty on the bench,
         the recording's ``input_limit`` for a lab's file); None when unknown. Control design
         warns when a controller needs more.
+    speed_residuals : tuple of ndarray, optional
+        The fit's speed residual (measured minus model, rad/s) on each recording it was fitted on,
+        in the order given, row by row exactly as :func:`identify.validation.model_output` gives it
+        (``nan`` where undefined): kept by ``oe`` so the outlier check after the fit need not
+        simulate the model again.  In memory only (not in JSON); None when not kept.
     """
 
     method: str
@@ -116,6 +121,7 @@ class Estimate:
     notes: tuple[str, ...] = ()
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
+    speed_residuals: tuple[np.ndarray, ...] | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
         if self.covariance is not None:

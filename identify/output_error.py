@@ -51,7 +51,7 @@ from .estimate import Estimate
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian, robust_covariance
-from .validation import segment_fit_percent
+from .validation import segment_fit_percent, segment_speeds
 from .variable_projection import (
     SeparableSolution,
     is_separable,
@@ -463,7 +463,23 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
                     input_limit=recs[0].input_limit,
-                    covariance_method=cov_method)
+                    covariance_method=cov_method, speed_residuals=_speed_residuals(recs, problem.segments, models))
+
+
+def _speed_residuals(recs: list[Recording], segments: list[Segment], models: list[np.ndarray],
+                     ) -> tuple[np.ndarray, ...]:
+    """Measured minus model speed on every recording, row by row as :func:`identify.validation.model_output`.
+
+    The fit's initial speeds (and angle offsets) are least squares given ``a``, ``b`` and the bias,
+    as ``model_output``'s are, so this is its residual without simulating the model again.
+    """
+    out = [np.full(len(r), np.nan) for r in recs]
+    for seg, model in zip(segments, models):
+        rows, measured, simulated = segment_speeds(seg, model)
+        out[seg.recording][rows] = measured - simulated
+    for r in out:
+        r.setflags(write=False)
+    return tuple(out)
 
 
 def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: list[np.ndarray],

@@ -217,10 +217,13 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
     th_0 = np.zeros(n)
     th_0[1:] = np.cumsum(p * e_pow[:-1])
     if not sensitivities:
-        return Response(angle=angle, speed=speed,
-                        angle_sensitivity=np.column_stack([th_0 * np.nan, th_0 * np.nan, th_0]),
-                        speed_sensitivity=np.column_stack([e_pow * np.nan, e_pow * np.nan, e_pow]),
-                        angle_initial_speed_a=th_0 * np.nan, speed_initial_speed_a=e_pow * np.nan)
+        angle_s = np.full((n, 3), np.nan)
+        angle_s[:, 2] = th_0
+        speed_s = np.full((n, 3), np.nan)
+        speed_s[:, 2] = e_pow
+        undefined = np.broadcast_to(np.nan, (n,))
+        return Response(angle=angle, speed=speed, angle_sensitivity=angle_s, speed_sensitivity=speed_s,
+                        angle_initial_speed_a=undefined, speed_initial_speed_a=undefined)
     # d speed / d a: forcing (de/da) w + (dp/da) force, de/da = -h e
     e = np.exp(-x)
     w_a = first_order_scan(x, (-h * e * speed[:-1] + dp * force)[:, None], np.zeros(1), uniform)[:, 0]

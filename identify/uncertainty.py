@@ -133,8 +133,23 @@ def _weighted_lag_products(g: np.ndarray, max_lag: int) -> np.ndarray:
     return out
 
 
+#: Lags of the residual autocorrelation computed by dot products (the Ljung–Box test's) before the FFT
+#: is used for all of them: a white or short-correlated residual falls inside its band within these.
+_DIRECT_AUTOCORRELATION_LAGS = 20
+
+
+def _autocorrelation(r: np.ndarray, lags: int, den: float) -> np.ndarray:
+    """``ac[l] = sum_t r[t + l] r[t] / den`` for ``l = 0 ... lags``, by dot products (not BLAS: a
+    threaded dot is slow on a busy machine)."""
+    return np.array([den] + [float(np.einsum("i,i->", r[lag:], r[:-lag])) for lag in range(1, lags + 1)]) / den
+
+
 def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
-    """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value."""
+    """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value.
+
+    The first :data:`_DIRECT_AUTOCORRELATION_LAGS` lags come from dot products (O(n) each); only a
+    residual still correlated beyond them takes the FFT of all lags (O(n log n), a 2n-point transform).
+    """
     from scipy.special import chdtrc  # the chi-square survival function, lighter than scipy.stats
     r = np.asarray(residuals, dtype=float) - np.mean(residuals)
     n = len(r)
@@ -142,10 +157,13 @@ def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     if den == 0 or n < 8:
         return 0, 1.0
     lags = min(limit, n // 4)
-    spectrum = np.fft.rfft(r, 2 * n)
-    ac = np.fft.irfft(spectrum * np.conj(spectrum))[:lags + 1] / den
     band = 1.96 / math.sqrt(n)
+    ac = _autocorrelation(r, min(lags, _DIRECT_AUTOCORRELATION_LAGS), den)
     inside = np.flatnonzero(np.abs(ac[1:]) < band)
+    if not len(inside) and lags > _DIRECT_AUTOCORRELATION_LAGS:
+        spectrum = np.fft.rfft(r, 2 * n)
+        ac = np.fft.irfft(spectrum * np.conj(spectrum))[:lags + 1] / den
+        inside = np.flatnonzero(np.abs(ac[1:]) < band)
     length = int(inside[0]) + 1 if len(inside) else lags
     m = min(20, lags)
     k = np.arange(1, m + 1)

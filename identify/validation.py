@@ -167,11 +167,16 @@ def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
     bias = float(estimate.extra.get("bias", 0.0))
     if _has_friction(estimate):
         return _friction_segment_model(estimate, seg)
-    resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, bias=bias, uniform=seg.uniform)
+    resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, bias=bias, uniform=seg.uniform,
+                        sensitivities=False)
     if seg.kind == "angle":
-        A = np.column_stack([resp.angle_sensitivity[:, 2], np.ones(len(seg.time))])
-        coef, *_ = np.linalg.lstsq(A, seg.output - resp.angle, rcond=None)
-        return resp.angle + A @ coef
+        # least squares of the gap on (initial-speed column, 1), centred: exact and one pass each
+        s0 = resp.angle_sensitivity[:, 2]
+        gap = seg.output - resp.angle
+        s0c = s0 - s0.mean()
+        ss = float(s0c @ s0c)
+        slope = float(s0c @ gap) / ss if ss > 0 else 0.0
+        return resp.angle + slope * s0 + (float(gap.mean()) - slope * float(s0.mean()))
     s0 = resp.speed_sensitivity[:, 2]
     return resp.speed + float(s0 @ (seg.output - resp.speed) / (s0 @ s0)) * s0
 
@@ -227,11 +232,21 @@ def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, 
         recordings both are the average speed over each interval (differenced
         angle), for speed-only recordings the speed itself.
     """
-    n = len(recording)
+    return _speeds(len(recording), _models(estimate, recording))
+
+
+def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.ndarray]]:
+    """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`)."""
+    return [(seg, _segment_model(estimate, seg))
+            for seg in prepare_segments([recording], int(estimate.extra.get("input_delay", 0)))]
+
+
+def _speeds(n: int, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Measured and model speed row by row over ``n`` rows (:func:`model_output`)."""
     meas = np.full(n, np.nan)
     sim = np.full(n, np.nan)
-    for seg in prepare_segments([recording], int(estimate.extra.get("input_delay", 0))):
-        rows, measured, simulated = segment_speeds(seg, _segment_model(estimate, seg))
+    for seg, model in models:
+        rows, measured, simulated = segment_speeds(seg, model)
         meas[rows] = measured
         sim[rows] = simulated
     return meas, sim
@@ -251,13 +266,17 @@ def model_residuals(estimate: Estimate, recording: Recording) -> tuple[np.ndarra
     recording : Recording
         The data.
     """
-    input_delay = int(estimate.extra.get("input_delay", 0))
-    segments = prepare_segments([recording], input_delay)
-    if not segments:
+    return _residuals(estimate, _models(estimate, recording))
+
+
+def _residuals(estimate: Estimate, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, str]:
+    """:func:`model_residuals` of the segments' outputs."""
+    if not models:
         raise NotIdentifiableError("recording is too short to validate: no gap-free stretch of "
-                                   f"{MIN_SEGMENT_SAMPLES + input_delay} samples")
-    res = [seg.output - _segment_model(estimate, seg) for seg in segments]
-    return np.concatenate(res), np.concatenate([seg.drive for seg in segments]), residual_unit(segments)
+                                   f"{MIN_SEGMENT_SAMPLES + int(estimate.extra.get('input_delay', 0))} samples")
+    segments = [seg for seg, _ in models]
+    return (np.concatenate([seg.output - model for seg, model in models]),
+            np.concatenate([seg.drive for seg in segments]), residual_unit(segments))
 
 
 def autocorrelation(x, max_lag: int) -> np.ndarray:
@@ -406,8 +425,9 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     if recording.input_unit != estimate.input_unit:
         raise ParameterError(f"recording input_unit must be the estimate's ({estimate.input_unit}), "
                          f"got {recording.input_unit!r}: a model of one input unit cannot explain another")
-    meas, sim = model_output(estimate, recording)
-    res, inp, unit = model_residuals(estimate, recording)
+    models = _models(estimate, recording)     # simulated once for both the speeds and the residuals
+    meas, sim = _speeds(len(recording), models)
+    res, inp, unit = _residuals(estimate, models)
     n = len(res)
     lag = int(min(max_lag, max(1, n // 4)))
     ac = autocorrelation(res, lag)

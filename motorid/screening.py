@@ -34,30 +34,45 @@ class DroppedSamples(NamedTuple):
 
 
 def refuse_duplicates(files: Sequence[str]) -> None:
-    """Refuse a file given twice, by path or by identical content."""
+    """Refuse a file given twice, by path or by identical content.
+
+    Only files of equal size can have the same content, so only those are read and hashed (one
+    file, the usual call, is never read here).
+    """
     seen: dict[Any, str] = {}
+    sizes: dict[int, list[str]] = {}
     for name in files:
         try:
             st = os.stat(name)
-            key: Any = (st.st_dev, st.st_ino)
-            if key in seen:
-                raise CommandError(f"{name} is the same file as {seen[key]}; pooling data twice would understate "
-                                   "the standard errors")
-            seen[key] = name
-            if stat.S_ISREG(st.st_mode) and st.st_size <= 1 << 28:
-                with open(name, "rb") as f:
-                    digest = hashlib.sha256(f.read()).hexdigest()
-                if digest in seen:
-                    raise CommandError(f"{name} has the same content as {seen[digest]}; pooling data twice would "
-                                       "understate the standard errors")
-                seen[digest] = name
         except OSError:
             continue  # the reader names the problem
+        key: Any = (st.st_dev, st.st_ino)
+        if key in seen:
+            raise CommandError(f"{name} is the same file as {seen[key]}; pooling data twice would understate "
+                               "the standard errors")
+        seen[key] = name
+        if stat.S_ISREG(st.st_mode) and st.st_size <= 1 << 28:
+            sizes.setdefault(st.st_size, []).append(name)
+    digests: dict[str, str] = {}
+    for same_size in (names for names in sizes.values() if len(names) > 1):
+        for name in same_size:
+            try:
+                with open(name, "rb") as f:
+                    digest = hashlib.sha256(f.read()).hexdigest()
+            except OSError:
+                continue
+            if digest in digests:
+                raise CommandError(f"{name} has the same content as {digests[digest]}; pooling data twice would "
+                                   "understate the standard errors")
+            digests[digest] = name
 
 
-def _fit_outliers(est, recs: Sequence[Recording]) -> list[list[int]]:
+def _fit_outliers(est, recs: Sequence[Recording], fitted: bool = False) -> list[list[int]]:
+    """The isolated residual outliers of every recording; ``fitted``: ``recs`` are the recordings
+    ``est`` was fitted on, in order, so the fit's own residuals serve when it kept them."""
     from identify.outliers import residual_outliers
-    return [residual_outliers(est, rec) for rec in recs]
+    kept = est.speed_residuals if fitted and est.speed_residuals is not None else None
+    return [residual_outliers(est, rec, None if kept is None else kept[i]) for i, rec in enumerate(recs)]
 
 
 def _confirmed(outliers: list[list[int]], recs: Sequence[Recording], method: str,
@@ -117,7 +132,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
                 dropped.append(DroppedSamples(name, [s.seq for s in bad], "implausible: " + bad[0].reason))
                 recs[i] = rec.drop_rows(s.row for s in bad)
     est = fit(recs, method=method, **options)
-    outliers = _fit_outliers(est, recs)
+    outliers = _fit_outliers(est, recs, fitted=True)
     if not any(outliers):
         return est, recs, dropped
     outliers = _confirmed(outliers, recs, method, options)

@@ -56,3 +56,48 @@ def test_dropped_rows_become_gaps(rec):
     out = rec.drop_rows([10, 11, 500])
     assert len(out) == len(rec) - 3 and out.has_gaps
     assert 10 not in out.seq and 500 not in out.seq and len(out.segments()) == 3
+
+
+def _speed_only(rec):
+    speed = rec.measured_speed()
+    speed[0] = speed[1]                       # the first difference is undefined
+    return Recording(time=rec.time, duty=rec.duty, sample_period=rec.sample_period, speed=speed)
+
+
+@pytest.mark.parametrize("case", ["separable", "bias", "gaps and pooled", "speed only"])
+def test_the_fits_own_speed_residuals_are_model_outputs(rec, case):
+    # reference: identify.validation.model_output simulates the estimate again on each recording;
+    # the residuals the oe fit keeps must be the same numbers (1e-9 of the speed scale: two
+    # orders of rounding through the fit's least squares), nan at the same rows
+    from identify.validation import model_output
+    options = {"fit_bias": True} if case == "bias" else {}
+    if case == "gaps and pooled":
+        recs = [rec.drop_rows([100, 101, 1500]), rec.slice(0, 900)]
+    elif case == "speed only":
+        recs = [_speed_only(rec)]
+    else:
+        recs = [rec]
+    est = fit(recs, method="oe", **options)
+    assert est.speed_residuals is not None and len(est.speed_residuals) == len(recs)
+    scale = float(np.nanmax(np.abs(recs[0].measured_speed())))
+    for r, kept in zip(recs, est.speed_residuals):
+        measured, simulated = model_output(est, r)
+        want = measured - simulated
+        np.testing.assert_array_equal(np.isnan(kept), np.isnan(want))
+        np.testing.assert_allclose(kept[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=1e-9 * scale)
+
+
+def test_outliers_from_the_kept_residuals_equal_those_from_a_new_simulation(rec):
+    counts = rec.counts.copy()
+    counts[1000] ^= 1 << 12
+    bad = _with(rec, counts=counts)
+    est = fit(bad, method="oe")
+    assert residual_outliers(est, bad, est.speed_residuals[0]) == residual_outliers(est, bad) == [1000]
+    assert est.speed_residuals is not None and type(est).from_json(est.to_json()).speed_residuals is None
+
+
+def test_a_residual_of_the_wrong_length_is_refused(rec):
+    from motorsim.checks import ParameterError
+    est = fit(rec, method="oe")
+    with pytest.raises(ParameterError, match="residual must have one value per row"):
+        residual_outliers(est, rec, np.zeros(10))

@@ -135,3 +135,30 @@ def test_friction_bound_is_at_least_the_linear_one():
     # columns for c and d can only raise the bound (Schur complement)
     assert fr["a"] >= lin["a"] * (1 - 1e-9) and fr["b"] >= lin["b"] * (1 - 1e-9)
     assert np.isfinite(fr["a"]) and np.isfinite(fr["b"])
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.5, 0.995])
+def test_correlation_length_and_ljung_box_match_a_direct_reference(phi):
+    # reference: the autocorrelation by np.correlate and the Ljung-Box statistic written out; phi = 0.995
+    # is correlated past the dot-product lags, so the FFT path is checked too
+    from scipy.stats import chi2
+
+    from identify.uncertainty import _DIRECT_AUTOCORRELATION_LAGS, _correlation_length
+    rng = np.random.default_rng(7)
+    e = rng.normal(size=3000)
+    r = np.empty_like(e)
+    r[0] = e[0]
+    for k in range(1, len(e)):
+        r[k] = phi * r[k - 1] + e[k]
+    x = r - r.mean()
+    ac = np.correlate(x, x, "full")[len(x) - 1:] / float(x @ x)
+    limit = 300
+    inside = np.flatnonzero(np.abs(ac[1:limit + 1]) < 1.96 / math.sqrt(len(x)))
+    expected_length = int(inside[0]) + 1 if len(inside) else limit
+    n, m = len(x), 20
+    q = n * (n + 2) * sum(ac[k] ** 2 / (n - k) for k in range(1, m + 1))
+    length, p = _correlation_length(r, limit)
+    assert length == expected_length
+    assert p == pytest.approx(float(chi2.sf(q, m)), rel=1e-9, abs=1e-300)
+    if phi > 0.99:
+        assert length > _DIRECT_AUTOCORRELATION_LAGS
