@@ -16,13 +16,13 @@ from typing import Any, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
-from motorsim.plausibility import saturated_runs
 from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "first_rows",
-           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit"]
+           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note",
+           "CLOSED_LOOP_SATURATED_SHARE"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -278,17 +278,64 @@ def _check_moves(i: int, r: Recording) -> None:
 
 
 def _warn_saturation(i: int, r: Recording) -> None:
-    if r.input_unit != "duty":
-        return
-    limit = r.duty_limit if r.duty_limit is not None else 255.0
-    share = float(np.mean(np.abs(r.duty) >= limit))
+    limit = r.input_limit
+    share = float(np.mean(np.abs(r.duty) >= limit)) if r.input_unit == "duty" and limit is not None else 0.0
     if share > _SATURATION_SHARE:
         warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
                       "the samples; the motor sees a square wave and the estimate rests on few "
                       "transitions: lower the amplitude", UserWarning, stacklevel=4)
-    elif r.duty_limit is not None and r.reference is None and (runs := saturated_runs(r.duty, limit)):
+    elif r.reference is None and (runs := r.saturated_runs()):
         # open loop only: a controller's duty at the limit is its own choice, not a clipped excitation
         warnings.warn(f"recordings[{i}]: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
                       f"{sum(n for _, n in runs)} samples (the first from row {runs[0][0]}): the input the "
-                      "excitation asked for did not reach the motor there; lower the amplitude if the fit "
-                      "or its residuals look wrong", UserWarning, stacklevel=4)
+                      "excitation asked for did not reach the motor there; the samples stay in the fit (the "
+                      "recorded duty is the one applied); lower the amplitude if the fit or its residuals look "
+                      "wrong", UserWarning, stacklevel=4)
+
+
+#: Share of a closed-loop run's samples at the input limit above which :func:`saturation_note` speaks.
+CLOSED_LOOP_SATURATED_SHARE = 0.10
+
+
+def saturation_note(recordings: Sequence[Recording]) -> str | None:
+    """How many samples sit at the input limit, and why they stay in the fit; None when none do.
+
+    Samples in runs at the limit (:meth:`motorsim.Recording.saturated_runs`) are counted over
+    the open-loop recordings, and over a closed-loop one only when they are more than
+    :data:`CLOSED_LOOP_SATURATED_SHARE` of it (a controller at its limit for a few samples of a
+    step is its own choice, not a clipped excitation).
+
+    They are *kept* in the fit, deliberately.  Every rig motorid knows records the duty it
+    applied, clamp included (``SimRig``, the firmware, ``fake://``), so at the limit the model
+    ``b u`` is as right as anywhere: an exact fit stays exact with them.  Leaving them out would
+    cut every run at each clipped stretch and throw away the transitions into and out of it,
+    which carry the information about ``a``.  They are wrong only when the driver delivers less
+    than the recorded duty at its limit (a supply that sags); the note says so.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from motorsim import Recording
+    >>> duty = np.clip(np.round(300 * np.sin(np.arange(400) * 0.05)), -255, 255)
+    >>> rec = Recording(time=np.arange(400) * 0.005, duty=duty, sample_period=0.005,
+    ...                 counts=np.arange(400), counts_per_rev=400, metadata={"duty_limit": "255"})
+    >>> saturation_note([rec])[:63]
+    '136 of the 400 samples (34 %) sit at the input limit +-255 duty'
+    """
+    total = sum(len(r) for r in recordings)
+    counted = 0
+    runs = 0
+    for r in recordings:
+        found = r.saturated_runs()
+        n = sum(length for _, length in found)
+        if r.reference is not None and n <= CLOSED_LOOP_SATURATED_SHARE * len(r):
+            continue
+        counted += n
+        runs += len(found)
+    if not counted:
+        return None
+    limit = recordings[0].input_limit
+    return (f"{counted} of the {total} samples ({100 * counted / total:.2g} %) sit at the input limit "
+            f"+-{limit:g} {recordings[0].input_unit} in {runs} run(s): kept in the fit, as the recorded input "
+            "is the one the motor received; if the driver gives less than that at its limit, lower the "
+            "amplitude")

@@ -53,7 +53,15 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
-from .data import Segment, as_recordings, check_excitation, check_input_delay, delayed_segments, first_rows
+from .data import (
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    delayed_segments,
+    first_rows,
+    saturation_note,
+)
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import friction_candidate, speed_reverses
@@ -71,8 +79,6 @@ SCREEN_LEVEL = 0.05
 #: 0.4 % on linear motors (sines on 44-16667 counts, chirps, PRBS, steps), 96-99 % with friction
 #: or a dead zone of 8-25 duty.
 SCREEN_SHARE = 0.02
-#: Share of samples at the duty limit above which the data are called saturated.
-SATURATED_SHARE = 0.10
 #: Share of the non-zero input samples at one magnitude from which the input counts as one amplitude (a
 #: binary PRBS, a square wave): a dead zone is then a gain change the data cannot see.
 SINGLE_AMPLITUDE_SHARE = 0.95
@@ -360,13 +366,10 @@ def _counts_swept(recs: list[Recording]) -> float:
 def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
     """What the recordings cannot answer, said plainly (saturation, one amplitude, few counts, a too slow input)."""
     notes = []
+    saturated = saturation_note(recs)      # counted, and kept in the fit: its docstring says why
+    if saturated:
+        notes.append(saturated)
     duty = np.concatenate([r.duty for r in recs])
-    if recs[0].input_unit == "duty":
-        limit = float(recs[0].metadata.get("duty_limit", 255))
-        share = float(np.mean(np.abs(duty) >= limit)) if limit > 0 else 0.0
-        if share > SATURATED_SHARE:
-            notes.append(f"the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of the samples: the "
-                         "model only sees what the driver delivered; lower the amplitude if the driver clips")
     moving = np.abs(duty[:SELECTION_ROWS])
     moving = moving[moving > 0]
     if est.method == "oe" and len(moving):

@@ -87,6 +87,6 @@ def check_sweep(scenario, budget: int) -> None:
     (:data:`SWEEP_BYTES_PER_SAMPLE` per sample and repetition); the grid itself is bounded
     by ``scenarios.scenario.MAX_GRID_POINTS`` when the scenario is loaded.
     """
-    samples = max(p.setting.n_samples for p in scenario.points())
+    samples = scenario.max_samples()          # from the timing axes alone: a large grid is not walked
     check_memory(f"a sweep of {scenario.repetitions:,} repetitions of {samples:,} samples per grid point",
                  float(scenario.repetitions) * samples * SWEEP_BYTES_PER_SAMPLE, budget)

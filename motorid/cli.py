@@ -18,26 +18,32 @@ sent, data kept) and exit with 128 + the signal number (:mod:`motorid.interrupts
 """
 from __future__ import annotations
 
-import argparse
-import os
 import sys
-import traceback
-import warnings
-from typing import Callable, NamedTuple, Sequence
 
-import motorid
+TYPE_CHECKING = False      # typing.TYPE_CHECKING without importing typing, which would cost 2.5 ms at start-up
+if TYPE_CHECKING:
+    import argparse
+    from typing import Callable, Sequence
+
+    AddArguments = Callable[[argparse.ArgumentParser], None]
+    Run = Callable[[argparse.Namespace], int]
+
+# Nothing else at import: main() installs the signal handlers before anything heavier loads.
 
 __all__ = ["main", "build_parser", "COMMANDS", "Command", "user_error_types"]
 
-AddArguments = Callable[[argparse.ArgumentParser], None]
-Run = Callable[[argparse.Namespace], int]
 
-
-class Command(NamedTuple):
+class Command:
     """A sub-command: its help line and a loader returning ``(add_arguments, run)``."""
 
-    help: str
-    load: Callable[[], tuple[AddArguments, Run]]
+    __slots__ = ("help", "load")
+
+    def __init__(self, help: str, load: Callable[[], tuple[AddArguments, Run]]):
+        self.help = help
+        self.load = load
+
+    def __repr__(self) -> str:
+        return f"Command({self.help!r}, {self.load.__name__})"
 
 
 def _simulate() -> tuple[AddArguments, Run]:
@@ -106,6 +112,9 @@ COMMANDS: dict[str, Command] = {
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``motorid`` parser with every sub-command of :data:`COMMANDS`."""
+    import argparse
+
+    import motorid
     parser = argparse.ArgumentParser(prog="motorid", description="Identify a and b of a PWM-driven DC motor, "
                                      "dω/dt + aω = b·u, on a simulated or real bench.")
     parser.add_argument("--traceback", action="store_true",
@@ -147,6 +156,7 @@ def _one_line(exc: BaseException) -> str:
 
 def _quiet_broken_pipe() -> int:
     """The reader of stdout went away (``motorid ... | head``): end quietly, as ``SIGPIPE`` would."""
+    import os
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())    # the interpreter's final flush must not fail again
@@ -161,9 +171,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print_to_stderr(f"motorid: warning: {message}")
 
 
-def _parse_and_run(argv: Sequence[str] | None) -> int:
+def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -> int:
+    import warnings
+
     from motorid.outputs import check_outputs
     args = build_parser().parse_args(argv)
+    checkpoint()                  # an interrupt the imports swallowed is raised here, before the command runs
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning    # one line, not the source line that warned
@@ -172,19 +185,22 @@ def _parse_and_run(argv: Sequence[str] | None) -> int:
     except (KeyboardInterrupt, BrokenPipeError):
         raise
     except Exception as exc:
+        checkpoint()              # an interrupt that C code turned into this error is raised instead
         return _report_error(exc, args.traceback)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses).
 
-    The signal handlers are in place before the parser is built (which imports every
-    command), so a signal at any moment after start-up gives 128 + its number, no traceback.
+    The signal handlers are the first thing installed (this module imports nothing but
+    ``sys``), before the parser is built (which imports every command), so
+    a signal at any moment after the interpreter's own start-up gives 128 + its number and no
+    traceback (:mod:`motorid.interrupts` says what the start-up leaves uncovered).
     """
     try:
         from motorid.interrupts import signals_as_interrupts
-        with signals_as_interrupts():
-            return _parse_and_run(argv)
+        with signals_as_interrupts() as checkpoint:
+            return _parse_and_run(argv, checkpoint)
     except KeyboardInterrupt as exc:
         from motorid.interrupts import describe_interrupt, exit_status
         _say(f"motorid: {describe_interrupt(exc)}")
@@ -203,6 +219,7 @@ def _say(line: str) -> None:
 def _report_error(exc: Exception, show_traceback: bool) -> int:
     """One line for ``exc``: a user error (status 2) or a bug (status 1)."""
     if show_traceback:
+        import traceback
         traceback.print_exc()
     if isinstance(exc, user_error_types()):
         _say(f"motorid: error: {_one_line(exc)}")

@@ -14,13 +14,14 @@ import dataclasses
 import math
 import os
 import re
+import warnings
 from pathlib import Path
 from typing import Any, Mapping, NoReturn
 
 import numpy as np
 
 from .checks import ParameterError
-from .recording import Recording, RecordingFormatError
+from .recording import AngleUnitWarning, Recording, RecordingFormatError
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
@@ -324,14 +325,37 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     _check_counts(table, specs, cols, counts_per_rev)
     _check_time(table, specs["time"], cols["time"])
     try:
-        return Recording.from_columns(
-            time=cols["time"], duty=cols["input"], speed=cols.get("speed"), angle=cols.get("angle"),
-            counts=cols.get("counts"), counts_per_rev=counts_per_rev, input_unit=specs["input"].unit,
-            time_unit=specs["time"].unit, metadata={"source": Path(path).name},
-            speed_unit=specs["speed"].unit if "speed" in specs else "rad/s",
-            angle_unit=specs["angle"].unit if "angle" in specs else "rad")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", AngleUnitWarning)     # said below, by the column's name and flag
+            rec = Recording.from_columns(
+                time=cols["time"], duty=cols["input"], speed=cols.get("speed"), angle=cols.get("angle"),
+                counts=cols.get("counts"), counts_per_rev=counts_per_rev, input_unit=specs["input"].unit,
+                time_unit=specs["time"].unit, metadata={"source": Path(path).name},
+                speed_unit=specs["speed"].unit if "speed" in specs else "rad/s",
+                angle_unit=specs["angle"].unit if "angle" in specs else "rad")
     except ValueError as exc:
         raise ImportFormatError(f"{path}: {exc}") from None
+    if "angle" in specs and specs["angle"].unit == "rad":
+        _check_angle_unit(path, rec, specs["angle"], stated=not isinstance(angle, str) or ":" in angle)
+    return rec
+
+
+def _check_angle_unit(path: str, rec: Recording, spec: ColumnSpec, *, stated: bool) -> None:
+    """An angle column read as radians that reads as another unit: refused when its unit was left to the
+    default, said (:class:`~motorsim.recording.AngleUnitWarning`) when radians were stated."""
+    doubt = rec.angle_unit_doubt()
+    if doubt is None:
+        return
+    column = spec.column
+    likely = {"deg": f"{column}:deg", "rev": f"{column}:rev",
+              "counts": f"{column}:counts with --counts-per-rev N (or {column}:deg)"}.get(doubt.unit or "")
+    if stated:
+        warnings.warn(f"the angle column {column!r}, stated in rad: {doubt.reason}; if it is not in "
+                      f"radians give --angle {likely or f'{column}:UNIT'}", AngleUnitWarning, stacklevel=3)
+        return
+    fix = f"give --angle {likely}" if likely else f"give its unit, --angle {column}:UNIT, and check the speed's"
+    raise ImportFormatError(f"{path}: the angle column {column!r}, read as rad (no unit given): {doubt.reason}; "
+                            f"{fix} ({column}:rad if it really is in radians)")
 
 
 def _where(table: Table, spec: ColumnSpec, k: int) -> str:

@@ -24,15 +24,37 @@ Rules
 
 :func:`saturated_runs` finds the runs of samples at the duty limit (the model's linear
 input no longer reaches the motor there); they are reported, with their number of samples.
+
+Units of an angle column
+------------------------
+:func:`angle_unit_doubt` says why an angle column read as radians reads as another unit -- the
+commonest being degrees, whose every speed and ``b`` come out 57.3 times too large while the
+fit looks perfect.  It speaks only on evidence no radian angle gives (a miss is better than a
+false alarm on a good recording):
+
+* **Speed column**: with a speed column too, the differenced angle must move as fast as the
+  speed column says; a factor of 180/pi (or any factor beyond 1.5 either way) between the two,
+  on motion that correlates (:data:`MIN_CORRELATION`), is a unit read wrong.
+* **Encoder steps**: an encoder's angle moves in whole steps of one revolution over its counts
+  per revolution.  An angle that spans at least :data:`MIN_POSITIONS` steps, all on an
+  exact lattice of step ``q`` with ``360 / q`` a whole number of counts and ``2 pi / q`` not, is
+  an encoder's angle in degrees -- when ``q`` is known well enough: the whole count resolved to
+  1e-3 (the digits the file prints count against it: radians rounded to a coarse grid can stay
+  on a lattice for a few positions), or an exact decimal lattice over :data:`MIN_EXACT_SPAN`
+  steps.  An angle that holds only whole numbers is counts or whole degrees.
+* **Speed**: a sustained speed (the 99th percentile, as for the speed rule) beyond
+  :data:`MAX_SPEED` rad/s is beyond any motor motorid identifies.
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
 __all__ = ["ImplausibleSample", "implausible_samples", "spike_rows", "saturated_runs", "SPEED_FACTOR",
-           "INTERVAL_FACTOR", "DUTY_SPIKE_FACTOR"]
+           "INTERVAL_FACTOR", "DUTY_SPIKE_FACTOR", "angle_unit_doubt", "AngleUnitDoubt", "MAX_SPEED",
+           "MIN_CORRELATION"]
 
 #: A speed this many times the run's 99th-percentile speed is not physical.
 SPEED_FACTOR = 30.0
@@ -40,6 +62,21 @@ SPEED_FACTOR = 30.0
 INTERVAL_FACTOR = 10.0
 #: A one-sample duty excursion this many times the run's 99th-percentile duty step is a corrupted cell.
 DUTY_SPIKE_FACTOR = 4.0
+#: A sustained speed beyond this, in rad/s (about 190 000 rpm), is beyond any motor motorid identifies.
+MAX_SPEED = 2e4
+#: Correlation of the differenced angle with a speed column above which their factor is trusted.
+MIN_CORRELATION = 0.9
+#: Steps an angle must span before its steps are read as an encoder's.
+MIN_POSITIONS = 10
+#: Steps an exact decimal lattice must span before it alone says "degrees" (a coarsely printed angle).
+MIN_EXACT_SPAN = 1000
+
+
+class AngleUnitDoubt(NamedTuple):
+    """Why an angle column said to be in radians reads as another unit, and the unit it reads as (or None)."""
+
+    reason: str
+    unit: str | None
 
 
 class ImplausibleSample(NamedTuple):
@@ -130,7 +167,10 @@ def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> l
 
 
 def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]:
-    """The runs of at least two consecutive samples at ``|duty| >= duty_limit``, as ``(first row, length)``.
+    """The runs of at least two consecutive samples at ``|duty| = duty_limit``, as ``(first row, length)``.
+
+    A duty beyond the limit is not a clipped one (it is an implausible row when the limit is the
+    recording's ``duty_limit``); equality is to 1e-9 relative.
 
     Examples
     --------
@@ -138,7 +178,7 @@ def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]
     >>> saturated_runs(np.array([0, 255, 255, 255, 10, -255, 3]), 255)
     [(1, 3)]
     """
-    at = np.abs(np.asarray(duty, float)) >= duty_limit
+    at = np.abs(np.abs(np.asarray(duty, float)) - duty_limit) <= 1e-9 * duty_limit
     edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(np.int8), [0]])))
     return [(int(a), int(b - a)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= 2]
 
@@ -187,3 +227,139 @@ def implausible_samples(time: np.ndarray, seq: np.ndarray, speed: np.ndarray, sa
         for s in _duty_rows(np.asarray(duty, float), seq, duty_limit):
             found.setdefault(s.row, s)
     return [found[k] for k in sorted(found)]
+
+
+def angle_unit_doubt(angle: np.ndarray, time: np.ndarray, seq: np.ndarray,
+                     speed: np.ndarray | None = None) -> AngleUnitDoubt | None:
+    """Why an angle column said to be in radians reads as another unit, or None (the module's rules).
+
+    Parameters
+    ----------
+    angle : ndarray, shape (n,)
+        The angle column as read, in the radians it is said to be in.
+    time : ndarray, shape (n,)
+        Sample instants in s.
+    seq : ndarray of int, shape (n,)
+        Sample indices (no speed is formed across a gap).
+    speed : ndarray, shape (n,), optional
+        A speed column in rad/s.
+
+    Returns
+    -------
+    AngleUnitDoubt or None
+        The rule and the value (``"it moves only in exact steps of 0.351562, 1024 per 360 ..."``) and
+        the unit the evidence points to (``"deg"``, ``"rev"``, ``"counts"``, None when the
+        speed column may be the one wrong); None when nothing says the angle is not in radians.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(400) * 0.005
+    >>> counts = np.round(400 * np.sin(3 * t))                  # a 1024-count encoder
+    >>> angle_unit_doubt(counts * 2 * np.pi / 1024, t, np.arange(400)) is None
+    True
+    >>> doubt = angle_unit_doubt(counts * 360 / 1024, t, np.arange(400))
+    >>> doubt.unit, doubt.reason[:62]
+    ('deg', 'it moves only in exact steps of 0.351562, 1024 per 360 but 17.')
+    """
+    angle = np.asarray(angle, float)
+    if len(angle) < 10:
+        return None
+    steps = np.diff(angle)
+    rate = steps / np.diff(time)
+    rate[np.diff(seq) != 1] = np.nan
+    return _against_speed(rate, speed) or _encoder_steps(angle, steps) or _beyond_any_motor(rate)
+
+
+def _against_speed(rate: np.ndarray, speed: np.ndarray | None) -> AngleUnitDoubt | None:
+    """The speed-column rule: the factor between the differenced angle and the speed column."""
+    if speed is None:
+        return None
+    mean_speed = (speed[1:] + speed[:-1]) / 2          # over the interval the difference spans
+    ok = np.isfinite(rate) & np.isfinite(mean_speed)
+    x, y = mean_speed[ok], rate[ok]
+    if len(x) < 10 or float(x @ x) == 0 or float(y @ y) == 0:
+        return None
+    factor = float(x @ y) / float(x @ x)
+    correlation = float(x @ y) / math.sqrt(float(x @ x) * float(y @ y))
+    if abs(correlation) < MIN_CORRELATION or 1 / 1.5 <= factor <= 1.5:
+        return None
+    known = {180 / math.pi: ("an angle in degrees (or a speed column in rad/s read as deg/s)", "deg"),
+             1 / (2 * math.pi): ("an angle in revolutions (or a speed column in rev/s read as rad/s)", "rev")}
+    reading, unit = next((known[k] for k in known if abs(factor / k - 1) < 0.05),
+                         ("the units of the two columns do not match", None))
+    return AngleUnitDoubt(f"its difference moves {factor:.4g} times as fast as the speed column says "
+                          f"(correlation {correlation:.3f}): {reading}", unit)
+
+
+def _decimal_grid(values: np.ndarray) -> float:
+    """The coarsest ``10**-k`` every value is a whole multiple of (how the file printed them), else 0."""
+    def on_grid(x: np.ndarray, k: int) -> bool:
+        scaled = x * 10.0 ** k
+        return bool(np.all(np.abs(scaled - np.round(scaled)) <= np.maximum(1e-6, 4 * np.spacing(np.abs(scaled)))))
+    top = float(np.max(np.abs(values)))
+    head = values[:1 << 16]                           # tried on the first values, confirmed on all
+    for k in range(0, 16):
+        if top * 10.0 ** k > 1e13:
+            break
+        if on_grid(head, k) and on_grid(values, k):
+            return 10.0 ** -k
+    return 0.0
+
+
+def _encoder_steps(angle: np.ndarray, steps: np.ndarray) -> AngleUnitDoubt | None:
+    """The encoder-step rule: an angle on an exact lattice of ``360 / N`` but not of ``2 pi / N``."""
+    moves = steps[steps != 0]
+    if len(moves) < 20:
+        return None
+    grid = _decimal_grid(angle)
+    if grid >= 1:
+        return AngleUnitDoubt("it holds only whole numbers, as counts or whole degrees do, never an angle in "
+                              f"radians (it moves in steps as small as {float(np.min(np.abs(moves))):g})", "counts")
+    smallest = float(np.min(np.abs(moves)))
+    whole = np.round(steps / smallest)
+    if np.max(np.abs(steps / smallest - whole)) > 0.05:
+        return None                                   # not whole multiples of one step: no encoder lattice
+    n = np.concatenate([[0.0], np.cumsum(whole)])     # whole steps from the first sample, exactly
+    n_centred = n - n.mean()
+    step = float(n_centred @ (angle - angle.mean())) / max(float(n_centred @ n_centred), 1.0)   # least squares
+    error = float(np.max(np.abs(angle - angle.mean() - step * n_centred)))
+    step = abs(float(step))
+    span = float(n.max() - n.min())
+    decade = 10.0 ** round(math.log10(step)) if step > 0 else 0.0
+    if step == 0 or error > 0.02 * step or (grid and step < 2 * grid) or abs(step / decade - 1) < 1e-9:
+        return None        # off the lattice, or a lattice that may be only the digits the file prints
+    if span < MIN_POSITIONS:
+        return None        # a few positions fit many lattices, rounded radians among them
+    # relative uncertainty of the step: the largest departure over the span, at least the rounding the
+    # printed digits allow (half the grid: radians rounded to a coarse grid can look like an exact lattice)
+    relative = 2 * (max(error, grid / 2) + 1e-15 * float(np.max(np.abs(angle)))) / (span * step)
+    per_degrees, per_radians = 360 / step, 2 * math.pi / step
+    tolerance_degrees = max(4 * per_degrees * relative, 1e-9 * per_degrees)
+    tolerance_radians = max(4 * per_radians * relative, 1e-9 * per_radians)
+    # evidence enough: whole counts per 360 resolved to 1e-3, or an exact decimal lattice over a long span
+    # (radians rounded to the grid stay on a lattice over n positions with a chance of about 2 / n)
+    decisive = tolerance_degrees <= 1e-3 or (grid > 0 and error <= 1e-6 * grid and span >= MIN_EXACT_SPAN)
+    if not decisive or not 2 <= per_degrees <= 1e7:
+        return None
+    off_degrees = abs(per_degrees - round(per_degrees))
+    off_radians = abs(per_radians - round(per_radians))
+    if off_degrees <= tolerance_degrees and off_radians > max(0.01, 10 * tolerance_radians):
+        return AngleUnitDoubt(f"it moves only in exact steps of {step:.6g}, {round(per_degrees)} per 360 but "
+                              f"{per_radians:.6g} per 2 pi: an encoder's angle in degrees ({round(per_degrees)} "
+                              "counts/rev), not radians", "deg")
+    return None
+
+
+def _beyond_any_motor(rate: np.ndarray) -> AngleUnitDoubt | None:
+    """The speed rule: the run's 99th-percentile speed beyond :data:`MAX_SPEED`."""
+    magnitude = np.abs(rate[np.isfinite(rate)])
+    if len(magnitude) < 10:
+        return None
+    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
+    sustained = float(np.partition(magnitude, top)[top])
+    if sustained <= MAX_SPEED:
+        return None
+    return AngleUnitDoubt(f"its speed reaches {sustained:.4g} rad/s ({sustained * 60 / (2 * math.pi):.3g} rpm) "
+                          f"for 1 % of the run, beyond the {MAX_SPEED:g} rad/s of any motor (in degrees it would "
+                          f"be {math.radians(sustained):.4g} rad/s)", "deg")

@@ -12,6 +12,7 @@ import csv
 import io
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import BinaryIO, Iterable, Iterator, Mapping, NamedTuple, NoReturn, Sequence
 
@@ -19,7 +20,15 @@ import numpy as np
 
 from .checks import ParameterError
 from .files import InputFileError, open_input
-from .recording import COLUMNS, FORMAT_HEADER, INTEGER_COLUMNS, METADATA_ALIASES, Recording, RecordingFormatError
+from .recording import (
+    COLUMNS,
+    FORMAT_HEADER,
+    INTEGER_COLUMNS,
+    METADATA_ALIASES,
+    AngleUnitWarning,
+    Recording,
+    RecordingFormatError,
+)
 
 __all__ = ["read_recording", "MAX_RECORDING_BYTES", "FAST_PATH_MIN_BYTES"]
 
@@ -266,6 +275,7 @@ def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording
         if parsed.row_lines is None:
             return None if rec.implausible_samples() else rec   # blank lines: the careful parser knows the lines
         _refuse_implausible(rec, parsed.row_lines, fail)
+        _warn_about_angle_unit(rec, name)
     return rec
 
 
@@ -325,7 +335,16 @@ def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
         raise RecordingFormatError(f"{name}: {exc}") from None
     if check_samples:
         _refuse_implausible(rec, [line for line, _ in cols["time_s"]], fail)
+        _warn_about_angle_unit(rec, name)
     return rec
+
+
+def _warn_about_angle_unit(rec: Recording, name: str) -> None:
+    """Say when the ``angle_rad`` column reads as another unit (degrees, say): the format states radians."""
+    doubt = rec.angle_unit_doubt()
+    if doubt is not None:
+        warnings.warn(f"{name}: column angle_rad: {doubt.reason}; write the angle in radians",
+                      AngleUnitWarning, stacklevel=4)
 
 
 def _refuse_implausible(rec: Recording, lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:

@@ -50,11 +50,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .plausibility import ImplausibleSample, implausible_samples, saturated_runs
+from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
 
-__all__ = ["Recording", "RecordingFormatError", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES", "INTEGER_COLUMNS",
-           "TIME_BASE_TOLERANCE"]
+__all__ = ["Recording", "RecordingFormatError", "AngleUnitWarning", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES",
+           "INTEGER_COLUMNS", "TIME_BASE_TOLERANCE"]
 
 FORMAT_HEADER = "# motorid recording v1"
 #: Known columns in the order they are written.
@@ -72,6 +72,10 @@ TIME_BASE_TOLERANCE = 0.2
 
 class RecordingFormatError(ValueError):
     """A recording file or array breaks a rule of recording format v1."""
+
+
+class AngleUnitWarning(UserWarning):
+    """An angle column said to be in radians reads as another unit (:meth:`Recording.angle_unit_doubt`)."""
 
 
 def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) -> np.ndarray:
@@ -280,6 +284,11 @@ class Recording:
         note = timing_note(rec.metadata, rec.sample_period)
         if note:
             warnings.warn(note, UserWarning, stacklevel=2)
+        if columns.get("angle") is not None and columns.get("angle_unit", "rad") == "rad":
+            doubt = rec.angle_unit_doubt()
+            if doubt is not None:
+                warnings.warn(f"angle, in rad: {doubt.reason}; if it is not in radians give angle_unit="
+                              f"{doubt.unit or 'its unit'!r}", AngleUnitWarning, stacklevel=2)
         return rec
 
     def __len__(self) -> int:
@@ -382,6 +391,24 @@ class Recording:
         return implausible_samples(self.time, self.seq, self.measured_speed(), self.sample_period, floor,
                                    duty=self.duty, duty_limit=self.duty_limit)
 
+    def angle_unit_doubt(self) -> AngleUnitDoubt | None:
+        """Why the angle column, in rad, reads as another unit (degrees, say), or None.
+
+        The rules are :func:`motorsim.plausibility.angle_unit_doubt`'s (against the speed column,
+        an encoder's steps, a speed beyond any motor); None without an angle column.
+
+        Examples
+        --------
+        >>> t = np.arange(400) * 0.005
+        >>> degrees = np.round(400 * np.sin(3 * t)) * 360 / 1024      # a 1024-count encoder, in degrees
+        >>> rec = Recording(time=t, duty=np.round(200 * np.sin(3 * t)), sample_period=0.005, angle=degrees)
+        >>> rec.angle_unit_doubt().unit
+        'deg'
+        """
+        if self.angle is None:
+            return None
+        return angle_unit_doubt(self.angle, self.time, self.seq, self.speed)
+
     @property
     def duty_limit(self) -> float | None:
         """The duty limit the metadata declare (``duty_limit``), or None."""
@@ -391,10 +418,27 @@ class Recording:
             return None
         return value if np.isfinite(value) and value > 0 else None
 
+    def saturated_runs(self) -> list[tuple[int, int]]:
+        """The runs of two or more samples at the input limit, as ``(first row, length)``.
+
+        The limit is the one the metadata declare (``input_limit``, else a duty's ``duty_limit``,
+        as :attr:`input_limit` reads them); no runs when none is declared: a duty beyond 255 in a
+        file that declares no limit was not clipped at 255.
+
+        Examples
+        --------
+        >>> rec = Recording(time=np.arange(8) * 0.01, duty=[0, 255, 255, 255, 10, -255, 3, 0], sample_period=0.01,
+        ...                 counts=np.arange(8), counts_per_rev=400, metadata={"duty_limit": "255"})
+        >>> rec.saturated_runs(), rec.saturated_samples()
+        ([(1, 3)], 3)
+        """
+        declared = "input_limit" in self.metadata or "duty_limit" in self.metadata
+        limit = self.input_limit if declared else None
+        return [] if limit is None else saturated_runs(self.duty, limit)
+
     def saturated_samples(self) -> int:
-        """How many samples sit at the declared duty limit in runs of two or more (0 without a limit)."""
-        limit = self.duty_limit
-        return 0 if limit is None else sum(n for _, n in saturated_runs(self.duty, limit))
+        """How many samples sit at the input limit in runs of two or more (:meth:`saturated_runs`)."""
+        return sum(n for _, n in self.saturated_runs())
 
     def drop_rows(self, rows: Iterable[int]) -> "Recording":
         """This recording without ``rows`` (0-based): they become gaps in ``seq``.

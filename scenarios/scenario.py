@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
-from motorsim.checks import is_int
+from motorsim.checks import check_int, is_int
 from motorsim.excitation import Excitation, Sine, parse_excitation
 from motorsim.knobs import knobs_of
 from motorsim.plant import Motor
@@ -244,6 +244,41 @@ class Scenario:
             values = dict(self.base)
             values.update(zip(names, combo))
             yield GridPoint(i, tuple(zip(names, combo)), _setting(values))
+
+    def point(self, index: int) -> GridPoint:
+        """The grid point at ``index`` (row-major over the axes, as :meth:`points`), without walking the grid.
+
+        Examples
+        --------
+        >>> s = scenario_from_dict({"grid": {"excitation.frequency": [10, 20], "bench.angle_noise": [0, 1e-4]}})
+        >>> s.point(3).values == list(s.points())[3].values
+        True
+        """
+        index = check_int("index", index, 0, self.n_points - 1)
+        rest, combo = index, []
+        for _, values in reversed(self.grid):
+            rest, k = divmod(rest, len(values))
+            combo.append(values[k])
+        at = tuple(zip(self.axes, reversed(combo)))
+        return GridPoint(index, at, _setting({**self.base, **dict(at)}))
+
+    def max_samples(self) -> int:
+        """The most samples one run of any grid point has.
+
+        A run has ``round(duration / sample_period)`` samples (:class:`motorsim.rig.Experiment`), so
+        only the grid's ``bench.duration`` and ``bench.sample_period`` axes are combined (the other
+        axes at their first value): a large grid is not walked for it.
+        """
+        timing = [i for i, (axis, _) in enumerate(self.grid) if axis in ("bench.duration", "bench.sample_period")]
+        sizes = [len(values) for _, values in self.grid]
+        most = 0
+        for ks in itertools.product(*(range(sizes[i]) for i in timing)):
+            chosen = dict(zip(timing, ks))
+            index = 0
+            for i, size in enumerate(sizes):
+                index = index * size + chosen.get(i, 0)
+            most = max(most, self.point(index).setting.n_samples)
+        return most
 
     def total_samples(self) -> int:
         """Samples simulated by the whole sweep."""

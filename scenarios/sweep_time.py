@@ -116,8 +116,7 @@ def estimate_sweep_time(scenario: Scenario, workers: int | None = None) -> Sweep
     from .sweep import run_point, runs_batched
     for method in scenario.methods:
         method_function(method)                      # import the estimator's module outside the timing
-    wanted = set(_probe_indices(scenario.n_points))
-    points = [p for i, p in enumerate(scenario.points()) if i in wanted]
+    points = [scenario.point(i) for i in _probe_indices(scenario.n_points)]   # by index: the grid is not walked
     runs: list[float] = []
     per_method: dict[str, list[float]] = {m: [] for m in scenario.methods}
     point_costs = []

@@ -49,6 +49,7 @@ import numpy as np
 
 from motorid.bench.timing import median_time
 from motorid.progress import Ticker
+from motorsim.checks import ParameterTypeError
 from motorsim.excitation import Multisine, Sine
 from motorsim.recording import Recording
 from motorsim.rig import jittered_times
@@ -148,8 +149,9 @@ def make_recording(angle: np.ndarray, duty: np.ndarray, time_s: np.ndarray, samp
                    counts_per_rev: int, *, rng: np.random.Generator | None = None, drop_rate: float = 0.0,
                    angle_noise: float = 0.0) -> Recording:
     """Floored counts (optional noise and dropped rows) as a Recording; ``rng`` is needed for either."""
-    if (angle_noise or drop_rate) and rng is None:
-        raise TypeError("rng must be a numpy.random.Generator when angle_noise or drop_rate is set, got None")
+    if (angle_noise or drop_rate) and not isinstance(rng, np.random.Generator):
+        raise ParameterTypeError("rng must be a numpy.random.Generator when angle_noise or drop_rate is set, "
+                                 f"got {type(rng).__name__}")
     noisy = angle + (rng.normal(0.0, angle_noise, len(angle)) if rng is not None and angle_noise else 0.0)
     counts = np.floor(noisy * counts_per_rev / (2 * math.pi)).astype(np.int64) + 1000
     keep = np.ones(len(angle), bool)

@@ -52,7 +52,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation, "
                              "a Bode panel of data and model (on TEST, else on the first FILE)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
+                        help="print one JSON document on stdout (the human-readable text goes to stderr); it "
+                             "counts each file's samples at the input limit, kept in the fit (saturated_samples)")
     parser.add_argument("--drop-outliers", action="store_true",
                         help="drop corrupted samples (implausible jumps, isolated residual outliers) as gaps, "
                              "refit and list them, instead of refusing the file")
@@ -129,6 +130,9 @@ def run_identify(args: argparse.Namespace) -> int:
         out["residual_checks"] = checks
     if dropped:
         out["dropped_samples"] = {d.file: d.seq for d in dropped}
+    saturated = {name: n for name, rec in zip(args.files, recs) if (n := rec.saturated_samples())}
+    if saturated:            # kept in the fit (identify.data.saturation_note says why), counted per file
+        out["saturated_samples"] = saturated
     report = None
     held_out = read_inputs([args.validate], args)[0] if args.validate else None
     if held_out is not None:

@@ -65,3 +65,13 @@ def test_closed_loop_section_holds_oe_and_reports_iv_reference_on_every_loop(cap
     assert [r[0].strip() for r in rows] == ["P position, floored", "PI speed, differenced",
                                                "one-step MPC, SimRig", "PI speed, SimRig", "PD position, SimRig"]
     assert all(np.isfinite(float(r[2].split()[0])) for r in rows)
+
+
+@pytest.mark.parametrize("rng, kind", [(None, "a numpy.random.Generator"), (42, "a numpy.random.Generator")],
+                         ids=["missing", "an int"])
+def test_make_recording_without_a_generator_raises_our_type_error_naming_rng(rng, kind):
+    from motorid.bench.accuracy import make_recording
+    from motorsim.checks import ParameterTypeError
+    t = np.arange(50) * 0.01
+    with pytest.raises(ParameterTypeError, match=f"rng must be {kind} when angle_noise or drop_rate is set, got"):
+        make_recording(np.sin(t), np.zeros(50), t, 0.01, 400, rng=rng, angle_noise=1e-3)

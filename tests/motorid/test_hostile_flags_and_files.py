@@ -121,6 +121,27 @@ def test_a_duty_clipped_at_its_limit_is_reported_with_its_samples(tmp_path, caps
     assert "clipped at its limit" in err and "samples" in err
 
 
+@pytest.mark.parametrize("method", [[], ["--method", "oe"]], ids=["default", "oe"])
+def test_the_json_counts_the_samples_at_the_limit_and_says_they_stay_in_the_fit(tmp_path, capsys, method):
+    import json
+
+    from motorsim.reading import read_recording
+    path = tmp_path / "sat.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--sine", "10,300", "--out", str(path)]) == 0
+    n = read_recording(path).saturated_samples()
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert main(["identify", str(path), "--json", *method]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert n > 0 and out["saturated_samples"] == {str(path): n}
+    assert out["n_samples"] == 2000 and out["a"] == pytest.approx(25.0, rel=1e-3)
+    assert "stay in the fit" in captured.err
+    if not method:
+        assert any(note.startswith(f"{n} of the 2000 samples") and "kept in the fit" in note for note in out["notes"])
+
+
 @pytest.mark.parametrize("delay", ["500", "2000"])
 def test_an_input_delay_the_file_cannot_hold_is_refused_by_name(recording, capsys, delay):
     err = _error(capsys, ["identify", str(recording), "--input-delay", delay])
@@ -138,3 +159,58 @@ def test_a_time_base_scaled_by_1e_300_is_refused(recording, tmp_path, capsys):
     path = tmp_path / "tiny.csv"
     path.write_text("\n".join(out) + "\n")
     assert "sample_period" in _error(capsys, ["identify", str(path)])
+
+
+@pytest.fixture(scope="module")
+def encoder_run():
+    from motorsim import Experiment, Motor, SimRig, Sine
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 5.0))
+    return rec, rec.counts - rec.counts[0]
+
+
+def _lab_file(tmp_path: Path, encoder_run, per_rev: float) -> Path:
+    rec, counts = encoder_run
+    path = tmp_path / "lab.csv"
+    path.write_text("t,u,theta\n" + "".join(f"{float(t)!r},{int(u)},{float(a)!r}\n" for t, u, a in
+                                             zip(rec.time, rec.duty, counts * per_rev / 16667)))
+    return path
+
+
+def test_an_angle_column_in_degrees_read_as_radians_is_refused_naming_the_column_and_the_flag(
+        tmp_path, capsys, encoder_run):
+    path = _lab_file(tmp_path, encoder_run, 360.0)
+    err = _error(capsys, ["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta"])
+    assert "the angle column 'theta', read as rad" in err and "16667 per 360" in err
+    assert "give --angle theta:deg" in err and len(err.strip().splitlines()) == 1
+    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta:deg", "--json"]) == 0
+    import json
+    out = json.loads(capsys.readouterr().out)
+    assert out["b"] == pytest.approx(3.0, rel=1e-3)
+
+
+def test_an_angle_stated_in_radians_that_reads_as_degrees_is_fitted_with_a_note(tmp_path, capsys, encoder_run):
+    path = _lab_file(tmp_path, encoder_run, 360.0)
+    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta:rad"]) == 0
+    assert "stated in rad: it moves only in exact steps" in capsys.readouterr().err
+
+
+def test_an_angle_in_radians_is_neither_refused_nor_doubted(tmp_path, capsys, encoder_run):
+    import math
+    path = _lab_file(tmp_path, encoder_run, 2 * math.pi)
+    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "angle" not in captured.err
+    import json
+    assert json.loads(captured.out)["b"] == pytest.approx(3.0, rel=1e-3)
+
+
+def test_a_recordings_angle_rad_column_in_degrees_is_said(tmp_path, capsys, encoder_run):
+    import dataclasses
+
+    from motorsim.writing import write_recording
+    rec, counts = encoder_run
+    path = write_recording(dataclasses.replace(rec, counts=None, angle=counts * 360 / 16667), tmp_path / "r.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")           # as on the command line: shown, not raised
+        assert main(["identify", str(path)]) == 0
+    assert "column angle_rad: it moves only in exact steps" in capsys.readouterr().err

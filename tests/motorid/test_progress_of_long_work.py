@@ -3,6 +3,8 @@ import io
 import re
 import sys
 
+import pytest
+
 from motorid.cli import main
 from motorid.commands.demo import article_experiments, run_article
 from motorid.progress import Ticker
@@ -86,3 +88,39 @@ def test_identify_in_a_pipe_shows_no_ticker(tmp_path, capsys):
     write_recording(rec, tmp_path / "r.csv")
     assert main(["identify", str(tmp_path / "r.csv"), "--method", "oe"]) == 0
     assert "identify: oe fit" not in capsys.readouterr().err
+
+
+def _grid_toml(frequencies: int, noises: int) -> str:
+    return "\n".join([
+        'name = "big"', 'description = "a large grid"', "seed = 1", "repetitions = 2", 'methods = ["zoh-ls"]',
+        "[bench]", "duration = 1.0", "[grid]",
+        '"excitation.frequency" = [' + ", ".join(f"{5 + 0.5 * i:g}" for i in range(frequencies)) + "]",
+        '"bench.angle_noise" = [' + ", ".join(f"{1e-6 * i:g}" for i in range(noises)) + "]", ""])
+
+
+@pytest.mark.slow            # the one walk that validates 99 000 points takes seconds
+def test_a_99_000_point_sweep_says_its_time_first_after_one_walk_of_the_grid(tmp_path, capsys, monkeypatch):
+    """The estimate is the first line, before any point runs; loading, the memory check and the probe
+    walk the grid once between them (each walk of 99 000 points costs seconds)."""
+    import scenarios.scenario as scenario_module
+    from motorid.commands import sweep as sweep_command
+    built = [0]
+    setting = scenario_module._setting
+
+    def counting(values):
+        built[0] += 1
+        return setting(values)
+    monkeypatch.setattr(scenario_module, "_setting", counting)
+    at_work: list[int] = []
+
+    def work(*args, **kwargs):
+        at_work.append(built[0])
+        raise KeyboardInterrupt          # Ctrl-C as the work starts: none of the 99 000 points runs
+    monkeypatch.setattr(sweep_command, "run_scenario", work)
+    path = tmp_path / "big.toml"
+    path.write_text(_grid_toml(99, 1000))
+    assert main(["sweep", str(path), "--workers", "1", "--no-plots", "--out", str(tmp_path / "out")]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("sweep big: 99000 points x 1 methods x 2 repetitions, estimated"), err[:300]
+    assert "motorid: interrupted (Ctrl-C)" in err
+    assert at_work and at_work[0] <= 99_000 + 10, at_work    # one walk to validate, then the probed points

@@ -41,6 +41,18 @@ def test_grid_points_are_row_major_and_override_the_base(tmp_path):
     assert s.total_samples() == 6 * 200 * s.repetitions
 
 
+
+def test_a_point_by_index_is_the_walked_one_and_the_longest_run_needs_only_the_timing_axes():
+    from motorsim.checks import ParameterError
+    data = dict(BASE, grid={"bench.duration": [0.5, 2.0, 1.0], "excitation.frequency": [5.0, 7.0],
+                            "bench.sample_period": [0.01, 0.002], "bench.angle_noise": [0.0, 1e-3]})
+    s = scenario_from_dict(data)
+    walked = list(s.points())
+    assert [s.point(i) for i in range(s.n_points)] == walked
+    assert s.max_samples() == max(p.setting.n_samples for p in walked) == 1000
+    with pytest.raises(ParameterError, match="index must be"):
+        s.point(s.n_points)
+
 def test_load_from_a_file_and_spec_excitations(tmp_path):
     path = tmp_path / "mine.toml"
     path.write_text('repetitions = 3\nmethods = ["zoh-ls"]\n[bench]\nduration = 2.0\n'
