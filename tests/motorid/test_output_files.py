@@ -67,7 +67,10 @@ def test_a_full_disk_mid_run_stops_the_motor_and_keeps_every_sample_elsewhere(tm
         flush(self)
     monkeypatch.setattr(RecordingWriter, "flush", flush_until_full)
     monkeypatch.setattr(RecordingWriter, "__init__", _small_flush_interval(RecordingWriter.__init__))
-    status = main([*LIVE, "--duration", "5", "--out", str(full / "run.csv")])
+    # a device on the wall clock (speed=1): unpaced, it ran as fast as the host read, so on a loaded
+    # machine it could finish the whole run before the host's STOP reached it
+    paced = [LIVE[0], "--port", "fake://?a=25&b=3", *LIVE[3:]]
+    status = main([*paced, "--duration", "5", "--out", str(full / "run.csv")])
     line = _error_line(capsys)
     assert status == 2
     assert "No space left on device" in line and "the motor was stopped" in line
