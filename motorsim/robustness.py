@@ -2,9 +2,9 @@
 
 :func:`loop_margins` gives the gain, phase and delay margins of a controller's feedback loop
 ``L = -Cy P`` (the loop broken at the duty; :meth:`~motorsim.control.Controller.laws` gives
-``Cy``, :meth:`~motorsim.control.Controller.plant` gives ``P``), found on a dense grid of the
-loop's frequency response and refined by root finding, independently of python-control (a test
-checks them against ``control.stability_margins`` on the same loop).
+``Cy``, :meth:`~motorsim.control.Controller.plant` gives ``P``), computed by
+:func:`motorsim.margins.discrete_margins` independently of python-control (a test checks them
+against ``control.stability_margins`` on the same loop).
 
 :func:`analyse_robustness` keeps the controller's gains fixed and draws plants ``(a, b)`` from a
 normal distribution with the estimate's covariance (a seeded Monte Carlo: ``rng`` is a
@@ -24,6 +24,7 @@ import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import Controller, PlantModel, Reference, design_controller
+from .margins import Margins, discrete_margins
 
 __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robust_design", "draw_models",
            "BADLY_DAMPED", "ROBUST_KNOB"]
@@ -35,39 +36,6 @@ BADLY_DAMPED = 0.2
 ROBUST_KNOB = {"mpc": "duty_weight", "pi": "time_constant", "position": "time_constant", "lqr": "duty_weight",
                "lqr-position": "duty_weight"}
 _KNOB_FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class Margins:
-    """Stability margins of a feedback loop.
-
-    Attributes
-    ----------
-    gain_margin : float
-        Factor by which the loop gain can grow (or shrink, when below 1) before instability;
-        ``inf`` when the phase never crosses -180 degrees.
-    phase_margin : float
-        Degrees; ``inf`` when the loop gain never crosses 1.
-    delay_margin : float
-        Extra input delay in s the loop tolerates (phase margin / crossover frequency).
-    crossover : float
-        Gain crossover frequency in rad/s (nan without one).
-    stable : bool
-        Whether the closed loop's poles lie inside the unit circle.
-    """
-
-    gain_margin: float
-    phase_margin: float
-    delay_margin: float
-    crossover: float
-    stable: bool
-
-    def describe(self) -> str:
-        """One line: the margins in engineering units."""
-        gm = "inf" if math.isinf(self.gain_margin) else f"{20 * math.log10(self.gain_margin):.3g} dB"
-        pm = "inf" if math.isinf(self.phase_margin) else f"{self.phase_margin:.3g} deg"
-        dm = "inf" if math.isinf(self.delay_margin) else f"{self.delay_margin * 1e3:.3g} ms"
-        return f"gain margin {gm}, phase margin {pm}, delay margin {dm}" + ("" if self.stable else " (UNSTABLE)")
 
 
 def _loop(controller: Controller, model: PlantModel | None = None) -> Any:
@@ -112,39 +80,7 @@ def loop_margins(controller: Controller, model: PlantModel | None = None) -> Mar
     (True, 84)
     """
     loop = _loop(controller, model)
-    h = float(loop.dt)
-    stable = bool(np.all(np.abs(_closed_loop_poles(loop)) < 1.0 - 1e-12))
-    num, den = np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0])
-    if not np.any(num):
-        return Margins(math.inf, math.inf, math.inf, math.nan, stable)
-
-    def response(w: np.ndarray | float) -> np.ndarray:
-        z = np.exp(1j * np.asarray(w) * h)
-        return np.polyval(num, z) / np.polyval(den, z)
-
-    nyquist = math.pi / h
-    w = np.unique(np.r_[np.geomspace(nyquist * 1e-6, nyquist, 20000), np.linspace(0, nyquist, 20000)[1:]])
-    l_w = response(w)
-    crossings = _crossings(lambda x: np.abs(response(x)) - 1.0, w, np.abs(l_w) - 1.0)
-    phase = [math.degrees(math.atan2(response(x).imag, response(x).real)) for x in crossings]
-    pms = [180.0 + p if p <= 0 else p - 180.0 for p in phase]   # distance from -180 degrees, signed
-    phase_crossings = [x for x in _crossings(lambda x: response(x).imag, w, l_w.imag) if response(x).real < 0]
-    gms = [1.0 / abs(response(x)) for x in phase_crossings]
-    if pms:
-        i = int(np.argmin(np.abs(pms)))
-        pm, wc = pms[i], crossings[i]
-        dm = math.radians(pm) / wc if pm > 0 else 0.0
-    else:
-        pm, wc, dm = math.inf, math.nan, math.inf
-    gm = min(gms, key=lambda g: abs(math.log(g))) if gms else math.inf
-    return Margins(float(gm), float(pm), float(dm), float(wc), stable)
-
-
-def _crossings(f, w: np.ndarray, values: np.ndarray) -> list[float]:
-    """Zeros of ``f`` between grid points where ``values`` changes sign, refined by ``brentq``."""
-    from scipy.optimize import brentq
-    idx = np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)
-    return [float(brentq(f, w[i], w[i + 1], xtol=1e-12)) for i in idx]
+    return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), float(loop.dt))
 
 
 @dataclasses.dataclass(frozen=True)
