@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
 import numpy as np
@@ -52,6 +53,7 @@ from .fixed_point import (
     quantise_gain,
     reference_values,
 )
+from .margins import Margins, discrete_margins
 from .plant import Motor, zoh_matrices
 
 if TYPE_CHECKING:
@@ -59,7 +61,8 @@ if TYPE_CHECKING:
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
            "Feedforward", "LQRSpeed", "LQRPosition", "Prediction", "ClosedLoopExperiment", "CONTROLLERS",
-           "design_controller", "tracking_error", "feedforward_gains", "settings_from"]
+           "design_controller", "tracking_error", "feedforward_gains", "settings_from", "DesignLimitWarning",
+           "MIN_PHASE_MARGIN"]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -452,6 +455,15 @@ class Controller:
         t_u = sensitivity * cr
         return p * t_u, t_u
 
+    def margins(self) -> Margins:
+        """Gain, phase and delay margins of the loop broken at the duty, ``L = -Cy P``, on the model (delay included).
+
+        :func:`motorsim.robustness.loop_margins` gives the same on another plant.
+        """
+        _, cy = self.laws()
+        loop = -(self.plant() * cy)
+        return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), self.model.sample_period)
+
     def is_stable(self) -> bool:
         """Whether every closed-loop pole lies inside the unit circle."""
         import control
@@ -611,15 +623,87 @@ def feedforward_gains(model: PlantModel) -> dict[str, int]:
             "k0": quantise_gain(-model.bias / model.b), "kf": quantise_gain(model.friction / model.b)}
 
 
+#: The least phase margin, in degrees, a pole-placement design (``pi``, ``position``) keeps by default.
+MIN_PHASE_MARGIN = 60.0
+
+
+class DesignLimitWarning(UserWarning):
+    """A controller was designed slower than asked, so that its loop keeps the phase margin required."""
+
+
 @dataclasses.dataclass(frozen=True)
 class _PolePlacement(Controller):
-    """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05)."""
+    """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05).
+
+    The poles are placed on a model without the input delay; the loop on the exact model, delay
+    included, must keep ``min_phase_margin`` degrees (keyword only, default :data:`MIN_PHASE_MARGIN`,
+    0 turns the check off).  A time constant too short for it is lengthened to the shortest one
+    that keeps it (rounded up to 3 significant digits), with a :class:`DesignLimitWarning` that
+    names both; ``time_constant`` is then the one designed with.
+    """
 
     time_constant: float = 0.05
+    min_phase_margin: float = dataclasses.field(default=MIN_PHASE_MARGIN, kw_only=True)
 
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
+        margin = check_real("min_phase_margin", self.min_phase_margin)
+        if not 0.0 <= margin < 180.0:
+            raise ParameterError(f"min_phase_margin must be in 0...180 deg, got {margin!r}")
+        object.__setattr__(self, "min_phase_margin", margin)
+        if margin == 0.0:
+            return
+        achieved = self.margins()
+        if self._keeps_margin(achieved):
+            return
+        asked = self.time_constant
+        fastest = self._fastest_time_constant()
+        what = (f"leaves a phase margin of {achieved.phase_margin:.3g} deg" if achieved.stable
+                else "gives an unstable loop")
+        delay = self.model.input_delay
+        warnings.warn(f"{self.kind} time_constant {asked!r} s {what} on the model (input delay {delay} "
+                      f"sample{'' if delay == 1 else 's'} at {self.model.sample_period!r} s); designed with "
+                      f"time_constant {fastest!r} s, the shortest that keeps min_phase_margin {margin:g} deg "
+                      "(min_phase_margin 0 keeps the time constant asked for)", DesignLimitWarning, stacklevel=3)
+        object.__setattr__(self, "time_constant", fastest)
+
+    def _keeps_margin(self, margins: Margins) -> bool:
+        return margins.stable and margins.phase_margin >= self.min_phase_margin
+
+    def _keeps_margin_at(self, time_constant: float) -> bool | None:
+        """Whether the design at ``time_constant`` keeps the margin (None: the fixed point cannot hold it)."""
+        try:
+            candidate = dataclasses.replace(self, time_constant=time_constant, min_phase_margin=0.0)
+            return self._keeps_margin(candidate.margins())
+        except ParameterError:
+            return None
+
+    def _fastest_time_constant(self) -> float:
+        """The shortest time constant above ``time_constant`` that keeps ``min_phase_margin``, 3 digits, rounded up."""
+        failing = passing = self.time_constant
+        while True:
+            passing *= 1.25
+            ok = self._keeps_margin_at(passing)
+            if ok:
+                break
+            if ok is None or passing > 1e4 * self.time_constant:
+                raise ParameterError(f"min_phase_margin {self.min_phase_margin:g} deg cannot be kept by a {self.kind} "
+                                     f"design with time_constant >= {self.time_constant!r} s on this model; "
+                                     "lower min_phase_margin")
+            failing = passing
+        while passing / failing > 1.0 + 1e-4:
+            middle = math.sqrt(failing * passing)
+            if self._keeps_margin_at(middle):
+                passing = middle
+            else:
+                failing = middle
+        digits = 2 - math.floor(math.log10(passing))
+        step = 10.0 ** -digits
+        fastest = round(math.ceil(round(passing / step, 6)) * step, digits)
+        while not self._keeps_margin_at(fastest):    # the search's tolerance, not the rounding, decided
+            fastest = round(fastest + step, digits)
+        return fastest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -632,20 +716,39 @@ class PISpeed(_PolePlacement):
     is at the limit and the error pushes further into it (conditional integration).
     :meth:`predict` closes the loop on the full model (differenced counts, delay).
 
+    The model the poles are placed on has no input delay; the loop on the full one must keep
+    ``min_phase_margin`` degrees, or the time constant is lengthened until it does (a
+    :class:`DesignLimitWarning` names both time constants).  On the article's motor at 5 ms the
+    shortest time constants that keep 60 degrees are 16.7, 26 and 32.5 ms for an input delay of
+    0, 1 and 2 samples (45 degrees: 10.7, 19.4 and 25.4 ms); a step then overshoots by about 6 %
+    (about 27 % at 45 degrees), where 10 ms with one sample of delay leaves 6 degrees and 107 %.
+
     Parameters
     ----------
     model : PlantModel
         The motor model.
     time_constant : float
-        Closed-loop time constant in s, > 0 (default 0.05).
+        Closed-loop time constant in s, > 0 (default 0.05); the one designed with, when the
+        phase margin asked for needs a longer one.
     feedforward : bool
         Add the model's feedforward (:class:`Feedforward`) to the PI output (default False).
+    min_phase_margin : float
+        Keyword only: the least phase margin in degrees of the loop on the model, input delay
+        included, 0...180 (default :data:`MIN_PHASE_MARGIN`, 60; 0 keeps ``time_constant`` as given).
 
     Examples
     --------
     >>> pi = PISpeed(PlantModel(25.0, 3.0, 0.005, 16667), time_constant=0.05)
     >>> pi.gains()
     {'kp': 1397, 'ki': 198}
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     fast = PISpeed(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1), time_constant=0.01)
+    >>> fast.time_constant, round(fast.margins().phase_margin, 1)
+    (0.026, 60.1)
+    >>> print(caught[0].message)    # doctest: +ELLIPSIS
+    pi time_constant 0.01 s leaves a phase margin of 6.05 deg on the model (input delay 1 sample at 0.005 s); ...
     """
 
     feedforward: bool = False
@@ -685,16 +788,22 @@ class PositionPD(_PolePlacement):
     The gains place both poles of the continuous model ``theta'' + a theta' = b u`` at
     ``-1/time_constant``: ``kp = 1 / (b time_constant^2)`` per rad, ``kd = (2/time_constant - a) / b``
     per rad/s (0 when negative, or with ``derivative=False``); :meth:`predict` closes the
-    loop on the exact sampled model.
+    loop on the exact sampled model.  As for :class:`PISpeed`, the loop on the exact model,
+    input delay included, keeps ``min_phase_margin`` degrees, the time constant lengthened
+    until it does.
 
     Parameters
     ----------
     model : PlantModel
         The motor model.
     time_constant : float
-        Closed-loop time constant in s, > 0 (default 0.05).
+        Closed-loop time constant in s, > 0 (default 0.05); the one designed with, when the
+        phase margin asked for needs a longer one.
     derivative : bool
         Use the speed term (PD, default) or not (P).
+    min_phase_margin : float
+        Keyword only: the least phase margin in degrees, 0...180 (default :data:`MIN_PHASE_MARGIN`,
+        60; 0 keeps ``time_constant`` as given).
 
     Examples
     --------

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -120,7 +120,7 @@ def discrete_margins(num: np.ndarray, den: np.ndarray, sample_period: float) -> 
     return Margins(float(gm), float(pm), float(dm), float(wc), stable)
 
 
-def _crossings(f: Callable[[float], float], w: np.ndarray, values: np.ndarray) -> list[float]:
+def _crossings(f: Callable[[float], Any], w: np.ndarray, values: np.ndarray) -> list[float]:
     """Zeros of ``f`` between grid points where ``values`` changes sign, refined by ``brentq``."""
     from scipy.optimize import brentq
     idx = np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .control import Controller, PlantModel, Reference, design_controller
+from .control import Controller, DesignLimitWarning, PlantModel, Reference, design_controller
 from .margins import Margins, discrete_margins
 
 __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robust_design", "draw_models",
@@ -264,7 +265,9 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
     The knob (:data:`ROBUST_KNOB`: ``duty_weight`` of ``mpc``, ``lqr`` and ``lqr-position``,
     ``time_constant`` of ``pi`` and ``position``) is tried at factors 0.25 ... 4 of its given or
     default value; every candidate is judged on the same draws: the fewest unstable draws, then
-    the fewest badly damped ones, then the smallest worst-case tracking RMS wins.
+    the fewest badly damped ones, then the smallest worst-case tracking RMS wins.  A time constant
+    shorter than the design's ``min_phase_margin`` allows is tried once, at that limit, without a
+    warning.
 
     Parameters
     ----------
@@ -298,11 +301,18 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
         start = getattr(design_controller(kind, model, **settings), knob)
     draws = draw_models(model, covariance, n_draws, rng)
     best: tuple[tuple[float, float, float], Controller, Robustness] | None = None
+    tried = set()
     for factor in _KNOB_FACTORS:
         try:
-            candidate = design_controller(kind, model, **settings, **{knob: start * factor})
+            with warnings.catch_warnings():
+                # a time constant below what the phase margin allows is designed at that limit: one candidate
+                warnings.simplefilter("ignore", DesignLimitWarning)
+                candidate = design_controller(kind, model, **settings, **{knob: start * factor})
         except ParameterError:
             continue
+        if getattr(candidate, knob) in tried:
+            continue
+        tried.add(getattr(candidate, knob))
         result = analyse_robustness(candidate, covariance, reference, duration, rng=rng, models=draws)
         score = (result.unstable, result.badly_damped, result.worst_rms)
         if best is None or score < best[0]:

@@ -1,7 +1,7 @@
 """``motorid control design``: a controller from a model, its gains and predicted response; the closed-loop runs.
 
-The controller flags (``--controller``, ``--duty-weight``, ``--time-constant``, ``--feedforward``,
-``--derivative``, ``--reference``) are shared by ``motorid control design`` and
+The controller flags (``--controller``, ``--duty-weight``, ``--time-constant``, ``--min-phase-margin``,
+``--feedforward``, ``--derivative``, ``--reference``) are shared by ``motorid control design`` and
 ``motorid simulate``; the design model comes from ``--a/--b`` (with ``--friction``,
 ``--bias``, ``--input-delay``) or from a saved estimate (``--model FILE``).
 :func:`compare_designs` is the closed-loop part of ``motorid demo``: the same controller
@@ -19,6 +19,7 @@ import numpy as np
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.control import (
     CONTROLLERS,
+    MIN_PHASE_MARGIN,
     ClosedLoopExperiment,
     Controller,
     PlantModel,
@@ -53,6 +54,10 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
                         "lqr-position: in rad^2 per duty^2 (default 1e-6)")
     g.add_argument("--time-constant", dest="time_constant", type=float, default=None, metavar="S",
                    help="pi, position: closed-loop time constant in s (default 0.05)")
+    g.add_argument("--min-phase-margin", dest="min_phase_margin", type=float, default=None, metavar="DEG",
+                   help="pi, position: the least phase margin in degrees of the loop on the model, input delay "
+                        "included; a --time-constant too short for it is lengthened to the shortest that keeps "
+                        f"it, with a warning (default {MIN_PHASE_MARGIN:g}, 0 keeps the time constant asked for)")
     g.add_argument("--feedforward", action="store_true", default=None,
                    help="pi: add the model's feedforward to the PI output")
     g.add_argument("--derivative", choices=("true", "false"), default=None,
@@ -140,7 +145,8 @@ def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Control
     if values.get("derivative") is not None:
         values["derivative"] = values["derivative"] == "true"
     kind = args.controller
-    given = {k for k in ("duty_weight", "time_constant", "feedforward", "derivative") if values.get(k) is not None}
+    given = {k for k in ("duty_weight", "time_constant", "min_phase_margin", "feedforward", "derivative")
+             if values.get(k) is not None}
     settings = settings_from(values, kind)
     ignored = given - set(settings)
     if ignored:

@@ -120,6 +120,25 @@ def test_control_design_from_a_saved_model_matches_the_same_numbers_given_as_fla
     assert gains and gains == [line for line in from_flags.splitlines() if line.startswith("fixed-point gains")]
 
 
+@pytest.mark.filterwarnings("default::motorsim.control.DesignLimitWarning")
+def test_control_design_lengthens_a_time_constant_the_delay_cannot_take_and_says_so(capsys):
+    fast = ["control", "design", "--a", "25", "--b", "3", "--input-delay", "1", "--controller", "pi",
+            "--time-constant", "0.01"]
+    assert main(fast) == 0
+    captured = capsys.readouterr()
+    assert "motorid: warning: pi time_constant 0.01 s leaves a phase margin of 6.05 deg" in captured.err
+    assert "designed with time_constant 0.026 s" in captured.err
+    assert "controller: pi time_constant = 0.026," in captured.out
+    assert "phase margin 60.1 deg" in captured.out
+    assert main([*fast, "--min-phase-margin", "0"]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err and "phase margin 6.05 deg" in captured.out
+    assert main([*fast, "--min-phase-margin", "200"]) == 2
+    assert "min_phase_margin must be in 0...180 deg, got 200.0" in capsys.readouterr().err
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "mpc", "--min-phase-margin", "45"]) == 2
+    assert "--min-phase-margin does not apply to --controller mpc" in capsys.readouterr().err
+
+
 def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("{}")
@@ -137,12 +156,13 @@ def test_control_design_prints_margins_and_the_robustness_of_a_saved_model(tmp_p
                  rng=np.random.default_rng(1)).run(Experiment(Sine(10.0), 0.005, 1.0))
     path = tmp_path / "model.json"
     path.write_text(fit(rec, method="oe", input_delay=1).to_json())
-    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+    fragile = ["--time-constant", "0.01", "--min-phase-margin", "0"]     # 6 degrees of phase margin with the delay
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", *fragile,
                  "--repetitions", "30"]) == 0
     out = capsys.readouterr().out
     assert "margins at the point estimate: gain margin" in out and "Monte Carlo: 30 plants" in out
-    assert "warning:" in out and "badly damped" in out          # 6 degrees of phase margin with the delay
-    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+    assert "warning:" in out and "badly damped" in out
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", *fragile,
                  "--repetitions", "30", "--robust"]) == 0
     out = capsys.readouterr().out
     assert "time_constant = 0.01," not in out and "warning:" not in out
