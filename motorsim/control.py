@@ -60,9 +60,9 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
-           "Feedforward", "LQRSpeed", "LQRPosition", "Prediction", "ClosedLoopExperiment", "CONTROLLERS",
-           "design_controller", "tracking_error", "feedforward_gains", "settings_from", "DesignLimitWarning",
-           "MIN_PHASE_MARGIN"]
+           "Feedforward", "LQRSpeed", "LQRSpeedIntegral", "LQRPosition", "Prediction", "ClosedLoopExperiment",
+           "CONTROLLERS", "design_controller", "tracking_error", "feedforward_gains", "settings_from",
+           "DesignLimitWarning", "MIN_PHASE_MARGIN", "INTEGRAL_WEIGHT"]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -915,19 +915,114 @@ class LQRSpeed(_LQR):
         return _lqr(a, b, q, self.duty_weight * self.model.speed_scale ** 2)
 
     def gains(self) -> dict[str, int]:
-        m = self.model
         k = self.state_gain()
-        ky = quantise_gain(-k[0])
-        ku = [quantise_gain(-x) for x in k[1:]]
-        e, g, _, _ = m.speed_coefficients()
-        hold = 1.0 - sum(gain_value(x) for x in ku)     # what is left of u at steady state
-        out = {"kr": quantise_gain(((1.0 - e) / g * hold - gain_value(ky)) * SPEED_REFERENCE_LSB), "ky": ky,
-               "k0": quantise_gain(-m.bias / m.b * hold), "kf": quantise_gain(m.friction / m.b * hold)}
-        out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
-        return out
+        return _speed_lqr_gains(self.model, quantise_gain(-k[0]), [quantise_gain(-x) for x in k[1:]])
 
     def laws(self):
         return _delay_line_laws(self.gains(), self.model)
+
+
+def _speed_lqr_gains(model: PlantModel, ky: int, ku: list[int], ki: int | None = None) -> dict[str, int]:
+    """The speed LQR's gains in wire order: ``kr`` and ``k0``, ``kf`` from the quantised feedback gains.
+
+    At a steady speed ``r`` (counts per sample) the duty is ``u = (1 - e) r / g - o`` (``o`` the
+    model's drive offset) and every past duty equals it, so ``kr r + ky r + k0 + kf = u (1 - sum ku)``
+    makes the steady output the reference, and an integral (``ki``) stays at 0 on the model.
+    """
+    e, g, _, _ = model.speed_coefficients()
+    hold = 1.0 - sum(gain_value(x) for x in ku)     # what is left of u at steady state
+    out = {"kr": quantise_gain(((1.0 - e) / g * hold - gain_value(ky)) * SPEED_REFERENCE_LSB), "ky": ky}
+    if ki is not None:
+        out["ki"] = ki
+    out["k0"] = quantise_gain(-model.bias / model.b * hold)
+    out["kf"] = quantise_gain(model.friction / model.b * hold)
+    out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
+    return out
+
+
+#: Default weight of the squared angle error (the integral of the speed error) of :class:`LQRSpeedIntegral`, 1/s^2.
+INTEGRAL_WEIGHT = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class LQRSpeedIntegral(_LQR):
+    """Speed LQR with integral action: the integral of the speed error in the state.
+
+    The state of :class:`LQRSpeed` (the measured speed and the ``D + 1`` duties in the delay
+    line) gains ``s_k``, the sum of the errors ``r_j - y_j`` before sample ``k``
+    (``s_{k+1} = s_k + r_k - y_k``); the gain minimises
+    ``sum omega_k^2 + integral_weight theta_k^2 + duty_weight u_k^2``, where
+    ``theta_k = sample_period s_k`` is the error's integral, an angle in rad.  The step is
+    :class:`LQRSpeed`'s with ``ki s_k`` added and the sum updated after it,
+    ``u_k = kr r_{k+D+1} + ky y_k + ki s_k + sum_m ku_m u_{k-m} + k0 + kf sign(r_{k+D+1})``;
+    the sum stops growing while the duty is at the limit and the error pushes further into it
+    (the PI's conditional integration).  ``kr``, ``k0`` and ``kf`` are :class:`LQRSpeed`'s for
+    the new feedback gains, so on the model the sum stays at 0; a bias, friction or gain the
+    model lacks is what it integrates, and a constant reference is tracked with no steady error.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    duty_weight : float
+        Weight of ``u^2`` in (rad/s)^2 per duty^2, > 0 (default 1e-3).
+    integral_weight : float
+        Weight of ``theta^2`` in (rad/s)^2 per rad^2 (1/s^2), > 0 (default
+        :data:`INTEGRAL_WEIGHT`, 100: an angle error of 0.1 rad costs as much as a speed error
+        of 1 rad/s).
+
+    Examples
+    --------
+    >>> lqr = LQRSpeedIntegral(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1))
+    >>> list(lqr.gains())
+    ['kr', 'ky', 'ki', 'k0', 'kf', 'ku1', 'ku2']
+    >>> lqr.is_stable()
+    True
+    """
+
+    integral_weight: float = INTEGRAL_WEIGHT
+    kind: ClassVar[str] = "lqr-integral"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "integral_weight", check_real("integral_weight", self.integral_weight, positive=True))
+
+    def state_gain(self) -> np.ndarray:
+        """``K`` of ``u = -K x``, ``x = [y, u_{k-1}, ..., u_{k-D-1}, s]`` in counts per sample, duty, counts."""
+        a, b = _integral_matrices(self.model)
+        q = np.zeros_like(a)
+        q[0, 0] = 1.0
+        q[-1, -1] = self.integral_weight * self.model.sample_period ** 2
+        return _lqr(a, b, q, self.duty_weight * self.model.speed_scale ** 2)
+
+    def gains(self) -> dict[str, int]:
+        k = self.state_gain()
+        return _speed_lqr_gains(self.model, quantise_gain(-k[0]), [quantise_gain(-x) for x in k[1:-1]],
+                                ki=quantise_gain(-k[-1] * SPEED_REFERENCE_LSB))
+
+    def laws(self):
+        import control
+        g, m = self.gains(), self.model
+        kr, ky, ki = (gain_value(g[name]) for name in ("kr", "ky", "ki"))
+        n = m.input_delay + 1                       # the past duties weighed, and the preview
+        ku = [gain_value(g[f"ku{j}"]) for j in range(1, n + 1)]
+        # u (1 - sum_m ku_m z^-m) = kr r + ky y + ki s with s = (z^-n r - 16 y) / (z - 1); one
+        # denominator, (z - 1)(z^n - sum_m ku_m z^(n-m)), as the step has one state per term
+        den = np.polymul([1.0, -1.0], [1.0, *(-x for x in ku)])
+        cr = np.polyadd(np.polymul([kr, -kr], np.r_[1.0, np.zeros(n)]), [ki])
+        cy = np.polymul([ky, -ky - (1 << SPEED_REFERENCE_BITS) * ki], np.r_[1.0, np.zeros(n)])
+        return control.tf(cr, den, m.sample_period), control.tf(cy, den, m.sample_period)
+
+
+def _integral_matrices(model: PlantModel) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` of :func:`_delay_line_matrices` with the error's sum last: ``s_{k+1} = s_k - y_k`` (r = 0)."""
+    a_speed, b_speed = _delay_line_matrices(model)
+    n = a_speed.shape[0] + 1
+    a = np.zeros((n, n))
+    a[:-1, :-1] = a_speed
+    a[-1, 0] = -1.0
+    a[-1, -1] = 1.0
+    return a, np.vstack([b_speed, [[0.0]]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -998,7 +1093,7 @@ def _delay_line_laws(gains: Mapping[str, int], model: PlantModel, *, position: b
 
 #: Controllers by ``kind`` (``motorid control design --controller``).
 CONTROLLERS: dict[str, type[Controller]] = {c.kind: c for c in (OneStepMPC, PISpeed, PositionPD, Feedforward,
-                                                                 LQRSpeed, LQRPosition)}
+                                                                 LQRSpeed, LQRSpeedIntegral, LQRPosition)}
 
 
 def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controller:

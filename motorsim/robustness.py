@@ -35,7 +35,7 @@ __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robus
 BADLY_DAMPED = 0.2
 #: The knob :func:`robust_design` tunes, per controller.
 ROBUST_KNOB = {"mpc": "duty_weight", "pi": "time_constant", "position": "time_constant", "lqr": "duty_weight",
-               "lqr-position": "duty_weight"}
+               "lqr-integral": "duty_weight", "lqr-position": "duty_weight"}
 _KNOB_FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
 
@@ -262,7 +262,7 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
                   n_draws: int = 200, rng: np.random.Generator, **settings: Any) -> tuple[Controller, Robustness]:
     """The controller whose knob gives the best worst-case tracking RMS over plants drawn from the covariance.
 
-    The knob (:data:`ROBUST_KNOB`: ``duty_weight`` of ``mpc``, ``lqr`` and ``lqr-position``,
+    The knob (:data:`ROBUST_KNOB`: ``duty_weight`` of ``mpc`` and the LQRs,
     ``time_constant`` of ``pi`` and ``position``) is tried at factors 0.25 ... 4 of its given or
     default value; every candidate is judged on the same draws: the fewest unstable draws, then
     the fewest badly damped ones, then the smallest worst-case tracking RMS wins.  A time constant
@@ -272,7 +272,7 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position``, ``lqr`` or ``lqr-position``.
+        ``mpc``, ``pi``, ``position``, ``lqr``, ``lqr-integral`` or ``lqr-position``.
     model : PlantModel
         The point estimate.
     covariance : array_like, shape (2, 2)

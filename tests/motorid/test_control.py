@@ -1,11 +1,12 @@
 """motorid control design, motorid simulate --controller, and the demo's closed-loop part."""
 import json
 
+import numpy as np
 import pytest
 
 from motorid.cli import main
 from motorsim import read_recording
-from motorsim.control import PlantModel, design_controller
+from motorsim.control import PlantModel, design_controller, tracking_error
 
 
 def test_control_design_prints_the_fixed_point_gains_and_plots(tmp_path, capsys):
@@ -137,6 +138,25 @@ def test_control_design_lengthens_a_time_constant_the_delay_cannot_take_and_says
     assert "min_phase_margin must be in 0...180 deg, got 200.0" in capsys.readouterr().err
     assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "mpc", "--min-phase-margin", "45"]) == 2
     assert "--min-phase-margin does not apply to --controller mpc" in capsys.readouterr().err
+
+
+def test_lqr_integral_from_a_saved_model_leaves_no_steady_error_on_a_bench_the_model_does_not_know(tmp_path, capsys):
+    run, model = tmp_path / "run.csv", tmp_path / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "4", "--sine", "10,200,0", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--method", "oe", "--save", str(model)]) == 0
+    assert main(["control", "design", "--model", str(model), "--controller", "lqr-integral",
+                 "--integral-weight", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "controller: lqr-integral duty_weight = 0.001, integral_weight = 50.0" in out and ", ki = " in out
+    steady = {}
+    for kind in ("lqr", "lqr-integral"):      # the bench: b 20 % higher and a bias the model lacks
+        rec = tmp_path / f"{kind}.csv"
+        assert main(["simulate", "--a", "25", "--b", "3.6", "--bias", "-20", "--model", str(model), "--controller",
+                     kind, "--reference", "constant:10", "--duration", "3", "--out", str(rec)]) == 0
+        steady[kind] = float(np.mean(tracking_error(read_recording(rec))[-200:]))
+    assert abs(steady["lqr-integral"]) < 0.01 and abs(steady["lqr"]) > 0.2      # measured: 0.0004 and 0.36 rad/s
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "lqr", "--integral-weight", "5"]) == 2
+    assert "--integral-weight does not apply to --controller lqr" in capsys.readouterr().err
 
 
 def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsys):

@@ -12,6 +12,7 @@ from motorsim.control import (
     Feedforward,
     LQRPosition,
     LQRSpeed,
+    LQRSpeedIntegral,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -24,12 +25,12 @@ from motorsim.robustness import analyse_robustness, draw_models, loop_margins, r
 MODELS = [PlantModel(25.0, 3.0, 0.005, 16667), PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1)]
 #: ``pi-fast`` keeps the time constant asked for (no phase margin required): 6 degrees with the delay
 DESIGNS = [OneStepMPC, PISpeed, PositionPD, lambda m: PISpeed(m, 0.01, min_phase_margin=0.0),
-           lambda m: OneStepMPC(m, 1e-3), LQRSpeed, LQRPosition]
+           lambda m: OneStepMPC(m, 1e-3), LQRSpeed, LQRPosition, LQRSpeedIntegral]
 
 
 @pytest.mark.parametrize("model", MODELS, ids=["delay0", "delay1"])
 @pytest.mark.parametrize("design", DESIGNS, ids=["mpc", "pi", "position", "pi-fast", "mpc-weighted", "lqr",
-                                                 "lqr-position"])
+                                                 "lqr-position", "lqr-integral"])
 def test_margins_equal_python_control_stability_margins_on_the_same_loop(model, design):
     controller = design(model)
     _, cy = controller.laws()
@@ -44,8 +45,8 @@ def test_margins_equal_python_control_stability_margins_on_the_same_loop(model, 
         assert m.delay_margin == pytest.approx(np.radians(pm) / wgc, rel=1e-6)
 
 
-@pytest.mark.parametrize("design", [PISpeed, PositionPD, OneStepMPC, LQRSpeed, LQRPosition],
-                         ids=["pi", "position", "mpc", "lqr", "lqr-position"])
+@pytest.mark.parametrize("design", [PISpeed, PositionPD, OneStepMPC, LQRSpeed, LQRPosition, LQRSpeedIntegral],
+                         ids=["pi", "position", "mpc", "lqr", "lqr-position", "lqr-integral"])
 def test_delay_margin_separates_the_stable_from_the_unstable_extra_delays(design):
     controller = design(MODELS[0])
     samples = loop_margins(controller).delay_margin / controller.model.sample_period
