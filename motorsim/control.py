@@ -24,8 +24,11 @@ python-control (``feedback``, ``forced_response``), delay included, using the qu
 Controllers
 -----------
 :class:`OneStepMPC` (``mpc``), :class:`PISpeed` (``pi``, optionally with feedforward),
-:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``), :class:`LQRSpeed` (``lqr``)
-and :class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
+:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``), :class:`LQRSpeed` (``lqr``),
+:class:`LQRSpeedIntegral` (``lqr-integral``, with the speed error's integral in the state) and
+:class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
+The pole-placement designs (``pi``, ``position``) keep ``min_phase_margin`` on the exact model,
+input delay included (:meth:`Controller.margins`), lengthening a time constant that cannot.
 :class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
 
 One concept, controller design, in one module although it is long: the model, the
@@ -951,8 +954,8 @@ class LQRSpeedIntegral(_LQR):
     The state of :class:`LQRSpeed` (the measured speed and the ``D + 1`` duties in the delay
     line) gains ``s_k``, the sum of the errors ``r_j - y_j`` before sample ``k``
     (``s_{k+1} = s_k + r_k - y_k``); the gain minimises
-    ``sum omega_k^2 + integral_weight theta_k^2 + duty_weight u_k^2``, where
-    ``theta_k = sample_period s_k`` is the error's integral, an angle in rad.  The step is
+    ``sum omega_k^2 + integral_weight theta_k^2 + duty_weight u_k^2``, where ``theta_k``,
+    ``sample_period`` times the sum in rad/s, is the error's integral, an angle in rad.  The step is
     :class:`LQRSpeed`'s with ``ki s_k`` added and the sum updated after it,
     ``u_k = kr r_{k+D+1} + ky y_k + ki s_k + sum_m ku_m u_{k-m} + k0 + kf sign(r_{k+D+1})``;
     the sum stops growing while the duty is at the limit and the error pushes further into it
