@@ -142,17 +142,17 @@ def test_control_design_lengthens_a_time_constant_the_delay_cannot_take_and_says
 
 def test_lqr_integral_from_a_saved_model_leaves_no_steady_error_on_a_bench_the_model_does_not_know(tmp_path, capsys):
     run, model = tmp_path / "run.csv", tmp_path / "model.json"
-    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "4", "--sine", "10,200,0", "--out", str(run)]) == 0
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "2", "--sine", "10,200,0", "--out", str(run)]) == 0
     assert main(["identify", str(run), "--method", "oe", "--save", str(model)]) == 0
     assert main(["control", "design", "--model", str(model), "--controller", "lqr-integral",
-                 "--integral-weight", "50"]) == 0
+                 "--integral-weight", "50", "--repetitions", "5"]) == 0
     out = capsys.readouterr().out
     assert "controller: lqr-integral duty_weight = 0.001, integral_weight = 50.0" in out and ", ki = " in out
     steady = {}
     for kind in ("lqr", "lqr-integral"):      # the bench: b 20 % higher and a bias the model lacks
         rec = tmp_path / f"{kind}.csv"
         assert main(["simulate", "--a", "25", "--b", "3.6", "--bias", "-20", "--model", str(model), "--controller",
-                     kind, "--reference", "constant:10", "--duration", "3", "--out", str(rec)]) == 0
+                     kind, "--reference", "constant:10", "--duration", "2", "--out", str(rec)]) == 0
         steady[kind] = float(np.mean(tracking_error(read_recording(rec))[-200:]))
     assert abs(steady["lqr-integral"]) < 0.01 and abs(steady["lqr"]) > 0.2      # measured: 0.0004 and 0.36 rad/s
     assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "lqr", "--integral-weight", "5"]) == 2
