@@ -39,11 +39,18 @@ ROBUST_KNOB = {"mpc": "duty_weight", "pi": "time_constant", "position": "time_co
 _KNOB_FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
 
-def _loop(controller: Controller, model: PlantModel | None = None) -> Any:
-    """``L = -Cy P`` with the controller's gains and the plant of ``model`` (default: its own)."""
-    _, cy = controller.laws()
+def _loop(controller: Controller, model: PlantModel | None = None, laws: Any = None) -> Any:
+    """``L = -Cy P`` with the controller's gains and the plant of ``model`` (default: its own).
+
+    ``laws``, the controller's ``(Cr, Cy)`` when already computed (they are the same for every plant).
+    """
+    _, cy = controller.laws() if laws is None else laws
     p = controller.plant() if model is None else _plant(controller, model)
     return -(p * cy)
+
+
+def _margins(loop: Any) -> Margins:
+    return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), float(loop.dt))
 
 
 def _plant(controller: Controller, model: PlantModel) -> Any:
@@ -80,8 +87,7 @@ def loop_margins(controller: Controller, model: PlantModel | None = None) -> Mar
     >>> m.stable, round(m.phase_margin)
     (True, 84)
     """
-    loop = _loop(controller, model)
-    return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), float(loop.dt))
+    return _margins(_loop(controller, model))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,9 +174,9 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
 
 
 def _draw_rms(controller: Controller, model: PlantModel, r_ahead: np.ndarray, ref: np.ndarray,
-              t: np.ndarray) -> float:
+              t: np.ndarray, laws: Any = None) -> float:
     import control
-    cr, cy = controller.laws()
+    cr, cy = controller.laws() if laws is None else laws
     p = _plant(controller, model)
     sensitivity = control.feedback(control.tf([1.0], [1.0], model.sample_period), p * cy, sign=1)
     y = np.asarray(control.forced_response(p * sensitivity * cr, timepts=t, inputs=r_ahead).outputs, dtype=float)
@@ -234,20 +240,22 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
     t = np.arange(n) * h
     r_ahead, ref = r[controller.preview:controller.preview + n], r[:n] / controller.reference_scale
+    laws = controller.laws()       # the gains are kept: one design (an LQR's is a Riccati solve) for every draw
     rms, margins, unstable, damped = [], [], 0, 0
     for m in draws:
-        mg = loop_margins(controller, m)
+        loop = _loop(controller, m, laws)
+        mg = _margins(loop)
         margins.append(mg)
         if not mg.stable:
             unstable += 1
             rms.append(math.inf)
             continue
-        damped += not _damping_ok(_loop(controller, m), h)
-        rms.append(_draw_rms(controller, m, r_ahead, ref, t))
+        damped += not _damping_ok(loop, h)
+        rms.append(_draw_rms(controller, m, r_ahead, ref, t, laws))
     rms_a = np.array(rms)
     gms = [g.gain_margin for g in margins]
     return Robustness(
-        point=loop_margins(controller), tracking_rms=_draw_rms(controller, model, r_ahead, ref, t),
+        point=_margins(_loop(controller, None, laws)), tracking_rms=_draw_rms(controller, model, r_ahead, ref, t, laws),
         worst_rms=float(rms_a.max()), percentile_rms=float(np.percentile(rms_a, percentile, method="higher")),
         worst_gain_margin=float(min(gms, key=lambda g: abs(math.log(g)) if g > 0 else math.inf)),
         worst_phase_margin=float(min(g.phase_margin for g in margins)),
