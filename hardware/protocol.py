@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 #: Version of this protocol; the host refuses a device that reports another.
-PROTOCOL_VERSION = 5
+PROTOCOL_VERSION = 6
 #: Samples between a SAMPLE's duty and the tick that applies it: the device latches the duty it
 #: computes at tick k (from the waveform, or from the counts read at k) and applies it exactly at
 #: tick k + 1, in open and closed loop.  Recordings say so (``input_delay_samples``).
@@ -147,6 +147,7 @@ class ControllerKind(enum.IntEnum):
     FEEDFORWARD = 4
     LQR = 5
     LQR_POSITION = 6
+    LQR_INTEGRAL = 7
 
 
 class ReferenceKind(enum.IntEnum):
@@ -162,7 +163,7 @@ class ReferenceKind(enum.IntEnum):
 MAX_GAINS = 14
 _KIND_NAMES = {ControllerKind.MPC: "mpc", ControllerKind.PI: "pi", ControllerKind.POSITION: "position",
                ControllerKind.FEEDFORWARD: "feedforward", ControllerKind.LQR: "lqr",
-               ControllerKind.LQR_POSITION: "lqr-position"}
+               ControllerKind.LQR_POSITION: "lqr-position", ControllerKind.LQR_INTEGRAL: "lqr-integral"}
 _REFERENCE_NAMES = {ReferenceKind.CONSTANT: "constant", ReferenceKind.STEP: "step",
                     ReferenceKind.MULTISINE: "multisine", ReferenceKind.TRAPEZOID: "trapezoid"}
 
@@ -893,7 +894,7 @@ def reference_problems(words: ReferenceWords) -> list[str]:
 
 
 def controller_name(kind: int) -> str:
-    """The :data:`motorsim.control.CONTROLLERS` name of CONTROL ``controller`` ``kind`` (1...6)."""
+    """The :data:`motorsim.control.CONTROLLERS` name of CONTROL ``controller`` ``kind`` (1...7)."""
     return _KIND_NAMES[ControllerKind(kind)]
 
 

@@ -24,8 +24,11 @@ python-control (``feedback``, ``forced_response``), delay included, using the qu
 Controllers
 -----------
 :class:`OneStepMPC` (``mpc``), :class:`PISpeed` (``pi``, optionally with feedforward),
-:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``), :class:`LQRSpeed` (``lqr``)
-and :class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
+:class:`PositionPD` (``position``), :class:`Feedforward` (``feedforward``), :class:`LQRSpeed` (``lqr``),
+:class:`LQRSpeedIntegral` (``lqr-integral``, with the speed error's integral in the state) and
+:class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
+The pole-placement designs (``pi``, ``position``) keep ``min_phase_margin`` on the exact model,
+input delay included (:meth:`Controller.margins`), lengthening a time constant that cannot.
 :class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
 
 One concept, controller design, in one module although it is long: the model, the
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
 import numpy as np
@@ -52,14 +56,16 @@ from .fixed_point import (
     quantise_gain,
     reference_values,
 )
+from .margins import Margins, discrete_margins
 from .plant import Motor, zoh_matrices
 
 if TYPE_CHECKING:
     import control
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
-           "Feedforward", "LQRSpeed", "LQRPosition", "Prediction", "ClosedLoopExperiment", "CONTROLLERS",
-           "design_controller", "tracking_error", "feedforward_gains", "settings_from"]
+           "Feedforward", "LQRSpeed", "LQRSpeedIntegral", "LQRPosition", "Prediction", "ClosedLoopExperiment",
+           "CONTROLLERS", "design_controller", "tracking_error", "feedforward_gains", "settings_from",
+           "DesignLimitWarning", "MIN_PHASE_MARGIN", "INTEGRAL_WEIGHT"]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -452,6 +458,15 @@ class Controller:
         t_u = sensitivity * cr
         return p * t_u, t_u
 
+    def margins(self) -> Margins:
+        """Gain, phase and delay margins of the loop broken at the duty, ``L = -Cy P``, on the model (delay included).
+
+        :func:`motorsim.robustness.loop_margins` gives the same on another plant.
+        """
+        _, cy = self.laws()
+        loop = -(self.plant() * cy)
+        return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), self.model.sample_period)
+
     def is_stable(self) -> bool:
         """Whether every closed-loop pole lies inside the unit circle."""
         import control
@@ -611,15 +626,87 @@ def feedforward_gains(model: PlantModel) -> dict[str, int]:
             "k0": quantise_gain(-model.bias / model.b), "kf": quantise_gain(model.friction / model.b)}
 
 
+#: The least phase margin, in degrees, a pole-placement design (``pi``, ``position``) keeps by default.
+MIN_PHASE_MARGIN = 60.0
+
+
+class DesignLimitWarning(UserWarning):
+    """A controller was designed slower than asked, so that its loop keeps the phase margin required."""
+
+
 @dataclasses.dataclass(frozen=True)
 class _PolePlacement(Controller):
-    """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05)."""
+    """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05).
+
+    The poles are placed on a model without the input delay; the loop on the exact model, delay
+    included, must keep ``min_phase_margin`` degrees (keyword only, default :data:`MIN_PHASE_MARGIN`,
+    0 turns the check off).  A time constant too short for it is lengthened to the shortest one
+    that keeps it (rounded up to 3 significant digits), with a :class:`DesignLimitWarning` that
+    names both; ``time_constant`` is then the one designed with.
+    """
 
     time_constant: float = 0.05
+    min_phase_margin: float = dataclasses.field(default=MIN_PHASE_MARGIN, kw_only=True)
 
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "time_constant", check_real("time_constant", self.time_constant, positive=True))
+        margin = check_real("min_phase_margin", self.min_phase_margin)
+        if not 0.0 <= margin < 180.0:
+            raise ParameterError(f"min_phase_margin must be in 0...180 deg, got {margin!r}")
+        object.__setattr__(self, "min_phase_margin", margin)
+        if margin == 0.0:
+            return
+        achieved = self.margins()
+        if self._keeps_margin(achieved):
+            return
+        asked = self.time_constant
+        fastest = self._fastest_time_constant()
+        what = (f"leaves a phase margin of {achieved.phase_margin:.3g} deg" if achieved.stable
+                else "gives an unstable loop")
+        delay = self.model.input_delay
+        warnings.warn(f"{self.kind} time_constant {asked!r} s {what} on the model (input delay {delay} "
+                      f"sample{'' if delay == 1 else 's'} at {self.model.sample_period!r} s); designed with "
+                      f"time_constant {fastest!r} s, the shortest that keeps min_phase_margin {margin:g} deg "
+                      "(min_phase_margin 0 keeps the time constant asked for)", DesignLimitWarning, stacklevel=3)
+        object.__setattr__(self, "time_constant", fastest)
+
+    def _keeps_margin(self, margins: Margins) -> bool:
+        return margins.stable and margins.phase_margin >= self.min_phase_margin
+
+    def _keeps_margin_at(self, time_constant: float) -> bool | None:
+        """Whether the design at ``time_constant`` keeps the margin (None: the fixed point cannot hold it)."""
+        try:
+            candidate = dataclasses.replace(self, time_constant=time_constant, min_phase_margin=0.0)
+            return self._keeps_margin(candidate.margins())
+        except ParameterError:
+            return None
+
+    def _fastest_time_constant(self) -> float:
+        """The shortest time constant above ``time_constant`` that keeps ``min_phase_margin``, 3 digits, rounded up."""
+        failing = passing = self.time_constant
+        while True:
+            passing *= 1.25
+            ok = self._keeps_margin_at(passing)
+            if ok:
+                break
+            if ok is None or passing > 1e4 * self.time_constant:
+                raise ParameterError(f"min_phase_margin {self.min_phase_margin:g} deg cannot be kept by a {self.kind} "
+                                     f"design with time_constant >= {self.time_constant!r} s on this model; "
+                                     "lower min_phase_margin")
+            failing = passing
+        while passing / failing > 1.0 + 1e-4:
+            middle = math.sqrt(failing * passing)
+            if self._keeps_margin_at(middle):
+                passing = middle
+            else:
+                failing = middle
+        digits = 2 - math.floor(math.log10(passing))
+        step = 10.0 ** -digits
+        fastest = round(math.ceil(round(passing / step, 6)) * step, digits)
+        while not self._keeps_margin_at(fastest):    # the search's tolerance, not the rounding, decided
+            fastest = round(fastest + step, digits)
+        return fastest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -632,20 +719,39 @@ class PISpeed(_PolePlacement):
     is at the limit and the error pushes further into it (conditional integration).
     :meth:`predict` closes the loop on the full model (differenced counts, delay).
 
+    The model the poles are placed on has no input delay; the loop on the full one must keep
+    ``min_phase_margin`` degrees, or the time constant is lengthened until it does (a
+    :class:`DesignLimitWarning` names both time constants).  On the article's motor at 5 ms the
+    shortest time constants that keep 60 degrees are 16.7, 26 and 32.5 ms for an input delay of
+    0, 1 and 2 samples (45 degrees: 10.7, 19.4 and 25.4 ms); a step then overshoots by about 6 %
+    (about 27 % at 45 degrees), where 10 ms with one sample of delay leaves 6 degrees and 107 %.
+
     Parameters
     ----------
     model : PlantModel
         The motor model.
     time_constant : float
-        Closed-loop time constant in s, > 0 (default 0.05).
+        Closed-loop time constant in s, > 0 (default 0.05); the one designed with, when the
+        phase margin asked for needs a longer one.
     feedforward : bool
         Add the model's feedforward (:class:`Feedforward`) to the PI output (default False).
+    min_phase_margin : float
+        Keyword only: the least phase margin in degrees of the loop on the model, input delay
+        included, 0...180 (default :data:`MIN_PHASE_MARGIN`, 60; 0 keeps ``time_constant`` as given).
 
     Examples
     --------
     >>> pi = PISpeed(PlantModel(25.0, 3.0, 0.005, 16667), time_constant=0.05)
     >>> pi.gains()
     {'kp': 1397, 'ki': 198}
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     fast = PISpeed(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1), time_constant=0.01)
+    >>> fast.time_constant, round(fast.margins().phase_margin, 1)
+    (0.026, 60.1)
+    >>> print(caught[0].message)    # doctest: +ELLIPSIS
+    pi time_constant 0.01 s leaves a phase margin of 6.05 deg on the model (input delay 1 sample at 0.005 s); ...
     """
 
     feedforward: bool = False
@@ -685,16 +791,22 @@ class PositionPD(_PolePlacement):
     The gains place both poles of the continuous model ``theta'' + a theta' = b u`` at
     ``-1/time_constant``: ``kp = 1 / (b time_constant^2)`` per rad, ``kd = (2/time_constant - a) / b``
     per rad/s (0 when negative, or with ``derivative=False``); :meth:`predict` closes the
-    loop on the exact sampled model.
+    loop on the exact sampled model.  As for :class:`PISpeed`, the loop on the exact model,
+    input delay included, keeps ``min_phase_margin`` degrees, the time constant lengthened
+    until it does.
 
     Parameters
     ----------
     model : PlantModel
         The motor model.
     time_constant : float
-        Closed-loop time constant in s, > 0 (default 0.05).
+        Closed-loop time constant in s, > 0 (default 0.05); the one designed with, when the
+        phase margin asked for needs a longer one.
     derivative : bool
         Use the speed term (PD, default) or not (P).
+    min_phase_margin : float
+        Keyword only: the least phase margin in degrees, 0...180 (default :data:`MIN_PHASE_MARGIN`,
+        60; 0 keeps ``time_constant`` as given).
 
     Examples
     --------
@@ -806,19 +918,114 @@ class LQRSpeed(_LQR):
         return _lqr(a, b, q, self.duty_weight * self.model.speed_scale ** 2)
 
     def gains(self) -> dict[str, int]:
-        m = self.model
         k = self.state_gain()
-        ky = quantise_gain(-k[0])
-        ku = [quantise_gain(-x) for x in k[1:]]
-        e, g, _, _ = m.speed_coefficients()
-        hold = 1.0 - sum(gain_value(x) for x in ku)     # what is left of u at steady state
-        out = {"kr": quantise_gain(((1.0 - e) / g * hold - gain_value(ky)) * SPEED_REFERENCE_LSB), "ky": ky,
-               "k0": quantise_gain(-m.bias / m.b * hold), "kf": quantise_gain(m.friction / m.b * hold)}
-        out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
-        return out
+        return _speed_lqr_gains(self.model, quantise_gain(-k[0]), [quantise_gain(-x) for x in k[1:]])
 
     def laws(self):
         return _delay_line_laws(self.gains(), self.model)
+
+
+def _speed_lqr_gains(model: PlantModel, ky: int, ku: list[int], ki: int | None = None) -> dict[str, int]:
+    """The speed LQR's gains in wire order: ``kr`` and ``k0``, ``kf`` from the quantised feedback gains.
+
+    At a steady speed ``r`` (counts per sample) the duty is ``u = (1 - e) r / g - o`` (``o`` the
+    model's drive offset) and every past duty equals it, so ``kr r + ky r + k0 + kf = u (1 - sum ku)``
+    makes the steady output the reference, and an integral (``ki``) stays at 0 on the model.
+    """
+    e, g, _, _ = model.speed_coefficients()
+    hold = 1.0 - sum(gain_value(x) for x in ku)     # what is left of u at steady state
+    out = {"kr": quantise_gain(((1.0 - e) / g * hold - gain_value(ky)) * SPEED_REFERENCE_LSB), "ky": ky}
+    if ki is not None:
+        out["ki"] = ki
+    out["k0"] = quantise_gain(-model.bias / model.b * hold)
+    out["kf"] = quantise_gain(model.friction / model.b * hold)
+    out.update({f"ku{j}": x for j, x in enumerate(ku, 1)})
+    return out
+
+
+#: Default weight of the squared angle error (the integral of the speed error) of :class:`LQRSpeedIntegral`, 1/s^2.
+INTEGRAL_WEIGHT = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class LQRSpeedIntegral(_LQR):
+    """Speed LQR with integral action: the integral of the speed error in the state.
+
+    The state of :class:`LQRSpeed` (the measured speed and the ``D + 1`` duties in the delay
+    line) gains ``s_k``, the sum of the errors ``r_j - y_j`` before sample ``k``
+    (``s_{k+1} = s_k + r_k - y_k``); the gain minimises
+    ``sum omega_k^2 + integral_weight theta_k^2 + duty_weight u_k^2``, where ``theta_k``,
+    ``sample_period`` times the sum in rad/s, is the error's integral, an angle in rad.  The step is
+    :class:`LQRSpeed`'s with ``ki s_k`` added and the sum updated after it,
+    ``u_k = kr r_{k+D+1} + ky y_k + ki s_k + sum_m ku_m u_{k-m} + k0 + kf sign(r_{k+D+1})``;
+    the sum stops growing while the duty is at the limit and the error pushes further into it
+    (the PI's conditional integration).  ``kr``, ``k0`` and ``kf`` are :class:`LQRSpeed`'s for
+    the new feedback gains, so on the model the sum stays at 0; a bias, friction or gain the
+    model lacks is what it integrates, and a constant reference is tracked with no steady error.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The motor model.
+    duty_weight : float
+        Weight of ``u^2`` in (rad/s)^2 per duty^2, > 0 (default 1e-3).
+    integral_weight : float
+        Weight of ``theta^2`` in (rad/s)^2 per rad^2 (1/s^2), > 0 (default
+        :data:`INTEGRAL_WEIGHT`, 100: an angle error of 0.1 rad costs as much as a speed error
+        of 1 rad/s).
+
+    Examples
+    --------
+    >>> lqr = LQRSpeedIntegral(PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1))
+    >>> list(lqr.gains())
+    ['kr', 'ky', 'ki', 'k0', 'kf', 'ku1', 'ku2']
+    >>> lqr.is_stable()
+    True
+    """
+
+    integral_weight: float = INTEGRAL_WEIGHT
+    kind: ClassVar[str] = "lqr-integral"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "integral_weight", check_real("integral_weight", self.integral_weight, positive=True))
+
+    def state_gain(self) -> np.ndarray:
+        """``K`` of ``u = -K x``, ``x = [y, u_{k-1}, ..., u_{k-D-1}, s]`` in counts per sample, duty, counts."""
+        a, b = _integral_matrices(self.model)
+        q = np.zeros_like(a)
+        q[0, 0] = 1.0
+        q[-1, -1] = self.integral_weight * self.model.sample_period ** 2
+        return _lqr(a, b, q, self.duty_weight * self.model.speed_scale ** 2)
+
+    def gains(self) -> dict[str, int]:
+        k = self.state_gain()
+        return _speed_lqr_gains(self.model, quantise_gain(-k[0]), [quantise_gain(-x) for x in k[1:-1]],
+                                ki=quantise_gain(-k[-1] * SPEED_REFERENCE_LSB))
+
+    def laws(self):
+        import control
+        g, m = self.gains(), self.model
+        kr, ky, ki = (gain_value(g[name]) for name in ("kr", "ky", "ki"))
+        n = m.input_delay + 1                       # the past duties weighed, and the preview
+        ku = [gain_value(g[f"ku{j}"]) for j in range(1, n + 1)]
+        # u (1 - sum_m ku_m z^-m) = kr r + ky y + ki s with s = (z^-n r - 16 y) / (z - 1); one
+        # denominator, (z - 1)(z^n - sum_m ku_m z^(n-m)), as the step has one state per term
+        den = np.polymul([1.0, -1.0], [1.0, *(-x for x in ku)])
+        cr = np.polyadd(np.polymul([kr, -kr], np.r_[1.0, np.zeros(n)]), [ki])
+        cy = np.polymul([ky, -ky - (1 << SPEED_REFERENCE_BITS) * ki], np.r_[1.0, np.zeros(n)])
+        return control.tf(cr, den, m.sample_period), control.tf(cy, den, m.sample_period)
+
+
+def _integral_matrices(model: PlantModel) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` of :func:`_delay_line_matrices` with the error's sum last: ``s_{k+1} = s_k - y_k`` (r = 0)."""
+    a_speed, b_speed = _delay_line_matrices(model)
+    n = a_speed.shape[0] + 1
+    a = np.zeros((n, n))
+    a[:-1, :-1] = a_speed
+    a[-1, 0] = -1.0
+    a[-1, -1] = 1.0
+    return a, np.vstack([b_speed, [[0.0]]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -889,7 +1096,7 @@ def _delay_line_laws(gains: Mapping[str, int], model: PlantModel, *, position: b
 
 #: Controllers by ``kind`` (``motorid control design --controller``).
 CONTROLLERS: dict[str, type[Controller]] = {c.kind: c for c in (OneStepMPC, PISpeed, PositionPD, Feedforward,
-                                                                 LQRSpeed, LQRPosition)}
+                                                                 LQRSpeed, LQRSpeedIntegral, LQRPosition)}
 
 
 def design_controller(kind: str, model: PlantModel, **settings: Any) -> Controller:

@@ -111,7 +111,7 @@ class ControlLoop:
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr`` or ``lqr-position``.
+        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr``, ``lqr-integral`` or ``lqr-position``.
     gains : mapping of str to int
         The Q16 gains by name (:meth:`Controller.gains`, or :func:`gains_from_wire`).
     preview : int
@@ -162,6 +162,17 @@ class ControlLoop:
     #: The speed LQR's step is the MPC's linear form (gains ``kr, ky, k0, kf, ku1 ...``).
     _lqr = _mpc
 
+    def _lqr_integral(self, k: int, counts: int, y: int) -> int:
+        g, r = self.gains, self.reference[k + self.preview]
+        acc = g["kr"] * r + g["ky"] * y + g["ki"] * self.integral + g["k0"] + g["kf"] * _sign(r)
+        for gain, u in zip(self.ku, self.history):
+            acc += gain * u
+        err = self.reference[k] - (y << SPEED_REFERENCE_BITS)
+        raw = (acc + _HALF) >> GAIN_BITS
+        if not ((raw > self.limit and err > 0) or (raw < -self.limit and err < 0)):
+            self.integral += err  # anti-windup as the PI's; the sum enters the next sample's duty
+        return self._clip(acc)
+
     def _lqr_position(self, k: int, counts: int, y: int) -> int:
         g = self.gains
         acc = g["kp"] * (self.reference[k + self.preview] - (counts - self.origin)) + g["ky"] * y + g["k0"]
@@ -199,13 +210,15 @@ def gain_value(x: int) -> float:
 
 
 #: Names of each controller's gains in the order a device receives them (protocol v2 CONTROL);
-#: ``mpc``, ``lqr`` and ``lqr-position`` then have ``ku1 ... ku(D+1)`` (:data:`DELAY_LINE_KINDS`), and
-#: ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
+#: ``mpc``, ``lqr``, ``lqr-integral`` and ``lqr-position`` then have ``ku1 ... ku(D+1)``
+#: (:data:`DELAY_LINE_KINDS`), and ``pi`` may add the feedforward's ``kn, kc, k0, kf``.
 GAIN_ORDER: dict[str, tuple[str, ...]] = {"mpc": ("kr", "ky", "k0", "kf"), "pi": ("kp", "ki"),
                                           "position": ("kp", "kd"), "feedforward": ("kn", "kc", "k0", "kf"),
-                                          "lqr": ("kr", "ky", "k0", "kf"), "lqr-position": ("kp", "ky", "k0")}
+                                          "lqr": ("kr", "ky", "k0", "kf"),
+                                          "lqr-integral": ("kr", "ky", "ki", "k0", "kf"),
+                                          "lqr-position": ("kp", "ky", "k0")}
 #: Controllers whose gains end in one ``ku`` per past duty they weigh (at least one).
-DELAY_LINE_KINDS = ("mpc", "lqr", "lqr-position")
+DELAY_LINE_KINDS = ("mpc", "lqr", "lqr-integral", "lqr-position")
 
 
 def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
@@ -214,7 +227,7 @@ def gains_from_wire(kind: str, values: Sequence[int]) -> dict[str, int]:
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr`` or ``lqr-position``.
+        ``mpc``, ``pi``, ``position``, ``feedforward``, ``lqr``, ``lqr-integral`` or ``lqr-position``.
     values : sequence of int
         The gains as sent.
 

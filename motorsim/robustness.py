@@ -2,9 +2,9 @@
 
 :func:`loop_margins` gives the gain, phase and delay margins of a controller's feedback loop
 ``L = -Cy P`` (the loop broken at the duty; :meth:`~motorsim.control.Controller.laws` gives
-``Cy``, :meth:`~motorsim.control.Controller.plant` gives ``P``), found on a dense grid of the
-loop's frequency response and refined by root finding, independently of python-control (a test
-checks them against ``control.stability_margins`` on the same loop).
+``Cy``, :meth:`~motorsim.control.Controller.plant` gives ``P``), computed by
+:func:`motorsim.margins.discrete_margins` independently of python-control (a test checks them
+against ``control.stability_margins`` on the same loop).
 
 :func:`analyse_robustness` keeps the controller's gains fixed and draws plants ``(a, b)`` from a
 normal distribution with the estimate's covariance (a seeded Monte Carlo: ``rng`` is a
@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
-from .control import Controller, PlantModel, Reference, design_controller
+from .control import Controller, DesignLimitWarning, PlantModel, Reference, design_controller
+from .margins import Margins, discrete_margins
 
 __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robust_design", "draw_models",
            "BADLY_DAMPED", "ROBUST_KNOB"]
@@ -33,48 +35,22 @@ __all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robus
 BADLY_DAMPED = 0.2
 #: The knob :func:`robust_design` tunes, per controller.
 ROBUST_KNOB = {"mpc": "duty_weight", "pi": "time_constant", "position": "time_constant", "lqr": "duty_weight",
-               "lqr-position": "duty_weight"}
+               "lqr-integral": "duty_weight", "lqr-position": "duty_weight"}
 _KNOB_FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
 
-@dataclasses.dataclass(frozen=True)
-class Margins:
-    """Stability margins of a feedback loop.
+def _loop(controller: Controller, model: PlantModel | None = None, laws: Any = None) -> Any:
+    """``L = -Cy P`` with the controller's gains and the plant of ``model`` (default: its own).
 
-    Attributes
-    ----------
-    gain_margin : float
-        Factor by which the loop gain can grow (or shrink, when below 1) before instability;
-        ``inf`` when the phase never crosses -180 degrees.
-    phase_margin : float
-        Degrees; ``inf`` when the loop gain never crosses 1.
-    delay_margin : float
-        Extra input delay in s the loop tolerates (phase margin / crossover frequency).
-    crossover : float
-        Gain crossover frequency in rad/s (nan without one).
-    stable : bool
-        Whether the closed loop's poles lie inside the unit circle.
+    ``laws``, the controller's ``(Cr, Cy)`` when already computed (they are the same for every plant).
     """
-
-    gain_margin: float
-    phase_margin: float
-    delay_margin: float
-    crossover: float
-    stable: bool
-
-    def describe(self) -> str:
-        """One line: the margins in engineering units."""
-        gm = "inf" if math.isinf(self.gain_margin) else f"{20 * math.log10(self.gain_margin):.3g} dB"
-        pm = "inf" if math.isinf(self.phase_margin) else f"{self.phase_margin:.3g} deg"
-        dm = "inf" if math.isinf(self.delay_margin) else f"{self.delay_margin * 1e3:.3g} ms"
-        return f"gain margin {gm}, phase margin {pm}, delay margin {dm}" + ("" if self.stable else " (UNSTABLE)")
-
-
-def _loop(controller: Controller, model: PlantModel | None = None) -> Any:
-    """``L = -Cy P`` with the controller's gains and the plant of ``model`` (default: its own)."""
-    _, cy = controller.laws()
+    _, cy = controller.laws() if laws is None else laws
     p = controller.plant() if model is None else _plant(controller, model)
     return -(p * cy)
+
+
+def _margins(loop: Any) -> Margins:
+    return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), float(loop.dt))
 
 
 def _plant(controller: Controller, model: PlantModel) -> Any:
@@ -111,40 +87,7 @@ def loop_margins(controller: Controller, model: PlantModel | None = None) -> Mar
     >>> m.stable, round(m.phase_margin)
     (True, 84)
     """
-    loop = _loop(controller, model)
-    h = float(loop.dt)
-    stable = bool(np.all(np.abs(_closed_loop_poles(loop)) < 1.0 - 1e-12))
-    num, den = np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0])
-    if not np.any(num):
-        return Margins(math.inf, math.inf, math.inf, math.nan, stable)
-
-    def response(w: np.ndarray | float) -> np.ndarray:
-        z = np.exp(1j * np.asarray(w) * h)
-        return np.polyval(num, z) / np.polyval(den, z)
-
-    nyquist = math.pi / h
-    w = np.unique(np.r_[np.geomspace(nyquist * 1e-6, nyquist, 20000), np.linspace(0, nyquist, 20000)[1:]])
-    l_w = response(w)
-    crossings = _crossings(lambda x: np.abs(response(x)) - 1.0, w, np.abs(l_w) - 1.0)
-    phase = [math.degrees(math.atan2(response(x).imag, response(x).real)) for x in crossings]
-    pms = [180.0 + p if p <= 0 else p - 180.0 for p in phase]   # distance from -180 degrees, signed
-    phase_crossings = [x for x in _crossings(lambda x: response(x).imag, w, l_w.imag) if response(x).real < 0]
-    gms = [1.0 / abs(response(x)) for x in phase_crossings]
-    if pms:
-        i = int(np.argmin(np.abs(pms)))
-        pm, wc = pms[i], crossings[i]
-        dm = math.radians(pm) / wc if pm > 0 else 0.0
-    else:
-        pm, wc, dm = math.inf, math.nan, math.inf
-    gm = min(gms, key=lambda g: abs(math.log(g))) if gms else math.inf
-    return Margins(float(gm), float(pm), float(dm), float(wc), stable)
-
-
-def _crossings(f, w: np.ndarray, values: np.ndarray) -> list[float]:
-    """Zeros of ``f`` between grid points where ``values`` changes sign, refined by ``brentq``."""
-    from scipy.optimize import brentq
-    idx = np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)
-    return [float(brentq(f, w[i], w[i + 1], xtol=1e-12)) for i in idx]
+    return _margins(_loop(controller, model))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -231,9 +174,9 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
 
 
 def _draw_rms(controller: Controller, model: PlantModel, r_ahead: np.ndarray, ref: np.ndarray,
-              t: np.ndarray) -> float:
+              t: np.ndarray, laws: Any = None) -> float:
     import control
-    cr, cy = controller.laws()
+    cr, cy = controller.laws() if laws is None else laws
     p = _plant(controller, model)
     sensitivity = control.feedback(control.tf([1.0], [1.0], model.sample_period), p * cy, sign=1)
     y = np.asarray(control.forced_response(p * sensitivity * cr, timepts=t, inputs=r_ahead).outputs, dtype=float)
@@ -297,20 +240,22 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
     t = np.arange(n) * h
     r_ahead, ref = r[controller.preview:controller.preview + n], r[:n] / controller.reference_scale
+    laws = controller.laws()       # the gains are kept: one design (an LQR's is a Riccati solve) for every draw
     rms, margins, unstable, damped = [], [], 0, 0
     for m in draws:
-        mg = loop_margins(controller, m)
+        loop = _loop(controller, m, laws)
+        mg = _margins(loop)
         margins.append(mg)
         if not mg.stable:
             unstable += 1
             rms.append(math.inf)
             continue
-        damped += not _damping_ok(_loop(controller, m), h)
-        rms.append(_draw_rms(controller, m, r_ahead, ref, t))
+        damped += not _damping_ok(loop, h)
+        rms.append(_draw_rms(controller, m, r_ahead, ref, t, laws))
     rms_a = np.array(rms)
     gms = [g.gain_margin for g in margins]
     return Robustness(
-        point=loop_margins(controller), tracking_rms=_draw_rms(controller, model, r_ahead, ref, t),
+        point=_margins(_loop(controller, None, laws)), tracking_rms=_draw_rms(controller, model, r_ahead, ref, t, laws),
         worst_rms=float(rms_a.max()), percentile_rms=float(np.percentile(rms_a, percentile, method="higher")),
         worst_gain_margin=float(min(gms, key=lambda g: abs(math.log(g)) if g > 0 else math.inf)),
         worst_phase_margin=float(min(g.phase_margin for g in margins)),
@@ -325,15 +270,17 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
                   n_draws: int = 200, rng: np.random.Generator, **settings: Any) -> tuple[Controller, Robustness]:
     """The controller whose knob gives the best worst-case tracking RMS over plants drawn from the covariance.
 
-    The knob (:data:`ROBUST_KNOB`: ``duty_weight`` of ``mpc``, ``lqr`` and ``lqr-position``,
+    The knob (:data:`ROBUST_KNOB`: ``duty_weight`` of ``mpc`` and the LQRs,
     ``time_constant`` of ``pi`` and ``position``) is tried at factors 0.25 ... 4 of its given or
     default value; every candidate is judged on the same draws: the fewest unstable draws, then
-    the fewest badly damped ones, then the smallest worst-case tracking RMS wins.
+    the fewest badly damped ones, then the smallest worst-case tracking RMS wins.  A time constant
+    shorter than the design's ``min_phase_margin`` allows is tried once, at that limit, without a
+    warning.
 
     Parameters
     ----------
     kind : str
-        ``mpc``, ``pi``, ``position``, ``lqr`` or ``lqr-position``.
+        ``mpc``, ``pi``, ``position``, ``lqr``, ``lqr-integral`` or ``lqr-position``.
     model : PlantModel
         The point estimate.
     covariance : array_like, shape (2, 2)
@@ -362,11 +309,18 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
         start = getattr(design_controller(kind, model, **settings), knob)
     draws = draw_models(model, covariance, n_draws, rng)
     best: tuple[tuple[float, float, float], Controller, Robustness] | None = None
+    tried = set()
     for factor in _KNOB_FACTORS:
         try:
-            candidate = design_controller(kind, model, **settings, **{knob: start * factor})
+            with warnings.catch_warnings():
+                # a time constant below what the phase margin allows is designed at that limit: one candidate
+                warnings.simplefilter("ignore", DesignLimitWarning)
+                candidate = design_controller(kind, model, **settings, **{knob: start * factor})
         except ParameterError:
             continue
+        if getattr(candidate, knob) in tried:
+            continue
+        tried.add(getattr(candidate, knob))
         result = analyse_robustness(candidate, covariance, reference, duration, rng=rng, models=draws)
         score = (result.unstable, result.badly_damped, result.worst_rms)
         if best is None or score < best[0]:

@@ -169,6 +169,19 @@ static void integrate(harness_t *s) {
     s->position += angle * to_counts;
 }
 
+/* Whether the firmware is between the two writes of a stack-pointer change: GCC moves SP by
+   "out SPH; (sei or out SREG;) out SPL", so until SPL is written SP reads as the new high byte
+   with the old low byte, up to 255 bytes deeper than the stack ever is when the change crosses
+   a 256-byte boundary.  Pending when an "out 0x3d (SPL), r" is at the instruction about to run
+   or among the two after it. */
+static int stack_pointer_half_written(const avr_t *avr) {
+    for (avr_flashaddr_t a = avr->pc; a <= avr->pc + 4 && a + 1 <= avr->flashend; a += 2) {
+        uint16_t op = avr->flash[a] | (avr->flash[a + 1] << 8);
+        if ((op & 0xF800) == 0xB800 && (((op >> 5) & 0x30) | (op & 0x0F)) == 0x3D) return 1;
+    }
+    return 0;
+}
+
 static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *param) {
     harness_t *s = param;
     (void)avr;
@@ -183,7 +196,7 @@ static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *pa
        pull-ups (or writing another PORTD pin) overrides what the encoder drives: put the
        encoder's levels back. */
     uint16_t sp = s->avr->data[REG_SPL] | (s->avr->data[REG_SPH] << 8);
-    if (sp < s->min_sp && sp > 0x100) s->min_sp = sp;
+    if (sp < s->min_sp && sp > 0x100 && !stack_pointer_half_written(s->avr)) s->min_sp = sp;
     uint8_t pind = s->avr->data[REG_PIND];
     if (((pind >> ENC_A_PIN) & 1) != s->last_a) avr_raise_irq(s->enc_a, s->last_a);
     if (((pind >> ENC_B_PIN) & 1) != s->last_b) avr_raise_irq(s->enc_b, s->last_b);

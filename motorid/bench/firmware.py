@@ -143,8 +143,8 @@ def _overruns(link: DeviceLink, period_us: int, controller: str | None, duration
     return run.end.tick_overruns
 
 
-def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "feedforward", "lqr", "lqr-position"),
-                    duration: float = 0.2, baudrate: int = 500000) -> list[dict]:
+def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "feedforward", "lqr", "lqr-integral",
+                                 "lqr-position"), duration: float = 0.2, baudrate: int = 500000) -> list[dict]:
     """The shortest sample period (µs, to 1 µs) with zero late ticks, open loop and per controller.
 
     In closed loop the sample interrupt runs the controller's step instead of the WAVE's
@@ -156,7 +156,8 @@ def controller_cost(controllers=("mpc", "pi", "pi+feedforward", "position", "fee
     Parameters
     ----------
     controllers : sequence of str
-        ``mpc``, ``pi``, ``pi+feedforward``, ``position``, ``feedforward``, ``lqr``, ``lqr-position``.
+        ``mpc``, ``pi``, ``pi+feedforward``, ``position``, ``feedforward``, ``lqr``, ``lqr-integral``,
+        ``lqr-position``.
     duration : float
         Emulated seconds per trial run.
     baudrate : int

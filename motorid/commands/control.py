@@ -1,8 +1,8 @@
 """``motorid control design``: a controller from a model, its gains and predicted response; the closed-loop runs.
 
-The controller flags (``--controller``, ``--duty-weight``, ``--time-constant``, ``--feedforward``,
-``--derivative``, ``--reference``) are shared by ``motorid control design`` and
-``motorid simulate``; the design model comes from ``--a/--b`` (with ``--friction``,
+The controller flags (``--controller``, ``--duty-weight``, ``--integral-weight``, ``--time-constant``,
+``--min-phase-margin``, ``--feedforward``, ``--derivative``, ``--reference``) are shared by
+``motorid control design`` and ``motorid simulate``; the design model comes from ``--a/--b`` (with ``--friction``,
 ``--bias``, ``--input-delay``) or from a saved estimate (``--model FILE``).
 :func:`compare_designs` is the closed-loop part of ``motorid demo``: the same controller
 designed from several estimates, run on one simulated bench.
@@ -19,6 +19,8 @@ import numpy as np
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.control import (
     CONTROLLERS,
+    INTEGRAL_WEIGHT,
+    MIN_PHASE_MARGIN,
     ClosedLoopExperiment,
     Controller,
     PlantModel,
@@ -47,12 +49,21 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
     g.add_argument("--controller", choices=list(CONTROLLERS), required=required,
                    help="mpc (one-step model predictive), pi (speed), position (P/PD on the counts), "
                         "feedforward (speed, from the model alone), lqr (speed LQR, input delay in the state), "
-                        "lqr-position (position LQR)")
+                        "lqr-integral (speed LQR with the integral of the speed error in the state: no steady "
+                        "error under a bias, friction or gain the model lacks), lqr-position (position LQR)")
     g.add_argument("--duty-weight", dest="duty_weight", type=float, default=None, metavar="LAMBDA",
-                   help="mpc, lqr: weight lambda of u^2 in (rad/s)^2 per duty^2 (default 1e-4, lqr 1e-3); "
+                   help="mpc, lqr, lqr-integral: weight lambda of u^2 in (rad/s)^2 per duty^2 (default 1e-4, "
+                        "the LQRs 1e-3); "
                         "lqr-position: in rad^2 per duty^2 (default 1e-6)")
     g.add_argument("--time-constant", dest="time_constant", type=float, default=None, metavar="S",
                    help="pi, position: closed-loop time constant in s (default 0.05)")
+    g.add_argument("--integral-weight", dest="integral_weight", type=float, default=None, metavar="W",
+                   help="lqr-integral: weight of the squared integral of the speed error (an angle, rad) in "
+                        f"(rad/s)^2 per rad^2, 1/s^2 (default {INTEGRAL_WEIGHT:g}: 0.1 rad weighs as 1 rad/s)")
+    g.add_argument("--min-phase-margin", dest="min_phase_margin", type=float, default=None, metavar="DEG",
+                   help="pi, position: the least phase margin in degrees of the loop on the model, input delay "
+                        "included; a --time-constant too short for it is lengthened to the shortest that keeps "
+                        f"it, with a warning (default {MIN_PHASE_MARGIN:g}, 0 keeps the time constant asked for)")
     g.add_argument("--feedforward", action="store_true", default=None,
                    help="pi: add the model's feedforward to the PI output")
     g.add_argument("--derivative", choices=("true", "false"), default=None,
@@ -140,7 +151,8 @@ def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Control
     if values.get("derivative") is not None:
         values["derivative"] = values["derivative"] == "true"
     kind = args.controller
-    given = {k for k in ("duty_weight", "time_constant", "feedforward", "derivative") if values.get(k) is not None}
+    given = {k for k in ("duty_weight", "integral_weight", "time_constant", "min_phase_margin", "feedforward",
+                         "derivative") if values.get(k) is not None}
     settings = settings_from(values, kind)
     ignored = given - set(settings)
     if ignored:
@@ -232,7 +244,7 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
     r = p.add_argument_group("robustness (plants drawn from a --model file's covariance of a and b)")
     r.add_argument("--robust", action="store_true",
-                   help="tune the design (mpc, lqr, lqr-position: --duty-weight, pi and position: "
+                   help="tune the design (mpc and the LQRs: --duty-weight, pi and position: "
                         "--time-constant) to the best "
                         "worst-case tracking over the drawn plants instead of the point estimate")
     r.add_argument("--repetitions", type=int, default=100, metavar="N",

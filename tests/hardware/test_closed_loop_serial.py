@@ -12,6 +12,7 @@ from motorsim.control import (
     ClosedLoopExperiment,
     LQRPosition,
     LQRSpeed,
+    LQRSpeedIntegral,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -30,8 +31,9 @@ def _rms(x):
 
 @pytest.mark.parametrize("controller, spec", [
     (OneStepMPC(MODEL), "sine:10,10"), (PISpeed(MODEL), "sine:10,10"), (PositionPD(MODEL), "step:1,0.1"),
-    (LQRSpeed(MODEL), "sine:10,10"), (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
-], ids=["mpc", "pi", "position", "lqr", "lqr-position"])
+    (LQRSpeed(MODEL), "sine:10,10"), (LQRSpeedIntegral(MODEL), "sine:10,10"),
+    (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
+], ids=["mpc", "pi", "position", "lqr", "lqr-integral", "lqr-position"])
 def test_fake_device_tracks_as_predicted_and_as_simrig_duty_for_duty(controller, spec):
     exp = ClosedLoopExperiment(controller, parse_reference(spec), 2.0)
     with SerialRig("fake://?a=25&b=3&speed=0") as rig:
@@ -73,6 +75,8 @@ def test_bad_control_and_reference_are_refused_and_config_returns_to_open_loop()
     assert "takes at least 5 gains" in P.control_problems(P.Control(P.ControllerKind.MPC, 1, (1, 2, 3)))[0]
     assert P.control_problems(P.Control(9, 0, (1,)))
     assert "takes at least 4 gains" in P.control_problems(P.Control(P.ControllerKind.LQR_POSITION, 1, (1, 2, 3)))[0]
+    short = P.Control(P.ControllerKind.LQR_INTEGRAL, 1, (1, 2, 3, 4, 5))
+    assert "takes at least 6 gains" in P.control_problems(short)[0]
     lqr = ClosedLoopExperiment(LQRPosition(MODEL), parse_reference("constant:1"))
     assert not P.control_problems(P.control_for(lqr))
     assert P.reference_problems(P.ReferenceWords("constant", 70000))

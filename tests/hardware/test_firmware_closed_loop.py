@@ -20,6 +20,7 @@ from motorsim.control import (
     Feedforward,
     LQRPosition,
     LQRSpeed,
+    LQRSpeedIntegral,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -35,8 +36,10 @@ MODEL = PlantModel(25.0, 3.0, 0.005, 16667, input_delay=P.DEVICE_INPUT_DELAY)
 CASES = [(OneStepMPC(MODEL), "sine:10,10"), (PISpeed(MODEL), "sine:10,10"),
          (PISpeed(MODEL, 0.05, feedforward=True), "trapezoid:15,0.3,0.5,0.1"),
          (PositionPD(MODEL), "step:1,0.1"), (Feedforward(MODEL), "multisine:10,5;30,3"),
-         (LQRSpeed(MODEL), "sine:10,10"), (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1")]
-IDS = ["mpc", "pi", "pi-ff", "position", "feedforward", "lqr", "lqr-position"]
+         (LQRSpeed(MODEL), "sine:10,10"), (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
+         (LQRSpeedIntegral(MODEL), "sine:10,10"),
+         (LQRSpeedIntegral(MODEL), "step:5,0.7,40")]   # 40 rad/s needs 333 duty: the sum stops at the limit
+IDS = ["mpc", "pi", "pi-ff", "position", "feedforward", "lqr", "lqr-position", "lqr-integral", "lqr-integral-limit"]
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +53,7 @@ def runs():
     out = []
     with open_avr_sim(url, 250000, 0.02) as port, SerialRig(port, 250000, counts_per_rev=16667,
                                                             watchdog_ms=200) as rig:
-        assert rig.device.version == P.PROTOCOL_VERSION == 5
+        assert rig.device.version == P.PROTOCOL_VERSION == 6
         for controller, spec in CASES:
             exp = ClosedLoopExperiment(controller, parse_reference(spec), 1.5)
             out.append((controller, spec, exp, rig.run(exp)))
@@ -68,7 +71,7 @@ def test_firmware_duty_equals_the_python_reference_step(runs, case):
     assert len(set(rec.duty.tolist())) > 20   # the controller really moved the duty
 
 
-@pytest.mark.parametrize("case", [0, 1, 5, 6], ids=["mpc", "pi", "lqr", "lqr-position"])
+@pytest.mark.parametrize("case", [0, 1, 5, 6, 7], ids=["mpc", "pi", "lqr", "lqr-position", "lqr-integral"])
 def test_firmware_loop_tracks_within_10_percent_of_the_prediction(runs, case):
     controller, spec, exp, rec = runs[case]
     predicted = controller.predict(parse_reference(spec), exp.duration).tracking_rms

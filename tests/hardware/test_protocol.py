@@ -157,7 +157,7 @@ def test_protocol_errors_subclass_value_error():
 
 def test_version_mismatch_names_both_versions():
     P.check_version(P.PROTOCOL_VERSION)
-    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 5"):
+    with pytest.raises(ProtocolVersionError, match=r"version 7.*version 6"):
         P.check_version(7)
 
 

@@ -218,7 +218,7 @@ def test_ctrl_c_during_a_run_sends_stop_and_propagates():
 
 # ------------------------------------------------------------------ handshake
 def test_wrong_protocol_version_is_refused_naming_both_versions():
-    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 5"):
+    with _fake(FaultPlan(version=1)) as dev, pytest.raises(ProtocolVersionError, match=r"version 1.*version 6"):
         SerialRig(dev.port_name).open()
 
 

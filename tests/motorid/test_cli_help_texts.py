@@ -8,7 +8,7 @@ from motorid.cli import main
 
 #: Words that give a value's unit, or say it has none.
 UNIT = re.compile(r"\[[^\]]+\]|\b(s|ms|rad|rad/s|Hz|baud|duty|samples?|counts|counts/rev|1/s|"
-                  r"fraction|probability|dimensionless|seconds)\b|rad/s\^2")
+                  r"fraction|probability|dimensionless|seconds|degrees|deg)\b|rad/s\^2")
 
 
 def _flags(commands):

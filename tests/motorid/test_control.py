@@ -1,11 +1,12 @@
 """motorid control design, motorid simulate --controller, and the demo's closed-loop part."""
 import json
 
+import numpy as np
 import pytest
 
 from motorid.cli import main
 from motorsim import read_recording
-from motorsim.control import PlantModel, design_controller
+from motorsim.control import PlantModel, design_controller, tracking_error
 
 
 def test_control_design_prints_the_fixed_point_gains_and_plots(tmp_path, capsys):
@@ -120,6 +121,44 @@ def test_control_design_from_a_saved_model_matches_the_same_numbers_given_as_fla
     assert gains and gains == [line for line in from_flags.splitlines() if line.startswith("fixed-point gains")]
 
 
+@pytest.mark.filterwarnings("default::motorsim.control.DesignLimitWarning")
+def test_control_design_lengthens_a_time_constant_the_delay_cannot_take_and_says_so(capsys):
+    fast = ["control", "design", "--a", "25", "--b", "3", "--input-delay", "1", "--controller", "pi",
+            "--time-constant", "0.01"]
+    assert main(fast) == 0
+    captured = capsys.readouterr()
+    assert "motorid: warning: pi time_constant 0.01 s leaves a phase margin of 6.05 deg" in captured.err
+    assert "designed with time_constant 0.026 s" in captured.err
+    assert "controller: pi time_constant = 0.026," in captured.out
+    assert "phase margin 60.1 deg" in captured.out
+    assert main([*fast, "--min-phase-margin", "0"]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err and "phase margin 6.05 deg" in captured.out
+    assert main([*fast, "--min-phase-margin", "200"]) == 2
+    assert "min_phase_margin must be in 0...180 deg, got 200.0" in capsys.readouterr().err
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "mpc", "--min-phase-margin", "45"]) == 2
+    assert "--min-phase-margin does not apply to --controller mpc" in capsys.readouterr().err
+
+
+def test_lqr_integral_from_a_saved_model_leaves_no_steady_error_on_a_bench_the_model_does_not_know(tmp_path, capsys):
+    run, model = tmp_path / "run.csv", tmp_path / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "2", "--sine", "10,200,0", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--method", "oe", "--save", str(model)]) == 0
+    assert main(["control", "design", "--model", str(model), "--controller", "lqr-integral",
+                 "--integral-weight", "50", "--repetitions", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "controller: lqr-integral duty_weight = 0.001, integral_weight = 50.0" in out and ", ki = " in out
+    steady = {}
+    for kind in ("lqr", "lqr-integral"):      # the bench: b 20 % higher and a bias the model lacks
+        rec = tmp_path / f"{kind}.csv"
+        assert main(["simulate", "--a", "25", "--b", "3.6", "--bias", "-20", "--model", str(model), "--controller",
+                     kind, "--reference", "constant:10", "--duration", "2", "--out", str(rec)]) == 0
+        steady[kind] = float(np.mean(tracking_error(read_recording(rec))[-200:]))
+    assert abs(steady["lqr-integral"]) < 0.01 and abs(steady["lqr"]) > 0.2      # measured: 0.0004 and 0.36 rad/s
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "lqr", "--integral-weight", "5"]) == 2
+    assert "--integral-weight does not apply to --controller lqr" in capsys.readouterr().err
+
+
 def test_control_design_refuses_a_file_that_is_not_a_saved_model(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("{}")
@@ -137,12 +176,13 @@ def test_control_design_prints_margins_and_the_robustness_of_a_saved_model(tmp_p
                  rng=np.random.default_rng(1)).run(Experiment(Sine(10.0), 0.005, 1.0))
     path = tmp_path / "model.json"
     path.write_text(fit(rec, method="oe", input_delay=1).to_json())
-    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+    fragile = ["--time-constant", "0.01", "--min-phase-margin", "0"]     # 6 degrees of phase margin with the delay
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", *fragile,
                  "--repetitions", "30"]) == 0
     out = capsys.readouterr().out
     assert "margins at the point estimate: gain margin" in out and "Monte Carlo: 30 plants" in out
-    assert "warning:" in out and "badly damped" in out          # 6 degrees of phase margin with the delay
-    assert main(["control", "design", "--model", str(path), "--controller", "pi", "--time-constant", "0.01",
+    assert "warning:" in out and "badly damped" in out
+    assert main(["control", "design", "--model", str(path), "--controller", "pi", *fragile,
                  "--repetitions", "30", "--robust"]) == 0
     out = capsys.readouterr().out
     assert "time_constant = 0.01," not in out and "warning:" not in out

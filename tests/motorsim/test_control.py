@@ -11,6 +11,7 @@ from motorsim.control import (
     Feedforward,
     LQRPosition,
     LQRSpeed,
+    LQRSpeedIntegral,
     OneStepMPC,
     PISpeed,
     PlantModel,
@@ -47,10 +48,12 @@ def _run(controller, spec, duration=4.0, motor=None, **rig):
     (PositionPD(MODEL, 0.1, derivative=False), "sine:3,1"),
     (LQRSpeed(MODEL), "sine:10,10"),
     (LQRSpeed(MODEL, 1e-2), "multisine:5,6;20,3"),
+    (LQRSpeedIntegral(MODEL), "sine:10,10"),
+    (LQRSpeedIntegral(MODEL, 1e-2, 1000.0), "trapezoid:15,0.5,1,0.2"),
     (LQRPosition(MODEL), "trapezoid:3,0.3,0.5,0.1"),
     (LQRPosition(MODEL, 1e-5), "sine:3,1"),
 ], ids=["mpc-sine", "mpc-multisine", "pi-trapezoid", "pi-ff-sine", "feedforward", "pd-step", "p-sine", "lqr-sine",
-        "lqr-multisine", "lqr-position-trapezoid", "lqr-position-sine"])
+        "lqr-multisine", "lqr-integral-sine", "lqr-integral-trapezoid", "lqr-position-trapezoid", "lqr-position-sine"])
 def test_measured_tracking_rms_within_10_percent_of_the_prediction(controller, spec):
     rec = _run(controller, spec)
     predicted = controller.predict(parse_reference(spec), 4.0)
@@ -210,7 +213,7 @@ def test_design_from_an_estimate_and_bad_settings():
         design_controller("lqg", model)
     with pytest.raises(ValueError, match="counts_per_rev must be given"):
         PlantModel.from_source(est)
-    assert set(CONTROLLERS) == {"mpc", "pi", "position", "feedforward", "lqr", "lqr-position"}
+    assert set(CONTROLLERS) == {"mpc", "pi", "position", "feedforward", "lqr", "lqr-integral", "lqr-position"}
 
 
 def test_closed_loop_with_noise_drops_and_jitter_is_reproducible():

@@ -1,6 +1,6 @@
 // motorid bench firmware for an Arduino Uno (ATmega328P, 16 MHz).
 //
-// Implements hardware/PROTOCOL.md (protocol version 5) exactly: COBS frames with CRC-16,
+// Implements hardware/PROTOCOL.md (protocol version 6) exactly: COBS frames with CRC-16,
 // CONFIG/WAVE/CONTROL/REFERENCE/START/STOP/HEARTBEAT from the host, SAMPLE/END/FAULT back.
 // In closed loop (a CONTROL naming a controller) each tick computes its duty from the counts
 // it has just read with the controller's integer step (motorsim/fixed_point.py is the reference).
@@ -27,7 +27,7 @@
 
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
-#define PROTOCOL_VERSION 5
+#define PROTOCOL_VERSION 6
 #define FIRMWARE_VERSION 0x0500  // major << 8 | minor: 5.0
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
@@ -82,6 +82,7 @@
 #define CTRL_FEEDFORWARD 4
 #define CTRL_LQR 5
 #define CTRL_LQR_POSITION 6
+#define CTRL_LQR_INTEGRAL 7
 #define MAX_GAINS 14
 #define REF_CONSTANT 0
 #define REF_STEP 1
@@ -609,7 +610,16 @@ static int16_t clip_duty(int64_t u) {
 static void control_reset(void) {
   memset(&cs, 0, sizeof(cs));
   cs.n_history = control.kind == CTRL_MPC || control.kind == CTRL_LQR ? control.n - 4
+               : control.kind == CTRL_LQR_INTEGRAL ? control.n - 5
                : control.kind == CTRL_LQR_POSITION ? control.n - 3 : 1;
+}
+
+// The integral LQR's sum of the errors r(k) - 16 y, updated after its duty's acc: the PI's
+// anti-windup (no integration further into the duty limit). Its own frame, not the ISR's.
+static void __attribute__((noinline)) integrate_error(uint32_t k, int32_t y, int64_t acc) {
+  int32_t err = reference_at(k) - y * SPEED_REFERENCE_SCALE;
+  int64_t raw = round_shift(acc);
+  if (!((raw > cfg.duty_limit && err > 0) || (raw < -cfg.duty_limit && err < 0))) cs.integral += err;
 }
 
 // The duty of sample k from the counts read at k (integer arithmetic only).
@@ -621,10 +631,13 @@ static int16_t control_step(uint32_t k, int32_t counts) {
   int64_t acc;
   switch (control.kind) {
     case CTRL_MPC:
-    case CTRL_LQR: {  // one linear form; only the design of the gains differs
+    case CTRL_LQR:
+    case CTRL_LQR_INTEGRAL: {  // one linear form; only the design of the gains differs
+      const int32_t *f = g + (control.kind == CTRL_LQR_INTEGRAL);  // the integral's ki sits after ky
       int32_t r = reference_at(k + control.preview);
-      acc = (int64_t)g[0] * r + (int64_t)g[1] * y + g[2] + (int64_t)g[3] * sign_of(r);
-      for (uint8_t m = 0; m < cs.n_history; m++) acc += (int64_t)g[4 + m] * cs.history[m];
+      acc = (int64_t)g[0] * r + (int64_t)g[1] * y + f[2] + (int64_t)f[3] * sign_of(r);
+      for (uint8_t m = 0; m < cs.n_history; m++) acc += (int64_t)f[4 + m] * cs.history[m];
+      if (f != g) integrate_error(k, y, acc += (int64_t)g[2] * cs.integral);  // ki times the sum before k
       break;
     }
     case CTRL_PI: {
@@ -927,7 +940,8 @@ static uint8_t parse_control(const uint8_t *p, uint8_t len, uint8_t check_only) 
              : kind == CTRL_POSITION ? n == 2
              : kind == CTRL_FEEDFORWARD ? n == 4
              : kind == CTRL_LQR ? n >= 5
-             : kind == CTRL_LQR_POSITION ? n >= 4 : 0;
+             : kind == CTRL_LQR_POSITION ? n >= 4
+             : kind == CTRL_LQR_INTEGRAL ? n >= 6 : 0;
   if (!ok || preview > MAX_GAINS) return NAK_BAD_VALUE;
   if (check_only) return 0;
   control.kind = kind;
