@@ -168,3 +168,75 @@ def test_a_unit_in_the_column_name_must_be_given(quantity, name, unit):
                                            ("input", "duty"), ("speed", "0")], ids=lambda x: str(x))
 def test_a_name_without_a_foreign_unit_takes_the_default(quantity, name):
     assert ColumnSpec.parse(quantity, name).column in (name, int(name) if name.isdigit() else name)
+
+
+def _crashing_mat_bytes() -> bytes:
+    """A MATLAB v5 file with one byte changed (offset 177, a variable's tag) on which scipy's compiled
+    reader crashes the interpreter (a bus error or segmentation fault in scipy 1.17)."""
+    import io as bytes_io
+
+    from scipy import io
+    buffer = bytes_io.BytesIO()
+    t = np.arange(200) * 0.005
+    io.savemat(buffer, {"t": t, "u": np.round(100 * np.sin(10 * t)), "y": np.sin(t)})
+    raw = bytearray(buffer.getvalue())
+    raw[177] = 101
+    return bytes(raw)
+
+
+def test_a_mat_file_that_crashes_scipys_reader_is_refused_not_fatal(tmp_path):
+    import subprocess
+    import sys
+    path = tmp_path / "bad.mat"
+    path.write_bytes(_crashing_mat_bytes())
+    # reference: the same file read by scipy in this interpreter ends it by a signal
+    probe = subprocess.run([sys.executable, "-c", "import io, sys, scipy.io; "
+                            "scipy.io.loadmat(io.BytesIO(open(sys.argv[1], 'rb').read()))", str(path)],
+                           capture_output=True, timeout=120)
+    if probe.returncode >= 0:
+        pytest.skip(f"this scipy reads the file without crashing (exit {probe.returncode})")
+    # the crash reads memory past the data, so it is not certain on every read: refused either way
+    with pytest.raises(ImportFormatError, match=r"bad\.mat: a damaged (MATLAB \.mat file: scipy's reader crashed "
+                                                r"on it \(signal \d+\)|or truncated MATLAB \.mat file)"):
+        read_table(path)
+
+
+def test_a_mat_files_reader_error_and_hdf5_come_back_from_the_child(tmp_path, monkeypatch):
+    from motorsim import columns
+    truncated = tmp_path / "cut.mat"
+    good = _crashing_mat_bytes()[:177] + b"\x00" * 3
+    truncated.write_bytes(good)
+    with pytest.raises(ImportFormatError, match="damaged or truncated MATLAB .mat file scipy cannot read"):
+        read_table(truncated)
+    kinds = []
+    monkeypatch.setattr(columns, "_read_mat_hdf5", lambda path: kinds.append(path) or "hdf5")
+    v73 = tmp_path / "v73.mat"
+    v73.write_bytes(b"MATLAB 7.3 MAT-file".ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM" + b"\x00" * 512)
+    assert read_table(v73) == "hdf5" and kinds == [str(v73)]
+
+
+@pytest.mark.parametrize("fault, said", [("crash", r"crashed on it \(signal 11\)"),
+                                         ("hang", r"crashed on it \(no answer in 0.5 s\)")])
+def test_a_reader_that_dies_or_hangs_in_its_child_is_refused(tmp_path, monkeypatch, fault, said):
+    # deterministic: scipy's reader replaced by one that dies by SIGSEGV or never answers (the child
+    # is forked, so it runs the replacement); the real crash above depends on memory contents
+    import os
+    import signal
+    import time
+
+    from scipy import io
+
+    from motorsim import columns
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("needs fork to hand the child a replaced reader")
+
+    def broken(*args, **kwargs):
+        if fault == "crash":
+            os.kill(os.getpid(), signal.SIGSEGV)
+        time.sleep(60)
+    monkeypatch.setattr(io, "loadmat", broken)
+    monkeypatch.setattr(columns, "MAT_READ_SECONDS", 0.5)
+    path = tmp_path / "run.mat"
+    path.write_bytes(_crashing_mat_bytes())
+    with pytest.raises(ImportFormatError, match=said):
+        read_table(path)
