@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
-from motorsim.recording import Recording
+from motorsim.recording import MAX_EXACT_COUNT, Recording
+from motorsim.sensors import counts_to_angle
 
 from .errors import NotIdentifiableError
 
@@ -149,7 +150,8 @@ def _measured_output(rec: Recording) -> tuple[np.ndarray, str]:
     return rec.speed, "speed"
 
 
-def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0) -> list[Segment]:
+def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0,
+                     rows: int | None = None) -> list[Segment]:
     """Split recordings at gaps into segments, delaying the duty by ``input_delay`` samples.
 
     Within a segment the duty ``input_delay`` samples earlier is unknown for the
@@ -164,30 +166,52 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
         Input delay in samples, >= 0.
     skip : int
         Rows to leave out at the start of every segment (at least ``input_delay`` are).
+    rows : int, optional
+        Keep only the first rows of each segment, about ``rows`` in all: ``first_rows(segments,
+        rows)``, without converting the rows left out (a selection on the start of a long file
+        costs the start, not the file).
 
     Returns
     -------
     list of Segment
     """
     _check_delay_fits(recordings, input_delay)
-    out = []
+    first = max(input_delay, skip)
+    pieces = []                       # (recording, its segment, the segment's first row)
     for i, rec in enumerate(recordings):
         row = 0
-        output_all, kind = _measured_output(rec)
         for seg in rec.segments():
-            n = len(seg)
-            first = max(input_delay, skip)
-            if n - first >= MIN_SEGMENT_SAMPLES:
-                sl = slice(first, n)
-                drive = seg.duty[first - input_delay:n - input_delay] if input_delay else seg.duty[sl]
-                output = output_all[row:row + n][sl]
-                t = seg.time[sl]
-                if kind == "speed" and not np.all(np.isfinite(output)):
-                    raise ParameterError(f"recordings[{i}] has non-finite speed values")
-                out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
-                                   kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
-            row += n
+            if len(seg) - first >= MIN_SEGMENT_SAMPLES:
+                pieces.append((i, seg, row))
+            row += len(seg)
+    total = sum(len(seg) - first for _, seg, _ in pieces)
+    outputs: dict[int, tuple[Callable[[int, int], np.ndarray], str]] = {}
+    out = []
+    for i, seg, row in pieces:
+        n = len(seg)
+        stop = n if rows is None or total <= rows else first + max(3, (n - first) * rows // total)
+        if i not in outputs:
+            outputs[i] = _output_rows(recordings[i])
+        output_rows, kind = outputs[i]
+        output = output_rows(row + first, row + stop)
+        drive = seg.duty[first - input_delay:stop - input_delay]
+        t = seg.time[first:stop]
+        if kind == "speed" and not np.all(np.isfinite(output)):
+            raise ParameterError(f"recordings[{i}] has non-finite speed values")
+        out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
+                           kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
     return out
+
+
+def _output_rows(rec: Recording) -> tuple[Callable[[int, int], np.ndarray], str]:
+    """``(rows(lo, hi), kind)``: the measured output of rows ``lo:hi`` (:func:`_measured_output`), converted
+    only on those rows when that gives the same numbers (counts within float's exact range)."""
+    counts, cpr = rec.counts, rec.counts_per_rev
+    if rec.angle is None and counts is not None and cpr is not None and len(counts) and (
+            -MAX_EXACT_COUNT <= int(counts.min()) and int(counts.max()) <= MAX_EXACT_COUNT):
+        return (lambda lo, hi: counts_to_angle(counts[lo:hi], cpr)), "angle"
+    output_all, kind = _measured_output(rec)
+    return (lambda lo, hi: output_all[lo:hi]), kind
 
 
 def delayed_segments(recordings: Sequence[Recording], delays: Sequence[int], skip: int,
@@ -214,7 +238,7 @@ def delayed_segments(recordings: Sequence[Recording], delays: Sequence[int], ski
     if min(delays) < 0 or max(delays) > skip:
         raise ParameterError(f"delays must lie in 0 ... skip = {skip}, got {min(delays)} ... {max(delays)}")
     _check_delay_fits(recordings, max(delays))    # the rule grows with the delay: the largest decides
-    base = first_rows(prepare_segments(recordings, 0, skip=skip), rows)
+    base = prepare_segments(recordings, 0, skip=skip, rows=rows)
     return {d: [dataclasses.replace(seg, drive=np.asarray(
         recordings[seg.recording].duty[seg.start - d:seg.start - d + len(seg.time)], float)) for seg in base]
         for d in delays}

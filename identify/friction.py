@@ -49,7 +49,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -69,7 +69,7 @@ from .validation import segment_fit_percent
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
-__all__ = ["fit_output_error_friction", "speed_reverses"]
+__all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse"]
 
 
 
@@ -83,11 +83,18 @@ def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: fl
     rest_fraction : float
         Share of the largest speed below which the motor counts as at rest.
     """
-    speeds = []
-    for r in as_recordings(recordings):
-        w = r.measured_speed()
-        speeds.append(w[np.isfinite(w)])
-    w = np.concatenate(speeds)
+    return _reverses([r.measured_speed() for r in as_recordings(recordings)], rest_fraction)
+
+
+def segments_reverse(segments: Sequence[Segment], *, rest_fraction: float = 0.02) -> bool:
+    """:func:`speed_reverses` on the rows of ``segments`` (their measured speed: the differenced angle
+    over each interval, or the speed)."""
+    return _reverses([np.diff(s.output) / np.diff(s.time) if s.kind == "angle" else s.output for s in segments],
+                     rest_fraction)
+
+
+def _reverses(speeds: Sequence[np.ndarray], rest_fraction: float) -> bool:
+    w = np.concatenate([np.asarray(x, dtype=float)[np.isfinite(x)] for x in speeds]) if speeds else np.zeros(0)
     if len(w) == 0:
         return False
     top = float(np.max(np.abs(w)))

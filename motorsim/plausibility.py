@@ -178,7 +178,11 @@ def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]
     >>> saturated_runs(np.array([0, 255, 255, 255, 10, -255, 3]), 255)
     [(1, 3)]
     """
-    at = np.abs(np.abs(np.asarray(duty, float)) - duty_limit) <= 1e-9 * duty_limit
+    duty = np.asarray(duty)
+    if duty.dtype.kind in "iu" and float(duty_limit).is_integer():     # exact: no float pass
+        at = (duty == int(duty_limit)) | (duty == -int(duty_limit))
+    else:
+        at = np.abs(np.abs(duty.astype(float)) - duty_limit) <= 1e-9 * duty_limit
     edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(np.int8), [0]])))
     return [(int(a), int(b - a)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= 2]
 

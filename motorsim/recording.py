@@ -432,9 +432,13 @@ class Recording:
         >>> rec.saturated_runs(), rec.saturated_samples()
         ([(1, 3)], 3)
         """
-        declared = "input_limit" in self.metadata or "duty_limit" in self.metadata
-        limit = self.input_limit if declared else None
-        return [] if limit is None else saturated_runs(self.duty, limit)
+        runs = self.__dict__.get("_saturated_runs")      # computed once: the recording never changes
+        if runs is None:
+            declared = "input_limit" in self.metadata or "duty_limit" in self.metadata
+            limit = self.input_limit if declared else None
+            runs = [] if limit is None else saturated_runs(self.duty, limit)
+            object.__setattr__(self, "_saturated_runs", runs)
+        return list(runs)
 
     def saturated_samples(self) -> int:
         """How many samples sit at the input limit in runs of two or more (:meth:`saturated_runs`)."""

@@ -286,3 +286,27 @@ def test_on_a_handful_of_counts_every_candidate_as_close_as_the_best_is_covered(
     assert len(close) > 4
     for c in close:
         assert ci["a"][0] <= c["a"] <= ci["a"][1] and ci["b"][0] <= c["b"] <= ci["b"][1], c
+
+
+@pytest.mark.parametrize("kind", ["counts offset by 2**62", "speed only", "angle"])
+def test_prepare_segments_with_rows_is_first_rows_of_all(kind):
+    # the rows budget converts only the rows kept; reference: every row converted, then cut
+    from identify.data import first_rows, prepare_segments
+    from motorsim import Recording
+    rec = SimRig(Motor(A, B), Encoder(1200), drop_rate=0.01, rng=np.random.default_rng(4)).run(
+        Experiment(MULTISINE, DT, 6.0))
+    if kind == "counts offset by 2**62":
+        rec = Recording(time=rec.time, duty=rec.duty, sample_period=DT, counts=rec.counts + 2 ** 62,
+                        counts_per_rev=1200, seq=rec.seq)
+    elif kind == "speed only":
+        speed = np.nan_to_num(rec.measured_speed())
+        rec = Recording(time=rec.time, duty=rec.duty, sample_period=DT, speed=speed, seq=rec.seq)
+    else:
+        rec = Recording(time=rec.time, duty=rec.duty, sample_period=DT, angle=rec.measured_angle(), seq=rec.seq)
+    got = prepare_segments([rec], 2, skip=3, rows=700)
+    want = first_rows(prepare_segments([rec], 2, skip=3), 700)
+    assert len(got) == len(want) > 2
+    for g, w in zip(got, want):
+        for name in ("time", "drive", "output"):
+            np.testing.assert_array_equal(getattr(g, name), getattr(w, name))
+        assert (g.kind, g.recording, g.start) == (w.kind, w.recording, w.start)
