@@ -152,12 +152,15 @@ def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> l
     magnitude = np.abs(step)
     top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
     scale = max(float(np.partition(magnitude, top)[top]), 1.0)
-    away_before, away_after = step[:-1], -step[1:]          # duty[k] - duty[k-1], duty[k] - duty[k+1]
-    same_side = np.sign(away_before) == np.sign(away_after)
-    size = np.minimum(np.abs(away_before), np.abs(away_after))
     limit = DUTY_SPIKE_FACTOR * scale
+    # a spike leaves both neighbours by more than the limit on the same side: duty[k] - duty[k-1] = step[k-1]
+    # and duty[k] - duty[k+1] = -step[k] of one sign (checked only where both are large: few rows)
+    size = np.minimum(magnitude[:-1], magnitude[1:])
+    del magnitude
+    large = np.flatnonzero(size > limit)
+    spikes = large[np.sign(step[large]) == -np.sign(step[large + 1])]
     seen = {s.row for s in found}
-    for k in (np.flatnonzero(same_side & (size > limit)) + 1).tolist():
+    for k in (spikes + 1).tolist():
         if k not in seen:
             found.append(ImplausibleSample(k, int(seq[k]), f"duty {duty[k]:.6g} jumps {size[k - 1]:.4g} away from "
                                                            f"both neighbours, {size[k - 1] / scale:.3g} times the "
@@ -228,7 +231,8 @@ def implausible_samples(time: np.ndarray, seq: np.ndarray, speed: np.ndarray, sa
     for s in _speed_rows(speed, seq, speed_floor):
         found.setdefault(s.row, s)
     if duty is not None:
-        for s in _duty_rows(np.asarray(duty, float), seq, duty_limit):
+        duty = np.asarray(duty)
+        for s in _duty_rows(duty if duty.dtype.kind in "if" else duty.astype(float), seq, duty_limit):
             found.setdefault(s.row, s)
     return [found[k] for k in sorted(found)]
 
