@@ -134,8 +134,9 @@ def _split_head(data: bytes) -> tuple[list[str], int] | None:
 
 
 #: Bytes the fast reader parses per block (bounds its working memory).  pyarrow parses a block in
-#: chunks of about 1 MB on its thread pool, so a block of several chunks keeps every core busy.
-_FAST_BLOCK_BYTES = 1 << 23
+#: chunks of about 1 MB on its thread pool; larger blocks were no faster on two cores (measured with
+#: ``motorid bench parse``) and left more memory in the threads' allocator arenas.
+_FAST_BLOCK_BYTES = 1 << 21
 
 
 def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
