@@ -312,16 +312,19 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     # on a handful of encoder counts the residual is the rounding of those counts, not noise: the
     # test's variance means little there, so every candidate whose residual sum is as small (within
     # CLOSE of the best's) is one the data cannot rule out
-    few = _counts_swept(recs) < MIN_COUNTS_SWEPT
+    swept = _counts_swept(recs)
+    few = swept < MIN_COUNTS_SWEPT
+    # and the amplitude itself is known to one count of those swept: a floor under every interval
+    resolution = 1.0 / swept if few and swept > 0 else 0.0
     least = min((c.residual_sum for c in selection.candidates if math.isfinite(c.residual_sum)), default=math.nan)
     within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
     notes = list(selection.notes) + _data_notes(recs, est)
-    if material:
-        est, doubt = _widen(est, chosen, material)
-        if any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
+    if material or resolution:
+        est, doubt = _widen(est, chosen, material, resolution)
+        if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
     selection = dataclasses.replace(selection, notes=tuple(notes))
@@ -329,13 +332,15 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         ([selection.doubt] if selection.doubt else []) + notes))
 
 
-def _widen(est: Estimate, chosen: Candidate, material: list[Candidate]) -> tuple[Estimate, str]:
+def _widen(est: Estimate, chosen: Candidate, material: list[Candidate],
+           resolution: float = 0.0) -> tuple[Estimate, str]:
     """The estimate whose intervals cover ``material`` too (``model_range``); the doubt line.
 
     Each candidate the data cannot rule out is as uncertain as the chosen fit (the same data and
     noise), so ``model_range`` is the union of the 95 % intervals of all of them, each candidate's
-    taken as the chosen fit's, relative to its value, carried to the candidate's value.  The doubt
-    line gives the span of the candidates' own values.
+    taken as the chosen fit's, relative to its value, carried to the candidate's value, and at least
+    ``resolution`` of it on either side (one encoder count of the few a run sweeps).  The doubt
+    line gives the span of the candidates' own values ("" without candidates).
     """
     ci = est.confidence_interval(0.95)
     ranges, spans = {}, {}
@@ -344,8 +349,10 @@ def _widen(est: Estimate, chosen: Candidate, material: list[Candidate]) -> tuple
         values = [value] + [getattr(c, name) for c in material]
         spans[name] = (min(values), max(values))
         below, above = ((value - ci[name][0]) / abs(value), (ci[name][1] - value) / abs(value)) if value else (0, 0)
-        below, above = (x if math.isfinite(x) else 0.0 for x in (below, above))
+        below, above = (max(x, resolution) if math.isfinite(x) else resolution for x in (below, above))
         ranges[name] = (min(v - abs(v) * below for v in values), max(v + abs(v) * above for v in values))
+    if not material:
+        return dataclasses.replace(est, model_range=ranges), ""
     top = max(c.a for c in material)
     a_text = (f"a from {spans['a'][0]:.4g} 1/s to unbounded (a static gain fits as well)"
               if top >= 1e6 * max(est.a, 1.0) else f"a in [{spans['a'][0]:.4g}, {spans['a'][1]:.4g}] 1/s")
@@ -383,7 +390,8 @@ def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
     swept = _counts_swept(recs)
     if swept < MIN_COUNTS_SWEPT:
         notes.append(f"the encoder sweeps only {swept:.0f} counts in the whole run: a and b rest on a few "
-                     "steps; run longer or faster, or use a finer encoder")
+                     f"steps (their intervals allow one count in {swept:.0f}, +-{100 / max(swept, 1):.2g} %); "
+                     "run longer or faster, or use a finer encoder")
     if est.a > 0 and math.isfinite(est.a):
         fast = 0.0
         total = 0.0

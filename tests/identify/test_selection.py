@@ -286,6 +286,9 @@ def test_on_a_handful_of_counts_every_candidate_as_close_as_the_best_is_covered(
     assert len(close) > 4
     for c in close:
         assert ci["a"][0] <= c["a"] <= ci["a"][1] and ci["b"][0] <= c["b"] <= ci["b"][1], c
+    # and every interval allows one count in the 5 swept (20 %) around each of them: the truth is inside
+    assert any("one count in 5" in n for n in est.notes)
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
 
 
 @pytest.mark.parametrize("kind", ["counts offset by 2**62", "speed only", "angle"])
