@@ -150,13 +150,14 @@ def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> l
         return found
     step = np.diff(duty)
     magnitude = np.abs(step)
-    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
-    scale = max(float(np.partition(magnitude, top)[top]), 1.0)
-    limit = DUTY_SPIKE_FACTOR * scale
     # a spike leaves both neighbours by more than the limit on the same side: duty[k] - duty[k-1] = step[k-1]
     # and duty[k] - duty[k+1] = -step[k] of one sign (checked only where both are large: few rows)
     size = np.minimum(magnitude[:-1], magnitude[1:])
+    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
+    magnitude.partition(top)            # in place: the steps are not needed in order any more
+    scale = max(float(magnitude[top]), 1.0)
     del magnitude
+    limit = DUTY_SPIKE_FACTOR * scale
     large = np.flatnonzero(size > limit)
     spikes = large[np.sign(step[large]) == -np.sign(step[large + 1])]
     seen = {s.row for s in found}
