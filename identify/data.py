@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
-from motorsim.recording import MAX_EXACT_COUNT, Recording
-from motorsim.sensors import counts_to_angle
+from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
@@ -140,14 +139,14 @@ def _is_uniform(t: np.ndarray) -> bool:
     return len(h) > 0 and bool(np.all(np.abs(h - h[0]) <= 1e-9 * h[0]))
 
 
-def _measured_output(rec: Recording) -> tuple[np.ndarray, str]:
-    """The measured angle (``"angle"``) when the recording has one, else its speed (``"speed"``)."""
-    angle = rec.measured_angle()
+def _measured_output(rec: Recording, rows: slice = slice(None)) -> tuple[np.ndarray, str]:
+    """The measured angle of ``rows`` (``"angle"``) when the recording has one, else their speed (``"speed"``)."""
+    angle = rec.measured_angle(rows)
     if angle is not None:
         return angle, "angle"
     if rec.speed is None:   # a Recording always holds angle, counts or speed
         raise ParameterError("recording holds neither angle, counts nor speed")
-    return rec.speed, "speed"
+    return rec.speed[rows], "speed"
 
 
 def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0,
@@ -185,15 +184,11 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
                 pieces.append((i, seg, row))
             row += len(seg)
     total = sum(len(seg) - first for _, seg, _ in pieces)
-    outputs: dict[int, tuple[Callable[[int, int], np.ndarray], str]] = {}
     out = []
     for i, seg, row in pieces:
         n = len(seg)
         stop = n if rows is None or total <= rows else first + max(3, (n - first) * rows // total)
-        if i not in outputs:
-            outputs[i] = _output_rows(recordings[i])
-        output_rows, kind = outputs[i]
-        output = output_rows(row + first, row + stop)
+        output, kind = _measured_output(recordings[i], slice(row + first, row + stop))
         drive = seg.duty[first - input_delay:stop - input_delay]
         t = seg.time[first:stop]
         if kind == "speed" and not np.all(np.isfinite(output)):
@@ -201,17 +196,6 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
         out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
                            kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
     return out
-
-
-def _output_rows(rec: Recording) -> tuple[Callable[[int, int], np.ndarray], str]:
-    """``(rows(lo, hi), kind)``: the measured output of rows ``lo:hi`` (:func:`_measured_output`), converted
-    only on those rows when that gives the same numbers (counts within float's exact range)."""
-    counts, cpr = rec.counts, rec.counts_per_rev
-    if rec.angle is None and counts is not None and cpr is not None and len(counts) and (
-            -MAX_EXACT_COUNT <= int(counts.min()) and int(counts.max()) <= MAX_EXACT_COUNT):
-        return (lambda lo, hi: counts_to_angle(counts[lo:hi], cpr)), "angle"
-    output_all, kind = _measured_output(rec)
-    return (lambda lo, hi: output_all[lo:hi]), kind
 
 
 def delayed_segments(recordings: Sequence[Recording], delays: Sequence[int], skip: int,

@@ -322,24 +322,43 @@ class Recording:
             return None
         return value if math.isfinite(value) and value > 0 else None
 
-    def measured_angle(self) -> np.ndarray | None:
+    def measured_angle(self, rows: slice | None = None) -> np.ndarray | None:
         """Angle in rad: the ``angle`` column, else counts converted, else None.
 
         Counts beyond +-2**53 (an offset of 2**62, say) are measured from their median count
         first, so that no count loses its last bits in the conversion to float.
+
+        Parameters
+        ----------
+        rows : slice, optional
+            Only these rows, converted alone (the same numbers as the whole column's rows).
         """
+        rows = slice(None) if rows is None else rows
         if self.angle is not None:
-            return self.angle
-        if self.counts is not None and self.counts_per_rev is not None:
+            return self.angle[rows]
+        if self.counts is None or self.counts_per_rev is None:
+            return None
+        counts = self.counts[rows]
+        origin = self._count_origin()
+        if origin:
+            # counts offset by 2**62 would lose their last bits as floats: measure them from the median
+            # count, in exact (wrapping) integer arithmetic; only the angle's offset changes
+            with np.errstate(over="ignore"):
+                counts = counts - origin
+        return counts_to_angle(counts, self.counts_per_rev)
+
+    def _count_origin(self) -> int:
+        """The count the angle is measured from: 0, or the median count when a count lies beyond +-2**53
+        (found once: the recording never changes)."""
+        origin = self.__dict__.get("_origin")
+        if origin is None:
             counts = self.counts
-            if len(counts) and (int(counts.max()) > MAX_EXACT_COUNT or int(counts.min()) < -MAX_EXACT_COUNT):
-                # counts offset by 2**62 would lose their last bits as floats: measure them from the median
-                # count, in exact (wrapping) integer arithmetic; only the angle's offset changes
-                middle = np.partition(counts, len(counts) // 2)[len(counts) // 2]
-                with np.errstate(over="ignore"):
-                    counts = counts - middle
-            return counts_to_angle(counts, self.counts_per_rev)
-        return None
+            origin = 0
+            if counts is not None and len(counts) and (int(counts.max()) > MAX_EXACT_COUNT
+                                                       or int(counts.min()) < -MAX_EXACT_COUNT):
+                origin = np.partition(counts, len(counts) // 2)[len(counts) // 2]
+            object.__setattr__(self, "_origin", origin)
+        return origin
 
     def measured_speed(self) -> np.ndarray:
         """Speed in rad/s: the ``speed`` column, else the backward difference of the angle.
