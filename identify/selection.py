@@ -100,9 +100,8 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     The share is what one Gauss--Newton step into them would remove from the residual: near
     ``k/n`` when they are absent, most of it when the model misses friction or a dead zone.
     """
-
     from .output_error import OutputErrorProblem
-    from .sensitivity import zoh_response
+    from .sensitivity import project_out_initial_state, zoh_response
     segs = first_rows(segs, SCREEN_SAMPLES)
     problem = OutputErrorProblem(segs, with_bias=True)
     x = np.array([base.a, base.b, bias])
@@ -116,15 +115,8 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
         for drive, gain in ((moving, 1.0), (-np.sign(seg.drive), base.b)):
             g = zoh_response(base.a, gain, drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
             outputs.append(g.angle if seg.kind == "angle" else g.speed)
-        G = np.column_stack(outputs)
-        s0 = (resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity)[:, 2].copy()
-        if seg.kind == "angle":
-            G -= G.mean(axis=0)
-            s0 -= s0.mean()
-        ss = float(s0 @ s0)
-        if ss > 0:
-            G -= np.outer(s0, (s0 @ G) / ss)
-        columns.append(G)
+        s0 = (resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity)[:, 2]
+        columns.append(np.column_stack(project_out_initial_state(s0, seg.kind == "angle", *outputs)))
     G = np.vstack(columns)
     if J is None or not (np.all(np.isfinite(G)) and np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         return 0.0, 1.0              # cannot screen: fit them

@@ -31,7 +31,8 @@ import numpy as np
 
 from motorsim.recursion import first_order_filter
 
-__all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL", "first_order_scan"]
+__all__ = ["Response", "zoh_response", "phi_functions", "UNIFORM_RTOL", "first_order_scan",
+           "project_out_initial_state"]
 
 #: Relative spread of the sample intervals under which a clock counts as uniform (as
 #: :class:`identify.data.Segment` decides): a float grid ``k * dt`` differs by rounding only.
@@ -240,3 +241,25 @@ def zoh_response(a: float, b: float, drive, time, initial_speed: float = 0.0, *,
                     angle_sensitivity=np.column_stack([th_a, th_b, th_0, th_d]),
                     speed_sensitivity=np.column_stack([w_a, w_b, e_pow, w_d]),
                     angle_initial_speed_a=th_0a, speed_initial_speed_a=e_pow_a)
+
+
+def project_out_initial_state(s0: np.ndarray, offset: bool, *columns: np.ndarray) -> list[np.ndarray]:
+    """``columns`` less their least-squares fit on a segment's initial state: the initial-speed column
+    ``s0`` (a :class:`Response`'s ``[:, 2]`` sensitivity) and, when ``offset`` (angle data), a constant.
+
+    What every fit with the initial state as a nuisance does to a segment's residual and regressors;
+    a zero ``s0`` is no direction.
+
+    Examples
+    --------
+    >>> s0 = np.array([0.0, 1.0, 2.0, 3.0])
+    >>> [float(x) for x in project_out_initial_state(s0, True, 2 * s0 + 5)[0]]
+    [0.0, 0.0, 0.0, 0.0]
+    """
+    if offset:
+        s0 = s0 - s0.mean()
+        columns = tuple(c - c.mean() for c in columns)
+    ss = float(s0 @ s0)
+    if ss == 0:
+        return list(columns)
+    return [c - s0 * (float(s0 @ c) / ss) for c in columns]

@@ -18,7 +18,7 @@ from motorsim.recording import Recording
 from .data import MIN_SEGMENT_SAMPLES, Segment
 from .errors import NotIdentifiableError
 from .regression import regression_rows, solve_least_squares
-from .sensitivity import zoh_response
+from .sensitivity import project_out_initial_state, zoh_response
 
 __all__ = ["initial_guess", "regression_guess", "grid_guess"]
 
@@ -71,18 +71,6 @@ def initial_guess(recordings: Sequence[Recording], segments: Sequence[Segment]) 
     return grid_guess(segments)
 
 
-def _projected_out(s0: np.ndarray, offset: bool, *columns: np.ndarray) -> list[np.ndarray]:
-    """``columns`` less their least-squares fit on the initial-speed column ``s0`` (and a constant
-    when ``offset``); a column of zeros is no direction."""
-    if offset:
-        s0 = s0 - s0.mean()
-        columns = tuple(c - c.mean() for c in columns)
-    ss = float(s0 @ s0)
-    if ss == 0:
-        return list(columns)
-    return [c - s0 * (float(s0 @ c) / ss) for c in columns]
-
-
 def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     """Best ``a`` on a log grid with ``b`` and initial states solved linearly (robust start).
 
@@ -110,7 +98,7 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
             angle = seg.kind == "angle"
             g = resp.angle if angle else resp.speed
             s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
-            g_left, y_left = _projected_out(s0, angle, g, np.asarray(seg.output, dtype=float))
+            g_left, y_left = project_out_initial_state(s0, angle, g, np.asarray(seg.output, dtype=float))
             gy += float(g_left @ y_left)
             gg += float(g_left @ g_left)
             yy += float(y_left @ y_left)

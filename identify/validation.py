@@ -28,7 +28,7 @@ from .data import MIN_SEGMENT_SAMPLES, Segment, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import friction_response
-from .sensitivity import zoh_response
+from .sensitivity import project_out_initial_state, zoh_response
 
 __all__ = ["nrmse_fit", "simulated_speed", "fit_percent", "segment_speeds", "segment_fit_percent",
            "model_output", "model_residuals", "ValidationReport", "validate", "autocorrelation",
@@ -169,16 +169,11 @@ def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
         return _friction_segment_model(estimate, seg)
     resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, bias=bias, uniform=seg.uniform,
                         sensitivities=False)
-    if seg.kind == "angle":
-        # least squares of the gap on (initial-speed column, 1), centred: exact and one pass each
-        s0 = resp.angle_sensitivity[:, 2]
-        gap = seg.output - resp.angle
-        s0c = s0 - s0.mean()
-        ss = float(s0c @ s0c)
-        slope = float(s0c @ gap) / ss if ss > 0 else 0.0
-        return resp.angle + slope * s0 + (float(gap.mean()) - slope * float(s0.mean()))
-    s0 = resp.speed_sensitivity[:, 2]
-    return resp.speed + float(s0 @ (seg.output - resp.speed) / (s0 @ s0)) * s0
+    angle = seg.kind == "angle"
+    # the initial speed (and angle offset) by least squares: the measured output less what is left
+    s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+    left, = project_out_initial_state(s0, angle, seg.output - (resp.angle if angle else resp.speed))
+    return seg.output - left
 
 
 def _friction_segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
