@@ -417,8 +417,7 @@ def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Candidate
         if not best.refined:
             pending = [best]
         else:
-            pending = [f for f in fitted if not f.refined and f.residuals is not None and (
-                _close(f, best) or _against(f, best) <= REFINE_FACTOR * threshold(f.candidate, best.candidate, level))]
+            pending = [f for f in plausible(fitted, level, REFINE_FACTOR) if not f.refined]
             if not pending:
                 return best
         for f in pending:
