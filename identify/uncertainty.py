@@ -138,12 +138,6 @@ def _weighted_lag_products(g: np.ndarray, max_lag: int) -> np.ndarray:
 _DIRECT_AUTOCORRELATION_LAGS = 20
 
 
-def _autocorrelation(r: np.ndarray, lags: int, den: float) -> np.ndarray:
-    """``ac[l] = sum_t r[t + l] r[t] / den`` for ``l = 0 ... lags``, by dot products (not BLAS: a
-    threaded dot is slow on a busy machine)."""
-    return np.array([den] + [float(np.einsum("i,i->", r[lag:], r[:-lag])) for lag in range(1, lags + 1)]) / den
-
-
 def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     """Lags until the residual autocorrelation first falls inside its 95 % band, and the Ljung–Box p-value.
 
@@ -151,6 +145,8 @@ def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
     residual still correlated beyond them takes the FFT of all lags (O(n log n), a 2n-point transform).
     """
     from scipy.special import chdtrc  # the chi-square survival function, lighter than scipy.stats
+
+    from .validation import autocorrelation
     r = np.asarray(residuals, dtype=float) - np.mean(residuals)
     n = len(r)
     den = float(r @ r)
@@ -158,7 +154,7 @@ def _correlation_length(residuals: np.ndarray, limit: int) -> tuple[int, float]:
         return 0, 1.0
     lags = min(limit, n // 4)
     band = 1.96 / math.sqrt(n)
-    ac = _autocorrelation(r, min(lags, _DIRECT_AUTOCORRELATION_LAGS), den)
+    ac = autocorrelation(r, min(lags, _DIRECT_AUTOCORRELATION_LAGS))
     inside = np.flatnonzero(np.abs(ac[1:]) < band)
     if not len(inside) and lags > _DIRECT_AUTOCORRELATION_LAGS:
         spectrum = np.fft.rfft(r, 2 * n)
