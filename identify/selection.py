@@ -313,7 +313,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
-    notes = list(selection.notes) + _data_notes(recs, est)
+    notes = list(selection.notes) + _data_notes(recs, est, swept)
     if material or resolution:
         est, doubt = _widen(est, chosen, material, resolution)
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
@@ -363,14 +363,13 @@ def _counts_swept(recs: list[Recording]) -> float:
     return max(float(np.max(c) - np.min(c)) for c in counts) if counts else math.inf
 
 
-def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
+def _data_notes(recs: list[Recording], est: Estimate, swept: float) -> list[str]:
     """What the recordings cannot answer, said plainly (saturation, one amplitude, few counts, a too slow input)."""
     notes = []
     saturated = saturation_note(recs)      # counted, and kept in the fit: its docstring says why
     if saturated:
         notes.append(saturated)
-    duty = np.concatenate([r.duty for r in recs])
-    moving = np.abs(duty[:SELECTION_ROWS])
+    moving = np.abs(np.concatenate([r.duty[:SELECTION_ROWS] for r in recs])[:SELECTION_ROWS])
     moving = moving[moving > 0]
     if est.method == "oe" and len(moving):
         top = float(moving.max())
@@ -379,8 +378,7 @@ def _data_notes(recs: list[Recording], est: Estimate) -> list[str]:
             notes.append(f"the input takes one magnitude, |u| = {top:g}, in {100 * share:.0f} % of its non-zero "
                          "samples: b is the gain at that amplitude, and a dead zone would be absorbed in it "
                          "unseen; runs at two or more amplitudes would separate them")
-    swept = _counts_swept(recs)
-    if swept < MIN_COUNTS_SWEPT:
+    if swept < MIN_COUNTS_SWEPT:           # swept: _counts_swept(recs), as the caller has it
         notes.append(f"the encoder sweeps only {swept:.0f} counts in the whole run: a and b rest on a few "
                      f"steps (their intervals allow one count in {swept:.0f}, +-{100 / max(swept, 1):.2g} %); "
                      "run longer or faster, or use a finer encoder")
