@@ -23,6 +23,7 @@ from identify.estimate import Estimate
 from motorid.arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args, warn_if_clipped
 from motorid.progress import ProgressBar
 from motorsim.excitation import Sine
+from motorsim.files import write_atomically
 from motorsim.knobs import knobs_of
 from motorsim.recording import Recording
 from motorsim.rig import Experiment, Rig
@@ -144,13 +145,12 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"Article Table 1 on the simulated bench: a = {args.a:g} 1/s, b = {args.b:g} (rad/s^2)/duty, "
           f"dt = {args.sample_period:g} s, {args.counts_per_rev} counts/rev, {args.duration:g} s per run\n")
     print(table)
-    (out / "table.txt").write_text(table + "\n", encoding="utf-8")
+    write_atomically(out / "table.txt", table + "\n")
     for i, rec in enumerate(recordings, 1):
         write_recording(rec, out / f"eta_{i}.csv")
     summary = [{"input": r.input_name, "frequency": r.frequency, "method": r.method,
                 "error": r.error or None, **(r.estimate.to_dict() if r.estimate else {})} for r in rows]
-    (out / "table.json").write_text(json.dumps({"true_a": args.a, "true_b": args.b, "rows": summary}, indent=1),
-                                    encoding="utf-8")
+    write_atomically(out / "table.json", json.dumps({"true_a": args.a, "true_b": args.b, "rows": summary}, indent=1))
     if not args.no_plots:
         from motorid import plots
         sines = [f"eta_{i} = {args.amplitude} sin({freqs[i - 1]:g} t)" for i in range(1, len(recordings) + 1)]
@@ -187,7 +187,7 @@ def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[Demo
           f"reference {reference.describe()} rad/s, {args.duration:g} s, designed from each model "
           f"(estimates of eta_1)\n")
     print(table)
-    (out / "closed_loop.txt").write_text(table + "\n", encoding="utf-8")
+    write_atomically(out / "closed_loop.txt", table + "\n")
     for row in closed:
         write_recording(row.recording, out / f"closed_loop_{row.design}.csv")
     if not args.no_plots:

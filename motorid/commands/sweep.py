@@ -17,7 +17,7 @@ from typing import Iterator, Sequence
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorid.progress import ProgressBar
-from motorsim.files import safe_file_name
+from motorsim.files import safe_file_name, staged_path
 from scenarios.executors import usable_workers
 from scenarios.scenario import Scenario
 from scenarios.sweep import axis_column, read_sweep_csv, run_scenario
@@ -128,9 +128,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(f"{scenario.name}: {scenario.description}")
         print(f"{summary.n_points} points x {len(scenario.methods)} methods x {scenario.repetitions} repetitions, "
               f"{summary.samples_simulated:,} samples simulated in {summary.elapsed:.2f} s\n")
-        rows = read_sweep_csv(summary.csv_path)
+        rows = read_sweep_csv(staged_path(summary.csv_path))
         print(format_sweep_table(scenario, rows) if len(rows) <= 200 else f"({len(rows)} rows: see the CSV)")
-    paths = [] if args.no_plots else make_plots(scenario, summary.csv_path, out)
+    paths = [] if args.no_plots else make_plots(scenario, staged_path(summary.csv_path), out)
     print(f"\nwrote {summary.csv_path}, {summary.json_path}" + "".join(f", {p}" for p in paths))
     return 0
 

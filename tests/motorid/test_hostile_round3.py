@@ -1,0 +1,141 @@
+"""Hostile cases of the third round: no data lost, no hang, no confident wrong answer, one clear line.
+
+Each case ran as a user would run it, through ``motorid.cli.main``; each failed before the
+change it tests (a file replaced, a traceback, a silently wrong number) and now ends in a
+right answer or one ``motorid: error:`` line naming the parameter, the rule and the value.
+"""
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from motorid.cli import main
+from motorsim import Experiment, Motor, SimRig, Sine, write_recording
+
+
+@pytest.fixture(scope="module")
+def rec_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "r.csv"
+    write_recording(SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 4.0)), path)
+    return path
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and err[-1].startswith("motorid: error:"), err
+    return err[-1]
+
+
+# --- data lost: every output waits for the whole command to succeed ---------------------------------
+
+def test_a_failed_validation_leaves_the_saved_model_unchanged(rec_path, tmp_path, capsys):
+    model, bad = tmp_path / "m.json", tmp_path / "bad.csv"
+    model.write_text('{"old": 1}\n')
+    bad.write_text("x,y\n1,2\n")
+    assert main(["identify", str(rec_path), "--save", str(model), "--validate", str(bad)]) == 2
+    assert model.read_text() == '{"old": 1}\n'
+    assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]      # no temporary file left either
+
+
+def test_two_outputs_of_one_command_may_not_name_one_file(rec_path, tmp_path, capsys):
+    out = tmp_path / "out.png"
+    assert main(["identify", str(rec_path), "--save", str(out), "--report", str(out)]) == 2
+    assert "--save" in _error(capsys) and not out.exists()
+
+
+def test_a_sweep_never_overwrites_its_own_scenario_file(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    scenario = 'name = "tiny"\nrepetitions = 1\nmethods = ["zoh-ls"]\n[bench]\nduration = 0.5\n' \
+               '[grid]\n"excitation.frequency" = [10]\n'
+    (tmp_path / "summary.json").write_text(scenario)
+    assert main(["sweep", "summary.json", "--out", ".", "--quiet", "--no-plots"]) == 2
+    assert "summary.json" in _error(capsys)
+    assert (tmp_path / "summary.json").read_text() == scenario
+
+
+def test_an_output_named_as_an_input_is_refused_even_when_it_is_written_late(tmp_path):
+    from motorsim.files import OutputFileError, deferred_outputs, write_atomically
+    scenario = tmp_path / "summary.json"
+    scenario.write_text("x")
+    with pytest.raises(OutputFileError, match="input of this command"), deferred_outputs([scenario]):
+        write_atomically(tmp_path / "." / "summary.json", "y")
+    assert scenario.read_text() == "x"
+
+
+def test_demo_refuses_a_link_planted_at_its_table(tmp_path, capsys):
+    target = tmp_path / "elsewhere.txt"
+    target.write_text("precious")
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "table.json").symlink_to(target)
+    assert main(["demo", "--out", str(out), "--no-plots", "--no-control", "--duration", "1",
+                 "--frequencies", "10", "--methods", "euler-ls"]) == 2
+    assert "table.json" in _error(capsys) and target.read_text() == "precious"
+
+
+def test_a_replaced_file_keeps_its_permission_bits(rec_path, tmp_path, capsys):
+    model = tmp_path / "m.json"
+    model.write_text("{}")
+    model.chmod(0o600)
+    assert main(["identify", str(rec_path), "--save", str(model)]) == 0
+    assert stat.S_IMODE(model.stat().st_mode) == 0o600 and "motorid estimate" in model.read_text()
+
+
+def test_the_live_figure_is_replaced_never_written_through_a_link(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    target = tmp_path / "elsewhere.png"
+    target.write_bytes(b"precious")
+    out = tmp_path / "r.csv"
+    (tmp_path / "r.csv.live.png").symlink_to(target)
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet", "--plot",
+                 "--out", str(out)]) == 2
+    assert "symbolic link" in _error(capsys) and target.read_bytes() == b"precious"
+    os.unlink(tmp_path / "r.csv.live.png")
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet", "--plot",
+                 "--out", str(out)]) == 0
+    assert (tmp_path / "r.csv.live.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_live_plot_onto_a_fifo_is_refused_before_the_run(tmp_path, capsys):
+    os.mkfifo(tmp_path / "r.csv.live.png")
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet", "--plot",
+                 "--out", str(tmp_path / "r.csv")]) == 2
+    assert "FIFO" in _error(capsys) and not (tmp_path / "r.csv").exists()
+
+
+def test_a_failed_live_run_with_overwrite_keeps_the_complete_recording(tmp_path, capsys):
+    out = tmp_path / "r.csv"
+    assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet",
+                 "--out", str(out)]) == 0
+    before = out.read_bytes()
+    assert main(["live", "--port", "fake://?speed=0&disconnect_at=50", "--duration", "1", "--quiet",
+                 "--out", str(out), "--overwrite"]) == 2
+    line = _error(capsys)
+    assert out.read_bytes() == before and "unchanged" in line
+    partial = tmp_path / "r.csv.partial"
+    assert "complete: false" in partial.read_text() and str(partial) in line
+
+
+def test_a_partial_file_being_written_is_not_called_an_earlier_run(tmp_path, capsys):
+    from motorsim.files import OutputFileError
+    from motorsim.writing import RecordingWriter
+    with RecordingWriter(tmp_path / "r.csv", 0.005, 1000):
+        with pytest.raises(OutputFileError, match="being written by another run"):
+            RecordingWriter(tmp_path / "r.csv", 0.005, 1000)
+
+
+def test_a_default_live_name_taken_meanwhile_moves_on(tmp_path, monkeypatch, capsys):
+    import motorid.commands.live as live
+    from motorsim.writing import RecordingWriter
+    monkeypatch.chdir(tmp_path)
+    taken = live.default_out_path()
+    names = iter([taken])
+    real = live.default_out_path
+    monkeypatch.setattr(live, "default_out_path", lambda now=None: next(names, None) or real(now))
+    with RecordingWriter(taken, 0.005, 1000):       # the other run, still in its handshake when the name was chosen
+        assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "recording to" in err and taken not in err.split("recording to", 1)[1].split()[0]
