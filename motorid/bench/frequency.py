@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
+from motorid.bench.flags import integer
 from motorid.bench.timing import interleaved_times
 
 __all__ = ["bench_frequency"]
@@ -23,9 +24,9 @@ def bench_frequency(argv: Sequence[str]) -> int:
     from identify.frequency_estimate import frequency_response
     from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
     p = argparse.ArgumentParser(prog="motorid bench frequency", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=10**6, help="samples of the run (default 1000000)")
-    p.add_argument("--segment", type=int, default=4096, help="Welch segment length in samples (default 4096)")
-    p.add_argument("--repeats", type=int, default=5, help="timings to take the median of (default 5)")
+    p.add_argument("--samples", type=integer(), default=10**6, help="samples of the run (default 1000000)")
+    p.add_argument("--segment", type=integer(2), default=4096, help="Welch segment length in samples (default 4096)")
+    p.add_argument("--repeats", type=integer(), default=5, help="timings to take the median of (default 5)")
     args = p.parse_args(list(argv))
     dt = 0.005
     rig = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(0))

@@ -19,6 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import Sequence
 
+from motorid.bench.flags import integer
 from motorid.bench.timing import interleaved_times
 
 __all__ = ["bench_selection", "FIT_GOAL", "FILE_GOAL"]
@@ -42,9 +43,10 @@ def bench_selection(argv: Sequence[str]) -> int:
     """The default's fit time against one ``oe`` fit, and ``identify FILE`` against ``pandas.read_csv``."""
     from identify import fit
     p = argparse.ArgumentParser(prog="motorid bench selection", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=10_000, help="samples of the fit comparison (default 10000)")
-    p.add_argument("--rows", type=int, default=10**6, help="rows of the file comparison (default 1000000; 0 skips)")
-    p.add_argument("--repeats", type=int, default=5, help="timings to take the median of (default 5)")
+    p.add_argument("--samples", type=integer(), default=10_000, help="samples of the fit comparison (default 10000)")
+    p.add_argument("--rows", type=integer(0), default=10**6,
+                   help="rows of the file comparison (default 1000000; 0 skips)")
+    p.add_argument("--repeats", type=integer(), default=5, help="timings to take the median of (default 5)")
     args = p.parse_args(list(argv))
     missed = []
     for label, friction in (("linear multisine", 0.0), ("Coulomb friction 20 %", 120.0)):

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
 from motorid.bench.timing import interleaved_times
 
 __all__ = ["bench_simulate"]
@@ -23,8 +24,8 @@ def bench_simulate(argv: Sequence[str]) -> int:
 
     from motorsim import Motor, Sine, simulate
     p = argparse.ArgumentParser(prog="motorid bench simulate", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=100_000, help="samples per run (default 100000)")
-    p.add_argument("--repeats", type=int, default=5, help="alternating rounds to take the median of (default 5)")
+    p.add_argument("--samples", type=integer(2), default=100_000, help="samples per run (default 100000)")
+    p.add_argument("--repeats", type=integer(), default=5, help="alternating rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     motor, dt, n = Motor(25.0, 3.0), 0.005, args.samples
     duty = Sine(10.0).duty(n, dt).astype(float)

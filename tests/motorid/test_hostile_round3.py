@@ -139,3 +139,39 @@ def test_a_default_live_name_taken_meanwhile_moves_on(tmp_path, monkeypatch, cap
         assert main(["live", "--port", "fake://?a=25&b=3&speed=0", "--duration", "1", "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "recording to" in err and taken not in err.split("recording to", 1)[1].split()[0]
+
+
+# --- hangs: inputs that are not regular files ------------------------------------------------------
+
+def test_bench_parse_refuses_a_fifo_instead_of_waiting_for_a_writer(tmp_path, capsys):
+    os.mkfifo(tmp_path / "fifo")
+    assert main(["bench", "parse", "--file", str(tmp_path / "fifo"), "--repeats", "1"]) == 2
+    assert "FIFO" in _error(capsys)
+
+
+def test_bench_parse_names_a_file_that_is_not_a_recording(tmp_path, capsys):
+    pytest.importorskip("pandas")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y\n1,2\n")
+    assert main(["bench", "parse", "--file", str(bad), "--repeats", "1"]) == 2
+    assert "--file" in (line := _error(capsys)) and "time_s" in line
+
+
+# --- benchmark flags: each count and list checked where it is parsed -------------------------------
+
+@pytest.mark.parametrize("argv, flag", [
+    (["parse", "--repeats", "0"], "--repeats"),
+    (["parse", "--rows", "0"], "--rows"),
+    (["simulate", "--samples", "0"], "--samples"),
+    (["accuracy", "--sample-periods", "0"], "--sample-periods"),
+    (["accuracy", "--poles", "-4"], "--poles"),
+    (["accuracy", "--poles", "4,,25"], "--poles"),
+    (["frequency", "--segment", "1"], "--segment"),
+], ids=["parse-repeats-0", "parse-rows-0", "simulate-samples-0", "accuracy-sample-periods-0", "accuracy-poles-neg",
+        "accuracy-poles-empty-item", "frequency-segment-1"])
+def test_benchmark_flags_are_checked_where_they_are_parsed(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", *argv])
+    assert exit_.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"argument {flag}: must be" in line and repr(argv[-1]) in line
