@@ -271,9 +271,23 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     if constant:
         raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
                                    "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
         _check_moves(i, r)
         _warn_saturation(i, r)
+
+
+#: The largest input magnitude a fit takes, in the input's unit (and 1 / it the smallest): b and its
+#: variance scale with its inverse square, which leaves a float's range for inputs far beyond any drive's.
+INPUT_SCALE_LIMIT = 1e100
+
+
+def _check_input_scale(largest: float, unit: str) -> None:
+    """Refuse an input whose magnitude no unit of a drive gives (``duty x 1e-300``): b**2 would overflow."""
+    if not 1 / INPUT_SCALE_LIMIT <= largest <= INPUT_SCALE_LIMIT:
+        raise NotIdentifiableError(f"input's largest magnitude must be in {1 / INPUT_SCALE_LIMIT:g}..."
+                                   f"{INPUT_SCALE_LIMIT:g} {unit}, got {largest:g}: no drive's input is that "
+                                   "far from 1; give the input in its real unit (duty, V, %)")
 
 
 def _check_moves(i: int, r: Recording) -> None:

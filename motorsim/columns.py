@@ -126,13 +126,17 @@ class Table:
 
     def column(self, spec: ColumnSpec) -> np.ndarray:
         """The column ``spec`` names (by name, else by 0-based index)."""
+        return self.columns[self.index(spec)]
+
+    def index(self, spec: ColumnSpec) -> int:
+        """The 0-based index of the column ``spec`` names."""
         if isinstance(spec.column, str):
             if spec.column in self.names:
-                return self.columns[self.names.index(spec.column)]
+                return self.names.index(spec.column)
             raise ImportFormatError(f"{self.path}: no column named {spec.column!r} for the {spec.quantity} "
                                     f"(columns: {', '.join(self.names)}; or give a 0-based index)")
         if spec.column < len(self.columns):
-            return self.columns[spec.column]
+            return spec.column
         raise ImportFormatError(f"{self.path}: column index {spec.column} for the {spec.quantity} is out of range "
                                 f"(the file has {len(self.columns)} columns, 0-based)")
 
@@ -377,6 +381,7 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     if not {"speed", "angle", "counts"} & specs.keys():
         raise ImportFormatError(f"{path}: give the speed, angle or counts column")
     table = read_table(path)
+    _refuse_shared_columns(table, specs)
     cols = {q: table.column(s) for q, s in specs.items()}
     _check_counts(table, specs, cols, counts_per_rev)
     _check_time(table, specs["time"], cols["time"])
@@ -394,6 +399,18 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     if "angle" in specs and specs["angle"].unit == "rad":
         _check_angle_unit(path, rec, specs["angle"], stated=not isinstance(angle, str) or ":" in angle)
     return rec
+
+
+def _refuse_shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> None:
+    """Refuse one column named for two quantities (``--speed y --angle y``): one of them is wrong."""
+    taken: dict[int, str] = {}
+    for quantity, spec in specs.items():
+        k = table.index(spec)
+        if k in taken:
+            name = table.names[k] if k < len(table.names) else str(k)
+            raise ImportFormatError(f"{table.path}: column {name!r} is named both as the {taken[k]} "
+                                    f"(--{taken[k]}) and as the {quantity} (--{quantity}); each column has one role")
+        taken[k] = quantity
 
 
 def _check_angle_unit(path: str, rec: Recording, spec: ColumnSpec, *, stated: bool) -> None:

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from motorid.arguments import CommandError, print_to_stderr
+from motorid.ranges import check_design_model, check_reference_times, check_run_length
 from motorsim.control import (
     CONTROLLERS,
     INTEGRAL_WEIGHT,
@@ -105,7 +106,8 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
                         f"{model.input_delay})")
         model = dataclasses.replace(model, input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
-    return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
+    reference = check_reference_times(parse_reference(args.reference), sample_period)
+    return ClosedLoopExperiment(controller, reference, args.duration, args.duty_limit)
 
 
 def load_model_file(path: str) -> Any:
@@ -142,7 +144,8 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
                                                                                        "input_delay")}}
         source = PlantModel(source["a"], source["b"], args.sample_period, args.counts_per_rev,
                             friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"])
-    return PlantModel.from_source(source, args.sample_period, args.counts_per_rev)
+    return check_design_model(PlantModel.from_source(source, args.sample_period, args.counts_per_rev),
+                              f"--model {args.model}" if getattr(args, "model", None) else "--a/--b")
 
 
 def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Controller:
@@ -265,8 +268,9 @@ def run_control(args: argparse.Namespace) -> int:
             print_to_stderr(f"motorid: note: a saved model does not say the rig's encoder; assuming "
                             f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")
     model = model_from_args(args)
+    check_run_length(args.duration, model.sample_period)
     controller = controller_from_args(args, model)
-    reference = parse_reference(args.reference)
+    reference = check_reference_times(parse_reference(args.reference), model.sample_period)
     covariance = _ab_covariance(args)
     robustness = None
     if args.robust:

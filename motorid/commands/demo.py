@@ -127,9 +127,12 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
 def run_demo(args: argparse.Namespace) -> int:
     """Run the article's experiments, print and write Table 1, the recordings and the figures."""
     try:
-        freqs = [float(x) for x in args.frequencies.split(",") if x.strip()]
+        freqs = [float(x) for x in args.frequencies.split(",")]
     except ValueError:
-        raise CommandError(f"--frequencies must be comma-separated numbers, got {args.frequencies!r}") from None
+        freqs = []
+    if not freqs or not all(math.isfinite(w) and w > 0 for w in freqs):   # an empty item is refused, not skipped
+        raise CommandError(f"--frequencies must be comma-separated numbers > 0 in rad/s, none left empty, "
+                           f"got {args.frequencies!r}")
     methods = args.methods.split(",") if args.methods else None
     for m in methods or []:
         if m not in available_methods():
@@ -174,12 +177,13 @@ def run_demo(args: argparse.Namespace) -> int:
 def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[DemoRow], out: Path) -> None:
     """One-step MPC designed from the truth, ``euler-ls`` and ``oe`` (first input), run on ``rig``."""
     from motorid.commands.control import compare_designs, format_closed_loop_table
+    from motorid.ranges import check_reference_times
     from motorsim.control import PlantModel, parse_reference
     first = {r.method: r.estimate for r in rows if r.input_name == "eta_1" and r.estimate is not None}
     truth = PlantModel(args.a, args.b, args.sample_period, args.counts_per_rev, friction=args.friction,
                        bias=args.bias, input_delay=args.input_delay)
     designs = [("truth", truth)] + [(m, first[m]) for m in ("euler-ls", "oe") if m in first]
-    reference = parse_reference(args.reference)
+    reference = check_reference_times(parse_reference(args.reference), args.sample_period)
     closed = compare_designs(rig, designs, "mpc", reference, args.duration, args.sample_period, args.counts_per_rev,
                              duty_weight=args.duty_weight)
     table = format_closed_loop_table(closed)

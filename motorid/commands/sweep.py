@@ -157,6 +157,7 @@ DASK_CONNECT_TIMEOUT = 10.0
 
 def _connect_dask(client_class, address: str):
     """A Dask client on ``address``, or a one-line :class:`CommandError` within :data:`DASK_CONNECT_TIMEOUT` s."""
+    _check_dask_address(address)
     try:
         return client_class(address, timeout=DASK_CONNECT_TIMEOUT)
     except (OSError, TimeoutError) as exc:
@@ -166,6 +167,19 @@ def _connect_dask(client_class, address: str):
     except Exception as exc:    # whatever a server that is not a Dask scheduler makes the client raise
         raise CommandError(f"--dask {address}: the server there does not speak Dask's protocol "
                            f"({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
+def _check_dask_address(address: str) -> None:
+    """Refuse, before any connection, an ``--dask`` that is no scheduler address (``[SCHEME://]HOST:PORT``)."""
+    from urllib.parse import urlsplit
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if not parts.hostname or port is None:
+        raise CommandError(f"--dask must be 'local' or a scheduler address [SCHEME://]HOST:PORT (e.g. "
+                           f"tcp://10.0.0.5:8786), got {address!r}")
 
 
 @contextlib.contextmanager

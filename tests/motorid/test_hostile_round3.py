@@ -6,6 +6,7 @@ right answer or one ``motorid: error:`` line naming the parameter, the rule and 
 """
 from __future__ import annotations
 
+import math
 import os
 import stat
 
@@ -175,3 +176,143 @@ def test_benchmark_flags_are_checked_where_they_are_parsed(argv, flag, capsys):
     assert exit_.value.code == 2
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"argument {flag}: must be" in line and repr(argv[-1]) in line
+
+
+# --- silently accepted: each now refused naming the flag, the rule and the value -------------------
+
+@pytest.fixture(scope="module")
+def lab_path(rec_path, tmp_path_factory):
+    from motorsim import read_recording
+    rec = read_recording(rec_path)
+    path = tmp_path_factory.mktemp("lab") / "lab.csv"
+    angle = rec.counts * 2 * 3.141592653589793 / rec.counts_per_rev
+    rows = (f"{float(t)!r},{int(u)},{float(y)!r}\n" for t, u, y in zip(rec.time, rec.duty, angle))
+    path.write_text("t,u,y\n" + "".join(rows))
+    return path
+
+
+@pytest.mark.parametrize("flags, roles", [
+    (["import", "--time", "t", "--input", "y", "--speed", "y"], ("input", "speed")),
+    (["import", "--time", "t", "--input", "u", "--speed", "t"], ("time", "speed")),
+    (["import", "--time", "t", "--input", "u", "--speed", "y", "--angle", "2"], ("speed", "angle")),
+    (["identify", "--time", "t", "--input", "u", "--speed", "y", "--angle", "y"], ("speed", "angle")),
+], ids=["input-and-speed", "time-and-speed", "speed-and-angle-by-index", "identify-speed-and-angle"])
+def test_one_column_in_two_roles_is_refused(lab_path, tmp_path, flags, roles, capsys):
+    out = ["--out", str(tmp_path / "x.csv")] if flags[0] == "import" else []
+    assert main([flags[0], str(lab_path), *flags[1:], *out]) == 2
+    line = _error(capsys)
+    assert all(f"--{role}" in line for role in roles) and "one role" in line
+
+
+@pytest.fixture(scope="module")
+def model_text(rec_path, tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "m.json"
+    assert main(["identify", str(rec_path), "--method", "oe", "--save", str(path)]) == 0
+    return path.read_text()
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda t: t.replace('"a":', '"a": 30, "a":', 1), "'a' twice"),
+    (lambda t: t.replace('"covariance": [', '"covariance": [[1e400, 0], [0, 1]], "x": [', 1), "1e400"),
+    (lambda t: t.replace('"input": "duty"', '"input": ""', 1), "units.input"),
+], ids=["duplicate-key", "covariance-1e400", "empty-input-unit"])
+def test_a_model_file_that_does_not_say_one_thing_is_refused(model_text, tmp_path, edit, match, capsys):
+    text = edit(model_text)
+    assert text != model_text
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    assert main(["control", "design", "--model", str(path), "--controller", "pi"]) == 2
+    assert match in _error(capsys)
+
+
+def test_fix_bias_holds_the_bias_at_zero_in_the_default_fit_too(rec_path):
+    from identify import fit
+    from motorsim import read_recording
+    rec = read_recording(rec_path)
+    structures = {c["structure"] for c in fit(rec, fix_bias=True).selection["candidates"]}
+    assert "bias" in {c["structure"] for c in fit(rec).selection["candidates"]} and "bias" not in structures
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["simulate", "--a", "25", "--b", "3", "--controller", "pi", "--reference", "sine:10,10@"], "OFFSET, got none"),
+    (["demo", "--frequencies", ""], "--frequencies"),
+    (["demo", "--frequencies", "10,,20"], "--frequencies"),
+], ids=["reference-empty-offset", "demo-no-frequency", "demo-empty-frequency"])
+def test_an_empty_item_is_refused_not_skipped(argv, match, tmp_path, capsys):
+    out = ["--out", str(tmp_path / ("o.csv" if argv[0] == "simulate" else "o"))]
+    assert main([*argv, *out]) == 2
+    assert match in _error(capsys) and not (tmp_path / "o.csv").exists() and not (tmp_path / "o").exists()
+
+
+# --- tracebacks and misleading messages: one range check where each number enters -------------------
+
+@pytest.mark.parametrize("extra, names", [
+    (["--a", "25", "--b", "1e-308"], ("b", "1e-308")),
+    (["--a", "25", "--b", "3", "--reference", "step:1,1e308"], ("at_time", "1e+308")),
+    (["--a", "25", "--b", "3", "--duration", "0.001"], ("--duration", "0.001")),
+    (["--a", "25", "--b", "3", "--sample-period", "1e6", "--duration", "1e7"], ("--sample-period", "1000000.0")),
+], ids=["b-1e-308", "step-at-1e308", "duration-0.001", "sample-period-1e6"])
+@pytest.mark.parametrize("controller", ["mpc", "pi", "lqr-position"])
+def test_control_design_numbers_are_range_checked(extra, names, controller, capsys):
+    assert main(["control", "design", "--controller", controller, *extra]) == 2
+    line = _error(capsys)
+    assert all(n in line for n in names), line
+
+
+def test_a_model_with_a_1e308_is_refused_and_its_feedforward_never_infinite(model_text, tmp_path, capsys):
+    import json
+
+    from identify.estimate import Estimate
+    from identify.feedforward import feedforward_constants
+    doc = json.loads(model_text)
+    path = tmp_path / "big.json"
+    path.write_text(json.dumps({**doc, "a": 1e308}))
+    assert main(["control", "design", "--model", str(path), "--controller", "feedforward"]) == 2
+    assert "a must be finite and within" in _error(capsys)
+    ff = feedforward_constants(Estimate.from_json(path.read_text()))
+    low, high = ff.confidence_interval()["kv"]
+    assert all(math.isfinite(x) for x in (ff.kv, low, high)) and low < ff.kv < high and "inf" not in ff.describe()
+
+
+def test_an_input_in_tiny_units_is_refused_by_its_scale(rec_path, tmp_path, capsys):
+    lines = rec_path.read_text().splitlines()
+    header = [k for k, line in enumerate(lines) if line.startswith("seq")][0]
+    rows = [line.split(",") for line in lines[header + 1:]]
+    body = [",".join([r[0], r[1], repr(float(r[2]) * 1e-300), *r[3:]]) for r in rows]
+    tiny = tmp_path / "tiny.csv"
+    tiny.write_text("\n".join(lines[:header + 1] + body) + "\n")
+    assert main(["identify", str(tiny)]) == 2
+    assert "input's largest magnitude must be in" in _error(capsys)
+
+
+def test_frequency_on_a_constant_input_says_so(tmp_path, capsys):
+    from motorsim import Constant
+    path = tmp_path / "c.csv"
+    write_recording(SimRig(Motor(25.0, 3.0)).run(Experiment(Constant(100), 0.005, 2.0)), path)
+    assert main(["frequency", str(path)]) == 2
+    assert "input is constant" in _error(capsys)
+
+
+def test_validate_refuses_a_model_with_a_nan(rec_path):
+    import dataclasses
+
+    from identify import fit, validate
+    from motorsim import read_recording
+    rec = read_recording(rec_path)
+    est = fit(rec, method="zoh-ls")
+    with pytest.raises(ValueError, match="estimate.a must be finite, got nan"):
+        validate(dataclasses.replace(est, a=math.nan), rec)
+
+
+def test_a_scenario_nested_too_deep_is_one_line(tmp_path, capsys):
+    path = tmp_path / "deep.toml"
+    path.write_text('name = "x"\nv = ' + "[" * 5000 + "]" * 5000 + "\n")
+    assert main(["sweep", str(path), "--quiet", "--out", str(tmp_path / "o")]) == 2
+    assert "nested too deep" in _error(capsys)
+
+
+def test_dask_names_an_address_that_is_none_without_contacting_anything(capsys):
+    pytest.importorskip("dask.distributed")
+    assert main(["sweep", "article", "--quiet", "--dask", "not-an-address"]) == 2
+    line = _error(capsys)
+    assert "HOST:PORT" in line and "'not-an-address'" in line and "protocol" not in line
