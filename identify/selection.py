@@ -34,6 +34,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from .causality import check_input_leads
 from .comparison import (
     CLOSE,
     LEVEL,
@@ -294,6 +295,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     from .methods import method_function
     recs = as_recordings(recordings)
     check_excitation(recs, 2)
+    check_input_leads(recs)      # an input logged late: a negative delay no candidate has
     selection = select_model(recs, structures=structures, input_delay=input_delay, fix_bias=fix_bias)
     chosen = selection.chosen
     options = chosen.options()

@@ -1,6 +1,7 @@
 """Recordings read for a fit, screened for corrupted samples and for the same file given twice.
 
-``motorid identify`` reads its files through :func:`read_and_fit`: a row no motor can
+``motorid identify`` reads its files through :func:`read_and_fit`: a run whose output answers
+its input before it was recorded (:func:`identify.causality.check_input_leads`), a row no motor can
 produce (:func:`motorsim.plausibility.implausible_samples`) or an isolated residual outlier
 after the fit (:func:`identify.outliers.residual_outliers`) is refused, naming the file and
 the row's ``seq``; with ``--drop-outliers`` such rows are dropped as gaps, the fit is
@@ -118,7 +119,8 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     CommandError
         A file given twice, or an isolated residual outlier without ``drop_outliers``.
     """
-    from identify import fit
+    from identify import DEFAULT_METHOD, fit
+    from identify.causality import check_input_leads
     refuse_duplicates(files)
     if read is None:
         def read(path: str, check_samples: bool) -> Recording:
@@ -131,6 +133,8 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
             if bad:
                 dropped.append(DroppedSamples(name, [s.seq for s in bad], "implausible: " + bad[0].reason))
                 recs[i] = rec.drop_rows(s.row for s in bad)
+    if method != DEFAULT_METHOD:           # the default fit checks this itself
+        check_input_leads(recs, files)
     est = fit(recs, method=method, **options)
     outliers = _fit_outliers(est, recs, fitted=True)
     if not any(outliers):

@@ -316,3 +316,72 @@ def test_dask_names_an_address_that_is_none_without_contacting_anything(capsys):
     assert main(["sweep", "article", "--quiet", "--dask", "not-an-address"]) == 2
     line = _error(capsys)
     assert "HOST:PORT" in line and "'not-an-address'" in line and "protocol" not in line
+
+
+# --- confident wrong answers: what the data contradict is refused, naming the contradiction --------
+
+def _rewrite(path, out, column, change):
+    """``path`` with ``change(values)`` applied to ``column`` (a list of the cells as text), to ``out``."""
+    lines = path.read_text().splitlines()
+    header = [k for k, line in enumerate(lines) if line.startswith("seq")][0]
+    k = lines[header].split(",").index(column)
+    rows = [line.split(",") for line in lines[header + 1:]]
+    for row, value in zip(rows, change([row[k] for row in rows])):
+        row[k] = value
+    out.write_text("\n".join(lines[:header + 1] + [",".join(row) for row in rows]) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("method", ["auto", "oe"])
+def test_an_input_logged_one_sample_late_is_refused(rec_path, tmp_path, method, capsys):
+    late = _rewrite(rec_path, tmp_path / "late.csv", "duty", lambda cells: ["0", *cells[:-1]])
+    assert main(["identify", str(late), "--method", method]) == 2
+    assert "answers its recorded input one sample before it" in _error(capsys)
+
+
+def test_a_true_input_delay_is_still_found(tmp_path, capsys):
+    from identify import fit
+    rec = SimRig(Motor(25.0, 3.0, input_delay=1)).run(Experiment(Sine(10.0, 200), 0.005, 4.0))
+    est = fit(rec)
+    assert est.input_delay == 1 and est.a == pytest.approx(25.0, rel=1e-3)
+
+
+@pytest.fixture(scope="module")
+def speed_rec_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("speed") / "s.csv"
+    write_recording(SimRig(Motor(25.0, 3.0), record_speed=True).run(Experiment(Sine(10.0, 200), 0.005, 4.0)), path)
+    return path
+
+
+@pytest.mark.parametrize("edit, factor", [
+    (lambda p, out: out.write_text(p.read_text().replace("# counts_per_rev: 16667", "# counts_per_rev: 4167")),
+     "0.25 x"),
+    (lambda p, out: _rewrite(p, out, "speed_rad_s", lambda cells: [repr(float(c) * 60 / (2 * math.pi))
+                                                                   for c in cells]), "9.55 x"),
+], ids=["counts-per-rev-4x-off", "speed-in-rpm"])
+def test_a_speed_column_contradicting_the_counts_is_refused(speed_rec_path, tmp_path, edit, factor, capsys):
+    assert main(["identify", str(speed_rec_path)]) == 0
+    capsys.readouterr()
+    bad = tmp_path / "bad.csv"
+    edit(speed_rec_path, bad)
+    assert main(["identify", str(bad)]) == 2
+    line = _error(capsys)
+    assert "speed_rad_s" in line and "counts" in line and factor in line
+
+
+def test_a_logged_input_flat_while_the_speed_turns_is_refused(rec_path, tmp_path, capsys):
+    flat = _rewrite(rec_path, tmp_path / "flat.csv", "duty",
+                    lambda cells: [str(max(-60, min(60, int(c)))) for c in cells])
+    assert main(["identify", str(flat)]) == 2
+    line = _error(capsys)
+    assert "stays at 60 duty" in line or "stays at -60 duty" in line
+    assert "rises" in line and "falls" in line
+
+
+def test_a_time_unit_in_the_header_is_refused_not_ignored(rec_path, tmp_path, capsys):
+    lines = rec_path.read_text().splitlines()
+    text = "\n".join([lines[0], "# time_unit: ms", *lines[1:]]) + "\n"
+    path = tmp_path / "ms.csv"
+    path.write_text(text)
+    assert main(["identify", str(path)]) == 2
+    assert "time_unit must be 's'" in _error(capsys)
