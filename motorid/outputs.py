@@ -19,7 +19,8 @@ from typing import Iterator
 
 from motorsim.files import FIGURE_SUFFIXES, OutputFileError, check_output_path, same_file
 
-__all__ = ["FILE_OUTPUTS", "FOLDER_OUTPUTS", "FOLDER_FILES", "INPUT_ATTRIBUTES", "check_outputs", "input_paths"]
+__all__ = ["FILE_OUTPUTS", "FOLDER_OUTPUTS", "FOLDER_FILES", "INPUT_ATTRIBUTES", "check_outputs", "input_paths",
+           "has_outputs"]
 
 #: command -> {argument name: extensions that name the format written, or None}
 FILE_OUTPUTS: dict[str, dict[str, tuple[str, ...] | None]] = {
@@ -47,6 +48,15 @@ INPUT_ATTRIBUTES = ("files", "file", "validate", "model", "scenario")
 
 def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
+
+
+def has_outputs(args: argparse.Namespace) -> bool:
+    """Whether ``args.command`` writes outputs (listed here), which then wait until it has succeeded.
+
+    A command without (``bench``) may write scratch files that it reads back at once.
+    """
+    command = str(getattr(args, "command", ""))
+    return command in FILE_OUTPUTS or command in FOLDER_OUTPUTS
 
 
 def input_paths(args: argparse.Namespace) -> Iterator[str]:
