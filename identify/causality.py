@@ -10,12 +10,13 @@ the article's sine, with an interval that excludes 25).
 (its first :data:`LEAD_ROWS` rows): as recorded, and with the input moved one sample earlier, both
 at the delay the recording declares (``input_delay_samples``, else 0).  When the earlier input
 fits better beyond the noise (the comparison of :mod:`identify.comparison`, at level
-:data:`LEAD_LEVEL`) and materially (:data:`MATERIAL`), the data are refused, saying so.
+:data:`LEAD_LEVEL`), materially (:data:`MATERIAL`) and to white residuals (:data:`WHITE_LAGS`: the
+shifted input explains the data, not some other misfit), the data are refused, saying so.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
-__all__ = ["check_input_leads", "input_lead_statistic", "threshold", "LEAD_ROWS", "LEAD_LEVEL", "MATERIAL"]
+__all__ = ["check_input_leads", "input_lead_test", "LeadTest", "LEAD_ROWS", "LEAD_LEVEL", "MATERIAL", "WHITE_LAGS"]
 
 #: Rows of each recording the two fits use (the first of its longest gap-free stretch).
 LEAD_ROWS = 20_000
@@ -34,6 +35,10 @@ LEAD_LEVEL = 1e-3
 #: (residuals 0.041 against 0.041 rad called different); a late log shrinks the residual by 15 % even
 #: under 2 mrad of angle noise, and tenfold on a clean encoder.
 MATERIAL = 0.9
+#: Lags of the whiteness test the earlier input's residuals must pass (a chi-square on as many degrees
+#: of freedom, at :data:`LEAD_LEVEL`): a model that is wrong in another way (strong Coulomb friction
+#: fitted linearly) can fit better with a shifted input too, but leaves structure in its residuals.
+WHITE_LAGS = 10
 
 
 def _declared_delay(rec: Recording) -> int:
@@ -53,37 +58,45 @@ def _residuals(rec: Recording, delay: int) -> np.ndarray | None:
         return None
 
 
-def input_lead_statistic(rec: Recording) -> tuple[float, float, float]:
-    """``(T, rms_as_recorded, rms_input_earlier)`` on the longest gap-free stretch of ``rec``.
+class LeadTest(NamedTuple):
+    """The comparison of one recording: the statistic, both fits' residual RMS and the earlier one's whiteness."""
 
-    ``T`` is 0 when the earlier input fits no better (or a fit fails); compare it with
-    :func:`threshold`.
-    """
+    statistic: float
+    rms_recorded: float
+    rms_earlier: float
+    whiteness: float
+
+    def leads(self) -> bool:
+        """Whether the earlier input fits better beyond the noise, materially, and to white residuals."""
+        from scipy.special import chdtri, fdtri
+
+        from .comparison import BLOCKS
+        return (self.statistic > float(fdtri(1, BLOCKS - 1, 1.0 - LEAD_LEVEL))
+                and self.rms_earlier <= MATERIAL * self.rms_recorded
+                and self.whiteness < float(chdtri(WHITE_LAGS, LEAD_LEVEL)))
+
+
+def input_lead_test(rec: Recording) -> LeadTest:
+    """:class:`LeadTest` on the longest gap-free stretch of ``rec`` (all zero when it is too short or a fit fails)."""
     from .comparison import statistic
+    from .validation import autocorrelation
+    none = LeadTest(0.0, 0.0, 0.0, 0.0)
     seg = max(rec.segments(), key=len)
     n = min(len(seg), LEAD_ROWS + 1)
     if n < 50:
-        return 0.0, 0.0, 0.0
+        return none
     seg = seg.slice(0, n)
     recorded = seg.slice(0, n - 1)
     earlier = dataclasses.replace(seg, duty=np.concatenate([seg.duty[1:], seg.duty[-1:]])).slice(0, n - 1)
     delay = _declared_delay(rec)
     r0, r1 = _residuals(recorded, delay), _residuals(earlier, delay)
     if r0 is None or r1 is None or len(r0) != len(r1):
-        return 0.0, 0.0, 0.0
+        return none
     s0, s1 = float(r0 @ r0), float(r1 @ r1)
-    rms0, rms1 = (s0 / len(r0)) ** 0.5, (s1 / len(r1)) ** 0.5
-    if s1 >= s0:
-        return 0.0, rms0, rms1
-    return statistic(r0 - r1, s0 - s1, r1), rms0, rms1
-
-
-def threshold() -> float:
-    """The value of the statistic above which the earlier input is better beyond the noise."""
-    from scipy.special import fdtri
-
-    from .comparison import BLOCKS
-    return float(fdtri(1, BLOCKS - 1, 1.0 - LEAD_LEVEL))
+    rho = autocorrelation(r1, WHITE_LAGS)[1:]
+    whiteness = len(r1) * float(np.sum(rho ** 2)) if np.all(np.isfinite(rho)) else np.inf
+    t = statistic(r0 - r1, s0 - s1, r1) if s1 < s0 else 0.0
+    return LeadTest(t, (s0 / len(r0)) ** 0.5, (s1 / len(r1)) ** 0.5, whiteness)
 
 
 def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | None = None) -> None:
@@ -102,8 +115,9 @@ def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | No
         Naming the run, both fits' residuals and what to fix.
     """
     for i, rec in enumerate(recordings):
-        t, rms0, rms1 = input_lead_statistic(rec)
-        if t > threshold() and rms1 <= MATERIAL * rms0:
+        test = input_lead_test(rec)
+        rms0, rms1 = test.rms_recorded, test.rms_earlier
+        if test.leads():
             name = names[i] if names is not None else f"recordings[{i}]"
             unit = "rad" if rec.angle is not None or rec.counts is not None else "rad/s"
             delay = _declared_delay(rec)

@@ -392,3 +392,21 @@ def test_a_time_unit_in_the_header_is_refused_not_ignored(rec_path, tmp_path, ca
     path.write_text(text)
     assert main(["identify", str(path)]) == 2
     assert "time_unit must be 's'" in _error(capsys)
+
+
+@pytest.mark.parametrize("noise", [0.0, 2e-3], ids=["clean", "angle-noise-2mrad"])
+def test_the_late_input_check_refuses_a_late_log_and_passes_the_same_run_logged_right(noise):
+    # measured: the residual shrinks 15 % with the input one sample earlier under 2 mrad of noise, tenfold clean
+    import numpy as np
+
+    from identify.causality import check_input_leads
+    from identify.errors import NotIdentifiableError
+    from motorsim import Encoder
+    from motorsim.recording import Recording
+    rig = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=noise), rng=np.random.default_rng(1))
+    rec = rig.run(Experiment(Sine(10.0, 200), 0.005, 10.0))
+    late = Recording(time=rec.time, duty=np.r_[0.0, rec.duty[:-1]], sample_period=rec.sample_period,
+                     counts=rec.counts, counts_per_rev=rec.counts_per_rev)
+    check_input_leads([rec])
+    with pytest.raises(NotIdentifiableError, match="one sample before it"):
+        check_input_leads([late])
