@@ -15,11 +15,11 @@ A test resolves every entry, so a misspelt one fails there rather than at a user
 """
 from __future__ import annotations
 
-import importlib
 import inspect
 from typing import Any, Callable
 
 from motorsim.checks import ParameterError
+from motorsim.lazy import load
 from motorsim.recording import Recording
 
 from .estimate import Estimate
@@ -69,8 +69,7 @@ def method_function(method: str) -> Callable[..., Estimate]:
     entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
     if callable(entry):
         return entry
-    module, function = entry.split(":")
-    return getattr(importlib.import_module(f".{module}", __package__), function)
+    return load(f".{entry}", __package__)
 
 
 def method_options(method: str) -> tuple[str, ...]:
