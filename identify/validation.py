@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
-from motorsim.plant import Motor, simulate
+from motorsim.plant import Motor, delay_at, simulate
 from motorsim.recording import Recording
 from motorsim.sensors import backward_difference
 
@@ -231,9 +231,13 @@ def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, 
 
 
 def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.ndarray]]:
-    """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`)."""
-    return [(seg, _segment_model(estimate, seg))
-            for seg in prepare_segments([recording], int(estimate.extra.get("input_delay", 0)))]
+    """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`).
+
+    The estimate's input delay is a time: counted at the recording's sample period (refused
+    when it is not a whole number of its samples, :func:`motorsim.plant.delay_at`).
+    """
+    delay = delay_at(estimate.input_delay, estimate.sample_period, recording.sample_period)
+    return [(seg, _segment_model(estimate, seg)) for seg in prepare_segments([recording], delay)]
 
 
 def _speeds(n: int, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

@@ -274,7 +274,8 @@ def run_control(args: argparse.Namespace) -> int:
     prediction = controller.predict(reference, args.duration)
     _, t_u = controller.closed_loop()
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
-          f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay}, dt = {model.sample_period:g} s, "
+          f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
+          f"({model.input_delay * model.sample_period:.6g} s), dt = {model.sample_period:g} s, "
           f"{model.counts_per_rev} counts/rev" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
     if unit == "duty":

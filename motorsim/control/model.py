@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..checks import ParameterError, ParameterTypeError, check_int, check_real
-from ..plant import Motor, zoh_matrices
+from ..plant import Motor, delay_at, zoh_matrices
 
 if TYPE_CHECKING:
     import control
@@ -72,13 +72,18 @@ class PlantModel:
             Anything with ``a`` and ``b``; an estimate's ``extra`` gives ``friction``,
             ``bias`` and ``input_delay``, a Motor's fields give them directly.
         sample_period : float, optional
-            Controller sample period in s (default: the source's, if it has one).
+            Controller sample period in s (default: the source's, if it has one).  A source
+            with a sample period of its own has its input delay counted again at this one (the
+            delay is a time, :func:`~motorsim.plant.delay_at`): refused when it is not a whole
+            number of samples here.
         counts_per_rev : int, optional
             Encoder resolution (default: the source's, if it has one).
         """
         if isinstance(source, PlantModel):
-            return dataclasses.replace(source, sample_period=sample_period or source.sample_period,
-                                       counts_per_rev=counts_per_rev or source.counts_per_rev)
+            period = sample_period or source.sample_period
+            return dataclasses.replace(source, sample_period=period,
+                                       counts_per_rev=counts_per_rev or source.counts_per_rev,
+                                       input_delay=delay_at(source.input_delay, source.sample_period, period))
         if not (hasattr(source, "a") and hasattr(source, "b")):
             raise ParameterTypeError("source must be an Estimate, a Motor or a PlantModel, "
                                      f"got {type(source).__name__}")
@@ -86,14 +91,18 @@ class PlantModel:
         for name in ("friction", "bias", "input_delay"):
             if hasattr(source, name) and not isinstance(source, type):
                 extra.setdefault(name, getattr(source, name))
-        sample_period = sample_period if sample_period is not None else getattr(source, "sample_period", None)
+        own_period = getattr(source, "sample_period", None)
+        sample_period = sample_period if sample_period is not None else own_period
         if sample_period is None:
             raise ParameterError("sample_period must be given when the source has none, got None")
         if counts_per_rev is None:
             raise ParameterError("counts_per_rev must be given for a controller, got None")
+        delay = int(extra.get("input_delay", 0))
+        if own_period is not None:        # the source's delay is a time: counted again at this sample period
+            delay = delay_at(delay, own_period, check_real("sample_period", sample_period, positive=True))
         return cls(float(source.a), float(source.b), sample_period, counts_per_rev,
                    friction=float(extra.get("friction", 0.0)), bias=float(extra.get("bias", 0.0)),
-                   input_delay=int(extra.get("input_delay", 0)))
+                   input_delay=delay)
 
     @property
     def speed_scale(self) -> float:
