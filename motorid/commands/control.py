@@ -379,6 +379,8 @@ def _print_robustness(args: argparse.Namespace, controller: Controller, covarian
           f"{unit} (point estimate {r.tracking_rms:.4g})")
     print(f"  smallest margins: gain {gm_text}, phase {r.worst_phase_margin:.3g} deg, "
           f"delay {r.worst_delay_margin * 1e3:.3g} ms; unstable {100 * r.unstable:.3g} %, "
-          f"badly damped {100 * r.badly_damped:.3g} %")
+          f"badly damped {100 * r.badly_damped:.3g} %"
+          + (f", b of the other sign {100 * r.other_sign:.3g} %" if r.other_sign else "")
+          + (f"; left out (a <= 0) {100 * r.rejected:.3g} % of the draws" if r.n_rejected else ""))
     for text in r.warnings():
         print(f"warning: {text}")
