@@ -183,7 +183,8 @@ def delay_at(input_delay: int, sample_period: float, new_sample_period: float) -
     whole = round(samples)
     if whole < 1 or abs(samples - whole) > 1e-6 * samples:
         seconds = input_delay * sample_period
-        raise ParameterError(f"input_delay {input_delay} sample{'' if input_delay == 1 else 's'} at {sample_period!r} s "
+        plural = "" if input_delay == 1 else "s"
+        raise ParameterError(f"input_delay {input_delay} sample{plural} at {sample_period!r} s "
                              f"({seconds:.6g} s) is {samples:.6g} samples at {new_sample_period!r} s, not a whole "
                              f"number: choose a sample period that divides {seconds:.6g} s (e.g. {sample_period!r} s)")
     return int(whole)

@@ -187,7 +187,7 @@ class ModelDraws(Sequence[PlantModel]):
     def __len__(self) -> int:
         return len(self.models)
 
-    def __getitem__(self, index):  # type: ignore[override]
+    def __getitem__(self, index):
         return self.models[index]
 
 
