@@ -15,11 +15,11 @@ A test resolves every entry, so a misspelt one fails there rather than at a user
 """
 from __future__ import annotations
 
-import importlib
 import inspect
 from typing import Any, Callable
 
 from motorsim.checks import ParameterError
+from motorsim.lazy import load
 from motorsim.recording import Recording
 
 from .estimate import Estimate
@@ -85,8 +85,7 @@ def method_function(method: str) -> Callable[..., Estimate]:
     entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
     if callable(entry):
         return entry
-    module, function = entry.split(":")
-    return getattr(importlib.import_module(f".{module}", __package__), function)
+    return load(f".{entry}", __package__)
 
 
 def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
@@ -100,8 +99,7 @@ def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
     if structure.method not in _CANDIDATES:
         raise ParameterError(f"structure {structure.name!r} has no candidate fit: its method must be one of "
                              f"{list(_CANDIDATES)}, got {structure.method!r}")
-    module, function = _CANDIDATES[structure.method].split(":")
-    return getattr(importlib.import_module(f".{module}", __package__), function)
+    return load(f".{_CANDIDATES[structure.method]}", __package__)
 
 
 def method_options(method: str) -> tuple[str, ...]:

@@ -29,8 +29,8 @@ from .recursion import first_order_filter
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "RECURSION_RTOL", "lag_coefficients",
-           "lag_response", "LagResponse"]
+__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL",
+           "lag_coefficients", "lag_response", "LagResponse"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,6 +163,53 @@ def zoh_matrices(a: float, b: float, h) -> tuple:
     p = one_minus / a
     q = b / a * (h - p)
     return e, g, p, q
+
+
+def delay_at(input_delay: int, sample_period: float, new_sample_period: float) -> int:
+    """The input delay of ``input_delay`` samples at ``sample_period``, in samples at ``new_sample_period``.
+
+    A delay is a time: ``input_delay sample_period`` seconds, the same at every sample period.
+    It is kept exactly or refused: a time that is not a whole number of the new samples (to a
+    relative 1e-6) has no delay line at that sample period, and rounding it would design or
+    judge a different motor.
+
+    Parameters
+    ----------
+    input_delay : int
+        Delay in samples at ``sample_period``, >= 0.
+    sample_period : float
+        The sample period the delay was counted at, in s, > 0.
+    new_sample_period : float
+        The sample period to count it at, in s, > 0.
+
+    Raises
+    ------
+    motorsim.checks.ParameterError
+        The delay is not a whole number of samples at ``new_sample_period``.
+
+    Examples
+    --------
+    >>> delay_at(4, 0.005, 0.001)          # 20 ms
+    20
+    >>> delay_at(1, 0.005, 0.002)          # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    motorsim.checks.ParameterError: input_delay 1 sample at 0.005 s (0.005 s) is 2.5 samples at 0.002 s, ...
+    """
+    input_delay = check_int("input_delay", input_delay, 0, 10**6)
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    new_sample_period = check_real("new_sample_period", new_sample_period, positive=True)
+    if input_delay == 0 or new_sample_period == sample_period:
+        return input_delay
+    samples = input_delay * sample_period / new_sample_period
+    whole = round(samples)
+    if whole < 1 or abs(samples - whole) > 1e-6 * samples:
+        seconds = input_delay * sample_period
+        plural = "" if input_delay == 1 else "s"
+        raise ParameterError(f"input_delay {input_delay} sample{plural} at {sample_period!r} s "
+                             f"({seconds:.6g} s) is {samples:.6g} samples at {new_sample_period!r} s, not a whole "
+                             f"number: choose a sample period that divides {seconds:.6g} s (e.g. {sample_period!r} s)")
+    return int(whole)
 
 
 def delayed_duty(duty: np.ndarray, delay: int, before: float) -> np.ndarray:
