@@ -96,6 +96,9 @@ class Estimate:
         Largest input magnitude the drive accepts, in ``input_unit`` (255 for duty on the bench,
         the recording's ``input_limit`` for a lab's file); None when unknown. Control design
         warns when a controller needs more.
+    speed_unit : str
+        The speed unit of the data the model was fitted to (``rpm``, ...; the recording's
+        ``speed_unit``), for showing results in it; every value here stays in rad/s.
     speed_residuals : tuple of ndarray, optional
         The fit's speed residual (measured minus model, rad/s) on each recording it was fitted on,
         in the order given, row by row exactly as :func:`identify.validation.model_output` gives it
@@ -121,6 +124,7 @@ class Estimate:
     notes: tuple[str, ...] = ()
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
+    speed_unit: str = "rad/s"
     speed_residuals: tuple[np.ndarray, ...] | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
@@ -394,7 +398,8 @@ class Estimate:
         out = {"method": self.method, "a": self.a, "b": self.b, "static_gain": self.static_gain,
                "fit_percent": self.fit_percent, "n_samples": self.n_samples,
                "sample_period": self.sample_period, "residual_rms": self.residual_rms,
-               "residual_unit": self.residual_unit, "input_unit": self.input_unit, "input_limit": self.input_limit}
+               "residual_unit": self.residual_unit, "input_unit": self.input_unit, "input_limit": self.input_limit,
+               "speed_unit": self.speed_unit}
         if self.covariance_method:
             out["covariance_method"] = self.covariance_method
         out.update(self.extra)
@@ -439,7 +444,8 @@ class Estimate:
                "sample_period": self.sample_period,
                "units": {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "input": self.input_unit,
                          "friction": "rad/s^2", "bias": "rad/s^2", "dead_zone": self.input_unit,
-                         "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
+                         "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit,
+                         "speed": self.speed_unit},
                "input_limit": self.input_limit,
                "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
                "data_files": [{"path": p, "sha256": h} for p, h in self.data_files],
@@ -543,7 +549,7 @@ def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
         else:
             extra[key] = real(f"extra.{key}", value, finite=False)
     units = field("units", dict, {})
-    for key in ("residual_rms", "input"):
+    for key in ("residual_rms", "input", "speed"):
         if not isinstance(units.get(key, ""), str):
             raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
     files = field("data_files", list, [])
@@ -564,7 +570,8 @@ def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 selection=field("selection", (dict, type(None)), None),
                 notes=tuple(_strings("notes", field("notes", list, []))),
                 model_range=_model_range(field("model_range", (dict, type(None)), None) or {}),
-                input_limit=_input_limit(field("input_limit", (int, float, type(None)), None)))
+                input_limit=_input_limit(field("input_limit", (int, float, type(None)), None)),
+                speed_unit=units.get("speed", "rad/s"))
 
 
 def _input_limit(value: Any) -> float | None:

@@ -321,17 +321,21 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
         gain_ax.set_xlabel("ω [rad/s]")
         gain_ax.set_title(f"frequency response ({frequency_response.method}) and {estimate.method}", fontsize=9)
         gain_ax.legend(loc="lower left", fontsize=6, frameon=False)
+    from motorsim.units import SPEED_UNITS
+    unit = getattr(estimate, "speed_unit", "rad/s")        # the unit the data came in; the fit is in rad/s
+    per = 1.0 / SPEED_UNITS[unit]
     ax = fig.add_subplot(grid[0, :])
-    ax.plot(report.time, report.measured_speed, color="0.3", lw=0.8, label="measured ω")
-    ax.plot(report.time, report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
-            label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g}, fit {report.fit_percent:.1f} %")
-    ax.set_ylabel("ω [rad/s]")
+    ax.plot(report.time, per * report.measured_speed, color="0.3", lw=0.8, label="measured ω")
+    ax.plot(report.time, per * report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
+            label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g} (rad/s²)/{estimate.input_unit}, "
+                  f"fit {report.fit_percent:.1f} %")
+    ax.set_ylabel(f"ω [{unit}]")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7, frameon=False)
     res = fig.add_subplot(grid[1, :], sharex=ax)
-    res.plot(report.time, report.measured_speed - report.simulated_speed, color="tab:purple", lw=0.7)
+    res.plot(report.time, per * (report.measured_speed - report.simulated_speed), color="tab:purple", lw=0.7)
     res.axhline(0, color="0.5", lw=0.6)
     res.set_xlabel("time [s]")
-    res.set_ylabel("measured − model\nω [rad/s]")
+    res.set_ylabel(f"measured − model\nω [{unit}]")
     res.grid(alpha=0.3)
     ac = fig.add_subplot(grid[2, 0])
     ac.stem(report.lags[1:], report.autocorrelation[1:], basefmt=" ")

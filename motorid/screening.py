@@ -9,6 +9,7 @@ variance the standard errors claim, so a file given twice is refused.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import stat
@@ -18,7 +19,7 @@ from motorid.arguments import CommandError
 from motorsim.reading import read_recording
 from motorsim.recording import Recording
 
-__all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates"]
+__all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates", "with_speed_unit"]
 
 
 class DroppedSamples(NamedTuple):
@@ -131,7 +132,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
             if bad:
                 dropped.append(DroppedSamples(name, [s.seq for s in bad], "implausible: " + bad[0].reason))
                 recs[i] = rec.drop_rows(s.row for s in bad)
-    est = fit(recs, method=method, **options)
+    est = with_speed_unit(fit(recs, method=method, **options), recs)
     outliers = _fit_outliers(est, recs, fitted=True)
     if not any(outliers):
         return est, recs, dropped
@@ -145,4 +146,11 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
         if rows:
             dropped.append(DroppedSamples(files[i], [int(recs[i].seq[k]) for k in rows], reason))
             recs[i] = recs[i].drop_rows(rows)
-    return fit(recs, method=method, **options), recs, dropped
+    return with_speed_unit(fit(recs, method=method, **options), recs), recs, dropped
+
+
+def with_speed_unit(estimate: Any, recordings: Sequence[Recording]) -> Any:
+    """``estimate`` remembering the speed unit its recordings came in (rad/s when they differ)."""
+    units = {r.speed_unit for r in recordings}
+    unit = units.pop() if len(units) == 1 else "rad/s"
+    return dataclasses.replace(estimate, speed_unit=unit) if unit != estimate.speed_unit else estimate

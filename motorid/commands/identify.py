@@ -15,7 +15,8 @@ from motorid.commands.importing import (
 from motorid.progress import Ticker
 from motorsim.recording import Recording
 
-__all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
+__all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation",
+           "in_speed_unit"]
 
 #: Flags passed to the estimator: flag -> (keyword, value when the flag is not given).
 _OPTION_FLAGS = {"--input-delay": ("input_delay", None), "--fix-bias": ("fix_bias", False)}
@@ -126,6 +127,9 @@ def run_identify(args: argparse.Namespace) -> int:
         say(f"delay       {int(est.extra['input_delay'])} samples, the shortest within the noise of the best "
             "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
+    figures = in_speed_unit(est)
+    if figures is not None:
+        out["in_speed_unit"] = figures
     if checks is not None:
         out["residual_checks"] = checks
     if dropped:
@@ -211,9 +215,42 @@ def format_selection(selection: dict, checks: dict[str, float]) -> str:
 
 
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA."""
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA;
+    for data in another speed unit (rpm, ...), the speed figures in that unit too."""
     from identify.feedforward import feedforward_constants
-    return f"{est}\n{feedforward_constants(est).describe()}"
+    text = f"{est}\n{feedforward_constants(est).describe()}"
+    figures = in_speed_unit(est)
+    if figures is None:
+        return text
+    unit, u = figures["unit"], est.input_unit
+    lo, hi = figures["b_ci95"]
+    lines = [f"in {unit:<8} b/a {figures['static_gain']:.6g} {unit}/{u} (the steady speed per {u}); "
+             f"b {figures['b']:.6g} {unit}/s per {u}, 95 % CI [{lo:.6g}, {hi:.6g}]"]
+    if "residual_rms" in figures:
+        lines.append(f"            residual {figures['residual_rms']:.3g} {unit} RMS")
+    if "top_speed" in figures:
+        lines.append(f"            top speed {figures['top_speed']:.5g} {unit} at the input limit "
+                     f"{est.input_limit:g} {u} (b/a x limit, linear model)")
+    return "\n".join([text, *lines])
+
+
+def in_speed_unit(est) -> dict[str, Any] | None:
+    """The speed figures of ``est`` in the unit its data came in (None for rad/s): ``b/a``, ``b`` and its
+    interval, the residual when it is a speed, the top speed at the input limit; JSON ``in_speed_unit``."""
+    import math
+
+    from motorsim.units import speed_in
+    unit = getattr(est, "speed_unit", "rad/s")
+    if unit == "rad/s":
+        return None
+    ci = est.confidence_interval(0.95).get("b", (math.nan, math.nan))
+    out: dict[str, Any] = {"unit": unit, "static_gain": speed_in(est.static_gain, unit), "b": speed_in(est.b, unit),
+                           "b_ci95": [speed_in(float(ci[0]), unit), speed_in(float(ci[1]), unit)]}
+    if est.residual_unit == "rad/s":
+        out["residual_rms"] = speed_in(est.residual_rms, unit)
+    if est.input_limit is not None:
+        out["top_speed"] = speed_in(abs(est.static_gain) * est.input_limit, unit)
+    return out
 
 
 def format_validation(report, name: str) -> str:
