@@ -555,25 +555,30 @@ def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float =
     """Closed-loop runs against their reference: output, tracking error and input of each design.
 
     The top panel draws the measured (solid) and predicted (dotted) output of each design over the
-    reference; where good designs track alike those lines lie on top of each other, so the middle
-    panel draws each run's tracking error (measured minus reference), where they part. ``rows``
-    carry ``design``, ``recording`` and ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
+    reference; where good designs track alike those lines lie on top of each other, so each run's
+    tracking error (measured minus reference) has a panel of its own below, on one shared scale,
+    where no design's line can hide another's. ``rows`` carry ``design``, ``recording`` and
+    ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
     """
-    fig = _figure(10.5, 7.0)
-    ax, ax_err, ax2 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1.4, 1]})
+    fig = _figure(10.5, 5.6 + 1.1 * len(rows))
+    axes = fig.subplots(2 + len(rows), 1, sharex=True, gridspec_kw={"height_ratios": [2, *[1] * len(rows), 1]})
+    ax, errors, ax2 = axes[0], axes[1:-1], axes[-1]
     first = rows[0].recording
     ax.plot(first.time, first.reference, color="0.2", lw=1.2, ls="--", label="reference")
-    for row, color in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange")):
+    for row, color, ax_err in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange"), errors):
         rec = row.recording
         label = f"{row.design}: measured RMS {row.measured_rms:.3g} (predicted {row.prediction.tracking_rms:.3g})"
         ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.9, label=label)
         ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
-        ax_err.plot(rec.time, rec.measured_speed() - rec.reference, color=color, lw=0.9, label=row.design)
+        ax_err.plot(rec.time, rec.measured_speed() - rec.reference, color=color, lw=0.9)
+        ax_err.axhline(0.0, color="0.5", lw=0.6)
+        ax_err.set_ylabel(f"{row.design}\nerror [rad/s]", fontsize=8)
         ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
+    for ax_err in errors[1:]:
+        ax_err.sharey(errors[0])
+    errors[0].set_title("tracking error of each design (measured − reference), one shared scale", fontsize=9)
     ax.set_ylabel("ω [rad/s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)   # outside: never over the data
-    ax_err.axhline(0.0, color="0.5", lw=0.6)
-    ax_err.set_ylabel("error [rad/s]\n(measured − reference)")
     ax2.set_ylabel(f"input [{first.input_unit}]")
     ax2.set_xlabel(f"time [s] (first {window:g} s)")
     ax2.set_xlim(first.time[0], first.time[0] + min(window, first.time[-1] - first.time[0]))

@@ -148,22 +148,22 @@ def run_identify(args: argparse.Namespace) -> int:
         if report is None:
             report = validate(est, recs[0])
         where = args.validate or args.files[0]
-        plot_validation(report, est, args.report, title=f"{est.method} on {where}",
-                        frequency_response=_frequency_response(held_out if held_out is not None else recs[0]))
-        say(f"report      {args.report}")
+        frf, why = _frequency_response(held_out if held_out is not None else recs[0])
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}", frequency_response=frf)
+        say(f"report      {args.report}" + (f" (no Bode panel: {why})" if frf is None else ""))
     if args.json:
         print(json.dumps(json_ready(out)))
     return 0
 
 
-def _frequency_response(recording: Recording):
-    """The report's Bode panel data, or None when the recording cannot give one (too short, gaps)."""
+def _frequency_response(recording: Recording) -> tuple[Any, str]:
+    """The report's Bode panel data, or None and why the recording cannot give one (too short, gaps, a step)."""
     from identify.errors import NotIdentifiableError
     from identify.frequency_estimate import frequency_response
     try:
-        return frequency_response(recording)
-    except NotIdentifiableError:
-        return None
+        return frequency_response(recording), ""
+    except NotIdentifiableError as exc:
+        return None, str(exc)
 
 
 #: Bytes of input above which identify says first how long it expects to take.

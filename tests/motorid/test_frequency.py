@@ -77,3 +77,10 @@ def test_bench_frequency_prints_the_ratio(capsys):
     assert main(["bench", "frequency", "--samples", "20000", "--segment", "512", "--repeats", "1"]) == 0
     out = capsys.readouterr().out
     assert "ratio" in out and "largest relative difference" in out
+
+
+def test_the_header_names_the_input_unit_not_duty(capsys):
+    data = "tests/data/undcmotor/DCmotor_prbs_open_exp.csv"
+    assert main(["frequency", data, "--time", "t:s", "--input", "u:V", "--speed", "y:deg/s"]) == 0
+    out = capsys.readouterr().out
+    assert "frequency response input (V) -> speed" in out and "duty" not in out
