@@ -413,8 +413,11 @@ class FakeDevice:
         cfg = self._run_config
         while self._running:
             if self.speed == 0:
-                if self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE:
-                    return          # unpaced: wait for the host to read (lossless)
+                # unpaced: wait for the host to read (lossless): never tick into a full queue, whatever
+                # the pty shows of the bytes in flight
+                if (self._queued_samples >= self.queue_size
+                        or self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE):
+                    return
             elif now < self._next_tick:
                 return
             k = self._k

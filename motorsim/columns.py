@@ -2,7 +2,8 @@
 
 :func:`read_table` reads the columns of a text table (CSV, TSV, ``;`` or whitespace
 separated, with a header line or none) or of a MATLAB ``.mat`` file (v5 through scipy;
-v7.3/HDF5 through h5py when it is installed); :func:`import_recording` maps its columns,
+v7.3/HDF5 through h5py when it is installed) or of a robot log (a ROS 2 bag, a WPILib ``.wpilog``:
+:mod:`motorsim.robot_logs`); :func:`import_recording` maps its columns,
 chosen by name or 0-based index with a unit (:class:`ColumnSpec`, ``"y:deg/s"``), to a
 recording through :meth:`Recording.from_columns`.  Units and the timing rule:
 :mod:`motorsim.units`.  Every refusal is an :class:`ImportFormatError` naming the file, the
@@ -22,6 +23,7 @@ import numpy as np
 
 from .checks import ParameterError
 from .recording import AngleUnitWarning, Recording, RecordingFormatError
+from .robot_logs import is_robot_log, read_log_table
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
@@ -117,13 +119,16 @@ def _resolve_unit(table: "Table", spec: ColumnSpec) -> tuple[ColumnSpec | None, 
         return spec, "given"
     header = spec.column if isinstance(spec.column, str) else (
         table.names[spec.column] if table.has_header and spec.column < len(table.names) else None)
-    stated = unit_in_name(spec.quantity, header) if header is not None else None
+    stated = None if header is None else (table.units.get(header) or unit_in_name(spec.quantity, header))
+    if stated is not None and stated not in UNITS[spec.quantity]:
+        return None, (f"the {spec.quantity} column {spec.column!r} is in {stated}, as the file states, which is not "
+                      f"a unit of the {spec.quantity} ({', '.join(UNITS[spec.quantity])})")
     if stated is not None:
         return dataclasses.replace(spec, unit=stated), "header"
     if spec.quantity not in UNIT_REQUIRED:
         return dataclasses.replace(spec, unit=DEFAULT_UNITS[spec.quantity]), "default"
     units = ", ".join(u for u in UNITS[spec.quantity] if u != "μs")
-    return None, (f"the {spec.quantity} column {spec.column!r} has no unit and its header does not state one: give "
+    return None, (f"the {spec.quantity} column {spec.column!r} has no unit and the file does not state one: give "
                   f"--{spec.quantity} {spec.column}:UNIT with UNIT one of {units}")
 
 
@@ -136,6 +141,7 @@ class Table:
     columns: tuple[np.ndarray, ...]
     lines: np.ndarray
     has_header: bool
+    units: Mapping[str, str] = dataclasses.field(default_factory=dict)   # the units the file states, by column
 
     def column(self, spec: ColumnSpec) -> np.ndarray:
         """The column ``spec`` names (by name, else by 0-based index); :class:`ImportFormatError` if none."""
@@ -344,6 +350,8 @@ def read_table(path: str | os.PathLike) -> Table:
         Naming the file, the line and the column of what cannot be read.
     """
     path = os.fspath(path)
+    if is_robot_log(path):
+        return _read_log(path, None)
     if path.lower().endswith(".mat"):
         return _read_mat(path)
     return _read_text(path)
@@ -390,9 +398,14 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
                 problems.append(str(exc))
     if speed is None and angle is None and counts is None:
         problems.append("give the speed, angle or counts column")
-    table = read_table(path)
+    if is_robot_log(path):
+        base = next((specs[q].column for q in ("speed", "angle", "counts") if q in specs), None)
+        table = _read_log(path, base if isinstance(base, str) else None)
+    else:
+        table = read_table(path)
     cols = {}
     defaulted = set()
+    notes: list[str] = []
     for quantity, spec in list(specs.items()):
         try:
             cols[quantity] = table.column(spec)
@@ -406,16 +419,27 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         specs[quantity] = resolved
         if source == "default":
             defaulted.add(quantity)
-        elif source == "header":
-            warnings.warn(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
-                          "states", UserWarning, stacklevel=2)
+        elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
+            notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
+                         "states")
     if not problems:
         problems += _counts_problems(table, specs, cols, counts_per_rev)
     if "time" in cols and specs["time"].unit is not None:
         problems += _time_problems(table, specs["time"], cols["time"])
     if problems:
         _refuse(path, problems)
+    for note in notes:                 # said once the file is accepted
+        warnings.warn(note, UserWarning, stacklevel=2)
     return _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+
+
+def _read_log(path: str, base: str | None) -> Table:
+    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages."""
+    try:
+        names, columns, units = read_log_table(path, base)
+    except RecordingFormatError as exc:
+        raise ImportFormatError(str(exc)) from None
+    return Table(path, names, columns, np.zeros(len(columns[0]), dtype=int), True, units)
 
 
 def _refuse(path: str, problems: list[str]) -> NoReturn:

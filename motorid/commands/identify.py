@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from typing import Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
@@ -231,14 +232,18 @@ def format_estimate(est) -> str:
     if "top_speed" in figures:
         lines.append(f"            top speed {figures['top_speed']:.5g} {unit} at the input limit "
                      f"{est.input_limit:g} {u} (b/a x limit, linear model)")
+    ff = figures["feedforward"]
+    lines.append("SysId      " + ", ".join(
+        f"{k} {ff[k]:.4g} [{ff[k + '_ci95'][0]:.4g}, {ff[k + '_ci95'][1]:.4g}] {ff[k + '_unit']}"
+        if math.isfinite(ff[k + "_ci95"][0]) else f"{k} {ff[k]:.4g} {ff[k + '_unit']}" for k in ("kS", "kV", "kA"))
+        + f" (u = kS sign(v) + kV v + kA dv/dt, v in {unit})")
     return "\n".join([text, *lines])
 
 
 def in_speed_unit(est) -> dict[str, Any] | None:
     """The speed figures of ``est`` in the unit its data came in (None for rad/s): ``b/a``, ``b`` and its
-    interval, the residual when it is a speed, the top speed at the input limit; JSON ``in_speed_unit``."""
-    import math
-
+    interval, the residual when it is a speed, the top speed at the input limit, kS, kV, kA (SysId's form);
+    JSON ``in_speed_unit``."""
     from motorsim.units import speed_in
     unit = getattr(est, "speed_unit", "rad/s")
     if unit == "rad/s":
@@ -250,6 +255,25 @@ def in_speed_unit(est) -> dict[str, Any] | None:
         out["residual_rms"] = speed_in(est.residual_rms, unit)
     if est.input_limit is not None:
         out["top_speed"] = speed_in(abs(est.static_gain) * est.input_limit, unit)
+    out["feedforward"] = _feedforward_in(est, unit)
+    return out
+
+
+def _feedforward_in(est, unit: str) -> dict[str, Any]:
+    """kS, kV, kA with their 95 % intervals per ``unit`` (SysId's form: V per rotation/s for a log in rev/s)."""
+    from identify.feedforward import feedforward_constants
+    from motorsim.units import SPEED_UNITS
+    ff = feedforward_constants(est)
+    ci = ff.confidence_interval(0.95)
+    per = SPEED_UNITS[unit]                    # rad/s per unit: a constant per rad/s times this is per unit
+    u = est.input_unit
+    acceleration = f"{unit}/s" if unit == "rpm" else unit.replace("/s", "/s^2")
+    out: dict[str, Any] = {}
+    for key, name, scale, unit_text in (("ks", "kS", 1.0, u), ("kv", "kV", per, f"{u}/({unit})"),
+                                        ("ka", "kA", per, f"{u}/({acceleration})")):
+        out[name] = getattr(ff, key) * scale
+        out[f"{name}_ci95"] = [ci[key][0] * scale, ci[key][1] * scale]
+        out[f"{name}_unit"] = unit_text
     return out
 
 

@@ -179,7 +179,7 @@ def test_a_speed_or_input_column_without_a_unit_is_refused_with_the_units(tmp_pa
     path.write_text("t,u,y\n0,1,0\n1,1,1\n2,1,2\n")
     flags = {"time": "t", "input": "u:V", "speed": "y:rpm", quantity: {"speed": "y", "input": "u"}[quantity]}
     units = "rad/s, deg/s, rpm, rev/s" if quantity == "speed" else "duty, V, %"
-    with pytest.raises(ImportFormatError, match=f"the {quantity} column .* has no unit and its header does not "
+    with pytest.raises(ImportFormatError, match=f"the {quantity} column .* has no unit and the file does not "
                                                 f"state one: give --{quantity} .*:UNIT with UNIT one of {units}"):
         import_recording(path, **flags)
 
