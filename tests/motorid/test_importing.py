@@ -150,7 +150,7 @@ def test_a_model_fitted_in_rpm_shows_and_saves_rpm_beside_si(tmp_path, capsys):
     doc = json.loads(captured.out)
     # truth: b/a = 3/25 (rad/s)/duty = 0.306 (rad/s)/% = 2.9221 rpm/%; the noise-free data give it to 1e-6
     truth = 3 / 25 * 255 / 100 * 60 / (2 * math.pi)
-    assert doc["speed_unit"] == "rpm" and doc["in_speed_unit"]["unit"] == "rpm"
+    assert doc["units"]["speed"] == "rpm" and doc["in_speed_unit"]["unit"] == "rpm"
     assert doc["in_speed_unit"]["static_gain"] == pytest.approx(truth, rel=1e-6)
     assert doc["static_gain"] == pytest.approx(truth * 2 * math.pi / 60, rel=1e-6)        # SI stays SI
     assert doc["in_speed_unit"]["top_speed"] == pytest.approx(100 * truth, rel=1e-6)
