@@ -413,8 +413,9 @@ class FakeDevice:
         cfg = self._run_config
         while self._running:
             if self.speed == 0:
-                # unpaced: wait for the host to read (lossless): never tick into a full queue, whatever
-                # the pty shows of the bytes in flight
+                # unpaced: wait for the host to read (lossless). The queue counts samples: under load
+                # the pty takes a frame in pieces, and a byte count of a partly written queue reads one
+                # frame short of full (it dropped samples then)
                 if (self._queued_samples >= self.queue_size
                         or self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE):
                     return

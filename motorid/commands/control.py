@@ -114,7 +114,8 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
                         f"{model.input_delay})")
         model = dataclasses.replace(model, input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
-    reference = reference_from_args(args, controller, "rad/s", float(args.duty_limit))
+    speed_unit = load_model_file(args.model).speed_unit if args.model else "rad/s"
+    reference = reference_from_args(args, controller, speed_unit, float(args.duty_limit))
     return ClosedLoopExperiment(controller, reference, args.duration, args.duty_limit)
 
 
