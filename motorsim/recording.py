@@ -50,8 +50,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
+from .units import SPEED_UNITS
 
 __all__ = ["Recording", "RecordingFormatError", "AngleUnitWarning", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES",
            "INTEGER_COLUMNS", "TIME_BASE_TOLERANCE"]
@@ -145,8 +147,9 @@ def _check_sample_period(sample_period: float) -> float:
     return value
 
 
-#: Metadata keys that would name another unit for a column whose unit the format fixes, and that unit.
-FIXED_UNITS = {"time_unit": ("s", "time_s"), "speed_unit": ("rad/s", "speed_rad_s"), "angle_unit": ("rad", "angle_rad")}
+#: Metadata keys that would name another unit for a column whose unit the format fixes, and that unit
+#: (``speed_unit`` is not one: it names the unit results are shown in, the column staying in rad/s).
+FIXED_UNITS = {"time_unit": ("s", "time_s"), "angle_unit": ("rad", "angle_rad")}
 
 
 def _refuse_unit_metadata(metadata: Mapping[str, str]) -> None:
@@ -319,6 +322,13 @@ class Recording:
     def input_unit(self) -> str:
         """What ``duty`` is measured in (metadata ``input_unit``, default ``duty``)."""
         return self.metadata.get("input_unit", "duty")
+
+    @property
+    def speed_unit(self) -> str:
+        """The speed unit the data came in (metadata ``speed_unit``, default ``rad/s``): results are shown in it
+        beside SI; the columns themselves are always SI."""
+        unit = self.metadata.get("speed_unit", "rad/s")
+        return unit if unit in SPEED_UNITS else "rad/s"
 
     @property
     def input_limit(self) -> float | None:
@@ -508,11 +518,5 @@ _MOVED = {"read_recording": "motorsim.reading", "MAX_RECORDING_BYTES": "motorsim
           "write_recording": "motorsim.writing", "RecordingWriter": "motorsim.writing"}
 
 
-def __getattr__(name: str):
-    # imported when asked, so that the reading and writing modules can import this one
-    if name in _MOVED:
-        import importlib
-        warnings.warn(f"motorsim.recording.{name} moved to {_MOVED[name]}.{name} (or motorsim.{name}); "
-                      "the old name goes in the next release", DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'motorsim.recording' has no attribute {name!r}")
+# imported when asked, so that the reading and writing modules can import this one
+__getattr__, __dir__ = lazy_attributes(__name__, moved=_MOVED, hint=" (or motorsim.{name})")

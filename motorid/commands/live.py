@@ -71,7 +71,8 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
                         help=f"largest share of the samples run that may be lost (link or device) before live "
                              f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
-    parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
     parser.add_argument("--plot", action="store_true",
                         help="show duty and speed live with the running estimate (matplotlib window; "
                              "without a display, FILE.csv.live.png is updated instead)")
@@ -151,9 +152,10 @@ def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.protocol import DEVICE_INPUT_DELAY
     from identify.recursive import RunningEstimator
-
+    from motorid.commands.control import refuse_controller_flags
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
+    refuse_controller_flags(args, model_flags=True)     # before the port opens
     named = args.out is not None
     if not named:
         args.out = default_out_path()
@@ -282,8 +284,9 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
     """After a complete run: the summary line, the loss check, the estimates (and JSON)."""
     from identify import fit
     from motorid.commands.identify import format_estimate
+    say = print_to_stderr if args.json else print
     m = recording.metadata
-    print(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
+    say(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
     loss_pct = 100 * float(m["loss_fraction"])
     if loss_pct > args.max_loss:
         raise CommandError(f"{m['samples_lost']} of the {m['samples_ticked']} samples were lost "
@@ -296,10 +299,10 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
     estimate = fit(recording, method=args.method, outliers="keep", **options)
     if plot is not None:
         plot.show_fit(recording, estimate)
-    print(format_estimate(estimate))
+    say(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:
-        print(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model}, {run_est.n_rows} rows, "
+        say(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model}, {run_est.n_rows} rows, "
               f"the estimate shown during the run)")
     if args.json:
         out = {**estimate.to_dict(), "running_estimate": run_est.to_dict(), "recording": str(path),
