@@ -587,10 +587,7 @@ def frequency_response(recordings: Recording | Sequence[Recording], *, method: s
     transient_periods = check_int("transient_periods", transient_periods, 0)
     recs = as_recordings(recordings)
     parts = []
-    for i, rec in enumerate(recs):
-        if rec.duty.min() == rec.duty.max():
-            raise NotIdentifiableError(f"recordings[{i}]: the input is constant ({rec.duty[0]:g} {rec.input_unit} "
-                                       "throughout): it has no frequency content; use a sine, multisine or PRBS")
+    for rec in recs:
         chosen, ex = _choose(rec, method, transient_periods)
         if chosen == "periodic":
             period, harmonics = ex

@@ -297,7 +297,7 @@ def test_frequency_on_a_constant_input_says_so(tmp_path, capsys):
     path = tmp_path / "c.csv"
     write_recording(SimRig(Motor(25.0, 3.0)).run(Experiment(Constant(100), 0.005, 2.0)), path)
     assert main(["frequency", str(path)]) == 2
-    assert "input is constant" in _error(capsys)
+    assert "the input does not change" in _error(capsys)
 
 
 def test_validate_refuses_a_model_with_a_nan(rec_path):
