@@ -329,7 +329,6 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     for i, r in enumerate(recordings):
         _check_moves(i, r)
         check_speed_agrees(r, f"recordings[{i}]")
-        check_constant_input_runs(r, f"recordings[{i}]")
         _warn_saturation(i, r)
 
 
@@ -370,32 +369,42 @@ def check_speed_agrees(rec: Recording, name: str = "recording") -> None:
                                    "wrong: fix the file")
 
 
-#: Samples of a run of constant recorded input left out at its start (the largest input delay tried and the
-#: backward difference's sample), and the samples at least left after them for a run to be judged.
-RUN_SKIP, RUN_MIN = 12, 8
+#: Samples of a run of constant recorded input left out at its start beyond the input delay (the backward
+#: difference's sample, a fast electrical pole's), and the samples at least left after them for a run to be judged.
+RUN_SKIP, RUN_MIN = 3, 8
 #: Share of the speed's range by which the speed must both rise and fall within one such run to contradict it.
 RUN_SHARE = 0.1
 #: Rows checked (the first of the recording): the check is per run, and a few thousand runs tell.
 RUN_ROWS = 200_000
 
 
-def check_constant_input_runs(rec: Recording, name: str = "recording") -> None:
+def check_constant_input_runs(rec: Recording, name: str = "recording", input_delay: int = 0) -> None:
     """Refuse a recording whose speed both rises and falls while its recorded input stays constant.
 
-    Under a constant input the first-order motor (with its friction, bias, dead zone and delay
-    alike) is a one-dimensional autonomous system: its speed moves one way, towards one value.
-    A speed that rises and falls by more than :data:`RUN_SHARE` of its range within one run of
-    constant recorded input (after :data:`RUN_SKIP` samples) answers an input the log does not
-    hold: a duty logged flat at +-60 while the motor received +-200, say, which would give a
-    confident, wrong ``b``.
+    Under a constant input the first-order motor (with its friction, bias and dead zone alike) is a
+    one-dimensional autonomous system: its speed moves one way, towards one value.  A speed that
+    rises and falls by more than :data:`RUN_SHARE` of its range within one run of constant recorded
+    input (after its first ``input_delay`` + :data:`RUN_SKIP` samples, while it still answers the
+    input before) answers an input the log does not hold: a duty logged flat at +-60 while the
+    motor received +-200, say, which would give a confident, wrong ``b``.
+
+    Parameters
+    ----------
+    rec : Recording
+        The run.
+    name : str
+        How the message names it.
+    input_delay : int
+        The input delay of the model fitted to it, in samples.
     """
+    skip = int(input_delay) + RUN_SKIP
     n = min(len(rec), RUN_ROWS)
-    if n < RUN_SKIP + RUN_MIN:
+    if n < skip + RUN_MIN:
         return
     u, seq = rec.duty[:n], rec.seq[:n]
     change = np.flatnonzero((np.diff(u) != 0) | (np.diff(seq) != 1)) + 1
     starts, ends = np.r_[0, change], np.r_[change, n]
-    long = (ends - starts) >= RUN_SKIP + RUN_MIN
+    long = (ends - starts) >= skip + RUN_MIN
     if not long.any():
         return
     speed = rec.measured_speed()[:n]
@@ -406,7 +415,7 @@ def check_constant_input_runs(rec: Recording, name: str = "recording") -> None:
     if rec.counts is not None and rec.counts_per_rev:     # beyond the encoder's rounding, many times over
         tolerance = max(tolerance, 10 * 2 * math.pi / rec.counts_per_rev / rec.sample_period)
     for start, end in zip(starts[long], ends[long]):
-        w = speed[start + RUN_SKIP:end]
+        w = speed[start + skip:end]
         w = w[np.isfinite(w)]
         if len(w) < RUN_MIN:
             continue

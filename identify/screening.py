@@ -7,7 +7,8 @@ refused with :class:`CorruptedSamplesError`, naming the recording and the rows' 
 ``outliers="drop"`` such rows are dropped as gaps, the fit is repeated, and every dropped row is
 reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.  In every
 case a run whose output answers its recorded input one sample before it (an input logged late,
-:func:`identify.causality.check_input_leads`) is refused first.
+:func:`identify.causality.check_input_leads`) is refused first, and one whose speed turns while
+its recorded input stays constant, at the fitted delay (:func:`identify.data.check_constant_input_runs`).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .causality import check_input_leads
-from .data import as_recordings
+from .data import as_recordings, check_constant_input_runs
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
@@ -127,6 +128,8 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         dropped.append(DroppedSamples(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason))
         recs[i] = rec.drop_rows(s.row for s in bad)
     est = estimator(recs, **options)
+    for i, rec in enumerate(recs):        # a speed that turns under a constant recorded input: not the input it got
+        check_constant_input_runs(rec, f"recordings[{i}]", est.input_delay)
     found = _fit_outliers(est, recs, fitted=True)
     if not any(found):
         return ScreenedFit(est, tuple(recs), tuple(dropped))
