@@ -7,7 +7,7 @@ Real motors have Coulomb friction ``c`` and a duty dead zone; fitted with the
 linear model their ``a`` and ``b`` drift with the input's frequency and
 amplitude.  This fit simulates the friction model exactly, event by event
 (zero crossings, and sticking at rest while ``|b u + d| <= c``), with the
-vectorised response of :mod:`identify.friction_response` (no loop per sample),
+response of :mod:`identify.friction_response` (one compiled pass with numba, else vectorised),
 against the encoder angle, with the same segments, offsets and initial speeds as
 :mod:`identify.output_error`.  Its Jacobian is analytic, differentiated through
 the event times: the exact model's exact derivative wherever the stick/slip
@@ -62,9 +62,10 @@ from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .output_error import MAX_AUTO_DELAY, fit_output_error, select_delay, solve_output_error
+from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
+from .variable_projection import is_separable, separable_candidate, static_gain_ceiling
 
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
@@ -262,7 +263,7 @@ def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) 
 
 
 def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
-                   input_delay: int, *, thorough: bool = True) -> tuple[_FrictionProblem, OptimizeResult]:
+                   input_delay: int, *, thorough: bool = False) -> tuple[_FrictionProblem, OptimizeResult]:
     """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
 
     What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
@@ -270,11 +271,11 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     candidate by this fit's residuals, the same fit the estimate it returns is made from.
 
     The cost is kinked and has local minima where friction and dead zone trade off.  The fit starts
-    from the instrumental-variable regression; from the linear fit too (with a little friction, a
-    dead zone of a tenth of the input, much friction) when that lands worse than the linear model
-    it contains, when the regression's ``a`` is far from the linear one, or always with ``thorough``
-    (the estimate's own fit; the selection's candidates at every delay use ``thorough=False``); the
-    least residual wins.
+    from the instrumental-variable regression, one Levenberg–Marquardt run; from the linear fit too
+    (with a little friction, a dead zone of a tenth of the input, much friction) only when that lands
+    worse than the linear model it contains, when the regression's ``a`` is far from the linear one,
+    or always with ``thorough``; the least residual wins.  The linear fit it is checked against is the
+    variable projection in ``a`` started from the friction fit's pole (a few cheap evaluations).
 
     Raises
     ------
@@ -289,10 +290,8 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     if x0 is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
-    try:
-        linear = solve_output_error(recordings, segments, input_delay, with_bias="bias" in names)
-    except NotIdentifiableError:
-        linear = None
+    near = float(results[0].x[0]) if results and np.isfinite(results[0].x[0]) else None
+    linear = _linear_fit(recordings, segments, input_delay, "bias" in names, near)
     if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
         # the kinked cost has local minima where friction and dead zone trade off: when the regression's
         # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
@@ -412,30 +411,57 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     return X, Z, nxt, keep, smallest_duty, len(duties)
 
 
+@dataclasses.dataclass(frozen=True)
+class _LinearFit:
+    """The linear model (with a bias when fitted) on the same rows: what the friction fit must beat."""
+
+    a: float
+    b: float
+    bias: float
+    cost: float
+    initial_speeds: np.ndarray
+
+
+def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with_bias: bool,
+                near: float | None) -> _LinearFit | None:
+    """The ``oe`` fit of the linear model on ``segments``, None when it fails: by variable projection in ``a``
+    from ``near`` (the friction fit's pole: the linear one when friction is slight) where the clock is
+    uniform, else :func:`identify.output_error.linear_candidate`; the initial speeds are then the data's."""
+    speeds = np.array([s.initial_speed_guess() for s in segments])
+    if near is not None and near > 0 and is_separable(segments, False):
+        found = separable_candidate(segments, near, with_bias=with_bias, ceiling=static_gain_ceiling(segments))
+        if found is not None:
+            a, b, bias, r, _ = found
+            return _LinearFit(a, b, bias, float(r @ r), speeds)
+    fitted = linear_candidate(recs, segments, delay, with_bias)
+    if fitted.residuals is None:
+        return None
+    c = fitted.candidate
+    return _LinearFit(c.a, c.b, fitted.bias, c.residual_sum, speeds)
+
+
 def _cost(res: OptimizeResult) -> float:
     """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
     cost = float(res.fun @ res.fun)
     return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
 
 
-def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear) -> bool:
+def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear: _LinearFit) -> bool:
     """A fit from the regression's start that the linear model it contains beats, or a start far from it."""
-    lin_cost = float(linear.result.fun @ linear.result.fun)
-    a_lin = float(linear.result.x[0])
-    far = x0 is None or not (a_lin / 3 <= x0[0] <= 3 * a_lin)
-    return far or _cost(res) > lin_cost * (1 + 1e-9)
+    far = x0 is None or not (linear.a / 3 <= x0[0] <= 3 * linear.a)
+    return far or _cost(res) > linear.cost * (1 + 1e-9)
 
 
-def _linear_starts(problem: _FrictionProblem, linear) -> list[np.ndarray]:
+def _linear_starts(problem: _FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
     """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
-    a0, b0 = float(linear.result.x[0]), float(linear.result.x[1])
+    a0, b0 = linear.a, linear.b
     if b0 == 0 or not a0 > 0:
         return []
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    bias = [float(linear.result.x[2]) if len(linear.result.x) > 2 else 0.0] if "bias" in problem.names else []
+    bias = [linear.bias] if "bias" in problem.names else []
     dead = "dead_zone" in problem.names
     guesses = [(0.05, 0.02), (0.0, 0.1), (0.15, 0.0)] if dead else [(0.05, 0.0), (0.15, 0.0)]
-    speeds = linear.initial_speeds()
+    speeds = linear.initial_speeds
     return [np.concatenate([[a0, b0, c * abs(b0) * u_scale], bias, [z * u_scale] if dead else [], speeds])
             for c, z in guesses]
 
@@ -499,6 +525,18 @@ def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.nda
     return step
 
 
+def _scaled_normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Column norms of ``J``, and ``H = Js^T Js``, ``g = Js^T r`` with ``Js`` its columns scaled to unit norm."""
+    norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+    # a column the data barely see (the initial speed of a segment that starts stuck by friction)
+    # is held, not scaled up to a step of 1e14
+    unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
+    norms[unseen] = 1.0
+    Js = J / norms
+    Js[:, unseen] = 0.0
+    return norms, Js.T @ Js, Js.T @ r
+
+
 #: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
 #: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
 #: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
@@ -529,17 +567,12 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     cost = float(r @ r)
     damping = 1e-4
     status = 0
+    normal = None
     for _ in range(max_iterations):
         assert J is not None
-        norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-        # a column the data barely see (the initial speed of a segment that starts stuck by friction)
-        # is held, not scaled up to a step of 1e14
-        unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
-        norms[unseen] = 1.0
-        Js = J / norms
-        Js[:, unseen] = 0.0
-        H = Js.T @ Js
-        g = Js.T @ r
+        if normal is None:           # once per accepted step: a rejected one only raises the damping
+            normal = _scaled_normal_equations(J, r)
+        norms, H, g = normal
         try:
             step = _bounded_step(H, g, damping, x <= lower) / norms
         except np.linalg.LinAlgError:
@@ -562,6 +595,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
             done = cost - cost_new <= 1e-10 * cost or small
             x, r, J, cost = x_new, r_new, J_new, cost_new
+            normal = None
             damping = max(damping / 5.0, 1e-12)
             if done:
                 status = 1

@@ -130,3 +130,34 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
     values = {"a": fast.a, "b": fast.b, **fast.extra}
     for k, name in enumerate(fast.param_names):
         assert abs(values[name] - truth[name]) <= 3 * math.sqrt(fast.covariance[k, k]), name
+
+
+def _count_runs(monkeypatch):
+    """Record the rows of every Levenberg–Marquardt run oe-friction makes."""
+    from identify import friction
+    runs = []
+    original = friction._levenberg_marquardt
+
+    def counted(problem, x0, *args, **kwargs):
+        runs.append(problem.n_rows)
+        return original(problem, x0, *args, **kwargs)
+    monkeypatch.setattr(friction, "_levenberg_marquardt", counted)
+    return runs
+
+
+def test_a_good_start_makes_one_run_on_all_rows(monkeypatch):
+    runs = _count_runs(monkeypatch)
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    assert est.a == pytest.approx(25.0, rel=CLOSE)
+    assert runs == [1200]          # the regression's start only: no restarts from the linear fit
+
+
+def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
+    from identify import friction
+    runs = _count_runs(monkeypatch)
+    # a start far from the linear fit's pole (a 50 times too large) is not trusted
+    good = friction._regression_start
+    monkeypatch.setattr(friction, "_regression_start", lambda problem: good(problem) * np.r_[50.0, np.ones(4)])
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    assert len(runs) == 3          # the regression's start and the linear fit's two
+    assert est.a == pytest.approx(25.0, rel=CLOSE) and est.extra["friction"] == pytest.approx(60.0, rel=CLOSE)
