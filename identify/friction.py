@@ -56,7 +56,7 @@ import numpy as np
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, Candidate, CandidateFit, choose_delay
+from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
@@ -70,7 +70,8 @@ from .variable_projection import is_separable, separable_candidate, static_gain_
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
-__all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse"]
+__all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse", "friction_candidate", "FrictionScan",
+           "solve_friction", "friction_parameter_names"]
 
 
 
@@ -252,8 +253,10 @@ def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
     the linear model's with a bias when the speed never reverses (friction is then a constant)."""
     if not speed_reverses(recs):
         return select_delay(recs, with_bias=not fix_bias)
-    # friction candidates are full fits whatever the refine flag: there is nothing to refine
-    return choose_delay(recs, lambda segs, d, _: friction_candidate(recs, segs, d, structure, fix_bias),
+    # the scan's fits start from the neighbouring delay's and stop early when they cannot win; refined: in full
+    scan = FrictionScan()
+    return choose_delay(recs, lambda segs, d, refine: friction_candidate(recs, segs, d, structure, fix_bias,
+                                                                         scan=None if refine else scan),
                         MAX_AUTO_DELAY, LEVEL, "oe-friction")
 
 
@@ -309,17 +312,108 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     return problem, res
 
 
+class FrictionScan:
+    """What the friction candidates of one model selection share as it goes through the delays.
+
+    Each structure's last fit (the neighbouring delay's: its parameters are the start of the next
+    delay's fit, and the general structure's fit at a delay starts the simpler one's there) and the
+    least residual sum fitted so far, from which a candidate that cannot come near it is stopped early
+    (:func:`friction_candidate`).
+
+    Parameters
+    ----------
+    best : float
+        The least residual sum already fitted on the same rows (the linear candidates'), inf if none.
+    level : float
+        Level of the selection's test (:data:`identify.comparison.LEVEL`).
+    """
+
+    def __init__(self, best: float = math.inf, level: float = LEVEL):
+        self.best = best
+        self.level = level
+        self.starts: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+
+    def bound(self, structure: str) -> float:
+        """The residual sum above which a candidate of ``structure`` cannot be within :data:`STOP_FACTOR` times the
+        noise of the best: its statistic is at least its relative excess over the best residual sum (the
+        batch-means variance is at most ``|Delta|^2`` times the best's residual sum, by Cauchy–Schwarz)."""
+        if not math.isfinite(self.best):
+            return math.inf
+        n_params = STRUCTURES[structure].n_params
+        k = max(max(s.n_params for s in STRUCTURES.values()) + 1 - n_params, 1)   # the largest k it is tested with
+        far = STOP_FACTOR * k * float(_f_quantile(k, BLOCKS - k, 1.0 - self.level))
+        return self.best * (1.0 + far)
+
+    def start(self, structure: str, names: tuple[str, ...], n_segments: int) -> np.ndarray | None:
+        """This structure's last fit, else another structure's, its dead zone dropped or added at 0."""
+        for source in (structure, *[s for s in self.starts if s != structure]):
+            if source not in self.starts:
+                continue
+            fitted_names, x = self.starts[source]
+            if len(x) - len(fitted_names) != n_segments:
+                continue
+            shared = dict(zip(fitted_names, x[:len(fitted_names)]))
+            return np.concatenate([[shared.get(n, 0.0) for n in names], x[len(fitted_names):]])
+        return None
+
+
+def _f_quantile(k: int, m: int, p: float) -> float:
+    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
+    return float(fdtri(k, m, p))
+
+
 def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: str,
-                  fix_bias: bool) -> CandidateFit:
+                       fix_bias: bool, *, scan: FrictionScan | None = None) -> CandidateFit:
+    """A friction structure's fit on ``segs`` at ``delay``, scored as a candidate of the model selection.
+
+    With ``scan`` (the candidates of one selection, :class:`FrictionScan`) the fit starts from the
+    better (lower residual sum) of the regression's start and the neighbouring delay's fit, makes one
+    Levenberg–Marquardt run, and stops early when even its Gauss–Newton step could not bring it within
+    :data:`STOP_FACTOR` times the noise of the best residual sum so far (:meth:`FrictionScan.bound`):
+    such a candidate comes back with ``refined=False`` and its residuals where it stopped (a residual
+    sum that bounds its full fit's from above), and ``friction_candidate`` without ``scan`` fits it fully.
+    """
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=structure == "dead-zone")
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            _, res = solve_friction(recs, segs, names, delay, thorough=False)
+            if scan is None:
+                _, res = solve_friction(recs, segs, names, delay)
+            else:
+                res = _scanned_fit(recs, segs, names, delay, structure, scan)
     except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
         return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(res.fun, float)
-    return CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), float(r @ r)), r)
+    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), float(r @ r)), r,
+                          refined=res.status != 3)
+    if scan is not None and fitted.refined:
+        scan.starts[structure] = (names, np.asarray(res.x, float))
+        scan.best = min(scan.best, fitted.candidate.residual_sum)
+    return fitted
 
+
+def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, ...], delay: int, structure: str,
+                 scan: FrictionScan) -> OptimizeResult:
+    """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound."""
+    if not segs:
+        raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
+    problem = _FrictionProblem(segs, names)
+    starts = [x for x in (scan.start(structure, names, len(segs)), _regression_start(problem)) if x is not None]
+    if not starts:
+        return solve_friction(recs, segs, names, delay)[1]
+    lower = problem.lower_bounds()
+    costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
+    x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
+        else starts[-1]
+    res = _levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
+    if res.status == 3:
+        return res
+    near = float(res.x[0]) if np.isfinite(res.x[0]) else None
+    linear = _linear_fit(recs, segs, delay, "bias" in names, near)
+    if linear is not None and _suspicious(res, x0, linear):
+        return solve_friction(recs, segs, names, delay)[1]
+    if not (np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 and res.x[1] != 0):
+        raise NotIdentifiableError(f"oe-friction landed on a = {float(res.x[0]):.6g} 1/s")
+    return res
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -537,6 +631,15 @@ def _scaled_normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, 
     return norms, Js.T @ Js, Js.T @ r
 
 
+def _reachable(H: np.ndarray, g: np.ndarray) -> float:
+    """``g^T H^+ g``: the decrease of the residual sum a full Gauss–Newton step promises (by least squares)."""
+    try:
+        value = float(g @ np.linalg.lstsq(H, g, rcond=1e-12)[0])
+    except np.linalg.LinAlgError:
+        return 0.0
+    return value if math.isfinite(value) else math.inf
+
+
 #: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
 #: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
 #: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
@@ -545,7 +648,7 @@ FINAL_STEP = 0.2
 
 
 def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
-                         final_step: float | None = None) -> OptimizeResult:
+                         final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
     With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
@@ -559,6 +662,10 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     evaluation (the residuals moved by ``J delta``): near the minimum Gauss–Newton converges
     about quadratically, so what is left after it is far below ``final_step`` standard errors
     (noise-free data never stop this way: their residuals shrink with the step).
+
+    With a ``bound`` (a residual sum), the fit also stops, with status 3, as soon as the least residual
+    sum of the model linearised at the current point (``cost - g^T H^-1 g``, what a full Gauss–Newton
+    step would reach) exceeds it: a candidate model that cannot come near the best one is left there.
     """
     final_step = FINAL_STEP if final_step is None else final_step
     lower = problem.lower_bounds()
@@ -572,6 +679,9 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
         assert J is not None
         if normal is None:           # once per accepted step: a rejected one only raises the damping
             normal = _scaled_normal_equations(J, r)
+            if bound < math.inf and cost - _reachable(normal[1], normal[2]) > bound:
+                status = 3
+                break
         norms, H, g = normal
         try:
             step = _bounded_step(H, g, damping, x <= lower) / norms

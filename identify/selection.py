@@ -64,7 +64,7 @@ from .data import (
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .friction import friction_candidate, segments_reverse
+from .friction import FrictionScan, friction_candidate, segments_reverse
 from .output_error import linear_candidate
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "SCREEN_LEVEL", "SCREEN_SHARE"]
@@ -199,6 +199,8 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
 
     def refit(f: CandidateFit) -> CandidateFit:
         d = f.candidate.input_delay
+        if f.candidate.method == "oe-friction":
+            return friction_candidate(recs, segments[d], d, f.candidate.structure, fix_bias)
         return linear_candidate(recs, segments[d], d, f.candidate.structure == "bias")
     if nonlinear and linear:
         base = refine(fitted, refit, level)
@@ -240,13 +242,16 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
     """The most general nonlinear structure at every delay, the other near every delay where the general
     one could be within the noise (and near the linear model's best delay)."""
     general, *rest = sorted(structures, key=list(STRUCTURES).index, reverse=True)
-    out = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, general, fix_bias)], level, [])
+    # neighbouring delays share starts; a candidate that cannot come near the best stops early (refined later)
+    scan = FrictionScan(linear_best.candidate.residual_sum if linear_best is not None else math.inf, level)
+    out = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, general, fix_bias, scan=scan)],
+                      level, [])
     near: set[int] = set()
     for anchor in plausible(out, level) + ([linear_best] if linear_best is not None else []):
         d = anchor.candidate.input_delay
         near |= {x for x in (d - 1, d, d + 1) if x in segments}
     for s in rest:
-        out += [friction_candidate(recs, segments[d], d, s, fix_bias) for d in sorted(near)]
+        out += [friction_candidate(recs, segments[d], d, s, fix_bias, scan=scan) for d in sorted(near)]
     return out
 
 

@@ -161,3 +161,41 @@ def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
     est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
     assert len(runs) == 3          # the regression's start and the linear fit's two
     assert est.a == pytest.approx(25.0, rel=CLOSE) and est.extra["friction"] == pytest.approx(60.0, rel=CLOSE)
+
+
+def test_the_statistic_is_at_least_the_relative_excess_the_scan_bound_rests_on():
+    from identify.comparison import statistic
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        best = rng.normal(size=640) * rng.uniform(0.1, 10.0)
+        delta = rng.normal(size=640) * rng.uniform(0.01, 1.0) + rng.uniform(-1, 1) * best
+        excess = rng.uniform(0.0, 5.0) * float(best @ best)
+        # batch means over blocks: V <= |delta|^2 |best|^2 (Cauchy-Schwarz), so T >= excess / |best|^2
+        assert statistic(delta, excess, best) >= excess / float(best @ best) * (1 - 1e-12)
+
+
+def test_a_candidate_that_cannot_come_near_the_best_stops_early_and_is_refitted_in_full():
+    from identify.data import prepare_segments
+    from identify.friction import FrictionScan, friction_candidate
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0), n=2000)
+    segs = prepare_segments([rec], 3)               # the wrong delay: far worse than delay 0
+    best = friction_candidate([rec], prepare_segments([rec], 0), 0, "friction", False)
+    stopped = friction_candidate([rec], segs, 3, "friction", False, scan=FrictionScan(best.candidate.residual_sum))
+    full = friction_candidate([rec], segs, 3, "friction", False)
+    assert not stopped.refined and full.refined
+    # the stopped fit's residual sum bounds the full fit's from above, and both are far beyond the best's
+    assert stopped.candidate.residual_sum >= full.candidate.residual_sum > 1000 * best.candidate.residual_sum
+
+
+def test_neighbouring_delays_share_their_start():
+    from identify.data import prepare_segments
+    from identify.friction import FrictionScan, friction_candidate
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
+    scan = FrictionScan()
+    first = friction_candidate([rec], prepare_segments([rec], 0, skip=2), 0, "dead-zone", False, scan=scan)
+    assert first.refined and scan.start("friction", ("a", "b", "friction", "bias"), 1) is not None
+    warm = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False, scan=scan)
+    cold = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False)
+    # the same minimum from either start (noise-free: to the fit's stopping tolerance)
+    assert warm.candidate.a == pytest.approx(cold.candidate.a, rel=CLOSE)
+    assert warm.candidate.a == pytest.approx(25.0, rel=CLOSE)
