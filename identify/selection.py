@@ -124,7 +124,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
     G = G[:, keep]
     k = G.shape[1]
-    rss = float(r @ r)
+    rss = float(np.einsum("i,i->", r, r))
     if k == 0 or rss == 0:
         return 1.0, 0.0
     step = G @ np.linalg.lstsq(G, r, rcond=None)[0]
