@@ -18,7 +18,6 @@ crossings and sticking when ``|b v + d| <= c`` at rest).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -190,10 +189,10 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     t = np.asarray(time, dtype=float)
     if u.ndim != 1 or t.shape != u.shape:
         raise ParameterError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
-    if not (_all_finite(u) and _all_finite(t)):
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(t))):
         raise ParameterError("duty and time must be finite")
     h = np.diff(t)
-    if len(h) and not float(h.min()) > 0:
+    if np.any(h <= 0):
         raise ParameterError("time must be strictly increasing")
     v = motor.drive(delayed_duty(u, motor.input_delay, duty_before))[:-1] if len(u) else u
     n = len(t)
@@ -223,12 +222,6 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
 RECURSION_RTOL = 1e-9
 
 
-def _all_finite(x: np.ndarray) -> bool:
-    """Whether every value of ``x`` is finite: a finite sum says so in one pass without a temporary array
-    (a sum that overflows, or a non-finite one, is checked value by value)."""
-    return math.isfinite(float(np.add.reduce(x, axis=None))) or bool(np.all(np.isfinite(x)))
-
-
 def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, speed: np.ndarray,
                         angle: np.ndarray) -> bool:
     """The ZOH run when every interval is within :data:`RECURSION_RTOL` of ``h[0]`` (relative, and
@@ -247,7 +240,7 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
         return True
     h0 = float(h[0])
     dh = h - h0
-    spread = max(float(dh.max()), -float(dh.min()))      # max |dh| without a temporary array
+    spread = float(np.max(np.abs(dh)))
     if not (spread <= RECURSION_RTOL * h0 and abs(a) * spread <= RECURSION_RTOL):
         return False
     e0, g0, p0, q0 = (float(c) for c in zoh_matrices(a, b, h0))
