@@ -150,25 +150,29 @@ class _FrictionProblem:
         if key == self._key and self._value is not None and (self._value[1] is not None or not jacobian):
             return self._value
         r = np.empty(self.n_rows)
-        J = np.zeros((self.n_rows, len(x))) if jacobian else None
+        one = len(self.segments) == 1          # its columns are the whole Jacobian, in this order
+        J = np.zeros((self.n_rows, len(x))) if jacobian and not one else None
         row = 0
         for i, seg in enumerate(self.segments):
             n = len(seg.time)
             resp = self._response(x, i, jacobian)
             model, sens = ((resp.angle, resp.angle_sensitivity) if seg.kind == "angle"
                            else (resp.speed, resp.speed_sensitivity))
-            err = seg.output - model
+            err = np.subtract(seg.output, model, out=r[row:row + n])
             if seg.kind == "angle":
-                err = err - err.mean()
-            r[row:row + n] = err
-            if J is not None and sens is not None:
+                err -= err.mean()
+            if jacobian and sens is not None:
                 cols = sens[:, self.columns + [len(FRICTION_PARAMETERS) - 1]]    # a copy
                 if seg.kind == "angle":
                     np.subtract(cols.mean(axis=0), cols, out=cols)      # centred, negated
                 else:
                     np.negative(cols, out=cols)
-                J[row:row + n, :self.n_global] = cols[:, :-1]
-                J[row:row + n, self.n_global + i] = cols[:, -1]
+                if one:
+                    J = cols
+                else:
+                    assert J is not None
+                    J[row:row + n, :self.n_global] = cols[:, :-1]
+                    J[row:row + n, self.n_global + i] = cols[:, -1]
             row += n
         self._key, self._value = key, (r, J)
         return r, J
@@ -460,11 +464,13 @@ def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
     h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
     zone = 0.0
     parts = [_regression_rows(seg, dead_zone, fit_bias) for seg in problem.segments]
-    X_all, Z_all, y_all, keep_all, duty_all = (np.concatenate([part[i] for part in parts]) for i in range(5))
+    X_all, Z_all, y_all, keep_all, duty_all = (parts[0][i] if len(parts) == 1 else
+                                               np.concatenate([part[i] for part in parts]) for i in range(5))
     n_u = parts[0][5]
     for _ in range(2 if dead_zone else 1):
         keep = keep_all & (duty_all > 1.5 * zone) if zone > 0 else keep_all
-        X, Z, y = X_all[keep], Z_all[keep], y_all[keep]
+        rows = np.flatnonzero(keep)        # take: several times faster than a boolean index of 2-D rows
+        X, Z, y = X_all.take(rows, axis=0), Z_all.take(rows, axis=0), y_all[rows]
         if len(y) <= 2 * X.shape[1]:
             return None
         try:

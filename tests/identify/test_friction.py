@@ -199,3 +199,15 @@ def test_neighbouring_delays_share_their_start():
     # the same minimum from either start (noise-free: to the fit's stopping tolerance)
     assert warm.candidate.a == pytest.approx(cold.candidate.a, rel=CLOSE)
     assert warm.candidate.a == pytest.approx(25.0, rel=CLOSE)
+
+
+def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
+    # without numba (the optional extra 'fast') the vectorised response is used: the same fit to rounding
+    from identify import friction_response as response_module
+    rec = _run(Motor(25.0, 3.0, friction=40.0, dead_zone=12.0), freq=25.0)
+    fast = fit_output_error_friction(rec)
+    monkeypatch.setattr(response_module, "KERNEL_MIN_ROWS", 10 ** 18)
+    slow = fit_output_error_friction(rec)
+    for name in ("a", "b", "friction", "bias", "dead_zone"):
+        # the two responses agree to ~1e-13; the fit amplifies that by its conditioning, far below CLOSE
+        assert slow.value(name) == pytest.approx(fast.value(name), rel=1e-7, abs=1e-9), name
