@@ -11,6 +11,7 @@ from typing import Any
 #: public name -> the module of this package that defines it
 _WHERE = {
     "NotIdentifiableError": "errors", "Estimate": "estimate",
+    "structures": "model_structures", "structure": "model_structures", "ModelStructure": "model_structures",
     "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
     "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",

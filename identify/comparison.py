@@ -50,6 +50,7 @@ from motorsim.recording import Recording
 
 from .data import Segment, prepare_segments
 from .errors import NotIdentifiableError
+from .model_structures import ModelStructure, structures
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
            "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
@@ -77,22 +78,9 @@ STOP_AFTER = 2
 STOP_FACTOR = 100.0
 
 
-@dataclasses.dataclass(frozen=True)
-class _Structure:
-    name: str
-    method: str
-    options: Mapping[str, Any]
-    n_params: int
-    text: str
-
-
-#: The candidate structures, simplest first.
-STRUCTURES: dict[str, _Structure] = {s.name: s for s in (
-    _Structure("linear", "oe", {}, 2, "linear (oe)"),
-    _Structure("bias", "oe", {"fit_bias": True}, 3, "linear with a constant acceleration d (oe, fit_bias)"),
-    _Structure("friction", "oe-friction", {"dead_zone": False}, 4, "Coulomb friction c and bias d (oe-friction)"),
-    _Structure("dead-zone", "oe-friction", {}, 5, "friction c, bias d and a duty dead zone (oe-friction)"),
-)}
+#: The candidate structures of the default, simplest first: the registered ones
+#: (:func:`identify.structures`) it considers.
+STRUCTURES: Mapping[str, ModelStructure] = structures(in_default=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,7 +90,7 @@ class Candidate:
     Attributes
     ----------
     structure : str
-        A key of :data:`STRUCTURES`.
+        A registered structure's name (:data:`STRUCTURES`).
     input_delay : int
         Samples.
     a, b : float

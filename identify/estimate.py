@@ -1,18 +1,18 @@
-"""``Estimate``: the result every estimator returns, and the model it describes.
+"""``Estimate``: the result every estimator returns: a model structure, its values and their quality.
 
-An estimate carries everything needed to rebuild the identified model: ``a``, ``b``, the
-covariance, the input delay, friction, bias and dead zone (``extra``), the sample period,
-the units and the method.  It gives that model back as a python-control transfer function
-(:meth:`Estimate.transfer_function`: the linear part, with its delay exact in discrete time),
-as a python-control nonlinear system (:meth:`Estimate.io_system`: everything, exact at the
-sample instants), as a :class:`motorsim.plant.Motor` (:meth:`Estimate.motor`), and as JSON
-(:meth:`Estimate.to_json`, :meth:`Estimate.from_json`; ``motorid identify --save``).
+An estimate is a :mod:`model structure <identify.structures>` (``structure``: ``linear``,
+``bias``, ``friction``, ``dead-zone``, ...) with values for its parameters (``a``, ``b`` and
+``extra``), the input delay (``input_delay``, samples), the covariance, the fit's diagnostics
+and, from the default estimator, how it was selected.  The structure turns it into a model: a
+python-control transfer function (:meth:`Estimate.transfer_function`: the linear part, with its
+delay exact in discrete time), a python-control nonlinear system (:meth:`Estimate.io_system`:
+everything, exact at the sample instants), a :class:`motorsim.plant.Motor`
+(:meth:`Estimate.motor`).  Its JSON document (:meth:`Estimate.to_json`, :meth:`Estimate.from_json`;
+``motorid identify --save`` and ``--json``) is :mod:`identify.model_file`'s.
 """
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 import os
 import statistics
@@ -20,16 +20,24 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
+from motorsim.checks import ParameterError, check_int
 from motorsim.plant import Motor, simulate
+
+from .model_file import (
+    ESTIMATE_FORMAT,
+    MAX_ESTIMATE_BYTES,
+    estimate_document,
+    estimate_fields,
+    file_sha256,
+    json_ready,
+    read_estimate_document,
+)
+from .model_structures import ModelStructure, structure, structure_of
 
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Estimate", "json_ready", "file_sha256", "with_data_files", "ESTIMATE_FORMAT"]
-
-#: The ``format`` field of :meth:`Estimate.to_json`.
-ESTIMATE_FORMAT = "motorid estimate v1"
+__all__ = ["Estimate", "json_ready", "file_sha256", "with_data_files", "ESTIMATE_FORMAT", "MAX_ESTIMATE_BYTES"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -57,10 +65,15 @@ class Estimate:
         Covariance of the parameters named in ``param_names``.
     param_names : tuple of str
         Order of the parameters in ``covariance``; starts with ``"a", "b"``.
-    extra : mapping of str to float or int
-        Further parameters: ``friction`` (Coulomb friction ``c``) and ``bias`` (constant
-        acceleration ``d``) in rad/s^2, ``dead_zone`` in input units, ``input_delay``
-        in samples (an int).
+    extra : mapping of str to float
+        The structure's further parameters: ``friction`` (Coulomb friction ``c``) and ``bias``
+        (constant acceleration ``d``) in rad/s^2, ``dead_zone`` in input units (an
+        ``"input_delay"`` key given here is moved to :attr:`input_delay`).
+    structure : str
+        Name of the model structure (:func:`identify.structures`); found from ``method`` and
+        ``param_names`` when not given.
+    input_delay : int
+        Whole samples between a duty being commanded and reaching the motor, >= 0.
     residual_unit : str
         Unit of ``residual_rms``.
     input_unit : str
@@ -122,15 +135,28 @@ class Estimate:
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
     speed_residuals: tuple[np.ndarray, ...] | None = dataclasses.field(default=None, repr=False)
+    structure: str = ""
+    input_delay: int = 0
 
     def __post_init__(self):
+        extra = dict(self.extra)
+        delay = extra.pop("input_delay", None)
+        if delay is not None and self.input_delay == 0:
+            object.__setattr__(self, "input_delay", delay)
+        object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, lo=0))
+        object.__setattr__(self, "extra", {k: float(v) for k, v in extra.items()})
+        found = structure(self.structure) if self.structure else structure_of(self.method, tuple(self.param_names))
+        object.__setattr__(self, "structure", found.name)
+        unset = [n for n in self.param_names if n not in ("a", "b", *self.extra)]
+        if unset:
+            raise ParameterError(f"param_names must each have a value (a, b or a key of extra), got {unset} "
+                                 "without one")
         if self.covariance is not None:
             cov = np.array(self.covariance, dtype=float)
             if cov.shape != (len(self.param_names),) * 2:
                 raise ParameterError(f"covariance must have shape {(len(self.param_names),) * 2}, got {cov.shape}")
             cov.setflags(write=False)
             object.__setattr__(self, "covariance", cov)
-        object.__setattr__(self, "extra", dict(self.extra))
         object.__setattr__(self, "data_files", tuple((str(p), str(h)) for p, h in self.data_files))
         object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
         object.__setattr__(self, "model_range", {str(k): (float(lo), float(hi))
@@ -147,10 +173,10 @@ class Estimate:
         import html
         se = self.stderr()
         ci = self.confidence_interval(0.95)
-        units = {"a": "1/s", "b": f"(rad/s²)/{self.input_unit}", "friction": "rad/s²", "bias": "rad/s²",
-                 "dead_zone": self.input_unit, "input_delay": "samples"}
+        units = {**self.model_structure().units(self.input_unit), "input_delay": "samples"}
+        units = {k: v.replace("^2", "²") for k, v in units.items()}
         rows = []
-        for name in ("a", "b", *self.extra):
+        for name in ("a", "b", *self.extra, "input_delay"):
             err = se.get(name, math.nan)
             lo, hi = ci.get(name, (math.nan, math.nan))
             cells = [name, f"{self.value(name):.6g}", units.get(name, ""),
@@ -164,13 +190,21 @@ class Estimate:
         return ("<table><caption>" + caption + "</caption><tr><th>parameter</th><th>value</th><th>unit</th>"
                 "<th>stderr</th><th>95 % CI</th></tr>" + "".join(rows) + "</table>")
 
+    def model_structure(self) -> ModelStructure:
+        """The model structure this estimate gives values for (:func:`identify.structures`)."""
+        return structure(self.structure)
+
+    def values(self) -> dict[str, float]:
+        """Every parameter of the structure by name (``a``, ``b`` and ``extra``; the delay is :attr:`input_delay`)."""
+        return {"a": self.a, "b": self.b, **self.extra}
+
     @property
-    def input_delay(self) -> int:
-        """Input delay in samples (``extra["input_delay"]``, 0 when the method has none)."""
-        return int(self.extra.get("input_delay", 0))
+    def input_delay_seconds(self) -> float:
+        """The input delay in s (``input_delay * sample_period``): what carries to another sample period."""
+        return self.input_delay * self.sample_period
 
     def __repr__(self) -> str:
-        extra = "".join(f", {k}={v:.6g}" for k, v in self.extra.items())
+        extra = "".join(f", {k}={v:.6g}" for k, v in {**self.extra, "input_delay": self.input_delay}.items())
         return (f"Estimate(method={self.method!r}, a={self.a:.6g}, b={self.b:.6g}{extra}, "
                 f"sample_period={self.sample_period:.6g}, fit_percent={self.fit_percent:.4g}, "
                 f"n_samples={self.n_samples})")
@@ -180,8 +214,7 @@ class Estimate:
         se = self.stderr()
         ci = self.confidence_interval(0.95)
         delay_s = self.input_delay * self.sample_period
-        units = {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "friction": "rad/s^2", "bias": "rad/s^2",
-                 "dead_zone": self.input_unit, "input_delay": f"samples ({delay_s:.6g} s)"}
+        units = {**self.model_structure().units(self.input_unit), "input_delay": f"samples ({delay_s:.6g} s)"}
 
         def line(name: str) -> str:
             text = f"{name:<11} {self.value(name):.6g} {units.get(name, '')}"
@@ -189,7 +222,7 @@ class Estimate:
                 lo, hi = ci[name]
                 text += f"   (stderr {se[name]:.2g})   95 % CI [{lo:.6g}, {hi:.6g}]"
             return text.rstrip()
-        lines = [f"method      {self.method}", *(line(n) for n in ("a", "b", *self.extra)),
+        lines = [f"method      {self.method}", *(line(n) for n in ("a", "b", *self.extra, "input_delay")),
                  f"b/a         {self.static_gain:.6g} (rad/s)/{self.input_unit}",
                  f"fit         {self.fit_percent:.2f} % (NRMSE, simulated vs measured speed)",
                  f"residual    {self.residual_rms:.3g} {self.residual_unit} RMS",
@@ -226,12 +259,12 @@ class Estimate:
         return 1.0 / self.a
 
     def value(self, name: str) -> float | int:
-        """The estimate of parameter ``name`` (``a``, ``b`` or a key of ``extra``)."""
-        if name in ("a", "b"):
+        """The estimate of parameter ``name`` (``a``, ``b``, a key of ``extra`` or ``input_delay``)."""
+        if name in ("a", "b", "input_delay"):
             return getattr(self, name)
         if name in self.extra:
             return self.extra[name]
-        raise KeyError(f"name must be one of {['a', 'b', *self.extra]}, got {name!r}")
+        raise KeyError(f"name must be one of {['a', 'b', *self.extra, 'input_delay']}, got {name!r}")
 
     def stderr(self) -> dict[str, float]:
         """Standard error of each parameter in ``param_names`` (nan without a covariance)."""
@@ -311,34 +344,12 @@ class Estimate:
         >>> tf.dt, tf.den[0][0].round(4).tolist()       # z^2 (z - e): the delay of 2 samples is kept
         (0.005, [1.0, -0.8825, 0.0, 0.0])
         """
-        import control
-        if form not in ("continuous", "discrete"):
-            raise ParameterError(f"form must be 'continuous' or 'discrete', got {form!r}")
-        if delay not in (None, "pade"):
-            raise ParameterError(f"delay must be None or 'pade', got {delay!r}")
-        names = {"inputs": "duty", "outputs": "speed"}
-        d = self.input_delay
-        if form == "discrete":
-            e = math.exp(-self.a * self.sample_period)
-            g = -self.b / self.a * math.expm1(-self.a * self.sample_period)
-            return control.tf([g], [1.0, -e, *([0.0] * d)], self.sample_period, **names)
-        tf = control.tf([self.b], [1.0, self.a], **names)
-        if d == 0:
-            return tf
-        if delay is None:
-            raise ParameterError(f"this estimate has an input delay of {d} samples ({d * self.sample_period:.6g} s), "
-                             "which b/(s + a) cannot carry: use transfer_function('discrete') for the exact "
-                             "model with z^-d, or delay='pade' for a continuous approximation")
-        if not (isinstance(pade_order, int) and pade_order >= 1):
-            raise ParameterError(f"pade_order must be an integer >= 1, got {pade_order!r}")
-        num, den = control.pade(d * self.sample_period, pade_order)
-        return control.tf(np.polymul(num, [self.b]), np.polymul(den, [1.0, self.a]), **names)
+        return self.model_structure().transfer_function(self.values(), self.sample_period, self.input_delay,
+                                                        form, delay=delay, pade_order=pade_order)
 
     def motor(self) -> Motor:
         """The identified model as a :class:`motorsim.plant.Motor` (friction, bias, dead zone, delay)."""
-        return Motor(self.a, self.b, friction=float(self.extra.get("friction", 0.0)),
-                     bias=float(self.extra.get("bias", 0.0)), dead_zone=float(self.extra.get("dead_zone", 0.0)),
-                     input_delay=self.input_delay)
+        return self.model_structure().plant(self.values(), self.input_delay)
 
     def io_system(self, name: str = "motor") -> control.NonlinearIOSystem:
         """The full identified model as a discrete-time python-control system at :attr:`sample_period`.
@@ -390,36 +401,20 @@ class Estimate:
                              dt=h, name=name)
 
     def to_dict(self) -> dict:
-        """JSON-ready summary (``motorid identify --json``)."""
-        out = {"method": self.method, "a": self.a, "b": self.b, "static_gain": self.static_gain,
-               "fit_percent": self.fit_percent, "n_samples": self.n_samples,
-               "sample_period": self.sample_period, "residual_rms": self.residual_rms,
-               "residual_unit": self.residual_unit, "input_unit": self.input_unit, "input_limit": self.input_limit}
-        if self.covariance_method:
-            out["covariance_method"] = self.covariance_method
-        out.update(self.extra)
-        se = self.stderr()
-        ci = self.confidence_interval(0.95)
-        for name in self.param_names:
-            out[f"{name}_stderr"] = se[name]
-            out[f"{name}_ci95"] = list(ci[name])
-        missing = self.missing_intervals()
-        out["notes"] = list(self.notes) + ([f"no interval for {missing}"] if missing else [])
-        if self.selection is not None:
-            out["selection"] = self.selection
-        if self.model_range:
-            out["model_range"] = {k: list(v) for k, v in self.model_range.items()}
-        return json_ready(out)
+        """The JSON-ready document of the estimate (``motorid identify --json``; the same as :meth:`to_json`'s).
+
+        Its fields are :mod:`identify.model_file`'s: ``format``, ``structure``, ``method``, every
+        parameter at the top level (``a``, ``b``, ``friction``, ...), ``input_delay`` (samples) and
+        ``input_delay_seconds``, the covariance and per parameter ``NAME_stderr`` and
+        ``NAME_ci95``, the units, notes, selection and the recordings fitted.
+        """
+        return estimate_document(self)
 
     def to_json(self, *, indent: int | None = 2) -> str:
         """Everything needed to rebuild the estimate, as a JSON document (:meth:`from_json` reads it).
 
-        The fields: ``format`` (``motorid estimate v1``), ``method``, ``a``, ``b``, ``extra``
-        (friction, bias, dead zone, ``input_delay``), ``param_names`` and ``covariance`` (rows in
-        that order, null where not finite), ``sample_period`` (s), ``units``, ``n_samples``,
-        ``fit_percent``, ``residual_rms``, ``data_files`` (path and sha256 of each recording) and
-        ``feedforward`` (kS, kV, kA, k0 with intervals, :mod:`identify.feedforward`; derived, not read back).
-        ``input_limit`` (the largest input the drive accepts, in the input unit; null when unknown).
+        The document is :meth:`to_dict`'s (``format`` ``motorid estimate v2``): the same fields at
+        the same paths as ``motorid identify --json`` prints.
 
         Parameters
         ----------
@@ -433,28 +428,14 @@ class Estimate:
         >>> Estimate.from_json(est.to_json()).covariance.tolist()
         [[0.01, 0.0], [0.0, 0.0001]]
         """
-        doc = {"format": ESTIMATE_FORMAT, "method": self.method, "a": self.a, "b": self.b, "extra": self.extra,
-               "param_names": list(self.param_names),
-               "covariance": None if self.covariance is None else self.covariance.tolist(),
-               "sample_period": self.sample_period,
-               "units": {"a": "1/s", "b": f"(rad/s^2)/{self.input_unit}", "input": self.input_unit,
-                         "friction": "rad/s^2", "bias": "rad/s^2", "dead_zone": self.input_unit,
-                         "input_delay": "samples", "sample_period": "s", "residual_rms": self.residual_unit},
-               "input_limit": self.input_limit,
-               "n_samples": self.n_samples, "fit_percent": self.fit_percent, "residual_rms": self.residual_rms,
-               "data_files": [{"path": p, "sha256": h} for p, h in self.data_files],
-               "covariance_method": self.covariance_method, "notes": list(self.notes)}
-        if self.selection is not None:
-            doc["selection"] = self.selection
-        if self.model_range:
-            doc["model_range"] = {k: list(v) for k, v in self.model_range.items()}
-        from .feedforward import feedforward_constants
-        doc["feedforward"] = feedforward_constants(self).to_dict()     # kS, kV, kA: read back from a, b
-        return json.dumps(json_ready(doc), indent=indent)
+        import json
+        return json.dumps(self.to_dict(), indent=indent)
 
     @classmethod
     def from_json(cls, text: str | bytes) -> "Estimate":
         """The estimate :meth:`to_json` wrote (a JSON document, or the path of a file holding one).
+
+        Documents of the first format (``motorid estimate v1``) are read too, and migrated.
 
         Parameters
         ----------
@@ -470,161 +451,9 @@ class Estimate:
             the field; :class:`motorsim.checks.ParameterTypeError` (also a ``TypeError``) for a
             field of the wrong kind (``"a": true``, ``"extra": []``, ``input_delay: 1.5``).
         """
-        if not isinstance(text, (str, bytes)):
-            raise ParameterTypeError(f"text must be JSON text or the path of a JSON file, got {type(text).__name__}")
-        if isinstance(text, bytes):
-            text = _decoded(text, "text")
-        if not text.lstrip().startswith("{") and os.path.exists(text):
-            from motorsim.files import read_input_bytes
-            text = _decoded(read_input_bytes(text, what="model", max_bytes=MAX_ESTIMATE_BYTES), text)
-        if len(text) > MAX_ESTIMATE_BYTES:
-            raise ParameterError(f"an estimate must be at most {MAX_ESTIMATE_BYTES} characters of JSON, "
-                                 f"got {len(text)}")
-        try:
-            doc = json.loads(text, parse_constant=_no_constant)
-        except json.JSONDecodeError as exc:
-            raise ParameterError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
-        except RecursionError:
-            raise ParameterError("an estimate must be a JSON document of a few levels, got one nested "
-                                 "too deep to read") from None
-        if not isinstance(doc, dict) or doc.get("format") != ESTIMATE_FORMAT:
-            found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-            raise ParameterError(f"an estimate must have format {ESTIMATE_FORMAT!r}, got {found!r}")
-        return cls(**_estimate_fields(doc))
-
-
-#: The largest saved estimate read, in bytes (one is about 2 kB).
-MAX_ESTIMATE_BYTES = 1 << 20
-
-
-def _decoded(data: bytes, name: str) -> str:
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ParameterError(f"an estimate must be UTF-8 JSON text; {name} is binary ({exc.reason} at byte "
-                             f"{exc.start})") from None
-
-
-def _no_constant(name: str) -> float:
-    raise ParameterError(f"an estimate must hold finite numbers or null, got {name}")
-
-
-def _estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
-    """The keyword arguments of :class:`Estimate` from a saved document, each field checked."""
-    def field(name: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
-        if name not in doc:
-            if default is ...:
-                raise ParameterError(f"an estimate must have the field {name!r}")
-            return default
-        value = doc[name]
-        if not isinstance(value, kind) or isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple)
-                                                                                   else (kind,)):
-            raise ParameterTypeError(f"estimate field {name!r} must be {_kind_name(kind)}, got {value!r:.80}")
-        return value
-
-    def real(name: str, value: Any, *, finite: bool = True) -> float:
-        if value is None and not finite:
-            return math.nan
-        return check_real(f"estimate field {name!r}", value, finite=finite)
-
-    names = field("param_names", list, ["a", "b"])
-    if not all(isinstance(n, str) for n in names):
-        raise ParameterTypeError(f"estimate field 'param_names' must be a list of names, got {names!r:.80}")
-    cov = field("covariance", (list, type(None)), None)
-    if cov is not None:
-        if len(cov) != len(names) or not all(isinstance(row, list) and len(row) == len(names) for row in cov):
-            raise ParameterError(f"estimate field 'covariance' must be {len(names)} rows of {len(names)} numbers, "
-                                 f"got {cov!r:.80}")
-        cov = np.array([[real("covariance", x, finite=False) for x in row] for row in cov])
-    extra: dict[str, float | int] = {}
-    for key, value in field("extra", dict, {}).items():
-        if key == "input_delay":
-            extra[key] = check_int("estimate field 'extra.input_delay'", value, lo=0, allow_integral_float=False)
-        else:
-            extra[key] = real(f"extra.{key}", value, finite=False)
-    units = field("units", dict, {})
-    for key in ("residual_rms", "input"):
-        if not isinstance(units.get(key, ""), str):
-            raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
-    files = field("data_files", list, [])
-    if not all(isinstance(f, dict) and isinstance(f.get("path"), str) and isinstance(f.get("sha256"), str)
-               for f in files):
-        raise ParameterTypeError(f"estimate field 'data_files' must be a list of {{path, sha256}}, got {files!r:.80}")
-    return dict(method=field("method", str), a=real("a", field("a", (int, float))),
-                b=real("b", field("b", (int, float))),
-                n_samples=check_int("estimate field 'n_samples'", field("n_samples", int), lo=0),
-                sample_period=check_real("estimate field 'sample_period'", field("sample_period", (int, float)),
-                                         positive=True),
-                residual_rms=real("residual_rms", field("residual_rms", (int, float, type(None)), None), finite=False),
-                fit_percent=real("fit_percent", field("fit_percent", (int, float, type(None)), None), finite=False),
-                covariance=cov, param_names=tuple(names), extra=extra,
-                residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
-                data_files=tuple((f["path"], f["sha256"]) for f in files),
-                covariance_method=field("covariance_method", str, ""),
-                selection=field("selection", (dict, type(None)), None),
-                notes=tuple(_strings("notes", field("notes", list, []))),
-                model_range=_model_range(field("model_range", (dict, type(None)), None) or {}),
-                input_limit=_input_limit(field("input_limit", (int, float, type(None)), None)))
-
-
-def _input_limit(value: Any) -> float | None:
-    if value is None:
-        return None
-    return check_real("estimate field 'input_limit'", value, positive=True)
-
-
-def _strings(name: str, values: list) -> list[str]:
-    if not all(isinstance(v, str) for v in values):
-        raise ParameterTypeError(f"estimate field {name!r} must be a list of strings, got {values!r:.80}")
-    return values
-
-
-def _model_range(ranges: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
-    out = {}
-    for key, pair in ranges.items():
-        if not (isinstance(pair, list) and len(pair) == 2):
-            raise ParameterTypeError(f"estimate field 'model_range.{key}' must be [low, high], got {pair!r:.80}")
-        low, high = (math.nan if x is None else check_real(f"estimate field 'model_range.{key}'", x, finite=False)
-                     for x in pair)
-        out[key] = (low, high)
-    return out
-
-
-def _kind_name(kind: type | tuple[type, ...]) -> str:
-    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "an object",
-             type(None): "null"}
-    kinds = kind if isinstance(kind, tuple) else (kind,)
-    if float in kinds:
-        kinds = tuple(k for k in kinds if k is not int)
-    return " or ".join(names.get(k, k.__name__) for k in kinds)
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 hex digest of a file's bytes (the ``data_files`` of an estimate)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return cls(**estimate_fields(read_estimate_document(text)))
 
 
 def with_data_files(estimate: Estimate, paths: Sequence[str | os.PathLike]) -> Estimate:
     """``estimate`` recording the paths and SHA-256 digests of the files it was fitted to."""
     return dataclasses.replace(estimate, data_files=tuple((os.fspath(p), file_sha256(p)) for p in paths))
-
-
-def json_ready(value):
-    """``value`` with every non-finite float (nan, inf) replaced by None, recursively.
-
-    JSON has no nan; ``json.dumps`` would write the invalid token ``NaN``.
-
-    >>> json_ready({"a": float("nan"), "b": [1.0, float("inf")]})
-    {'a': None, 'b': [1.0, None]}
-    """
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(v) for v in value]
-    return value

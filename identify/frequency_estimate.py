@@ -208,7 +208,7 @@ class FrequencyResponse:
         have no frequency response).  The variance is ``J C J^H`` with ``J`` the derivatives of the
         response with respect to ``a`` and ``b`` (central differences) and ``C`` their covariance.
         """
-        delay = int(estimate.extra.get("input_delay", 0))
+        delay = estimate.input_delay
         g = self.model_response(estimate.a, estimate.b, delay)
         variance = np.zeros(len(g))
         if estimate.covariance is not None:

@@ -62,6 +62,7 @@ from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
+from .model_structures import ModelStructure
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
@@ -426,6 +427,13 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     return res
 
 
+def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: ModelStructure, *,
+                        refine: bool = True, fix_bias: bool = False) -> CandidateFit:
+    """``structure`` (``friction`` or ``dead-zone``) as a candidate of the default's selection
+    (:func:`friction_candidate`; always fitted fully, ``refine`` has no effect)."""
+    return friction_candidate(recs, segs, delay, structure.name, fix_bias)
+
+
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
 #: residuals count as mostly rounding (then the linearised encoder bootstrap gives the covariance).
 ROUNDING_DOMINATED = 4.0
@@ -464,7 +472,7 @@ def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
     h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
     zone = 0.0
     parts = [_regression_rows(seg, dead_zone, fit_bias) for seg in problem.segments]
-    X_all, Z_all, y_all, keep_all, duty_all = (parts[0][i] if len(parts) == 1 else
+    X_all, Z_all, y_all, keep_all, duty_all = (np.asarray(parts[0][i]) if len(parts) == 1 else
                                                np.concatenate([part[i] for part in parts]) for i in range(5))
     n_u = parts[0][5]
     for _ in range(2 if dead_zone else 1):
@@ -737,9 +745,10 @@ def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Est
                       "with the bias d fixed at 0 it cannot be separated from b u: fitting the linear model (c = 0)",
                       UserWarning, stacklevel=3)
         est = fit_output_error(recs, input_delay=input_delay)
-        return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "friction": 0.0, "bias": 0.0})
+        return dataclasses.replace(est, method="oe-friction", structure="friction",
+                                   extra={**est.extra, "friction": 0.0, "bias": 0.0})
     warnings.warn("oe-friction: the speed never reverses or comes to rest, so Coulomb friction c is a constant "
                   "indistinguishable from the bias d: reporting c = 0 and d as the net constant acceleration "
                   "(d - c sign(omega))", UserWarning, stacklevel=3)
     est = fit_output_error(recs, input_delay=input_delay, fit_bias=True)
-    return dataclasses.replace(est, method="oe-friction", extra={**est.extra, "friction": 0.0})
+    return dataclasses.replace(est, method="oe-friction", structure="friction", extra={**est.extra, "friction": 0.0})

@@ -23,8 +23,9 @@ from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .estimate import Estimate
+from .model_structures import ModelStructure
 
-__all__ = ["fit", "available_methods", "method_function", "method_options", "DEFAULT_METHOD"]
+__all__ = ["fit", "available_methods", "method_function", "method_options", "candidate_function", "DEFAULT_METHOD"]
 
 #: name -> "module:function" of this package (its module imported when first used), or the function itself
 _METHODS: dict[str, str | Callable[..., Estimate]] = {
@@ -40,6 +41,13 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
 #: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
 DEFAULT_METHOD = "auto"
 _DEFAULT_ENTRY = "selection:fit_selected"
+
+#: method -> "module:function" fitting one structure as a candidate of the default's selection, called as
+#: ``function(recordings, segments, input_delay, structure, refine=..., fix_bias=...) -> CandidateFit``
+_CANDIDATES = {
+    "oe": "output_error:structure_candidate",
+    "oe-friction": "friction:structure_candidate",
+}
 
 #: methods that need a closed-loop recording's reference column
 _CLOSED_LOOP_ONLY = frozenset({"iv-reference"})
@@ -73,12 +81,28 @@ def method_function(method: str) -> Callable[..., Estimate]:
     return getattr(importlib.import_module(f".{module}", __package__), function)
 
 
+def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
+    """The function that fits ``structure`` as a candidate of the default's selection (by its estimator).
+
+    Parameters
+    ----------
+    structure : ModelStructure
+        A registered structure; its ``method`` names the estimator.
+    """
+    if structure.method not in _CANDIDATES:
+        raise ParameterError(f"structure {structure.name!r} has no candidate fit: its method must be one of "
+                             f"{list(_CANDIDATES)}, got {structure.method!r}")
+    module, function = _CANDIDATES[structure.method].split(":")
+    return getattr(importlib.import_module(f".{module}", __package__), function)
+
+
 def method_options(method: str) -> tuple[str, ...]:
     """Names of the keyword options the named method accepts (besides the recordings)."""
     return tuple(inspect.signature(method_function(method)).parameters)[1:]
 
 
-def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, **options: Any) -> Estimate:
+def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *, outliers: str = "refuse",
+        **options: Any) -> Estimate:
     """Identify ``a`` and ``b``: by default choosing the input delay and the model structure by evidence.
 
     Parameters
@@ -90,6 +114,11 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
         and the structure (linear, bias, Coulomb friction, dead zone) chosen by evidence
         (:func:`identify.selection.fit_selected`; the estimate's ``selection`` says what was
         compared).  Or one of :func:`available_methods` to force that estimator.
+    outliers : {"refuse", "drop", "keep"}
+        Corrupted samples (a row no motor can produce, an isolated residual outlier after the
+        fit): refused with :class:`identify.errors.CorruptedSamplesError` (default, as
+        ``motorid identify`` does), dropped as gaps and the fit repeated (``--drop-outliers``),
+        or kept (no screening).  :func:`identify.screening.screened_fit` also returns what it dropped.
     **options
         Passed to the method.  Each method's options:
 
@@ -123,4 +152,5 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
     >>> print(f"pole {tf.poles()[0].real:.3f} 1/s, static gain {float(tf.dcgain()):.4f} (rad/s)/duty")
     pole -25.000 1/s, static gain 0.1200 (rad/s)/duty
     """
-    return method_function(method)(recordings, **options)
+    from .screening import screened_fit
+    return screened_fit(recordings, method_function(method), options, outliers=outliers, name=method).estimate

@@ -48,6 +48,7 @@ from .data import (
 from .encoder_bootstrap import encoder_bootstrap_covariance, is_coarse
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .model_structures import ModelStructure
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .uncertainty import covariance_from_jacobian, robust_covariance
@@ -372,6 +373,12 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
                    float(x[2]) if with_bias else 0.0)
 
 
+def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: ModelStructure, *,
+                        refine: bool = True, fix_bias: bool = False) -> CandidateFit:
+    """``structure`` (``linear`` or ``bias``) as a candidate of the default's selection (:func:`linear_candidate`)."""
+    return linear_candidate(recs, segs, delay, "bias" in structure.param_names, refine=refine)
+
+
 def _separable_start(recs: list[Recording], segs: list[Segment]) -> float:
     """Starting pole of the separable iteration: ``zoh-ls``'s regression, else the general start value."""
     start = regression_start(segs)
@@ -547,7 +554,7 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
     -------
     Estimate
         ``method = "oe"``, covariance over ``("a", "b")`` (``("a", "b", "bias")``
-        with ``fit_bias``), ``extra["input_delay"]`` (int, samples) and
+        with ``fit_bias``), ``input_delay`` (int, samples) and
         ``extra["bias"]`` in rad/s^2 with ``fit_bias``; ``residual_rms`` in rad
         (angle recordings) or rad/s (speed-only recordings).
 
@@ -566,7 +573,7 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
     >>> from motorsim.rig import Experiment, SimRig
     >>> rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 5.0))
     >>> est = fit_output_error(rec)
-    >>> print(f"a = {est.a:.2f} 1/s, b = {est.b:.3f} (rad/s^2)/duty, delay {est.extra['input_delay']}")
+    >>> print(f"a = {est.a:.2f} 1/s, b = {est.b:.3f} (rad/s^2)/duty, delay {est.input_delay}")
     a = 25.00 1/s, b = 3.000 (rad/s^2)/duty, delay 0
     """
     recs = as_recordings(recordings)

@@ -65,7 +65,6 @@ from .data import (
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import FrictionScan, friction_candidate, segments_reverse
-from .output_error import linear_candidate
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
@@ -187,21 +186,19 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
                                    "stretch is left; record longer or fix the dropped samples")
     fitted: list[CandidateFit] = []
-    linear = [s for s in wanted if s in ("linear", "bias")]
-    nonlinear = [s for s in wanted if s in ("friction", "dead-zone")]
+    linear = [s for s in wanted if STRUCTURES[s].linear]
+    nonlinear = [s for s in wanted if not STRUCTURES[s].linear]
     if nonlinear and not segments_reverse(segments[delays[0]]):     # on the rows the candidates are fitted on
         notes.append("friction and dead zone not fitted: the speed never reverses or rests, so they act as a "
                      "constant acceleration (the bias d); a run through zero speed would separate them")
         linear = sorted(set(linear) | {"bias"}, key=list(STRUCTURES).index)
         nonlinear = []
-    fitted += scan_delays(delays, lambda d: [linear_candidate(recs, segments[d], d, s == "bias", refine=False)
-                                             for s in linear], level, notes)
+    fitted += scan_delays(delays, lambda d: [_candidate(recs, segments[d], d, s, refine=False) for s in linear],
+                          level, notes)
 
     def refit(f: CandidateFit) -> CandidateFit:
         d = f.candidate.input_delay
-        if f.candidate.method == "oe-friction":
-            return friction_candidate(recs, segments[d], d, f.candidate.structure, fix_bias)
-        return linear_candidate(recs, segments[d], d, f.candidate.structure == "bias")
+        return _candidate(recs, segments[d], d, f.candidate.structure)
     if nonlinear and linear:
         base = refine(fitted, refit, level)
         if base is None:
@@ -217,6 +214,14 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+
+
+def _candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str, *, refine: bool = True,
+               fix_bias: bool = False) -> CandidateFit:
+    """The registered structure ``name`` fitted at ``delay`` by its estimator's candidate fit."""
+    from .methods import candidate_function
+    found = STRUCTURES[name]
+    return candidate_function(found)(recs, segs, delay, found, refine=refine, fix_bias=fix_bias)
 
 
 def _declared_delay(recs: list[Recording]) -> int:

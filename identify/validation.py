@@ -27,8 +27,8 @@ from motorsim.sensors import backward_difference
 from .data import MIN_SEGMENT_SAMPLES, Segment, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .friction_response import friction_response
-from .sensitivity import project_out_initial_state, zoh_response
+from .model_structures.first_order import INITIAL_WINDOW_TIME_CONSTANTS
+from .model_structures.first_order import initial_state_rule as structure_initial_state_rule
 
 __all__ = ["nrmse_fit", "simulated_speed", "fit_percent", "segment_speeds", "segment_fit_percent",
            "model_output", "model_residuals", "ValidationReport", "validate", "autocorrelation",
@@ -145,62 +145,15 @@ def segment_fit_percent(segments: Sequence[Segment], models: Sequence[np.ndarray
     return nrmse_fit(np.concatenate([m for _, m, _ in speeds]), np.concatenate([s for _, _, s in speeds]))
 
 
-#: Time constants ``1/a`` in the window that fixes a friction model's initial speed on held-out data.
-INITIAL_WINDOW_TIME_CONSTANTS = 2.0
-_MIN_INITIAL_WINDOW = 10   # samples
-
-
 def initial_state_rule(estimate: Estimate) -> str:
     """How :func:`model_output` finds the initial state of each segment for this estimate (one line)."""
-    if _has_friction(estimate):
-        return (f"initial speed fitted on the first {INITIAL_WINDOW_TIME_CONSTANTS:g} time constants "
-                f"(at least {_MIN_INITIAL_WINDOW} samples) from the measured speed")
-    return "initial speed (and angle offset) by exact least squares on each segment"
-
-
-def _has_friction(estimate: Estimate) -> bool:
-    return float(estimate.extra.get("friction", 0.0)) > 0 or float(estimate.extra.get("dead_zone", 0.0)) > 0
+    return structure_initial_state_rule(estimate.values())
 
 
 def _segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
-    """The estimate's native output (angle or speed) on one segment, initial state as :func:`initial_state_rule`."""
-    bias = float(estimate.extra.get("bias", 0.0))
-    if _has_friction(estimate):
-        return _friction_segment_model(estimate, seg)
-    resp = zoh_response(estimate.a, estimate.b, seg.drive, seg.time, 0.0, bias=bias, uniform=seg.uniform,
-                        sensitivities=False)
-    angle = seg.kind == "angle"
-    # the initial speed (and angle offset) by least squares: the measured output less what is left
-    s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
-    left, = project_out_initial_state(s0, angle, seg.output - (resp.angle if angle else resp.speed))
-    return seg.output - left
-
-
-def _friction_segment_model(estimate: Estimate, seg: Segment) -> np.ndarray:
-    """The friction model from an initial speed fitted on a short window at the segment's start.
-
-    The friction model is not linear in the initial speed, and a free fit of it on the whole
-    run's angle can land far from the data's start (the cost has local minima at every
-    stick/slip pattern).  The initial speed only matters for a few time constants, so it is
-    fitted there, from the measured speed, and the whole segment is then simulated from it;
-    the angle offset (linear) is the mean difference.
-    """
-    from scipy.optimize import least_squares  # imported when used: slow to import
-    params = (estimate.a, estimate.b, float(estimate.extra.get("friction", 0.0)),
-              float(estimate.extra.get("bias", 0.0)), float(estimate.extra.get("dead_zone", 0.0)))
-    h = float(np.median(np.diff(seg.time)))
-    window = int(min(len(seg.time), max(_MIN_INITIAL_WINDOW,
-                                        math.ceil(INITIAL_WINDOW_TIME_CONSTANTS / max(estimate.a * h, 1e-12)))))
-
-    def run(w0: float, stop: int) -> np.ndarray:
-        resp = friction_response(*params, seg.drive[:stop], seg.time[:stop], w0, sensitivities=False)
-        if seg.kind == "angle":
-            return resp.angle + float(np.mean(seg.output[:stop] - resp.angle))
-        return resp.speed
-
-    w0 = float(least_squares(lambda w: seg.output[:window] - run(float(w[0]), window),
-                             [seg.initial_speed_guess()], xtol=1e-10).x[0])
-    return run(w0, len(seg.time))
+    """The estimate's native output (angle or speed) on one segment: its structure's
+    (:meth:`identify.structures.ModelStructure.segment_output`)."""
+    return estimate.model_structure().segment_output(estimate.values(), seg)
 
 
 def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
@@ -233,7 +186,7 @@ def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, 
 def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.ndarray]]:
     """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`)."""
     return [(seg, _segment_model(estimate, seg))
-            for seg in prepare_segments([recording], int(estimate.extra.get("input_delay", 0)))]
+            for seg in prepare_segments([recording], estimate.input_delay)]
 
 
 def _speeds(n: int, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -268,7 +221,7 @@ def _residuals(estimate: Estimate, models: list[tuple[Segment, np.ndarray]]) -> 
     """:func:`model_residuals` of the segments' outputs."""
     if not models:
         raise NotIdentifiableError("recording is too short to validate: no gap-free stretch of "
-                                   f"{MIN_SEGMENT_SAMPLES + int(estimate.extra.get('input_delay', 0))} samples")
+                                   f"{MIN_SEGMENT_SAMPLES + estimate.input_delay} samples")
     segments = [seg for seg, _ in models]
     return (np.concatenate([seg.output - model for seg, model in models]),
             np.concatenate([seg.drive for seg in segments]), residual_unit(segments))

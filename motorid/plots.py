@@ -167,7 +167,7 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence[Mapping[st
             if est is None:
                 ax.plot([], [], color=color, lw=1, ls="--", label=f"{method}: failed")
                 continue
-            sim = simulated_speed(est.a, est.b, rec, input_delay=int(est.extra.get("input_delay", 0)))
+            sim = simulated_speed(est.a, est.b, rec, input_delay=est.input_delay)
             ax.plot(rec.time[keep], sim[keep], color=color, lw=1, ls="--",
                     label=f"{method}: a={est.a:.3g} 1/s, b={est.b:.3g}, fit {est.fit_percent:.1f} %")
         ax.set_ylabel("ω [rad/s]")
@@ -513,7 +513,7 @@ class LivePlot:
         """Draw ``estimate``'s simulated speed on ``recording`` over the measured speed, with the fit in the title."""
         from identify.validation import simulated_speed
         sim = simulated_speed(estimate.a, estimate.b, recording,
-                              input_delay=int(estimate.extra.get("input_delay", 0)))
+                              input_delay=estimate.input_delay)
         self.ax2.plot(recording.time, sim, color="k", lw=0.9, ls="--",
                       label=f"model ({estimate.method}), fit {estimate.fit_percent:.1f} %")
         self._rescale_speed(self._w, sim)

@@ -1,10 +1,10 @@
 """Recordings read for a fit, screened for corrupted samples and for the same file given twice.
 
-``motorid identify`` reads its files through :func:`read_and_fit`: a row no motor can
-produce (:func:`motorsim.plausibility.implausible_samples`) or an isolated residual outlier
-after the fit (:func:`identify.outliers.residual_outliers`) is refused, naming the file and
-the row's ``seq``; with ``--drop-outliers`` such rows are dropped as gaps, the fit is
-repeated, and every dropped row is reported.  Pooling the same data twice would halve the
+``motorid identify`` reads its files through :func:`read_and_fit`: the screening itself is
+:func:`identify.screening.screened_fit`'s (what ``identify.fit`` does): a row no motor can
+produce or an isolated residual outlier after the fit is refused, naming the file and the row's
+``seq``; with ``--drop-outliers`` such rows are dropped as gaps, the fit is repeated, and every
+dropped row is reported.  Pooling the same data twice would halve the
 variance the standard errors claim, so a file given twice is refused.
 """
 from __future__ import annotations
@@ -67,37 +67,13 @@ def refuse_duplicates(files: Sequence[str]) -> None:
             digests[digest] = name
 
 
-def _fit_outliers(est, recs: Sequence[Recording], fitted: bool = False) -> list[list[int]]:
-    """The isolated residual outliers of every recording; ``fitted``: ``recs`` are the recordings
-    ``est`` was fitted on, in order, so the fit's own residuals serve when it kept them."""
-    from identify.outliers import residual_outliers
-    kept = est.speed_residuals if fitted and est.speed_residuals is not None else None
-    return [residual_outliers(est, rec, None if kept is None else kept[i]) for i, rec in enumerate(recs)]
-
-
-def _confirmed(outliers: list[list[int]], recs: Sequence[Recording], method: str,
-               options: dict[str, Any]) -> list[list[int]]:
-    """The rows that are still outliers under the model refitted without them.
-
-    A corrupted sample can pull the first fit (an automatic input delay picking the wrong
-    delay, say) so far that honest rows look like outliers too; the refit without the
-    suspects is the model to judge them by.  Falls back to the first verdict when the refit
-    clears every row.
-    """
-    from identify import NotIdentifiableError, fit
-    trial = [rec.drop_rows(rows) if rows else rec for rec, rows in zip(recs, outliers)]
-    try:
-        again = _fit_outliers(fit(trial, method=method, **options), recs)
-    except NotIdentifiableError:
-        return outliers
-    confirmed = [sorted(set(first) & set(second)) for first, second in zip(outliers, again)]
-    return confirmed if any(confirmed) else outliers
-
-
 def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, drop_outliers: bool = False,
                  read: Callable[[str, bool], Recording] | None = None,
                  ) -> tuple[Any, list[Recording], list[DroppedSamples]]:
     """Read ``files``, screen them, fit ``method``; returns the estimate, the recordings fitted, the drops.
+
+    The screening is :func:`identify.screening.screened_fit`'s, as ``identify.fit`` does it, so
+    the command line and Python give the same answer or the same refusal.
 
     Parameters
     ----------
@@ -118,31 +94,20 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     CommandError
         A file given twice, or an isolated residual outlier without ``drop_outliers``.
     """
-    from identify import fit
+    from identify.errors import CorruptedSamplesError
+    from identify.methods import method_function
+    from identify.screening import screened_fit
     refuse_duplicates(files)
     if read is None:
         def read(path: str, check_samples: bool) -> Recording:
             return read_recording(path, check_samples=check_samples)
     recs = [read(f, not drop_outliers) for f in files]
-    dropped: list[DroppedSamples] = []
-    if drop_outliers:
-        for i, (name, rec) in enumerate(zip(files, recs)):
-            bad = rec.implausible_samples()
-            if bad:
-                dropped.append(DroppedSamples(name, [s.seq for s in bad], "implausible: " + bad[0].reason))
-                recs[i] = rec.drop_rows(s.row for s in bad)
-    est = fit(recs, method=method, **options)
-    outliers = _fit_outliers(est, recs, fitted=True)
-    if not any(outliers):
-        return est, recs, dropped
-    outliers = _confirmed(outliers, recs, method, options)
-    name, rows, rec = next((n, r, rec) for n, r, rec in zip(files, outliers, recs) if r)
-    reason = f"isolated residual outliers after the {method} fit"
-    if not drop_outliers:
-        raise CommandError(f"{name}: {reason} at seq {', '.join(str(int(rec.seq[k])) for k in rows[:10])}; "
-                           "a corrupted sample? fix the file, or re-run with --drop-outliers to drop them as gaps")
-    for i, rows in enumerate(outliers):
-        if rows:
-            dropped.append(DroppedSamples(files[i], [int(recs[i].seq[k]) for k in rows], reason))
-            recs[i] = recs[i].drop_rows(rows)
-    return fit(recs, method=method, **options), recs, dropped
+    try:
+        found = screened_fit(recs, method_function(method), options, outliers="drop" if drop_outliers else "refuse",
+                             samples_checked=not drop_outliers, name=method)
+    except CorruptedSamplesError as exc:
+        shown = ", ".join(map(str, exc.seq[:10]))
+        raise CommandError(f"{files[exc.recording]}: {exc.reason} at seq {shown}; a corrupted sample? fix the "
+                           "file, or re-run with --drop-outliers to drop them as gaps") from None
+    dropped = [DroppedSamples(files[d.recording], list(d.seq), d.reason) for d in found.dropped]
+    return found.estimate, list(found.recordings), dropped

@@ -477,7 +477,8 @@ class Recording:
         def cut(x):
             return None if x is None else x[keep]
         return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
-                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq))
+                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq),
+                                   reference=cut(self.reference))
 
     @property
     def has_gaps(self) -> bool:

@@ -155,7 +155,7 @@ def _fit_or_reason(recording: Recording, method: str, auto_delay: bool = False) 
     from identify.methods import method_options
     options = {"input_delay": "auto"} if auto_delay and "input_delay" in method_options(method) else {}
     try:
-        est = fit(recording, method=method, **options)
+        est = fit(recording, method=method, outliers="keep", **options)
     except Exception as exc:  # a failed fit is an outcome of the sweep, whatever the estimator raised
         return math.nan, math.nan, f"{type(exc).__name__}: {exc}".replace("\n", " ")
     return est.a, est.b, ""

@@ -186,7 +186,7 @@ def _rel(est, a, b) -> tuple[float, float]:
 def _fit_or_nan(method, rec, a, b, **kw):
     from identify import NotIdentifiableError, fit
     try:
-        return _rel(fit(rec, method=method, **kw), a, b)
+        return _rel(fit(rec, method=method, outliers="keep", **kw), a, b)
     except NotIdentifiableError:
         return math.nan, math.nan
 
@@ -316,7 +316,7 @@ def _section_friction(args, rng) -> bool:
                                         dead_zone=dz)
             for j, (a_, b_, c_, dz_, label, duty) in enumerate(sub):
                 rec = make_recording(angles[:, j], duty, t, dt, cpr)
-                fr = fit(rec, method="oe-friction")
+                fr = fit(rec, method="oe-friction", outliers="keep")
                 fa, fb = _rel(fr, a_, b_)
                 oa, ob = _fit_or_nan("oe", rec, a_, b_)
                 bad = not (abs(fa) <= 0.02 and abs(fb) <= 0.02)
@@ -341,7 +341,8 @@ def _section_monte_carlo(args) -> bool:
     for child in np.random.SeedSequence(args.seed).spawn(args.repetitions):
         rng = np.random.default_rng(child)
         try:
-            fitted = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe")
+            fitted = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe",
+                         outliers="keep")
             rows.append((fitted.a, fitted.b, fitted.stderr()["a"], fitted.stderr()["b"]))
         except NotIdentifiableError:
             pass
@@ -409,7 +410,7 @@ def coverage_run(regime, duty: np.ndarray, dt: float, rng) -> tuple[bool, bool, 
     if method == "oe-friction":
         options["dead_zone"] = False
     try:
-        est = fit(rec, method=method, **options)
+        est = fit(rec, method=method, outliers="keep", **options)
     except NotIdentifiableError:
         return None
     lo_hi = est.confidence_interval(0.95)
@@ -645,7 +646,7 @@ def _time_friction(args) -> None:
         t_oe, t_fr = _interleaved_medians([functools.partial(fit, rec, method="oe"),
                                            functools.partial(fit, rec, method="oe-friction", dead_zone=zone > 0)],
                                           args.repeats)
-        fr = fit(rec, method="oe-friction", dead_zone=zone > 0)
+        fr = fit(rec, method="oe-friction", outliers="keep", dead_zone=zone > 0)
         fa, fb = _rel(fr, a, b)
         print(f"  dead zone {zone:4g}: oe {t_oe * 1e3:6.1f} ms, oe-friction {t_fr * 1e3:6.1f} ms, "
               f"ratio {t_fr / t_oe:5.2f} x; oe-friction error a {_pct(fa)} b {_pct(fb)} %, "

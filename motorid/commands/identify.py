@@ -123,7 +123,7 @@ def run_identify(args: argparse.Namespace) -> int:
         checks = residual_checks(est, recs[0])
         say(format_selection(est.selection, checks))
     elif estimator_options(args).get("input_delay") == "auto":
-        say(f"delay       {int(est.extra['input_delay'])} samples, the shortest within the noise of the best "
+        say(f"delay       {est.input_delay} samples, the shortest within the noise of the best "
             "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
     if checks is not None:

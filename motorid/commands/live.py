@@ -272,7 +272,7 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
     from identify.methods import method_options
     # the device applies each duty one tick after its sample: a known delay, not one to search for
     options = {"input_delay": DEVICE_INPUT_DELAY} if "input_delay" in method_options(args.method) else {}
-    estimate = fit(recording, method=args.method, **options)
+    estimate = fit(recording, method=args.method, outliers="keep", **options)
     if plot is not None:
         plot.show_fit(recording, estimate)
     print(format_estimate(estimate))

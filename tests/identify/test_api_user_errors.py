@@ -20,6 +20,15 @@ def _estimate() -> Estimate:
                     fit_percent=99.0, covariance=np.diag([0.01, 1e-4]), extra={"input_delay": 1})
 
 
+def _v1(**change) -> str:
+    """A document of the first format (parameters and the delay nested under ``extra``)."""
+    doc = {"format": "motorid estimate v1", "method": "oe", "a": 25.0, "b": 3.0, "extra": {"input_delay": 1},
+           "param_names": ["a", "b"], "covariance": [[0.01, 0.0], [0.0, 1e-4]], "sample_period": 0.005,
+           "n_samples": 1000, "fit_percent": 99.0, "residual_rms": 1e-4}
+    doc.update(change)
+    return json.dumps(doc)
+
+
 def _doc(**change) -> str:
     doc = json.loads(_estimate().to_json())
     doc.update(change)
@@ -32,8 +41,12 @@ def _doc(**change) -> str:
     ('{"format": ' * 100_000, "nested too deep|at most"),
     (_doc(a=True), "'a' must be a number"),
     (_doc(a="25"), "'a' must be a number"),
-    (_doc(extra={"input_delay": 1.5}), "input_delay"),
-    (_doc(extra=[1, 2]), "'extra' must be an object"),
+    (_v1(extra={"input_delay": 1.5}), "input_delay"),
+    (_v1(extra=[1, 2]), "'extra' must be an object"),
+    (_doc(input_delay=1.5), "input_delay"),
+    (_doc(input_delay=-1), "input_delay"),
+    (_doc(structure="third-order"), "structure must be one of"),
+    (_doc(structure="friction", friction="x"), "'friction' must be a number"),
     (_doc(units=[1]), "'units' must be an object"),
     (_doc(units={"input": 7}), "units.input"),
     (_doc(covariance=[[1.0]]), "covariance"),
@@ -43,7 +56,8 @@ def _doc(**change) -> str:
     (_doc(sample_period=-1), "sample_period"),
     (_doc(n_samples="many"), "n_samples"),
     (json.dumps({k: v for k, v in json.loads(_doc()).items() if k != "method"}), "method"),
-], ids=["NaN", "nested list bomb", "nested object bomb", "a true", "a string", "delay 1.5", "extra list",
+], ids=["NaN", "nested list bomb", "nested object bomb", "a true", "a string", "v1 delay 1.5", "v1 extra list",
+        "delay 1.5", "negative delay", "unknown structure", "friction string",
         "units list", "unit number", "covariance shape", "covariance string", "names numbers", "data files",
         "negative sample period", "n_samples string", "no method"])
 def test_a_hostile_saved_model_raises_our_errors_naming_the_field(text, match):
@@ -62,6 +76,12 @@ def test_binary_text_and_wrong_argument_types_are_our_errors(tmp_path):
 
 def test_a_saved_model_round_trips():
     assert Estimate.from_json(_estimate().to_json()).input_delay == 1
+
+
+def test_a_model_of_the_first_format_is_read_and_migrated():
+    est = Estimate.from_json(_v1())
+    assert (est.structure, est.input_delay, est.a, est.b) == ("linear", 1, 25.0, 3.0)
+    assert json.loads(est.to_json())["format"] == "motorid estimate v2"
 
 
 T = np.arange(1000) * 0.005

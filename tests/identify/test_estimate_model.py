@@ -67,7 +67,7 @@ def test_io_system_reproduces_motorsim_simulate(extra):
 
 
 def test_json_round_trip_keeps_everything(tmp_path):
-    est = estimate(input_delay=1, friction=2.5, bias=-0.5)
+    est = estimate(input_delay=1, friction=2.5, bias=-0.5, dead_zone=0.0)
     est = Estimate(**{**est.__dict__, "covariance": np.diag([0.04, 0.0009, math.nan, 0.01, 0.02]),
                       "param_names": ("a", "b", "friction", "bias", "dead_zone"), "input_unit": "V",
                       "data_files": (("run.csv", "ab" * 32),)})
@@ -76,11 +76,11 @@ def test_json_round_trip_keeps_everything(tmp_path):
                   "param_names", "extra", "residual_unit", "input_unit", "data_files"):
         assert getattr(back, field) == getattr(est, field), field
     np.testing.assert_array_equal(back.covariance, est.covariance)    # nan survives as JSON null
-    assert isinstance(back.extra["input_delay"], int)
+    assert isinstance(back.input_delay, int)
     path = tmp_path / "m.json"
     path.write_text(est.to_json())
     assert Estimate.from_json(str(path)).a == 25.0
-    with pytest.raises(ValueError, match="format 'motorid estimate v1', got None"):
+    with pytest.raises(ValueError, match="format 'motorid estimate v2'.*got None"):
         Estimate.from_json('{"a": 1}')
 
 

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from identify import fit
+from identify.errors import CorruptedSamplesError
 from identify.outliers import residual_outliers
 from motorsim import Encoder, Experiment, Motor, Recording, SimRig, Sine
 
@@ -43,8 +44,10 @@ def test_a_small_flip_is_a_residual_outlier_and_dropping_it_restores_the_fit(rec
     counts[1000] ^= 1 << 12                   # 4096 counts: below the implausibility limit
     bad = _with(rec, counts=counts)
     assert bad.implausible_samples() == []
-    est = fit(bad, method="oe")
+    est = fit(bad, method="oe", outliers="keep")
     assert residual_outliers(est, bad) == [1000]
+    with pytest.raises(CorruptedSamplesError, match="seq 1000"):      # identify.fit refuses it by default
+        fit(bad, method="oe")
     clean = fit(bad.drop_rows([1000]), method="oe")
     truth = fit(rec, method="oe")
     # the dropped row costs little information: within 3 standard errors of the clean fit
@@ -91,7 +94,7 @@ def test_outliers_from_the_kept_residuals_equal_those_from_a_new_simulation(rec)
     counts = rec.counts.copy()
     counts[1000] ^= 1 << 12
     bad = _with(rec, counts=counts)
-    est = fit(bad, method="oe")
+    est = fit(bad, method="oe", outliers="keep")
     assert residual_outliers(est, bad, est.speed_residuals[0]) == residual_outliers(est, bad) == [1000]
     assert est.speed_residuals is not None and type(est).from_json(est.to_json()).speed_residuals is None
 

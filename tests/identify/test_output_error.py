@@ -37,7 +37,7 @@ def test_noise_free_angle_gives_the_truth(reference, a, b, dt, freq, jitter):
     est = fit_output_error(_angle_recording(angle + 0.7, duty, t, dt))
     assert est.a == pytest.approx(a, rel=EXACT)
     assert est.b == pytest.approx(b, rel=EXACT)
-    assert est.method == "oe" and est.extra["input_delay"] == 0.0
+    assert est.method == "oe" and est.input_delay == 0.0
     assert est.fit_percent > 99.999999
 
 
@@ -105,7 +105,7 @@ def test_bias_variant_recovers_a_constant_acceleration(reference):
     assert est.a == pytest.approx(15.0, rel=EXACT) and est.b == pytest.approx(1.5, rel=EXACT)
     assert est.extra["bias"] == pytest.approx(-40.0, rel=EXACT)
     assert est.param_names == ("a", "b", "bias") and est.covariance.shape == (3, 3)
-    assert est.method == "oe" and est.extra["input_delay"] == 0
+    assert est.method == "oe" and est.input_delay == 0
 
 
 def test_quantised_counts_land_within_their_standard_errors_near_the_bound(reference):
@@ -136,7 +136,7 @@ def test_delay_auto_finds_the_input_delay(reference, true_delay):
     rec = _angle_recording(angle, duty, t, dt)
     assert select_delay(rec) == true_delay
     est = fit_output_error(rec, input_delay="auto")
-    assert est.extra["input_delay"] == true_delay
+    assert est.input_delay == true_delay
     assert est.a == pytest.approx(25.0, rel=EXACT) and est.b == pytest.approx(3.0, rel=EXACT)
 
 

@@ -41,7 +41,7 @@ def test_prbs_fit_and_static_gain_match_the_lab(prbs_fit):
     gain = math.degrees(est.static_gain)
     assert est.fit_percent >= 90.0                      # at least 90 % NRMSE fit
     assert abs(gain / K_STATIC - 1) < 0.05              # and b/a within 5 % of the static K
-    assert est.extra["input_delay"] == 1                # the lab's own model has one sample (0.02 s)
+    assert est.input_delay == 1                # the lab's own model has one sample (0.02 s)
     assert est.extra["bias"] < 0                        # the static map's offset is negative
     se = est.stderr()
     assert se["a"] > 0 and se["b"] > 0
@@ -79,7 +79,7 @@ def test_held_out_validation_equals_a_simulation_from_the_measured_initial_speed
     from motorsim.plant import Motor, simulate
     step = load_undc("DCmotor_step_open_exp.csv")
     rep = validate(prbs_fit, step)
-    d = prbs_fit.extra["input_delay"]
+    d = prbs_fit.input_delay
     motor = Motor(prbs_fit.a, prbs_fit.b, bias=prbs_fit.extra["bias"], input_delay=d)
     model = simulate(motor, step.duty, step.time, initial_speed=float(step.speed[0]),
                      duty_before=float(step.duty[0])).speed

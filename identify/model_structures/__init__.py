@@ -1,0 +1,67 @@
+"""The model structures, registered by name: ``identify.structures()``.
+
+Each structure is one object (:class:`~identify.structures.base.ModelStructure`): its parameter
+names, units and bounds, the estimator that fits it, and its conversions (to the simulator's
+plant, to a python-control system, to a model output on a recording's segment).  The
+estimators, the default's selection (which iterates over :func:`structures` in the order
+registered, simplest first), validation, the frequency view and control design ask it.
+
+Adding a structure is one module of this package, one line in :data:`REGISTERED` and its
+tests (``docs/develop.md`` walks through an example).
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+from motorsim.checks import ParameterError
+
+from .base import ModelStructure, Parameter
+from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias
+
+__all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of"]
+
+#: Every structure motorid knows, simplest first (the default's order of simplicity).
+REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone())
+
+
+def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
+    """The registered structures by name, simplest first.
+
+    Parameters
+    ----------
+    in_default : bool
+        Only those the default estimator considers.
+
+    Examples
+    --------
+    >>> import identify
+    >>> list(identify.structures())
+    ['linear', 'bias', 'friction', 'dead-zone']
+    >>> identify.structures()["friction"].param_names
+    ('a', 'b', 'friction', 'bias')
+    """
+    return {s.name: s for s in REGISTERED if s.in_default or not in_default}
+
+
+def structure(name: str | ModelStructure) -> ModelStructure:
+    """The registered structure called ``name`` (a structure is returned as it is)."""
+    if isinstance(name, ModelStructure):
+        return name
+    found = structures()
+    if name not in found:
+        raise ParameterError(f"structure must be one of {list(found)}, got {name!r}")
+    return found[name]
+
+
+def structure_of(method: str, param_names: tuple[str, ...]) -> ModelStructure:
+    """The structure an estimate of ``method`` with fitted ``param_names`` belongs to.
+
+    Estimates read from files of the first format, and estimators that do not say, are placed
+    by what they fitted: a dead zone or friction (``oe-friction``), a bias, else the linear motor.
+    """
+    if method == "oe-friction":
+        return structure("dead-zone" if "dead_zone" in param_names else "friction")
+    for s in REGISTERED:
+        if s.method == method and set(s.param_names) == set(param_names):
+            return s
+    return structure("bias" if "bias" in param_names else "linear")

@@ -1,0 +1,230 @@
+"""``ModelStructure``: what one model structure is, independent of any data or fit.
+
+A structure is the *form* of the plant (``b/(s + a)``, with a bias, with Coulomb friction, ...):
+the names of its parameters, their units and bounds, which of them the input delay joins, the
+estimator that fits it, and how a set of values becomes something to simulate or analyse (the
+simulator's :class:`motorsim.plant.Motor`, a python-control system, a model output on a
+recording's segment).  An :class:`identify.Estimate` is a structure plus values, covariance and
+fit diagnostics; the estimators, the default's selection, validation, the frequency view and
+control design ask the structure instead of restating the model.
+
+The pattern is statsmodels' state-space models (a model class declares ``param_names``,
+``start_params`` and how its parameters enter; ``fit()`` returns a separate results object) and
+python-control's ``NonlinearIOSystem(updfcn, outfcn, params)``: one small class per structure,
+every consumer unchanged.  :mod:`identify.structures` registers them by name.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, Mapping
+
+import numpy as np
+
+from motorsim.checks import ParameterError, check_real
+from motorsim.plant import Motor, Trajectory, simulate
+
+if TYPE_CHECKING:
+    import control
+
+    from ..data import Segment
+
+__all__ = ["Parameter", "ModelStructure"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameter:
+    """One parameter of a structure.
+
+    Attributes
+    ----------
+    name : str
+        The name every package, flag and JSON field uses (``a``, ``b``, ``friction``, ...).
+    unit : str
+        Its unit; ``{input}`` stands for the recording's input unit (``duty`` on the bench).
+    low, high : float
+        Bounds of a valid value (``-inf``/``inf`` when open).
+    description : str
+        One line, for listings and help.
+    strict : bool
+        Whether ``low`` itself is excluded (``a > 0``).
+    """
+
+    name: str
+    unit: str
+    low: float = -math.inf
+    high: float = math.inf
+    description: str = ""
+    strict: bool = False
+
+    def check(self, value: Any) -> float:
+        """``value`` as a float within the bounds, else a :class:`ParameterError` naming it."""
+        x = check_real(self.name, value)
+        if x < self.low or (self.strict and x == self.low) or x > self.high:
+            rule = f"{'>' if self.strict else '>='} {self.low:g}" if math.isfinite(self.low) else ""
+            if math.isfinite(self.high):
+                rule = (rule + " and " if rule else "") + f"<= {self.high:g}"
+            raise ParameterError(f"{self.name} must be {rule} {self.unit}, got {value!r}")
+        return x
+
+
+class ModelStructure:
+    """A model structure: parameters, units, bounds, its estimator, and conversions of its values.
+
+    Subclasses set the class attributes and override what differs (:meth:`plant` for a structure
+    the simulator carries, :meth:`segment_output` for the model output an estimator or validation
+    compares with the data).  Instances are immutable and compared by name.
+
+    Attributes
+    ----------
+    name : str
+        Registry key (``motorid identify`` prints it as the model).
+    description : str
+        One line: what the structure adds.
+    parameters : tuple of Parameter
+        The parameters it fits, ``a`` and ``b`` first.
+    fixed : mapping of str to float
+        Parameters of the wider family this structure holds at a value (``friction = 0`` for a
+        linear one); :meth:`values` fills them in.
+    method : str
+        The estimator that fits it (``identify.fit(rec, method, **options)``).
+    options : mapping
+        The options that make ``method`` fit exactly this structure.
+    linear : bool
+        Whether the model is linear in the input (a bias counts as linear: an affine input);
+        the default screens the nonlinear ones.
+    in_default : bool
+        Whether the default estimator (``identify.fit`` with no method) considers it.
+    """
+
+    name: str = ""
+    description: str = ""
+    parameters: tuple[Parameter, ...] = ()
+    fixed: Mapping[str, float] = {}
+    method: str = ""
+    options: Mapping[str, Any] = {}
+    linear: bool = True
+    in_default: bool = True
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Names of the fitted parameters, in the order of a covariance matrix."""
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def n_params(self) -> int:
+        """How many parameters it fits (the selection's measure of simplicity)."""
+        return len(self.parameters)
+
+    def units(self, input_unit: str = "duty") -> dict[str, str]:
+        """Unit of each parameter (fitted and fixed), ``{input}`` replaced by ``input_unit``."""
+        out = {p.name: p.unit.replace("{input}", input_unit) for p in self.parameters}
+        for name in self.fixed:
+            out.setdefault(name, _FAMILY_UNITS.get(name, "").replace("{input}", input_unit))
+        return out
+
+    def values(self, given: Mapping[str, float]) -> dict[str, float]:
+        """Every parameter's value: ``given`` checked against the bounds, fixed ones filled in.
+
+        A further parameter (after ``a`` and ``b``) that is not given takes its neutral value, 0.
+
+        Raises
+        ------
+        ParameterError
+            ``a`` or ``b`` missing, or a value not finite or outside its bounds.
+        """
+        out: dict[str, float] = {}
+        for p in self.parameters:
+            if p.name not in given and p.name not in ("a", "b") and p.check(0.0) == 0.0:
+                out[p.name] = 0.0          # a further parameter not given: its neutral value (absent)
+                continue
+            if p.name not in given:
+                raise ParameterError(f"the {self.name} structure needs a value for {p.name!r}, got "
+                                     f"{sorted(given)}")
+            out[p.name] = p.check(given[p.name])
+        for name, value in self.fixed.items():
+            out[name] = float(given.get(name, value))
+        return out
+
+    def plant(self, values: Mapping[str, float], input_delay: int = 0) -> Motor:
+        """The simulator's plant with these values (:class:`motorsim.plant.Motor`)."""
+        v = self.values(values)
+        return Motor(v["a"], v["b"], friction=v.get("friction", 0.0), bias=v.get("bias", 0.0),
+                     dead_zone=v.get("dead_zone", 0.0), input_delay=input_delay)
+
+    def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
+                 initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
+        """The model's angle and speed at ``time`` under ``duty`` (zero-order hold, exact)."""
+        return simulate(self.plant(values, input_delay), duty, time, initial_speed=initial_speed,
+                        initial_angle=initial_angle)
+
+    def segment_output(self, values: Mapping[str, float], segment: Segment) -> np.ndarray:
+        """The model's native output (angle or speed) on ``segment``, its initial state from the data.
+
+        What validation and the residual checks compare with the measurement (the segment's drive
+        is already delayed).
+        """
+        raise NotImplementedError
+
+    def linear_part(self, values: Mapping[str, float]) -> tuple[list[float], list[float]]:
+        """Numerator and denominator of the linear part in ``s``, from the input to the speed."""
+        v = self.values(values)
+        return [v["b"]], [1.0, v["a"]]
+
+    def transfer_function(self, values: Mapping[str, float], sample_period: float, input_delay: int = 0,
+                          form: str = "continuous", *, delay: str | None = None,
+                          pade_order: int = 3) -> control.TransferFunction:
+        """The linear part as a python-control transfer function (:meth:`identify.Estimate.transfer_function`)."""
+        import control
+        if form not in ("continuous", "discrete"):
+            raise ParameterError(f"form must be 'continuous' or 'discrete', got {form!r}")
+        if delay not in (None, "pade"):
+            raise ParameterError(f"delay must be None or 'pade', got {delay!r}")
+        names = {"inputs": "duty", "outputs": "speed"}
+        d = int(input_delay)
+        num, den = self.linear_part(values)
+        if form == "discrete":
+            tf = self.discrete_linear_part(values, sample_period)
+            return control.tf(tf[0], [*tf[1], *([0.0] * d)], sample_period, **names)
+        tf = control.tf(num, den, **names)
+        if d == 0:
+            return tf
+        if delay is None:
+            raise ParameterError(f"this estimate has an input delay of {d} samples ({d * sample_period:.6g} s), "
+                                 f"which {self.formula} cannot carry: use transfer_function('discrete') for the "
+                                 "exact model with z^-d, or delay='pade' for a continuous approximation")
+        if not (isinstance(pade_order, int) and pade_order >= 1):
+            raise ParameterError(f"pade_order must be an integer >= 1, got {pade_order!r}")
+        pnum, pden = control.pade(d * sample_period, pade_order)
+        return control.tf(np.polymul(pnum, num), np.polymul(pden, den), **names)
+
+    #: The linear part written out, for messages.
+    formula: str = "b/(s + a)"
+
+    def discrete_linear_part(self, values: Mapping[str, float], sample_period: float) -> tuple[list[float],
+                                                                                                list[float]]:
+        """Numerator and denominator in ``z`` of the exact zero-order-hold model (no delay)."""
+        v = self.values(values)
+        a, b, h = v["a"], v["b"], sample_period
+        return [-b / a * math.expm1(-a * h)], [1.0, -math.exp(-a * h)]
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name!r}: {', '.join(self.param_names)}>"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ModelStructure) and other.name == self.name
+
+    def __hash__(self) -> int:
+        return hash(self.name)
+
+    def to_dict(self) -> dict:
+        """JSON-ready description: name, parameters with units and bounds, estimator."""
+        return {"name": self.name, "description": self.description, "method": self.method,
+                "parameters": [{"name": p.name, "unit": p.unit, "low": p.low, "high": p.high,
+                                "description": p.description} for p in self.parameters],
+                "fixed": dict(self.fixed)}
+
+
+#: Units of the parameters of the motor family, for fixed ones a structure fills in.
+_FAMILY_UNITS = {"a": "1/s", "b": "(rad/s^2)/{input}", "friction": "rad/s^2", "bias": "rad/s^2",
+                 "dead_zone": "{input}"}

@@ -1,0 +1,134 @@
+"""The first-order motor and its family: ``d omega/dt + a omega = b u`` (+ bias, Coulomb friction, dead zone).
+
+* ``linear``: ``d omega/dt = -a omega + b u`` (``oe``);
+* ``bias``: ``+ d``, a constant acceleration (a driver offset, a load) (``oe`` with ``fit_bias``);
+* ``friction``: ``- c sign(omega) + d``, sticking at rest while ``|b u + d| <= c`` (``oe-friction``);
+* ``dead-zone``: friction, bias, and a duty band ``|u| <= z`` the driver does not deliver
+  (``oe-friction`` with ``dead_zone``).
+
+The input delay is not a parameter of a structure: every structure is fitted at every delay.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Mapping
+
+import numpy as np
+
+from .base import ModelStructure, Parameter
+
+if TYPE_CHECKING:
+    from ..data import Segment
+
+__all__ = ["FirstOrder", "FirstOrderBias", "CoulombFriction", "DeadZone", "INITIAL_WINDOW_TIME_CONSTANTS",
+           "MIN_INITIAL_WINDOW", "initial_state_rule"]
+
+#: Time constants ``1/a`` in the window that fixes a friction model's initial speed on held-out data.
+INITIAL_WINDOW_TIME_CONSTANTS = 2.0
+#: Fewest samples in that window.
+MIN_INITIAL_WINDOW = 10
+
+_A = Parameter("a", "1/s", 0.0, math.inf, "pole of d omega/dt + a omega = b u", strict=True)
+_B = Parameter("b", "(rad/s^2)/{input}", -math.inf, math.inf, "gain of d omega/dt + a omega = b u")
+_BIAS = Parameter("bias", "rad/s^2", -math.inf, math.inf, "constant acceleration d (driver offset, load)")
+_FRICTION = Parameter("friction", "rad/s^2", 0.0, math.inf, "Coulomb friction c")
+_DEAD_ZONE = Parameter("dead_zone", "{input}", 0.0, math.inf, "input magnitude the driver does not deliver")
+
+
+def initial_state_rule(values: Mapping[str, float]) -> str:
+    """How :meth:`FirstOrder.segment_output` finds each segment's initial state for these values (one line)."""
+    if _has_friction(values):
+        return (f"initial speed fitted on the first {INITIAL_WINDOW_TIME_CONSTANTS:g} time constants "
+                f"(at least {MIN_INITIAL_WINDOW} samples) from the measured speed")
+    return "initial speed (and angle offset) by exact least squares on each segment"
+
+
+def _has_friction(values: Mapping[str, float]) -> bool:
+    return float(values.get("friction", 0.0)) > 0 or float(values.get("dead_zone", 0.0)) > 0
+
+
+class FirstOrder(ModelStructure):
+    """``b / (s + a)`` from the input to the speed: the article's motor."""
+
+    name = "linear"
+    description = "linear (oe)"
+    parameters: tuple[Parameter, ...] = (_A, _B)
+    fixed: Mapping[str, float] = {"friction": 0.0, "bias": 0.0, "dead_zone": 0.0}
+    method = "oe"
+    options: Mapping[str, object] = {}
+
+    def segment_output(self, values: Mapping[str, float], segment: Segment) -> np.ndarray:
+        """The model's angle or speed on ``segment``; its initial speed (and angle offset) by exact
+        least squares, or, with friction or a dead zone, fitted on a short window at the start
+        (:func:`initial_state_rule`)."""
+        from ..sensitivity import project_out_initial_state, zoh_response
+        if _has_friction(values):
+            return _friction_segment_output(values, segment)
+        resp = zoh_response(values["a"], values["b"], segment.drive, segment.time, 0.0,
+                            bias=float(values.get("bias", 0.0)), uniform=segment.uniform, sensitivities=False)
+        angle = segment.kind == "angle"
+        # the initial speed (and angle offset) by least squares: the measured output less what is left
+        s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+        left, = project_out_initial_state(s0, angle, segment.output - (resp.angle if angle else resp.speed))
+        return segment.output - left
+
+
+class FirstOrderBias(FirstOrder):
+    """``b / (s + a)`` and a constant acceleration ``d``."""
+
+    name = "bias"
+    description = "linear with a constant acceleration d (oe, fit_bias)"
+    parameters: tuple[Parameter, ...] = (_A, _B, _BIAS)
+    fixed: Mapping[str, float] = {"friction": 0.0, "dead_zone": 0.0}
+    options: Mapping[str, object] = {"fit_bias": True}
+
+
+class CoulombFriction(FirstOrder):
+    """Coulomb friction ``c`` and a bias ``d``: ``d omega/dt = -a omega + b u - c sign(omega) + d``."""
+
+    name = "friction"
+    description = "Coulomb friction c and bias d (oe-friction)"
+    parameters: tuple[Parameter, ...] = (_A, _B, _FRICTION, _BIAS)
+    fixed: Mapping[str, float] = {"dead_zone": 0.0}
+    method = "oe-friction"
+    options: Mapping[str, object] = {"dead_zone": False}
+    linear = False
+
+
+class DeadZone(CoulombFriction):
+    """Friction, bias and a dead zone: the drive is ``u - sign(u) z`` outside ``|u| <= z``, else 0."""
+
+    name = "dead-zone"
+    description = "friction c, bias d and a duty dead zone (oe-friction)"
+    parameters = (_A, _B, _FRICTION, _BIAS, _DEAD_ZONE)
+    fixed: Mapping[str, float] = {}
+    options: Mapping[str, object] = {}
+
+
+def _friction_segment_output(values: Mapping[str, float], seg: Segment) -> np.ndarray:
+    """The friction model from an initial speed fitted on a short window at the segment's start.
+
+    The friction model is not linear in the initial speed, and a free fit of it on the whole
+    run's angle can land far from the data's start (the cost has local minima at every
+    stick/slip pattern).  The initial speed only matters for a few time constants, so it is
+    fitted there, from the measured speed, and the whole segment is then simulated from it;
+    the angle offset (linear) is the mean difference.
+    """
+    from scipy.optimize import least_squares  # imported when used: slow to import
+
+    from ..friction_response import friction_response
+    params = (values["a"], values["b"], float(values.get("friction", 0.0)), float(values.get("bias", 0.0)),
+              float(values.get("dead_zone", 0.0)))
+    h = float(np.median(np.diff(seg.time)))
+    window = int(min(len(seg.time), max(MIN_INITIAL_WINDOW,
+                                        math.ceil(INITIAL_WINDOW_TIME_CONSTANTS / max(values["a"] * h, 1e-12)))))
+
+    def run(w0: float, stop: int) -> np.ndarray:
+        resp = friction_response(*params, seg.drive[:stop], seg.time[:stop], w0, sensitivities=False)
+        if seg.kind == "angle":
+            return resp.angle + float(np.mean(seg.output[:stop] - resp.angle))
+        return resp.speed
+
+    w0 = float(least_squares(lambda w: seg.output[:window] - run(float(w[0]), window),
+                             [seg.initial_speed_guess()], xtol=1e-10).x[0])
+    return run(w0, len(seg.time))

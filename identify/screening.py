@@ -1,0 +1,138 @@
+"""A fit screened for corrupted samples: the same for ``identify.fit`` and ``motorid identify``.
+
+A row no motor can produce (:meth:`motorsim.recording.Recording.implausible_samples`) or an
+isolated residual outlier after the fit (:func:`identify.outliers.residual_outliers`) is a
+corrupted sample: with ``outliers="refuse"`` (the default of :func:`identify.fit`) the fit is
+refused with :class:`CorruptedSamplesError`, naming the recording and the rows' ``seq``; with
+``outliers="drop"`` such rows are dropped as gaps, the fit is repeated, and every dropped row is
+reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Sequence
+
+from motorsim.checks import ParameterError
+from motorsim.recording import Recording
+
+from .data import as_recordings
+from .errors import CorruptedSamplesError, NotIdentifiableError
+from .estimate import Estimate
+
+__all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "OUTLIER_RULES"]
+
+#: What :func:`screened_fit` does with corrupted samples.
+OUTLIER_RULES = ("refuse", "drop", "keep")
+
+
+@dataclasses.dataclass(frozen=True)
+class DroppedSamples:
+    """Rows dropped from one recording before the fit, by ``seq``, and why."""
+
+    recording: int
+    seq: tuple[int, ...]
+    reason: str
+
+    def describe(self, name: str) -> str:
+        """One line: ``name: seq 1, 2, ... (reason)``."""
+        shown = ", ".join(map(str, self.seq[:10])) + (", ..." if len(self.seq) > 10 else "")
+        return f"{name}: seq {shown} ({self.reason})"
+
+
+@dataclasses.dataclass(frozen=True)
+class ScreenedFit:
+    """The estimate, the recordings it was fitted on (corrupted rows dropped), and what was dropped."""
+
+    estimate: Estimate
+    recordings: tuple[Recording, ...]
+    dropped: tuple[DroppedSamples, ...]
+
+
+def _fit_outliers(est: Estimate, recs: Sequence[Recording], fitted: bool = False) -> list[list[int]]:
+    """The isolated residual outliers of every recording; ``fitted``: ``recs`` are the recordings
+    ``est`` was fitted on, in order, so the fit's own residuals serve when it kept them."""
+    from .outliers import residual_outliers
+    kept = est.speed_residuals if fitted and est.speed_residuals is not None else None
+    return [residual_outliers(est, rec, None if kept is None else kept[i]) for i, rec in enumerate(recs)]
+
+
+def _confirmed(outliers: list[list[int]], recs: Sequence[Recording], estimator: Callable[..., Estimate],
+               options: dict[str, Any]) -> list[list[int]]:
+    """The rows that are still outliers under the model refitted without them.
+
+    A corrupted sample can pull the first fit (an automatic input delay picking the wrong
+    delay, say) so far that honest rows look like outliers too; the refit without the
+    suspects is the model to judge them by.  Falls back to the first verdict when the refit
+    clears every row.
+    """
+    trial = [rec.drop_rows(rows) if rows else rec for rec, rows in zip(recs, outliers)]
+    try:
+        again = _fit_outliers(estimator(trial, **options), recs)
+    except NotIdentifiableError:
+        return outliers
+    confirmed = [sorted(set(first) & set(second)) for first, second in zip(outliers, again)]
+    return confirmed if any(confirmed) else outliers
+
+
+def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callable[..., Estimate],
+                 options: dict[str, Any] | None = None, *, outliers: str = "refuse", samples_checked: bool = False,
+                 name: str = "") -> ScreenedFit:
+    """Fit ``method`` on ``recordings`` screened for corrupted samples (module docstring).
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled, as for every estimator.
+    estimator : callable
+        ``estimator(recordings, **options) -> Estimate`` (:func:`identify.method_function` of a name).
+    options : dict, optional
+        The estimator's keyword options.
+    outliers : {"refuse", "drop", "keep"}
+        What a corrupted sample does: refuse the fit (default), drop it as a gap and refit, or
+        nothing (the fit as it is, no screening).
+    samples_checked : bool
+        The recordings were read with their rows checked
+        (:func:`motorsim.reading.read_recording` ``check_samples=True`` refuses implausible rows):
+        only the residual outliers are left to screen.
+    name : str
+        The method's name, for the messages.
+
+    Returns
+    -------
+    ScreenedFit
+
+    Raises
+    ------
+    CorruptedSamplesError
+        (a ``ValueError``) With ``outliers="refuse"``: an implausible row or an isolated residual
+        outlier, naming the recording (``recordings[i]``) and the rows' ``seq``.
+    """
+    if outliers not in OUTLIER_RULES:
+        raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
+    options = dict(options or {})
+    recs = as_recordings(recordings)
+    if outliers == "keep":
+        return ScreenedFit(estimator(recs, **options), tuple(recs), ())
+    dropped: list[DroppedSamples] = []
+    for i, rec in enumerate(recs):
+        bad = [] if samples_checked else rec.implausible_samples()
+        if not bad:
+            continue
+        if outliers == "refuse":
+            raise CorruptedSamplesError(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason)
+        dropped.append(DroppedSamples(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason))
+        recs[i] = rec.drop_rows(s.row for s in bad)
+    est = estimator(recs, **options)
+    found = _fit_outliers(est, recs, fitted=True)
+    if not any(found):
+        return ScreenedFit(est, tuple(recs), tuple(dropped))
+    found = _confirmed(found, recs, estimator, options)
+    reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
+    if outliers == "refuse":
+        i = next(k for k, rows in enumerate(found) if rows)
+        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in found[i]), reason)
+    for i, rows in enumerate(found):
+        if rows:
+            dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))
+            recs[i] = recs[i].drop_rows(rows)
+    return ScreenedFit(estimator(recs, **options), tuple(recs), tuple(dropped))
