@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -200,7 +200,9 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
     if nonlinear and linear:
-        base = refine(fitted, refit, level)
+        # the screen needs the best linear fit only; the other coarse ones are refined at the end, against
+        # the best of all: with friction they are far above it and left as they are (friction paid once)
+        base = _refined_best(fitted, refit)
         if base is None:
             p, share = 0.0, 1.0
         else:
@@ -222,6 +224,14 @@ def _candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str
     from .methods import candidate_function
     found = STRUCTURES[name]
     return candidate_function(found)(recs, segs, delay, found, refine=refine, fix_bias=fix_bias)
+
+
+def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:
+    """The best fit, refitted in full in place until the best is a full fit (the first steps of
+    :func:`identify.comparison.refine`, which later refines the others that could still matter)."""
+    while (best := best_fit(fitted)) is not None and not best.refined:
+        fitted[fitted.index(best)] = refit(best)
+    return best
 
 
 def _declared_delay(recs: list[Recording]) -> int:
