@@ -138,7 +138,7 @@ def _file_ratio(rows: int, repeats: int) -> float:
 
 def goal_figures() -> list[tuple[Goal, float]]:
     """Every goal of :data:`GOALS` at its size (``motorid bench --check``)."""
-    figures = _fits(10_000, 5, verbose=False)
+    figures = _fits(10_000, 9, verbose=False)      # more rounds than the printout's: a steadier median
     figures.append((POSITION_LOOP_GOAL, _identify_file(position_loop_recording(), 3)))
     figures.append((FILE_GOAL, _file_ratio(10**6, 3)))
     return figures
