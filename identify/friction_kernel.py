@@ -63,6 +63,49 @@ def _event_real(w: float, force: float, c: float, a: float, h: float, s: float) 
     return target2 * grown, d_angle + target2 * (rest - grown / a)
 
 
+def _moving_sensitivities(sw: np.ndarray, sth: np.ndarray, col: np.ndarray, e: float, p: float, q: float, dp: float,
+                          dq: float, h: float, w: float, g: float, v: float, s: float, b_zone: float) -> None:
+    """One moving interval: the speed's and the angle's sensitivities ``sw``, ``sth`` carried over, in place
+    (``g`` the force less friction, ``b_zone`` the force's derivative with respect to the dead zone)."""
+    col[0] = dp * g - h * e * w
+    col[1] = v
+    col[2] = -s
+    col[3] = 1.0
+    col[4] = b_zone
+    for j in range(6):
+        dg = col[j] if 0 < j < 5 else 0.0
+        sth[j] += p * sw[j] + q * dg
+        sw[j] = e * sw[j] + p * dg
+    sth[0] += dp * w + dq * g
+    sw[0] += col[0]
+
+
+def _event_sensitivities(sw: np.ndarray, sth: np.ndarray, col: np.ndarray, dw: np.ndarray, dth: np.ndarray,
+                         w: float, force: float, c: float, a: float, h: float, s: float, v: float, b: float,
+                         v_zone: float) -> None:
+    """One event interval: the sensitivities carried through the event time, in place (the event step's
+    partials with respect to ``(w, force, c, a)`` by complex step into ``dw``, ``dth``)."""
+    stick = abs(force) <= c
+    for j in range(4):
+        arg = w if j == 0 else force if j == 1 else c if j == 2 else a
+        step = _COMPLEX_STEP * max(abs(arg), 1.0)
+        cw, cth = _event_value(complex(w, step if j == 0 else 0.0), complex(force, step if j == 1 else 0.0),
+                               complex(c, step if j == 2 else 0.0), complex(a, step if j == 3 else 0.0), h, s, stick)
+        dw[j] = cw.imag / step
+        dth[j] = cth.imag / step
+    col[0] = dw[3]
+    col[1] = dw[1] * v
+    col[2] = dw[2]
+    col[3] = dw[1]
+    col[4] = dw[1] * b * v_zone
+    for j in range(6):
+        f_w = col[j] if j < 5 else 0.0
+        f_th = (dth[3] if j == 0 else dth[1] * v if j == 1 else dth[2] if j == 2 else dth[1] if j == 3
+                else dth[1] * b * v_zone if j == 4 else 0.0)
+        sth[j] += dth[0] * sw[j] + f_th
+        sw[j] = dw[0] * sw[j] + f_w
+
+
 def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q: np.ndarray, dp: np.ndarray,
                   dq: np.ndarray, a: float, b: float, c: float, d: float, z: float, w0: float, rest: float,
                   sens: bool, speed: np.ndarray, angle: np.ndarray, s_spd: np.ndarray, s_ang: np.ndarray,
@@ -115,40 +158,11 @@ def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q:
             w_next = end
             d_angle = p[i] * w + q[i] * g
             if sens:
-                col[0] = dp[i] * g - h[i] * e[i] * w
-                col[1] = v
-                col[2] = -s
-                col[3] = 1.0
-                col[4] = b * v_zone
-                for j in range(6):
-                    dg = col[j] if 0 < j < 5 else 0.0
-                    sth[j] += p[i] * sw[j] + q[i] * dg
-                    sw[j] = e[i] * sw[j] + p[i] * dg
-                sth[0] += dp[i] * w + dq[i] * g
-                sw[0] += col[0]
+                _moving_sensitivities(sw, sth, col, e[i], p[i], q[i], dp[i], dq[i], h[i], w, g, v, s, b * v_zone)
         else:                                           # the speed reaches zero inside the interval
             w_next, d_angle = _event_real(w, force, c, a, h[i], s)
             if sens:
-                stick = abs(force) <= c
-                for j in range(4):
-                    arg = w if j == 0 else force if j == 1 else c if j == 2 else a
-                    step = _COMPLEX_STEP * max(abs(arg), 1.0)
-                    cw, cth = _event_value(complex(w, step if j == 0 else 0.0), complex(force, step if j == 1 else 0.0),
-                                           complex(c, step if j == 2 else 0.0), complex(a, step if j == 3 else 0.0),
-                                           h[i], s, stick)
-                    dw[j] = cw.imag / step
-                    dth[j] = cth.imag / step
-                col[0] = dw[3]
-                col[1] = dw[1] * v
-                col[2] = dw[2]
-                col[3] = dw[1]
-                col[4] = dw[1] * b * v_zone
-                for j in range(6):
-                    f_w = col[j] if j < 5 else 0.0
-                    f_th = (dth[3] if j == 0 else dth[1] * v if j == 1 else dth[2] if j == 2 else dth[1] if j == 3
-                            else dth[1] * b * v_zone if j == 4 else 0.0)
-                    sth[j] += dth[0] * sw[j] + f_th
-                    sw[j] = dw[0] * sw[j] + f_w
+                _event_sensitivities(sw, sth, col, dw, dth, w, force, c, a, h[i], s, v, b, v_zone)
         w = w_next
         th += d_angle
         speed[k + 1] = w
@@ -167,10 +181,14 @@ def compiled_response() -> Callable[..., None] | None:
         import numba
     except ImportError:
         return None
-    jit = numba.njit(cache=True)
-    event_value = jit(_event_value)
-    event_real = jit(_event_real)
-    globals_ = dict(response_pass.__globals__, _event_value=event_value, _event_real=event_real)
     import types
-    source = types.FunctionType(response_pass.__code__, globals_, "response_pass")
-    return jit(source)
+    jit = numba.njit(cache=True)
+
+    def compiled(function, names=()):
+        """``function`` compiled, the helpers it calls by ``names`` replaced by their compiled forms."""
+        scope = dict(function.__globals__, **{n: helpers[n] for n in names})
+        return jit(types.FunctionType(function.__code__, scope, function.__name__))
+    helpers = {"_event_value": jit(_event_value), "_event_real": jit(_event_real)}
+    helpers["_moving_sensitivities"] = jit(_moving_sensitivities)
+    helpers["_event_sensitivities"] = compiled(_event_sensitivities, ("_event_value",))
+    return compiled(response_pass, tuple(helpers))
