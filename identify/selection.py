@@ -200,8 +200,6 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
     if nonlinear and linear:
-        # the screen needs the best linear fit only; the other coarse ones are refined at the end, against
-        # the best of all: with friction they are far above it and left as they are (friction paid once)
         base = _refined_best(fitted, refit)
         if base is None:
             p, share = 0.0, 1.0
@@ -228,7 +226,8 @@ def _candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str
 
 def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:
     """The best fit, refitted in full in place until the best is a full fit (the first steps of
-    :func:`identify.comparison.refine`, which later refines the others that could still matter)."""
+    :func:`identify.comparison.refine`): what the friction screen needs.  The other coarse candidates
+    are refined at the end, against the best of all; with friction they are far above it and left be."""
     while (best := best_fit(fitted)) is not None and not best.refined:
         fitted[fitted.index(best)] = refit(best)
     return best
