@@ -32,7 +32,7 @@ Being linear, the corrections at the events form one lower-bidiagonal system (on
 LAPACK call instead of a loop), and a second scan spreads them.
 With numba installed (the extra ``fast``) and at least :data:`~identify.friction_kernel.KERNEL_MIN_ROWS`
 samples, the same response, modes and sensitivities come from one compiled pass over the samples
-instead (:mod:`identify.friction_kernel`: no fixed-point passes, about 40 times faster on a run with
+instead (:mod:`identify.friction_kernel`: no fixed-point passes, about 45 times faster on a run with
 many events); the two agree to rounding (a test compares them).
 
 This is the exact derivative of the exact model wherever the modes do not change,
