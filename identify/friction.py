@@ -695,6 +695,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     damping = 1e-4
     status = 0
     normal = None
+    rejected = False
     for _ in range(max_iterations):
         assert J is not None
         if normal is None:           # once per accepted step: a rejected one only raises the damping
@@ -719,18 +720,23 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             break
         x_new = np.maximum(x + step, lower)
         with np.errstate(over="ignore", invalid="ignore"):
-            r_new, J_new = problem.evaluate(x_new, True)
+            r_new = problem.evaluate(x_new, False)[0]      # the sensitivities only once the step is taken
         cost_new = _sum_squares(r_new)
         if np.isfinite(cost_new) and cost_new < cost:
+            with np.errstate(over="ignore", invalid="ignore"):
+                r_new, J_new = problem.evaluate(x_new, True)
             small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
             done = cost - cost_new <= 1e-10 * cost or small
             x, r, J, cost = x_new, r_new, J_new, cost_new
             normal = None
-            damping = max(damping / 5.0, 1e-12)
+            if not rejected:         # a step taken right after a rejected one keeps its damping (no zigzag)
+                damping = max(damping / 5.0, 1e-12)
+            rejected = False
             if done:
                 status = 1
                 break
         else:
+            rejected = True
             damping *= 10.0
             if damping > 1e12:
                 status = 2
