@@ -58,7 +58,7 @@ import numpy as np
 from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
-from motorsim.plant import Motor, simulate, zoh_matrices
+from motorsim.plant import Motor, lag_coefficients, simulate, zoh_matrices
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
@@ -246,6 +246,7 @@ class FakeDevice:
         self._link_down = False
         self._silent = False
         self._angle, self._speed_rad_s = 0.0, 0.0
+        self._current = 0.0           # the drive behind an electrical lag (motor.electrical_time_constant)
         self._idle_since = time.monotonic()
         if self.faults.boot_delay:
             self._stop_event.wait(self.faults.boot_delay)
@@ -395,8 +396,17 @@ class FakeDevice:
 
     def _advance_motor(self, duty: float, h: float) -> None:
         """Hold ``duty`` for ``h`` s: the exact ZOH step (motorsim.plant's formulas), or
-        ``motorsim.simulate`` over the interval when there is Coulomb friction."""
+        ``motorsim.simulate`` over the interval when there is Coulomb friction; behind an electrical lag,
+        its exact step (``motorsim.plant.lag_coefficients``)."""
         m = self._motor0
+        if m.electrical_time_constant > 0:
+            e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(m.a, 1.0 / m.electrical_time_constant, h))
+            v = float(m.drive(np.array([duty]))[0])
+            w, lag = self._speed_rad_s, self._current - v
+            self._angle += p * w + r * (m.b * v + m.bias) + m.b * s * lag
+            self._speed_rad_s = e_a * w + p * (m.b * v + m.bias) + m.b * q * lag
+            self._current = e_c * self._current + (1 - e_c) * v
+            return
         if m.friction == 0:
             if self._zoh is None or self._zoh[0] != h:
                 self._zoh = (h, *(float(x) for x in zoh_matrices(m.a, m.b, h)))
@@ -596,8 +606,10 @@ def url_keys() -> tuple[str, ...]:
 
     Examples
     --------
-    >>> url_keys()[:9]
-    ('a', 'b', 'friction', 'bias', 'dead_zone', 'input_delay', 'counts_per_rev', 'count_offset', 'angle_noise')
+    >>> url_keys()[:6]
+    ('a', 'b', 'friction', 'bias', 'dead_zone', 'input_delay')
+    >>> url_keys()[6:9]
+    ('electrical_time_constant', 'counts_per_rev', 'count_offset')
     """
     return tuple(k.name for k in _url_knobs())
 

@@ -8,10 +8,10 @@ Anything else (``/dev/ttyACM0``, ``COM3``, ``loop://``, ``socket://host:port``,
 from __future__ import annotations
 
 import contextlib
-import importlib
 from typing import Iterator
 
 from motorsim.checks import ParameterError
+from motorsim.lazy import load
 
 from .errors import RigDisconnectedError
 
@@ -51,8 +51,7 @@ def url_keys(scheme: str) -> tuple[str, ...]:
     """
     if scheme not in _URL_KEYS:
         raise ParameterError(f"scheme must be one of {sorted(_URL_KEYS)}, got {scheme!r}")
-    module_name, _, func = _URL_KEYS[scheme].partition(":")
-    return getattr(importlib.import_module(module_name), func)()
+    return load(_URL_KEYS[scheme])()
 
 
 @contextlib.contextmanager
@@ -79,12 +78,11 @@ def open_port(url: str, baudrate: int, timeout: float) -> Iterator:
         raise ParameterError(f"port must be a non-empty string (a device path or URL), got {url!r}")
     scheme = url.partition("://")[0] if "://" in url else ""
     if scheme in _SCHEMES:
-        module_name, _, func = _SCHEMES[scheme].partition(":")
         try:
-            opener = getattr(importlib.import_module(module_name), func)
+            opener = load(_SCHEMES[scheme])
         except (ImportError, AttributeError) as exc:
             raise ParameterError(f"port scheme {scheme}:// is not available in this installation "
-                             f"({module_name}:{func} cannot be loaded: {exc})") from None
+                                 f"({_SCHEMES[scheme]} cannot be loaded: {exc})") from None
         with contextlib.ExitStack() as stack:
             try:
                 port = stack.enter_context(opener(url, baudrate, timeout))

@@ -5,8 +5,7 @@ line's ``--help`` do not pay for scipy's optimisers and filters until a fit need
 """
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from motorsim.lazy import lazy_attributes
 
 #: public name -> the module of this package that defines it
 _WHERE = {
@@ -31,13 +30,4 @@ _WHERE = {
 __all__ = list(_WHERE)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'identify' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *__all__])
+__getattr__, __dir__ = lazy_attributes(__name__, exports={name: f".{module}" for name, module in _WHERE.items()})

@@ -201,6 +201,7 @@ class CandidateFit:
     residuals: np.ndarray | None
     bias: float = 0.0
     refined: bool = True          # False: a coarse fit, whose residual sum bounds the candidate's from above
+    start: tuple[float, ...] = ()  # its nonlinear parameters, a start for the same structure at a neighbouring delay
 
 
 def threshold(c: Candidate, best: Candidate, level: float) -> float:
@@ -412,12 +413,9 @@ def refine(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Candidate
             fitted[fitted.index(f)] = refit(f)
 
 
-def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int | None, recs: list[Recording],
-            segments: dict[int, list[Segment]]) -> Selection:
-    best = best_fit(fitted)
-    if best is None:
-        reasons = "; ".join(sorted({f.candidate.note for f in fitted if f.candidate.note}))
-        raise NotIdentifiableError(f"no candidate model could be fitted: {reasons}")
+def _scored(fitted: list[CandidateFit], best: CandidateFit, level: float, recs: list[Recording],
+            segments: dict[int, list[Segment]]) -> list[Candidate]:
+    """Every candidate with its statistic against ``best`` and whether it is within the noise of it."""
     reference = best.residuals
     assert reference is not None
     rounding = rounding_realisations(recs, segments[best.candidate.input_delay], reference)
@@ -429,13 +427,39 @@ def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int 
             continue
         t = 0.0 if f is best else _against(f, best, rounding)
         scored.append(dataclasses.replace(c, statistic=t, within_noise=t <= threshold(c, best.candidate, level)))
-    best_c = scored[fitted.index(best)]
-    within = [c for c in scored if c.within_noise]
+    return scored
+
+
+def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int | None, recs: list[Recording],
+            segments: dict[int, list[Segment]]) -> Selection:
+    """The simplest candidate within the noise of the best (module docstring).
+
+    Structures of a higher rank (a second pole) are judged after the first-order family: the family's
+    choice is made against its own best fit, as if they were not there, and stands unless the best of
+    the family is itself outside the noise of the best fit overall; then the simplest higher-rank
+    candidate within the noise of that best is chosen.  Higher-rank candidates within the noise of the
+    best overall are kept as candidates the data cannot rule out either way.
+    """
+    best = best_fit(fitted)
+    if best is None:
+        reasons = "; ".join(sorted({f.candidate.note for f in fitted if f.candidate.note}))
+        raise NotIdentifiableError(f"no candidate model could be fitted: {reasons}")
+    family = best_fit([f for f in fitted if STRUCTURES[f.candidate.structure].rank == 0]) or best
+    scored = _scored(fitted, family, level, recs, segments)
     order = list(STRUCTURES)
 
     def simplicity(c: Candidate) -> tuple:
-        return (c.n_params, c.input_delay, order.index(c.structure))
-    chosen = min(within, key=simplicity)
+        return (STRUCTURES[c.structure].rank, c.n_params, c.input_delay, order.index(c.structure))
+    if family is not best:
+        overall = _scored(fitted, best, level, recs, segments)
+        if overall[fitted.index(family)].within_noise:        # the family holds: higher ranks only widen
+            scored = [o if STRUCTURES[c.structure].rank else c for c, o in zip(scored, overall)]
+        else:
+            scored = overall
+    best_c = scored[fitted.index(best)]
+    within = [c for c in scored if c.within_noise]
+    first = [c for c in within if STRUCTURES[c.structure].rank == 0]
+    chosen = min(first or within, key=simplicity)
     others = [c for c in within if c is not chosen]
     runner_up = min(others, key=simplicity) if others else min(
         (c for c in scored if c is not chosen and math.isfinite(c.statistic)), key=lambda c: c.statistic, default=None)

@@ -10,6 +10,7 @@ measured angle (or speed).
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import Any, Sequence
 
@@ -20,9 +21,9 @@ from motorsim.recording import Recording
 
 from .errors import NotIdentifiableError
 
-__all__ = ["as_recordings", "check_input_delay", "check_excitation", "prepare_segments", "first_rows",
-           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note",
-           "CLOSED_LOOP_SATURATED_SHARE"]
+__all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
+           "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
+           "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -55,7 +56,60 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
     units = {r.input_unit for r in recs}
     if len(units) > 1:
         raise ParameterError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
-    return recs
+    return [counts_behind_speed(r) or r for r in recs]
+
+
+#: Largest speed, in encoder counts per sample, of a speed column read as a backward difference of counts:
+#: beyond it the grid is more likely the file's printed resolution than an encoder's steps.
+MAX_COUNTS_PER_SAMPLE = 1000
+#: Relative tolerance of a differenced speed's values on their grid (a file prints six or more digits).
+_GRID_RTOL = 2e-6
+
+
+def counts_behind_speed(recording: Recording) -> Recording | None:
+    """The recording as the encoder counts its speed column differences, or None when it is not that.
+
+    A speed column computed as the backward difference of encoder counts, ``(n_k - n_(k-1)) q`` with
+    ``q = 2 pi / (N h)``, takes only whole multiples of one step ``q``: every value is ``m q`` for an
+    integer ``m`` of at most :data:`MAX_COUNTS_PER_SAMPLE`.  Fitted as a speed, its rounding (a whole
+    count per sample) looks like large noise; the counts behind it, recovered by summing the steps,
+    give the answer as exactly as the encoder itself.  Recognised only on a speed-only recording with
+    a uniform clock and no gaps, at least 20 non-zero values and three or more distinct steps; the
+    returned recording holds the counts (``counts_per_rev`` ``N`` when ``2 pi / (q h)`` is a whole
+    number, else the angle) and says so in its metadata (``speed_from_counts``).
+    """
+    if recording.speed is None or recording.angle is not None or recording.counts is not None:
+        return None
+    speed = recording.speed
+    h = recording.sample_period
+    if len(speed) < 20 or recording.has_gaps:
+        return None
+    steps = np.diff(recording.time)
+    if not np.all(np.abs(steps - h) <= 1e-9 * h):
+        return None
+    first = 1 if not math.isfinite(float(speed[0])) else 0
+    values = speed[first:]
+    if not np.all(np.isfinite(values)):
+        return None
+    moving = np.abs(values[values != 0])
+    if len(moving) < 20:
+        return None
+    q = float(moving.min())
+    m = values / q
+    whole = np.round(m)
+    if float(np.max(np.abs(whole))) > MAX_COUNTS_PER_SAMPLE or len(np.unique(np.abs(whole))) < 3:
+        return None
+    if not np.all(np.abs(m - whole) <= _GRID_RTOL * np.maximum(1.0, np.abs(m))):
+        return None
+    counts = np.zeros(len(speed), dtype=np.int64)
+    counts[first:] = np.cumsum(whole.astype(np.int64)) - (whole[0] if first == 0 else 0)
+    per_rev = 2 * math.pi / (q * h)
+    meta = {**recording.metadata, "speed_from_counts": f"steps of {q:.6g} rad/s"}
+    if abs(per_rev - round(per_rev)) <= 1e-4 * per_rev and round(per_rev) >= 1:
+        meta["speed_from_counts"] += f" (one count of {round(per_rev)} per revolution per sample)"
+        return dataclasses.replace(recording, speed=None, counts=counts, counts_per_rev=int(round(per_rev)),
+                                   metadata=meta)
+    return dataclasses.replace(recording, speed=None, angle=counts * (q * h), metadata=meta)
 
 
 def check_input_delay(input_delay: Any) -> int | str:

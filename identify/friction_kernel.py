@@ -23,10 +23,11 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["response_pass", "compiled_response", "KERNEL_MIN_ROWS"]
+__all__ = ["response_pass", "compiled_response", "kernel_for", "KERNEL_MIN_ROWS"]
 
 #: Rows from which :func:`identify.friction_response.friction_response` takes the compiled pass (when
-#: numba is installed): below, loading the compiled kernel costs more than the work it saves.
+#: numba is installed) before the process has loaded it: below, loading it costs more than the work it
+#: saves; once loaded, every length takes it.
 KERNEL_MIN_ROWS = 200
 
 _COMPLEX_STEP = 1e-30
@@ -192,3 +193,12 @@ def compiled_response() -> Callable[..., None] | None:
     helpers["_moving_sensitivities"] = jit(_moving_sensitivities)
     helpers["_event_sensitivities"] = compiled(_event_sensitivities, ("_event_value",))
     return compiled(response_pass, tuple(helpers))
+
+
+def kernel_for(rows: int) -> Callable[..., None] | None:
+    """The compiled pass for a run of ``rows`` samples, or None: without numba, with ``MOTORID_NUMBA=0``, or
+    for a run shorter than :data:`KERNEL_MIN_ROWS` before the process has loaded the kernel (it does not pay
+    for importing numba; once loaded, short runs such as the model output's initial-speed windows take it)."""
+    if rows < KERNEL_MIN_ROWS and not compiled_response.cache_info().currsize:
+        return None
+    return compiled_response()

@@ -30,10 +30,11 @@ term; at an event the step is differentiated *through the event time* ``t_z``
 Trapp 1998, which has no cancellation), and a stuck interval has zero derivatives.
 Being linear, the corrections at the events form one lower-bidiagonal system (one
 LAPACK call instead of a loop), and a second scan spreads them.
-With numba installed (the extra ``fast``) and at least :data:`~identify.friction_kernel.KERNEL_MIN_ROWS`
-samples, the same response, modes and sensitivities come from one compiled pass over the samples
-instead (:mod:`identify.friction_kernel`: no fixed-point passes, about 45 times faster on a run with
-many events); the two agree to rounding (a test compares them).
+With numba installed (the extra ``fast``), on at least
+:data:`~identify.friction_kernel.KERNEL_MIN_ROWS` samples or once the process has loaded it
+(:func:`~identify.friction_kernel.kernel_for`), the same response, modes and sensitivities come
+from one compiled pass over the samples instead (:mod:`identify.friction_kernel`: no fixed-point
+passes, about 45 times faster on a run with many events); the two agree to rounding (a test compares them).
 
 This is the exact derivative of the exact model wherever the modes do not change,
 i.e. everywhere except on a set of measure zero — unlike a smoothed friction law,
@@ -47,7 +48,7 @@ import math
 
 import numpy as np
 
-from .friction_kernel import KERNEL_MIN_ROWS, compiled_response
+from .friction_kernel import kernel_for
 from .sensitivity import first_order_scan
 
 __all__ = ["FrictionResponse", "friction_response", "FRICTION_PARAMETERS"]
@@ -268,7 +269,7 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
     if uniform is None:
         steps = np.diff(t)
         uniform = len(steps) > 0 and bool(np.all(np.abs(steps - steps[0]) <= 1e-12 * abs(steps[0])))
-    kernel = compiled_response() if len(t) >= KERNEL_MIN_ROWS else None
+    kernel = kernel_for(len(t))
     if kernel is not None:
         return _compiled(kernel, (a, b, friction, bias, dead_zone), np.asarray(duty, dtype=float)[:-1], t, uniform,
                          float(initial_speed), sensitivities)

@@ -15,11 +15,11 @@ A test resolves every entry, so a misspelt one fails there rather than at a user
 """
 from __future__ import annotations
 
-import importlib
 import inspect
 from typing import Any, Callable
 
 from motorsim.checks import ParameterError
+from motorsim.lazy import load
 from motorsim.recording import Recording
 
 from .estimate import Estimate
@@ -35,6 +35,7 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
     "iv": "instrumental:fit_instrumental_variables",
     "oe-friction": "friction:fit_output_error_friction",
     "iv-reference": "closed_loop:fit_reference_iv",
+    "oe-electrical": "electrical:fit_output_error_electrical",
 }
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
@@ -47,12 +48,15 @@ _DEFAULT_ENTRY = "selection:fit_selected"
 _CANDIDATES = {
     "oe": "output_error:structure_candidate",
     "oe-friction": "friction:structure_candidate",
+    "oe-electrical": "electrical:structure_candidate",
 }
 
 #: methods that need a closed-loop recording's reference column
 _CLOSED_LOOP_ONLY = frozenset({"iv-reference"})
+#: methods of structures beyond the first-order motor's family (a second pole)
+_BEYOND_FIRST_ORDER = frozenset({"oe-electrical"})
 
-def available_methods(*, open_loop: bool = False) -> list[str]:
+def available_methods(*, open_loop: bool = False, first_order: bool = False) -> list[str]:
     """The estimators :func:`fit` can be told to use (besides the default, ``"auto"``).
 
     Parameters
@@ -60,8 +64,12 @@ def available_methods(*, open_loop: bool = False) -> list[str]:
     open_loop : bool
         Leave out the methods that need a closed-loop recording's reference (``iv-reference``):
         the list "all methods" means for open-loop runs (the demo, the sweeps).
+    first_order : bool
+        Leave out the estimators of structures beyond the first-order motor (``oe-electrical``):
+        with ``open_loop``, what "all methods" means for the article's experiment (the demo, the sweeps).
     """
-    return [m for m in _METHODS if not (open_loop and m in _CLOSED_LOOP_ONLY)]
+    return [m for m in _METHODS if not (open_loop and m in _CLOSED_LOOP_ONLY)
+            and not (first_order and m in _BEYOND_FIRST_ORDER)]
 
 
 def method_function(method: str) -> Callable[..., Estimate]:
@@ -77,8 +85,7 @@ def method_function(method: str) -> Callable[..., Estimate]:
     entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
     if callable(entry):
         return entry
-    module, function = entry.split(":")
-    return getattr(importlib.import_module(f".{module}", __package__), function)
+    return load(f".{entry}", __package__)
 
 
 def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
@@ -92,8 +99,7 @@ def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
     if structure.method not in _CANDIDATES:
         raise ParameterError(f"structure {structure.name!r} has no candidate fit: its method must be one of "
                              f"{list(_CANDIDATES)}, got {structure.method!r}")
-    module, function = _CANDIDATES[structure.method].split(":")
-    return getattr(importlib.import_module(f".{module}", __package__), function)
+    return load(f".{_CANDIDATES[structure.method]}", __package__)
 
 
 def method_options(method: str) -> tuple[str, ...]:

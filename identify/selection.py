@@ -78,6 +78,11 @@ SCREEN_LEVEL = 0.05
 #: 0.4 % on linear motors (sines on 44-16667 counts, chirps, PRBS, steps), 96-99 % with friction
 #: or a dead zone of 8-25 duty.
 SCREEN_SHARE = 0.02
+#: Level of the test of the chosen model's residuals against the sign of its speed below which friction,
+#: left out by the screen, is fitted after all: no screen overrules what the fit's own residuals say.
+SIGN_LEVEL = 0.001
+#: How the note of a screen that left friction out begins.
+SCREENED_OUT = "friction and dead zone not fitted"
 #: Share of the non-zero input samples at one magnitude from which the input counts as one amplitude (a
 #: binary PRBS, a square wave): a dead zone is then a gain change the data cannot see.
 SINGLE_AMPLITUDE_SHARE = 0.95
@@ -133,7 +138,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
                  input_delay: int | str = "auto", max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
-                 level: float = LEVEL) -> Selection:
+                 level: float = LEVEL, screen: bool = True) -> Selection:
     """Fit the candidate models and choose the simplest one within the noise of the best.
 
     Parameters
@@ -151,6 +156,10 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         Hold the bias at 0 in the friction structures.
     level : float
         Level of the test, in (0, 0.5).
+    screen : bool
+        Screen friction and the dead zone by the score test first (module docstring); False fits them
+        whenever the speed reverses (what :func:`fit_selected` does when the chosen model's residuals
+        then correlate with the sign of the speed).
 
     Returns
     -------
@@ -186,6 +195,8 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
                                    "stretch is left; record longer or fix the dropped samples")
     fitted: list[CandidateFit] = []
+    higher = [s for s in wanted if STRUCTURES[s].rank > 0]
+    wanted = tuple(s for s in wanted if STRUCTURES[s].rank == 0)
     linear = [s for s in wanted if STRUCTURES[s].linear]
     nonlinear = [s for s in wanted if not STRUCTURES[s].linear]
     if nonlinear and not segments_reverse(segments[delays[0]]):     # on the rows the candidates are fitted on
@@ -205,23 +216,71 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
             p, share = 0.0, 1.0
         else:
             p, share = _screen_nonlinear(segments[base.candidate.input_delay], base.candidate, base.bias)
-        if p >= SCREEN_LEVEL and share < SCREEN_SHARE:
-            notes.append(f"friction and dead zone not fitted: the linear model's residuals show no sign of "
+        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE:
+            notes.append(f"{SCREENED_OUT}: the linear model's residuals show no sign of "
                          f"them (score test p = {p:.2g}; their directions explain {100 * share:.2g} % of the "
                          "residual)")
             nonlinear = []
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
+    if higher:
+        fitted += _fit_higher(recs, segments, delays, higher, best_fit(fitted), notes)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
 
 
 def _candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str, *, refine: bool = True,
-               fix_bias: bool = False) -> CandidateFit:
-    """The registered structure ``name`` fitted at ``delay`` by its estimator's candidate fit."""
+               fix_bias: bool = False, **start: object) -> CandidateFit:
+    """The registered structure ``name`` fitted at ``delay`` by its estimator's candidate fit (``start``:
+    that fit's start values, where it takes them)."""
     from .methods import candidate_function
     found = STRUCTURES[name]
-    return candidate_function(found)(recs, segs, delay, found, refine=refine, fix_bias=fix_bias)
+    return candidate_function(found)(recs, segs, delay, found, refine=refine, fix_bias=fix_bias, **start)
+
+
+#: Delays, counted down from the first-order model's best, at which a structure with a second pole is fitted:
+#: the pole's lag looks like part of a delay, so its own delay is at most the first-order one.
+HIGHER_DELAYS = 8
+#: Rows (the first of every segment) of the first fit of a structure with a second pole at each delay.
+HIGHER_FIRST_ROWS = 500
+#: Shortest electrical time constant, in sample periods, that the first fit must find for the full fit to
+#: follow: a faster pole is a fraction of a sample's delay, which the first-order model with its delay holds.
+MIN_TAU_SAMPLES = 0.25
+
+
+def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int], names: list[str],
+                best: CandidateFit | None, notes: list[str]) -> list[CandidateFit]:
+    """The structures of a higher rank (a second pole) at the delays up to the best first-order delay.
+
+    A lag between the duty and the torque is what a first-order model absorbs as a longer input
+    delay, so the second pole's own delay is the first-order best delay or shorter: those (at most
+    :data:`HIGHER_DELAYS`, from the best down, each started from its neighbour's poles) are fitted,
+    first on the first :data:`HIGHER_FIRST_ROWS` rows; where that fit finds the pole slower than
+    :data:`MIN_TAU_SAMPLES` samples it is fitted on all rows and becomes a candidate, else its own
+    fit has shown the pole too fast for this sample period to tell from a delay, which is said.
+    """
+    h = recs[0].sample_period
+    top = best.candidate.input_delay if best is not None else delays[0]
+    near = sorted((d for d in delays if top - HIGHER_DELAYS < d <= top), reverse=True) or [delays[0]]
+    out: list[CandidateFit] = []
+    for name in names:
+        previous: tuple[float, ...] = ()
+        fastest = 0.0
+        for d in near:
+            first = _candidate(recs, first_rows(segments[d], HIGHER_FIRST_ROWS), d, name, refine=False,
+                               starts=[previous] if previous else [])
+            if first.residuals is None or not first.start:
+                continue
+            previous = first.start
+            tau = 1.0 / first.start[1]
+            fastest = max(fastest, tau)
+            if tau >= MIN_TAU_SAMPLES * h:
+                out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
+        if not out and fastest:
+            notes.append(f"{name} not a candidate: its fit finds the second pole faster than {MIN_TAU_SAMPLES:g} "
+                         f"sample (tau_e {fastest:.2g} s at most): a lag that short is part of a sample's delay "
+                         "at this sample period; a faster sample rate would show it")
+    return out
 
 
 def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:
@@ -309,25 +368,43 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     >>> est.selection["chosen"]["structure"], est.selection["clear"]
     ('linear', True)
     """
-    from .methods import method_function
     recs = as_recordings(recordings)
     check_excitation(recs, 2)
-    selection = select_model(recs, structures=structures, input_delay=input_delay, fix_bias=fix_bias)
+    swept = _counts_swept(recs)
+    few_note = ""
+    if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a second pole from their rounding
+        wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
+        higher = [s for s in wanted if s in STRUCTURES and STRUCTURES[s].rank > 0]
+        if higher:
+            structures = [s for s in wanted if s not in higher]
+            few_note = (f"{', '.join(higher)} not fitted: the encoder sweeps only {swept:.0f} counts, whose rounding "
+                        "a second pole would fit as well as any motor")
+    selection, edge = _select_widening(recs, structures, input_delay, fix_bias)
+    est = _chosen_fit(recs, selection.chosen, fix_bias)
+    checks: dict[str, float] = {}
+    if any(n.startswith(SCREENED_OUT + ":") for n in selection.notes) and STRUCTURES[est.structure].linear:
+        # no screen overrules a fit: friction left out by the screen is fitted after all when the chosen
+        # model's own residuals correlate with the sign of its speed
+        checks = residual_checks(est, recs[0])
+        if checks["sign_p"] < SIGN_LEVEL:
+            label = selection.chosen.label
+            selection, edge = _select_widening(recs, structures, input_delay, fix_bias, screen=False)
+            selection = dataclasses.replace(selection, notes=(*selection.notes, (
+                f"friction and dead zone fitted after all: the screen found no sign of them, but the {label} "
+                f"model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g})")))
+            est = _chosen_fit(recs, selection.chosen, fix_bias)
+            checks = residual_checks(est, recs[0]) if STRUCTURES[est.structure].linear else {}
+    if few_note:
+        selection = dataclasses.replace(selection, notes=(*selection.notes, few_note))
     chosen = selection.chosen
-    options = chosen.options()
-    if chosen.method == "oe-friction" and fix_bias:
-        options["fix_bias"] = True
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)      # the selection says it once, in its notes
-        est = method_function(chosen.method)(recs, **options)
     # on a handful of encoder counts the residual is the rounding of those counts, not noise: the
     # test's variance means little there, so every candidate whose residual sum is as small (within
     # CLOSE of the best's) is one the data cannot rule out
-    swept = _counts_swept(recs)
     few = swept < MIN_COUNTS_SWEPT
     # and the amplitude itself is known to one count of those swept: a floor under every interval
     resolution = 1.0 / swept if few and swept > 0 else 0.0
-    least = min((c.residual_sum for c in selection.candidates if math.isfinite(c.residual_sum)), default=math.nan)
+    least = min((c.residual_sum for c in selection.candidates if math.isfinite(c.residual_sum)
+                 and STRUCTURES[c.structure].rank == 0), default=math.nan)
     within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
     ci = est.confidence_interval(0.95)
@@ -338,9 +415,69 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    if edge:
+        selection = dataclasses.replace(selection, clear=False, doubt=edge + (
+            f"; {selection.doubt}" if selection.doubt else ""))
     selection = dataclasses.replace(selection, notes=tuple(notes))
-    return dataclasses.replace(est, selection=selection.to_dict(), notes=tuple(
+    if checks and checks.get("sign_p", 1.0) < SIGN_LEVEL and STRUCTURES[selection.chosen.structure].linear:
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
+            "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
+    found = selection.to_dict()
+    if checks:
+        found["residual_checks"] = checks
+    return dataclasses.replace(est, selection=found, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
+
+
+#: The longest input delay, in samples, the default searches when the best delay is at the top of the range
+#: (fewer on short data: at least 20 rows per delay).
+LARGEST_DELAY = 250
+
+
+def _select_widening(recs: list[Recording], structures: Sequence[str] | None, input_delay: int | str,
+                     fix_bias: bool, screen: bool = True) -> tuple[Selection, str]:
+    """:func:`select_model`, its delay range doubled while the best or the chosen delay is at its top (as far
+    as :data:`LARGEST_DELAY` and the data allow); and the doubt when the choice is still at the top ("" if not).
+    """
+    max_delay = MAX_AUTO_DELAY
+    widened = False
+    while True:
+        selection = select_model(recs, structures=structures, input_delay=input_delay, max_delay=max_delay,
+                                 fix_bias=fix_bias, screen=screen)
+        if input_delay != "auto":
+            return selection, ""
+        top = max(largest_delay(recs, max_delay), _declared_delay(recs))
+        first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
+                       math.isfinite(c.residual_sum)]
+        best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
+        at_top = top in (selection.chosen.input_delay, selection.best.input_delay, best_first.input_delay)
+        limit = largest_delay(recs, LARGEST_DELAY)
+        if not at_top or top >= limit:
+            break
+        max_delay = min(2 * max_delay, limit)
+        widened = True
+    notes = list(selection.notes)
+    if widened:
+        notes.append(f"input delays searched up to {top} samples ({top * recs[0].sample_period:.6g} s): the best "
+                     f"delay was at the top of the usual range (0-{MAX_AUTO_DELAY})")
+    selection = dataclasses.replace(selection, notes=tuple(notes))
+    if selection.chosen.input_delay == top and top > 0:
+        return selection, (f"the chosen delay, {top} samples, is the longest searched"
+                           f"{' (the data allow no longer one)' if top >= limit else ''}: the true delay may be "
+                           "longer, so this is not a clear choice; record longer, or pass --input-delay N")
+    return selection, ""
+
+
+def _chosen_fit(recs: list[Recording], chosen: Candidate, fix_bias: bool) -> Estimate:
+    """The chosen candidate fitted on all rows by its own method."""
+    from .methods import method_function
+    options = chosen.options()
+    if chosen.method == "oe-friction" and fix_bias:
+        options["fix_bias"] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # the selection says it once, in its notes
+        return method_function(chosen.method)(recs, **options)
 
 
 def _widen(est: Estimate, chosen: Candidate, material: list[Candidate],
@@ -385,6 +522,10 @@ def _counts_swept(recs: list[Recording]) -> float:
 def _data_notes(recs: list[Recording], est: Estimate, swept: float) -> list[str]:
     """What the recordings cannot answer, said plainly (saturation, one amplitude, few counts, a too slow input)."""
     notes = []
+    found = sorted({r.metadata["speed_from_counts"] for r in recs if "speed_from_counts" in r.metadata})
+    if found:
+        notes.append(f"the speed column is a backward difference of encoder counts ({'; '.join(found)}): "
+                     "fitted as the counts it differences (identify.data.counts_behind_speed)")
     saturated = saturation_note(recs)      # counted, and kept in the fit: its docstring says why
     if saturated:
         notes.append(saturated)

@@ -20,11 +20,11 @@ from typing import Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
-from motorsim.plant import Motor, simulate
+from motorsim.plant import Motor, delay_at, simulate
 from motorsim.recording import Recording
 from motorsim.sensors import backward_difference
 
-from .data import MIN_SEGMENT_SAMPLES, Segment, prepare_segments, residual_unit
+from .data import MIN_SEGMENT_SAMPLES, Segment, counts_behind_speed, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .model_structures.first_order import INITIAL_WINDOW_TIME_CONSTANTS
@@ -184,9 +184,16 @@ def model_output(estimate: Estimate, recording: Recording) -> tuple[np.ndarray, 
 
 
 def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.ndarray]]:
-    """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`)."""
+    """Every segment of ``recording`` with the estimate's output on it (:func:`_segment_model`); a speed column
+    that differences encoder counts as the counts, as the estimators see it
+    (:func:`identify.data.counts_behind_speed`).
+
+    The estimate's input delay is a time: counted at the recording's sample period (refused
+    when it is not a whole number of its samples, :func:`motorsim.plant.delay_at`).
+    """
+    delay = delay_at(estimate.input_delay, estimate.sample_period, recording.sample_period)
     return [(seg, _segment_model(estimate, seg))
-            for seg in prepare_segments([recording], estimate.input_delay)]
+            for seg in prepare_segments([counts_behind_speed(recording) or recording], delay)]
 
 
 def _speeds(n: int, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

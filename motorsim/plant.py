@@ -29,7 +29,8 @@ from .recursion import first_order_filter
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "RECURSION_RTOL"]
+__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL",
+           "lag_coefficients", "lag_response", "LagResponse"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +53,10 @@ class Motor:
         outside it the drive is ``u - sign(u) dead_zone``.
     input_delay : int, optional
         Whole samples between a duty being commanded and reaching the motor, >= 0.
+    electrical_time_constant : float, optional
+        Time constant ``tau_e`` in s of a first-order lag between the drive and the motor's torque
+        (the winding's ``L/R``, a driver's filter), >= 0 (default 0: none).  With it the linear
+        part is ``b / ((s + a)(tau_e s + 1))``; not combined with Coulomb friction.
     """
 
     a: float = knob(unit="1/s", help="pole a of d omega/dt + a omega = b u, > 0")
@@ -60,6 +65,8 @@ class Motor:
     bias: float = knob(0.0, unit="rad/s^2", help="constant acceleration d (driver offset, load)")
     dead_zone: float = knob(0.0, unit="duty", help="duty magnitude the driver does not deliver, >= 0")
     input_delay: int = knob(0, unit="samples", help="whole samples between command and motor, >= 0")
+    electrical_time_constant: float = knob(0.0, unit="s", help="time constant of the lag between the drive and "
+                                           "the torque (electrical pole 1/tau_e), >= 0")
 
     def __post_init__(self):
         object.__setattr__(self, "a", check_real("a", self.a, positive=True))
@@ -71,6 +78,12 @@ class Motor:
         object.__setattr__(self, "bias", check_real("bias", self.bias))
         object.__setattr__(self, "dead_zone", check_real("dead_zone", self.dead_zone, nonnegative=True))
         object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, 0, 10**6))
+        tau = check_real("electrical_time_constant", self.electrical_time_constant, nonnegative=True)
+        object.__setattr__(self, "electrical_time_constant", tau)
+        if tau > 0 and self.friction > 0:
+            raise ParameterError(f"electrical_time_constant must be 0 when friction is set (the simulator does not "
+                                 f"combine a lag with Coulomb friction), got {self.electrical_time_constant!r} s "
+                                 f"with friction {self.friction!r}")
 
     @property
     def is_linear(self) -> bool:
@@ -83,13 +96,22 @@ class Motor:
         return self.b / self.a
 
     def transfer_function(self) -> control.TransferFunction:
-        """``b / (s + a)`` from duty to speed (delay and non-idealities omitted)."""
+        """``b / (s + a)`` from duty to speed (``b / ((s + a)(tau_e s + 1))`` with an electrical time
+        constant; delay and non-idealities omitted)."""
         import control
-        return control.tf([self.b], [1.0, self.a])
+        tau = self.electrical_time_constant
+        return control.tf([self.b], [tau, 1.0 + tau * self.a, self.a] if tau else [1.0, self.a])
 
     def state_space(self) -> control.StateSpace:
-        """States ``[angle, speed]``, input duty, outputs ``[angle, speed]`` (linear part)."""
+        """States ``[angle, speed]`` (and ``current``, in input units, with an electrical time constant),
+        input duty, outputs ``[angle, speed]`` (linear part)."""
         import control
+        tau = self.electrical_time_constant
+        if tau:
+            A3 = [[0.0, 1.0, 0.0], [0.0, -self.a, self.b], [0.0, 0.0, -1.0 / tau]]
+            C3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+            return control.ss(A3, [[0.0], [0.0], [1.0 / tau]], C3, np.zeros((2, 1)),
+                              states=["angle", "speed", "current"], inputs=["duty"], outputs=["angle", "speed"])
         A = [[0.0, 1.0], [0.0, -self.a]]
         B = [[0.0], [self.b]]
         return control.ss(A, B, np.eye(2), np.zeros((2, 1)),
@@ -141,6 +163,53 @@ def zoh_matrices(a: float, b: float, h) -> tuple:
     p = one_minus / a
     q = b / a * (h - p)
     return e, g, p, q
+
+
+def delay_at(input_delay: int, sample_period: float, new_sample_period: float) -> int:
+    """The input delay of ``input_delay`` samples at ``sample_period``, in samples at ``new_sample_period``.
+
+    A delay is a time: ``input_delay sample_period`` seconds, the same at every sample period.
+    It is kept exactly or refused: a time that is not a whole number of the new samples (to a
+    relative 1e-6) has no delay line at that sample period, and rounding it would design or
+    judge a different motor.
+
+    Parameters
+    ----------
+    input_delay : int
+        Delay in samples at ``sample_period``, >= 0.
+    sample_period : float
+        The sample period the delay was counted at, in s, > 0.
+    new_sample_period : float
+        The sample period to count it at, in s, > 0.
+
+    Raises
+    ------
+    motorsim.checks.ParameterError
+        The delay is not a whole number of samples at ``new_sample_period``.
+
+    Examples
+    --------
+    >>> delay_at(4, 0.005, 0.001)          # 20 ms
+    20
+    >>> delay_at(1, 0.005, 0.002)          # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    motorsim.checks.ParameterError: input_delay 1 sample at 0.005 s (0.005 s) is 2.5 samples at 0.002 s, ...
+    """
+    input_delay = check_int("input_delay", input_delay, 0, 10**6)
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    new_sample_period = check_real("new_sample_period", new_sample_period, positive=True)
+    if input_delay == 0 or new_sample_period == sample_period:
+        return input_delay
+    samples = input_delay * sample_period / new_sample_period
+    whole = round(samples)
+    if whole < 1 or abs(samples - whole) > 1e-6 * samples:
+        seconds = input_delay * sample_period
+        plural = "" if input_delay == 1 else "s"
+        raise ParameterError(f"input_delay {input_delay} sample{plural} at {sample_period!r} s "
+                             f"({seconds:.6g} s) is {samples:.6g} samples at {new_sample_period!r} s, not a whole "
+                             f"number: choose a sample period that divides {seconds:.6g} s (e.g. {sample_period!r} s)")
+    return int(whole)
 
 
 def delayed_duty(duty: np.ndarray, delay: int, before: float) -> np.ndarray:
@@ -201,6 +270,10 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     if n == 0:
         return Trajectory(t, angle, speed)
     angle[0], speed[0] = initial_angle, initial_speed
+    if motor.electrical_time_constant > 0:
+        run = lag_response(motor.a, motor.b, 1.0 / motor.electrical_time_constant, motor.bias, np.append(v, 0.0), t,
+                           initial_speed=initial_speed, initial_current=float(motor.drive(np.array([duty_before]))[0]))
+        return Trajectory(t, run.angle + initial_angle, run.speed)
     if motor.friction == 0:
         drive = v + motor.bias / motor.b if motor.bias else v
         if _nearly_uniform_zoh(motor.a, motor.b, h, drive, speed, angle):
@@ -213,6 +286,92 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     friction_run(float(motor.a), motor.b * np.asarray(v, dtype=float) + motor.bias, float(motor.friction), h,
                  speed, angle)
     return Trajectory(t, angle, speed)
+
+
+def lag_coefficients(a: float, c: float, h) -> tuple:
+    """Closed-form ZOH coefficients of the motor behind a first-order electrical lag, intervals ``h``.
+
+    The drive ``v`` reaches the motor through ``di/dt = c (v - i)`` (``c = 1/tau_e``), and
+    ``d omega/dt = -a omega + b i + d``.  Over an interval with ``v`` held:
+    ``i' = e_c i + (1 - e_c) v`` and, with ``e_a = exp(-a h)``,
+
+    ``omega' = e_a omega + (1 - e_a)/a (b v + d) + b q (i - v)``,
+    ``angle' = angle + p omega + r (b v + d) + b s (i - v)``
+
+    where ``q = (e_c - e_a)/(a - c)``, ``p = (1 - e_a)/a``, ``r = (h - p)/a`` and
+    ``s = ((1 - e_c)/c - p)/(a - c)`` (the integral of ``q`` over the interval).  Near ``a = c``
+    both quotients are taken in the form that keeps their limits exact
+    (``q -> h e_a``, ``s -> (p - h e_a)/a``).
+
+    Returns
+    -------
+    e_a, e_c, p, r, q, s : ndarray or float
+    """
+    h = np.asarray(h, dtype=float)
+    e_a = np.exp(-a * h)
+    e_c = np.exp(-c * h)
+    p = -np.expm1(-a * h) / a
+    r = (h - p) / a
+    x = (a - c) * h
+    small = np.abs(x) < 1e-5
+    # q = e_a h expm1(x)/x; the series 1 + x/2 + x^2/6 where x is small
+    phi = np.where(small, 1 + x / 2 + x * x / 6, np.expm1(x) / np.where(small, 1.0, x))
+    q = e_a * h * phi
+    # s = integral of q: (F(c) - F(a))/(a - c) with F(y) = (1 - exp(-y h))/y; near a = c, -F'(m) at the midpoint
+    m = 0.5 * (a + c)
+    f_c = -np.expm1(-c * h) / c
+    deriv = (h * np.exp(-m * h) * m + np.expm1(-m * h)) / (m * m)          # F'(m)
+    s = np.where(small, -deriv, (f_c - p) / np.where(small, 1.0, a - c))
+    return e_a, e_c, p, r, q, s
+
+
+@dataclasses.dataclass(frozen=True)
+class LagResponse:
+    """:func:`lag_response`'s run: angle (rad, from 0), speed (rad/s) and current (input units) at each instant."""
+
+    angle: np.ndarray
+    speed: np.ndarray
+    current: np.ndarray
+
+
+def lag_response(a: float, b: float, c: float, bias: float, drive, time, *, initial_speed: float = 0.0,
+                 initial_current: float = 0.0) -> LagResponse:
+    """Exact ZOH run of the motor behind an electrical lag (:func:`lag_coefficients`).
+
+    Parameters
+    ----------
+    a, b : float
+        The motor's pole (1/s) and gain.
+    c : float
+        The electrical pole ``1/tau_e`` in 1/s, > 0.
+    bias : float
+        Constant acceleration ``d`` in rad/s^2.
+    drive : array_like, shape (n,)
+        ``drive[k]`` held from ``time[k]`` to ``time[k+1]`` (the last is not used).
+    time : array_like, shape (n,)
+        Strictly increasing instants in s.
+    initial_speed, initial_current : float
+        State at ``time[0]`` (the current in input units: the drive it has settled to).
+
+    Returns
+    -------
+    LagResponse
+    """
+    v = np.asarray(drive, dtype=float)[:-1]
+    t = np.asarray(time, dtype=float)
+    n = len(t)
+    speed, current, angle = np.empty(n), np.empty(n), np.zeros(n)
+    if n == 0:
+        return LagResponse(angle, speed, current)
+    h = np.diff(t)
+    e_a, e_c, p, r, q, s = lag_coefficients(a, c, h)
+    current[0], speed[0] = initial_current, initial_speed
+    _linear_recursion(np.broadcast_to(e_c, h.shape).copy(), (1 - e_c) * v, current, initial_current)
+    lag = current[:-1] - v
+    force = p * (b * v + bias) + b * q * lag
+    _linear_recursion(np.broadcast_to(e_a, h.shape).copy(), force, speed, initial_speed)
+    np.cumsum(p * speed[:-1] + r * (b * v + bias) + b * s * lag, out=angle[1:])
+    return LagResponse(angle, speed, current)
 
 
 #: Largest relative spread of the per-interval decay factors ``exp(-a h_k)`` that the

@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
 
@@ -492,11 +493,5 @@ _MOVED = {"read_recording": "motorsim.reading", "MAX_RECORDING_BYTES": "motorsim
           "write_recording": "motorsim.writing", "RecordingWriter": "motorsim.writing"}
 
 
-def __getattr__(name: str):
-    # imported when asked, so that the reading and writing modules can import this one
-    if name in _MOVED:
-        import importlib
-        warnings.warn(f"motorsim.recording.{name} moved to {_MOVED[name]}.{name} (or motorsim.{name}); "
-                      "the old name goes in the next release", DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'motorsim.recording' has no attribute {name!r}")
+# imported when asked, so that the reading and writing modules can import this one
+__getattr__, __dir__ = lazy_attributes(__name__, moved=_MOVED, hint=" (or motorsim.{name})")

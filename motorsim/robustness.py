@@ -10,7 +10,10 @@ against ``control.stability_margins`` on the same loop).
 normal distribution with the estimate's covariance (a seeded Monte Carlo: ``rng`` is a
 ``numpy.random.Generator``; it is a sample, not a guaranteed bound), and reports the worst case
 and a percentile of the predicted tracking RMS and of the margins, the share of draws whose loop
-is unstable or badly damped, and warnings.  :func:`robust_design` tunes a controller's knob
+is unstable or badly damped, and warnings.  The draws are made once, never again: a draw with
+``a <= 0`` (no motor of this model) is left out and counted, and a draw whose ``b`` has the other
+sign than the model's (the uncertainty does not know the motor's direction) is analysed as the
+plant it is, counted, and warned of.  :func:`robust_design` tunes a controller's knob
 (``duty_weight`` of ``mpc``, ``time_constant`` of ``pi`` and ``position``) to the best worst-case
 tracking RMS over the same draws instead of the point estimate.
 """
@@ -27,8 +30,8 @@ from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import Controller, DesignLimitWarning, PlantModel, Reference, design_controller
 from .margins import Margins, discrete_margins
 
-__all__ = ["Margins", "Robustness", "loop_margins", "analyse_robustness", "robust_design", "draw_models",
-           "BADLY_DAMPED", "ROBUST_KNOB"]
+__all__ = ["Margins", "Robustness", "ModelDraws", "loop_margins", "analyse_robustness", "robust_design",
+           "draw_models", "BADLY_DAMPED", "ROBUST_KNOB"]
 
 #: A closed-loop pole whose damping ratio (of its continuous equivalent ``log(z) / h``) is below
 #: this makes a loop badly damped.
@@ -111,9 +114,13 @@ class Robustness:
         Shares of the draws whose closed loop is unstable, or has a pole with damping ratio
         below :data:`BADLY_DAMPED`.
     n_draws : int
-        Plants drawn.
+        Plants analysed (drawn and kept).
     method : str
         How the interval was explored (a seeded Monte Carlo over the covariance).
+    n_rejected : int
+        Plants drawn with ``a <= 0`` and left out (no motor of this model has them).
+    other_sign : float
+        Share of the plants analysed whose ``b`` has the other sign than the model's.
     """
 
     point: Margins
@@ -128,6 +135,13 @@ class Robustness:
     badly_damped: float
     n_draws: int
     method: str
+    n_rejected: int = 0
+    other_sign: float = 0.0
+
+    @property
+    def rejected(self) -> float:
+        """Share of the plants drawn that were left out (``a <= 0``)."""
+        return self.n_rejected / (self.n_draws + self.n_rejected)
 
     def warnings(self) -> list[str]:
         """What a user should know before trusting the design."""
@@ -141,12 +155,45 @@ class Robustness:
         if self.badly_damped > 0:
             out.append(f"{100 * self.badly_damped:.3g} % of the plants within the model's uncertainty give a "
                        f"badly damped loop (a closed-loop pole with damping ratio below {BADLY_DAMPED:g})")
+        if self.other_sign > 0:
+            out.append(f"{100 * self.other_sign:.3g} % of the plants within the model's uncertainty have b of the "
+                       "other sign: the model does not know which way the motor turns, so no design from it is "
+                       "robust; identify the motor more precisely (a longer or stronger excitation)")
+        if self.n_rejected:
+            out.append(f"{100 * self.rejected:.3g} % of the plants drawn ({self.n_rejected} of "
+                       f"{self.n_draws + self.n_rejected}) have a <= 0, which no motor of this model has: they are "
+                       "left out, and the shares above are of the others; the model's a is barely known")
         return out
 
 
+@dataclasses.dataclass(frozen=True)
+class ModelDraws(Sequence[PlantModel]):
+    """Plants drawn from a model's covariance, and what the draw left out (a sequence of the plants kept).
+
+    Attributes
+    ----------
+    models : tuple of PlantModel
+        The plants kept (``a > 0``, ``b`` nonzero).
+    n_rejected : int
+        Draws left out: ``a <= 0``, or a ``b`` of exactly 0 (no motor of this model).
+    n_other_sign : int
+        Plants kept whose ``b`` has the other sign than the model's.
+    """
+
+    models: tuple[PlantModel, ...]
+    n_rejected: int = 0
+    n_other_sign: int = 0
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __getitem__(self, index):
+        return self.models[index]
+
+
 def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator
-                ) -> list[PlantModel]:
-    """Plants with ``(a, b)`` drawn from a normal distribution around ``model``'s.
+                ) -> ModelDraws:
+    """Plants with ``(a, b)`` drawn from a normal distribution around ``model``'s, drawn once.
 
     Parameters
     ----------
@@ -155,9 +202,17 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     covariance : array_like, shape (2, 2)
         Covariance of ``(a, b)``, in (1/s)^2, (1/s)((rad/s^2)/duty), ((rad/s^2)/duty)^2.
     n_draws : int
-        Plants to draw; draws with ``a <= 0`` or ``b <= 0`` are drawn again.
+        Plants to draw, once: a draw with ``a <= 0`` is left out and counted (``n_rejected``), one
+        whose ``b`` has the other sign than the model's is kept and counted (``n_other_sign``).
     rng : numpy.random.Generator
         The source of randomness.
+
+    Examples
+    --------
+    >>> draws = draw_models(PlantModel(25.0, -3.0, 0.005, 16667), [[1.0, 0.0], [0.0, 4.0]], 1000,
+    ...                     np.random.default_rng(0))        # a motor wired backwards, b barely known
+    >>> len(draws) + draws.n_rejected, 0.05 < draws.n_other_sign / len(draws) < 0.1   # P(b > 0) = 6.7 %
+    (1000, True)
     """
     cov = np.asarray(covariance, dtype=float)
     if cov.shape != (2, 2) or not np.all(np.isfinite(cov)):
@@ -165,12 +220,11 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     n_draws = check_int("n_draws", n_draws, 1, 10**6)
     if not isinstance(rng, np.random.Generator):
         raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
-    out: list[PlantModel] = []
-    while len(out) < n_draws:
-        for a, b in rng.multivariate_normal([model.a, model.b], cov, size=n_draws - len(out)):
-            if a > 0 and b > 0:
-                out.append(dataclasses.replace(model, a=float(a), b=float(b)))
-    return out
+    ab = rng.multivariate_normal([model.a, model.b], cov, size=n_draws)
+    keep = (ab[:, 0] > 0) & (ab[:, 1] != 0)
+    out = tuple(dataclasses.replace(model, a=float(a), b=float(b)) for a, b in ab[keep])
+    other = int(np.sum(np.sign(ab[keep, 1]) != np.sign(model.b)))
+    return ModelDraws(out, n_rejected=int(n_draws - keep.sum()), n_other_sign=other)
 
 
 def _draw_rms(controller: Controller, model: PlantModel, r_ahead: np.ndarray, ref: np.ndarray,
@@ -214,7 +268,8 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
     rng : numpy.random.Generator
         The source of the draws (seed it for a reproducible analysis).
     models : sequence of PlantModel, optional
-        Plants to use instead of drawing (e.g. the same draws for several designs).
+        Plants to use instead of drawing (e.g. the same draws for several designs); the
+        :class:`ModelDraws` of :func:`draw_models` bring what their draw left out.
 
     Returns
     -------
@@ -234,7 +289,13 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
     if not 0.0 <= percentile <= 100.0:
         raise ParameterError(f"percentile must be in 0...100 %, got {percentile!r}")
     model = controller.model
-    draws = list(models) if models is not None else draw_models(model, covariance, n_draws, rng)
+    drawn = models if models is not None else draw_models(model, covariance, n_draws, rng)
+    draws = list(drawn)
+    n_rejected = drawn.n_rejected if isinstance(drawn, ModelDraws) else 0
+    if not draws:
+        raise ParameterError(f"no plant to analyse: all {n_rejected} plants drawn from the covariance have a <= 0; "
+                             "the model's a is not known well enough for a robustness analysis")
+    other = sum(np.sign(m.b) != np.sign(model.b) for m in draws)
     h = model.sample_period
     n = int(round(duration / h))
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
@@ -261,9 +322,10 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         worst_phase_margin=float(min(g.phase_margin for g in margins)),
         worst_delay_margin=float(min(g.delay_margin for g in margins)),
         percentile=percentile, unstable=unstable / len(draws), badly_damped=damped / len(draws),
-        n_draws=len(draws),
+        n_draws=len(draws), n_rejected=n_rejected, other_sign=other / len(draws),
         method=f"Monte Carlo: {len(draws)} plants (a, b) drawn from a normal distribution with the model's "
-               "covariance (seeded), not a guaranteed bound")
+               "covariance (seeded)" + (f", {n_rejected} more with a <= 0 left out" if n_rejected else "")
+               + ", not a guaranteed bound")
 
 
 def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, reference: Reference, duration: float, *,

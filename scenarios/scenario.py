@@ -204,7 +204,8 @@ class Scenario:
     grid : tuple of (str, tuple)
         Axes in file order, each ``("section.key", values)``.
     methods : tuple of str
-        Estimator names (``identify.available_methods()`` when the file says ``"all"``).
+        Estimator names (``identify.available_methods(open_loop=True, first_order=True)`` when the file
+        says ``"all"``).
     repetitions : int
         Monte Carlo repetitions per grid point, >= 1.
     seed : int
@@ -294,7 +295,7 @@ def _check_count(name: str, value: Any, lo: int = 1) -> int:
 def _check_methods(methods) -> tuple[str, ...]:
     from identify import available_methods
     if methods == "all":
-        return tuple(available_methods(open_loop=True))
+        return tuple(available_methods(open_loop=True, first_order=True))
     if isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not methods:
         raise ScenarioError(f"methods must be \"all\" or a non-empty list of names, got {methods!r}")
     for m in methods:

@@ -44,6 +44,10 @@ SLOW = {
         "2.9 s: one matrix exponential per interval",
     "tests/hardware/test_serial_rig_fuzz.py::test_fuzz_any_corruption_gives_true_rows_or_a_typed_error":
         "2.3 s: 80 hypothesis examples",
+    "tests/identify/test_second_order.py::test_a_delay_past_ten_samples_is_searched_and_found":
+        "1.7-3 s each: the default's selection run again over 20 and 40 delays",
+    "tests/identify/test_second_order.py::test_a_twenty_sample_delay_on_a_prbs_is_found":
+        "3.3 s: the selection over 40 delays",
 }
 
 #: test id or module -> what it runs under the emulator

@@ -17,11 +17,12 @@ from motorsim.checks import ParameterError
 
 from .base import ModelStructure, Parameter
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias
+from .second_order import SecondOrder
 
 __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of"]
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
-REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone())
+REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), SecondOrder())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -36,7 +37,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     --------
     >>> import identify
     >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone']
+    ['linear', 'bias', 'friction', 'dead-zone', 'second-order']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """

@@ -95,6 +95,10 @@ class ModelStructure:
         the default screens the nonlinear ones.
     in_default : bool
         Whether the default estimator (``identify.fit`` with no method) considers it.
+    rank : int
+        0 for the first-order motor's family; a structure of a higher rank (a second pole) is
+        chosen by the default only where no candidate of a lower rank is within the noise of the
+        best: the data must show what it adds.
     """
 
     name: str = ""
@@ -105,6 +109,7 @@ class ModelStructure:
     options: Mapping[str, Any] = {}
     linear: bool = True
     in_default: bool = True
+    rank: int = 0
 
     @property
     def param_names(self) -> tuple[str, ...]:

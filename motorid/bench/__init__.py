@@ -12,6 +12,7 @@
 ``control``   :mod:`~motorid.bench.control`: closed-loop simulated runs against the open loop
 ``frequency`` :mod:`~motorid.bench.frequency`: the frequency response against scipy.signal csd/welch
 ``selection`` :mod:`~motorid.bench.selection`: the default (model chosen) against one ``oe`` fit and a CSV read
+``coverage``  :mod:`~motorid.bench.coverage`: how often the default's intervals hold plants known exactly
 ============= ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -92,6 +93,11 @@ def _selection(argv: Sequence[str]) -> int:
     return bench_selection(argv)
 
 
+def _coverage(argv: Sequence[str]) -> int:
+    from motorid.bench.coverage import bench_coverage
+    return bench_coverage(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -112,5 +118,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "selection": Benchmark(_selection, "the default fit (delay and structure chosen) and one oe-friction fit against "
                                        "one oe fit on 10^4 samples, with and without friction; identify FILE on a "
                                        "position-loop recording, and on 10^6 rows against pandas.read_csv"),
+    "coverage": Benchmark(_coverage, "the default's 95 per cent intervals on plants known exactly (an electrical lag, "
+                                     "a long delay, a differenced speed, friction): coverage over seeds"),
 }
 

@@ -542,7 +542,7 @@ def _section_closed_loop(args) -> bool:
              for loop, label in (("position", "P position, floored"), ("speed", "PI speed, differenced"))]
     loops += onboard_closed_loop_runs(a, b, dt, n * dt, cpr, onboard_runs, args.seed)
     ok = True
-    methods = available_methods()
+    methods = available_methods(first_order=True)
     for label, recs in loops:
         errs = {m: np.array([_closed_loop_errors(m, rec, a, b) for rec in recs]) * 100 for m in methods}
         mean = {m: np.nanmean(e, axis=0) for m, e in errs.items()}

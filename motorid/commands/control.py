@@ -37,10 +37,16 @@ from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 __all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_args", "model_from_args",
-           "load_model_file", "closed_loop_from_args", "require_duty_model",
+           "load_model_file", "closed_loop_from_args", "require_duty_model", "reference_from_args",
+           "refuse_controller_flags",
            "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
 
 DEFAULT_REFERENCE = "sine:10,10"
+#: Flags of :func:`add_controller_arguments` that only a controller uses (their ``dest``).
+CONTROLLER_FLAGS = ("reference", "model", "duty_weight", "time_constant", "integral_weight", "min_phase_margin",
+                    "feedforward", "derivative")
+#: Flags of :func:`add_model_arguments` (their ``dest``): the model a controller is designed from.
+MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay")
 
 
 def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
@@ -68,7 +74,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
                    help="pi: add the model's feedforward to the PI output")
     g.add_argument("--derivative", choices=("true", "false"), default=None,
                    help="position: use the speed term (PD, default true) or not (P)")
-    g.add_argument("--reference", default=DEFAULT_REFERENCE, metavar="KIND:ARGS",
+    g.add_argument("--reference", default=None, metavar="KIND:ARGS",
                    help="what to track, in rad/s (speed) or rad (position): constant:LEVEL, "
                         "step:AFTER[,AT_TIME[,BEFORE]], sine:FREQ,AMP[,PHASE][@OFFSET], multisine:F,A,P;..., "
                         f"trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME] (default {DEFAULT_REFERENCE})")
@@ -81,10 +87,37 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     m = parser.add_argument_group("model (what the controller is designed from)")
     m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
     m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
-    m.add_argument("--friction", type=float, default=0.0, help="Coulomb friction c in rad/s^2 (default 0)")
-    m.add_argument("--bias", type=float, default=0.0, help="constant acceleration d in rad/s^2 (default 0)")
-    m.add_argument("--input-delay", dest="input_delay", type=int, default=0,
+    m.add_argument("--friction", type=float, default=None, help="Coulomb friction c in rad/s^2 (default 0)")
+    m.add_argument("--bias", type=float, default=None, help="constant acceleration d in rad/s^2 (default 0)")
+    m.add_argument("--input-delay", dest="input_delay", type=int, default=None,
                    help="input delay in samples (default 0)")
+
+
+def refuse_controller_flags(args: argparse.Namespace, *, model_flags: bool = False) -> None:
+    """Refuse the controller's flags given without ``--controller``: the run is open loop and they would do nothing.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed flags of a command with :func:`add_controller_arguments`.
+    model_flags : bool
+        The command's ``--a/--b``, ``--friction``, ``--bias``, ``--input-delay`` are
+        :func:`add_model_arguments`' (the design model), not the bench's (default False).
+    """
+    if getattr(args, "controller", None):
+        return
+    given = [name for name in CONTROLLER_FLAGS + (MODEL_FLAGS if model_flags else ())
+             if getattr(args, name, None) is not None]
+    if given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise CommandError(f"{flags} {'applies' if len(given) == 1 else 'apply'} only with --controller: without "
+                           "it the run is open loop (the excitation); give --controller KIND, or leave "
+                           f"{'it' if len(given) == 1 else 'them'} out")
+
+
+def reference_from_args(args: argparse.Namespace) -> Reference:
+    """The ``--reference`` to track (default :data:`DEFAULT_REFERENCE`)."""
+    return parse_reference(DEFAULT_REFERENCE if args.reference is None else args.reference)
 
 
 def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int, *,
@@ -105,7 +138,7 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
                         f"{model.input_delay})")
         model = dataclasses.replace(model, input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
-    return ClosedLoopExperiment(controller, parse_reference(args.reference), args.duration, args.duty_limit)
+    return ClosedLoopExperiment(controller, reference_from_args(args), args.duration, args.duty_limit)
 
 
 def load_model_file(path: str) -> Any:
@@ -266,7 +299,7 @@ def run_control(args: argparse.Namespace) -> int:
                             f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")
     model = model_from_args(args)
     controller = controller_from_args(args, model)
-    reference = parse_reference(args.reference)
+    reference = reference_from_args(args)
     covariance = _ab_covariance(args)
     robustness = None
     if args.robust:
@@ -274,7 +307,8 @@ def run_control(args: argparse.Namespace) -> int:
     prediction = controller.predict(reference, args.duration)
     _, t_u = controller.closed_loop()
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
-          f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay}, dt = {model.sample_period:g} s, "
+          f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
+          f"({model.input_delay * model.sample_period:.6g} s), dt = {model.sample_period:g} s, "
           f"{model.counts_per_rev} counts/rev" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
     if unit == "duty":
@@ -378,6 +412,8 @@ def _print_robustness(args: argparse.Namespace, controller: Controller, covarian
           f"{unit} (point estimate {r.tracking_rms:.4g})")
     print(f"  smallest margins: gain {gm_text}, phase {r.worst_phase_margin:.3g} deg, "
           f"delay {r.worst_delay_margin * 1e3:.3g} ms; unstable {100 * r.unstable:.3g} %, "
-          f"badly damped {100 * r.badly_damped:.3g} %")
+          f"badly damped {100 * r.badly_damped:.3g} %"
+          + (f", b of the other sign {100 * r.other_sign:.3g} %" if r.other_sign else "")
+          + (f"; left out (a <= 0) {100 * r.rejected:.3g} % of the draws" if r.n_rejected else ""))
     for text in r.warnings():
         print(f"warning: {text}")

@@ -65,7 +65,7 @@ def run_article(rig: Rig, experiments: Sequence[Experiment], methods: Sequence[s
     A progress bar on stderr counts the runs and fits (``progress``: None draws it when stderr
     is a terminal, True or False force it).
     """
-    methods = list(methods or available_methods(open_loop=True))
+    methods = list(methods or available_methods(open_loop=True, first_order=True))
     recordings, rows = [], []
     with ProgressBar(len(experiments) * (1 + len(methods)), "demo", unit="steps", enabled=progress) as bar:
         for i, exp in enumerate(experiments, 1):

@@ -145,9 +145,10 @@ def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.protocol import DEVICE_INPUT_DELAY
     from identify.recursive import RunningEstimator
-
+    from motorid.commands.control import refuse_controller_flags
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
+    refuse_controller_flags(args, model_flags=True)     # before the port opens
     if args.out is None:
         args.out = default_out_path()
         print_to_stderr(f"recording to {args.out}")

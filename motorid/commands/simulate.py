@@ -39,6 +39,8 @@ def run_simulate(args: argparse.Namespace) -> int:
         check_memory(f"simulating {n:,.0f} samples", n * SIMULATE_BYTES_PER_SAMPLE, args.max_memory)
     if getattr(args, "controller", None):
         return _run_closed_loop(args)
+    from motorid.commands.control import refuse_controller_flags
+    refuse_controller_flags(args)      # --a/--b, --friction, ... are the bench's here
     rec = sim_rig_from_args(args).run(experiment_from_args(args))
     path = write_recording(rec, args.out)
     print(f"wrote {len(rec)} samples ({rec.metadata['excitation']}) to {path}")
@@ -46,14 +48,14 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def _run_closed_loop(args: argparse.Namespace) -> int:
-    from motorid.commands.control import controller_from_args, model_from_args, require_duty_model
-    from motorsim.control import ClosedLoopExperiment, parse_reference, tracking_error
+    from motorid.commands.control import controller_from_args, model_from_args, reference_from_args, require_duty_model
+    from motorsim.control import ClosedLoopExperiment, tracking_error
     given = [f"--{name}" for name in (*EXCITATION_FLAGS, "excitation") if getattr(args, name.replace("-", "_"), None)]
     if given:
         raise CommandError(f"{', '.join(given)} and --controller exclude each other: the controller sets the duty")
     require_duty_model(args)
     controller = controller_from_args(args, model_from_args(args))
-    reference = parse_reference(args.reference)
+    reference = reference_from_args(args)
     rec = sim_rig_from_args(args).run(ClosedLoopExperiment(controller, reference, args.duration, args.duty_limit))
     path = write_recording(rec, args.out)
     measured = float((tracking_error(rec) ** 2).mean() ** 0.5)

@@ -241,3 +241,76 @@ def test_a_saved_model_says_which_encoder_the_design_assumes(volt_model, capsys)
                  "1000"]) == 0
     captured = capsys.readouterr()
     assert "assuming" not in captured.err and "1000 counts/rev" in captured.out
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--reference", "step:5"], "--reference applies"),
+    (["--model", "m.json"], "--model applies"),
+    (["--time-constant", "0.1", "--duty-weight", "1e-3"], "--duty-weight, --time-constant apply"),
+    (["--integral-weight", "50"], "--integral-weight applies"),
+    (["--min-phase-margin", "45"], "--min-phase-margin applies"),
+    (["--feedforward"], "--feedforward applies"),
+    (["--derivative", "false"], "--derivative applies"),
+], ids=["reference", "model", "tuning", "integral-weight", "min-phase-margin", "feedforward", "derivative"])
+@pytest.mark.parametrize("command", [["simulate", "--a", "25", "--b", "3"], ["live", "--port", "fake://?a=25&b=3"]],
+                         ids=["simulate", "live"])
+def test_controller_flags_without_a_controller_are_refused_by_name(command, flags, named, tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main([*command, *flags, "--duration", "0.2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert named + " only with --controller" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flags, named", [(["--a", "25", "--b", "3"], "--a, --b apply"),
+                                          (["--friction", "0.5"], "--friction applies"),
+                                          (["--bias", "1"], "--bias applies"),
+                                          (["--input-delay", "1"], "--input-delay applies")],
+                         ids=["a-b", "friction", "bias", "input-delay"])
+def test_live_refuses_the_design_model_flags_without_a_controller(flags, named, tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["live", "--port", "fake://?a=25&b=3", *flags, "--duration", "0.2", "--out", str(out)]) == 2
+    assert named + " only with --controller" in capsys.readouterr().err and not out.exists()
+
+
+def test_simulate_keeps_its_bench_flags_and_the_default_reference_of_a_controller(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--friction", "0.5", "--input-delay", "1", "--duration", "0.2",
+                 "--out", str(out)]) == 0
+    assert main(["simulate", "--a", "25", "--b", "3", "--controller", "pi", "--duration", "0.2", "--out",
+                 str(out)]) == 0
+    assert read_recording(out).metadata["reference"] == "sine:10.0,10.0,0.0"
+
+
+@pytest.fixture(scope="module")
+def backwards_model(tmp_path_factory):
+    """A motor wired backwards (b = -3), identified correctly and saved."""
+    folder = tmp_path_factory.mktemp("backwards")
+    run, model = folder / "run.csv", folder / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "-3", "--duration", "4", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--method", "oe", "--input-delay", "0", "--save", str(model)]) == 0
+    return model
+
+
+@pytest.mark.parametrize("kind", ["pi", "lqr", "mpc"])
+def test_control_design_of_a_motor_wired_backwards_ends_robustly(backwards_model, kind, capsys):
+    assert main(["control", "design", "--model", str(backwards_model), "--controller", kind, "--robust",
+                 "--repetitions", "20", "--counts-per-rev", "16667"]) == 0
+    out = capsys.readouterr().out
+    assert "b = -3" in out and "unstable 0 %" in out and "warning:" not in out
+
+
+def test_control_design_says_when_the_uncertainty_does_not_know_the_motors_direction(backwards_model, tmp_path,
+                                                                                     capsys):
+    doc = json.loads(backwards_model.read_text())
+    doc["b"], doc["covariance"] = 3.0, [[1.0, 0.0], [0.0, 96.0]]      # P(b <= 0) = 38 %
+    wide = tmp_path / "wide.json"
+    wide.write_text(json.dumps(doc))
+    assert main(["control", "design", "--model", str(wide), "--controller", "pi", "--counts-per-rev", "16667"]) == 0
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if "smallest margins" in x)
+    other = float(line.split("b of the other sign ")[1].split(" %")[0])
+    unstable = float(line.split("unstable ")[1].split(" %")[0])
+    # 100 draws of a 38 % share: 4 binomial standard deviations (4.9 points each) either side
+    assert abs(other - 38) < 20 and unstable >= other
+    assert "warning: " in out and "does not know which way the motor turns" in out

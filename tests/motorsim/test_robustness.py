@@ -1,5 +1,7 @@
 """Margins of the designed loops against python-control, and the seeded Monte Carlo over the covariance."""
+import contextlib
 import dataclasses
+import signal
 
 import control
 import numpy as np
@@ -20,7 +22,7 @@ from motorsim.control import (
     parse_reference,
     tracking_error,
 )
-from motorsim.robustness import analyse_robustness, draw_models, loop_margins, robust_design
+from motorsim.robustness import ModelDraws, analyse_robustness, draw_models, loop_margins, robust_design
 
 MODELS = [PlantModel(25.0, 3.0, 0.005, 16667), PlantModel(25.0, 3.0, 0.005, 16667, input_delay=1)]
 #: ``pi-fast`` keeps the time constant asked for (no phase margin required): 6 degrees with the delay
@@ -104,3 +106,72 @@ def test_robust_design_refuses_a_controller_without_a_knob_and_a_bad_covariance(
                       rng=np.random.default_rng(0))
     with pytest.raises(ParameterError, match="covariance"):
         draw_models(MODELS[0], np.eye(3), 5, np.random.default_rng(0))
+
+
+class _StillRunning(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def _fails_instead_of_hanging(seconds: int = 60):
+    """Turn an endless loop into a failure (the draw used to redraw forever); not a speed check."""
+    def stop(signum, frame):
+        raise _StillRunning
+    previous = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    except _StillRunning:
+        pytest.fail(f"still running after {seconds} s: an endless loop", pytrace=False)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+BACKWARDS = PlantModel(25.0, -3.0, 0.005, 16667)        # a motor wired backwards, identified correctly
+
+
+@pytest.mark.parametrize("kind", ["pi", "lqr", "mpc"])
+def test_a_motor_wired_backwards_is_analysed_and_designed_robustly(kind):
+    with _fails_instead_of_hanging():
+        draws = draw_models(BACKWARDS, COVARIANCE, 30, np.random.default_rng(0))
+        controller, r = robust_design(kind, BACKWARDS, COVARIANCE, parse_reference("sine:10,10"), 1.0, n_draws=30,
+                                      rng=np.random.default_rng(0))
+    assert len(draws) == 30 and draws.n_rejected == draws.n_other_sign == 0 and all(m.b < 0 for m in draws)
+    assert controller.model.b == -3.0 and r.point.stable and r.unstable == 0 and r.other_sign == 0
+    assert not r.warnings()
+
+
+#: b = 3 with a standard deviation of 9.8: P(b <= 0) = Phi(-3 / 9.8) = 0.380
+ACROSS_ZERO = [[0.25, 0.0], [0.0, 96.0]]
+
+
+def test_draws_across_b_zero_are_analysed_as_the_plants_they_are_counted_and_warned_of():
+    n = 2000
+    draws = draw_models(MODELS[0], ACROSS_ZERO, n, np.random.default_rng(0))
+    # binomial share: 4 standard deviations, sqrt(0.38 * 0.62 / 2000) = 0.011 each
+    assert len(draws) == n and draws.n_other_sign / n == pytest.approx(0.380, abs=0.044)
+    pi = PISpeed(MODELS[0])
+    r = analyse_robustness(pi, ACROSS_ZERO, parse_reference("sine:10,10"), 0.5, rng=np.random.default_rng(0),
+                           models=draws[:200])
+    # a PI whose plant turned the other way integrates its error away from the reference: unstable
+    assert r.other_sign == pytest.approx(sum(m.b < 0 for m in draws[:200]) / 200)
+    assert r.unstable >= r.other_sign > 0.25 and np.isinf(r.worst_rms)
+    assert any("b of the other sign" in w and "not know which way" in w for w in r.warnings())
+
+
+def test_draws_with_a_at_or_below_zero_are_left_out_counted_and_warned_of():
+    model = PlantModel(0.5, 3.0, 0.005, 16667)
+    n = 2000
+    draws = draw_models(model, [[1.0, 0.0], [0.0, 0.01]], n, np.random.default_rng(0))
+    # P(a <= 0) = Phi(-0.5) = 0.309; 4 binomial standard deviations, 0.010 each
+    assert len(draws) + draws.n_rejected == n and draws.n_rejected / n == pytest.approx(0.309, abs=0.041)
+    assert all(m.a > 0 for m in draws)
+    few = ModelDraws(draws.models[:40], n_rejected=10)
+    r = analyse_robustness(PISpeed(model), None, parse_reference("sine:10,10"), 0.5, rng=np.random.default_rng(0),
+                           models=few)
+    assert r.n_draws == 40 and r.n_rejected == 10 and r.rejected == 0.2 and "10 more with a <= 0 left out" in r.method
+    assert any("20 % of the plants drawn (10 of 50) have a <= 0" in w for w in r.warnings())
+    with pytest.raises(ParameterError, match="all 7 plants drawn from the covariance have a <= 0"):
+        analyse_robustness(PISpeed(model), None, parse_reference("sine:10,10"), 0.5, rng=np.random.default_rng(0),
+                           models=ModelDraws((), n_rejected=7))

@@ -129,12 +129,12 @@ def test_failed_fits_are_counted_with_their_reason_not_dropped(tmp_path):
     summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = read_sweep_csv(summary.csv_path)
     dead = [r for r in rows if r["excitation"] == "constant:0"]
-    assert len(dead) == len(identify.available_methods(open_loop=True))
+    assert len(dead) == len(identify.available_methods(open_loop=True, first_order=True))
     for r in dead:
         assert r["successes"] == 0 and r["failures"] == 3
         assert "not persistently exciting" in r["failure_reasons"] and "(3)" in r["failure_reasons"]
         assert math.isnan(r["mean_a"])
-    assert summary.failures == {m: 3 for m in identify.available_methods(open_loop=True)}
+    assert summary.failures == {m: 3 for m in identify.available_methods(open_loop=True, first_order=True)}
 
 
 def test_estimators_are_found_by_name(monkeypatch, tmp_path):
@@ -148,7 +148,7 @@ def test_estimators_are_found_by_name(monkeypatch, tmp_path):
     data = {"repetitions": 3, "seed": 1, "bench": {"duration": 1.0, "angle_noise": 2e-4}}
     summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = {r["method"]: r for r in read_sweep_csv(summary.csv_path)}
-    assert set(rows) == set(identify.available_methods(open_loop=True))
+    assert set(rows) == set(identify.available_methods(open_loop=True, first_order=True))
     # the same data as the batched zoh-ls, shifted by exactly 1 (to rounding of the two fits)
     assert rows["shifted"]["mean_a"] == pytest.approx(rows["zoh-ls"]["mean_a"] + 1.0, rel=1e-9)
     assert rows["shifted"]["std_a"] == pytest.approx(rows["zoh-ls"]["std_a"], rel=1e-6)
