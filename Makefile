@@ -7,7 +7,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-EXTRAS ?= test,dask,lint,fast,docs
+EXTRAS ?= test,dask,lint,fast,docs,ros,wpilib
 
 .PHONY: demo test test-fast lint docs venv clean
 
@@ -39,12 +39,12 @@ lint: $(STAMP)
 # The documentation site, built from scratch: every page, example and command output re-run;
 # any warning fails the build.
 docs: $(STAMP)
-	rm -rf build/docs docs/auto_examples docs/reference/generated
+	rm -rf build/docs docs/auto_examples docs/reference/generated docs/_figures docs/sg_execution_times.rst
 	MPLBACKEND=Agg $(BIN)/python -m sphinx -b html -W --keep-going -q docs build/docs/html
 	@echo "docs: build/docs/html/index.html"
 
 clean:
-	rm -rf $(VENV) demo-output build docs/auto_examples docs/reference/generated *.egg-info .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) demo-output build docs/auto_examples docs/reference/generated docs/_figures *.egg-info .pytest_cache .mypy_cache .ruff_cache .hypothesis
 	rm -rf hardware/firmware/build hardware/sim/build
 
 # Firmware build and AVR emulation: firmware, avr-sim, firmware-deps; `test` needs them.

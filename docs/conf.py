@@ -21,6 +21,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",   # MathJax 3 copied into _static: the pages render math with no network
     "numpydoc",
     "myst_parser",
     "sphinxarg.ext",
@@ -50,6 +51,7 @@ sphinx_gallery_conf = {
     "remove_config_comments": True,
     "within_subsection_order": "FileNameSortKey",
     "image_scrapers": ("motorid_output.figure_scraper",),
+    "write_computation_times": False,   # a page of this machine's timings, and one that loads scripts from CDNs
 }
 
 html_theme = "pydata_sphinx_theme"
@@ -60,3 +62,24 @@ html_theme_options = {
 }
 html_static_path: list[str] = []
 nitpicky = False
+
+
+def _check_pages(app, exc):
+    """Fail the build when a page loads a script or style from another host (the site must work offline), or
+    when a guide page's section navigation (the left sidebar) lists no page."""
+    if exc is not None or app.builder.format != "html":
+        return
+    import re
+    remote = re.compile(r"""<(?:script|link)[^>]+(?:src|href)=["'](?:https?:)?//""")
+    for page in Path(app.outdir).rglob("*.html"):
+        text = page.read_text(encoding="utf-8", errors="replace")
+        if remote.search(text):
+            raise RuntimeError(f"{page.relative_to(app.outdir)} loads a script or style from the network; the "
+                               "docs must render offline")
+        nav = text.partition('class="bd-links__title"')[2].partition("</nav>")[0]
+        if page.parent.name == "guide" and "<a" not in nav:
+            raise RuntimeError(f"{page.relative_to(app.outdir)}: its section navigation lists no page")
+
+
+def setup(app):
+    app.connect("build-finished", _check_pages)

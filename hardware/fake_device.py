@@ -423,8 +423,12 @@ class FakeDevice:
         cfg = self._run_config
         while self._running:
             if self.speed == 0:
-                if self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE:
-                    return          # unpaced: wait for the host to read (lossless)
+                # unpaced: wait for the host to read (lossless). The queue counts samples: under load
+                # the pty takes a frame in pieces, and a byte count of a partly written queue reads one
+                # frame short of full (it dropped samples then)
+                if (self._queued_samples >= self.queue_size
+                        or self._unread_bytes() + len(self._out) >= self.queue_size * _SAMPLE_WIRE):
+                    return
             elif now < self._next_tick:
                 return
             k = self._k

@@ -109,6 +109,9 @@ class Estimate:
         Largest input magnitude the drive accepts, in ``input_unit`` (255 for duty on the bench,
         the recording's ``input_limit`` for a lab's file); None when unknown. Control design
         warns when a controller needs more.
+    speed_unit : str
+        The speed unit of the data the model was fitted to (``rpm``, ...; the recording's
+        ``speed_unit``), for showing results in it; every value here stays in rad/s.
     speed_residuals : tuple of ndarray, optional
         The fit's speed residual (measured minus model, rad/s) on each recording it was fitted on,
         in the order given, row by row exactly as :func:`identify.validation.model_output` gives it
@@ -134,6 +137,7 @@ class Estimate:
     notes: tuple[str, ...] = ()
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
+    speed_unit: str = "rad/s"
     speed_residuals: tuple[np.ndarray, ...] | None = dataclasses.field(default=None, repr=False)
     structure: str = ""
     input_delay: int = 0

@@ -31,10 +31,14 @@ Three estimators, chosen from the excitation recorded in the metadata (``method=
   sine at each frequency the device realised (or on the speed with an offset), the
   variance from the residual (Ljung, *System Identification*, 2nd ed. 1999, sec. 6.2, FRA).
   One run per frequency pools into one response.
-* ``welch`` (anything else: PRBS, chirp, steps, a lab's file): Hann-windowed segments with
+* ``welch`` (anything else: PRBS, chirp, a lab's file): Hann-windowed segments with
   half overlap, ``G = S_uy / S_uu``, coherence ``|S_uy|^2 / (S_uu S_yy)`` and the bound of
   Bendat & Piersol, *Random Data*, 4th ed. 2010, eq. 9.90; the resolution is one bin,
-  ``2 pi / (segment dt)``.
+  ``2 pi / (segment dt)``.  Only lines whose input power is spread over at least
+  :data:`MIN_SEGMENTS_PER_LINE` segments (the participation ratio ``(sum P)^2 / sum P^2`` of the
+  segments' input power at that line) are kept: a step's power, or the step of a sine plus a
+  step, sits in one or two segments, where the coherence is 1 by construction and the phase
+  unwraps to nonsense.  A run with no such line (a step, a constant) is refused with that reason.
 
 A noise-free coarse encoder under a periodic input rounds the same angles every period: that
 error repeats, so period-to-period variation cannot see it and the bound leaves it out (real
@@ -66,7 +70,7 @@ if TYPE_CHECKING:
     from .estimate import Estimate
 
 __all__ = ["FrequencyResponse", "ModelResponse", "frequency_response", "zoh_speed_response", "ESTIMATORS", "OUTPUTS",
-           "periodic_spectra", "excitation_of", "excitation_period"]
+           "periodic_spectra", "excitation_of", "excitation_period", "MIN_SEGMENTS_PER_LINE"]
 
 #: The estimators ``frequency_response(method=...)`` accepts.
 ESTIMATORS = ("auto", "periodic", "sines", "welch")
@@ -414,6 +418,14 @@ def _sines(rec: Recording, ex: Multisine, transient_periods: int) -> _Lines:
     return _Lines(omega, g, variance, np.full(len(omega), float(dof)), coherence, output, "sines")
 
 
+#: Least number of Welch segments (participation ratio of the input's power across them) a line's input power
+#: must come from for the line to be kept: fewer is a transient, whose coherence is 1 by construction.
+MIN_SEGMENTS_PER_LINE = 3.0
+#: A Welch line is kept only when its input power is at least this share of its larger neighbour's: a Hann
+#: window leaks a quarter of a line's power (half its amplitude) into each neighbour, with some margin.
+LEAKAGE_FRACTION = 0.3
+
+
 def _welch(rec: Recording, segment: int | None) -> _Lines:
     from scipy import signal
     _require_contiguous(rec, "a broadband (welch) estimate")
@@ -454,7 +466,28 @@ def _welch(rec: Recording, segment: int | None) -> _Lines:
         variance = np.where(coherence > 0, (1.0 - coherence) / coherence * np.abs(g) ** 2 / (n_eff - 1.0), np.inf)
     omega = 2.0 * math.pi * np.arange(segment // 2 + 1)[lines] / (segment * rec.sample_period)
     resolution = 2.0 * math.pi / (segment * rec.sample_period)
-    keep = ok & np.isfinite(variance)
+    # A line whose input power comes from a few segments only (a step, the step of a sine-plus-step, a
+    # chirp's edges) is a transient, not a stationary spectrum: its coherence is 1 by construction and
+    # its bound meaningless. Such lines are left out; a run that keeps none is refused.
+    power = np.abs(Uf[:, lines]) ** 2
+    carried = power.sum(axis=0) ** 2 / np.maximum((power ** 2).sum(axis=0), np.finfo(float).tiny)
+    # A line with less input power than a Hann window leaks into it from a neighbour (a quarter of the
+    # neighbour's) carries that neighbour's response, not its own: a sine's side bins.
+    total = suu
+    neighbour = np.maximum(np.r_[0.0, total[:-1]], np.r_[total[1:], 0.0])
+    own = total >= LEAKAGE_FRACTION * neighbour
+    keep = ok & np.isfinite(variance) & (carried >= MIN_SEGMENTS_PER_LINE) & own
+    if not keep.any() and not carried.any():
+        raise NotIdentifiableError("the input does not change within any segment (a constant, or a step at the "
+                                   "start): it excites no frequency; fit this run in the time domain with "
+                                   "motorid identify")
+    if not keep.any():
+        raise NotIdentifiableError(
+            f"the input is not stationary: at every frequency its power comes from fewer than "
+            f"{MIN_SEGMENTS_PER_LINE:g} of the {n_seg} segments (at most {float(carried.max(initial=0.0)):.2g}), "
+            "as a step or another transient gives; a frequency response needs an input that excites its "
+            "frequencies all along the run (a multisine, PRBS, sine or chirp): fit this run in the time domain "
+            "with motorid identify")
     return _Lines(omega[keep], g[keep], variance[keep], np.full(int(keep.sum()), 2.0 * (n_eff - 1.0)),
                   coherence[keep], output, "welch", resolution)
 

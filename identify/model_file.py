@@ -11,7 +11,8 @@ arguments of :class:`identify.Estimate`.  The document of format ``motorid estim
     param_names, covariance                   the covariance's order and rows (null where not finite)
     NAME_stderr, NAME_ci95                    per fitted parameter (the 95 % interval covers model_range)
     static_gain, fit_percent, n_samples, residual_rms, residual_unit, covariance_method
-    units, notes, selection, model_range, data_files, feedforward (derived: kS, kV, kA, k0)
+    units (``speed``: the unit of the data, for showing results in it), notes, selection, model_range,
+    data_files, feedforward (derived: kS, kV, kA, k0)
 
 Files of the first format (``motorid estimate v1``: further parameters and the delay nested
 under ``extra``) are read and migrated; the command line's ``--json`` output of either version
@@ -28,6 +29,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
+from motorsim.units import SPEED_UNITS
 
 __all__ = ["ESTIMATE_FORMAT", "READABLE_FORMATS", "MAX_ESTIMATE_BYTES", "estimate_document",
            "read_estimate_document", "estimate_fields", "json_ready", "file_sha256"]
@@ -62,7 +64,7 @@ def estimate_document(est: Any) -> dict:
         doc[f"{name}_ci95"] = list(ci[name])
     doc["units"] = {**est.model_structure().units(est.input_unit), "input": est.input_unit,
                     "input_delay": "samples", "input_delay_seconds": "s", "sample_period": "s",
-                    "residual_rms": est.residual_unit}
+                    "residual_rms": est.residual_unit, "speed": getattr(est, "speed_unit", "rad/s")}
     doc["notes"] = list(est.notes) + ([f"{_MISSING_NOTE}{missing}"] if missing else [])
     if est.selection is not None:
         doc["selection"] = est.selection
@@ -163,7 +165,7 @@ def estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
     else:
         structure, extra, delay = "", *_parameters_v1(f)
     units = f.get("units", dict, {})
-    for key in ("residual_rms", "input"):
+    for key in ("residual_rms", "input", "speed"):
         if not isinstance(units.get(key, ""), str):
             raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
     files = f.get("data_files", list, [])
@@ -186,7 +188,8 @@ def estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 selection=f.get("selection", (dict, type(None)), None),
                 notes=tuple(n for n in notes if not n.startswith(_MISSING_NOTE)),
                 model_range=_model_range(f.get("model_range", (dict, type(None)), None) or {}),
-                input_limit=_input_limit(f.get("input_limit", (int, float, type(None)), None)))
+                input_limit=_input_limit(f.get("input_limit", (int, float, type(None)), None)),
+                speed_unit=_speed_unit(units.get("speed", "rad/s")))
 
 
 def _parameters_v1(f: _Fields) -> tuple[dict[str, float], int]:
@@ -212,6 +215,12 @@ def _parameters_v2(f: _Fields, method: str, names: tuple[str, ...]) -> tuple[str
             extra[key] = f.real(key, f.get(key, (int, float, type(None))), finite=False)
     delay = check_int("estimate field 'input_delay'", f.get("input_delay", int, 0), lo=0, allow_integral_float=False)
     return found.name, extra, delay
+
+
+def _speed_unit(unit: str) -> str:
+    if unit not in SPEED_UNITS:
+        raise ParameterError(f"estimate field 'units.speed' must be one of {list(SPEED_UNITS)}, got {unit!r:.40}")
+    return unit
 
 
 def _input_limit(value: Any) -> float | None:

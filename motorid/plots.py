@@ -321,17 +321,21 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
         gain_ax.set_xlabel("ω [rad/s]")
         gain_ax.set_title(f"frequency response ({frequency_response.method}) and {estimate.method}", fontsize=9)
         gain_ax.legend(loc="lower left", fontsize=6, frameon=False)
+    from motorsim.units import SPEED_UNITS
+    unit = getattr(estimate, "speed_unit", "rad/s")        # the unit the data came in; the fit is in rad/s
+    per = 1.0 / SPEED_UNITS[unit]
     ax = fig.add_subplot(grid[0, :])
-    ax.plot(report.time, report.measured_speed, color="0.3", lw=0.8, label="measured ω")
-    ax.plot(report.time, report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
-            label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g}, fit {report.fit_percent:.1f} %")
-    ax.set_ylabel("ω [rad/s]")
+    ax.plot(report.time, per * report.measured_speed, color="0.3", lw=0.8, label="measured ω")
+    ax.plot(report.time, per * report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
+            label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g} (rad/s²)/{estimate.input_unit}, "
+                  f"fit {report.fit_percent:.1f} %")
+    ax.set_ylabel(f"ω [{unit}]")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7, frameon=False)
     res = fig.add_subplot(grid[1, :], sharex=ax)
-    res.plot(report.time, report.measured_speed - report.simulated_speed, color="tab:purple", lw=0.7)
+    res.plot(report.time, per * (report.measured_speed - report.simulated_speed), color="tab:purple", lw=0.7)
     res.axhline(0, color="0.5", lw=0.6)
     res.set_xlabel("time [s]")
-    res.set_ylabel("measured − model\nω [rad/s]")
+    res.set_ylabel(f"measured − model\nω [{unit}]")
     res.grid(alpha=0.3)
     ac = fig.add_subplot(grid[2, 0])
     ac.stem(report.lags[1:], report.autocorrelation[1:], basefmt=" ")
@@ -551,25 +555,30 @@ def plot_tracking(rows: Sequence, path=None, *, title: str = "", window: float =
     """Closed-loop runs against their reference: output, tracking error and input of each design.
 
     The top panel draws the measured (solid) and predicted (dotted) output of each design over the
-    reference; where good designs track alike those lines lie on top of each other, so the middle
-    panel draws each run's tracking error (measured minus reference), where they part. ``rows``
-    carry ``design``, ``recording`` and ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
+    reference; where good designs track alike those lines lie on top of each other, so each run's
+    tracking error (measured minus reference) has a panel of its own below, on one shared scale,
+    where no design's line can hide another's. ``rows`` carry ``design``, ``recording`` and
+    ``prediction`` (``motorid.commands.control.ClosedLoopRow``).
     """
-    fig = _figure(10.5, 7.0)
-    ax, ax_err, ax2 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1.4, 1]})
+    fig = _figure(10.5, 5.6 + 1.1 * len(rows))
+    axes = fig.subplots(2 + len(rows), 1, sharex=True, gridspec_kw={"height_ratios": [2, *[1] * len(rows), 1]})
+    ax, errors, ax2 = axes[0], axes[1:-1], axes[-1]
     first = rows[0].recording
     ax.plot(first.time, first.reference, color="0.2", lw=1.2, ls="--", label="reference")
-    for row, color in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange")):
+    for row, color, ax_err in zip(rows, ("tab:red", "tab:green", "tab:purple", "tab:orange"), errors):
         rec = row.recording
         label = f"{row.design}: measured RMS {row.measured_rms:.3g} (predicted {row.prediction.tracking_rms:.3g})"
         ax.plot(rec.time, rec.measured_speed(), color=color, lw=0.9, label=label)
         ax.plot(row.prediction.time, row.prediction.output, color=color, lw=0.9, ls=":")
-        ax_err.plot(rec.time, rec.measured_speed() - rec.reference, color=color, lw=0.9, label=row.design)
+        ax_err.plot(rec.time, rec.measured_speed() - rec.reference, color=color, lw=0.9)
+        ax_err.axhline(0.0, color="0.5", lw=0.6)
+        ax_err.set_ylabel(f"{row.design}\nerror [rad/s]", fontsize=8)
         ax2.step(rec.time, rec.duty, where="post", color=color, lw=0.7, label=row.design)
+    for ax_err in errors[1:]:
+        ax_err.sharey(errors[0])
+    errors[0].set_title("tracking error of each design (measured − reference), one shared scale", fontsize=9)
     ax.set_ylabel("ω [rad/s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)   # outside: never over the data
-    ax_err.axhline(0.0, color="0.5", lw=0.6)
-    ax_err.set_ylabel("error [rad/s]\n(measured − reference)")
     ax2.set_ylabel(f"input [{first.input_unit}]")
     ax2.set_xlabel(f"time [s] (first {window:g} s)")
     ax2.set_xlim(first.time[0], first.time[0] + min(window, first.time[-1] - first.time[0]))

@@ -9,6 +9,7 @@ variance the standard errors claim, so a file given twice is refused.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import stat
@@ -18,7 +19,7 @@ from motorid.arguments import CommandError
 from motorsim.reading import read_recording
 from motorsim.recording import Recording
 
-__all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates"]
+__all__ = ["DroppedSamples", "read_and_fit", "refuse_duplicates", "with_speed_unit"]
 
 
 class DroppedSamples(NamedTuple):
@@ -110,4 +111,11 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
         raise CommandError(f"{files[exc.recording]}: {exc.reason} at seq {shown}; a corrupted sample? fix the "
                            "file, or re-run with --drop-outliers to drop them as gaps") from None
     dropped = [DroppedSamples(files[d.recording], list(d.seq), d.reason) for d in found.dropped]
-    return found.estimate, list(found.recordings), dropped
+    return with_speed_unit(found.estimate, found.recordings), list(found.recordings), dropped
+
+
+def with_speed_unit(estimate: Any, recordings: Sequence[Recording]) -> Any:
+    """``estimate`` remembering the speed unit its recordings came in (rad/s when they differ)."""
+    units = {r.speed_unit for r in recordings}
+    unit = units.pop() if len(units) == 1 else "rad/s"
+    return dataclasses.replace(estimate, speed_unit=unit) if unit != estimate.speed_unit else estimate

@@ -2,7 +2,8 @@
 
 :func:`read_table` reads the columns of a text table (CSV, TSV, ``;`` or whitespace
 separated, with a header line or none) or of a MATLAB ``.mat`` file (v5 through scipy;
-v7.3/HDF5 through h5py when it is installed); :func:`import_recording` maps its columns,
+v7.3/HDF5 through h5py when it is installed) or of a robot log (a ROS 2 bag, a WPILib ``.wpilog``:
+:mod:`motorsim.robot_logs`); :func:`import_recording` maps its columns,
 chosen by name or 0-based index with a unit (:class:`ColumnSpec`, ``"y:deg/s"``), to a
 recording through :meth:`Recording.from_columns`.  Units and the timing rule:
 :mod:`motorsim.units`.  Every refusal is an :class:`ImportFormatError` naming the file, the
@@ -22,10 +23,11 @@ import numpy as np
 
 from .checks import ParameterError
 from .recording import AngleUnitWarning, Recording, RecordingFormatError
+from .robot_logs import is_robot_log, read_log_table
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
-           "unit_in_name"]
+           "UNIT_REQUIRED", "unit_in_name"]
 
 class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
@@ -54,26 +56,33 @@ class ColumnSpec:
 
     quantity: str
     column: str | int
-    unit: str
+    unit: str | None
 
     @classmethod
     def parse(cls, quantity: str, text: str) -> "ColumnSpec":
-        """Parse ``"NAME[:UNIT]"``; a column that is a non-negative integer is an index."""
+        """Parse ``"NAME[:UNIT]"``; a column that is a non-negative integer is an index.
+
+        Without ``:UNIT`` the unit is None: :func:`import_recording` takes it from the file's header
+        cell (``speed_rpm``, ``w [rad/s]``), else the quantity's default for time and angle, and
+        refuses a speed or input column whose unit nothing states.
+        """
         if quantity not in UNITS:
             raise ParameterError(f"quantity must be one of {list(UNITS)}, got {quantity!r}")
-        column, unit = text, DEFAULT_UNITS[quantity]
+        column, unit = text, None
         if ":" in text:
             column, unit = text.rsplit(":", 1)
-        else:
-            _refuse_unit_in_name(quantity, text.strip())
-        unit = unit.strip()
-        if unit not in UNITS[quantity]:
-            raise ParameterError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
-                             f"got {unit!r} (in {text!r})")
+            unit = unit.strip()
+            if unit not in UNITS[quantity]:
+                raise ParameterError(f"the unit of the {quantity} column must be one of {list(UNITS[quantity])}, "
+                                     f"got {unit!r} (in {text!r})")
         column = column.strip()
         if not column:
             raise ParameterError(f"the {quantity} column needs a name or a 0-based index, got {text!r}")
         return cls(quantity, int(column) if column.isdigit() else column, unit)
+
+
+#: Quantities whose column must say its unit (a flag's ``:UNIT`` or the header cell): no default is safe.
+UNIT_REQUIRED = ("speed", "input")
 
 
 #: the end of a column name -> the unit it says, per quantity (``time_ms``, ``speed_rpm``, ``u_pct`` ...)
@@ -103,15 +112,24 @@ def unit_in_name(quantity: str, column: str) -> str | None:
     return suffixes.get("_".join(words[-2:])) or suffixes.get(words[-1])
 
 
-def _refuse_unit_in_name(quantity: str, column: str) -> None:
-    """A column named with a unit but given without one would be read in the default unit: refuse it."""
-    if column.isdigit():
-        return
-    unit = unit_in_name(quantity, column)
-    if unit is not None and unit != DEFAULT_UNITS[quantity]:
-        raise ParameterError(f"the {quantity} column {column!r} is named with a unit ({unit}) but none was given, "
-                             f"so it would be read as {DEFAULT_UNITS[quantity]}: give --{quantity} {column}:{unit} "
-                             f"(or {column}:{DEFAULT_UNITS[quantity]} if it really is in {DEFAULT_UNITS[quantity]})")
+def _resolve_unit(table: "Table", spec: ColumnSpec) -> tuple[ColumnSpec | None, str]:
+    """``spec`` with its unit and where the unit came from (``given``, ``header``, ``default``), or
+    None and the problem when nothing states the unit of a speed or input column."""
+    if spec.unit is not None:
+        return spec, "given"
+    header = spec.column if isinstance(spec.column, str) else (
+        table.names[spec.column] if table.has_header and spec.column < len(table.names) else None)
+    stated = None if header is None else (table.units.get(header) or unit_in_name(spec.quantity, header))
+    if stated is not None and stated not in UNITS[spec.quantity]:
+        return None, (f"the {spec.quantity} column {spec.column!r} is in {stated}, as the file states, which is not "
+                      f"a unit of the {spec.quantity} ({', '.join(UNITS[spec.quantity])})")
+    if stated is not None:
+        return dataclasses.replace(spec, unit=stated), "header"
+    if spec.quantity not in UNIT_REQUIRED:
+        return dataclasses.replace(spec, unit=DEFAULT_UNITS[spec.quantity]), "default"
+    units = ", ".join(u for u in UNITS[spec.quantity] if u != "μs")
+    return None, (f"the {spec.quantity} column {spec.column!r} has no unit and the file does not state one: give "
+                  f"--{spec.quantity} {spec.column}:UNIT with UNIT one of {units}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,9 +141,10 @@ class Table:
     columns: tuple[np.ndarray, ...]
     lines: np.ndarray
     has_header: bool
+    units: Mapping[str, str] = dataclasses.field(default_factory=dict)   # the units the file states, by column
 
     def column(self, spec: ColumnSpec) -> np.ndarray:
-        """The column ``spec`` names (by name, else by 0-based index)."""
+        """The column ``spec`` names (by name, else by 0-based index); :class:`ImportFormatError` if none."""
         if isinstance(spec.column, str):
             if spec.column in self.names:
                 return self.columns[self.names.index(spec.column)]
@@ -331,6 +350,8 @@ def read_table(path: str | os.PathLike) -> Table:
         Naming the file, the line and the column of what cannot be read.
     """
     path = os.fspath(path)
+    if is_robot_log(path):
+        return _read_log(path, None)
     if path.lower().endswith(".mat"):
         return _read_mat(path)
     return _read_text(path)
@@ -366,33 +387,86 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     (0.02, 'V', [0.0, 1.5708, 3.1416])
     """
     path = os.fspath(path)
-    specs = {}
+    specs: dict[str, ColumnSpec] = {}
+    problems: list[str] = []
     for quantity, spec in (("time", time), ("input", input), ("speed", speed), ("angle", angle),
                            ("counts", counts)):
         if spec is not None:
             try:
                 specs[quantity] = spec if isinstance(spec, ColumnSpec) else ColumnSpec.parse(quantity, spec)
             except ValueError as exc:
-                raise ImportFormatError(f"{path}: {exc}") from None
-    if not {"speed", "angle", "counts"} & specs.keys():
-        raise ImportFormatError(f"{path}: give the speed, angle or counts column")
-    table = read_table(path)
-    cols = {q: table.column(s) for q, s in specs.items()}
-    _check_counts(table, specs, cols, counts_per_rev)
-    _check_time(table, specs["time"], cols["time"])
+                problems.append(str(exc))
+    if speed is None and angle is None and counts is None:
+        problems.append("give the speed, angle or counts column")
+    if is_robot_log(path):
+        base = next((specs[q].column for q in ("speed", "angle", "counts") if q in specs), None)
+        table = _read_log(path, base if isinstance(base, str) else None)
+    else:
+        table = read_table(path)
+    cols = {}
+    defaulted = set()
+    notes: list[str] = []
+    for quantity, spec in list(specs.items()):
+        try:
+            cols[quantity] = table.column(spec)
+        except ImportFormatError as exc:
+            problems.append(str(exc))
+            continue
+        resolved, source = _resolve_unit(table, spec)
+        if resolved is None:
+            problems.append(source)
+            continue
+        specs[quantity] = resolved
+        if source == "default":
+            defaulted.add(quantity)
+        elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
+            notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
+                         "states")
+    if not problems:
+        problems += _counts_problems(table, specs, cols, counts_per_rev)
+    if "time" in cols and specs["time"].unit is not None:
+        problems += _time_problems(table, specs["time"], cols["time"])
+    if problems:
+        _refuse(path, problems)
+    for note in notes:                 # said once the file is accepted
+        warnings.warn(note, UserWarning, stacklevel=2)
+    return _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+
+
+def _read_log(path: str, base: str | None) -> Table:
+    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages."""
+    try:
+        names, columns, units = read_log_table(path, base)
+    except RecordingFormatError as exc:
+        raise ImportFormatError(str(exc)) from None
+    return Table(path, names, columns, np.zeros(len(columns[0]), dtype=int), True, units)
+
+
+def _refuse(path: str, problems: list[str]) -> NoReturn:
+    """Every problem of the columns in one message (each named by the file once)."""
+    bare = [p.removeprefix(f"{path}: ").removeprefix(f"{path}, ") for p in problems]
+    if len(problems) == 1:
+        raise ImportFormatError(problems[0] if problems[0].startswith(path) else f"{path}: {problems[0]}")
+    raise ImportFormatError(f"{path}: {len(problems)} problems with the columns: "
+                            + "; ".join(f"({k}) {p}" for k, p in enumerate(bare, 1)))
+
+
+def _recording(path: str, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np.ndarray],
+               counts_per_rev: int | None, *, angle_stated: bool) -> Recording:
+    """The recording of checked columns, with the units the user brought in its metadata."""
+    units = {q: str(s.unit) for q, s in specs.items()}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", AngleUnitWarning)     # said below, by the column's name and flag
             rec = Recording.from_columns(
                 time=cols["time"], duty=cols["input"], speed=cols.get("speed"), angle=cols.get("angle"),
-                counts=cols.get("counts"), counts_per_rev=counts_per_rev, input_unit=specs["input"].unit,
-                time_unit=specs["time"].unit, metadata={"source": Path(path).name},
-                speed_unit=specs["speed"].unit if "speed" in specs else "rad/s",
-                angle_unit=specs["angle"].unit if "angle" in specs else "rad")
+                counts=cols.get("counts"), counts_per_rev=counts_per_rev, input_unit=units["input"],
+                time_unit=units["time"], metadata={"source": Path(path).name},
+                speed_unit=units.get("speed", "rad/s"), angle_unit=units.get("angle", "rad"))
     except ValueError as exc:
         raise ImportFormatError(f"{path}: {exc}") from None
-    if "angle" in specs and specs["angle"].unit == "rad":
-        _check_angle_unit(path, rec, specs["angle"], stated=not isinstance(angle, str) or ":" in angle)
+    if "angle" in specs and units["angle"] == "rad":
+        _check_angle_unit(path, rec, specs["angle"], stated=angle_stated)
     return rec
 
 
@@ -420,25 +494,25 @@ def _where(table: Table, spec: ColumnSpec, k: int) -> str:
     return f"{table.path}, {place}, column {spec.column!r} ({spec.quantity})"
 
 
-def _check_time(table: Table, spec: ColumnSpec, t: np.ndarray) -> None:
+def _time_problems(table: Table, spec: ColumnSpec, t: np.ndarray) -> list[str]:
     steps = np.diff(t)
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise ImportFormatError(f"{_where(table, spec, k)}: time must be strictly increasing, got {float(t[k])!r} "
-                                f"after {float(t[k - 1])!r}")
+        return [f"{_where(table, spec, k)}: time must be strictly increasing, got {float(t[k])!r} after "
+                f"{float(t[k - 1])!r}"]
+    return []
 
 
-def _check_counts(table: Table, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np.ndarray],
-                  counts_per_rev: int | None) -> None:
+def _counts_problems(table: Table, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np.ndarray],
+                     counts_per_rev: int | None) -> list[str]:
     spec = specs.get("counts") or (specs["angle"] if "angle" in specs and specs["angle"].unit == "counts" else None)
     if spec is None:
-        return
+        return []
     if counts_per_rev is None:
-        raise ImportFormatError(f"{table.path}: counts in column {spec.column!r} need the encoder resolution "
-                                "(--counts-per-rev N, counts/rev)")
+        return [f"counts in column {spec.column!r} need the encoder resolution (--counts-per-rev N, counts/rev)"]
     x = cols[spec.quantity]
     bad = np.flatnonzero(x != np.round(x))
     if len(bad):
         k = int(bad[0])
-        raise ImportFormatError(f"{_where(table, spec, k)}: counts must be integers, got {float(x[k])!r}")
-
+        return [f"{_where(table, spec, k)}: counts must be integers, got {float(x[k])!r}"]
+    return []

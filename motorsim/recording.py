@@ -53,6 +53,7 @@ from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
+from .units import SPEED_UNITS
 
 __all__ = ["Recording", "RecordingFormatError", "AngleUnitWarning", "FORMAT_HEADER", "COLUMNS", "METADATA_ALIASES",
            "INTEGER_COLUMNS", "TIME_BASE_TOLERANCE"]
@@ -304,6 +305,13 @@ class Recording:
     def input_unit(self) -> str:
         """What ``duty`` is measured in (metadata ``input_unit``, default ``duty``)."""
         return self.metadata.get("input_unit", "duty")
+
+    @property
+    def speed_unit(self) -> str:
+        """The speed unit the data came in (metadata ``speed_unit``, default ``rad/s``): results are shown in it
+        beside SI; the columns themselves are always SI."""
+        unit = self.metadata.get("speed_unit", "rad/s")
+        return unit if unit in SPEED_UNITS else "rad/s"
 
     @property
     def input_limit(self) -> float | None:

@@ -12,7 +12,8 @@ time       ``s``, ``ms``, ``us`` (also ``µs``)
 input      ``duty``, ``V``, ``%`` (values kept as they are; the unit goes to the
            metadata ``input_unit``)
 angle      ``rad``, ``deg``, ``rev``, ``counts`` (needs ``counts_per_rev``)
-speed      ``rad/s``, ``deg/s``, ``rpm``, ``rev/s``
+speed      ``rad/s``, ``deg/s``, ``rpm``, ``rev/s`` (converted to rad/s; the unit the user
+           brought goes to the metadata ``speed_unit``, for showing results in it)
 =========  ============================================================
 
 Timing rule: the sample period is the median interval of the time column.  When every
@@ -31,8 +32,8 @@ from numpy.typing import ArrayLike
 
 from .checks import ParameterError, ParameterTypeError
 
-__all__ = ["TIME_UNITS", "INPUT_UNITS", "ANGLE_UNITS", "SPEED_UNITS", "UNITS", "DEFAULT_UNITS",
-           "UNIFORM_TOLERANCE", "columns_in_si", "timing_note"]
+__all__ = ["TIME_UNITS", "INPUT_UNITS", "ANGLE_UNITS", "SPEED_UNITS", "ANGLE_RATE_UNITS", "UNITS", "DEFAULT_UNITS",
+           "UNIFORM_TOLERANCE", "columns_in_si", "timing_note", "speed_in"]
 
 #: Seconds per unit of the time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6}
@@ -42,6 +43,9 @@ INPUT_UNITS = ("duty", "V", "%")
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180, "rev": 2 * math.pi, "counts": math.nan}
 #: (rad/s) per unit of a speed column.
 SPEED_UNITS = {"rad/s": 1.0, "deg/s": math.pi / 180, "rpm": 2 * math.pi / 60, "rev/s": 2 * math.pi}
+
+#: The speed unit an angle unit implies (the unit a recording of that angle shows its speed in).
+ANGLE_RATE_UNITS = {"rad": "rad/s", "deg": "deg/s", "rev": "rev/s", "counts": "rad/s"}
 
 #: The units of each quantity, by quantity.
 UNITS: dict[str, tuple[str, ...]] = {"time": tuple(TIME_UNITS), "input": INPUT_UNITS, "angle": tuple(ANGLE_UNITS),
@@ -116,7 +120,8 @@ def columns_in_si(time: ArrayLike, duty: ArrayLike, *, speed: ArrayLike | None =
         ``time`` in s, ``duty``, ``speed`` in rad/s, ``angle`` in rad, ``counts``, ``seq`` (gaps
         where an interval spans several sample periods), ``sample_period`` in s,
         ``counts_per_rev`` and ``metadata`` (``input_unit``; ``time_uniform: false`` with the
-        range of the intervals on a non-uniform clock).
+        range of the intervals on a non-uniform clock; ``speed_unit``, the speed column's unit or
+        the one the angle's implies).
 
     Examples
     --------
@@ -142,7 +147,8 @@ def columns_in_si(time: ArrayLike, duty: ArrayLike, *, speed: ArrayLike | None =
         counts, angle = angle, None
     angle_rad = None if angle is None else _as_float("angle", angle) * ANGLE_UNITS[angle_unit]
     speed_rad_s = None if speed is None else _as_float("speed", speed) * SPEED_UNITS[speed_unit]
-    meta = {**(metadata or {}), **meta, "input_unit": input_unit}
+    meta = {**(metadata or {}), **meta, "input_unit": input_unit,
+            "speed_unit": speed_unit if speed is not None else ANGLE_RATE_UNITS[angle_unit]}
     return {"time": time_s, "duty": _as_float("duty", duty), "sample_period": sample_period or period,
             "speed": speed_rad_s, "angle": angle_rad, "counts": counts, "seq": seq,
             "counts_per_rev": counts_per_rev, "metadata": meta}
@@ -155,3 +161,16 @@ def timing_note(metadata: Mapping[str, str], sample_period: float) -> str:
     return (f"the time column is not uniform (intervals from {metadata['time_step_min']} to "
             f"{metadata['time_step_max']} s, median {sample_period!r} s): kept as time_s, sample_period is the "
             "median")
+
+
+def speed_in(value: float, unit: str) -> float:
+    """A speed (or a speed per something) in rad/s expressed in ``unit``.
+
+    Examples
+    --------
+    >>> round(speed_in(157.07963, "rpm"), 3)
+    1500.0
+    """
+    if unit not in SPEED_UNITS:
+        raise ParameterError(f"speed unit must be one of {list(SPEED_UNITS)}, got {unit!r}")
+    return value / SPEED_UNITS[unit]

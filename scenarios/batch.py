@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import re
 from typing import Callable
 
 import numpy as np
@@ -169,9 +170,19 @@ class MethodOutcome:
         return sum(1 for f in self.failure if f)
 
     def failure_summary(self, top: int = 3) -> str:
-        """The most common reasons with their counts, ``reason (n) | ...``."""
-        counts = collections.Counter(f for f in self.failure if f)
-        return " | ".join(f"{reason} ({n})" for reason, n in counts.most_common(top))
+        """The most common reasons with their counts, ``reason (n) | ...``.
+
+        Reasons are grouped by their words with every number masked as ``#`` (``cond 3.1e+08`` and
+        ``cond 2.7e+08`` are one reason); a group shows its first message as it was.
+        """
+        first: dict[str, str] = {}
+        counts: collections.Counter[str] = collections.Counter()
+        for reason in self.failure:
+            if reason:
+                key = _NUMBER.sub("#", reason)
+                first.setdefault(key, reason)
+                counts[key] += 1
+        return " | ".join(f"{first[key]} ({n})" for key, n in counts.most_common(top))
 
     def statistics(self, name: str, truth: float) -> dict[str, float]:
         """Mean, bias in % of ``truth``, standard deviation (ddof 1) and RMSE of parameter ``name``."""
@@ -185,6 +196,10 @@ class MethodOutcome:
         return {"mean": mean, "bias_pct": 100.0 * (mean - truth) / truth,
                 "std": float(np.std(d, ddof=1)) if len(x) > 1 else math.nan,
                 "rmse": float(np.sqrt(np.mean((x - truth) ** 2)))}
+
+
+#: A number in a message (integer, decimal, exponent, sign), masked when reasons are grouped.
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
 def regression_batch(speed: np.ndarray, duty: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:

@@ -47,6 +47,7 @@ NOT_RUN = {
     "make lint": "ruff and mypy, run by CI",
     "make docs": "builds the documentation site, its {motorid-output} commands and examples included (CI runs it)",
     "make demo": "creates .venv and runs motorid demo (tests/motorid/test_demo.py runs the demo)",
+    "make venv": "creates .venv and installs motorid into it (every make target does)",
     "make firmware": "installs the AVR toolchain with apt-get and builds the firmware (make test does)",
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
     # benchmarks whose output a page shows ({motorid-output} :any-status:): make docs runs them in CI;

@@ -11,14 +11,18 @@ one page run in order in one temporary folder that sees the repository's ``tests
 ``tests/data/...`` paths work and ``simulate`` writes what ``identify`` reads), as the
 documented-commands test runs them. A command that exits with another status than ``:status:``
 (default 0) fails the build; ``:any-status:`` shows a benchmark's figures whatever it says of its
-goals (a benchmark exits 1 when this machine missed one).
+goals (a benchmark exits 1 when this machine missed one). ``:figures: A.png B/C.png`` shows the
+figures the page's commands wrote, by their paths in that folder, below the output (copied into
+``docs/_figures``, which ``make docs`` clears; a figure missing fails the build).
 """
 from __future__ import annotations
 
 import contextlib
 import io
 import os
+import re
 import shlex
+import shutil
 import tempfile
 import warnings
 from pathlib import Path
@@ -27,6 +31,8 @@ from docutils import nodes
 from docutils.parsers.rst import Directive, directives
 
 ROOT = Path(__file__).resolve().parent.parent.parent
+#: Where the figures of ``:figures:`` are copied, in the docs' source folder (cleared by ``make docs``).
+FIGURES = ROOT / "docs" / "_figures"
 
 
 def _workdir(env) -> Path:
@@ -63,7 +69,7 @@ def run_documented(command: str, cwd: Path, *, stderr: bool = False) -> tuple[in
 class MotoridOutput(Directive):
     has_content = True
     option_spec = {"stderr": directives.flag, "status": directives.nonnegative_int, "hide-command": directives.flag,
-                   "any-status": directives.flag}
+                   "any-status": directives.flag, "figures": directives.unchanged}
 
     def run(self):
         env = self.state.document.settings.env
@@ -77,7 +83,22 @@ class MotoridOutput(Directive):
             block = nodes.literal_block(shown, shown)
             block["language"] = "text"
             blocks.append(block)
+        for name in self.options.get("figures", "").split():
+            blocks.append(self._figure(env, name))
         return blocks
+
+    def _figure(self, env, name: str) -> nodes.Node:
+        """The figure ``name`` a command of this page wrote, as an image node (fails the build when missing)."""
+        source = _workdir(env) / name
+        if not source.is_file():
+            raise self.error(f"figure {name!r} was not written by the commands above (looked in {source.parent})")
+        FIGURES.mkdir(exist_ok=True)
+        target = f"{re.sub(r'[^A-Za-z0-9]+', '-', env.docname)}-{re.sub(r'[^A-Za-z0-9.]+', '-', name)}"
+        shutil.copyfile(source, FIGURES / target)
+        figure = nodes.figure()
+        figure += nodes.image(uri=f"/_figures/{target}", alt=name)
+        figure += nodes.caption(name, name)
+        return figure
 
 
 def figure_scraper(block, block_vars, gallery_conf):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import re
 from typing import Any, Sequence
 
 import numpy as np
@@ -37,16 +38,21 @@ from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
 __all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_args", "model_from_args",
-           "load_model_file", "closed_loop_from_args", "require_duty_model", "reference_from_args",
-           "refuse_controller_flags",
+           "load_model_file", "closed_loop_from_args", "require_duty_model", "reference_in_si", "default_reference",
+           "reference_from_args", "refuse_controller_flags",
            "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
 
+#: The reference when the model's top speed is unknown (an input in V or % without an input limit), and
+#: of position controllers: rad/s or rad.
 DEFAULT_REFERENCE = "sine:10,10"
 #: Flags of :func:`add_controller_arguments` that only a controller uses (their ``dest``).
 CONTROLLER_FLAGS = ("reference", "model", "duty_weight", "time_constant", "integral_weight", "min_phase_margin",
                     "feedforward", "derivative")
 #: Flags of :func:`add_model_arguments` (their ``dest``): the model a controller is designed from.
 MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay")
+#: Units a reference's levels may carry (``step:1500rpm``), per quantity the controller tracks.
+REFERENCE_UNITS = {"speed": ("rad/s", "deg/s", "rpm", "rev/s"), "angle": ("rad", "deg", "rev")}
+_UNIT_NUMBER = re.compile(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(rad/s|deg/s|rev/s|rpm|rad|deg|rev)(?![\w/])")
 
 
 def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
@@ -75,9 +81,11 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
     g.add_argument("--derivative", choices=("true", "false"), default=None,
                    help="position: use the speed term (PD, default true) or not (P)")
     g.add_argument("--reference", default=None, metavar="KIND:ARGS",
-                   help="what to track, in rad/s (speed) or rad (position): constant:LEVEL, "
-                        "step:AFTER[,AT_TIME[,BEFORE]], sine:FREQ,AMP[,PHASE][@OFFSET], multisine:F,A,P;..., "
-                        f"trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME] (default {DEFAULT_REFERENCE})")
+                   help="what to track: constant:LEVEL, step:AFTER[,AT_TIME[,BEFORE]], sine:FREQ,AMP[,PHASE][@OFFSET], "
+                        "multisine:F,A,P;..., trapezoid:LEVEL,RAMP_TIME,HOLD_TIME[,AT_TIME]; levels in rad/s "
+                        "(speed) or rad (position), or with a unit: step:1500rpm, sine:10,5rev/s, step:90deg "
+                        "(default for speed: a sine at min(10 rad/s, a) with a third of the model's top speed, "
+                        f"b/a x input limit, in the model's speed unit; else {DEFAULT_REFERENCE})")
     g.add_argument("--model", default=None, metavar="FILE.json",
                    help="design from this saved estimate instead of --a/--b")
 
@@ -115,11 +123,6 @@ def refuse_controller_flags(args: argparse.Namespace, *, model_flags: bool = Fal
                            f"{'it' if len(given) == 1 else 'them'} out")
 
 
-def reference_from_args(args: argparse.Namespace) -> Reference:
-    """The ``--reference`` to track (default :data:`DEFAULT_REFERENCE`)."""
-    return parse_reference(DEFAULT_REFERENCE if args.reference is None else args.reference)
-
-
 def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts_per_rev: int, *,
                           rig_input_delay: int = 0) -> ClosedLoopExperiment:
     """The closed-loop run the flags describe: ``--controller`` designed from the model flags, ``--reference``.
@@ -138,7 +141,68 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
                         f"{model.input_delay})")
         model = dataclasses.replace(model, input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
-    return ClosedLoopExperiment(controller, reference_from_args(args), args.duration, args.duty_limit)
+    speed_unit = load_model_file(args.model).speed_unit if args.model else "rad/s"
+    reference = reference_from_args(args, controller, speed_unit, float(args.duty_limit))
+    return ClosedLoopExperiment(controller, reference, args.duration, args.duty_limit)
+
+
+def reference_in_si(spec: str, quantity: str = "speed") -> str:
+    """``spec`` with every level that carries a unit (``1500rpm``, ``90deg``) in rad/s or rad.
+
+    Examples
+    --------
+    >>> reference_in_si("step:1500rpm,0.5")
+    'step:157.07963267948966,0.5'
+    """
+    from motorsim.units import ANGLE_UNITS, SPEED_UNITS
+    factors = {**SPEED_UNITS, **{u: f for u, f in ANGLE_UNITS.items() if u != "counts"}}
+
+    def convert(match: re.Match) -> str:
+        unit = match.group(2)
+        if unit not in REFERENCE_UNITS[quantity]:
+            other = "position" if quantity == "speed" else "speed"
+            raise CommandError(f"--reference {spec!r}: {match.group(0)!r} is a {other}, but this controller tracks "
+                               f"a {quantity}: use one of {', '.join(REFERENCE_UNITS[quantity])}")
+        return repr(float(match.group(1)) * factors[unit])
+    return _UNIT_NUMBER.sub(convert, spec)
+
+
+def default_reference(model: PlantModel, speed_unit: str, input_limit: float | None) -> tuple[str, str]:
+    """The speed reference in the model's own range and unit, and why: a sine at ``min(10 rad/s, a)`` whose
+    amplitude is a third of the top speed ``b/a x input_limit`` (2 significant figures in ``speed_unit``);
+    :data:`DEFAULT_REFERENCE` when the input limit is unknown.
+
+    Examples
+    --------
+    >>> default_reference(PlantModel(25.0, 3.0, 0.005, 16667), "rad/s", 255.0)[0]
+    'sine:10,10rad/s'
+    """
+    from motorsim.units import speed_in
+    if input_limit is None:
+        return DEFAULT_REFERENCE, "the model's top speed is unknown (no input limit)"
+    top = speed_in(abs(model.b / model.a) * input_limit, speed_unit)
+    amplitude = float(f"{top / 3:.2g}")
+    frequency = float(f"{min(10.0, model.a):.2g}")
+    return (f"sine:{frequency:g},{amplitude:g}{speed_unit}",
+            f"a third of the model's top speed {top:.4g} {speed_unit} (b/a x input limit), at min(10 rad/s, a)")
+
+
+def reference_from_args(args: argparse.Namespace, controller: Controller, speed_unit: str,
+                        input_limit: float | None) -> Reference:
+    """``--reference`` (units converted), else :func:`default_reference` for a speed controller, said on stderr."""
+    spec = args.reference
+    if spec is None:
+        if controller.reference_unit != "rad/s":
+            spec = DEFAULT_REFERENCE
+        else:
+            spec, why = default_reference(controller.model, speed_unit, input_limit)
+            print_to_stderr(f"motorid: note: --reference {spec} ({why}; give --reference to choose)")
+        args.reference = spec
+    quantity = "speed" if controller.reference_unit == "rad/s" else "angle"
+    try:
+        return parse_reference(reference_in_si(spec, quantity))
+    except ValueError as exc:
+        raise CommandError(f"--reference: {exc}") from None
 
 
 def load_model_file(path: str) -> Any:
@@ -292,41 +356,43 @@ def run_control(args: argparse.Namespace) -> int:
     if not args.model and args.sample_period is None:
         args.sample_period = 0.005
     unit, limit = _input_unit_and_limit(args)
-    if args.counts_per_rev is None:
-        args.counts_per_rev = DEFAULT_COUNTS_PER_REV
-        if args.model:
-            print_to_stderr(f"motorid: note: a saved model does not say the rig's encoder; assuming "
-                            f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")
+    estimate = load_model_file(args.model) if args.model else None
+    speed_unit = getattr(estimate, "speed_unit", "rad/s")
+    speed_sensor = estimate is not None and estimate.residual_unit == "rad/s"
+    encoder_known = args.counts_per_rev is not None or not speed_sensor
+    sensor = _sensor(args, estimate)
     model = model_from_args(args)
     controller = controller_from_args(args, model)
-    reference = reference_from_args(args)
+    reference = reference_from_args(args, controller, speed_unit, limit)
     covariance = _ab_covariance(args)
     robustness = None
     if args.robust:
         controller, robustness = _robust_controller(args, controller, covariance, reference)
     prediction = controller.predict(reference, args.duration)
-    _, t_u = controller.closed_loop()
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
           f"({model.input_delay * model.sample_period:.6g} s), dt = {model.sample_period:g} s, "
-          f"{model.counts_per_rev} counts/rev" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
+          f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
+    if speed_unit != "rad/s":
+        from motorsim.units import speed_in
+        print(f"model in {speed_unit}: b/a = {speed_in(model.b / model.a, speed_unit):.6g} {speed_unit}/{unit}"
+              + ("" if limit is None else
+                 f", top speed {speed_in(abs(model.b / model.a) * limit, speed_unit):.5g} {speed_unit}"))
     print(f"controller: {controller.kind} " + ", ".join(f"{k} = {v!r}" for k, v in controller.settings().items()))
-    if unit == "duty":
-        print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
-    else:
+    if unit != "duty":
         print(f"fixed-point gains: none (the firmware's gains act on duty; this model's input is in {unit})")
-    from identify.feedforward import feedforward_constants
-    print(feedforward_constants(load_model_file(args.model) if args.model else model).describe())
-    poles = np.sort_complex(_loop_poles(controller))
-    if len(poles):
-        print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
-              f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
+    elif not encoder_known:
+        print("fixed-point gains: none (the firmware's gains act on encoder counts: give the rig's "
+              "--counts-per-rev N)")
     else:
-        print(f"closed-loop poles: none (no feedback: the {controller.kind} output follows the model's own pole, "
-              f"-a = {-model.a:g} 1/s)")
+        print("fixed-point gains (Q16): " + ", ".join(f"{k} = {v}" for k, v in controller.gains().items()))
+    from identify.feedforward import feedforward_constants
+    print(feedforward_constants(estimate if estimate is not None else model).describe())
+    _print_poles(controller, model)
     largest = float(np.abs(prediction.duty).max())
-    print(f"predicted over {args.duration:g} s of {reference.describe()}: tracking RMS "
-          f"{prediction.tracking_rms:.4g} {controller.reference_unit}, largest input {largest:.4g} {unit}")
+    print(f"predicted over {args.duration:g} s of {_reference_text(args, reference, controller, speed_unit)}: "
+          f"tracking RMS {_in_units(prediction.tracking_rms, controller, speed_unit)}, "
+          f"largest input {largest:.4g} {unit}")
     if limit is not None and largest > limit:
         print_to_stderr(f"motorid: warning: the design needs an input of up to {largest:.4g} {unit}, more than the "
                         f"input limit +-{limit:g} {unit}: the drive clips it and the prediction no longer holds; "
@@ -340,6 +406,52 @@ def run_control(args: argparse.Namespace) -> int:
         plots.plot_prediction(prediction, args.plot, title=f"{controller.kind}: predicted")
         print(f"figure: {args.plot}")
     return 0
+
+
+def _sensor(args: argparse.Namespace, estimate: Any) -> str:
+    """What the model's data were measured with, for the model line; sets the design's ``counts_per_rev``.
+
+    A model fitted to a speed column came from a speed sensor (a tachometer): no encoder is assumed.
+    Without ``--counts-per-rev`` the design uses :data:`DEFAULT_COUNTS_PER_REV` internally (the
+    prediction does not depend on it) and prints no fixed-point gains; a model fitted to an angle or
+    counts assumes the bench's encoder and says so on stderr.
+    """
+    given = args.counts_per_rev
+    if given is None:
+        args.counts_per_rev = DEFAULT_COUNTS_PER_REV
+    if estimate is not None and estimate.residual_unit == "rad/s":
+        measured = "speed sensor (the model was fitted to a speed column)"
+        return measured if given is None else f"{measured}; the rig's encoder {given} counts/rev"
+    if given is None and estimate is not None:
+        print_to_stderr(f"motorid: note: a saved model does not say the rig's encoder; assuming "
+                        f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")
+    return f"{args.counts_per_rev} counts/rev"
+
+
+def _print_poles(controller: Controller, model: PlantModel) -> None:
+    poles = np.sort_complex(_loop_poles(controller))
+    if len(poles):
+        print(f"closed-loop poles: {', '.join(f'{p:.4g}' for p in poles)} "
+              f"({'stable' if controller.is_stable() else 'UNSTABLE'})")
+    else:
+        print(f"closed-loop poles: none (no feedback: the {controller.kind} output follows the model's own pole, "
+              f"-a = {-model.a:g} 1/s)")
+
+
+def _in_units(value: float, controller: Controller, speed_unit: str) -> str:
+    """A speed in rad/s (or an angle in rad) with, for another speed unit, its value in that unit."""
+    text = f"{value:.4g} {controller.reference_unit}"
+    if controller.reference_unit == "rad/s" and speed_unit != "rad/s":
+        from motorsim.units import speed_in
+        text = f"{speed_in(value, speed_unit):.4g} {speed_unit} ({text})"
+    return text
+
+
+def _reference_text(args: argparse.Namespace, reference: Reference, controller: Controller, speed_unit: str) -> str:
+    """The reference as the user wrote it (or the default) and, when that had units, in SI."""
+    si = f"{reference.describe()} {controller.reference_unit}"
+    spec = args.reference
+    return si if spec is None or _UNIT_NUMBER.search(spec) is None else f"{spec} ({si})"
 
 
 def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:

@@ -96,7 +96,8 @@ def run_frequency(args: argparse.Namespace) -> int:
         frf = distortion.frequency_response   # the BLA: its bound holds the nonlinear distortion too
     models = _models(args.model, frf)
     output = {"angle": "interval-mean speed from the angle", "speed": "the speed column"}[frf.output]
-    say(f"frequency response duty -> speed ({output}), {frf.method}, {len(frf)} lines, "
+    source = "duty" if frf.input_unit == "duty" else f"input ({frf.input_unit})"
+    say(f"frequency response {source} -> speed ({output}), {frf.method}, {len(frf)} lines, "
         f"{100 * args.level:g} % bounds" + (f", resolution {frf.resolution:.3g} rad/s" if frf.resolution else ""))
     say(format_frequency_table(frf, models, args.level))
     for m in models:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from typing import Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
@@ -15,7 +16,8 @@ from motorid.commands.importing import (
 from motorid.progress import Ticker
 from motorsim.recording import Recording
 
-__all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation"]
+__all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation",
+           "in_speed_unit"]
 
 #: Flags passed to the estimator: flag -> (keyword, value when the flag is not given).
 _OPTION_FLAGS = {"--input-delay": ("input_delay", None), "--fix-bias": ("fix_bias", False)}
@@ -126,6 +128,9 @@ def run_identify(args: argparse.Namespace) -> int:
         say(f"delay       {est.input_delay} samples, the shortest within the noise of the best "
             "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
+    figures = in_speed_unit(est)
+    if figures is not None:
+        out["in_speed_unit"] = figures
     if checks is not None:
         out["residual_checks"] = checks
     if dropped:
@@ -144,22 +149,22 @@ def run_identify(args: argparse.Namespace) -> int:
         if report is None:
             report = validate(est, recs[0])
         where = args.validate or args.files[0]
-        plot_validation(report, est, args.report, title=f"{est.method} on {where}",
-                        frequency_response=_frequency_response(held_out if held_out is not None else recs[0]))
-        say(f"report      {args.report}")
+        frf, why = _frequency_response(held_out if held_out is not None else recs[0])
+        plot_validation(report, est, args.report, title=f"{est.method} on {where}", frequency_response=frf)
+        say(f"report      {args.report}" + (f" (no Bode panel: {why})" if frf is None else ""))
     if args.json:
         print(json.dumps(json_ready(out)))
     return 0
 
 
-def _frequency_response(recording: Recording):
-    """The report's Bode panel data, or None when the recording cannot give one (too short, gaps)."""
+def _frequency_response(recording: Recording) -> tuple[Any, str]:
+    """The report's Bode panel data, or None and why the recording cannot give one (too short, gaps, a step)."""
     from identify.errors import NotIdentifiableError
     from identify.frequency_estimate import frequency_response
     try:
-        return frequency_response(recording)
-    except NotIdentifiableError:
-        return None
+        return frequency_response(recording), ""
+    except NotIdentifiableError as exc:
+        return None, str(exc)
 
 
 #: Bytes of input above which identify says first how long it expects to take.
@@ -211,9 +216,65 @@ def format_selection(selection: dict, checks: dict[str, float]) -> str:
 
 
 def format_estimate(est) -> str:
-    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA."""
+    """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA;
+    for data in another speed unit (rpm, ...), the speed figures in that unit too."""
     from identify.feedforward import feedforward_constants
-    return f"{est}\n{feedforward_constants(est).describe()}"
+    text = f"{est}\n{feedforward_constants(est).describe()}"
+    figures = in_speed_unit(est)
+    if figures is None:
+        return text
+    unit, u = figures["unit"], est.input_unit
+    lo, hi = figures["b_ci95"]
+    lines = [f"in {unit:<8} b/a {figures['static_gain']:.6g} {unit}/{u} (the steady speed per {u}); "
+             f"b {figures['b']:.6g} {unit}/s per {u}, 95 % CI [{lo:.6g}, {hi:.6g}]"]
+    if "residual_rms" in figures:
+        lines.append(f"            residual {figures['residual_rms']:.3g} {unit} RMS")
+    if "top_speed" in figures:
+        lines.append(f"            top speed {figures['top_speed']:.5g} {unit} at the input limit "
+                     f"{est.input_limit:g} {u} (b/a x limit, linear model)")
+    ff = figures["feedforward"]
+    lines.append("SysId      " + ", ".join(
+        f"{k} {ff[k]:.4g} [{ff[k + '_ci95'][0]:.4g}, {ff[k + '_ci95'][1]:.4g}] {ff[k + '_unit']}"
+        if math.isfinite(ff[k + "_ci95"][0]) else f"{k} {ff[k]:.4g} {ff[k + '_unit']}" for k in ("kS", "kV", "kA"))
+        + f" (u = kS sign(v) + kV v + kA dv/dt, v in {unit})")
+    return "\n".join([text, *lines])
+
+
+def in_speed_unit(est) -> dict[str, Any] | None:
+    """The speed figures of ``est`` in the unit its data came in (None for rad/s): ``b/a``, ``b`` and its
+    interval, the residual when it is a speed, the top speed at the input limit, kS, kV, kA (SysId's form);
+    JSON ``in_speed_unit``."""
+    from motorsim.units import speed_in
+    unit = getattr(est, "speed_unit", "rad/s")
+    if unit == "rad/s":
+        return None
+    ci = est.confidence_interval(0.95).get("b", (math.nan, math.nan))
+    out: dict[str, Any] = {"unit": unit, "static_gain": speed_in(est.static_gain, unit), "b": speed_in(est.b, unit),
+                           "b_ci95": [speed_in(float(ci[0]), unit), speed_in(float(ci[1]), unit)]}
+    if est.residual_unit == "rad/s":
+        out["residual_rms"] = speed_in(est.residual_rms, unit)
+    if est.input_limit is not None:
+        out["top_speed"] = speed_in(abs(est.static_gain) * est.input_limit, unit)
+    out["feedforward"] = _feedforward_in(est, unit)
+    return out
+
+
+def _feedforward_in(est, unit: str) -> dict[str, Any]:
+    """kS, kV, kA with their 95 % intervals per ``unit`` (SysId's form: V per rotation/s for a log in rev/s)."""
+    from identify.feedforward import feedforward_constants
+    from motorsim.units import SPEED_UNITS
+    ff = feedforward_constants(est)
+    ci = ff.confidence_interval(0.95)
+    per = SPEED_UNITS[unit]                    # rad/s per unit: a constant per rad/s times this is per unit
+    u = est.input_unit
+    acceleration = f"{unit}/s" if unit == "rpm" else unit.replace("/s", "/s^2")
+    out: dict[str, Any] = {}
+    for key, name, scale, unit_text in (("ks", "kS", 1.0, u), ("kv", "kV", per, f"{u}/({unit})"),
+                                        ("ka", "kA", per, f"{u}/({acceleration})")):
+        out[name] = getattr(ff, key) * scale
+        out[f"{name}_ci95"] = [ci[key][0] * scale, ci[key][1] * scale]
+        out[f"{name}_unit"] = unit_text
+    return out
 
 
 def format_validation(report, name: str) -> str:

@@ -1,4 +1,4 @@
-"""``motorid import``: a lab's own file (text table or MATLAB ``.mat``) to recording format v1.
+"""``motorid import``: a lab's own file (text table, MATLAB ``.mat``, ROS 2 bag, WPILib ``.wpilog``) to format v1.
 
 The column flags (``--time t:ms --input u:V --speed y:deg/s``, or ``--angle``/``--counts``
 with ``--counts-per-rev``) are shared with ``motorid identify``, which reads foreign files
@@ -35,10 +35,13 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
     group.add_argument("--time", required=required, metavar="COL[:UNIT]",
                        help=f"time column; unit {_units(TIME_UNITS)} (default s)")
     group.add_argument("--input", required=required, metavar="COL[:UNIT]",
-                       help=f"input column; unit {_units(INPUT_UNITS)} (default duty; kept as the metadata "
-                            "input_unit, values unchanged)")
+                       help=f"input column; unit {_units(INPUT_UNITS)}, required unless the file states it "
+                            "(a header such as u_pct, a log's metadata); kept as the metadata input_unit, values "
+                            "unchanged")
     group.add_argument("--speed", metavar="COL[:UNIT]",
-                       help=f"measured speed column; unit {_units(SPEED_UNITS)} (default rad/s)")
+                       help=f"measured speed column; unit {_units(SPEED_UNITS)}, required unless the file states "
+                            "it (speed_rpm, w [rad/s], a log's metadata); kept as the metadata speed_unit, results "
+                            "are also shown in it")
     group.add_argument("--angle", metavar="COL[:UNIT]",
                        help=f"measured angle column; unit {_units(ANGLE_UNITS)} (default rad)")
     group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
@@ -103,7 +106,8 @@ def read_motorid_recording(path: str, check_samples: bool = True) -> Recording:
 
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid import``."""
-    parser.add_argument("file", metavar="FILE", help="text table (CSV, TSV, whitespace; header or none) or .mat")
+    parser.add_argument("file", metavar="FILE", help="text table (CSV, TSV, whitespace; header or none), .mat, a ROS 2 "
+                                                     "bag (its folder, .db3 or .mcap) or a WPILib .wpilog")
     add_column_arguments(parser, required=True)
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording (format v1)")
 

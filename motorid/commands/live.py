@@ -71,7 +71,8 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-loss", type=float, default=DEFAULT_MAX_LOSS, metavar="PCT",
                         help=f"largest share of the samples run that may be lost (link or device) before live "
                              f"exits with status 2 instead of identifying, in %% (default {DEFAULT_MAX_LOSS:g})")
-    parser.add_argument("--json", action="store_true", help="end the output with one JSON line")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (the human-readable text goes to stderr)")
     parser.add_argument("--plot", action="store_true",
                         help="show duty and speed live with the running estimate (matplotlib window; "
                              "without a display, FILE.csv.live.png is updated instead)")
@@ -262,8 +263,9 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
     """After a complete run: the summary line, the loss check, the estimates (and JSON)."""
     from identify import fit
     from motorid.commands.identify import format_estimate
+    say = print_to_stderr if args.json else print
     m = recording.metadata
-    print(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
+    say(f"wrote {len(recording)} samples to {path}: {_loss_note(m)}")
     loss_pct = 100 * float(m["loss_fraction"])
     if loss_pct > args.max_loss:
         raise CommandError(f"{m['samples_lost']} of the {m['samples_ticked']} samples were lost "
@@ -276,10 +278,10 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
     estimate = fit(recording, method=args.method, outliers="keep", **options)
     if plot is not None:
         plot.show_fit(recording, estimate)
-    print(format_estimate(estimate))
+    say(format_estimate(estimate))
     run_est = running.estimate()
     if run_est.ready:
-        print(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model}, {run_est.n_rows} rows, "
+        say(f"running     a {run_est.a:.6g} 1/s, b {run_est.b:.6g} ({run_est.model}, {run_est.n_rows} rows, "
               f"the estimate shown during the run)")
     if args.json:
         out = {**estimate.to_dict(), "running_estimate": run_est.to_dict(), "recording": str(path),

@@ -48,14 +48,21 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def _run_closed_loop(args: argparse.Namespace) -> int:
-    from motorid.commands.control import controller_from_args, model_from_args, reference_from_args, require_duty_model
+    from motorid.commands.control import (
+        controller_from_args,
+        load_model_file,
+        model_from_args,
+        reference_from_args,
+        require_duty_model,
+    )
     from motorsim.control import ClosedLoopExperiment, tracking_error
     given = [f"--{name}" for name in (*EXCITATION_FLAGS, "excitation") if getattr(args, name.replace("-", "_"), None)]
     if given:
         raise CommandError(f"{', '.join(given)} and --controller exclude each other: the controller sets the duty")
     require_duty_model(args)
     controller = controller_from_args(args, model_from_args(args))
-    reference = reference_from_args(args)
+    speed_unit = load_model_file(args.model).speed_unit if args.model else "rad/s"
+    reference = reference_from_args(args, controller, speed_unit, float(args.duty_limit))
     rec = sim_rig_from_args(args).run(ClosedLoopExperiment(controller, reference, args.duration, args.duty_limit))
     path = write_recording(rec, args.out)
     measured = float((tracking_error(rec) ** 2).mean() ** 0.5)

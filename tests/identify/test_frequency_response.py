@@ -185,3 +185,31 @@ def test_the_package_name_is_the_function_whatever_was_imported_first():
     import identify
     importlib.import_module("identify.frequency_estimate")
     assert callable(identify.frequency_response) and identify.frequency_response is frequency_response
+
+
+def _transient_run(duty, seed=3):
+    t = np.arange(len(duty)) * DT
+    traj = simulate(Motor(A, B), duty, t)
+    rng = np.random.default_rng(seed)
+    return Recording(time=t, duty=duty, sample_period=DT, angle=traj.angle + 1e-3 * rng.standard_normal(len(t)))
+
+
+def test_a_step_is_refused_with_the_reason_not_drawn_as_a_spectrum():
+    # a step's input power sits in the one or two segments around it: coherence 1 by construction, and
+    # the phase unwrapped to thousands of degrees before
+    t = np.arange(1600) * DT
+    with pytest.raises(NotIdentifiableError, match="the input is not stationary: at every frequency its power "
+                                                    "comes from fewer than 3 of the"):
+        frequency_response(_transient_run(np.where(t >= 2.0, 150.0, 0.0)))
+    with pytest.raises(NotIdentifiableError, match="the input does not change within any segment"):
+        frequency_response(_transient_run(np.full(1600, 150.0)))
+
+
+def test_a_sine_plus_a_step_keeps_only_the_sines_line_and_it_covers_the_truth():
+    t = np.arange(1600) * DT
+    frf = frequency_response(_transient_run(np.round(100 * np.sin(10 * t) + np.where(t >= 4, 100, 0))))
+    # the Welch bins (128-sample segments) are 9.82 rad/s apart: the one holding the 10 rad/s sine
+    # is the only one the data carry
+    assert frf.omega.tolist() == pytest.approx([2 * math.pi / (128 * DT)])
+    assert frf.covers(frf.model_response(A, B)).all()
+    assert np.all(np.abs(frf.phase_deg()) < 90)

@@ -1,5 +1,6 @@
 """motorid control design, motorid simulate --controller, and the demo's closed-loop part."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -234,13 +235,16 @@ def test_a_rig_controller_refuses_a_model_not_in_duty(volt_model, capsys, tmp_pa
     assert "its input is in V" in err and "duty" in err and not (tmp_path / "x.csv").exists()
 
 
-def test_a_saved_model_says_which_encoder_the_design_assumes(volt_model, capsys):
+def test_a_model_fitted_to_a_speed_column_assumes_no_encoder(volt_model, capsys):
+    # the volt model was fitted to a tachometer's deg/s column: no encoder to assume, no firmware gains
     assert main(["control", "design", "--model", str(volt_model), "--controller", "pi"]) == 0
-    assert "assuming 16667 counts/rev (give --counts-per-rev N)" in capsys.readouterr().err
+    captured = capsys.readouterr()
+    assert "assuming" not in captured.err and "counts/rev" not in captured.out
+    assert "speed sensor (the model was fitted to a speed column)" in captured.out
     assert main(["control", "design", "--model", str(volt_model), "--controller", "pi", "--counts-per-rev",
                  "1000"]) == 0
     captured = capsys.readouterr()
-    assert "assuming" not in captured.err and "1000 counts/rev" in captured.out
+    assert "assuming" not in captured.err and "the rig's encoder 1000 counts/rev" in captured.out
 
 
 @pytest.mark.parametrize("flags, named", [
@@ -314,3 +318,39 @@ def test_control_design_says_when_the_uncertainty_does_not_know_the_motors_direc
     # 100 draws of a 38 % share: 4 binomial standard deviations (4.9 points each) either side
     assert abs(other - 38) < 20 and unstable >= other
     assert "warning: " in out and "does not know which way the motor turns" in out
+
+
+def test_a_model_fitted_to_counts_says_which_encoder_the_design_assumes(tmp_path, capsys):
+    run, model = tmp_path / "run.csv", tmp_path / "model.json"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "2", "--out", str(run)]) == 0
+    assert main(["identify", str(run), "--method", "oe", "--input-delay", "0", "--save", str(model)]) == 0
+    capsys.readouterr()
+    assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
+    assert "assuming 16667 counts/rev (give --counts-per-rev N)" in capsys.readouterr().err
+
+
+def test_the_default_reference_is_in_the_models_range_and_speed_unit(volt_model, capsys):
+    # the model's data came in deg/s with a 12 V limit: top speed b/a x 12 V (1726 deg/s measured);
+    # a third of it, to 2 significant figures, in deg/s, instead of a 10 rad/s sine that barely moves it
+    assert main(["control", "design", "--model", str(volt_model), "--controller", "pi"]) == 0
+    captured = capsys.readouterr()
+    saved = json.loads(volt_model.read_text())
+    top = math.degrees(saved["b"] / saved["a"] * 12)
+    amplitude = float(f"{top / 3:.2g}")
+    assert f"--reference sine:10,{amplitude:g}deg/s" in captured.err
+    assert f"of sine:10,{amplitude:g}deg/s (sine:10.0,{math.radians(amplitude)!r},0.0 rad/s)" in captured.out
+
+
+@pytest.mark.parametrize("spec,si", [("step:1500rpm", 1500 * 2 * math.pi / 60), ("step:2.5rev/s,0.5", 5 * math.pi),
+                                     ("constant:90deg/s", math.pi / 2), ("step:7.5", 7.5)])
+def test_a_reference_takes_units(spec, si, capsys):
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--reference", spec]) == 0
+    out = capsys.readouterr().out
+    kind = spec.split(":")[0]
+    assert f"of {spec} ({kind}:{si!r}" in out or f"of {kind}:{si!r}" in out
+
+
+def test_a_reference_in_the_wrong_kind_of_unit_is_refused(capsys):
+    assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--reference",
+                 "step:90deg"]) == 2
+    assert "'90deg' is a position, but this controller tracks a speed" in capsys.readouterr().err

@@ -77,3 +77,19 @@ def test_bench_frequency_prints_the_ratio(capsys):
     assert main(["bench", "frequency", "--samples", "20000", "--segment", "512", "--repeats", "1"]) == 0
     out = capsys.readouterr().out
     assert "ratio" in out and "largest relative difference" in out
+
+
+def test_the_header_names_the_input_unit_not_duty(capsys):
+    data = "tests/data/undcmotor/DCmotor_prbs_open_exp.csv"
+    assert main(["frequency", data, "--time", "t:s", "--input", "u:V", "--speed", "y:deg/s"]) == 0
+    out = capsys.readouterr().out
+    assert "frequency response input (V) -> speed" in out and "duty" not in out
+
+
+def test_a_step_is_refused_by_frequency_and_has_no_bode_panel_in_the_report(tmp_path, capsys):
+    run = _simulate(tmp_path, "step.csv", "--excitation", "step:150,1.0")
+    assert main(["frequency", str(run)]) == 2
+    assert "the input is not stationary" in capsys.readouterr().err
+    report = tmp_path / "report.png"
+    assert main(["identify", str(run), "--method", "oe", "--report", str(report)]) == 0
+    assert "(no Bode panel: the input is not stationary" in capsys.readouterr().out and report.exists()

@@ -179,10 +179,10 @@ def _lab_file(tmp_path: Path, encoder_run, per_rev: float) -> Path:
 def test_an_angle_column_in_degrees_read_as_radians_is_refused_naming_the_column_and_the_flag(
         tmp_path, capsys, encoder_run):
     path = _lab_file(tmp_path, encoder_run, 360.0)
-    err = _error(capsys, ["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta"])
+    err = _error(capsys, ["identify", str(path), "--time", "t", "--input", "u:duty", "--angle", "theta"])
     assert "the angle column 'theta', read as rad" in err and "16667 per 360" in err
     assert "give --angle theta:deg" in err and len(err.strip().splitlines()) == 1
-    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta:deg", "--json"]) == 0
+    assert main(["identify", str(path), "--time", "t", "--input", "u:duty", "--angle", "theta:deg", "--json"]) == 0
     import json
     out = json.loads(capsys.readouterr().out)
     assert out["b"] == pytest.approx(3.0, rel=1e-3)
@@ -190,14 +190,14 @@ def test_an_angle_column_in_degrees_read_as_radians_is_refused_naming_the_column
 
 def test_an_angle_stated_in_radians_that_reads_as_degrees_is_fitted_with_a_note(tmp_path, capsys, encoder_run):
     path = _lab_file(tmp_path, encoder_run, 360.0)
-    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta:rad"]) == 0
+    assert main(["identify", str(path), "--time", "t", "--input", "u:duty", "--angle", "theta:rad"]) == 0
     assert "stated in rad: it moves only in exact steps" in capsys.readouterr().err
 
 
 def test_an_angle_in_radians_is_neither_refused_nor_doubted(tmp_path, capsys, encoder_run):
     import math
     path = _lab_file(tmp_path, encoder_run, 2 * math.pi)
-    assert main(["identify", str(path), "--time", "t", "--input", "u", "--angle", "theta", "--json"]) == 0
+    assert main(["identify", str(path), "--time", "t", "--input", "u:duty", "--angle", "theta", "--json"]) == 0
     captured = capsys.readouterr()
     assert "angle" not in captured.err
     import json

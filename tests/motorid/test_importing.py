@@ -83,17 +83,29 @@ def test_readme_real_motor_figures_reproduce_end_to_end(tmp_path, capsys):
 _UNIT_NAMED = "time_ms,u_pct,speed_rpm\n0,10,0\n10,10,100\n20,20,200\n30,20,250\n40,20,300\n"
 
 
-@pytest.mark.parametrize("flags,refused,suggested", [
-    (["--time", "time_ms", "--input", "u_pct:%", "--speed", "speed_rpm:rpm"], "time_ms", "--time time_ms:ms"),
-    (["--time", "time_ms:ms", "--input", "u_pct", "--speed", "speed_rpm:rpm"], "u_pct", "--input u_pct:%"),
-    (["--time", "time_ms:ms", "--input", "u_pct:%", "--speed", "speed_rpm"], "speed_rpm", "--speed speed_rpm:rpm"),
+@pytest.mark.parametrize("flags,column,unit", [
+    (["--time", "time_ms", "--input", "u_pct:%", "--speed", "speed_rpm:rpm"], "time_ms", "ms"),
+    (["--time", "time_ms:ms", "--input", "u_pct", "--speed", "speed_rpm:rpm"], "u_pct", "%"),
+    (["--time", "time_ms:ms", "--input", "u_pct:%", "--speed", "speed_rpm"], "speed_rpm", "rpm"),
 ], ids=["time_ms", "u_pct", "speed_rpm"])
-def test_a_column_named_with_a_unit_but_given_without_one_is_refused(tmp_path, capsys, flags, refused, suggested):
+def test_a_column_named_with_a_unit_but_given_without_one_is_read_in_it_and_said(tmp_path, capsys, flags, column,
+                                                                                  unit):
     src = tmp_path / "lab.csv"
     src.write_text(_UNIT_NAMED)
-    assert main(["import", str(src), *flags, "--out", str(tmp_path / "rec.csv")]) == 2
+    assert main(["import", str(src), *flags, "--out", str(tmp_path / "rec.csv")]) == 0
+    assert f"column {column!r} is read in {unit}, the unit its header states" in capsys.readouterr().err
+    rec = read_recording(tmp_path / "rec.csv")
+    assert rec.sample_period == 0.01 and rec.input_unit == "%" and rec.speed_unit == "rpm"
+    assert rec.speed[1] == pytest.approx(100 * 2 * math.pi / 60, rel=1e-12)
+
+
+def test_an_rpm_column_given_without_a_unit_is_refused_not_read_as_rad_s(tmp_path, capsys):
+    src = tmp_path / "lab.csv"
+    src.write_text("t_ms,pwm_pct,rpm\n0,10,0\n10,10,100\n20,20,200\n")
+    assert main(["import", str(src), "--time", "t_ms:ms", "--input", "pwm_pct:%", "--speed", "rpm",
+                 "--out", str(tmp_path / "rec.csv")]) == 2
     err = capsys.readouterr().err
-    assert refused in err and suggested in err
+    assert "the speed column 'rpm' has no unit" in err and "rad/s, deg/s, rpm, rev/s" in err
     assert not (tmp_path / "rec.csv").exists()
 
 
@@ -113,3 +125,35 @@ def test_identify_on_a_file_that_is_not_a_recording_names_the_column_flags_and_i
     err = capsys.readouterr().err
     for hint in ("--time", "--input", "--speed", "motorid import"):
         assert hint in err, hint
+
+
+def _rpm_lab_file(tmp_path):
+    """A lab's ``t_ms, pwm_pct, rpm`` file of the simulated motor a = 25 1/s, b = 3 (rad/s^2)/duty."""
+    run = tmp_path / "sim.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "4", "--prbs", "200,-200,9,3", "--record-speed",
+                 "--out", str(run)]) == 0
+    rec = read_recording(run)
+    lab = tmp_path / "lab.csv"
+    rows = [f"{t * 1000:.3f},{u / 255 * 100:.9f},{w * 60 / (2 * math.pi):.9f}"
+            for t, u, w in zip(rec.time, rec.duty, rec.speed)]
+    lab.write_text("t_ms,pwm_pct,rpm\n" + "\n".join(rows) + "\n")
+    return lab
+
+
+def test_a_model_fitted_in_rpm_shows_and_saves_rpm_beside_si(tmp_path, capsys):
+    from identify.estimate import Estimate
+    lab, model = _rpm_lab_file(tmp_path), tmp_path / "model.json"
+    capsys.readouterr()
+    assert main(["identify", str(lab), "--time", "t_ms", "--input", "pwm_pct", "--speed", "rpm:rpm",
+                 "--input-limit", "100", "--json", "--save", str(model)]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    # truth: b/a = 3/25 (rad/s)/duty = 0.306 (rad/s)/% = 2.9221 rpm/%; the noise-free data give it to 1e-6
+    truth = 3 / 25 * 255 / 100 * 60 / (2 * math.pi)
+    assert doc["units"]["speed"] == "rpm" and doc["in_speed_unit"]["unit"] == "rpm"
+    assert doc["in_speed_unit"]["static_gain"] == pytest.approx(truth, rel=1e-6)
+    assert doc["static_gain"] == pytest.approx(truth * 2 * math.pi / 60, rel=1e-6)        # SI stays SI
+    assert doc["in_speed_unit"]["top_speed"] == pytest.approx(100 * truth, rel=1e-6)
+    assert "in rpm      b/a 2.92" in captured.err and "rpm/%" in captured.err
+    saved = Estimate.from_json(model.read_text())
+    assert saved.speed_unit == "rpm" and json.loads(model.read_text())["units"]["speed"] == "rpm"

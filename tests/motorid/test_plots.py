@@ -163,6 +163,11 @@ def test_closed_loop_figure_shows_each_design_tracking_error():
     rows = compare_designs(SimRig(truth), [("truth", truth), ("slow", Motor(20.0, 2.7))], "mpc",
                            parse_reference("sine:30,10"), 0.5, 0.005, 16667, duty_weight=1e-4)
     fig = plots.plot_tracking(rows)
-    error_axis = next(ax for ax in fig.axes if ax.get_ylabel().startswith("error"))
-    assert len(error_axis.get_lines()) == 1 + len(rows)          # the zero line, then one error per design
+    # each design's error in a panel of its own (on one shared panel the truth's line hid under another's)
+    error_axes = [ax for ax in fig.axes if "error" in ax.get_ylabel()]
+    assert [ax.get_ylabel().split("\n")[0] for ax in error_axes] == ["truth", "slow"]
+    for ax, row in zip(error_axes, rows):
+        (line, _zero) = ax.get_lines()
+        np.testing.assert_array_equal(line.get_ydata(), row.recording.measured_speed() - row.recording.reference)
+    assert error_axes[0].get_ylim() == error_axes[1].get_ylim()   # one shared scale
     assert fig.axes[-1].get_ylabel() == "input [duty]"

@@ -68,7 +68,7 @@ def test_refusals_name_the_rule(kwargs, match):
 
 
 def test_column_spec():
-    assert ColumnSpec.parse("time", "t") == ColumnSpec("time", "t", "s")
+    assert ColumnSpec.parse("time", "t") == ColumnSpec("time", "t", None)     # the file may state it
     assert ColumnSpec.parse("time", "2:µs") == ColumnSpec("time", 2, "µs")
     assert ColumnSpec.parse("speed", "w [x]:rev/s").column == "w [x]"
     with pytest.raises(ValueError, match="unit of the speed column must be one of"):
@@ -91,7 +91,7 @@ def test_text_tables_with_header(tmp_path, text, sep):
 def test_text_table_without_header_by_index(tmp_path):
     path = tmp_path / "raw.dat"
     path.write_text("0 100 0\n5 100 12\n10 100 30\n")
-    rec = import_recording(path, time="0:ms", input="1", counts="2", counts_per_rev=1000)
+    rec = import_recording(path, time="0:ms", input="1:duty", counts="2", counts_per_rev=1000)
     assert rec.sample_period == 0.005 and rec.counts.tolist() == [0, 12, 30] and rec.counts_per_rev == 1000
 
 
@@ -110,7 +110,7 @@ def test_file_refusals_name_file_line_column_and_rule(tmp_path, text, kwargs, ma
     path = tmp_path / "raw.csv"
     path.write_text(text)
     with pytest.raises(ImportFormatError, match=match):
-        import_recording(path, **{"time": "t", "input": "u", "speed": "y", **kwargs})
+        import_recording(path, **{"time": "t", "input": "u:duty", "speed": "y:rad/s", **kwargs})
 
 
 def test_matlab_v5_vectors_and_matrix(tmp_path):
@@ -120,7 +120,7 @@ def test_matlab_v5_vectors_and_matrix(tmp_path):
     rec = import_recording(tmp_path / "run.mat", time="t", input="u:V", speed="y:rev/s")
     np.testing.assert_allclose(rec.speed, np.arange(4.0) * 2 * math.pi, rtol=1e-15)
     io.savemat(tmp_path / "matrix.mat", {"data": np.column_stack([t * 1000, np.ones(4), np.arange(4.0)])})
-    rec = import_recording(tmp_path / "matrix.mat", time="0:ms", input="1", speed="2:deg/s")
+    rec = import_recording(tmp_path / "matrix.mat", time="0:ms", input="1:V", speed="2:deg/s")
     assert rec.sample_period == 0.01
 
 
@@ -148,26 +148,60 @@ def test_matlab_v73_with_h5py(tmp_path):
         f["y"] = np.arange(3.0)[None, :]
     with open(path, "r+b") as fh:
         fh.write(b"MATLAB 7.3 MAT-file".ljust(124) + b"\x00\x02IM")
-    rec = import_recording(path, time="t", input="u", speed="y")
+    rec = import_recording(path, time="t", input="u:duty", speed="y:rad/s")
     assert rec.sample_period == 0.1 and rec.speed.tolist() == [0.0, 1.0, 2.0]
 
 
 @pytest.mark.parametrize("quantity,name,unit", [
     ("time", "time_ms", "ms"), ("time", "t_us", "us"), ("speed", "speed_rpm", "rpm"), ("speed", "w_degs", "deg/s"),
-    ("input", "u_pct", "%"), ("input", "u_V", "V"), ("angle", "theta_deg", "deg"),
+    ("input", "u_pct", "%"), ("input", "u_V", "V"), ("angle", "theta_deg", "deg"), ("speed", "w [rad/s]", "rad/s"),
 ], ids=lambda x: str(x))
-def test_a_unit_in_the_column_name_must_be_given(quantity, name, unit):
+def test_a_unit_the_header_states_is_the_columns_unit(tmp_path, quantity, name, unit):
     from motorsim.columns import unit_in_name
     assert unit_in_name(quantity, name) == unit
-    with pytest.raises(ValueError, match=f"{quantity} {name}:"):
-        ColumnSpec.parse(quantity, name)
-    assert ColumnSpec.parse(quantity, f"{name}:{unit}").unit == unit
+    columns = {"time": "t", "input": "u", "speed": "y", quantity: name}
+    if quantity == "angle":
+        del columns["speed"]
+    path = tmp_path / "lab.csv"
+    path.write_text(f"{','.join(columns.values())}\n0,1,0\n1,1,1\n2,1,2\n")
+    flags = {q: (c if c == name else f"{c}:{'duty' if q == 'input' else 's' if q == 'time' else 'rad/s'}")
+             for q, c in columns.items() if c}
+    with pytest.warns(UserWarning, match="the unit its header states"):
+        rec = import_recording(path, **flags)
+    assert (rec.input_unit if quantity == "input" else rec.speed_unit) == {
+        "input": unit, "speed": unit, "time": "rad/s", "angle": {"deg": "deg/s"}.get(unit)}[quantity]
 
 
-@pytest.mark.parametrize("quantity,name", [("time", "t"), ("time", "time_s"), ("speed", "omega"),
-                                           ("input", "duty"), ("speed", "0")], ids=lambda x: str(x))
-def test_a_name_without_a_foreign_unit_takes_the_default(quantity, name):
-    assert ColumnSpec.parse(quantity, name).column in (name, int(name) if name.isdigit() else name)
+@pytest.mark.parametrize("quantity", ["speed", "input"])
+def test_a_speed_or_input_column_without_a_unit_is_refused_with_the_units(tmp_path, quantity):
+    # an rpm column read as rad/s without a word put b 9.55 times off; no default is safe
+    path = tmp_path / "lab.csv"
+    path.write_text("t,u,y\n0,1,0\n1,1,1\n2,1,2\n")
+    flags = {"time": "t", "input": "u:V", "speed": "y:rpm", quantity: {"speed": "y", "input": "u"}[quantity]}
+    units = "rad/s, deg/s, rpm, rev/s" if quantity == "speed" else "duty, V, %"
+    with pytest.raises(ImportFormatError, match=f"the {quantity} column .* has no unit and the file does not "
+                                                f"state one: give --{quantity} .*:UNIT with UNIT one of {units}"):
+        import_recording(path, **flags)
+
+
+def test_every_column_problem_is_said_in_one_message(tmp_path):
+    path = tmp_path / "lab.csv"
+    path.write_text("t_ms,pwm,rpm\n0,10,0\n1,10,1\n2,10,2\n")
+    with pytest.raises(ImportFormatError) as info:
+        import_recording(path, time="t_ms:ms", input="pwm", speed="speed", angle="theta:furlong")
+    text = str(info.value)
+    assert text.startswith(f"{path}: 3 problems with the columns: (1) ")
+    assert "the unit of the angle column must be one of" in text            # (1) a unit that is none
+    assert "the input column 'pwm' has no unit" in text                     # (2) nothing states it
+    assert "no column named 'speed' for the speed" in text                  # (3) a name not in the file
+
+
+def test_a_speed_in_rpm_is_kept_as_the_recordings_speed_unit(tmp_path):
+    path = tmp_path / "lab.csv"
+    path.write_text("t,pwm,rpm\n0,50,0\n10,50,1500\n20,50,3000\n")
+    rec = import_recording(path, time="t:ms", input="pwm:%", speed="rpm:rpm")
+    assert rec.speed_unit == "rpm" and rec.input_unit == "%"
+    np.testing.assert_allclose(rec.speed, [0, 50 * math.pi, 100 * math.pi], rtol=1e-15)   # stored in rad/s
 
 
 def _crashing_mat_bytes() -> bytes:

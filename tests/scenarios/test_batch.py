@@ -5,7 +5,7 @@ import pytest
 
 from identify import NotIdentifiableError, fit_euler_ls, fit_zoh_ls
 from motorsim import Constant, Encoder, Experiment, Motor, Recording, SimRig, Sine, simulate
-from scenarios.batch import BATCHED_METHODS, encoder_counts_batch, fit_batch, simulate_batch, speed_batch
+from scenarios.batch import BATCHED_METHODS, MethodOutcome, encoder_counts_batch, fit_batch, simulate_batch, speed_batch
 
 # Noise-free comparisons of the same arithmetic done two ways: agreement to 1e-9 relative
 # (the bound asserted below); observed differences are ~1e-13.
@@ -111,3 +111,12 @@ def test_zoh_failure_when_theta1_leaves_the_unit_interval():
 def test_fit_batch_rejects_unbatched_names():
     with pytest.raises(ValueError, match="batched methods"):
         fit_batch(["no-such-method"], np.zeros((1, 10)), np.zeros(10), 0.01)
+
+
+def test_failure_reasons_group_by_the_message_with_its_numbers_masked():
+    # each repetition's message carries its own figure; grouped verbatim, every group had one member
+    failures = ("singular: cond 3.1e+08 after 12 steps", "singular: cond 2.7e+08 after 9 steps", "",
+                "recording is too short: 1 regression rows", "singular: cond -4e+07 after 3 steps")
+    outcome = MethodOutcome("oe", np.zeros(5), np.zeros(5), failures)
+    assert outcome.failure_summary() == ("singular: cond 3.1e+08 after 12 steps (3) | "
+                                         "recording is too short: 1 regression rows (1)")
