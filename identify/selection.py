@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -64,7 +64,7 @@ from .data import (
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .friction import segments_reverse
+from .friction import FrictionScan, friction_candidate, segments_reverse
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
@@ -128,7 +128,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
     G = G[:, keep]
     k = G.shape[1]
-    rss = float(r @ r)
+    rss = float(np.einsum("i,i->", r, r))
     if k == 0 or rss == 0:
         return 1.0, 0.0
     step = G @ np.linalg.lstsq(G, r, rcond=None)[0]
@@ -211,7 +211,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
     if nonlinear and linear:
-        base = refine(fitted, refit, level)
+        base = _refined_best(fitted, refit)
         if base is None:
             p, share = 0.0, 1.0
         else:
@@ -283,6 +283,15 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
     return out
 
 
+def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:
+    """The best fit, refitted in full in place until the best is a full fit (the first steps of
+    :func:`identify.comparison.refine`): what the friction screen needs.  The other coarse candidates
+    are refined at the end, against the best of all; with friction they are far above it and left be."""
+    while (best := best_fit(fitted)) is not None and not best.refined:
+        fitted[fitted.index(best)] = refit(best)
+    return best
+
+
 def _declared_delay(recs: list[Recording]) -> int:
     """The input delay every recording's device declares (``input_delay_samples``), else 0."""
     declared = []
@@ -306,13 +315,16 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
     """The most general nonlinear structure at every delay, the other near every delay where the general
     one could be within the noise (and near the linear model's best delay)."""
     general, *rest = sorted(structures, key=list(STRUCTURES).index, reverse=True)
-    out = scan_delays(delays, lambda d: [_candidate(recs, segments[d], d, general, fix_bias=fix_bias)], level, [])
+    # neighbouring delays share starts; a candidate that cannot come near the best stops early (refined later)
+    scan = FrictionScan(linear_best.candidate.residual_sum if linear_best is not None else math.inf, level)
+    out = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, general, fix_bias, scan=scan)],
+                      level, [])
     near: set[int] = set()
     for anchor in plausible(out, level) + ([linear_best] if linear_best is not None else []):
         d = anchor.candidate.input_delay
         near |= {x for x in (d - 1, d, d + 1) if x in segments}
     for s in rest:
-        out += [_candidate(recs, segments[d], d, s, fix_bias=fix_bias) for d in sorted(near)]
+        out += [friction_candidate(recs, segments[d], d, s, fix_bias, scan=scan) for d in sorted(near)]
     return out
 
 
