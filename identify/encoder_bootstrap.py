@@ -127,10 +127,15 @@ def linearised_encoder_bootstrap_covariance(segments: Sequence[Segment], models:
     ndarray, shape (keep, keep)
         The phases' covariance of the steps plus the Gauss–Newton covariance of the white noise
         beyond the rounding (``residual_variance - step^2/12`` when positive); ``inf`` everywhere
-        when the Jacobian is rank-deficient.
+        when the Jacobian is rank-deficient.  A column after the first ``keep`` that is exactly
+        zero (a segment's initial speed while the shaft starts stuck by friction: the data do not
+        see it) is left out: it changes nothing the data say about the others.
     """
     J = np.asarray(jacobian, dtype=float)
     norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+    seen = np.concatenate([np.ones(keep, bool), norms[keep:] > 0])
+    if not seen.all():
+        J, norms = J[:, seen], norms[seen]
     H = (J / norms).T @ (J / norms)         # columns scaled to unit norm for the rank test
     if not (np.all(np.isfinite(H)) and np.all(norms > 0)) or np.linalg.cond(H) > 1e14:
         return np.full((keep, keep), math.inf)

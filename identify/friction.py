@@ -7,7 +7,7 @@ Real motors have Coulomb friction ``c`` and a duty dead zone; fitted with the
 linear model their ``a`` and ``b`` drift with the input's frequency and
 amplitude.  This fit simulates the friction model exactly, event by event
 (zero crossings, and sticking at rest while ``|b u + d| <= c``), with the
-vectorised response of :mod:`identify.friction_response` (no loop per sample),
+response of :mod:`identify.friction_response` (one compiled pass with numba, else vectorised),
 against the encoder angle, with the same segments, offsets and initial speeds as
 :mod:`identify.output_error`.  Its Jacobian is analytic, differentiated through
 the event times: the exact model's exact derivative wherever the stick/slip
@@ -56,22 +56,30 @@ import numpy as np
 from motorsim.checks import check_bool
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, Candidate, CandidateFit, choose_delay
+from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
 from .model_structures import ModelStructure
-from .output_error import MAX_AUTO_DELAY, fit_output_error, select_delay, solve_output_error
+from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
+from .variable_projection import is_separable, separable_candidate, static_gain_ceiling
 
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
-__all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse"]
+__all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse", "friction_candidate", "FrictionScan",
+           "solve_friction", "friction_parameter_names"]
 
+
+
+def _sum_squares(r: np.ndarray) -> float:
+    """``r . r`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine
+    (on 15 000 rows and a loaded 2-core machine, 13 ms against 6 us)."""
+    return float(np.einsum("i,i->", r, r))
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -143,25 +151,29 @@ class _FrictionProblem:
         if key == self._key and self._value is not None and (self._value[1] is not None or not jacobian):
             return self._value
         r = np.empty(self.n_rows)
-        J = np.zeros((self.n_rows, len(x))) if jacobian else None
+        one = len(self.segments) == 1          # its columns are the whole Jacobian, in this order
+        J = np.zeros((self.n_rows, len(x))) if jacobian and not one else None
         row = 0
         for i, seg in enumerate(self.segments):
             n = len(seg.time)
             resp = self._response(x, i, jacobian)
             model, sens = ((resp.angle, resp.angle_sensitivity) if seg.kind == "angle"
                            else (resp.speed, resp.speed_sensitivity))
-            err = seg.output - model
+            err = np.subtract(seg.output, model, out=r[row:row + n])
             if seg.kind == "angle":
-                err = err - err.mean()
-            r[row:row + n] = err
-            if J is not None and sens is not None:
+                err -= err.mean()
+            if jacobian and sens is not None:
                 cols = sens[:, self.columns + [len(FRICTION_PARAMETERS) - 1]]    # a copy
                 if seg.kind == "angle":
                     np.subtract(cols.mean(axis=0), cols, out=cols)      # centred, negated
                 else:
                     np.negative(cols, out=cols)
-                J[row:row + n, :self.n_global] = cols[:, :-1]
-                J[row:row + n, self.n_global + i] = cols[:, -1]
+                if one:
+                    J = cols
+                else:
+                    assert J is not None
+                    J[row:row + n, :self.n_global] = cols[:, :-1]
+                    J[row:row + n, self.n_global + i] = cols[:, -1]
             row += n
         self._key, self._value = key, (r, J)
         return r, J
@@ -234,12 +246,12 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=dead_zone)
     problem, res = solve_friction(recs, segments, names, delay)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    s2 = float(res.fun @ res.fun) / problem.dof
+    s2 = _sum_squares(res.fun) / problem.dof
     ends = np.cumsum([0] + [len(s.time) for s in segments])
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
     cov, cov_method = _covariance(recs, problem, res, s2, placed)
     return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
-                    residual_rms=math.sqrt(float(res.fun @ res.fun) / problem.n_rows),
+                    residual_rms=math.sqrt(_sum_squares(res.fun) / problem.n_rows),
                     fit_percent=segment_fit_percent(segments, placed),
                     covariance=cov, param_names=names, covariance_method=cov_method,
                     extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
@@ -252,8 +264,10 @@ def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
     the linear model's with a bias when the speed never reverses (friction is then a constant)."""
     if not speed_reverses(recs):
         return select_delay(recs, with_bias=not fix_bias)
-    # friction candidates are full fits whatever the refine flag: there is nothing to refine
-    return choose_delay(recs, lambda segs, d, _: friction_candidate(recs, segs, d, structure, fix_bias),
+    # the scan's fits start from the neighbouring delay's and stop early when they cannot win; refined: in full
+    scan = FrictionScan()
+    return choose_delay(recs, lambda segs, d, refine: friction_candidate(recs, segs, d, structure, fix_bias,
+                                                                         scan=None if refine else scan),
                         MAX_AUTO_DELAY, LEVEL, "oe-friction")
 
 
@@ -263,7 +277,7 @@ def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) 
 
 
 def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
-                   input_delay: int, *, thorough: bool = True) -> tuple[_FrictionProblem, OptimizeResult]:
+                   input_delay: int, *, thorough: bool = False) -> tuple[_FrictionProblem, OptimizeResult]:
     """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
 
     What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
@@ -271,11 +285,11 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     candidate by this fit's residuals, the same fit the estimate it returns is made from.
 
     The cost is kinked and has local minima where friction and dead zone trade off.  The fit starts
-    from the instrumental-variable regression; from the linear fit too (with a little friction, a
-    dead zone of a tenth of the input, much friction) when that lands worse than the linear model
-    it contains, when the regression's ``a`` is far from the linear one, or always with ``thorough``
-    (the estimate's own fit; the selection's candidates at every delay use ``thorough=False``); the
-    least residual wins.
+    from the instrumental-variable regression, one Levenberg–Marquardt run; from the linear fit too
+    (with a little friction, a dead zone of a tenth of the input, much friction) only when that lands
+    worse than the linear model it contains, when the regression's ``a`` is far from the linear one,
+    or always with ``thorough``; the least residual wins.  The linear fit it is checked against is the
+    variable projection in ``a`` started from the friction fit's pole (a few cheap evaluations).
 
     Raises
     ------
@@ -290,10 +304,8 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     if x0 is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
-    try:
-        linear = solve_output_error(recordings, segments, input_delay, with_bias="bias" in names)
-    except NotIdentifiableError:
-        linear = None
+    near = float(results[0].x[0]) if results and np.isfinite(results[0].x[0]) else None
+    linear = _linear_fit(recordings, segments, input_delay, "bias" in names, near)
     if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
         # the kinked cost has local minima where friction and dead zone trade off: when the regression's
         # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
@@ -311,17 +323,108 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     return problem, res
 
 
+class FrictionScan:
+    """What the friction candidates of one model selection share as it goes through the delays.
+
+    Each structure's last fit (the neighbouring delay's: its parameters are the start of the next
+    delay's fit, and the general structure's fit at a delay starts the simpler one's there) and the
+    least residual sum fitted so far, from which a candidate that cannot come near it is stopped early
+    (:func:`friction_candidate`).
+
+    Parameters
+    ----------
+    best : float
+        The least residual sum already fitted on the same rows (the linear candidates'), inf if none.
+    level : float
+        Level of the selection's test (:data:`identify.comparison.LEVEL`).
+    """
+
+    def __init__(self, best: float = math.inf, level: float = LEVEL):
+        self.best = best
+        self.level = level
+        self.starts: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+
+    def bound(self, structure: str) -> float:
+        """The residual sum above which a candidate of ``structure`` cannot be within :data:`STOP_FACTOR` times the
+        noise of the best: its statistic is at least its relative excess over the best residual sum (the
+        batch-means variance is at most ``|Delta|^2`` times the best's residual sum, by Cauchy–Schwarz)."""
+        if not math.isfinite(self.best):
+            return math.inf
+        n_params = STRUCTURES[structure].n_params
+        k = max(max(s.n_params for s in STRUCTURES.values()) + 1 - n_params, 1)   # the largest k it is tested with
+        far = STOP_FACTOR * k * float(_f_quantile(k, BLOCKS - k, 1.0 - self.level))
+        return self.best * (1.0 + far)
+
+    def start(self, structure: str, names: tuple[str, ...], n_segments: int) -> np.ndarray | None:
+        """This structure's last fit, else another structure's, its dead zone dropped or added at 0."""
+        for source in (structure, *[s for s in self.starts if s != structure]):
+            if source not in self.starts:
+                continue
+            fitted_names, x = self.starts[source]
+            if len(x) - len(fitted_names) != n_segments:
+                continue
+            shared = dict(zip(fitted_names, x[:len(fitted_names)]))
+            return np.concatenate([[shared.get(n, 0.0) for n in names], x[len(fitted_names):]])
+        return None
+
+
+def _f_quantile(k: int, m: int, p: float) -> float:
+    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
+    return float(fdtri(k, m, p))
+
+
 def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: str,
-                  fix_bias: bool) -> CandidateFit:
+                       fix_bias: bool, *, scan: FrictionScan | None = None) -> CandidateFit:
+    """A friction structure's fit on ``segs`` at ``delay``, scored as a candidate of the model selection.
+
+    With ``scan`` (the candidates of one selection, :class:`FrictionScan`) the fit starts from the
+    better (lower residual sum) of the regression's start and the neighbouring delay's fit, makes one
+    Levenberg–Marquardt run, and stops early when even its Gauss–Newton step could not bring it within
+    :data:`STOP_FACTOR` times the noise of the best residual sum so far (:meth:`FrictionScan.bound`):
+    such a candidate comes back with ``refined=False`` and its residuals where it stopped (a residual
+    sum that bounds its full fit's from above), and ``friction_candidate`` without ``scan`` fits it fully.
+    """
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=structure == "dead-zone")
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            _, res = solve_friction(recs, segs, names, delay, thorough=False)
+            if scan is None:
+                _, res = solve_friction(recs, segs, names, delay)
+            else:
+                res = _scanned_fit(recs, segs, names, delay, structure, scan)
     except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
         return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(res.fun, float)
-    return CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), float(r @ r)), r)
+    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), _sum_squares(r)), r,
+                          refined=res.status != 3)
+    if scan is not None and fitted.refined:
+        scan.starts[structure] = (names, np.asarray(res.x, float))
+        scan.best = min(scan.best, fitted.candidate.residual_sum)
+    return fitted
 
+
+def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, ...], delay: int, structure: str,
+                 scan: FrictionScan) -> OptimizeResult:
+    """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound."""
+    if not segs:
+        raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
+    problem = _FrictionProblem(segs, names)
+    starts = [x for x in (scan.start(structure, names, len(segs)), _regression_start(problem)) if x is not None]
+    if not starts:
+        return solve_friction(recs, segs, names, delay)[1]
+    lower = problem.lower_bounds()
+    costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
+    x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
+        else starts[-1]
+    res = _levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
+    if res.status == 3:
+        return res
+    near = float(res.x[0]) if np.isfinite(res.x[0]) else None
+    linear = _linear_fit(recs, segs, delay, "bias" in names, near)
+    if linear is not None and _suspicious(res, x0, linear):
+        return solve_friction(recs, segs, names, delay)[1]
+    if not (np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 and res.x[1] != 0):
+        raise NotIdentifiableError(f"oe-friction landed on a = {float(res.x[0]):.6g} 1/s")
+    return res
 
 
 def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: ModelStructure, *,
@@ -344,7 +447,7 @@ def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeR
     jac = res.jac
     segs = problem.segments
     steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
-    variance = float(res.fun @ res.fun) / problem.n_rows
+    variance = _sum_squares(res.fun) / problem.n_rows
     encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
     if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
         cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
@@ -369,11 +472,13 @@ def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
     h = float(np.median(np.concatenate([np.diff(s.time) for s in problem.segments])))
     zone = 0.0
     parts = [_regression_rows(seg, dead_zone, fit_bias) for seg in problem.segments]
-    X_all, Z_all, y_all, keep_all, duty_all = (np.concatenate([part[i] for part in parts]) for i in range(5))
+    X_all, Z_all, y_all, keep_all, duty_all = (np.asarray(parts[0][i]) if len(parts) == 1 else
+                                               np.concatenate([part[i] for part in parts]) for i in range(5))
     n_u = parts[0][5]
     for _ in range(2 if dead_zone else 1):
         keep = keep_all & (duty_all > 1.5 * zone) if zone > 0 else keep_all
-        X, Z, y = X_all[keep], Z_all[keep], y_all[keep]
+        rows = np.flatnonzero(keep)        # take: several times faster than a boolean index of 2-D rows
+        X, Z, y = X_all.take(rows, axis=0), Z_all.take(rows, axis=0), y_all[rows]
         if len(y) <= 2 * X.shape[1]:
             return None
         try:
@@ -420,30 +525,57 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     return X, Z, nxt, keep, smallest_duty, len(duties)
 
 
+@dataclasses.dataclass(frozen=True)
+class _LinearFit:
+    """The linear model (with a bias when fitted) on the same rows: what the friction fit must beat."""
+
+    a: float
+    b: float
+    bias: float
+    cost: float
+    initial_speeds: np.ndarray
+
+
+def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with_bias: bool,
+                near: float | None) -> _LinearFit | None:
+    """The ``oe`` fit of the linear model on ``segments``, None when it fails: by variable projection in ``a``
+    from ``near`` (the friction fit's pole: the linear one when friction is slight) where the clock is
+    uniform, else :func:`identify.output_error.linear_candidate`; the initial speeds are then the data's."""
+    speeds = np.array([s.initial_speed_guess() for s in segments])
+    if near is not None and near > 0 and is_separable(segments, False):
+        found = separable_candidate(segments, near, with_bias=with_bias, ceiling=static_gain_ceiling(segments))
+        if found is not None:
+            a, b, bias, r, _ = found
+            return _LinearFit(a, b, bias, _sum_squares(r), speeds)
+    fitted = linear_candidate(recs, segments, delay, with_bias)
+    if fitted.residuals is None:
+        return None
+    c = fitted.candidate
+    return _LinearFit(c.a, c.b, fitted.bias, c.residual_sum, speeds)
+
+
 def _cost(res: OptimizeResult) -> float:
     """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
-    cost = float(res.fun @ res.fun)
+    cost = _sum_squares(res.fun)
     return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
 
 
-def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear) -> bool:
+def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear: _LinearFit) -> bool:
     """A fit from the regression's start that the linear model it contains beats, or a start far from it."""
-    lin_cost = float(linear.result.fun @ linear.result.fun)
-    a_lin = float(linear.result.x[0])
-    far = x0 is None or not (a_lin / 3 <= x0[0] <= 3 * a_lin)
-    return far or _cost(res) > lin_cost * (1 + 1e-9)
+    far = x0 is None or not (linear.a / 3 <= x0[0] <= 3 * linear.a)
+    return far or _cost(res) > linear.cost * (1 + 1e-9)
 
 
-def _linear_starts(problem: _FrictionProblem, linear) -> list[np.ndarray]:
+def _linear_starts(problem: _FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
     """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
-    a0, b0 = float(linear.result.x[0]), float(linear.result.x[1])
+    a0, b0 = linear.a, linear.b
     if b0 == 0 or not a0 > 0:
         return []
     u_scale = float(np.max(np.abs(np.concatenate([s.drive for s in problem.segments])))) or 1.0
-    bias = [float(linear.result.x[2]) if len(linear.result.x) > 2 else 0.0] if "bias" in problem.names else []
+    bias = [linear.bias] if "bias" in problem.names else []
     dead = "dead_zone" in problem.names
     guesses = [(0.05, 0.02), (0.0, 0.1), (0.15, 0.0)] if dead else [(0.05, 0.0), (0.15, 0.0)]
-    speeds = linear.initial_speeds()
+    speeds = linear.initial_speeds
     return [np.concatenate([[a0, b0, c * abs(b0) * u_scale], bias, [z * u_scale] if dead else [], speeds])
             for c, z in guesses]
 
@@ -487,8 +619,8 @@ def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
         if not np.all(np.isfinite(res.x)):
             return x0
         r = problem.evaluate(res.x, True)[0]
-    misfit = float(r @ r) / problem.n_rows
-    return res.x if misfit <= PREFIX_MISFIT * float(res.fun @ res.fun) / head.n_rows else x0
+    misfit = _sum_squares(r) / problem.n_rows
+    return res.x if misfit <= PREFIX_MISFIT * _sum_squares(res.fun) / head.n_rows else x0
 
 
 def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
@@ -507,6 +639,27 @@ def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.nda
     return step
 
 
+def _scaled_normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Column norms of ``J``, and ``H = Js^T Js``, ``g = Js^T r`` with ``Js`` its columns scaled to unit norm."""
+    norms = np.sqrt(np.einsum("ij,ij->j", J, J))
+    # a column the data barely see (the initial speed of a segment that starts stuck by friction)
+    # is held, not scaled up to a step of 1e14
+    unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
+    norms[unseen] = 1.0
+    Js = J / norms
+    Js[:, unseen] = 0.0
+    return norms, Js.T @ Js, Js.T @ r
+
+
+def _reachable(H: np.ndarray, g: np.ndarray) -> float:
+    """``g^T H^+ g``: the decrease of the residual sum a full Gauss–Newton step promises (by least squares)."""
+    try:
+        value = float(g @ np.linalg.lstsq(H, g, rcond=1e-12)[0])
+    except np.linalg.LinAlgError:
+        return 0.0
+    return value if math.isfinite(value) else math.inf
+
+
 #: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
 #: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
 #: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
@@ -515,7 +668,7 @@ FINAL_STEP = 0.2
 
 
 def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
-                         final_step: float | None = None) -> OptimizeResult:
+                         final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
     With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
@@ -529,25 +682,28 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     evaluation (the residuals moved by ``J delta``): near the minimum Gauss–Newton converges
     about quadratically, so what is left after it is far below ``final_step`` standard errors
     (noise-free data never stop this way: their residuals shrink with the step).
+
+    With a ``bound`` (a residual sum), the fit also stops, with status 3, as soon as the least residual
+    sum of the model linearised at the current point (``cost - g^T H^-1 g``, what a full Gauss–Newton
+    step would reach) exceeds it: a candidate model that cannot come near the best one is left there.
     """
     final_step = FINAL_STEP if final_step is None else final_step
     lower = problem.lower_bounds()
     x = np.maximum(x0, lower)
     r, J = problem.evaluate(x, True)
-    cost = float(r @ r)
+    cost = _sum_squares(r)
     damping = 1e-4
     status = 0
+    normal = None
+    rejected = False
     for _ in range(max_iterations):
         assert J is not None
-        norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-        # a column the data barely see (the initial speed of a segment that starts stuck by friction)
-        # is held, not scaled up to a step of 1e14
-        unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
-        norms[unseen] = 1.0
-        Js = J / norms
-        Js[:, unseen] = 0.0
-        H = Js.T @ Js
-        g = Js.T @ r
+        if normal is None:           # once per accepted step: a rejected one only raises the damping
+            normal = _scaled_normal_equations(J, r)
+            if bound < math.inf and cost - _reachable(normal[1], normal[2]) > bound:
+                status = 3
+                break
+        norms, H, g = normal
         try:
             step = _bounded_step(H, g, damping, x <= lower) / norms
         except np.linalg.LinAlgError:
@@ -559,22 +715,28 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             if predicted > 1e-12 * cost:
                 x_new = np.maximum(x + step, lower)
                 r = r + J @ (x_new - x)
-                x, cost = x_new, float(r @ r)
+                x, cost = x_new, _sum_squares(r)
             status = 1
             break
         x_new = np.maximum(x + step, lower)
         with np.errstate(over="ignore", invalid="ignore"):
-            r_new, J_new = problem.evaluate(x_new, True)
-        cost_new = float(r_new @ r_new)
+            r_new = problem.evaluate(x_new, False)[0]      # the sensitivities only once the step is taken
+        cost_new = _sum_squares(r_new)
         if np.isfinite(cost_new) and cost_new < cost:
+            with np.errstate(over="ignore", invalid="ignore"):
+                r_new, J_new = problem.evaluate(x_new, True)
             small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
             done = cost - cost_new <= 1e-10 * cost or small
             x, r, J, cost = x_new, r_new, J_new, cost_new
-            damping = max(damping / 5.0, 1e-12)
+            normal = None
+            if not rejected:         # a step taken right after a rejected one keeps its damping (no zigzag)
+                damping = max(damping / 5.0, 1e-12)
+            rejected = False
             if done:
                 status = 1
                 break
         else:
+            rejected = True
             damping *= 10.0
             if damping > 1e12:
                 status = 2

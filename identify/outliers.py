@@ -8,10 +8,14 @@ Rule: a row is an outlier when its residual exceeds :data:`RESIDUAL_FACTOR` robu
 standard deviations (1.4826 times the median absolute deviation, of at most
 :data:`SCALE_SAMPLES` evenly spaced residuals) and 0.1 % of the RMS
 measured speed (a noise-free fit has a near-zero deviation), and the outliers are isolated:
-at most :data:`ISOLATED_SHARE` of the rows.  Many large residuals mean a model that misses
+at most :data:`ISOLATED_SHARE` of the rows, each standing out by as much from the median of its
+:data:`NEIGHBOURHOOD` neighbours either side (a misfit that lasts, a segment's start the model
+misses, moves its neighbours with it).  Many large residuals mean a model that misses
 dynamics (friction, delay), which :func:`identify.validate` reports; they are not named here.
 """
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -22,12 +26,15 @@ from motorsim.recording import Recording
 from .estimate import Estimate
 from .validation import model_output
 
-__all__ = ["residual_outliers", "RESIDUAL_FACTOR", "ISOLATED_SHARE", "SCALE_SAMPLES"]
+__all__ = ["residual_outliers", "RESIDUAL_FACTOR", "ISOLATED_SHARE", "SCALE_SAMPLES", "NEIGHBOURHOOD"]
 
 #: Robust standard deviations beyond which a residual is an outlier.
 RESIDUAL_FACTOR = 10.0
 #: Largest share of rows that can be outliers and still be called isolated.
 ISOLATED_SHARE = 0.01
+#: Rows either side whose median a corrupted sample must stand out from (a count off and back moves two
+#: speed rows, so at least three of the five on either side stay put).
+NEIGHBOURHOOD = 5
 #: Residuals, evenly spaced, of which the median absolute deviation is taken on longer records: its
 #: relative standard error is then about 0.4 %, nothing against :data:`RESIDUAL_FACTOR`.
 SCALE_SAMPLES = 100_000
@@ -81,5 +88,21 @@ def residual_outliers(estimate: Estimate, recording: Recording, residual: np.nda
     speed = measured[defined]
     speed = speed[np.isfinite(speed)]
     speed_rms = float(np.sqrt(np.mean(speed ** 2))) if len(speed) else 0.0
-    rows = spike_rows(residual, max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms))
+    limit = max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms)
+    local = _local_deviation(residual)
+    rows = [k for k in spike_rows(residual, limit) if abs(local[k]) > limit]
     return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []
+
+
+def _local_deviation(residual: np.ndarray) -> np.ndarray:
+    """``residual`` less its running median over :data:`NEIGHBOURHOOD` rows either side (nan kept out).
+
+    A corrupted sample stands out from its neighbours (a count off and back: two rows); a misfit that
+    lasts (a segment's start, a transient the model misses) moves its neighbours with it, and is no
+    corrupted sample."""
+    from numpy.lib.stride_tricks import sliding_window_view
+    padded = np.pad(np.asarray(residual, dtype=float), NEIGHBOURHOOD, mode="constant", constant_values=np.nan)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # an all-nan window: no neighbours, no verdict
+        middle = np.nanmedian(sliding_window_view(padded, 2 * NEIGHBOURHOOD + 1), axis=1)
+    return np.nan_to_num(residual - middle, nan=0.0)

@@ -362,14 +362,14 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
                                     ceiling=static_gain_ceiling(segs), coarse_samples=COARSE_SAMPLES, refine=refine)
         if found is not None:
             a, b, bias, r, refined = found
-            return CandidateFit(Candidate(name, delay, a, b, float(r @ r)), r, bias, refined)
+            return CandidateFit(Candidate(name, delay, a, b, float(np.einsum("i,i->", r, r))), r, bias, refined)
     try:
         solution = solve_output_error(recs, segs, delay, with_bias=with_bias)
     except NotIdentifiableError as exc:
         return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(solution.result.fun, float)
     x = solution.result.x
-    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(r @ r)), r,
+    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(np.einsum("i,i->", r, r))), r,
                    float(x[2]) if with_bias else 0.0)
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -64,9 +64,9 @@ from .data import (
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .friction import segments_reverse
+from .friction import FrictionScan, friction_candidate, segments_reverse
 
-__all__ = ["fit_selected", "select_model", "residual_checks", "SCREEN_LEVEL", "SCREEN_SHARE"]
+__all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
 #: Rows of the score test that screens friction and a dead zone (the first of every segment).
 SCREEN_SAMPLES = 2000
@@ -128,7 +128,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
     G = G[:, keep]
     k = G.shape[1]
-    rss = float(r @ r)
+    rss = float(np.einsum("i,i->", r, r))
     if k == 0 or rss == 0:
         return 1.0, 0.0
     step = G @ np.linalg.lstsq(G, r, rcond=None)[0]
@@ -212,7 +212,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
     if nonlinear and linear:
-        base = refine(fitted, refit, level)
+        base = _refined_best(fitted, refit)
         if base is None:
             p, share = 0.0, 1.0
         else:
@@ -284,6 +284,15 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
     return out
 
 
+def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:
+    """The best fit, refitted in full in place until the best is a full fit (the first steps of
+    :func:`identify.comparison.refine`): what the friction screen needs.  The other coarse candidates
+    are refined at the end, against the best of all; with friction they are far above it and left be."""
+    while (best := best_fit(fitted)) is not None and not best.refined:
+        fitted[fitted.index(best)] = refit(best)
+    return best
+
+
 def _declared_delay(recs: list[Recording]) -> int:
     """The input delay every recording's device declares (``input_delay_samples``), else 0."""
     declared = []
@@ -307,13 +316,16 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
     """The most general nonlinear structure at every delay, the other near every delay where the general
     one could be within the noise (and near the linear model's best delay)."""
     general, *rest = sorted(structures, key=list(STRUCTURES).index, reverse=True)
-    out = scan_delays(delays, lambda d: [_candidate(recs, segments[d], d, general, fix_bias=fix_bias)], level, [])
+    # neighbouring delays share starts; a candidate that cannot come near the best stops early (refined later)
+    scan = FrictionScan(linear_best.candidate.residual_sum if linear_best is not None else math.inf, level)
+    out = scan_delays(delays, lambda d: [friction_candidate(recs, segments[d], d, general, fix_bias, scan=scan)],
+                      level, [])
     near: set[int] = set()
     for anchor in plausible(out, level) + ([linear_best] if linear_best is not None else []):
         d = anchor.candidate.input_delay
         near |= {x for x in (d - 1, d, d + 1) if x in segments}
     for s in rest:
-        out += [_candidate(recs, segments[d], d, s, fix_bias=fix_bias) for d in sorted(near)]
+        out += [friction_candidate(recs, segments[d], d, s, fix_bias, scan=scan) for d in sorted(near)]
     return out
 
 
@@ -374,7 +386,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     if any(n.startswith(SCREENED_OUT + ":") for n in selection.notes) and STRUCTURES[est.structure].linear:
         # no screen overrules a fit: friction left out by the screen is fitted after all when the chosen
         # model's own residuals correlate with the sign of its speed
-        checks = residual_checks(est, recs[0])
+        checks = {"sign_p": _own_sign_p(est, recs)}
         if checks["sign_p"] < SIGN_LEVEL:
             label = selection.chosen.label
             selection, edge = _select_widening(recs, structures, input_delay, fix_bias, screen=False)
@@ -382,7 +394,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
                 f"friction and dead zone fitted after all: the screen found no sign of them, but the {label} "
                 f"model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g})")))
             est = _chosen_fit(recs, selection.chosen, fix_bias)
-            checks = residual_checks(est, recs[0]) if STRUCTURES[est.structure].linear else {}
+            checks = {"sign_p": _own_sign_p(est, recs)} if STRUCTURES[est.structure].linear else {}
     if few_note:
         selection = dataclasses.replace(selection, notes=(*selection.notes, few_note))
     chosen = selection.chosen
@@ -412,10 +424,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         selection = dataclasses.replace(selection, clear=False, doubt=(
             f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
             "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
-    found = selection.to_dict()
-    if checks:
-        found["residual_checks"] = checks
-    return dataclasses.replace(est, selection=found, notes=tuple(
+    return dataclasses.replace(est, selection=selection.to_dict(), notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
 
 
@@ -456,6 +465,12 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
                            f"{' (the data allow no longer one)' if top >= limit else ''}: the true delay may be "
                            "longer, so this is not a clear choice; record longer, or pass --input-delay N")
     return selection, ""
+
+
+def _own_sign_p(est: Estimate, recs: list[Recording]) -> float:
+    """The chosen fit's sign test on the first recording, from its kept residuals where it has them."""
+    kept = est.speed_residuals[0] if est.speed_residuals else None
+    return sign_correlation_p(est, recs[0], kept)
 
 
 def _chosen_fit(recs: list[Recording], chosen: Candidate, fix_bias: bool) -> Estimate:
@@ -571,11 +586,25 @@ def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float
     """
     from .validation import validate
     report = validate(estimate, recording)
-    measured, simulated = report.measured_speed, report.simulated_speed
+    return {"whiteness_p": float(report.whiteness_p), "input_p": float(report.independence_p),
+            "sign_p": _sign_p(report.measured_speed, report.simulated_speed)}
+
+
+def _sign_p(measured: np.ndarray, simulated: np.ndarray) -> float:
+    """p-value of the speed residual's correlation with the sign of the model's speed (batch means)."""
     ok = np.isfinite(measured) & np.isfinite(simulated)
     residual = (measured - simulated)[ok]
     sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0
     sign = sign - sign.mean()
     scores = block_sums(sign * residual)
-    sign_p = block_mean_p(scores) if len(scores) > 2 and float(sign @ sign) > 0 and np.any(scores) else math.nan
-    return {"whiteness_p": float(report.whiteness_p), "input_p": float(report.independence_p), "sign_p": sign_p}
+    return block_mean_p(scores) if len(scores) > 2 and float(sign @ sign) > 0 and np.any(scores) else math.nan
+
+
+def sign_correlation_p(estimate: Estimate, recording: Recording, residual: np.ndarray | None = None) -> float:
+    """:func:`residual_checks`' ``sign_p`` alone: from the fit's own speed residual when given (the entry of
+    :attr:`Estimate.speed_residuals`), else from one simulation (:func:`identify.validation.model_output`)."""
+    from .validation import model_output
+    if residual is not None:
+        measured = recording.measured_speed()
+        return _sign_p(measured, measured - residual)
+    return _sign_p(*model_output(estimate, recording))

@@ -52,6 +52,8 @@ NOT_RUN = {
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
     # benchmarks whose output a page shows ({motorid-output} :any-status:): make docs runs them in CI;
     # their goals depend on the machine's load, and they start processes or run in real time
+    "motorid bench --check": "the speed gate: every goal's benchmark at full size, minutes of timings on the "
+                             "machine's load (docs/develop.md: run before a change lands)",
     "motorid bench startup": "starts each command as a subprocess, repeatedly (make docs runs it)",
     "motorid bench parse": "reads a large file in fresh processes, twice per reader (make docs runs it)",
     "motorid bench serial --frames": "a real-time run through a pty (make docs runs it)",

@@ -16,7 +16,9 @@
 ============= ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
-same run; tests never assert wall-clock times.  Each benchmark is a function
+same run; tests never assert wall-clock times.  The goals among them are declared
+once, next to the benchmark that measures them (:mod:`motorid.bench.goals`), and
+``motorid bench --check`` runs them all and exits with status 1 on a missed goal.  Each benchmark is a function
 ``(argv: list[str]) -> int`` that parses its own flags; :data:`BENCHMARKS` maps
 its name to it and a one-line description.  Add a benchmark by adding a module
 and one entry.
@@ -113,8 +115,9 @@ BENCHMARKS: dict[str, Benchmark] = {
     "control": Benchmark(_control, "SimRig closed-loop runs (each controller) against the open-loop run"),
     "frequency": Benchmark(_frequency, "frequency_response of 10^6 samples (bounds, coherence) against "
                                        "scipy.signal.csd + welch of the same data"),
-    "selection": Benchmark(_selection, "the default fit (delay and structure chosen) against one oe fit on 10^4 "
-                                       "samples; identify FILE on 10^6 rows against pandas.read_csv"),
+    "selection": Benchmark(_selection, "the default fit (delay and structure chosen) and one oe-friction fit against "
+                                       "one oe fit on 10^4 samples, with and without friction; identify FILE on a "
+                                       "position-loop recording, and on 10^6 rows against pandas.read_csv"),
     "coverage": Benchmark(_coverage, "the default's 95 per cent intervals on plants known exactly (an electrical lag, "
                                      "a long delay, a differenced speed, friction): coverage over seeds"),
 }

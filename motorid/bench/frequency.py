@@ -5,9 +5,14 @@ import argparse
 from typing import Sequence
 
 from motorid.bench.flags import integer
+from motorid.bench.goals import Goal, report
 from motorid.bench.timing import interleaved_times
 
-__all__ = ["bench_frequency"]
+__all__ = ["bench_frequency", "goal_figures", "GOALS", "TIME_GOAL"]
+
+#: Seconds of ``frequency_response`` (Welch, bounds and coherence) on 10^6 samples.
+TIME_GOAL = Goal("frequency_response of 10^6 samples (bounds, coherence)", 3.0, "s")
+GOALS = (TIME_GOAL,)
 
 
 def bench_frequency(argv: Sequence[str]) -> int:
@@ -18,16 +23,28 @@ def bench_frequency(argv: Sequence[str]) -> int:
     speed, then ``csd(u, y)`` and ``welch(u)`` for ``G = S_uy / S_uu`` and ``welch(y)`` for the
     coherence.  The two responses are compared, so a fast wrong answer cannot pass unnoticed.
     """
-    import numpy as np
-    from scipy import signal
-
-    from identify.frequency_estimate import frequency_response
-    from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
     p = argparse.ArgumentParser(prog="motorid bench frequency", description=__doc__.splitlines()[0])
     p.add_argument("--samples", type=integer(), default=10**6, help="samples of the run (default 1000000)")
     p.add_argument("--segment", type=integer(2), default=4096, help="Welch segment length in samples (default 4096)")
     p.add_argument("--repeats", type=integer(), default=5, help="timings to take the median of (default 5)")
     args = p.parse_args(list(argv))
+    seconds = _measure(args.samples, args.segment, args.repeats, verbose=True)
+    return report([(TIME_GOAL, seconds)]) if args.samples == 10**6 else 0
+
+
+def goal_figures() -> list[tuple[Goal, float]]:
+    """The time on 10^6 samples (``motorid bench --check``)."""
+    return [(TIME_GOAL, _measure(10**6, 4096, 5, verbose=False))]
+
+
+def _measure(samples: int, segment: int, repeats: int, verbose: bool) -> float:
+    """Seconds of ``frequency_response``; with ``verbose``, the comparison with scipy printed."""
+    import numpy as np
+    from scipy import signal
+
+    from identify.frequency_estimate import frequency_response
+    from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
+    args = argparse.Namespace(samples=samples, segment=segment, repeats=repeats)
     dt = 0.005
     rig = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(0))
     rec = rig.run(Experiment(PRBS(200, -200, 16, 1), dt, args.samples * dt))
@@ -47,6 +64,9 @@ def bench_frequency(argv: Sequence[str]) -> int:
         _, syy = signal.welch(v, **kw)
         return suy / suu, np.abs(suy) ** 2 / (suu * syy)
 
+    if not verbose:
+        t_ours, = interleaved_times([ours], args.repeats)
+        return t_ours
     t_ours, t_scipy = interleaved_times([ours, scipy_plain], args.repeats)
     frf = ours()
     g, coherence = scipy_plain()
@@ -58,4 +78,4 @@ def bench_frequency(argv: Sequence[str]) -> int:
     print(f"scipy.signal csd + 2 x welch    {t_scipy:8.3f} s   response and coherence")
     print(f"ratio                           {t_scipy / t_ours:8.2f} x  (scipy time / ours); "
           f"largest relative difference of the responses {diff:.1e}")
-    return 0
+    return t_ours

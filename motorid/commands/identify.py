@@ -123,7 +123,7 @@ def run_identify(args: argparse.Namespace) -> int:
     checks = None
     if est.selection is not None:
         from identify.selection import residual_checks
-        checks = est.selection.get("residual_checks") or residual_checks(est, recs[0])
+        checks = residual_checks(est, recs[0])
         say(format_selection(est.selection, checks))
     elif estimator_options(args).get("input_delay") == "auto":
         say(f"delay       {est.input_delay} samples, the shortest within the noise of the best "

@@ -130,3 +130,84 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
     values = {"a": fast.a, "b": fast.b, **fast.extra}
     for k, name in enumerate(fast.param_names):
         assert abs(values[name] - truth[name]) <= 3 * math.sqrt(fast.covariance[k, k]), name
+
+
+def _count_runs(monkeypatch):
+    """Record the rows of every Levenberg–Marquardt run oe-friction makes."""
+    from identify import friction
+    runs = []
+    original = friction._levenberg_marquardt
+
+    def counted(problem, x0, *args, **kwargs):
+        runs.append(problem.n_rows)
+        return original(problem, x0, *args, **kwargs)
+    monkeypatch.setattr(friction, "_levenberg_marquardt", counted)
+    return runs
+
+
+def test_a_good_start_makes_one_run_on_all_rows(monkeypatch):
+    runs = _count_runs(monkeypatch)
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    assert est.a == pytest.approx(25.0, rel=CLOSE)
+    assert runs == [1200]          # the regression's start only: no restarts from the linear fit
+
+
+def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
+    from identify import friction
+    runs = _count_runs(monkeypatch)
+    # a start far from the linear fit's pole (a 50 times too large) is not trusted
+    good = friction._regression_start
+    monkeypatch.setattr(friction, "_regression_start", lambda problem: good(problem) * np.r_[50.0, np.ones(4)])
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    assert len(runs) == 3          # the regression's start and the linear fit's two
+    assert est.a == pytest.approx(25.0, rel=CLOSE) and est.extra["friction"] == pytest.approx(60.0, rel=CLOSE)
+
+
+def test_the_statistic_is_at_least_the_relative_excess_the_scan_bound_rests_on():
+    from identify.comparison import statistic
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        best = rng.normal(size=640) * rng.uniform(0.1, 10.0)
+        delta = rng.normal(size=640) * rng.uniform(0.01, 1.0) + rng.uniform(-1, 1) * best
+        excess = rng.uniform(0.0, 5.0) * float(best @ best)
+        # batch means over blocks: V <= |delta|^2 |best|^2 (Cauchy-Schwarz), so T >= excess / |best|^2
+        assert statistic(delta, excess, best) >= excess / float(best @ best) * (1 - 1e-12)
+
+
+def test_a_candidate_that_cannot_come_near_the_best_stops_early_and_is_refitted_in_full():
+    from identify.data import prepare_segments
+    from identify.friction import FrictionScan, friction_candidate
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0), n=2000)
+    segs = prepare_segments([rec], 3)               # the wrong delay: far worse than delay 0
+    best = friction_candidate([rec], prepare_segments([rec], 0), 0, "friction", False)
+    stopped = friction_candidate([rec], segs, 3, "friction", False, scan=FrictionScan(best.candidate.residual_sum))
+    full = friction_candidate([rec], segs, 3, "friction", False)
+    assert not stopped.refined and full.refined
+    # the stopped fit's residual sum bounds the full fit's from above, and both are far beyond the best's
+    assert stopped.candidate.residual_sum >= full.candidate.residual_sum > 1000 * best.candidate.residual_sum
+
+
+def test_neighbouring_delays_share_their_start():
+    from identify.data import prepare_segments
+    from identify.friction import FrictionScan, friction_candidate
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
+    scan = FrictionScan()
+    first = friction_candidate([rec], prepare_segments([rec], 0, skip=2), 0, "dead-zone", False, scan=scan)
+    assert first.refined and scan.start("friction", ("a", "b", "friction", "bias"), 1) is not None
+    warm = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False, scan=scan)
+    cold = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False)
+    # the same minimum from either start (noise-free: to the fit's stopping tolerance)
+    assert warm.candidate.a == pytest.approx(cold.candidate.a, rel=CLOSE)
+    assert warm.candidate.a == pytest.approx(25.0, rel=CLOSE)
+
+
+def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
+    # without numba (the optional extra 'fast') the vectorised response is used: the same fit to rounding
+    from identify import friction_response as response_module
+    rec = _run(Motor(25.0, 3.0, friction=40.0, dead_zone=12.0), freq=25.0)
+    fast = fit_output_error_friction(rec)
+    monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
+    slow = fit_output_error_friction(rec)
+    for name in ("a", "b", "friction", "bias", "dead_zone"):
+        # the two responses agree to ~1e-13; the fit amplifies that by its conditioning, far below CLOSE
+        assert slow.value(name) == pytest.approx(fast.value(name), rel=1e-7, abs=1e-9), name

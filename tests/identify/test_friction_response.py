@@ -1,9 +1,24 @@
-"""The vectorised friction response equals the event-by-event simulation, and its sensitivities are exact."""
+"""The friction response (vectorised, and compiled in one pass) equals the event-by-event simulation, and its
+sensitivities are exact."""
 import numpy as np
 import pytest
 
+from identify import friction_response as response_module
+from identify.friction_kernel import compiled_response
 from identify.friction_response import friction_response
 from motorsim.plant import Motor, simulate
+
+
+@pytest.fixture(autouse=True, params=["vectorised", "compiled"])
+def response_path(request, monkeypatch):
+    """Every test runs on the vectorised path (numpy) and on the compiled one-pass kernel (numba)."""
+    if request.param == "compiled":
+        if compiled_response() is None:
+            pytest.skip("numba is not installed (the optional 'fast' extra)")
+        monkeypatch.setattr(response_module, "kernel_for", lambda rows: compiled_response())
+    else:
+        monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
+    return request.param
 
 CASES = [(25.0, 3.0, 75.0, 0.0, 0.0), (25.0, 3.0, 75.0, 5.0, 10.5), (10.0, 1.2, 30.0, -3.0, 10.5)]
 
@@ -56,3 +71,45 @@ def test_warm_started_modes_give_the_same_response():
     cold = friction_response(25.0, 3.003, 75.0, 0.0, 0.0, u, t)
     np.testing.assert_array_equal(again.modes, cold.modes)
     np.testing.assert_allclose(again.angle, cold.angle, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("jitter", [False, True], ids=["uniform", "jitter"])
+@pytest.mark.parametrize("params", CASES, ids=["friction", "all", "slow"])
+def test_the_two_paths_agree_to_rounding(params, jitter, monkeypatch):
+    if compiled_response() is None:
+        pytest.skip("numba is not installed (the optional 'fast' extra)")
+    u, t = _inputs(jitter)
+    monkeypatch.setattr(response_module, "kernel_for", lambda rows: compiled_response())
+    fast = friction_response(*params, u, t, 0.3)
+    monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
+    slow = friction_response(*params, u, t, 0.3)
+    np.testing.assert_array_equal(fast.modes, slow.modes)
+    # the same formulas in another order: rounding only (speeds ~ 20 rad/s, angles ~ 100 rad)
+    np.testing.assert_allclose(fast.speed, slow.speed, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(fast.angle, slow.angle, rtol=0, atol=1e-10)
+    for f, s in ((fast.angle_sensitivity, slow.angle_sensitivity), (fast.speed_sensitivity, slow.speed_sensitivity)):
+        assert f is not None and s is not None
+        for j in range(s.shape[1]):
+            np.testing.assert_allclose(f[:, j], s[:, j], rtol=0, atol=1e-10 * np.max(np.abs(s[:, j])))
+    assert fast.passes == 1          # one pass: no mode iteration
+
+
+def test_short_runs_take_the_kernel_only_once_it_is_loaded(monkeypatch):
+    from identify import friction_kernel
+    if compiled_response() is None:
+        pytest.skip("numba is not installed (the optional 'fast' extra)")
+    monkeypatch.undo()                               # the real kernel_for, not the fixture's
+    assert friction_kernel.kernel_for(friction_kernel.KERNEL_MIN_ROWS - 1) is compiled_response()   # loaded above
+    monkeypatch.setattr(friction_kernel, "compiled_response", _unloaded(friction_kernel.compiled_response))
+    assert friction_kernel.kernel_for(friction_kernel.KERNEL_MIN_ROWS - 1) is None
+    assert friction_kernel.kernel_for(friction_kernel.KERNEL_MIN_ROWS) is not None
+
+
+def _unloaded(cached):
+    """A stand-in for the cached loader that says nothing is loaded yet and loads on call."""
+    import functools
+
+    @functools.cache
+    def loader():
+        return cached()
+    return loader
