@@ -448,7 +448,11 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
-        at_top = top in (selection.chosen.input_delay, selection.best.input_delay, best_first.input_delay)
+        # the chosen delay at the top; or a best fit at the top that only a second pole's lag could stand in
+        # for (a first-order choice below the top is already within the noise of the best)
+        chosen_first = STRUCTURES[selection.chosen.structure].rank == 0
+        at_top = selection.chosen.input_delay == top or (not chosen_first and top in (
+            selection.best.input_delay, best_first.input_delay))
         limit = largest_delay(recs, LARGEST_DELAY)
         if not at_top or top >= limit:
             break
