@@ -415,6 +415,12 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    se = est.stderr()
+    if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
+        # a choice whose own fit cannot say how well it knows a and b is no clear choice
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the chosen fit has no finite interval for a and b ({est.missing_intervals()}); "
+            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
     if edge:
         selection = dataclasses.replace(selection, clear=False, doubt=edge + (
             f"; {selection.doubt}" if selection.doubt else ""))

@@ -6,6 +6,7 @@ clean linear motor.  The plants are known exactly (simulated, fixed seeds), so t
 against the truth by one rule: ``a`` and ``b`` within 1 % of the truth, or the truth
 inside intervals narrower than +-25 %.
 """
+import dataclasses
 import json
 import math
 
@@ -364,3 +365,16 @@ def test_a_position_loop_with_friction_and_a_fed_back_load_is_never_a_narrow_wro
     close = abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01
     assert covered or close
     assert covered or not est.selection["clear"]
+
+
+def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
+    # whatever the candidates: an estimate whose own covariance is singular cannot be called clear
+    import identify.selection as selection
+    original = selection._chosen_fit
+
+    def singular(recs, chosen, fix_bias):
+        est = original(recs, chosen, fix_bias)
+        return dataclasses.replace(est, covariance=np.full_like(est.covariance, np.inf), model_range={})
+    monkeypatch.setattr(selection, "_chosen_fit", singular)
+    est = fit(_run(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3))))
+    assert not est.selection["clear"] and "no finite interval for a and b" in est.selection["doubt"]
