@@ -15,8 +15,6 @@ dynamics (friction, delay), which :func:`identify.validate` reports; they are no
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from motorsim.checks import ParameterError
@@ -89,20 +87,16 @@ def residual_outliers(estimate: Estimate, recording: Recording, residual: np.nda
     speed = speed[np.isfinite(speed)]
     speed_rms = float(np.sqrt(np.mean(speed ** 2))) if len(speed) else 0.0
     limit = max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms)
-    local = _local_deviation(residual)
-    rows = [k for k in spike_rows(residual, limit) if abs(local[k]) > limit]
+    rows = [k for k in spike_rows(residual, limit) if abs(_local_deviation(residual, k)) > limit]
     return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []
 
 
-def _local_deviation(residual: np.ndarray) -> np.ndarray:
-    """``residual`` less its running median over :data:`NEIGHBOURHOOD` rows either side (nan kept out).
+def _local_deviation(residual: np.ndarray, row: int) -> float:
+    """``residual[row]`` less the median of the rows within :data:`NEIGHBOURHOOD` either side (nan kept out).
 
     A corrupted sample stands out from its neighbours (a count off and back: two rows); a misfit that
     lasts (a segment's start, a transient the model misses) moves its neighbours with it, and is no
     corrupted sample."""
-    from numpy.lib.stride_tricks import sliding_window_view
-    padded = np.pad(np.asarray(residual, dtype=float), NEIGHBOURHOOD, mode="constant", constant_values=np.nan)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)      # an all-nan window: no neighbours, no verdict
-        middle = np.nanmedian(sliding_window_view(padded, 2 * NEIGHBOURHOOD + 1), axis=1)
-    return np.nan_to_num(residual - middle, nan=0.0)
+    window = residual[max(0, row - NEIGHBOURHOOD):row + NEIGHBOURHOOD + 1]
+    window = window[np.isfinite(window)]
+    return float(residual[row] - np.median(window)) if len(window) else 0.0

@@ -416,6 +416,12 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    se = est.stderr()
+    if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
+        # a choice whose own fit cannot say how well it knows a and b is no clear choice
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the chosen fit has no finite interval for a and b ({est.missing_intervals()}); "
+            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
     if edge:
         selection = dataclasses.replace(selection, clear=False, doubt=edge + (
             f"; {selection.doubt}" if selection.doubt else ""))
@@ -449,7 +455,11 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
-        at_top = top in (selection.chosen.input_delay, selection.best.input_delay, best_first.input_delay)
+        # the chosen delay at the top; or a best fit at the top that only a second pole's lag could stand in
+        # for (a first-order choice below the top is already within the noise of the best)
+        chosen_first = STRUCTURES[selection.chosen.structure].rank == 0
+        at_top = selection.chosen.input_delay == top or (not chosen_first and top in (
+            selection.best.input_delay, best_first.input_delay))
         limit = largest_delay(recs, LARGEST_DELAY)
         if not at_top or top >= limit:
             break

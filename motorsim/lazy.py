@@ -13,8 +13,8 @@ The app's ``motorid.__version__``, a value read when asked rather than an import
 own ``__getattr__``: importing this module runs ``motorsim/__init__`` (numpy, the
 simulator), which ``motorid --help`` does not load.
 
-Examples
---------
+For example:
+
 >>> load("math:tau") > 6.28
 True
 >>> load(".checks:check_int", "motorsim").__name__

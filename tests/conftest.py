@@ -48,6 +48,8 @@ SLOW = {
         "1.7-3 s each: the default's selection run again over 20 and 40 delays",
     "tests/identify/test_second_order.py::test_a_twenty_sample_delay_on_a_prbs_is_found":
         "3.3 s: the selection over 40 delays",
+    "tests/identify/test_selection.py::test_a_position_loop_with_friction_and_a_fed_back_load_is_never_a_narrow_wrong_answer":
+        "3-6 s: a closed loop simulated sample by sample, then the whole selection",
 }
 
 #: test id or module -> what it runs under the emulator

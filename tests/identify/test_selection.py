@@ -6,6 +6,7 @@ clean linear motor.  The plants are known exactly (simulated, fixed seeds), so t
 against the truth by one rule: ``a`` and ``b`` within 1 % of the truth, or the truth
 inside intervals narrower than +-25 %.
 """
+import dataclasses
 import json
 import math
 
@@ -329,3 +330,51 @@ def test_no_screen_overrules_a_fit_friction_left_out_is_fitted_when_the_residual
     assert any("fitted after all" in n for n in est.notes)
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+
+
+def _position_loop(seed: int, n: int = 8000, h: float = 0.001, cpr: int = 2000):
+    """A PD position loop tracking slow sines through Coulomb friction and a random load torque it feeds back."""
+    from motorsim import Recording
+    from motorsim.plant import simulate
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * h
+    reference = 2.0 * np.sin(np.pi * t) + np.sin(2 * np.pi * 1.3 * t + 1)
+    angle = speed = load = 0.0
+    counts, duty, last = np.zeros(n, np.int64), np.zeros(n), 0
+    for k in range(n):
+        counts[k] = int(np.floor(angle / (2 * np.pi) * cpr))
+        measured = counts[k] * 2 * np.pi / cpr
+        rate = (counts[k] - last) * 2 * np.pi / cpr / h if k else 0.0
+        last = counts[k]
+        duty[k] = np.clip(np.round(400 * (reference[k] - measured) - 8 * rate), -255, 255)
+        load = 0.99 * load + 4.2 * rng.standard_normal()
+        run = simulate(Motor(A, B, friction=60.0, bias=load), [duty[k]] * 2, [0, h], initial_speed=speed,
+                       initial_angle=angle)
+        angle, speed = run.angle[1], run.speed[1]
+    return Recording(time=t, duty=duty, sample_period=h, counts=counts, counts_per_rev=cpr, reference=reference,
+                     metadata={"reference_unit": "rad"})
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_position_loop_with_friction_and_a_fed_back_load_is_never_a_narrow_wrong_answer(seed):
+    # the loop feeds the load torque back into the duty: the answer is right or honestly doubtful, never a
+    # clear choice whose intervals leave out the truth
+    est = fit(_position_loop(seed))
+    ci = est.confidence_interval(0.95)
+    covered = ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+    close = abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01
+    assert covered or close
+    assert covered or not est.selection["clear"]
+
+
+def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
+    # whatever the candidates: an estimate whose own covariance is singular cannot be called clear
+    import identify.selection as selection
+    original = selection._chosen_fit
+
+    def singular(recs, chosen, fix_bias):
+        est = original(recs, chosen, fix_bias)
+        return dataclasses.replace(est, covariance=np.full_like(est.covariance, np.inf), model_range={})
+    monkeypatch.setattr(selection, "_chosen_fit", singular)
+    est = fit(_run(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3))))
+    assert not est.selection["clear"] and "no finite interval for a and b" in est.selection["doubt"]
