@@ -22,8 +22,8 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
-           "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
+           "check_speed_agrees", "check_constant_input_runs", "prepare_segments", "first_rows", "delayed_segments",
+           "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -325,9 +325,121 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     if constant:
         raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
                                    "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
         _check_moves(i, r)
+        check_speed_agrees(r, f"recordings[{i}]")
         _warn_saturation(i, r)
+
+
+#: How far apart (a factor) the speed column and the speed differenced from the angle or counts may be
+#: before they contradict each other: far beyond a tachometer's error, far below the factors of a wrong
+#: unit (rpm 9.55, rev/s 6.28, deg/s 57.3) or a counts_per_rev off by the quadrature decoding (2, 4).
+SPEED_AGREEMENT = 1.5
+
+
+def check_speed_agrees(rec: Recording, name: str = "recording") -> None:
+    """Refuse a recording whose speed column and angle (or counts) say different things.
+
+    Where both move together (correlation above 0.9), the speed column's size against the
+    backward difference of the angle must be within :data:`SPEED_AGREEMENT` (and of the same
+    sign): a speed in rpm beside counts, or a ``counts_per_rev`` 4 times off, would otherwise give
+    a ``b`` off by that factor from the angle while the speed column says otherwise.
+    """
+    if rec.speed is None:
+        return
+    angle = rec.measured_angle()
+    if angle is None or len(angle) < 3:
+        return
+    step = np.diff(rec.seq) == 1
+    differenced = np.diff(angle)[step] / np.diff(rec.time)[step]
+    column = 0.5 * (rec.speed[1:] + rec.speed[:-1])[step]     # the mean speed over each interval
+    if len(column) < 3 or not differenced.any() or not column.any():
+        return
+    corr = float(np.corrcoef(column, differenced)[0, 1])
+    if not abs(corr) > 0.9:
+        return
+    ratio = math.copysign(float(np.linalg.norm(column) / np.linalg.norm(differenced)), corr)
+    if not 1 / SPEED_AGREEMENT <= ratio <= SPEED_AGREEMENT:
+        source = ("angle_rad" if rec.angle is not None
+                  else f"counts (counts_per_rev {rec.counts_per_rev})")
+        raise NotIdentifiableError(f"{name}: speed_rad_s and {source} contradict each other: the speed column "
+                                   f"is {ratio:.3g} x the speed differenced from the {source.split()[0]}; one of "
+                                   "them is in another unit (rpm is 9.55 x, rev/s 6.28 x) or counts_per_rev is "
+                                   "wrong: fix the file")
+
+
+#: Samples of a run of constant recorded input left out at its start beyond the input delay (the backward
+#: difference's sample, a fast electrical pole's), and the samples at least left after them for a run to be judged.
+RUN_SKIP, RUN_MIN = 3, 8
+#: Share of the speed's range by which the speed must both rise and fall within one such run to contradict it.
+RUN_SHARE = 0.1
+#: Rows checked (the first of the recording): the check is per run, and a few thousand runs tell.
+RUN_ROWS = 200_000
+
+
+def check_constant_input_runs(rec: Recording, name: str = "recording", input_delay: int = 0) -> None:
+    """Refuse a recording whose speed both rises and falls while its recorded input stays constant.
+
+    Under a constant input the first-order motor (with its friction, bias and dead zone alike) is a
+    one-dimensional autonomous system: its speed moves one way, towards one value.  A speed that
+    rises and falls by more than :data:`RUN_SHARE` of its range within one run of constant recorded
+    input (after its first ``input_delay`` + :data:`RUN_SKIP` samples, while it still answers the
+    input before) answers an input the log does not hold: a duty logged flat at +-60 while the
+    motor received +-200, say, which would give a confident, wrong ``b``.
+
+    Parameters
+    ----------
+    rec : Recording
+        The run.
+    name : str
+        How the message names it.
+    input_delay : int
+        The input delay of the model fitted to it, in samples.
+    """
+    skip = int(input_delay) + RUN_SKIP
+    n = min(len(rec), RUN_ROWS)
+    if n < skip + RUN_MIN:
+        return
+    u, seq = rec.duty[:n], rec.seq[:n]
+    change = np.flatnonzero((np.diff(u) != 0) | (np.diff(seq) != 1)) + 1
+    starts, ends = np.r_[0, change], np.r_[change, n]
+    long = (ends - starts) >= skip + RUN_MIN
+    if not long.any():
+        return
+    speed = rec.measured_speed()[:n]
+    finite = speed[np.isfinite(speed)]
+    if len(finite) < 2:
+        return
+    tolerance = RUN_SHARE * float(np.ptp(finite))
+    if rec.counts is not None and rec.counts_per_rev:     # beyond the encoder's rounding, many times over
+        tolerance = max(tolerance, 10 * 2 * math.pi / rec.counts_per_rev / rec.sample_period)
+    for start, end in zip(starts[long], ends[long]):
+        w = speed[start + skip:end]
+        w = w[np.isfinite(w)]
+        if len(w) < RUN_MIN:
+            continue
+        rise = float(np.max(w - np.minimum.accumulate(w)))
+        fall = float(np.max(np.maximum.accumulate(w) - w))
+        if rise > tolerance and fall > tolerance:
+            raise NotIdentifiableError(
+                f"{name}: while the recorded input stays at {u[start]:g} {rec.input_unit} (seq {int(seq[start])}"
+                f"...{int(seq[end - 1])}) the speed rises by {rise:.3g} and falls by {fall:.3g} rad/s; a motor "
+                "under a constant input moves one way, so the input logged is not the input it received "
+                "(clipped or scaled in the log?): record the input the drive applied")
+
+
+#: The largest input magnitude a fit takes, in the input's unit (and 1 / it the smallest): b and its
+#: variance scale with its inverse square, which leaves a float's range for inputs far beyond any drive's.
+INPUT_SCALE_LIMIT = 1e100
+
+
+def _check_input_scale(largest: float, unit: str) -> None:
+    """Refuse an input whose magnitude no unit of a drive gives (``duty x 1e-300``): b**2 would overflow."""
+    if not 1 / INPUT_SCALE_LIMIT <= largest <= INPUT_SCALE_LIMIT:
+        raise NotIdentifiableError(f"input's largest magnitude must be in {1 / INPUT_SCALE_LIMIT:g}..."
+                                   f"{INPUT_SCALE_LIMIT:g} {unit}, got {largest:g}: no drive's input is that "
+                                   "far from 1; give the input in its real unit (duty, V, %)")
 
 
 def _check_moves(i: int, r: Recording) -> None:

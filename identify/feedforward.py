@@ -104,15 +104,17 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
     names = tuple(getattr(estimate, "param_names", ("a", "b")))
     cov = getattr(estimate, "covariance", None)
     # gradients of each constant with respect to (a, b, friction, bias)
-    grads = {"ks": {"b": -c / b ** 2, "friction": 1 / b}, "kv": {"a": 1 / b, "b": -a / b ** 2},
-             "ka": {"b": -1 / b ** 2}, "k0": {"b": d / b ** 2, "bias": -1 / b}}
+    # (x / b) / b, never x / b ** 2: b ** 2 overflows for an input in tiny units (b ~ 1e300) where the ratio does not
+    grads = {"ks": {"b": -(c / b) / b, "friction": 1 / b}, "kv": {"a": 1 / b, "b": -(a / b) / b},
+             "ka": {"b": -(1 / b) / b}, "k0": {"b": (d / b) / b, "bias": -1 / b}}
     stderr = {}
     for k, grad in grads.items():
         if cov is None or any(p not in names for p, g in grad.items() if g != 0):
             stderr[k] = math.nan
             continue
         g = np.array([grad.get(p, 0.0) for p in names])
-        var = float(g @ np.asarray(cov, dtype=float) @ g)
-        stderr[k] = math.sqrt(var) if var >= 0 else math.nan
+        scale = float(np.max(np.abs(g)))     # scaled first: a / b**2 squared overflows long before the result does
+        var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
+        stderr[k] = scale * math.sqrt(var) if var >= 0 else math.nan
     return FeedforwardConstants(ks=c / b, kv=a / b, ka=1 / b, k0=-d / b, stderr=stderr,
                                 input_unit=str(getattr(estimate, "input_unit", "duty")))

@@ -98,7 +98,8 @@ def read_estimate_document(text: str | bytes) -> dict:
         raise ParameterError(f"an estimate must be at most {MAX_ESTIMATE_BYTES} characters of JSON, "
                              f"got {len(text)}")
     try:
-        doc = json.loads(text, parse_constant=_no_constant)
+        doc = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float, parse_int=_bounded_int,
+                         object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as exc:
         raise ParameterError(f"an estimate must be a JSON document, got invalid JSON ({exc})") from None
     except RecursionError:
@@ -121,6 +122,37 @@ def _decoded(data: bytes, name: str) -> str:
 
 def _no_constant(name: str) -> float:
     raise ParameterError(f"an estimate must hold finite numbers or null, got {name}")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ParameterError(f"an estimate must hold finite numbers, got {text:.40} (beyond a float's range)")
+    return value
+
+
+def _bounded_int(text: str) -> int | float:
+    if len(text.lstrip("-")) > 18:      # past int64: a count or delay no estimate holds; a float's range at most
+        return _finite_float(text)
+    return int(text)
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ParameterError(f"an estimate must name each field once, got {key!r} twice")
+        doc[key] = value
+    return doc
+
+
+def _units(units: dict) -> dict:
+    for key in ("residual_rms", "input", "speed"):
+        if not isinstance(units.get(key, ""), str):
+            raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
+        if key in units and not units[key].strip():
+            raise ParameterError(f"estimate field 'units.{key}' must name a unit, got {units[key]!r}")
+    return units
 
 
 class _Fields:
@@ -164,10 +196,7 @@ def estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
         structure, extra, delay = _parameters_v2(f, method, tuple(names))
     else:
         structure, extra, delay = "", *_parameters_v1(f)
-    units = f.get("units", dict, {})
-    for key in ("residual_rms", "input", "speed"):
-        if not isinstance(units.get(key, ""), str):
-            raise ParameterTypeError(f"estimate field 'units.{key}' must be a string, got {units[key]!r:.80}")
+    units = _units(f.get("units", dict, {}))
     files = f.get("data_files", list, [])
     if not all(isinstance(x, dict) and isinstance(x.get("path"), str) and isinstance(x.get("sha256"), str)
                for x in files):

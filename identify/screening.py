@@ -5,7 +5,10 @@ isolated residual outlier after the fit (:func:`identify.outliers.residual_outli
 corrupted sample: with ``outliers="refuse"`` (the default of :func:`identify.fit`) the fit is
 refused with :class:`CorruptedSamplesError`, naming the recording and the rows' ``seq``; with
 ``outliers="drop"`` such rows are dropped as gaps, the fit is repeated, and every dropped row is
-reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.
+reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.  In every
+case a run whose output answers its recorded input one sample before it (an input logged late,
+:func:`identify.causality.check_input_leads`) is refused first, and one whose speed turns while
+its recorded input stays constant, at the fitted delay (:func:`identify.data.check_constant_input_runs`).
 """
 from __future__ import annotations
 
@@ -15,7 +18,8 @@ from typing import Any, Callable, Sequence
 from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
-from .data import as_recordings
+from .causality import check_input_leads
+from .data import as_recordings, check_constant_input_runs
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
@@ -111,6 +115,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
     options = dict(options or {})
     recs = as_recordings(recordings)
+    check_input_leads(recs)      # an input logged late: a negative delay no model has
     if outliers == "keep":
         return ScreenedFit(estimator(recs, **options), tuple(recs), ())
     dropped: list[DroppedSamples] = []
@@ -123,6 +128,8 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         dropped.append(DroppedSamples(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason))
         recs[i] = rec.drop_rows(s.row for s in bad)
     est = estimator(recs, **options)
+    for i, rec in enumerate(recs):        # a speed that turns under a constant recorded input: not the input it got
+        check_constant_input_runs(rec, f"recordings[{i}]", est.input_delay)
     found = _fit_outliers(est, recs, fitted=True)
     if not any(found):
         return ScreenedFit(est, tuple(recs), tuple(dropped))

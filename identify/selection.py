@@ -178,6 +178,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     for s in wanted:
         if s not in STRUCTURES:
             raise ParameterError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
+    wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
     notes: list[str] = []
     if input_delay == "auto":
         known = _declared_delay(recs)
@@ -202,7 +203,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     if nonlinear and not segments_reverse(segments[delays[0]]):     # on the rows the candidates are fitted on
         notes.append("friction and dead zone not fitted: the speed never reverses or rests, so they act as a "
                      "constant acceleration (the bias d); a run through zero speed would separate them")
-        linear = sorted(set(linear) | {"bias"}, key=list(STRUCTURES).index)
+        linear = sorted(set(linear) | ({"linear"} if fix_bias else {"bias"}), key=list(STRUCTURES).index)
         nonlinear = []
     fitted += scan_delays(delays, lambda d: [_candidate(recs, segments[d], d, s, refine=False) for s in linear],
                           level, notes)

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from motorsim.checks import ParameterError, ParameterTypeError, check_int
+from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
 from motorsim.plant import Motor, delay_at, simulate
 from motorsim.recording import Recording
 from motorsim.sensors import backward_difference
@@ -377,6 +377,10 @@ def validate(estimate: Estimate, recording: Recording, *, max_lag: int = 25) -> 
     if not isinstance(recording, Recording):
         raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     max_lag = check_int("max_lag", max_lag, lo=1, allow_integral_float=False)
+    for name, value in (("a", estimate.a), ("b", estimate.b), *((f"extra['{k}']", estimate.extra[k])
+                                                              for k in ("friction", "bias", "dead_zone")
+                                                              if k in estimate.extra)):
+        check_real(f"estimate.{name}", value)     # a model with a = nan simulates nan: nothing to validate
     if recording.input_unit != estimate.input_unit:
         raise ParameterError(f"recording input_unit must be the estimate's ({estimate.input_unit}), "
                          f"got {recording.input_unit!r}: a model of one input unit cannot explain another")

@@ -172,16 +172,23 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -> int:
+    import contextlib
     import warnings
 
-    from motorid.outputs import check_outputs
+    from motorid.outputs import check_outputs, has_outputs, input_paths
+    from motorsim.files import deferred_outputs
     args = build_parser().parse_args(argv)
     checkpoint()                  # an interrupt the imports swallowed is raised here, before the command runs
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning    # one line, not the source line that warned
             check_outputs(args)
-            return args.run(args)
+            # every output is moved into place only once the command has succeeded
+            with deferred_outputs(input_paths(args)) if has_outputs(args) else contextlib.nullcontext() as outputs:
+                status = args.run(args)
+                if status != 0 and outputs is not None:
+                    outputs.discard()
+            return status
     except (KeyboardInterrupt, BrokenPipeError):
         raise
     except Exception as exc:

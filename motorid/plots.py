@@ -496,8 +496,13 @@ class LivePlot:
         if self.window:
             self.fig.canvas.draw_idle()
             self._plt.pause(0.001)
-        else:
-            self.fig.savefig(self._path, dpi=100)
+        else:       # a figure watched during the run: each redraw replaces it at once, never written through a link
+            import io
+
+            from motorsim.files import write_bytes_atomically
+            buffer = io.BytesIO()
+            self.fig.savefig(buffer, format="png", dpi=100)
+            write_bytes_atomically(self._path, buffer.getvalue(), at_once=True)
 
     def _draw(self) -> None:
         self._next = time.monotonic() + self._interval

@@ -145,13 +145,17 @@ class Table:
 
     def column(self, spec: ColumnSpec) -> np.ndarray:
         """The column ``spec`` names (by name, else by 0-based index); :class:`ImportFormatError` if none."""
+        return self.columns[self.index(spec)]
+
+    def index(self, spec: ColumnSpec) -> int:
+        """The 0-based index of the column ``spec`` names; :class:`ImportFormatError` if none."""
         if isinstance(spec.column, str):
             if spec.column in self.names:
-                return self.columns[self.names.index(spec.column)]
+                return self.names.index(spec.column)
             raise ImportFormatError(f"{self.path}: no column named {spec.column!r} for the {spec.quantity} "
                                     f"(columns: {', '.join(self.names)}; or give a 0-based index)")
         if spec.column < len(self.columns):
-            return self.columns[spec.column]
+            return spec.column
         raise ImportFormatError(f"{self.path}: column index {spec.column} for the {spec.quantity} is out of range "
                                 f"(the file has {len(self.columns)} columns, 0-based)")
 
@@ -403,6 +407,7 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         table = _read_log(path, base if isinstance(base, str) else None)
     else:
         table = read_table(path)
+    problems += _shared_columns(table, specs)
     cols = {}
     defaulted = set()
     notes: list[str] = []
@@ -431,6 +436,24 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     for note in notes:                 # said once the file is accepted
         warnings.warn(note, UserWarning, stacklevel=2)
     return _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+
+
+def _shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> list[str]:
+    """One column named for two quantities (``--speed y --angle y``): one of them is wrong."""
+    taken: dict[int, str] = {}
+    problems = []
+    for quantity, spec in specs.items():
+        try:
+            k = table.index(spec)
+        except ImportFormatError:
+            continue                 # named as missing where the column is read
+        if k in taken:
+            name = table.names[k] if k < len(table.names) else str(k)
+            problems.append(f"column {name!r} is named both as the {taken[k]} (--{taken[k]}) and as the "
+                            f"{quantity} (--{quantity}); each column has one role")
+        else:
+            taken[k] = quantity
+    return problems
 
 
 def _read_log(path: str, base: str | None) -> Table:

@@ -609,9 +609,9 @@ def split_spec(spec: str, what: str, forms: str) -> tuple[str, str, float]:
     offset = 0.0
     if "@" in args:
         args, _, off = args.partition("@")
-        numbers = spec_numbers(off, spec, what, forms) if off.strip() else [0.0]   # an empty offset is none
+        numbers = spec_numbers(off, spec, what, forms)      # an empty offset (``sine:10,10@``) is refused too
         if len(numbers) != 1:
-            raise ParameterError(f"{what} {spec!r}: @ takes one OFFSET; forms: {forms}")
+            raise ParameterError(f"{what} {spec!r}: @ takes one OFFSET, got {len(numbers) or 'none'}; forms: {forms}")
         offset = numbers[0]
     return kind.strip().lower(), args, offset
 

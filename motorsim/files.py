@@ -21,6 +21,13 @@ of the command's own inputs, and, where the format follows the name (figures), a
 that names the format written, so the path reported is the path written.  A refusal names
 the flag.
 
+Within :func:`deferred_outputs` (``motorid`` runs every command in one) a finished file is
+not moved into place at once: it waits, written in full beside its target, until the whole
+command has succeeded, and is removed if anything fails, so a command that fails half-way
+(a validation file that cannot be read after ``--save``) replaces nothing.  Two outputs of
+one command naming the same file, or an output naming one of its inputs, are refused there.
+A replaced file keeps its permission bits (a ``0600`` model stays ``0600``).
+
 Inputs are opened by :func:`open_input`: the kind is checked before the file is opened (a
 FIFO would block ``open`` until a writer comes), then the size, so no read waits forever or
 fills the memory.
@@ -28,6 +35,7 @@ fills the memory.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import re
 import secrets
@@ -37,7 +45,8 @@ from typing import BinaryIO, Iterable, Iterator, Sequence, TextIO
 
 __all__ = ["OutputFileError", "InputFileError", "open_exclusive", "atomic_writer", "write_atomically",
            "write_bytes_atomically", "check_output_file", "check_output_path", "make_output_dir", "safe_file_name",
-           "open_input", "read_input_bytes", "same_file", "FIGURE_SUFFIXES"]
+           "open_input", "read_input_bytes", "same_file", "FIGURE_SUFFIXES", "deferred_outputs", "StagedOutputs",
+           "staged_path"]
 
 _EXCLUSIVE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
@@ -117,6 +126,134 @@ def _refuse_non_regular(path: Path) -> bool:
     return True
 
 
+def _existing_mode(path: Path) -> int | None:
+    """The permission bits of the regular file at ``path`` (a link not followed), or None."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return stat.S_IMODE(st.st_mode) if stat.S_ISREG(st.st_mode) else None
+
+
+def _identity(path: str | os.PathLike) -> str:
+    """``path`` with its folder resolved: two names of one file (not yet written) compare equal."""
+    p = Path(path)
+    return os.path.join(os.path.realpath(p.parent), p.name)
+
+
+class StagedOutputs:
+    """The finished outputs of one command, waiting beside their targets until it has succeeded.
+
+    Made by :func:`deferred_outputs`; :func:`atomic_writer` hands it each finished temporary
+    file instead of moving it into place.
+
+    Parameters
+    ----------
+    inputs : iterable of path-like
+        The command's input files: no output may name one of them.
+    """
+
+    def __init__(self, inputs: Iterable[str | os.PathLike] = ()):
+        self.inputs = [os.fspath(p) for p in inputs]
+        self._files: dict[str, tuple[Path, Path]] = {}
+
+    def add(self, path: Path, tmp: Path) -> None:
+        """Keep ``tmp`` until :meth:`commit` moves it to ``path``; refuse a name already taken.
+
+        Raises
+        ------
+        OutputFileError
+            ``path`` is one of the inputs, or another output of the same command.
+        """
+        for source in self.inputs:
+            if same_file(path, source) or _identity(path) == _identity(source):
+                raise OutputFileError(f"cannot write {path}: it is an input of this command ({source}); "
+                                      "give another name, the input is never overwritten")
+        key = _identity(path)
+        for other, (_, target) in self._files.items():
+            if other == key or same_file(path, target):
+                raise OutputFileError(f"cannot write {path}: another output of this command ({target}) is "
+                                      "the same file; give each output its own name")
+        self._files[key] = (tmp, path)
+
+    def staged(self, path: str | os.PathLike) -> Path | None:
+        """The temporary file waiting to become ``path``, or None."""
+        entry = self._files.get(_identity(path))
+        return entry[0] if entry else None
+
+    def commit(self) -> list[Path]:
+        """Move every waiting file into place (each atomically); return the targets."""
+        done = []
+        try:
+            while self._files:
+                key = next(iter(self._files))
+                tmp, path = self._files[key]
+                try:
+                    os.replace(tmp, path)
+                except OSError as exc:
+                    raise OutputFileError(f"cannot write {path}: {_reason(exc)}; the old file, if any, is "
+                                          "unchanged", exc.errno) from None
+                del self._files[key]
+                done.append(path)
+        finally:
+            self.discard()
+        return done
+
+    def discard(self) -> None:
+        """Remove every waiting file: the targets stay as they were."""
+        for tmp, _ in self._files.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._files.clear()
+
+
+_STAGING: contextvars.ContextVar[StagedOutputs | None] = contextvars.ContextVar("motorid_staged_outputs",
+                                                                                default=None)
+
+
+@contextlib.contextmanager
+def deferred_outputs(inputs: Iterable[str | os.PathLike] = ()) -> Iterator[StagedOutputs]:
+    """Every file :func:`atomic_writer` finishes in this block is moved into place only when it ends normally.
+
+    An exception (or :meth:`StagedOutputs.discard`) leaves every target as it was.
+
+    Parameters
+    ----------
+    inputs : iterable of path-like
+        Files no output may replace.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> try:
+    ...     with deferred_outputs():
+    ...         _ = write_atomically(folder / "model.json", "{}")
+    ...         raise ValueError("the validation file is not a recording")
+    ... except ValueError:
+    ...     pass
+    >>> (folder / "model.json").exists()
+    False
+    """
+    staging = StagedOutputs(inputs)
+    token = _STAGING.set(staging)
+    try:
+        yield staging
+    except BaseException:
+        _STAGING.reset(token)
+        staging.discard()
+        raise
+    _STAGING.reset(token)
+    staging.commit()
+
+
+def staged_path(path: str | os.PathLike) -> Path:
+    """Where the content of output ``path`` is now: its waiting temporary file, or ``path`` itself."""
+    staging = _STAGING.get()
+    tmp = staging.staged(path) if staging is not None else None
+    return tmp if tmp is not None else Path(path)
+
+
 def _temporary_beside(path: Path) -> tuple[Path, TextIO]:
     for _ in range(100):
         tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
@@ -142,13 +279,20 @@ def _kind(mode: int, folder: str = "a folder") -> str:
 
 
 @contextlib.contextmanager
-def atomic_writer(path: str | os.PathLike) -> Iterator[TextIO]:
+def atomic_writer(path: str | os.PathLike, *, at_once: bool = False) -> Iterator[TextIO]:
     """A text file that becomes ``path`` when the block ends normally, and vanishes otherwise.
+
+    Within :func:`deferred_outputs` it becomes ``path`` only when that block ends normally,
+    unless ``at_once``.  An existing file's permission bits are kept.
 
     Parameters
     ----------
     path : str or path-like
-        The file to (re)place; an existing regular file is replaced, a folder or a device refused.
+        The file to (re)place; an existing regular file (or a link, replaced and never
+        followed) is replaced, a folder or a device refused.
+    at_once : bool
+        Move the file into place now even within :func:`deferred_outputs`: for data that
+        must survive a later failure (a recording of a bench run).
 
     Yields
     ------
@@ -164,18 +308,25 @@ def atomic_writer(path: str | os.PathLike) -> Iterator[TextIO]:
     path = Path(path)
     existed = _refuse_non_regular(path)
     kept = "the old file is unchanged" if existed else "nothing was written"
+    mode = _existing_mode(path)
     try:
         tmp, f = _temporary_beside(path)
     except OSError as exc:
         if isinstance(exc, OutputFileError):
             raise
         raise OutputFileError(f"cannot write {path}: {_reason(exc)}; {kept}", exc.errno) from None
+    staging = None if at_once else _STAGING.get()
     try:
         with f:
+            if mode is not None:
+                os.fchmod(f.fileno(), mode)
             yield f
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        if staging is not None:
+            staging.add(path, tmp)
+        else:
+            os.replace(tmp, path)
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -188,7 +339,7 @@ def atomic_writer(path: str | os.PathLike) -> Iterator[TextIO]:
         raise
 
 
-def write_atomically(path: str | os.PathLike, text: str) -> Path:
+def write_atomically(path: str | os.PathLike, text: str, *, at_once: bool = False) -> Path:
     """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_writer`; returns the path.
 
     Examples
@@ -202,14 +353,14 @@ def write_atomically(path: str | os.PathLike, text: str) -> Path:
     ...
     motorsim.files.OutputFileError: cannot write ...: it is a folder; give a file name
     """
-    with atomic_writer(path) as f:
+    with atomic_writer(path, at_once=at_once) as f:
         f.write(text)
     return Path(path)
 
 
-def write_bytes_atomically(path: str | os.PathLike, data: bytes) -> Path:
+def write_bytes_atomically(path: str | os.PathLike, data: bytes, *, at_once: bool = False) -> Path:
     """Write ``data`` to ``path`` as :func:`write_atomically` writes text (temporary file, then rename)."""
-    with atomic_writer(path) as f:
+    with atomic_writer(path, at_once=at_once) as f:
         f.flush()
         f.buffer.write(data)
     return Path(path)

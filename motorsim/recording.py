@@ -147,6 +147,22 @@ def _check_sample_period(sample_period: float) -> float:
     return value
 
 
+#: Metadata keys that would name another unit for a column whose unit the format fixes, and that unit
+#: (``speed_unit`` is not one: it names the unit results are shown in, the column staying in rad/s).
+FIXED_UNITS = {"time_unit": ("s", "time_s"), "angle_unit": ("rad", "angle_rad")}
+
+
+def _refuse_unit_metadata(metadata: Mapping[str, str]) -> None:
+    """Refuse ``time_unit: ms`` and the like: the columns are in SI units, and reading them otherwise is silent."""
+    for key, (unit, column) in FIXED_UNITS.items():
+        given = metadata.get(key)
+        if given is not None and given.strip() != unit:
+            quantity = key.removesuffix("_unit")
+            raise ParameterError(f"metadata {key} must be {unit!r} (the column {column} is in {unit}), got "
+                                 f"{given!r}: convert the file once with motorid import FILE --{quantity} "
+                                 f"{column}:{given.strip()} ...")
+
+
 def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
     """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
     if len(time) < 3:
@@ -253,6 +269,7 @@ class Recording:
         if not isinstance(metadata, Mapping):
             raise ParameterTypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
         object.__setattr__(self, "metadata", {str(k): str(v) for k, v in metadata.items()})
+        _refuse_unit_metadata(self.metadata)
 
     @classmethod
     def from_columns(cls, time: ArrayLike, duty: ArrayLike, **columns) -> "Recording":

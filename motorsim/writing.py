@@ -58,7 +58,7 @@ def _format_rows(rec: Recording, cols: list[str], start: int = 0, stop: int | No
         yield ",".join(fmt[c](float(data[c][k]) if c not in INTEGER_COLUMNS else data[c][k]) for c in cols)
 
 
-def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
+def write_recording(recording: Recording, path: str | os.PathLike, *, at_once: bool = False) -> Path:
     """Write ``recording`` to ``path`` in format v1, atomically (temporary file, then rename).
 
     Floats are written with ``repr``, so reading the file back gives the same numbers bit for bit.
@@ -69,14 +69,42 @@ def write_recording(recording: Recording, path: str | os.PathLike) -> Path:
         What to write.
     path : str or path-like
         Destination; replaced if it exists.
+    at_once : bool
+        Move it into place now even within :func:`motorsim.files.deferred_outputs` (a bench
+        run's data, kept whatever happens next).
     """
     if not isinstance(recording, Recording):
         raise ParameterTypeError(f"recording must be a Recording, got {type(recording).__name__}")
     path = Path(path)
     cols = _columns(recording)
     text = "\n".join([*_metadata_lines(recording), ",".join(cols), *_format_rows(recording, cols)]) + "\n"
-    write_atomically(path, text)
+    write_atomically(path, text, at_once=at_once)
     return path
+
+
+def _lock(f: TextIO) -> None:
+    """Hold an advisory lock on the partial file ``f`` while rows go to it (where ``fcntl`` exists)."""
+    with contextlib.suppress(ImportError, OSError):
+        import fcntl
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _being_written(path: Path) -> bool:
+    """Whether another :class:`RecordingWriter` holds the lock of the partial file ``path``."""
+    try:
+        import fcntl
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except (ImportError, OSError):
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    return False
 
 
 class RecordingWriter:
@@ -91,7 +119,10 @@ class RecordingWriter:
     data of an earlier run that did not finish, or a link planted there, is refused, never
     truncated or followed) (:mod:`motorsim.files`).  :meth:`close` then atomically writes ``PATH``
     with the final metadata, ``complete: true`` or ``complete: false`` and
-    ``incomplete_reason``, and removes the partial file.  Leaving the ``with`` block by
+    ``incomplete_reason``, and removes the partial file; it is written at once, even within
+    :func:`motorsim.files.deferred_outputs`, since it holds a run that cannot be repeated.  An
+    incomplete run never replaces a file that was at ``PATH`` before (``overwrite``): it stays
+    in ``PATH.partial``, with the final metadata, and ``PATH`` is unchanged.  Leaving the ``with`` block by
     an exception (including Ctrl-C) closes it as incomplete, naming the exception.
 
     Parameters
@@ -123,6 +154,7 @@ class RecordingWriter:
                  metadata: Mapping[str, str] | None = None, flush_interval: float = 0.25, overwrite: bool = False):
         self.path = check_output_file(path, overwrite=overwrite, flag="recording")
         self.partial_path = self.path.with_name(self.path.name + ".partial")
+        self._replaces = os.path.lexists(self.path)
         self._meta = {str(k): str(v) for k, v in (metadata or {}).items()}
         self._sample_period = sample_period
         self._counts_per_rev = counts_per_rev
@@ -136,10 +168,14 @@ class RecordingWriter:
             if self.partial_path.is_symlink():
                 raise OutputFileError(f"{self.partial_path} is a symbolic link; a partial recording is never "
                                       f"written through a link: remove it, then run again") from None
+            if _being_written(self.partial_path):
+                raise OutputFileError(f"{self.partial_path} is being written by another run now; give this run "
+                                      f"another --out (leave that file alone)") from None
             raise OutputFileError(f"{self.partial_path} exists: an earlier run that did not finish left it. "
                                   f"It is a readable recording; rename or delete it, then run again") from None
         except OSError as exc:
             raise OutputFileError(f"cannot create {self.partial_path}: {exc.strerror or exc}", exc.errno) from None
+        _lock(self._file)
         self._header_written = False
         self._header_lines = 0
         self._last_flush = time.monotonic()
@@ -229,9 +265,15 @@ class RecordingWriter:
         header = _metadata_lines(self._batch([self._last], extra)) + [",".join(self._COLS)]
         with open(self.partial_path, encoding="utf-8") as f:
             body = f.read().split("\n")[self._header_lines:]
-        write_atomically(self.path, "\n".join(header + body))
-        os.unlink(self.partial_path)
-        return self.path
+        target = self._target(complete)
+        write_atomically(target, "\n".join(header + body), at_once=True)
+        if target != self.partial_path:
+            os.unlink(self.partial_path)
+        return target
+
+    def _target(self, complete: bool) -> Path:
+        """Where the final file goes: ``PATH``, or the partial file for an incomplete run replacing an old ``PATH``."""
+        return self.path if complete or not self._replaces else self.partial_path
 
     def close_with(self, recording: Recording) -> Path:
         """Write ``recording`` as the final file instead of the rows appended, and remove the partial file.
@@ -252,11 +294,13 @@ class RecordingWriter:
         if self._file is not None:
             self._file.close()
             self._file = None
-        write_recording(recording, self.path)
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.partial_path)
+        target = self._target(recording.metadata.get("complete", "true") != "false")
+        write_recording(recording, target, at_once=True)
+        if target != self.partial_path:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.partial_path)
         self.n_rows = len(recording)
-        return self.path
+        return target
 
     def __enter__(self) -> "RecordingWriter":
         return self

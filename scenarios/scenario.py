@@ -423,4 +423,7 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
         data = tomllib.loads(raw)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
+    except RecursionError:      # the reader recurses per level of nesting
+        raise ScenarioError(f"{source}: nested too deep to read; a scenario holds tables and lists a few levels "
+                            "deep") from None
     return scenario_from_dict(data, source=source)

@@ -34,11 +34,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import os
 import select
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -51,8 +53,8 @@ from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.rig import bench_knobs
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
-__all__ = ["open_avr_sim", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation", "HarnessOptions",
-           "parse_avr_sim_url", "build",
+__all__ = ["open_avr_sim", "die_with_parent", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation",
+           "HarnessOptions", "parse_avr_sim_url", "build",
            "firmware_elf", "SUPPORTED_BAUDRATES", "DEFAULT_BAUDRATE", "REPO_ROOT"]
 
 #: The repository root (the harness and firmware are built from the source tree).
@@ -68,6 +70,7 @@ _SOURCES = [REPO_ROOT / "hardware" / "firmware" / "motorid_bench" / name
 _HARNESS_SOURCES = [REPO_ROOT / "hardware" / "sim" / "motorid_avr_sim.c"]
 _STARTUP_TIMEOUT = 10.0
 _STOP_TIMEOUT = 5.0
+_PR_SET_PDEATHSIG = 1       # <linux/prctl.h>
 #: H-bridge wiring -> the firmware's DRIVER_TYPE.
 _DRIVERS = {"dir-pwm": "DRIVER_DIR_PWM", "in1-in2": "DRIVER_IN1_IN2"}
 
@@ -287,6 +290,26 @@ def build(baudrate: int = DEFAULT_BAUDRATE, driver: str = "dir-pwm") -> tuple[Pa
     return elf, _HARNESS
 
 
+def die_with_parent(parent_pid: int) -> None:
+    """In a child about to run the harness: be sent SIGTERM when the parent dies, even by SIGKILL.
+
+    Linux's ``prctl(PR_SET_PDEATHSIG)``, through ``ctypes`` (run between ``fork`` and
+    ``exec``; the setting survives ``exec``).  A parent that died before it took effect is
+    seen by the parent pid no longer being ``parent_pid``, and the child ends at once.  Elsewhere nothing
+    is done: the harness is then stopped only by :meth:`AvrSimulation.stop`.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError):     # pragma: no cover - every Linux libc has prctl
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
 class AvrSimulation:
     """The harness process running the firmware, with its pseudo-terminal.
 
@@ -316,7 +339,8 @@ class AvrSimulation:
         elf, harness = build(self.baudrate, self.options.driver)
         process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                   stderr=subprocess.PIPE, text=True)
+                                   stderr=subprocess.PIPE, text=True,
+                                   preexec_fn=functools.partial(die_with_parent, os.getpid()))
         self._process = process
         try:
             return self._read_pty_path(process)

@@ -47,6 +47,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer, integers, real, reals
 from motorid.bench.timing import median_time
 from motorid.progress import Ticker
 from motorsim.checks import ParameterTypeError
@@ -680,42 +681,34 @@ def _generator_check(rng) -> float:
     return worst
 
 
-def _floats(text: str) -> list[float]:
-    return [float(x) for x in text.split(",")]
-
-
-def _ints(text: str) -> list[int]:
-    return [int(x) for x in text.split(",")]
-
-
 def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="motorid bench accuracy", description=(__doc__ or "").split("\n\n")[0])
-    p.add_argument("--sample-periods", type=_floats, default=[0.001, 0.002, 0.005, 0.01, 0.02], metavar="S,S,...",
+    p.add_argument("--sample-periods", type=reals(), default=[0.001, 0.002, 0.005, 0.01, 0.02], metavar="S,S,...",
                    help="sample periods in s, comma-separated (default 0.001,0.002,0.005,0.01,0.02)")
-    p.add_argument("--counts", type=_ints, default=[1200, 4096, 16667], metavar="N,N,...",
+    p.add_argument("--counts", type=integers(), default=[1200, 4096, 16667], metavar="N,N,...",
                    help="encoder resolutions in counts/rev, comma-separated (default 1200,4096,16667)")
-    p.add_argument("--poles", type=_floats, default=[4.0, 25.0, 90.0], metavar="A,A,...",
+    p.add_argument("--poles", type=reals(), default=[4.0, 25.0, 90.0], metavar="A,A,...",
                    help="poles a in 1/s, comma-separated (default 4,25,90)")
-    p.add_argument("--ratios", type=_floats, default=[0.3, 1.0, 2.0], metavar="R,R,...",
+    p.add_argument("--ratios", type=reals(), default=[0.3, 1.0, 2.0], metavar="R,R,...",
                    help="sine frequency / a, dimensionless, comma-separated (default 0.3,1,2)")
-    p.add_argument("--samples", type=int, default=10_000, metavar="N",
+    p.add_argument("--samples", type=integer(), default=10_000, metavar="N",
                    help="minimum samples per recording (default 10000)")
-    p.add_argument("--crb-target", type=float, default=2.5e-4, metavar="X",
+    p.add_argument("--crb-target", type=real(), default=2.5e-4, metavar="X",
                    help="lengthen a run until its relative CRB of a and b is at most this fraction "
                         "(default 2.5e-4, i.e. 0.025 %%)")
-    p.add_argument("--max-samples", type=int, default=100_000, metavar="N",
+    p.add_argument("--max-samples", type=integer(), default=100_000, metavar="N",
                    help="longest run when lengthening, samples (default 100000)")
-    p.add_argument("--friction-samples", type=int, default=4000, metavar="N",
+    p.add_argument("--friction-samples", type=integer(), default=4000, metavar="N",
                    help="samples per friction run (default 4000)")
-    p.add_argument("--repetitions", type=int, default=200, metavar="N",
+    p.add_argument("--repetitions", type=integer(), default=200, metavar="N",
                    help="Monte Carlo repetitions, and runs per regime of the coverage table (default 200)")
-    p.add_argument("--coverage-samples", type=int, default=2000, metavar="N",
+    p.add_argument("--coverage-samples", type=integer(), default=2000, metavar="N",
                    help="samples per run of the coverage table (default 2000)")
-    p.add_argument("--angle-noise", type=float, default=2e-3, metavar="RAD",
+    p.add_argument("--angle-noise", type=real(positive=False), default=2e-3, metavar="RAD",
                    help="Monte Carlo angle noise in rad (default 0.002)")
-    p.add_argument("--repeats", type=int, default=15, metavar="N",
+    p.add_argument("--repeats", type=integer(), default=15, metavar="N",
                    help="timings of each fit to take the median of (default 15)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noise, jitter and drops (default 0)")
+    p.add_argument("--seed", type=integer(0), default=0, help="seed of the noise, jitter and drops (default 0)")
     p.add_argument("--only", choices=["sines", "multisine", "friction", "montecarlo", "timing", "coverage",
                                        "closedloop"],
                    default=None,

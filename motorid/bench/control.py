@@ -5,6 +5,7 @@ import argparse
 from functools import partial
 from typing import Sequence
 
+from motorid.bench.flags import integer, real
 from motorid.bench.timing import median_time
 
 __all__ = ["bench_control"]
@@ -15,8 +16,8 @@ def bench_control(argv: Sequence[str]) -> int:
     from motorsim import Experiment, Motor, SimRig, Sine
     from motorsim.control import ClosedLoopExperiment, PlantModel, design_controller, parse_reference
     p = argparse.ArgumentParser(prog="motorid bench control", description=__doc__.splitlines()[0])
-    p.add_argument("--duration", type=float, default=20.0, help="run length in s at 5 ms (default 20)")
-    p.add_argument("--repeats", type=int, default=3, help="timings to take the median of (default 3)")
+    p.add_argument("--duration", type=real(), default=20.0, help="run length in s at 5 ms (default 20)")
+    p.add_argument("--repeats", type=integer(), default=3, help="timings to take the median of (default 3)")
     args = p.parse_args(list(argv))
     dt = 0.005
     rig = SimRig(Motor(25.0, 3.0))

@@ -17,6 +17,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
+
 __all__ = ["bench_coverage", "CLASSES", "COVERAGE_GOAL"]
 
 #: Share of runs whose 95 % intervals must hold the truth.
@@ -71,7 +73,7 @@ def bench_coverage(argv: Sequence[str]) -> int:
 
     from identify import fit
     p = argparse.ArgumentParser(prog="motorid bench coverage", description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, default=100, help="recordings per class (default 100)")
+    p.add_argument("--seeds", type=integer(), default=100, help="recordings per class (default 100)")
     p.add_argument("--only", choices=list(CLASSES), help="one class only")
     args = p.parse_args(list(argv))
     if args.seeds < 1:

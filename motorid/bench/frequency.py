@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
+from motorid.bench.flags import integer
 from motorid.bench.goals import Goal, report
 from motorid.bench.timing import interleaved_times
 
@@ -23,9 +24,9 @@ def bench_frequency(argv: Sequence[str]) -> int:
     coherence.  The two responses are compared, so a fast wrong answer cannot pass unnoticed.
     """
     p = argparse.ArgumentParser(prog="motorid bench frequency", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=10**6, help="samples of the run (default 1000000)")
-    p.add_argument("--segment", type=int, default=4096, help="Welch segment length in samples (default 4096)")
-    p.add_argument("--repeats", type=int, default=5, help="timings to take the median of (default 5)")
+    p.add_argument("--samples", type=integer(), default=10**6, help="samples of the run (default 1000000)")
+    p.add_argument("--segment", type=integer(2), default=4096, help="Welch segment length in samples (default 4096)")
+    p.add_argument("--repeats", type=integer(), default=5, help="timings to take the median of (default 5)")
     args = p.parse_args(list(argv))
     seconds = _measure(args.samples, args.segment, args.repeats, verbose=True)
     return report([(TIME_GOAL, seconds)]) if args.samples == 10**6 else 0

@@ -35,6 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
 from motorid.bench.goals import Goal, report
 from motorid.bench.timing import interleaved_times
 
@@ -93,7 +94,7 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="motorid bench oe", description=__doc__.splitlines()[0])
     p.add_argument("--samples", default="1000,10000,100000,1000000", metavar="N,N,...",
                    help="recording lengths in samples (default 1000,10000,100000,1000000)")
-    p.add_argument("--repeats", type=int, default=5, metavar="N",
+    p.add_argument("--repeats", type=integer(), default=5, metavar="N",
                    help="alternating rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     try:

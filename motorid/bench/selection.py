@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
 from motorid.bench.goals import Goal, report
 from motorid.bench.timing import interleaved_times
 
@@ -147,11 +148,12 @@ def goal_figures() -> list[tuple[Goal, float]]:
 def bench_selection(argv: Sequence[str]) -> int:
     """The default's fit time against one ``oe`` fit, a position-loop file, ``identify FILE`` against pandas."""
     p = argparse.ArgumentParser(prog="motorid bench selection", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=10_000, help="samples of the fit comparison (default 10000)")
-    p.add_argument("--loop-samples", type=int, default=15_000,
+    p.add_argument("--samples", type=integer(), default=10_000, help="samples of the fit comparison (default 10000)")
+    p.add_argument("--loop-samples", type=integer(0), default=15_000,
                    help="samples of the position-loop recording (default 15000; 0 skips)")
-    p.add_argument("--rows", type=int, default=10**6, help="rows of the file comparison (default 1000000; 0 skips)")
-    p.add_argument("--repeats", type=int, default=5, help="timings to take the median of (default 5)")
+    p.add_argument("--rows", type=integer(0), default=10**6,
+                   help="rows of the file comparison (default 1000000; 0 skips)")
+    p.add_argument("--repeats", type=integer(), default=5, help="timings to take the median of (default 5)")
     args = p.parse_args(list(argv))
     figures = _fits(args.samples, args.repeats, verbose=True)
     if args.loop_samples:

@@ -18,6 +18,8 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer, real
+
 __all__ = ["bench_serial"]
 
 _GOAL = 200_000
@@ -60,11 +62,12 @@ def bench_serial(argv: Sequence[str]) -> int:
     from motorsim import PRBS, Encoder, Experiment, Motor
 
     p = argparse.ArgumentParser(prog="motorid bench serial", description=__doc__.splitlines()[0])
-    p.add_argument("--frames", type=int, default=200_000, help="frames in the decoding test (default 200000)")
-    p.add_argument("--repeats", type=int, default=3, help="timings of the decoding, best kept (default 3)")
-    p.add_argument("--duration", type=float, default=60.0, help="length of the pty run in s (default 60; 0 skips)")
-    p.add_argument("--rate", type=float, default=1000.0, help="sample rate of the pty run in Hz (default 1000)")
-    p.add_argument("--baud", type=int, default=500_000, help="line rate of the pty run in baud (default 500000)")
+    p.add_argument("--frames", type=integer(), default=200_000, help="frames in the decoding test (default 200000)")
+    p.add_argument("--repeats", type=integer(), default=3, help="timings of the decoding, best kept (default 3)")
+    p.add_argument("--duration", type=real(positive=False), default=60.0,
+                   help="length of the pty run in s (default 60; 0 skips)")
+    p.add_argument("--rate", type=real(), default=1000.0, help="sample rate of the pty run in Hz (default 1000)")
+    p.add_argument("--baud", type=integer(), default=500_000, help="line rate of the pty run in baud (default 500000)")
     args = p.parse_args(list(argv))
     rng = np.random.default_rng(0)
     ok = True

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
 from motorid.bench.goals import Goal, report
 from motorid.bench.timing import interleaved_times
 
@@ -25,8 +26,8 @@ GOALS = (SPEED_GOAL,)
 def bench_simulate(argv: Sequence[str]) -> int:
     """Throughput of ``motorsim.simulate`` vs ``control.forced_response``; 1 if they differ or the goal is missed."""
     p = argparse.ArgumentParser(prog="motorid bench simulate", description=__doc__.splitlines()[0])
-    p.add_argument("--samples", type=int, default=100_000, help="samples per run (default 100000)")
-    p.add_argument("--repeats", type=int, default=5, help="alternating rounds to take the median of (default 5)")
+    p.add_argument("--samples", type=integer(2), default=100_000, help="samples per run (default 100000)")
+    p.add_argument("--repeats", type=integer(), default=5, help="alternating rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     n = args.samples
     ratio, err = _speed_up(n, args.repeats, verbose=True)

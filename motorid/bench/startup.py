@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from motorid.bench.flags import integer
 from motorid.bench.timing import median_time
 
 __all__ = ["bench_startup"]
@@ -43,7 +44,7 @@ def _small_run(folder: Path) -> Path:
 def bench_startup(argv: Sequence[str]) -> int:
     """Start-up times of ``motorid --help`` and ``motorid identify small.csv`` against ``import control``."""
     p = argparse.ArgumentParser(prog="motorid bench startup", description=__doc__.splitlines()[0])
-    p.add_argument("--repeats", type=int, default=5, help="rounds to take the median of (default 5)")
+    p.add_argument("--repeats", type=integer(), default=5, help="rounds to take the median of (default 5)")
     args = p.parse_args(list(argv))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     motorid = [sys.executable, "-m", "motorid.cli"]

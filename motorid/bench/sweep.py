@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from motorid.bench.flags import integer
 from motorid.bench.timing import median_time
 from motorsim.excitation import Sine
 from motorsim.plant import Motor
@@ -51,10 +52,10 @@ def python_control_loop(motor: Motor, duty: np.ndarray, sample_period: float, co
 
 def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="motorid bench sweep", description=__doc__.splitlines()[0])
-    p.add_argument("--repetitions", type=int, default=200, metavar="N",
+    p.add_argument("--repetitions", type=integer(), default=200, metavar="N",
                    help="runs, each with its own phase (default 200)")
-    p.add_argument("--samples", type=int, default=10_000, metavar="N", help="samples per run (default 10000)")
-    p.add_argument("--repeats", type=int, default=5, metavar="N",
+    p.add_argument("--samples", type=integer(2), default=10_000, metavar="N", help="samples per run (default 10000)")
+    p.add_argument("--repeats", type=integer(), default=5, metavar="N",
                    help="timings of the batch engine to take the median of (default 5)")
     p.add_argument("--parallel", action="store_true",
                    help="also time the frequency-noise sweep (20 repetitions) on 1 worker, as many workers as "

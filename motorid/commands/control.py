@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from motorid.arguments import CommandError, print_to_stderr
+from motorid.ranges import check_design_model, check_reference_times, check_run_length
 from motorsim.control import (
     CONTROLLERS,
     INTEGRAL_WEIGHT,
@@ -200,9 +201,10 @@ def reference_from_args(args: argparse.Namespace, controller: Controller, speed_
         args.reference = spec
     quantity = "speed" if controller.reference_unit == "rad/s" else "angle"
     try:
-        return parse_reference(reference_in_si(spec, quantity))
+        reference = parse_reference(reference_in_si(spec, quantity))
     except ValueError as exc:
         raise CommandError(f"--reference: {exc}") from None
+    return check_reference_times(reference, controller.model.sample_period)
 
 
 def load_model_file(path: str) -> Any:
@@ -239,7 +241,8 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
                                                                                        "input_delay")}}
         source = PlantModel(source["a"], source["b"], args.sample_period, args.counts_per_rev,
                             friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"])
-    return PlantModel.from_source(source, args.sample_period, args.counts_per_rev)
+    return check_design_model(PlantModel.from_source(source, args.sample_period, args.counts_per_rev),
+                              f"--model {args.model}" if getattr(args, "model", None) else "--a/--b")
 
 
 def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Controller:
@@ -362,6 +365,7 @@ def run_control(args: argparse.Namespace) -> int:
     encoder_known = args.counts_per_rev is not None or not speed_sensor
     sensor = _sensor(args, estimate)
     model = model_from_args(args)
+    check_run_length(args.duration, model.sample_period)
     controller = controller_from_args(args, model)
     reference = reference_from_args(args, controller, speed_unit, limit)
     covariance = _ab_covariance(args)

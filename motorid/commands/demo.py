@@ -23,6 +23,7 @@ from identify.estimate import Estimate
 from motorid.arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args, warn_if_clipped
 from motorid.progress import ProgressBar
 from motorsim.excitation import Sine
+from motorsim.files import write_atomically
 from motorsim.knobs import knobs_of
 from motorsim.recording import Recording
 from motorsim.rig import Experiment, Rig
@@ -126,9 +127,12 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
 def run_demo(args: argparse.Namespace) -> int:
     """Run the article's experiments, print and write Table 1, the recordings and the figures."""
     try:
-        freqs = [float(x) for x in args.frequencies.split(",") if x.strip()]
+        freqs = [float(x) for x in args.frequencies.split(",")]
     except ValueError:
-        raise CommandError(f"--frequencies must be comma-separated numbers, got {args.frequencies!r}") from None
+        freqs = []
+    if not freqs or not all(math.isfinite(w) and w > 0 for w in freqs):   # an empty item is refused, not skipped
+        raise CommandError(f"--frequencies must be comma-separated numbers > 0 in rad/s, none left empty, "
+                           f"got {args.frequencies!r}")
     methods = args.methods.split(",") if args.methods else None
     for m in methods or []:
         if m not in available_methods():
@@ -144,13 +148,12 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"Article Table 1 on the simulated bench: a = {args.a:g} 1/s, b = {args.b:g} (rad/s^2)/duty, "
           f"dt = {args.sample_period:g} s, {args.counts_per_rev} counts/rev, {args.duration:g} s per run\n")
     print(table)
-    (out / "table.txt").write_text(table + "\n", encoding="utf-8")
+    write_atomically(out / "table.txt", table + "\n")
     for i, rec in enumerate(recordings, 1):
         write_recording(rec, out / f"eta_{i}.csv")
     summary = [{"input": r.input_name, "frequency": r.frequency, "method": r.method,
                 "error": r.error or None, **(r.estimate.to_dict() if r.estimate else {})} for r in rows]
-    (out / "table.json").write_text(json.dumps({"true_a": args.a, "true_b": args.b, "rows": summary}, indent=1),
-                                    encoding="utf-8")
+    write_atomically(out / "table.json", json.dumps({"true_a": args.a, "true_b": args.b, "rows": summary}, indent=1))
     if not args.no_plots:
         from motorid import plots
         sines = [f"eta_{i} = {args.amplitude} sin({freqs[i - 1]:g} t)" for i in range(1, len(recordings) + 1)]
@@ -174,12 +177,13 @@ def run_demo(args: argparse.Namespace) -> int:
 def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[DemoRow], out: Path) -> None:
     """One-step MPC designed from the truth, ``euler-ls`` and ``oe`` (first input), run on ``rig``."""
     from motorid.commands.control import compare_designs, format_closed_loop_table
+    from motorid.ranges import check_reference_times
     from motorsim.control import PlantModel, parse_reference
     first = {r.method: r.estimate for r in rows if r.input_name == "eta_1" and r.estimate is not None}
     truth = PlantModel(args.a, args.b, args.sample_period, args.counts_per_rev, friction=args.friction,
                        bias=args.bias, input_delay=args.input_delay)
     designs = [("truth", truth)] + [(m, first[m]) for m in ("euler-ls", "oe") if m in first]
-    reference = parse_reference(args.reference)
+    reference = check_reference_times(parse_reference(args.reference), args.sample_period)
     closed = compare_designs(rig, designs, "mpc", reference, args.duration, args.sample_period, args.counts_per_rev,
                              duty_weight=args.duty_weight)
     table = format_closed_loop_table(closed)
@@ -187,7 +191,7 @@ def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[Demo
           f"reference {reference.describe()} rad/s, {args.duration:g} s, designed from each model "
           f"(estimates of eta_1)\n")
     print(table)
-    (out / "closed_loop.txt").write_text(table + "\n", encoding="utf-8")
+    write_atomically(out / "closed_loop.txt", table + "\n")
     for row in closed:
         write_recording(row.recording, out / f"closed_loop_{row.design}.csv")
     if not args.no_plots:

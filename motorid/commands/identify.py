@@ -48,7 +48,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                         help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
                              "for them: one fit per candidate delay 0-10)")
     parser.add_argument("--fix-bias", action="store_true",
-                        help="oe-friction: hold the constant acceleration (bias, rad/s^2) at 0")
+                        help="hold the constant acceleration (bias, rad/s^2) at 0 (auto: no bias candidate; "
+                             "oe-friction)")
     parser.add_argument("--validate", metavar="TEST", help="held-out recording: NRMSE fit and residual tests")
     parser.add_argument("--report", metavar="FILE.png",
                         help="figure: measured vs model speed, residual autocorrelation and cross-correlation, "

@@ -105,7 +105,8 @@ def _keep_what_arrived(writer, recording, reason: str) -> str:
             path = writer.close(False, reason)
         except OSError as exc:
             return f"writing {writer.path} failed ({exc}); what was written is in {writer.partial_path}"
-        return f"the {writer.n_rows} samples received are in {path} (complete: false)" if path else ""
+        return f"the {writer.n_rows} samples received are in {path} (complete: false){_unchanged(writer, path)}" \
+            if path else ""
     meta = {**recording.metadata, "complete": "false", "incomplete_reason": " ".join(reason.split())}
     recording = Recording(time=recording.time, duty=recording.duty, sample_period=recording.sample_period,
                           counts=recording.counts, seq=recording.seq, counts_per_rev=recording.counts_per_rev,
@@ -115,7 +116,12 @@ def _keep_what_arrived(writer, recording, reason: str) -> str:
         path = writer.close_with(recording)
     except OSError as exc:
         return f"writing {writer.path} failed ({exc}); {_rescue(recording, writer.path)}{figures}"
-    return f"the {len(recording)} samples received are in {path} (complete: false){figures}"
+    return f"the {len(recording)} samples received are in {path} (complete: false){figures}{_unchanged(writer, path)}"
+
+
+def _unchanged(writer, path) -> str:
+    """Say that the recording already at ``--out`` was kept when an incomplete run went beside it."""
+    return f"; {writer.path}, there before this run, is unchanged" if Path(path) != Path(writer.path) else ""
 
 
 def _rescue(recording, path) -> str:
@@ -126,7 +132,7 @@ def _rescue(recording, path) -> str:
     from motorsim.writing import write_recording
     rescue = Path(tempfile.gettempdir()) / f"motorid-rescued-{os.getpid()}-{Path(path).name}"
     try:
-        write_recording(recording, rescue)
+        write_recording(recording, rescue, at_once=True)
     except OSError as exc:
         return f"the {len(recording)} samples could not be saved anywhere (also {exc})"
     return f"the {len(recording)} samples received are in {rescue} instead"
@@ -150,10 +156,15 @@ def run_live(args: argparse.Namespace) -> int:
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
     refuse_controller_flags(args, model_flags=True)     # before the port opens
-    if args.out is None:
+    named = args.out is not None
+    if not named:
         args.out = default_out_path()
+    if args.plot:
+        from motorsim.files import check_output_path
+        check_output_path(f"{args.out}.live.png", flag="--plot (its figure FILE.csv.live.png)")
+    rig, experiment, writer = _open_rig_and_writer(args, experiment_from_args(args), named)
+    if not named:
         print_to_stderr(f"recording to {args.out}")
-    rig, experiment, writer = _open_rig_and_writer(args, experiment_from_args(args))
     # the device applies each duty one tick after its sample
     delay = DEVICE_INPUT_DELAY
     running = RunningEstimator(experiment.sample_period, args.counts_per_rev, input_delay=delay)
@@ -190,12 +201,13 @@ def run_live(args: argparse.Namespace) -> int:
     return status
 
 
-def _open_rig_and_writer(args: argparse.Namespace, experiment):
+def _open_rig_and_writer(args: argparse.Namespace, experiment, named: bool = True):
     """Open the port (handshake only: the motor does not turn) and the recording writer.
 
     The device reports its encoder's counts per revolution in the handshake; a closed-loop
     experiment is designed with it.  The writer is made before the motor turns, so an
-    ``--out`` that cannot be written stops here.  Returns ``(rig, experiment, writer)``.
+    ``--out`` that cannot be written stops here; a default name (not ``named``) that another
+    run took meanwhile is moved on to the next free one.  Returns ``(rig, experiment, writer)``.
     """
     from hardware.errors import RigError
     from hardware.protocol import DEVICE_INPUT_DELAY
@@ -214,10 +226,19 @@ def _open_rig_and_writer(args: argparse.Namespace, experiment):
             from motorid.commands.control import closed_loop_from_args
             experiment = closed_loop_from_args(args, experiment.sample_period, rig.counts_per_rev,
                                                rig_input_delay=DEVICE_INPUT_DELAY)
-        writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
-                                 overwrite=args.overwrite,
-                                 metadata={"source": "SerialRig", **experiment.metadata(), "port": args.port,
-                                           "input_delay_samples": str(DEVICE_INPUT_DELAY)})
+        metadata = {"source": "SerialRig", **experiment.metadata(), "port": args.port,
+                    "input_delay_samples": str(DEVICE_INPUT_DELAY)}
+        for _ in range(100):
+            try:
+                writer = RecordingWriter(args.out, experiment.sample_period, args.counts_per_rev,
+                                         overwrite=args.overwrite, metadata=metadata)
+                break
+            except OSError:
+                if named or not os.path.lexists(f"{args.out}.partial"):
+                    raise
+                args.out = default_out_path()     # another run started in the same second took the name
+        else:
+            raise CommandError(f"no free default recording name near {args.out}; give --out")
     except BaseException:
         rig.close()
         raise

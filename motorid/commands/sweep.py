@@ -17,7 +17,7 @@ from typing import Iterator, Sequence
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorid.progress import ProgressBar
-from motorsim.files import safe_file_name
+from motorsim.files import safe_file_name, staged_path
 from scenarios.executors import usable_workers
 from scenarios.scenario import Scenario
 from scenarios.sweep import axis_column, read_sweep_csv, run_scenario
@@ -128,9 +128,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(f"{scenario.name}: {scenario.description}")
         print(f"{summary.n_points} points x {len(scenario.methods)} methods x {scenario.repetitions} repetitions, "
               f"{summary.samples_simulated:,} samples simulated in {summary.elapsed:.2f} s\n")
-        rows = read_sweep_csv(summary.csv_path)
+        rows = read_sweep_csv(staged_path(summary.csv_path))
         print(format_sweep_table(scenario, rows) if len(rows) <= 200 else f"({len(rows)} rows: see the CSV)")
-    paths = [] if args.no_plots else make_plots(scenario, summary.csv_path, out)
+    paths = [] if args.no_plots else make_plots(scenario, staged_path(summary.csv_path), out)
     print(f"\nwrote {summary.csv_path}, {summary.json_path}" + "".join(f", {p}" for p in paths))
     return 0
 
@@ -157,6 +157,7 @@ DASK_CONNECT_TIMEOUT = 10.0
 
 def _connect_dask(client_class, address: str):
     """A Dask client on ``address``, or a one-line :class:`CommandError` within :data:`DASK_CONNECT_TIMEOUT` s."""
+    _check_dask_address(address)
     try:
         return client_class(address, timeout=DASK_CONNECT_TIMEOUT)
     except (OSError, TimeoutError) as exc:
@@ -166,6 +167,19 @@ def _connect_dask(client_class, address: str):
     except Exception as exc:    # whatever a server that is not a Dask scheduler makes the client raise
         raise CommandError(f"--dask {address}: the server there does not speak Dask's protocol "
                            f"({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
+def _check_dask_address(address: str) -> None:
+    """Refuse, before any connection, an ``--dask`` that is no scheduler address (``[SCHEME://]HOST:PORT``)."""
+    from urllib.parse import urlsplit
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if not parts.hostname or port is None:
+        raise CommandError(f"--dask must be 'local' or a scheduler address [SCHEME://]HOST:PORT (e.g. "
+                           f"tcp://10.0.0.5:8786), got {address!r}")
 
 
 @contextlib.contextmanager

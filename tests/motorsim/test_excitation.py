@@ -131,10 +131,12 @@ def test_bad_excitations_are_refused_with_the_rule(build, match):
         build()
 
 
-def test_an_empty_offset_is_no_offset_in_excitations_and_references_alike():
-    # one parser splits KIND:ARGS[@OFFSET] for both (an empty offset used to be an IndexError here)
+def test_an_empty_offset_is_refused_in_excitations_and_references_alike():
+    # one parser splits KIND:ARGS[@OFFSET] for both; "@" with nothing after it is a typo, never no offset
     from motorsim.control import parse_reference
-    assert parse_excitation("sine:10,200@").describe() == parse_excitation("sine:10,200").describe()
-    assert parse_reference("sine:10,20@").describe() == parse_reference("sine:10,20").describe()
+    with pytest.raises(ValueError, match=r"excitation 'sine:10,200@': @ takes one OFFSET, got none"):
+        parse_excitation("sine:10,200@")
+    with pytest.raises(ValueError, match=r"reference 'sine:10,20@': @ takes one OFFSET, got none"):
+        parse_reference("sine:10,20@")
     with pytest.raises(ValueError, match="excitation 'sine:10@x': expected comma-separated numbers"):
         parse_excitation("sine:10@x")
