@@ -109,6 +109,10 @@ class Estimate:
         Largest input magnitude the drive accepts, in ``input_unit`` (255 for duty on the bench,
         the recording's ``input_limit`` for a lab's file); None when unknown. Control design
         warns when a controller needs more.
+    counts_per_rev : int, optional
+        The encoder of the data the model was fitted to (counts per revolution; the recordings'
+        ``counts_per_rev`` when they all share one), so a controller designed from the model knows
+        the rig's sensor; None for a speed sensor or when unknown.
     speed_unit : str
         The speed unit of the data the model was fitted to (``rpm``, ...; the recording's
         ``speed_unit``), for showing results in it; every value here stays in rad/s.
@@ -138,6 +142,7 @@ class Estimate:
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
     speed_unit: str = "rad/s"
+    counts_per_rev: int | None = None
     speed_residuals: tuple[np.ndarray, ...] | None = dataclasses.field(default=None, repr=False)
     structure: str = ""
     input_delay: int = 0

@@ -54,7 +54,7 @@ def estimate_document(est: Any) -> dict:
         **est.extra, "input_delay": est.input_delay, "input_delay_seconds": est.input_delay * est.sample_period,
         "static_gain": est.static_gain, "fit_percent": est.fit_percent, "n_samples": est.n_samples,
         "sample_period": est.sample_period, "residual_rms": est.residual_rms, "residual_unit": est.residual_unit,
-        "input_unit": est.input_unit, "input_limit": est.input_limit}
+        "input_unit": est.input_unit, "input_limit": est.input_limit, "counts_per_rev": est.counts_per_rev}
     if est.covariance_method:
         doc["covariance_method"] = est.covariance_method
     doc["param_names"] = list(est.param_names)
@@ -218,7 +218,8 @@ def estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 notes=tuple(n for n in notes if not n.startswith(_MISSING_NOTE)),
                 model_range=_model_range(f.get("model_range", (dict, type(None)), None) or {}),
                 input_limit=_input_limit(f.get("input_limit", (int, float, type(None)), None)),
-                speed_unit=_speed_unit(units.get("speed", "rad/s")))
+                speed_unit=_speed_unit(units.get("speed", "rad/s")),
+                counts_per_rev=_counts_per_rev(f.get("counts_per_rev", (int, type(None)), None)))
 
 
 def _parameters_v1(f: _Fields) -> tuple[dict[str, float], int]:
@@ -244,6 +245,10 @@ def _parameters_v2(f: _Fields, method: str, names: tuple[str, ...]) -> tuple[str
             extra[key] = f.real(key, f.get(key, (int, float, type(None))), finite=False)
     delay = check_int("estimate field 'input_delay'", f.get("input_delay", int, 0), lo=0, allow_integral_float=False)
     return found.name, extra, delay
+
+
+def _counts_per_rev(value: int | None) -> int | None:
+    return None if value is None else check_int("estimate field 'counts_per_rev'", value, lo=1, hi=2**31 - 1)
 
 
 def _speed_unit(unit: str) -> str:

@@ -23,7 +23,7 @@ from .data import as_recordings, check_constant_input_runs
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
-__all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "OUTLIER_RULES"]
+__all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "with_encoder", "OUTLIER_RULES"]
 
 #: What :func:`screened_fit` does with corrupted samples.
 OUTLIER_RULES = ("refuse", "drop", "keep")
@@ -41,6 +41,15 @@ class DroppedSamples:
         """One line: ``name: seq 1, 2, ... (reason)``."""
         shown = ", ".join(map(str, self.seq[:10])) + (", ..." if len(self.seq) > 10 else "")
         return f"{name}: seq {shown} ({self.reason})"
+
+
+def with_encoder(estimate: Estimate, recordings: Sequence[Recording]) -> Estimate:
+    """``estimate`` naming the encoder its recordings were measured with (``counts_per_rev``), when they all
+    hold counts of one encoder; as it is otherwise."""
+    found = {r.counts_per_rev for r in recordings if r.counts is not None}
+    if len(found) != 1 or any(r.counts is None for r in recordings) or None in found:
+        return estimate
+    return dataclasses.replace(estimate, counts_per_rev=found.pop())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,7 +126,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     recs = as_recordings(recordings)
     check_input_leads(recs)      # an input logged late: a negative delay no model has
     if outliers == "keep":
-        return ScreenedFit(estimator(recs, **options), tuple(recs), ())
+        return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), ())
     dropped: list[DroppedSamples] = []
     for i, rec in enumerate(recs):
         bad = [] if samples_checked else rec.implausible_samples()
@@ -132,7 +141,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         check_constant_input_runs(rec, f"recordings[{i}]", est.input_delay)
     found = _fit_outliers(est, recs, fitted=True)
     if not any(found):
-        return ScreenedFit(est, tuple(recs), tuple(dropped))
+        return ScreenedFit(with_encoder(est, recs), tuple(recs), tuple(dropped))
     found = _confirmed(found, recs, estimator, options)
     reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
     if outliers == "refuse":
@@ -142,4 +151,4 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))
             recs[i] = recs[i].drop_rows(rows)
-    return ScreenedFit(estimator(recs, **options), tuple(recs), tuple(dropped))
+    return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), tuple(dropped))

@@ -421,11 +421,14 @@ def _sensor(args: argparse.Namespace, estimate: Any) -> str:
     counts assumes the bench's encoder and says so on stderr.
     """
     given = args.counts_per_rev
+    saved = getattr(estimate, "counts_per_rev", None)
     if given is None:
-        args.counts_per_rev = DEFAULT_COUNTS_PER_REV
+        args.counts_per_rev = saved or DEFAULT_COUNTS_PER_REV
     if estimate is not None and estimate.residual_unit == "rad/s":
         measured = "speed sensor (the model was fitted to a speed column)"
         return measured if given is None else f"{measured}; the rig's encoder {given} counts/rev"
+    if given is None and saved:
+        return f"the model's encoder {saved} counts/rev"
     if given is None and estimate is not None:
         print_to_stderr(f"motorid: note: a saved model does not say the rig's encoder; assuming "
                         f"{DEFAULT_COUNTS_PER_REV} counts/rev (give --counts-per-rev N)")

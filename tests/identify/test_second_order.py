@@ -136,6 +136,7 @@ def test_a_speed_column_that_differences_counts_is_fitted_as_the_counts(counts_p
     est, truth = fit(only_speed), fit(rec)
     assert est.a == pytest.approx(truth.a, rel=1e-9) and est.b == pytest.approx(truth.b, rel=1e-9)
     assert any(f"one count of {counts_per_rev} per revolution" in n for n in est.notes)
+    assert est.counts_per_rev == truth.counts_per_rev == counts_per_rev      # the model names its encoder
 
 
 def test_a_tachometer_speed_is_not_taken_for_differenced_counts():

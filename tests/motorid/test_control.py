@@ -326,6 +326,12 @@ def test_a_model_fitted_to_counts_says_which_encoder_the_design_assumes(tmp_path
     assert main(["identify", str(run), "--method", "oe", "--input-delay", "0", "--save", str(model)]) == 0
     capsys.readouterr()
     assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
+    captured = capsys.readouterr()
+    assert "assuming" not in captured.err and "the model's encoder 16667 counts/rev" in captured.out
+    doc = json.loads(model.read_text())
+    del doc["counts_per_rev"]                      # a model that does not say its encoder: the bench's, said
+    model.write_text(json.dumps(doc))
+    assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
     assert "assuming 16667 counts/rev (give --counts-per-rev N)" in capsys.readouterr().err
 
 
