@@ -416,6 +416,11 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
+    if averaged is not None:
+        est, doubt = averaged
+        selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
+            f"; {selection.doubt}" if selection.doubt else ""))
     se = est.stderr()
     if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
         # a choice whose own fit cannot say how well it knows a and b is no clear choice
@@ -492,6 +497,45 @@ def _chosen_fit(recs: list[Recording], chosen: Candidate, fix_bias: bool) -> Est
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)      # the selection says it once, in its notes
         return method_function(chosen.method)(recs, **options)
+
+
+#: Electrical time constants, in sample periods, that a speed column averaged over each interval (a difference
+#: of positions, not an instantaneous speed) also shows as: that average lags the speed by half a sample.
+AVERAGING_LAG = (0.3, 0.7)
+
+
+def _speed_as_average(recs: list[Recording], est: Estimate, chosen: Candidate, structures: Sequence[str] | None,
+                      input_delay: int | str, fix_bias: bool) -> tuple[Estimate, str] | None:
+    """When a second pole chosen on a speed column lags by about half a sample (:data:`AVERAGING_LAG`), the
+    estimate widened to cover the first-order model of that column read as the average speed over each
+    interval (its integral fitted as an angle), and the doubt line; None otherwise.
+
+    A speed column that is a difference of positions is the average speed over the interval before each
+    sample; fitted as the instantaneous speed it looks like a lag of half a sample, which a second pole
+    fits. Which one the column is, the file does not say: both answers are kept.
+    """
+    tau = float(est.extra.get("electrical_time_constant", 0.0))
+    h = est.sample_period
+    if STRUCTURES[est.structure].rank == 0 or not AVERAGING_LAG[0] * h <= tau <= AVERAGING_LAG[1] * h:
+        return None
+    if not all(r.speed is not None and r.counts is None and r.angle is None and not r.has_gaps for r in recs):
+        return None
+    integrated = [dataclasses.replace(r, speed=None, angle=np.concatenate(
+        [[0.0], np.cumsum(np.asarray(r.speed)[1:] * np.diff(r.time))])) for r in recs]
+    first = [s for s in (structures if structures is not None else STRUCTURES) if STRUCTURES[s].rank == 0]
+    try:
+        alt = _chosen_fit(integrated, select_model(integrated, structures=first, input_delay=input_delay,
+                                                   fix_bias=fix_bias).chosen, fix_bias)
+    except NotIdentifiableError:
+        return None
+    other = Candidate(alt.structure, alt.input_delay, alt.a, alt.b, math.nan)
+    widened, _ = _widen(est, chosen, [other])
+    doubt = (f"the speed column may be the average speed over each interval (a difference of positions) rather "
+             f"than the speed at each sample: read so, the {alt.structure} model with delay {alt.input_delay} "
+             f"gives a = {alt.a:.4g} 1/s, b = {alt.b:.4g}, where the second pole (tau_e {tau:.2g} s, about half a "
+             "sample) gives the one above; the intervals cover both; a column of positions (angle or counts) "
+             "would tell them apart")
+    return widened, doubt
 
 
 def _widen(est: Estimate, chosen: Candidate, material: list[Candidate],
