@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["response_pass", "compiled_response", "kernel_for", "KERNEL_MIN_ROWS"]
+__all__ = ["response_pass", "event_interval", "compiled_response", "kernel_for", "KERNEL_MIN_ROWS"]
 
 #: Rows from which :func:`identify.friction_response.friction_response` takes the compiled pass (when
 #: numba is installed) before the process has loaded it: below, loading it costs more than the work it
@@ -47,8 +47,9 @@ def _event_value(w: complex, force: complex, c: complex, a: complex, h: float, s
     return target2 * grown, d_angle + target2 * (rest - grown / a)
 
 
-def _event_real(w: float, force: float, c: float, a: float, h: float, s: float) -> tuple[float, float]:
-    """End speed and angle increment of an event interval in floats (a plain step when it is not one)."""
+def event_interval(w: float, force: float, c: float, a: float, h: float, s: float) -> tuple[float, float]:
+    """End speed and angle increment of an event interval in floats (a plain step when it is not one: a mode
+    the fixed-point iteration of :mod:`identify.friction_response` is about to correct)."""
     target = (force - s * c) / a
     ratio = (w - target) / (-target) if target != 0 else 0.0
     if not ratio >= 1.0:
@@ -161,7 +162,7 @@ def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q:
             if sens:
                 _moving_sensitivities(sw, sth, col, e[i], p[i], q[i], dp[i], dq[i], h[i], w, g, v, s, b * v_zone)
         else:                                           # the speed reaches zero inside the interval
-            w_next, d_angle = _event_real(w, force, c, a, h[i], s)
+            w_next, d_angle = event_interval(w, force, c, a, h[i], s)
             if sens:
                 _event_sensitivities(sw, sth, col, dw, dth, w, force, c, a, h[i], s, v, b, v_zone)
         w = w_next
@@ -189,7 +190,7 @@ def compiled_response() -> Callable[..., None] | None:
         """``function`` compiled, the helpers it calls by ``names`` replaced by their compiled forms."""
         scope = dict(function.__globals__, **{n: helpers[n] for n in names})
         return jit(types.FunctionType(function.__code__, scope, function.__name__))
-    helpers = {"_event_value": jit(_event_value), "_event_real": jit(_event_real)}
+    helpers = {"_event_value": jit(_event_value), "event_interval": jit(event_interval)}
     helpers["_moving_sensitivities"] = jit(_moving_sensitivities)
     helpers["_event_sensitivities"] = compiled(_event_sensitivities, ("_event_value",))
     return compiled(response_pass, tuple(helpers))

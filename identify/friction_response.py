@@ -44,11 +44,10 @@ integrates (a test checks both against it and against finite differences).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
-from .friction_kernel import kernel_for
+from .friction_kernel import event_interval, kernel_for
 from .sensitivity import first_order_scan
 
 __all__ = ["FrictionResponse", "friction_response", "FRICTION_PARAMETERS"]
@@ -95,24 +94,6 @@ def _event_step(w, force, c, a, h, s, stick):
     w_end = np.where(stick, 0.0 * w, target2 * grown)
     d_angle = d_angle + np.where(stick, 0.0 * w, target2 * (rest - grown / a))
     return w_end, d_angle
-
-
-def _event_step_scalar(w: float, force: float, c: float, a: float, h: float, s: float) -> tuple[float, float]:
-    """:func:`_event_step` for one interval, in floats (the trajectory's loop over events)."""
-    target = (force - s * c) / a
-    ratio = (w - target) / (-target) if target != 0 else 0.0
-    if not ratio >= 1.0:
-        # not an event from this state (a mode the fixed-point iteration is about to correct): plain step
-        e = math.exp(-a * h)
-        return target + (w - target) * e, target * h + (w - target) * (1.0 - e) / a
-    t_zero = math.log(ratio) / a
-    d_angle = target * t_zero + w / a
-    if abs(force) <= c:
-        return 0.0, d_angle
-    rest = h - t_zero
-    target2 = (force + s * c) / a
-    grown = -math.expm1(-a * rest)
-    return target2 * grown, d_angle + target2 * (rest - grown / a)
 
 
 def _event_partials(w, force, c, a, h, s, stick):
@@ -205,7 +186,7 @@ def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
         if m_k == 0:
             w_next, d_angle = 0.0, 0.0
         else:
-            w_next, d_angle = _event_step_scalar(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0)
+            w_next, d_angle = event_interval(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0)
         x_at[j], x_next[j], th_at[j] = x_k, w_next, d_angle
         acc = w_next - b_next
     w = _rescanned(iv, f[:, None], start, special, x_at[:, None], x_next[:, None])[:, 0]
