@@ -20,7 +20,8 @@ from .base import ModelStructure, Parameter
 if TYPE_CHECKING:
     from ..data import Segment
 
-__all__ = ["FirstOrder", "FirstOrderBias", "CoulombFriction", "DeadZone", "INITIAL_WINDOW_TIME_CONSTANTS",
+__all__ = ["FirstOrder", "FirstOrderBias", "CoulombFriction", "DeadZone", "POLE", "GAIN", "BIAS", "FRICTION",
+           "DEAD_ZONE", "INITIAL_WINDOW_TIME_CONSTANTS",
            "MIN_INITIAL_WINDOW", "initial_state_rule"]
 
 #: Time constants ``1/a`` in the window that fixes a friction model's initial speed on held-out data.
@@ -28,11 +29,12 @@ INITIAL_WINDOW_TIME_CONSTANTS = 2.0
 #: Fewest samples in that window.
 MIN_INITIAL_WINDOW = 10
 
-_A = Parameter("a", "1/s", 0.0, math.inf, "pole of d omega/dt + a omega = b u", strict=True)
-_B = Parameter("b", "(rad/s^2)/{input}", -math.inf, math.inf, "gain of d omega/dt + a omega = b u")
-_BIAS = Parameter("bias", "rad/s^2", -math.inf, math.inf, "constant acceleration d (driver offset, load)")
-_FRICTION = Parameter("friction", "rad/s^2", 0.0, math.inf, "Coulomb friction c")
-_DEAD_ZONE = Parameter("dead_zone", "{input}", 0.0, math.inf, "input magnitude the driver does not deliver")
+#: The parameters of the family, shared by every structure that has them (``a``, ``b`` first).
+POLE = Parameter("a", "1/s", 0.0, math.inf, "pole of d omega/dt + a omega = b u", strict=True)
+GAIN = Parameter("b", "(rad/s^2)/{input}", -math.inf, math.inf, "gain of d omega/dt + a omega = b u")
+BIAS = Parameter("bias", "rad/s^2", -math.inf, math.inf, "constant acceleration d (driver offset, load)")
+FRICTION = Parameter("friction", "rad/s^2", 0.0, math.inf, "Coulomb friction c")
+DEAD_ZONE = Parameter("dead_zone", "{input}", 0.0, math.inf, "input magnitude the driver does not deliver")
 
 
 def initial_state_rule(values: Mapping[str, float]) -> str:
@@ -52,7 +54,7 @@ class FirstOrder(ModelStructure):
 
     name = "linear"
     description = "linear (oe)"
-    parameters: tuple[Parameter, ...] = (_A, _B)
+    parameters: tuple[Parameter, ...] = (POLE, GAIN)
     fixed: Mapping[str, float] = {"friction": 0.0, "bias": 0.0, "dead_zone": 0.0}
     method = "oe"
     options: Mapping[str, object] = {}
@@ -78,7 +80,7 @@ class FirstOrderBias(FirstOrder):
 
     name = "bias"
     description = "linear with a constant acceleration d (oe, fit_bias)"
-    parameters: tuple[Parameter, ...] = (_A, _B, _BIAS)
+    parameters: tuple[Parameter, ...] = (POLE, GAIN, BIAS)
     fixed: Mapping[str, float] = {"friction": 0.0, "dead_zone": 0.0}
     options: Mapping[str, object] = {"fit_bias": True}
 
@@ -88,7 +90,7 @@ class CoulombFriction(FirstOrder):
 
     name = "friction"
     description = "Coulomb friction c and bias d (oe-friction)"
-    parameters: tuple[Parameter, ...] = (_A, _B, _FRICTION, _BIAS)
+    parameters: tuple[Parameter, ...] = (POLE, GAIN, FRICTION, BIAS)
     fixed: Mapping[str, float] = {"dead_zone": 0.0}
     method = "oe-friction"
     options: Mapping[str, object] = {"dead_zone": False}
@@ -100,7 +102,7 @@ class DeadZone(CoulombFriction):
 
     name = "dead-zone"
     description = "friction c, bias d and a duty dead zone (oe-friction)"
-    parameters = (_A, _B, _FRICTION, _BIAS, _DEAD_ZONE)
+    parameters = (POLE, GAIN, FRICTION, BIAS, DEAD_ZONE)
     fixed: Mapping[str, float] = {}
     options: Mapping[str, object] = {}
 

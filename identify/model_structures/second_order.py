@@ -17,7 +17,7 @@ import numpy as np
 from motorsim.plant import Motor, lag_coefficients, lag_response
 
 from .base import ModelStructure, Parameter
-from .first_order import _A, _B, _BIAS
+from .first_order import BIAS, GAIN, POLE
 
 if TYPE_CHECKING:
     from ..data import Segment
@@ -33,7 +33,7 @@ class SecondOrder(ModelStructure):
 
     name = "second-order"
     description = "an electrical pole 1/tau_e behind the motor's, and a bias d (oe-electrical)"
-    parameters: tuple[Parameter, ...] = (_A, _B, _TAU, _BIAS)
+    parameters: tuple[Parameter, ...] = (POLE, GAIN, _TAU, BIAS)
     fixed: Mapping[str, float] = {"friction": 0.0, "dead_zone": 0.0}
     method = "oe-electrical"
     options: Mapping[str, object] = {}
