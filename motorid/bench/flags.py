@@ -50,23 +50,22 @@ def real(positive: bool = True) -> Callable[[str], float]:
     return parse
 
 
+def _listing(item: Callable[[str], object], rule: str, name: str) -> Callable[[str], list]:
+    """A comma-separated list of ``item``s, at least one, none empty; ``rule`` says what each must be."""
+    def parse(text: str) -> list:
+        items = text.split(",")
+        if not text.strip() or any(not part.strip() for part in items):
+            raise argparse.ArgumentTypeError(f"must be comma-separated {rule}, got {text!r}")
+        return [item(part) for part in items]
+    parse.__name__ = name
+    return parse
+
+
 def integers(lo: int = 1) -> Callable[[str], list[int]]:
     """A comma-separated list of integers >= ``lo``, at least one."""
-    def parse(text: str) -> list[int]:
-        items = text.split(",")
-        if not text.strip() or any(not item.strip() for item in items):
-            raise argparse.ArgumentTypeError(f"must be comma-separated integers >= {lo}, got {text!r}")
-        return [_int(item, lo) for item in items]
-    parse.__name__ = "integer list"
-    return parse
+    return _listing(lambda part: _int(part, lo), f"integers >= {lo}", "integer list")
 
 
 def reals(positive: bool = True) -> Callable[[str], list[float]]:
     """A comma-separated list of finite numbers > 0 (>= 0 when not ``positive``), at least one."""
-    def parse(text: str) -> list[float]:
-        items = text.split(",")
-        if not text.strip() or any(not item.strip() for item in items):
-            raise argparse.ArgumentTypeError(f"must be comma-separated numbers > 0, got {text!r}")
-        return [_real(item, positive) for item in items]
-    parse.__name__ = "number list"
-    return parse
+    return _listing(lambda part: _real(part, positive), f"numbers {'>' if positive else '>='} 0", "number list")
