@@ -77,7 +77,19 @@ class LeadTest(NamedTuple):
 
 
 def input_lead_test(rec: Recording) -> LeadTest:
-    """:class:`LeadTest` on the longest gap-free stretch of ``rec`` (all zero when it is too short or a fit fails)."""
+    """:class:`LeadTest` on the longest gap-free stretch of ``rec`` (all zero when it is too short or a fit fails).
+
+    Found once per recording (it never changes) and kept with it: every fit of the same recording, by
+    each method of a sweep or each timing of a benchmark, asks again, and the test is two ``oe`` fits.
+    """
+    found = rec.__dict__.get("_input_lead")
+    if found is None:
+        found = _input_lead_test(rec)
+        object.__setattr__(rec, "_input_lead", found)
+    return found
+
+
+def _input_lead_test(rec: Recording) -> LeadTest:
     from .comparison import statistic
     from .validation import autocorrelation
     none = LeadTest(0.0, 0.0, 0.0, 0.0)
