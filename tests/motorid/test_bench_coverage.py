@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from motorid.bench.coverage import A, B, CLASSES, bench_coverage
+from motorid.bench.coverage import CLASSES, A, B, bench_coverage
 
 
 @pytest.mark.parametrize("name", ["electrical lag 8 ms at 1 ms", "delay 20 samples at 1 ms"])
