@@ -36,6 +36,7 @@ _METHODS: dict[str, str | Callable[..., Estimate]] = {
     "oe-friction": "friction:fit_output_error_friction",
     "iv-reference": "closed_loop:fit_reference_iv",
     "oe-electrical": "electrical:fit_output_error_electrical",
+    "pem-disturbance": "prediction_error:fit_prediction_error",
 }
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
@@ -51,8 +52,8 @@ _CANDIDATES = {
     "oe-electrical": "electrical:structure_candidate",
 }
 
-#: methods that need a closed-loop recording's reference column
-_CLOSED_LOOP_ONLY = frozenset({"iv-reference"})
+#: methods made for closed-loop recordings (``iv-reference`` needs their reference column)
+_CLOSED_LOOP_ONLY = frozenset({"iv-reference", "pem-disturbance"})
 #: methods of structures beyond the first-order motor's family (a second pole)
 _BEYOND_FIRST_ORDER = frozenset({"oe-electrical"})
 
@@ -62,7 +63,7 @@ def available_methods(*, open_loop: bool = False, first_order: bool = False) -> 
     Parameters
     ----------
     open_loop : bool
-        Leave out the methods that need a closed-loop recording's reference (``iv-reference``):
+        Leave out the methods made for closed-loop recordings (``iv-reference``, ``pem-disturbance``):
         the list "all methods" means for open-loop runs (the demo, the sweeps).
     first_order : bool
         Leave out the estimators of structures beyond the first-order motor (``oe-electrical``):

@@ -58,12 +58,14 @@ from .data import (
     as_recordings,
     check_excitation,
     check_input_delay,
+    declared_input_delay,
     delayed_segments,
     first_rows,
     saturation_note,
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .feedback import feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
@@ -181,7 +183,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
     notes: list[str] = []
     if input_delay == "auto":
-        known = _declared_delay(recs)
+        known = declared_input_delay(recs)
         top = max(largest_delay(recs, max_delay), known)
         delays = list(range(known, top + 1))
         if known:
@@ -293,17 +295,6 @@ def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Ca
     return best
 
 
-def _declared_delay(recs: list[Recording]) -> int:
-    """The input delay every recording's device declares (``input_delay_samples``), else 0."""
-    declared = []
-    for r in recs:
-        try:
-            declared.append(max(0, int(str(r.metadata.get("input_delay_samples", "0")))))
-        except ValueError:
-            declared.append(0)
-    return min(declared)
-
-
 #: Rows on which the candidates are compared: on longer data, the first rows of every segment (in
 #: proportion); the chosen candidate is then fitted on all rows.  25 times the 2000 rows on which every
 #: class of the tests is told apart; half the selection's time on a 10^6-row file at 10^5 rows.
@@ -371,6 +362,10 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     """
     recs = as_recordings(recordings)
     check_excitation(recs, 2)
+    if structures is None:
+        evidence = feedback_evidence(recs)
+        if evidence:
+            return fit_closed_loop(recs, evidence, input_delay=input_delay, fix_bias=fix_bias)
     swept = _counts_swept(recs)
     few_note = ""
     if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a second pole from their rounding
@@ -456,7 +451,7 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
                                  fix_bias=fix_bias, screen=screen)
         if input_delay != "auto":
             return selection, ""
-        top = max(largest_delay(recs, max_delay), _declared_delay(recs))
+        top = max(largest_delay(recs, max_delay), declared_input_delay(recs))
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
