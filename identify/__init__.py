@@ -10,6 +10,7 @@ from motorsim.lazy import lazy_attributes
 #: public name -> the module of this package that defines it
 _WHERE = {
     "NotIdentifiableError": "errors", "Estimate": "estimate",
+    "SelectionReport": "selection_report", "CandidateReport": "selection_report",
     "structures": "model_structures", "structure": "model_structures", "ModelStructure": "model_structures",
     "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
