@@ -13,6 +13,8 @@ _WHERE = {
     "SelectionReport": "selection_report", "CandidateReport": "selection_report",
     "structures": "model_structures", "structure": "model_structures", "ModelStructure": "model_structures",
     "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
+    "method_options": "methods", "option_declarations": "methods", "check_options": "methods",
+    "EstimatorOption": "methods",
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
     "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",
     "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",

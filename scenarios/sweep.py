@@ -152,7 +152,7 @@ def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
 
 def _fit_or_reason(recording: Recording, method: str, auto_delay: bool = False) -> tuple[float, float, str]:
     """Fit; where the setting has an input delay, methods that take ``input_delay`` choose it ("auto")."""
-    from identify.methods import method_options
+    from identify import method_options
     options = {"input_delay": "auto"} if auto_delay and "input_delay" in method_options(method) else {}
     try:
         est = fit(recording, method=method, outliers="keep", **options)

@@ -85,7 +85,7 @@ def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword options the flags give the estimator; a flag the method does not take is an error."""
-    from identify.methods import method_options
+    from identify import method_options
     accepted = method_options(args.method)
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
@@ -95,7 +95,8 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
         if value is unset:
             continue
         if name not in accepted:
-            raise CommandError(f"{flag} is not supported by method {args.method!r}")
+            takes = f"its options are {', '.join(accepted)}" if accepted else "it takes no options"
+            raise CommandError(f"{flag} is not supported by method {args.method!r}: {takes}")
         options[name] = value
     return options
 

@@ -138,13 +138,14 @@ def test_failed_fits_are_counted_with_their_reason_not_dropped(tmp_path):
 
 
 def test_estimators_are_found_by_name(monkeypatch, tmp_path):
-    # A new entry in identify's method table is swept without any change to the sweep;
+    # A new entry in identify's method table (and its options, none) is swept without any change to the sweep;
     # it has no batched implementation, so it goes through identify.fit on the same counts.
     def shifted(recordings):
         import dataclasses
         est = identify.fit_zoh_ls(recordings)
         return dataclasses.replace(est, method="shifted", a=est.a + 1.0)
     monkeypatch.setitem(identify.methods._METHODS, "shifted", shifted)
+    monkeypatch.setitem(identify.methods._OPTIONS, "shifted", ())
     data = {"repetitions": 3, "seed": 1, "bench": {"duration": 1.0, "angle_noise": 2e-4}}
     summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = {r["method"]: r for r in read_sweep_csv(summary.csv_path)}
