@@ -28,6 +28,8 @@ _WHERE = {
     "BestLinearApproximation": "best_linear", "best_linear_approximation": "best_linear",
     "fit_frequency_response": "frequency_fit",
     "feedforward_constants": "feedforward", "FeedforwardConstants": "feedforward",
+    "BatchFit": "batch", "BATCHED_METHODS": "batch", "fit_batch": "batch", "fit_output_error_batch": "batch",
+    "output_error_batchable": "batch",
 }
 
 __all__ = list(_WHERE)

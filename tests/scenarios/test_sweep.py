@@ -17,6 +17,7 @@ from motorid.commands.sweep import format_sweep_table
 from scenarios.scenario import load_scenario, scenario_from_dict
 from scenarios.sweep import (
     CSV_COLUMNS,
+    MethodOutcome,
     read_sweep_csv,
     repetition_seed,
     run_point,
@@ -287,3 +288,12 @@ def test_batched_oe_equals_identify_fit_per_repetition(frequency, angle_noise):
     np.testing.assert_allclose(f.a, s.a, rtol=1e-9)
     np.testing.assert_allclose(f.b, s.b, rtol=1e-9)
     assert format_sweep_table(scenario, fast.rows()) == format_sweep_table(scenario, slow.rows())
+
+
+def test_failure_reasons_group_by_the_message_with_its_numbers_masked():
+    # each repetition's message carries its own figure; grouped verbatim, every group had one member
+    failures = ("singular: cond 3.1e+08 after 12 steps", "singular: cond 2.7e+08 after 9 steps", "",
+                "recording is too short: 1 regression rows", "singular: cond -4e+07 after 3 steps")
+    outcome = MethodOutcome("oe", np.zeros(5), np.zeros(5), failures)
+    assert outcome.failure_summary() == ("singular: cond 3.1e+08 after 12 steps (3) | "
+                                         "recording is too short: 1 regression rows (1)")
