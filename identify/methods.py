@@ -196,6 +196,13 @@ def method_options(method: str) -> tuple[str, ...]:
 def check_options(method: str, options: Mapping[str, Any]) -> None:
     """Refuse an option the named method does not declare, naming the method, the option and the ones it takes.
 
+    Parameters
+    ----------
+    method : str
+        ``"auto"`` or one of :func:`available_methods`.
+    options : mapping of str to object
+        The keyword options to be given to it.
+
     Raises
     ------
     motorsim.checks.ParameterError
