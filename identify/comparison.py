@@ -140,15 +140,11 @@ class Candidate:
     def label(self) -> str:
         return f"{self.structure}, delay {self.input_delay}"
 
-    def to_dict(self) -> dict:
-        return {"structure": self.structure, "input_delay": self.input_delay, "method": self.method,
-                "a": self.a, "b": self.b, "residual_sum": self.residual_sum, "statistic": self.statistic,
-                "within_noise": self.within_noise, **({"note": self.note} if self.note else {})}
-
 
 @dataclasses.dataclass(frozen=True)
 class Selection:
-    """What :func:`select_model` compared and chose.
+    """What :func:`select_model` compared and chose (kept with the estimate as an
+    :class:`identify.SelectionReport`).
 
     Attributes
     ----------
@@ -193,14 +189,6 @@ class Selection:
                     f"threshold {threshold(other, self.best, self.level):.3g}); the simpler one is kept")
         return (f"{other.label} fits worse by T = {other.statistic:.3g} noise units "
                 f"(threshold {threshold(other, self.best, self.level):.3g})")
-
-    def to_dict(self) -> dict:
-        """JSON-ready: every candidate with its score, the chosen one, whether the choice was clear."""
-        return {"criterion": self.criterion, "level": self.level, "chosen": self.chosen.to_dict(),
-                "best": self.best.to_dict(),
-                "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
-                "clear": self.clear, "doubt": self.doubt, "notes": list(self.notes),
-                "candidates": [c.to_dict() for c in self.candidates]}
 
 
 @dataclasses.dataclass(eq=False)

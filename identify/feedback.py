@@ -41,6 +41,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import speed_reverses
 from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_error, solve_prediction_error
+from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "FEEDBACK_SHARE", "INPUT_LAGS",
            "CLOSED_LOOP_DELAYS", "TEST_ROWS"]
@@ -213,7 +214,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
                  "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
                  "feedback adds")
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
-    return dataclasses.replace(est, selection=selection.to_dict(),
+    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
                                notes=tuple(([doubt] if doubt else []) + notes))
 
 

@@ -67,6 +67,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .feedback import feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
+from .selection_report import SelectionReport
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
@@ -357,7 +358,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     >>> est = fit(rec)
     >>> print(f"{est.method}, delay {est.input_delay}, a = {est.a:.3f}, b = {est.b:.4f}")
     oe, delay 2, a = 25.000, b = 3.0000
-    >>> est.selection["chosen"]["structure"], est.selection["clear"]
+    >>> est.selection.chosen.structure, est.selection.clear
     ('linear', True)
     """
     recs = as_recordings(recordings)
@@ -430,7 +431,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         selection = dataclasses.replace(selection, clear=False, doubt=(
             f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
             "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
-    return dataclasses.replace(est, selection=selection.to_dict(), notes=tuple(
+    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection), notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
 
 

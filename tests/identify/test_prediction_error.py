@@ -162,8 +162,8 @@ def test_default_on_a_closed_loop_covers_the_motor_and_says_why(loops):
         within = abs(est.a / A - 1) < 0.01 and abs(est.b / B - 1) < 0.01
         narrow = (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A and (ci["b"][1] - ci["b"][0]) / 2 < 0.25 * B
         assert within or (covers and narrow), (est.a, est.b, ci)
-        assert covers or not est.selection["clear"]
-        assert est.selection["chosen"]["method"] == "pem-disturbance"
+        assert covers or not est.selection.clear
+        assert est.selection.chosen.method == "pem-disturbance"
         assert est.structure == "friction"
 
 
