@@ -16,12 +16,16 @@ says why a recording looks closed loop:
 
 :func:`fit_closed_loop` then fits ``pem-disturbance`` (:mod:`identify.prediction_error`: a
 prediction-error fit with a torque disturbance entering where the input does) with and without
-Coulomb friction, at each delay in ``0 ... CLOSED_LOOP_DELAYS``, chooses by the likelihood ratio
-(the simplest candidate within the noise of the best, at the default's level), and -- since the
-fit is consistent under feedback only when the disturbance model describes the real one -- refits
-the chosen candidate with the disturbance as a random walk: when the two disturbance models give
-different ``a`` or ``b``, the interval is the union of both fits' intervals and the choice is not
-called clear.
+Coulomb friction, at each delay in ``0 ... CLOSED_LOOP_DELAYS`` (from a declared one), widening
+the range, doubling, to :data:`CLOSED_LOOP_LARGEST_DELAY` while a delay at its top cannot be ruled
+out (in a stiff loop the prediction errors tell neighbouring delays apart only weakly), and
+chooses by the likelihood ratio (the simplest candidate within the noise of the best, at the
+default's level).  Every candidate the data cannot rule out whose ``a`` or ``b`` falls outside
+the chosen fit's interval widens it.  The fit is consistent under feedback only when the
+disturbance model describes the real one, which the data can only test, so the chosen candidate
+is refitted with the disturbance as a random walk and the interval always holds both fits'
+intervals; the choice is called clear only when the two agree, no other candidate widened the
+interval, the delay is not at the top of the range searched, and the innovations are white.
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, Candidate, Selection, threshold
+from .comparison import LEVEL, Candidate, Selection, largest_delay, threshold
 from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
@@ -44,7 +48,7 @@ from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "FEEDBACK_SHARE", "INPUT_LAGS",
-           "CLOSED_LOOP_DELAYS", "TEST_ROWS"]
+           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "TEST_ROWS"]
 
 #: Share of the duty's unexplained variance the output must explain for a recording to count as closed loop.
 FEEDBACK_SHARE = 0.3
@@ -52,8 +56,10 @@ FEEDBACK_SHARE = 0.3
 INPUT_LAGS = 10
 #: Rows of each recording the data test looks at.
 TEST_ROWS = 4_000
-#: The largest input delay, in samples, the closed-loop fit tries.
+#: The input delays, in samples, the closed-loop fit tries first (from the declared one) ...
 CLOSED_LOOP_DELAYS = 3
+#: ... and the largest it widens to, doubling, while the best is at the top (fewer on short data).
+CLOSED_LOOP_LARGEST_DELAY = 15
 
 
 def feedback_share(recording: Recording) -> float:
@@ -169,24 +175,35 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
         raise ParameterError("fix_bias cannot be held in a closed loop: the torque disturbance's level is the bias "
                              f"({evidence}); leave it out, or name a method")
     declared = declared_input_delay(recs)
-    if input_delay == "auto":
-        delays = list(range(declared, max(declared, CLOSED_LOOP_DELAYS) + 1))
+    auto = input_delay == "auto"
+    if auto:
+        cap = max(largest_delay(recs, CLOSED_LOOP_LARGEST_DELAY), declared)
+        top = min(max(declared, CLOSED_LOOP_DELAYS), cap)
+        delays = list(range(declared, top + 1))
     else:
-        delays = [check_int("input_delay", input_delay, 0, 10**6)]
-    skip = max(delays)
+        cap = top = check_int("input_delay", input_delay, 0, 10**6)
+        delays = [top]
+    skip = cap                                     # every candidate on the same rows
     reverses = speed_reverses(recs)
     fitted: list[tuple[Candidate, PredictionErrorFit]] = []
-    for d in delays:
-        segs = prepare_segments(recs, d, skip=skip)
-        if not segs:
-            raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
-                                       f"{d} samples")
-        linear = solve_prediction_error(recs, segs, friction=False)
-        fitted.append((_candidate("bias", d, linear), linear))
-        if reverses:
-            v = linear.values()
-            fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]))
-            fitted.append((_candidate("friction", d, fit), fit))
+
+    def scan(ds: Sequence[int]) -> None:
+        for d in ds:
+            segs = prepare_segments(recs, d, skip=skip)
+            if not segs:
+                raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
+                                           f"{d} samples")
+            linear = solve_prediction_error(recs, segs, friction=False)
+            fitted.append((_candidate("bias", d, linear), linear))
+            if reverses:                           # friction from the linear fit at the same delay
+                v = linear.values()
+                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]))
+                fitted.append((_candidate("friction", d, fit), fit))
+    scan(delays)
+    while auto and top < cap and _top_plausible(fitted, top):
+        # a delay at the top of the range the data cannot rule out: widen the range, as far as the data allow
+        top, previous = min(2 * top + 1, cap), top
+        scan(range(previous + 1, top + 1))
     selection = _choose(fitted)
     chosen = selection.chosen
     fit = next(f for c, f in fitted if c is chosen)
@@ -201,6 +218,9 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
              "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
              "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
     est = _union(est, others)
+    edge = auto and chosen.input_delay == top and top > declared
+    if edge:
+        apart.append(f"a delay at the top of the {top + 1} searched")
     clear = est.covariance_method == "gauss-newton" and not apart
     doubt = ""
     if apart:
@@ -216,6 +236,12 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
     return dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
                                notes=tuple(([doubt] if doubt else []) + notes))
+
+
+def _top_plausible(fitted: list[tuple[Candidate, PredictionErrorFit]], top: int) -> bool:
+    """Whether a candidate at delay ``top`` is the best or within the noise of it."""
+    scored = _choose(list(fitted)).candidates
+    return any(c.input_delay == top and c.within_noise for c in scored)
 
 
 def _candidate(structure: str, delay: int, fit: PredictionErrorFit) -> Candidate:

@@ -26,8 +26,9 @@ A, B, FRICTION = 25.0, 3.0, 60.0
 
 
 def position_loop(seed: int, *, samples: int = 8000, h: float = 0.001, cpr: int = 2000, friction: float = FRICTION,
-                  disturbance: float = 4.2, reference: bool = True) -> Recording:
-    """The PD loop of the module docstring (``disturbance``: the torque's innovation, rad/s^2 per sample)."""
+                  disturbance: float = 4.2, reference: bool = True, delay: int = 0) -> Recording:
+    """The PD loop of the module docstring (``disturbance``: the torque's innovation, rad/s^2 per sample; the
+    duty reaching the motor ``delay`` samples after it was logged, as over a serial link)."""
     rng = np.random.default_rng(seed)
     t = np.arange(samples) * h
     ref = 2.0 * np.sin(2 * np.pi * 0.5 * t) + 1.0 * np.sin(2 * np.pi * 1.3 * t + 1)
@@ -42,7 +43,8 @@ def position_loop(seed: int, *, samples: int = 8000, h: float = 0.001, cpr: int 
         previous = c
         duty[k] = u = float(np.clip(np.round(400.0 * (ref[k] - c * 2 * math.pi / cpr) - 8.0 * speed), -255, 255))
         d = 0.99 * d + disturbance * rng.standard_normal()
-        w, th = friction_interval(A, B * u + d, friction, w, th, h)
+        applied = duty[k - delay] if k >= delay else 0.0
+        w, th = friction_interval(A, B * applied + d, friction, w, th, h)
     extra = {"reference": ref, "metadata": {"reference_unit": "rad"}} if reference else {}
     return Recording(time=t, duty=duty, sample_period=h, counts=counts, counts_per_rev=cpr, **extra)
 
@@ -165,6 +167,19 @@ def test_default_on_a_closed_loop_covers_the_motor_and_says_why(loops):
         assert covers or not est.selection.clear
         assert est.selection.chosen.method == "pem-disturbance"
         assert est.structure == "friction"
+
+
+def test_default_covers_a_delay_the_closed_loop_cannot_pin_down():
+    # a duty acting 2 samples after it is logged: in this stiff loop the prediction errors hardly tell delays
+    # 0-3 apart (measured: within 0.02 % of each other), and a falls from 24.9 to 22.8 as the delay assumed
+    # shrinks; the interval must hold the truth, and the choice is not clear
+    rec = position_loop(3, samples=8000, delay=2, reference=False)
+    est = fit(rec)
+    assert est.method == "pem-disturbance"
+    ci = est.confidence_interval(0.95)
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A
+    assert not est.selection.clear
 
 
 def test_default_refuses_a_held_bias_in_a_closed_loop(loops):
