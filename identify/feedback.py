@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -39,7 +39,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, Candidate, Selection, largest_delay, threshold
+from .comparison import BLOCKS, LEVEL, Candidate, Selection, largest_delay, threshold
 from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
@@ -47,7 +47,7 @@ from .friction import speed_reverses
 from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_error, solve_prediction_error
 from .selection_report import SelectionReport
 
-__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "FEEDBACK_SHARE", "INPUT_LAGS",
+__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
            "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "TEST_ROWS"]
 
 #: Share of the duty's unexplained variance the output must explain for a recording to count as closed loop.
@@ -150,8 +150,15 @@ def feedback_evidence(recordings: Recording | Sequence[Recording]) -> str:
     return ""
 
 
+class ClosedLoopFit(NamedTuple):
+    """What :func:`fit_closed_loop` found: its estimate, or None and why output error is consistent."""
+
+    estimate: Estimate | None
+    note: str = ""
+
+
 def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, *, input_delay: int | str = "auto",
-                    fix_bias: bool = False) -> Estimate:
+                    fix_bias: bool = False) -> ClosedLoopFit:
     """The default on a closed-loop recording: ``pem-disturbance`` candidates, chosen by evidence (module docstring).
 
     Parameters
@@ -163,17 +170,17 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     input_delay : int or "auto"
         ``"auto"`` tries ``declared ... max(declared, CLOSED_LOOP_DELAYS)``; an integer fixes it.
     fix_bias : bool
-        Not supported here (the disturbance's level is the bias); refused.
+        Refused when a disturbance is found (its level is the bias).
 
     Returns
     -------
-    Estimate
-        Made by ``pem-disturbance`` on all rows, with ``selection`` and ``notes`` as the default gives them.
+    ClosedLoopFit
+        The estimate made by ``pem-disturbance`` on all rows, with ``selection`` and ``notes`` as the
+        default gives them; or, when the data show no disturbance the loop feeds back (the fit with one
+        is within the noise of the fit without), no estimate and a note saying so: output error is then
+        consistent, and the caller's default fits as on any recording.
     """
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
-    if fix_bias:
-        raise ParameterError("fix_bias cannot be held in a closed loop: the torque disturbance's level is the bias "
-                             f"({evidence}); leave it out, or name a method")
     declared = declared_input_delay(recs)
     auto = input_delay == "auto"
     if auto:
@@ -185,6 +192,13 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
         delays = [top]
     skip = cap                                     # every candidate on the same rows
     reverses = speed_reverses(recs)
+    quiet = _without_disturbance(recs, delays[0], skip, reverses)
+    if quiet:
+        return ClosedLoopFit(None, f"recorded in a closed loop ({evidence}), but {quiet}: output error is "
+                                   "consistent there, and the default chose as on any recording")
+    if fix_bias:
+        raise ParameterError("fix_bias cannot be held in a closed loop: the torque disturbance's level is the bias "
+                             f"({evidence}); leave it out, or name a method")
     fitted: list[tuple[Candidate, PredictionErrorFit]] = []
 
     def scan(ds: Sequence[int]) -> None:
@@ -234,8 +248,32 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
                  "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
                  "feedback adds")
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
-    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
-                               notes=tuple(([doubt] if doubt else []) + notes))
+    return ClosedLoopFit(dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
+                                             notes=tuple(([doubt] if doubt else []) + notes)))
+
+
+def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses: bool) -> str:
+    """Why no disturbance is evidenced at ``delay`` (``""`` when one is): the likelihood ratio of the fit with a
+    disturbance against the fit without, within :func:`threshold` for its two parameters (pole and intensity)."""
+    segs = prepare_segments(recs, delay, skip=skip)
+    if not segs:
+        return ""
+    with_ = solve_prediction_error(recs, segs, friction=reverses)
+    v = with_.values()
+    without = solve_prediction_error(recs, segs, friction=reverses, disturbance=False,
+                                     start=(v["a"], v["b"], v["friction"], v["bias"]))
+    ratio = with_.problem.n_rows * math.log(without.cost / with_.cost) if with_.cost > 0 else math.inf
+    limit = _ratio_limit(2)
+    if ratio <= limit:
+        return (f"the data show no disturbance the loop feeds back (likelihood ratio {ratio:.3g} of a fit with one, "
+                f"threshold {limit:.3g})")
+    return ""
+
+
+def _ratio_limit(k: int) -> float:
+    """The likelihood ratio's threshold for ``k`` more parameters, as :func:`identify.comparison.threshold`."""
+    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
+    return k * float(fdtri(k, BLOCKS - k, 1.0 - LEVEL))
 
 
 def _top_plausible(fitted: list[tuple[Candidate, PredictionErrorFit]], top: int) -> bool:
