@@ -48,7 +48,7 @@ from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
-           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "TEST_ROWS"]
+           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS"]
 
 #: Share of the duty's unexplained variance the output must explain for a recording to count as closed loop.
 FEEDBACK_SHARE = 0.3
@@ -60,6 +60,9 @@ TEST_ROWS = 4_000
 CLOSED_LOOP_DELAYS = 3
 #: ... and the largest it widens to, doubling, while the best is at the top (fewer on short data).
 CLOSED_LOOP_LARGEST_DELAY = 15
+#: Rows on which the closed-loop candidates are compared (the first of every segment, in proportion); the
+#: chosen one is then fitted on all rows.
+CLOSED_LOOP_ROWS = 6_000
 
 
 def feedback_share(recording: Recording) -> float:
@@ -203,15 +206,18 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
 
     def scan(ds: Sequence[int]) -> None:
         for d in ds:
-            segs = prepare_segments(recs, d, skip=skip)
+            segs = prepare_segments(recs, d, skip=skip, rows=CLOSED_LOOP_ROWS)
             if not segs:
                 raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
                                            f"{d} samples")
-            linear = solve_prediction_error(recs, segs, friction=False)
+            # the disturbance's start from the neighbouring delay's fit (the first searches a grid)
+            near = _noise(fitted[-2 if reverses else -1][1]) if fitted else None
+            linear = solve_prediction_error(recs, segs, friction=False, noise_start=near)
             fitted.append((_candidate("bias", d, linear), linear))
             if reverses:                           # friction from the linear fit at the same delay
                 v = linear.values()
-                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]))
+                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]),
+                                             noise_start=_noise(linear))
                 fitted.append((_candidate("friction", d, fit), fit))
     scan(delays)
     while auto and top < cap and _top_plausible(fitted, top):
@@ -221,7 +227,8 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     selection = _choose(fitted)
     chosen = selection.chosen
     fit = next(f for c, f in fitted if c is chosen)
-    if skip != chosen.input_delay:           # the chosen candidate on all its rows, from where it stands
+    if skip != chosen.input_delay or sum(len(r) for r in recs) > CLOSED_LOOP_ROWS:
+        # the chosen candidate on all its rows, from where it stands
         v = fit.values()
         fit = solve_prediction_error(recs, prepare_segments(recs, chosen.input_delay),
                                      friction=fit.problem.friction,
@@ -255,7 +262,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
 def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses: bool) -> str:
     """Why no disturbance is evidenced at ``delay`` (``""`` when one is): the likelihood ratio of the fit with a
     disturbance against the fit without, within :func:`threshold` for its two parameters (pole and intensity)."""
-    segs = prepare_segments(recs, delay, skip=skip)
+    segs = prepare_segments(recs, delay, skip=skip, rows=CLOSED_LOOP_ROWS)
     if not segs:
         return ""
     with_ = solve_prediction_error(recs, segs, friction=reverses)
@@ -274,6 +281,12 @@ def _ratio_limit(k: int) -> float:
     """The likelihood ratio's threshold for ``k`` more parameters, as :func:`identify.comparison.threshold`."""
     from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
     return k * float(fdtri(k, BLOCKS - k, 1.0 - LEVEL))
+
+
+def _noise(fit: PredictionErrorFit) -> tuple[float, float]:
+    """A fit's disturbance pole and ``log(Q/R)``, as the start of a neighbouring one."""
+    v = fit.values()
+    return v["disturbance_pole"], v["log_disturbance_ratio"]
 
 
 def _top_plausible(fitted: list[tuple[Candidate, PredictionErrorFit]], top: int) -> bool:
