@@ -375,7 +375,9 @@ def run_control(args: argparse.Namespace) -> int:
     prediction = controller.predict(reference, args.duration)
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
-          f"({model.input_delay * model.sample_period:.6g} s), dt = {model.sample_period:g} s, "
+          f"({model.input_delay * model.sample_period:.6g} s), "
+          + (f"electrical time constant {model.electrical_time_constant:g} s, " if model.electrical_time_constant
+             else "") + f"dt = {model.sample_period:g} s, "
           f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     if speed_unit != "rad/s":
         from motorsim.units import speed_in
@@ -516,6 +518,9 @@ def _print_robustness(args: argparse.Namespace, controller: Controller, covarian
     """The margins at the point estimate and, with a covariance, across the drawn plants, and warnings."""
     from motorsim.robustness import analyse_robustness, loop_margins
     print(f"margins at the point estimate: {loop_margins(controller).describe()}")
+    if controller.model.electrical_time_constant:
+        print(f"  (the full model, electrical time constant {controller.model.electrical_time_constant:g} s "
+              f"included; the design's first-order part alone: {controller.first_order_margins().describe()})")
     if covariance is None:
         print("robustness across the model's uncertainty: give --model FILE.json with a covariance")
         return
