@@ -208,21 +208,29 @@ class FrequencyResponse:
     def model_of(self, estimate: Estimate, name: str | None = None) -> ModelResponse:
         """An estimate's model at these frequencies, with its variance from the estimate's covariance.
 
-        The linear part ``b/(s + a)`` with the estimate's input delay (friction, bias and dead zone
-        have no frequency response).  The variance is ``J C J^H`` with ``J`` the derivatives of the
-        response with respect to ``a`` and ``b`` (central differences) and ``C`` their covariance.
+        The linear part of the estimate's structure with its input delay
+        (:meth:`~identify.model_structures.ModelStructure.frequency_response`: ``b/(s + a)``, or both
+        poles of ``second-order``; friction, bias and dead zone have no frequency response).  The
+        variance is ``J C J^H`` with ``J`` the derivatives of the response with respect to the
+        structure's response parameters that the covariance holds (central differences) and ``C``
+        their covariance.
         """
-        delay = estimate.input_delay
-        g = self.model_response(estimate.a, estimate.b, delay)
+        model, delay = estimate.model_structure(), estimate.input_delay
+        values = estimate.values()
+
+        def response(v: dict[str, float]) -> np.ndarray:
+            return model.frequency_response(v, self.sample_period, self.omega, output=self.output, input_delay=delay)
+        g = response(values)
         variance = np.zeros(len(g))
         if estimate.covariance is not None:
-            cov = np.asarray(estimate.covariance)[:2, :2]
+            names = [n for n in model.response_parameters if n in estimate.param_names]
+            index = [estimate.param_names.index(n) for n in names]
+            cov = np.asarray(estimate.covariance)[np.ix_(index, index)]
             jac = []
-            for i, value in enumerate((estimate.a, estimate.b)):
-                h = 1e-6 * max(abs(value), 1e-9)
-                step = np.array([h, 0.0]) if i == 0 else np.array([0.0, h])
-                up = self.model_response(estimate.a + step[0], estimate.b + step[1], delay)
-                down = self.model_response(estimate.a - step[0], estimate.b - step[1], delay)
+            for n in names:
+                h = 1e-6 * max(abs(values[n]), 1e-9)
+                up = response({**values, n: values[n] + h})
+                down = response({**values, n: values[n] - h})
                 jac.append((up - down) / (2 * h))
             J = np.column_stack(jac)
             variance = np.einsum("ni,ij,nj->n", J, cov, J.conj()).real

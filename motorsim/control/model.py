@@ -165,14 +165,13 @@ class PlantModel:
             num, den = self._lag_speed_polynomials()
             return control.tf(num, np.polymul(delay, den), self.sample_period)
         e, _, b1, b2 = self.speed_coefficients()
-        den = np.polymul(delay, [1.0, -e])
-        return control.tf([b1, b2], den, self.sample_period)
+        return control.tf([b1, b2], np.polymul(delay, [1.0, -e]), self.sample_period)
 
     def _lag_speed_polynomials(self) -> tuple[np.ndarray, np.ndarray]:
         """``(S / h) n(z)`` and ``(z - e_a)(z - e_c)`` of the class Notes (no delay)."""
         h, b = self.sample_period, self.b
         e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(self.a, 1.0 / self.electrical_time_constant, h))
-        den = np.polymul([1.0, -e_a], [1.0, -e_c])
+        den = np.asarray(np.polymul([1.0, -e_a], [1.0, -e_c]))
         num = np.polyadd(np.polyadd(p * b * np.array([p - q, -e_c * (p - q) + q * (1.0 - e_c)]),
                                     b * s * (1.0 - e_c) * np.array([1.0, -e_a])), b * (r - s) * den)
         return num * (self.speed_scale / h), den
