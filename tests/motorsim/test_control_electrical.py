@@ -179,6 +179,7 @@ def test_pi_keeps_the_phase_margin_on_the_full_model_with_the_shortest_time_cons
     _, cy = _laws(pi)
     _, pm, _ = _margins(-(_reference_plant(pi) * cy))
     assert pm >= MIN_PHASE_MARGIN
+    assert [w.category for w in caught] == [DesignLimitWarning]        # one warning, not one per candidate
     assert pi.time_constant > time_constant and "electrical time constant 0.004 s" in str(caught[0].message)
     # the time constant a first-order design keeps 60 deg with leaves less on the motor
     part = _quiet(PISpeed, model.first_order(), time_constant)
