@@ -62,7 +62,7 @@ from motorsim.recording import Recording
 
 from .data import as_recordings
 from .errors import NotIdentifiableError
-from .sensitivity import phi_functions
+from .zoh_response import OUTPUTS, zoh_speed_response
 
 if TYPE_CHECKING:
     import control
@@ -74,48 +74,6 @@ __all__ = ["FrequencyResponse", "ModelResponse", "frequency_response", "zoh_spee
 
 #: The estimators ``frequency_response(method=...)`` accepts.
 ESTIMATORS = ("auto", "periodic", "sines", "welch")
-#: What the response's output is: the interval-mean speed from the angle, or the sampled speed column.
-OUTPUTS = ("angle", "speed")
-
-
-def zoh_speed_response(a: float, b: float, sample_period: float, omega: np.ndarray, *, output: str = "angle",
-                       input_delay: int = 0) -> np.ndarray:
-    """The exact ZOH response of ``b/(s + a)`` duty -> speed at ``omega`` rad/s (complex).
-
-    Parameters
-    ----------
-    a, b : float
-        Pole in 1/s and gain in (rad/s^2)/duty.
-    sample_period : float
-        Sample period ``dt`` in s.
-    omega : array_like
-        Angular frequencies in rad/s.
-    output : {"angle", "speed"}
-        ``"speed"``: the sampled speed, ``(b/a)(1 - e)/(z - e)``; ``"angle"``: the mean speed
-        over the interval the duty is held, ``phi1(a dt) G(z) + b dt phi2(a dt)`` (module docstring).
-    input_delay : int
-        Whole samples of input delay, a factor ``z^-input_delay``.
-
-    Examples
-    --------
-    >>> g = zoh_speed_response(25.0, 3.0, 0.005, [1e-6])
-    >>> round(float(abs(g[0])), 6)   # the static gain b/a
-    0.12
-    """
-    if output not in OUTPUTS:
-        raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
-    dt = check_real("sample_period", sample_period, positive=True)
-    w = np.asarray(omega, dtype=float)
-    x = a * dt
-    e = math.exp(-x)
-    z = np.exp(1j * w * dt)
-    p1, p2, _, _ = phi_functions(np.array([x]))
-    g = b * dt * p1[0] / (z - e)   # (b/a)(1 - e) = b dt phi1(x)
-    if output == "angle":
-        g = p1[0] * g + b * dt * p2[0]
-    return g * z ** (-int(input_delay))
-
-
 @dataclasses.dataclass(frozen=True)
 class FrequencyResponse:
     """An estimated frequency response duty -> speed, with its bound and coherence.

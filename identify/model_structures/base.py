@@ -218,7 +218,7 @@ class ModelStructure:
         (a factor ``z^-input_delay``).  Here ``b/(s + a)``:
         :func:`identify.frequency_estimate.zoh_speed_response`.
         """
-        from ..frequency_estimate import zoh_speed_response
+        from ..zoh_response import zoh_speed_response
         # the values as given, not checked against the bounds: a poor fit's model is still drawn
         return zoh_speed_response(float(values["a"]), float(values["b"]), sample_period, omega, output=output,
                                   input_delay=input_delay)

@@ -53,7 +53,7 @@ class SecondOrder(ModelStructure):
         so the mean speed there (``"angle"``) is that over ``h``.  At ``tau_e -> 0`` both are
         :func:`identify.frequency_estimate.zoh_speed_response`'s.
         """
-        from ..frequency_estimate import OUTPUTS
+        from ..zoh_response import OUTPUTS
         if output not in OUTPUTS:
             raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
         h = check_real("sample_period", sample_period, positive=True)
