@@ -50,7 +50,7 @@ DEFAULT_REFERENCE = "sine:10,10"
 CONTROLLER_FLAGS = ("reference", "model", "duty_weight", "time_constant", "integral_weight", "min_phase_margin",
                     "feedforward", "derivative")
 #: Flags of :func:`add_model_arguments` (their ``dest``): the model a controller is designed from.
-MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay")
+MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay", "electrical_time_constant")
 #: Units a reference's levels may carry (``step:1500rpm``), per quantity the controller tracks.
 REFERENCE_UNITS = {"speed": ("rad/s", "deg/s", "rpm", "rev/s"), "angle": ("rad", "deg", "rev")}
 _UNIT_NUMBER = re.compile(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(rad/s|deg/s|rev/s|rpm|rad|deg|rev)(?![\w/])")
@@ -92,7 +92,8 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``."""
+    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``,
+    ``--electrical-time-constant``."""
     m = parser.add_argument_group("model (what the controller is designed from)")
     m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
     m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
@@ -100,6 +101,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--bias", type=float, default=None, help="constant acceleration d in rad/s^2 (default 0)")
     m.add_argument("--input-delay", dest="input_delay", type=int, default=None,
                    help="input delay in samples (default 0)")
+    m.add_argument("--electrical-time-constant", dest="electrical_time_constant", type=float, default=None,
+                   metavar="S", help="time constant tau_e in s of a lag between the duty and the torque, the "
+                                     "model b/((s+a)(tau_e s+1)) (default 0: none)")
 
 
 def refuse_controller_flags(args: argparse.Namespace, *, model_flags: bool = False) -> None:
@@ -240,7 +244,8 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
         source = {"a": args.a, "b": args.b, **{k: getattr(args, k, 0) or 0 for k in ("friction", "bias",
                                                                                        "input_delay")}}
         source = PlantModel(source["a"], source["b"], args.sample_period, args.counts_per_rev,
-                            friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"])
+                            friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"],
+                            electrical_time_constant=getattr(args, "electrical_time_constant", None) or 0.0)
     return check_design_model(PlantModel.from_source(source, args.sample_period, args.counts_per_rev),
                               f"--model {args.model}" if getattr(args, "model", None) else "--a/--b")
 

@@ -48,3 +48,23 @@ def test_a_design_unstable_on_the_full_model_is_refused_with_both_verdicts(tmp_p
     assert "on the first-order part (phase margin" in err and "stable)" in err
     assert "gives an unstable loop on the full model with its electrical time constant 0.004 s: raise duty_weight" \
         in err
+
+
+def test_design_and_closed_loop_simulation_from_flags_carry_tau_e(tmp_path, capsys):
+    """``--electrical-time-constant`` is the design model's in ``control design``, the motor's (and so the
+    model's) in ``simulate --controller``: the rig's measured tracking then matches the full model's prediction."""
+    assert main(["control", "design", "--a", "25", "--b", "3", "--electrical-time-constant", "0.004",
+                 "--sample-period", "0.001", "--input-delay", "1", "--controller", "pi"]) == 0
+    out = capsys.readouterr().out
+    pi = design_controller("pi", PlantModel(A, B, 0.001, 16667, input_delay=1, electrical_time_constant=TAU))
+    assert "electrical time constant 0.004 s" in out and f"margins at the point estimate: {pi.margins().describe()}" \
+        in out
+    run = tmp_path / "run.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--electrical-time-constant", "0.004", "--sample-period",
+                 "0.001", "--controller", "pi", "--reference", "sine:10,10", "--duration", "2", "--out", str(run)]) == 0
+    text = capsys.readouterr().out
+    measured, predicted = (float(x) for x in text.split("measured ")[1].split(" rad/s")[0].split(", predicted "))
+    assert measured == pytest.approx(predicted, rel=0.10)     # the tolerance every controller is held to
+    from motorsim import read_recording
+    meta = read_recording(run).metadata
+    assert meta["true_electrical_time_constant"] == meta["model_electrical_time_constant"] == "0.004"
