@@ -81,11 +81,13 @@ def _settings_text(controller: Controller) -> str:
 class PolePlacement(Controller):
     """A controller whose closed-loop poles sit at ``-1/time_constant`` (s, > 0, default 0.05).
 
-    The poles are placed on a model without the input delay; the loop on the exact model, delay
-    included, must keep ``min_phase_margin`` degrees (keyword only, default :data:`MIN_PHASE_MARGIN`,
+    The poles are placed on a model without the input delay (and on the first-order part of one with
+    an electrical time constant); the loop on the exact model, delay and electrical pole included,
+    must keep ``min_phase_margin`` degrees (keyword only, default :data:`MIN_PHASE_MARGIN`,
     0 turns the check off).  A time constant too short for it is lengthened to the shortest one
     that keeps it (rounded up to 3 significant digits), with a :class:`DesignLimitWarning` that
-    names both; ``time_constant`` is then the one designed with.
+    names both; ``time_constant`` is then the one designed with.  With ``min_phase_margin`` 0 a model
+    with an electrical time constant is still checked (:func:`check_full_model`).
     """
 
     time_constant: float = 0.05
