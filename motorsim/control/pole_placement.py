@@ -59,11 +59,11 @@ def check_full_model(controller: Controller) -> None:
     tau = f"electrical time constant {model.electrical_time_constant:.4g} s"
     if not full.stable:
         raise UnstableDesignError(f"the {what} gives an unstable loop on the full model with its {tau}: "
-                             f"{_SLOWER.get(controller.kind, 'design more slowly')}")
+                                  f"{_SLOWER.get(controller.kind, 'design more slowly')}")
     cost = part.phase_margin - full.phase_margin
     if math.isfinite(cost) and cost > ELECTRICAL_PHASE_COST and full.phase_margin < MIN_PHASE_MARGIN:
-        warnings.warn(f"the {tau} costs the {what} {cost:.3g} deg of phase margin at crossover "
-                      f"({full.crossover:.4g} rad/s), more than {ELECTRICAL_PHASE_COST:g}, leaving less than "
+        warnings.warn(f"the {tau} costs the {what} {cost:.3g} deg of phase margin (crossover now at "
+                      f"{full.crossover:.4g} rad/s), more than {ELECTRICAL_PHASE_COST:g}, leaving less than "
                       f"{MIN_PHASE_MARGIN:g}: on the full model "
                       f"{full.describe()}", DesignLimitWarning, stacklevel=4)
 
