@@ -125,7 +125,7 @@ def coverage_run(name: str, seed: int) -> Outcome:
     ci = est.confidence_interval(0.95)
     covered = bool(ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1])
     close = bool(abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01)
-    return Outcome(covered, close, bool(est.selection and est.selection.get("clear")), seconds)
+    return Outcome(covered, close, bool(est.selection and est.selection.clear), seconds)
 
 
 def _row(name: str, outcomes: list[Outcome]) -> tuple[str, bool]:
