@@ -284,7 +284,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, ti
     return duty, counts, speed
 
 
-def _closed_loop_lag(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.ndarray, noise: np.ndarray,
+def _closed_loop_lag(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray, noise: np.ndarray,
                      initial_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_closed_loop` for a motor behind an electrical lag: each interval exact by the simulator's
     :func:`~motorsim.plant.lag_coefficients`, the current starting at 0 (as :func:`~motorsim.plant.simulate`'s)."""
