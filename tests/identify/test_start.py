@@ -42,3 +42,21 @@ def test_grid_guess_is_the_dense_least_squares_solution(drop_rate):
     a_ref, b_ref = _dense_grid_guess(segments)
     assert a == a_ref                                  # the same grid point wins
     assert b == pytest.approx(b_ref, rel=1e-9)         # b from two exact solutions of one problem
+
+
+def test_the_regression_guess_is_kept_per_set_of_recordings(monkeypatch):
+    # found once per set of recordings (the default asks for it at every input delay); a set with other
+    # members, or in another order, is not given the answer kept for another set
+    from identify import start
+    runs = [SimRig(Motor(a, 3.0), Encoder(360, angle_noise=1e-3), rng=np.random.default_rng(a)).run(
+        Experiment(Sine(20.0, 150), 0.005, 2.0)) for a in (10, 25, 60)]
+    sets = {"one": runs[:1], "pair": runs[:2], "other pair": [runs[0], runs[2]], "swapped": runs[1::-1]}
+    fresh = {key: start._regression_guess(recs) for key, recs in sets.items()}
+    assert len(set(fresh.values())) == 4                           # four different answers to tell apart
+    computed = []
+    compute = start._regression_guess
+    monkeypatch.setattr(start, "_regression_guess", lambda recs: computed.append(1) or compute(recs))
+    for key in ["one", "one", "pair", "pair", "other pair", "swapped", "swapped", "one"]:
+        assert start.regression_guess(sets[key]) == fresh[key], key
+    # computed again only for a set other than the one kept with its first recording
+    assert len(computed) == 5
