@@ -41,6 +41,7 @@ searched range is never returned without a note.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Callable, Mapping, Sequence
 
@@ -205,8 +206,13 @@ class CandidateFit:
 
 
 def threshold(c: Candidate, best: Candidate, level: float) -> float:
+    return _threshold(max(best.n_params - c.n_params, 1), level)
+
+
+@functools.lru_cache(maxsize=64)
+def _threshold(k: int, level: float) -> float:
+    """``k`` times the ``1 - level`` quantile of ``F(k, BLOCKS - k)`` (a few values, asked for every candidate)."""
     from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
-    k = max(best.n_params - c.n_params, 1)
     return k * float(fdtri(k, BLOCKS - k, 1.0 - level))
 
 
@@ -419,15 +425,41 @@ def _scored(fitted: list[CandidateFit], best: CandidateFit, level: float, recs: 
     reference = best.residuals
     assert reference is not None
     rounding = rounding_realisations(recs, segments[best.candidate.input_delay], reference)
+    others = [f for f in fitted if f is not best and f.residuals is not None and len(f.residuals) == len(reference)]
+    found = dict(zip(map(id, others), _statistics(others, best, rounding)))
     scored: list[Candidate] = []
     for f in fitted:
         c = f.candidate
         if f.residuals is None or len(f.residuals) != len(reference):
             scored.append(c)
             continue
-        t = 0.0 if f is best else _against(f, best, rounding)
+        t = 0.0 if f is best else found[id(f)]
         scored.append(dataclasses.replace(c, statistic=t, within_noise=t <= threshold(c, best.candidate, level)))
     return scored
+
+
+#: Candidates whose statistics :func:`_statistics` computes in one array (bounds its memory on long data).
+STATISTICS_AT_ONCE = 16
+
+
+def _statistics(fits: list[CandidateFit], best: CandidateFit, rounding: np.ndarray | None) -> list[float]:
+    """:func:`statistic` of every fit against the best, their differences stacked (one product with the
+    rounding realisations for several of them, not one each); the same sums, to rounding."""
+    reference = best.residuals
+    assert reference is not None
+    out: list[float] = []
+    for first in range(0, len(fits), STATISTICS_AT_ONCE):
+        group = fits[first:first + STATISTICS_AT_ONCE]
+        deltas = np.array([f.residuals for f in group])
+        deltas -= reference
+        excess = np.array([f.candidate.residual_sum - best.candidate.residual_sum for f in group])
+        norm2 = np.einsum("ij,ij->i", deltas, deltas)
+        v = np.sum(block_sums((deltas * reference).T) ** 2, axis=0)
+        if rounding is not None:
+            v += np.var(deltas @ rounding, axis=1, ddof=1)
+        for e, n2, vi in zip(excess.tolist(), norm2.tolist(), v.tolist()):
+            out.append(0.0 if e <= 0 or n2 == 0 else (e * n2 / vi if vi > 0 else math.inf))
+    return out
 
 
 def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int | None, recs: list[Recording],
