@@ -299,18 +299,18 @@ def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals:
     if float(np.einsum("i,i->", residuals, residuals)) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
         return None         # other noise dominates: the batch means see it
     phases = (np.arange(PHASES) + 0.5) / PHASES
-    out = np.empty((len(residuals), PHASES))
+    out = np.empty((PHASES, len(residuals)))        # a phase per row: each realisation one contiguous pass
     row = 0
     for seg, step in zip(segs, steps):
         n = len(seg.output)
         model = (seg.output - residuals[row:row + n]) / step
-        block = np.add.outer(model, phases)
-        block -= np.floor(block)
-        block *= -step
-        block -= block.mean(axis=0)
-        out[row:row + n] = block
+        for phase, realisation in zip(phases, out[:, row:row + n]):
+            np.add(model, phase, out=realisation)
+            realisation -= np.floor(realisation)
+            realisation *= -step
+            realisation -= realisation.mean()
         row += n
-    return out
+    return out.T
 
 
 def best_fit(fitted: list[CandidateFit]) -> CandidateFit | None:
@@ -454,9 +454,9 @@ def _statistics(fits: list[CandidateFit], best: CandidateFit, rounding: np.ndarr
         deltas -= reference
         excess = np.array([f.candidate.residual_sum - best.candidate.residual_sum for f in group])
         norm2 = np.einsum("ij,ij->i", deltas, deltas)
-        v = np.sum(block_sums((deltas * reference).T) ** 2, axis=0)
-        if rounding is not None:
-            v += np.var(deltas @ rounding, axis=1, ddof=1)
+        spread = np.var(deltas @ rounding, axis=1, ddof=1) if rounding is not None else 0.0
+        deltas *= reference                          # in place: the products of the batch means
+        v = np.sum(block_sums(deltas.T) ** 2, axis=0) + spread
         for e, n2, vi in zip(excess.tolist(), norm2.tolist(), v.tolist()):
             out.append(0.0 if e <= 0 or n2 == 0 else (e * n2 / vi if vi > 0 else math.inf))
     return out

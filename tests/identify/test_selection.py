@@ -403,3 +403,21 @@ def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
     assert stacked[-1] == own[-1] == 0.0                   # a smaller residual sum scores 0
     assert stacked[:-1] == pytest.approx(own[:-1], rel=1e-12)
     assert min(own[:-1]) > 0
+
+
+def test_the_rounding_realisations_are_the_encoder_rounding_at_each_phase():
+    # column j: -step frac(model / step + phase_j), centred per segment (model = output - residuals)
+    from identify.comparison import PHASES, rounding_realisations
+    from identify.data import prepare_segments
+    rec = _run(duration=2.0, counts=2000, noise=0.0)
+    segs = prepare_segments([rec], 0)
+    step = 2 * math.pi / 2000
+    residuals = np.concatenate([np.random.default_rng(i).uniform(-step / 2, step / 2, len(s.time))
+                                for i, s in enumerate(segs)])
+    got = rounding_realisations([rec], segs, residuals)
+    model = np.concatenate([s.output for s in segs]) - residuals
+    phases = (np.arange(PHASES) + 0.5) / PHASES
+    want = -step * np.mod(model[:, None] / step + phases, 1.0)
+    want -= want.mean(axis=0)               # one segment: centred over it
+    assert len(segs) == 1 and got.shape == (len(model), PHASES)
+    assert np.max(np.abs(got - want)) <= 1e-12 * step
