@@ -530,8 +530,11 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     top = float(np.max(np.abs(now), initial=0.0))
     keep = ((np.sign(now) == np.sign(nxt)) & (np.sign(instrument) == np.sign(now))
             & (np.abs(now) > 0.02 * top) & (np.abs(nxt) > 0.02 * top))
-    smallest_duty = np.min(np.abs(duties), axis=0)
-    rest = duties + ([np.mean([np.sign(u) for u in duties], axis=0)] if dead_zone else []) + [np.sign(now)]
+    # element by element (signs and their half-sums, minima: exact), not through a stacked array of the duties
+    smallest_duty = np.abs(duties[0]) if len(duties) == 1 else np.minimum(np.abs(duties[0]), np.abs(duties[1]))
+    signs = [] if not dead_zone else [np.sign(duties[0])] if len(duties) == 1 else [
+        (np.sign(duties[0]) + np.sign(duties[1])) / 2.0]
+    rest = duties + signs + [np.sign(now)]
     rest += [np.ones_like(now)] if fit_bias else []
     X = np.column_stack([now] + rest)
     Z = np.column_stack([instrument] + rest)
