@@ -350,8 +350,12 @@ def plausible(fitted: list[CandidateFit], level: float, factor: float = 1.0) -> 
     best = best_fit(fitted)
     if best is None:
         return []
-    return [f for f in fitted if f.residuals is not None and (
-        f is best or _close(f, best) or _against(f, best) <= factor * threshold(f.candidate, best.candidate, level))]
+    scored = [f for f in fitted if f.residuals is not None]
+    near = {id(f) for f in scored if f is best or _close(f, best)}
+    tested = [f for f in scored if id(f) not in near]
+    found = dict(zip(map(id, tested), _statistics(tested, best, None)))       # stacked, as the choice scores them
+    return [f for f in scored
+            if id(f) in near or found[id(f)] <= factor * threshold(f.candidate, best.candidate, level)]
 
 
 def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit]], level: float,
