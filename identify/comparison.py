@@ -228,8 +228,15 @@ def block_sums(x: np.ndarray) -> np.ndarray:
     n = len(x)
     if n == 0:
         return np.zeros((0, *np.shape(x)[1:]))
+    return np.add.reduceat(x, _block_starts(n), axis=0)
+
+
+@functools.lru_cache(maxsize=16)
+def _block_starts(n: int) -> np.ndarray:
+    """First row of each block of :func:`block_sums` for ``n`` rows (the same few lengths, asked for often)."""
     starts = np.linspace(0, n, min(BLOCKS, n) + 1).astype(int)[:-1]
-    return np.add.reduceat(x, starts, axis=0)
+    starts.flags.writeable = False
+    return starts
 
 
 def block_mean_p(scores: np.ndarray) -> float:
