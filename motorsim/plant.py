@@ -417,23 +417,24 @@ def _nearly_uniform_zoh(a: float, b: float, h: np.ndarray, drive: np.ndarray, sp
     if not len(h):
         return True
     h0 = float(h[0])
-    dh = h - h0
-    spread = max(float(dh.max()), -float(dh.min()))     # max |dh|, without an array of the absolute values
+    # max |h - h0| without an array of the differences (subtracting h0 keeps the order: the same numbers)
+    spread = max(float(h.max()) - h0, h0 - float(h.min()))
     if not (spread <= RECURSION_RTOL * h0 and abs(a) * spread <= RECURSION_RTOL):
         return False
     e0, g0, p0, q0 = (float(c) for c in zoh_matrices(a, b, h0))
     m = len(h)
     ends = list(range(ZOH_BLOCK, m - ZOH_BLOCK + 1, ZOH_BLOCK)) + [m]     # every block at least ZOH_BLOCK long
     longest = max(e - s for s, e in zip([0] + ends[:-1], ends))
-    force, work, first, step = (np.empty(longest) for _ in range(4))
+    force, work, first, step, dh = (np.empty(longest) for _ in range(5))
     total = 0.0                                      # the cumulative sum of the steps so far
     first_state = float(speed[0])                    # the first pass's speed before the block
     start = 0
     for end in ends:
         n = end - start
-        d, dhk, f, w, s1, st = drive[start:end], dh[start:end], force[:n], work[:n], first[:n], step[:n]
+        d, dhk, f, w, s1, st = drive[start:end], dh[:n], force[:n], work[:n], first[:n], step[:n]
         np.multiply(d, g0, out=f)
         if spread > 0:
+            np.subtract(h[start:end], h0, out=dhk)
             # speed_{k+1} = e0 speed_k + g0 d_k + dh_k e0 (b d_k - a speed_k); the bracket times e0 is
             # b d_k - a speed_{k+1} to first order (a g0 = b (1 - e0)), taken from a first pass
             first_order_filter(e0, f, first_state, out=s1)
