@@ -9,7 +9,6 @@ segments and always returns a start.
 from __future__ import annotations
 
 import math
-import weakref
 from typing import Sequence
 
 import numpy as np
@@ -27,9 +26,9 @@ __all__ = ["initial_guess", "regression_guess", "grid_guess"]
 def regression_guess(recordings: Sequence[Recording]) -> tuple[float, float] | None:
     """``zoh-ls``'s regression mapped exactly to ``(a, b)`` (without its fit score), or None.
 
-    None when the regression fails or finds no stable model with a nonzero gain.  Found once per set
-    of recordings and kept with the first (they never change): the default's linear candidates at
-    every input delay start from it when their own regression finds no start.
+    None when the regression fails or finds no stable model with a nonzero gain.  Found once per
+    recording and kept with it (it never changes): the default's linear candidates at every input
+    delay start from it when their own regression finds no start.
 
     Parameters
     ----------
@@ -37,16 +36,13 @@ def regression_guess(recordings: Sequence[Recording]) -> tuple[float, float] | N
         The pooled runs (one sample period).
     """
     recs = list(recordings)
-    if not recs:
+    if len(recs) != 1:                  # pooled: nothing kept (a recording keeps only what it can pickle alone)
         return _regression_guess(recs)
-    others = recs[1:]
     kept = recs[0].__dict__.get("_regression_guess")
-    if kept is not None and len(kept[0]) == len(others) and all(ref() is r for ref, r in zip(kept[0], others)):
-        return kept[1]
-    guess = _regression_guess(recs)
-    # the others by weak reference: two pooled recordings keeping each other would live until a collection
-    object.__setattr__(recs[0], "_regression_guess", (tuple(weakref.ref(r) for r in others), guess))
-    return guess
+    if kept is None:
+        kept = (_regression_guess(recs),)
+        object.__setattr__(recs[0], "_regression_guess", kept)
+    return kept[0]
 
 
 def _regression_guess(recordings: Sequence[Recording]) -> tuple[float, float] | None:

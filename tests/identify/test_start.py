@@ -44,19 +44,21 @@ def test_grid_guess_is_the_dense_least_squares_solution(drop_rate):
     assert b == pytest.approx(b_ref, rel=1e-9)         # b from two exact solutions of one problem
 
 
-def test_the_regression_guess_is_kept_per_set_of_recordings(monkeypatch):
-    # found once per set of recordings (the default asks for it at every input delay); a set with other
-    # members, or in another order, is not given the answer kept for another set
+def test_the_regression_guess_is_kept_with_its_recording(monkeypatch):
+    # found once per recording (the default asks for it at every input delay) and kept with it: a recording
+    # that has been fitted still pickles (a sweep sends it to its workers); pooled recordings keep nothing
+    import pickle
+
     from identify import start
     runs = [SimRig(Motor(a, 3.0), Encoder(360, angle_noise=1e-3), rng=np.random.default_rng(a)).run(
-        Experiment(Sine(20.0, 150), 0.005, 2.0)) for a in (10, 25, 60)]
-    sets = {"one": runs[:1], "pair": runs[:2], "other pair": [runs[0], runs[2]], "swapped": runs[1::-1]}
-    fresh = {key: start._regression_guess(recs) for key, recs in sets.items()}
-    assert len(set(fresh.values())) == 4                           # four different answers to tell apart
+        Experiment(Sine(20.0, 150), 0.005, 2.0)) for a in (10, 25)]
+    fresh = [start._regression_guess([r]) for r in runs] + [start._regression_guess(runs)]
+    assert len(set(fresh)) == 3                                    # three different answers to tell apart
     computed = []
     compute = start._regression_guess
-    monkeypatch.setattr(start, "_regression_guess", lambda recs: computed.append(1) or compute(recs))
-    for key in ["one", "one", "pair", "pair", "other pair", "swapped", "swapped", "one"]:
-        assert start.regression_guess(sets[key]) == fresh[key], key
-    # computed again only for a set other than the one kept with its first recording
-    assert len(computed) == 5
+    monkeypatch.setattr(start, "_regression_guess", lambda recs: computed.append(len(recs)) or compute(recs))
+    for _ in range(3):
+        assert [start.regression_guess([r]) for r in runs] + [start.regression_guess(runs)] == fresh
+    assert computed == [1, 1, 2, 2, 2]            # each recording once, the pooled pair every time
+    again = pickle.loads(pickle.dumps(runs[0]))
+    assert start.regression_guess([again]) == fresh[0] and computed[-1] == 2
