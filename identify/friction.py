@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from motorsim.checks import check_bool
+from motorsim.checks import ParameterError, check_bool
 from motorsim.recording import Recording
 
 from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
@@ -62,6 +62,7 @@ from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
+from .stiction import StaticProfile, profile_static_level
 from .model_structures import ModelStructure
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .uncertainty import robust_covariance
@@ -72,11 +73,11 @@ if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
 __all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse", "friction_candidate", "FrictionScan",
-           "solve_friction", "friction_parameter_names"]
+           "solve_friction", "friction_parameter_names", "FrictionProblem", "levenberg_marquardt", "sum_squares"]
 
 
 
-def _sum_squares(r: np.ndarray) -> float:
+def sum_squares(r: np.ndarray) -> float:
     """``r . r`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine
     (on 15 000 rows and a loaded 2-core machine, 13 ms against 6 us)."""
     return float(np.einsum("i,i->", r, r))
@@ -110,7 +111,7 @@ def _reverses(speeds: Sequence[np.ndarray], rest_fraction: float) -> bool:
     return bool(np.any(w > 0) and np.any(w < 0)) or bool(np.any(np.abs(w) < rest_fraction * top))
 
 
-class _FrictionProblem:
+class FrictionProblem:
     """Residuals and analytic Jacobian of the friction model on pooled segments.
 
     The parameter vector holds the shared parameters ``names`` (``a``, ``b``,
@@ -119,11 +120,14 @@ class _FrictionProblem:
     projected out (residual and Jacobian columns centred: variable projection,
     Golub & Pereyra 1973).  Each segment keeps the modes of its last evaluation as
     the start of the next (:func:`identify.friction_response.friction_response`).
+    ``static`` is the static friction (the break-away level, not a fitted column: see
+    :mod:`identify.stiction`), 0 for none; set it with :meth:`at_level`.
     """
 
     def __init__(self, segments: list[Segment], names: tuple[str, ...]):
         self.segments = segments
         self.names = names
+        self.static = 0.0
         self.n_global = len(names)
         self.n_rows = sum(len(s.time) for s in segments)
         self.columns = [FRICTION_PARAMETERS.index(n) for n in names]
@@ -138,10 +142,17 @@ class _FrictionProblem:
         named = dict(zip(self.names, x[:self.n_global]))
         return named["a"], named["b"], named["friction"], named.get("bias", 0.0), named.get("dead_zone", 0.0)
 
+    def at_level(self, static: float) -> None:
+        """Set the static friction (rad/s^2; the friction level when smaller) for the evaluations that follow."""
+        if static != self.static:
+            self.static = float(static)
+            self._key = None
+
     def _response(self, x: np.ndarray, i: int, sensitivities: bool) -> FrictionResponse:
         seg = self.segments[i]
         resp = friction_response(*self.unpack(x), seg.drive, seg.time, float(x[self.n_global + i]),
-                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i])
+                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i],
+                                 static_friction=self.static)
         self.modes[i] = resp.modes
         return resp
 
@@ -178,6 +189,13 @@ class _FrictionProblem:
         self._key, self._value = key, (r, J)
         return r, J
 
+    def reachable_cost(self, r: np.ndarray, J: np.ndarray | None) -> float:
+        """The residual sum a full Gauss–Newton step from residuals ``r`` with Jacobian ``J`` would reach."""
+        if J is None:
+            return math.inf
+        _, H, g = _scaled_normal_equations(J, r)
+        return sum_squares(r) - _reachable(H, g)
+
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """Residuals at ``x`` (rad or rad/s, segments concatenated)."""
         return self.evaluate(x, False)[0]
@@ -200,7 +218,8 @@ class _FrictionProblem:
 
 
 def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
-                              fix_bias: bool = False, dead_zone: bool = True) -> Estimate:
+                              fix_bias: bool = False, dead_zone: bool = True,
+                              static_friction: bool = False) -> Estimate:
     """Fit ``a``, ``b``, Coulomb friction ``c``, bias ``d`` and a duty dead zone by output error.
 
     Parameters
@@ -216,6 +235,13 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     dead_zone : bool
         Also fit a dead zone ``z >= 0`` in input units: the motor receives
         ``u - sign(u) z`` when ``|u| > z``, else nothing (default True).
+    static_friction : bool
+        Also fit a static friction ``c_s >= c`` (stiction: the force the shaft at rest needs to break
+        away) by a profile over the levels the data apply (:mod:`identify.stiction`); needs
+        ``dead_zone=False`` (default False).  The estimate's structure is then ``stiction``, its
+        ``extra["static_friction"]`` the level, and the profile's bracket of levels (and the ``a`` and
+        ``b`` fitted across it) its :attr:`~identify.Estimate.model_range`.  With ``input_delay="auto"``
+        the delay is chosen by the fit without stiction.
 
     Returns
     -------
@@ -235,6 +261,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     input_delay = check_input_delay(input_delay)
     fix_bias = check_bool("fix_bias", fix_bias)
     dead_zone = check_bool("dead_zone", dead_zone)
+    if check_bool("static_friction", static_friction) and dead_zone:
+        raise ParameterError("static_friction=True fits no dead zone: pass dead_zone=False, got dead_zone=True")
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
     if input_delay == "auto":     # ranked by this model itself (the shortest delay within the noise of the best)
         delay = _select_delay(recs, "dead-zone" if dead_zone else "friction", fix_bias)
@@ -245,18 +273,33 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     segments = prepare_segments(recs, delay)
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=dead_zone)
     problem, res = solve_friction(recs, segments, names, delay)
+    profile = None
+    if static_friction:
+        res, profile = profile_static_level(problem, res, levenberg_marquardt)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    s2 = _sum_squares(res.fun) / problem.dof
+    s2 = sum_squares(res.fun) / problem.dof
     ends = np.cumsum([0] + [len(s.time) for s in segments])
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
     cov, cov_method = _covariance(recs, problem, res, s2, placed)
-    return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
-                    residual_rms=math.sqrt(_sum_squares(res.fun) / problem.n_rows),
-                    fit_percent=segment_fit_percent(segments, placed),
-                    covariance=cov, param_names=names, covariance_method=cov_method,
-                    extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
-                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit)
+    extra = {"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay}
+    est = Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
+                   residual_rms=math.sqrt(sum_squares(res.fun) / problem.n_rows),
+                   fit_percent=segment_fit_percent(segments, placed),
+                   covariance=cov, param_names=names, covariance_method=cov_method, extra=extra,
+                   residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
+                   input_limit=recs[0].input_limit)
+    return est if profile is None else _with_profile(est, profile)
+
+
+def _with_profile(est: Estimate, profile: StaticProfile) -> Estimate:
+    """The estimate of the ``stiction`` structure: the static level, and the profile's bracket as its model range
+    (the level's, and ``a``'s and ``b``'s over the levels in the bracket)."""
+    extra = {k: v for k, v in est.extra.items() if k != "dead_zone"}
+    extra["static_friction"] = profile.level
+    ranges = {"static_friction": (profile.low, profile.high)}
+    if profile.ranges["a"] != (est.a, est.a) or profile.ranges["b"] != (est.b, est.b):
+        ranges.update(profile.ranges)
+    return dataclasses.replace(est, structure="stiction", extra=extra, model_range=ranges)
 
 
 def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
@@ -277,7 +320,7 @@ def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) 
 
 
 def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
-                   input_delay: int, *, thorough: bool = False) -> tuple[_FrictionProblem, OptimizeResult]:
+                   input_delay: int, *, thorough: bool = False) -> tuple[FrictionProblem, OptimizeResult]:
     """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
 
     What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
@@ -298,12 +341,12 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     """
     if not segments:
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
-    problem = _FrictionProblem(segments, names)
+    problem = FrictionProblem(segments, names)
     x0 = _regression_start(problem)
     results = []
     if x0 is not None:
         with np.errstate(over="ignore", invalid="ignore"):
-            results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
+            results.append(levenberg_marquardt(problem, _prefix_start(problem, x0)))
     near = float(results[0].x[0]) if results and np.isfinite(results[0].x[0]) else None
     linear = _linear_fit(recordings, segments, input_delay, "bias" in names, near)
     if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
@@ -311,7 +354,7 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
         # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
         for start in _linear_starts(problem, linear):
             with np.errstate(over="ignore", invalid="ignore"):
-                results.append(_levenberg_marquardt(problem, start))
+                results.append(levenberg_marquardt(problem, start))
     if not results:
         raise NotIdentifiableError("oe-friction: neither the regression nor the linear fit gives a start; "
                                    "the input does not move the motor")
@@ -394,8 +437,8 @@ def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, s
     except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
         return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(res.fun, float)
-    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), _sum_squares(r)), r,
-                          refined=res.status != 3)
+    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r,
+                          refined=res.status != 3, start=tuple(float(v) for v in res.x))
     if scan is not None and fitted.refined:
         scan.starts[structure] = (names, np.asarray(res.x, float))
         scan.best = min(scan.best, fitted.candidate.residual_sum)
@@ -407,7 +450,7 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound."""
     if not segs:
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
-    problem = _FrictionProblem(segs, names)
+    problem = FrictionProblem(segs, names)
     starts = [x for x in (scan.start(structure, names, len(segs)), _regression_start(problem)) if x is not None]
     if not starts:
         return solve_friction(recs, segs, names, delay)[1]
@@ -415,7 +458,7 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
     x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
         else starts[-1]
-    res = _levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
+    res = levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
     if res.status == 3:
         return res
     near = float(res.x[0]) if np.isfinite(res.x[0]) else None
@@ -428,10 +471,34 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
 
 
 def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: ModelStructure, *,
-                        refine: bool = True, fix_bias: bool = False) -> CandidateFit:
-    """``structure`` (``friction`` or ``dead-zone``) as a candidate of the default's selection
-    (:func:`friction_candidate`; always fitted fully, ``refine`` has no effect)."""
+                        refine: bool = True, fix_bias: bool = False,
+                        starts: Sequence[tuple[float, ...]] = ()) -> CandidateFit:
+    """``structure`` (``friction``, ``dead-zone`` or ``stiction``) as a candidate of the default's selection
+    (:func:`friction_candidate`, or :func:`stiction_candidate` from the first of ``starts``, a friction
+    candidate's fit at the same delay, when given; always fitted fully, ``refine`` has no effect)."""
+    if structure.options.get("static_friction"):
+        return stiction_candidate(recs, segs, delay, structure.name, fix_bias, starts[0] if starts else None)
     return friction_candidate(recs, segs, delay, structure.name, fix_bias)
+
+
+def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str, fix_bias: bool,
+                       start: Sequence[float] | None = None) -> CandidateFit:
+    """The friction model with a static level (:mod:`identify.stiction`) fitted on ``segs`` at ``delay``, scored
+    as a candidate of the model selection (``name``: the structure's), its friction fit started from ``start``
+    (the friction structure's fit on the same rows) when given."""
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=False)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            problem = FrictionProblem(segs, names)
+            if start is not None and len(start) == problem.n_global + len(segs):
+                res = levenberg_marquardt(problem, np.asarray(start, float))
+            else:
+                problem, res = solve_friction(recs, segs, names, delay)
+            res, _ = profile_static_level(problem, res, levenberg_marquardt)
+    except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
+        return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(res.fun, float)
+    return CandidateFit(Candidate(name, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r)
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -439,7 +506,7 @@ def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, 
 ROUNDING_DOMINATED = 4.0
 
 
-def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeResult, s2: float,
+def _covariance(recs: list[Recording], problem: FrictionProblem, res: OptimizeResult, s2: float,
                 placed: list[np.ndarray]) -> tuple[np.ndarray, str]:
     """The linearised encoder bootstrap when every angle is an encoder's and the residuals are mostly
     its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`).
@@ -447,7 +514,7 @@ def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeR
     jac = res.jac
     segs = problem.segments
     steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
-    variance = _sum_squares(res.fun) / problem.n_rows
+    variance = sum_squares(res.fun) / problem.n_rows
     encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
     if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
         cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
@@ -455,7 +522,7 @@ def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeR
     return robust_covariance(jac, res.fun, s2, problem.n_global)
 
 
-def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
+def _regression_start(problem: FrictionProblem) -> np.ndarray | None:
     """A starting vector from one instrumental-variable regression on the measured speed.
 
     Over an interval where the speed keeps its sign ``s``, the exact ZOH step is linear in the
@@ -546,7 +613,7 @@ def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with
         found = separable_candidate(segments, near, with_bias=with_bias, ceiling=static_gain_ceiling(segments))
         if found is not None:
             a, b, bias, r, _ = found
-            return _LinearFit(a, b, bias, _sum_squares(r), speeds)
+            return _LinearFit(a, b, bias, sum_squares(r), speeds)
     fitted = linear_candidate(recs, segments, delay, with_bias)
     if fitted.residuals is None:
         return None
@@ -556,7 +623,7 @@ def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with
 
 def _cost(res: OptimizeResult) -> float:
     """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
-    cost = _sum_squares(res.fun)
+    cost = sum_squares(res.fun)
     return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
 
 
@@ -566,7 +633,7 @@ def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear: _LinearFit) 
     return far or _cost(res) > linear.cost * (1 + 1e-9)
 
 
-def _linear_starts(problem: _FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
+def _linear_starts(problem: FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
     """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
     a0, b0 = linear.a, linear.b
     if b0 == 0 or not a0 > 0:
@@ -592,7 +659,7 @@ PREFIX_STEP = 10.0
 PREFIX_MISFIT = 4.0
 
 
-def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
+def _prefix_start(problem: FrictionProblem, x0: np.ndarray) -> np.ndarray:
     """The start refined by the fit on the first rows of every segment, on long data.
 
     Far from the minimum each iteration only needs the rough direction; the first
@@ -613,14 +680,14 @@ def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
                   for s in heads)
     if changes < PREFIX_REVERSALS:
         return x0
-    head = _FrictionProblem(heads, problem.names)
+    head = FrictionProblem(heads, problem.names)
     with np.errstate(over="ignore", invalid="ignore"):
-        res = _levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
+        res = levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
         if not np.all(np.isfinite(res.x)):
             return x0
         r = problem.evaluate(res.x, True)[0]
-    misfit = _sum_squares(r) / problem.n_rows
-    return res.x if misfit <= PREFIX_MISFIT * _sum_squares(res.fun) / head.n_rows else x0
+    misfit = sum_squares(r) / problem.n_rows
+    return res.x if misfit <= PREFIX_MISFIT * sum_squares(res.fun) / head.n_rows else x0
 
 
 def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
@@ -661,13 +728,13 @@ def _reachable(H: np.ndarray, g: np.ndarray) -> float:
 
 
 #: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
-#: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
+#: Levenberg–Marquardt step is the last one (:func:`levenberg_marquardt`).  On the 10 000-sample
 #: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
 #: 0.0023 of them, after one of 0.025 it was 2e-5: what stopping leaves is far below the spread.
 FINAL_STEP = 0.2
 
 
-def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
+def levenberg_marquardt(problem: FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
                          final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
@@ -691,7 +758,7 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
     lower = problem.lower_bounds()
     x = np.maximum(x0, lower)
     r, J = problem.evaluate(x, True)
-    cost = _sum_squares(r)
+    cost = sum_squares(r)
     damping = 1e-4
     status = 0
     normal = None
@@ -715,13 +782,13 @@ def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iteratio
             if predicted > 1e-12 * cost:
                 x_new = np.maximum(x + step, lower)
                 r = r + J @ (x_new - x)
-                x, cost = x_new, _sum_squares(r)
+                x, cost = x_new, sum_squares(r)
             status = 1
             break
         x_new = np.maximum(x + step, lower)
         with np.errstate(over="ignore", invalid="ignore"):
             r_new = problem.evaluate(x_new, False)[0]      # the sensitivities only once the step is taken
-        cost_new = _sum_squares(r_new)
+        cost_new = sum_squares(r_new)
         if np.isfinite(cost_new) and cost_new < cost:
             with np.errstate(over="ignore", invalid="ignore"):
                 r_new, J_new = problem.evaluate(x_new, True)

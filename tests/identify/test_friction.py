@@ -136,12 +136,12 @@ def _count_runs(monkeypatch):
     """Record the rows of every Levenberg–Marquardt run oe-friction makes."""
     from identify import friction
     runs = []
-    original = friction._levenberg_marquardt
+    original = friction.levenberg_marquardt
 
     def counted(problem, x0, *args, **kwargs):
         runs.append(problem.n_rows)
         return original(problem, x0, *args, **kwargs)
-    monkeypatch.setattr(friction, "_levenberg_marquardt", counted)
+    monkeypatch.setattr(friction, "levenberg_marquardt", counted)
     return runs
 
 

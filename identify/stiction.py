@@ -1,0 +1,200 @@
+"""Static friction (stiction): the break-away level of ``oe-friction``, fitted by a profile.
+
+A shaft with stiction needs a force ``|b u + d|`` above the static level ``c_s`` (``>= c``, the
+Coulomb friction) to break away from rest, and a speed that reaches zero sticks while the force
+is at most ``c_s``.  The level moves only those discrete decisions: with the input held over each
+interval the response is piecewise constant in ``c_s``, changing only where ``c_s`` crosses one of
+the forces ``|b u_k + d|`` the data apply.  So ``c_s`` has no derivative to follow; it is fitted by
+a profile over those candidate levels (:func:`candidate_levels`), each level's continuous
+parameters (``a``, ``b``, ``c``, ``d``, the initial speeds) refitted by the friction fit's own
+Levenberg–Marquardt.
+
+The search (:func:`profile_static_level`) scans the candidate levels with the continuous
+parameters held (one response without sensitivities each), refits at the best level, and
+repeats from there until the level stays.  Its interval is the profile's: the bracket of levels
+whose refitted cost is within :data:`PROFILE_QUANTILE` residual variances of the least (the
+likelihood-ratio interval of one parameter, Venzon & Moolgavkar 1988), the residual variance
+taken from the batch means of the residuals (an encoder's rounding stays put while the shaft
+sticks, so the residuals are correlated).  The ``a`` and ``b`` of every level in that bracket
+are kept too: they widen ``a``'s and ``b``'s intervals to cover every level the data allow.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+__all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "MAX_LEVELS", "PROFILE_QUANTILE",
+           "MAX_ROUNDS"]
+
+#: Most candidate levels one scan evaluates (quantiles of the distinct forces above the friction level).
+MAX_LEVELS = 160
+#: Residual variances of cost within which a level is in the profile's bracket: the 95 % quantile of
+#: chi-square with one degree of freedom.
+PROFILE_QUANTILE = 3.841
+#: Scan-and-refit rounds of the search at most.
+MAX_ROUNDS = 6
+#: Refits at most on either side of the best level while the bracket is widened.
+MAX_BRACKET_REFITS = 4
+#: Levels refitted per round of the search: those of least predicted cost.
+REFITS_PER_ROUND = 8
+
+
+class _Problem(Protocol):
+    """What the profile needs of the friction fit's problem (:class:`identify.friction.FrictionProblem`)."""
+
+    segments: list
+    static: float
+    n_global: int
+    dof: int
+
+    def unpack(self, x: np.ndarray) -> tuple[float, float, float, float, float]: ...
+
+    def at_level(self, static: float) -> None: ...
+
+    def evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]: ...
+
+    def reachable_cost(self, r: np.ndarray, J: np.ndarray | None) -> float: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class StaticProfile:
+    """The fitted static level and what the profile says about it.
+
+    Attributes
+    ----------
+    level : float
+        The static friction ``c_s`` (rad/s^2), at least the fitted friction ``c``.
+    low, high : float
+        The profile's bracket of ``c_s`` (rad/s^2).
+    ranges : dict of str to (float, float)
+        ``a`` and ``b`` over the levels in the bracket (their refits).
+    refits : int
+        Levels the profile refitted.
+    """
+
+    level: float
+    low: float
+    high: float
+    ranges: dict[str, tuple[float, float]]
+    refits: int
+
+
+def candidate_levels(problem: _Problem, x: np.ndarray) -> np.ndarray:
+    """The levels that give the distinct responses, at the parameters ``x``: the friction ``c``, and midway
+    between consecutive distinct forces ``|b v_k + d|`` above it (at most :data:`MAX_LEVELS`, evenly among
+    them by rank).  Midway, a refit that moves ``b`` and ``d`` a little keeps the same decisions."""
+    a, b, c, d, zone = problem.unpack(x)
+    forces = []
+    for seg in problem.segments:
+        u = np.asarray(seg.drive, dtype=float)[:-1]
+        v = np.where(np.abs(u) > zone, u - np.sign(u) * zone, 0.0)
+        forces.append(np.abs(b * v + d))
+    found = np.unique(np.concatenate(forces)) if forces else np.zeros(0)
+    found = found[found >= c]
+    middles = 0.5 * (found[:-1] + found[1:])
+    if len(middles) > MAX_LEVELS:
+        middles = middles[np.unique(np.round(np.linspace(0, len(middles) - 1, MAX_LEVELS)).astype(int))]
+    return np.concatenate([[c], middles])
+
+
+def _predicted_costs(problem: _Problem, x: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """At each level, the residual sum one Gauss–Newton step from ``x`` would reach (the continuous parameters
+    refitted, linearised): the profile's cost, roughly, for one evaluation with sensitivities per level."""
+    costs = np.empty(len(levels))
+    with np.errstate(over="ignore", invalid="ignore"):
+        for j, level in enumerate(levels):
+            problem.at_level(float(level))
+            r, J = problem.evaluate(x, True)
+            costs[j] = problem.reachable_cost(r, J)
+    return np.where(np.isfinite(costs), costs, np.inf)
+
+
+def _noise_variance(r: np.ndarray, dof: int, blocks: int = 32) -> float:
+    """The residual variance a cost difference is measured in: ``r.r / dof``, times the ratio of the
+    batch means' variance to the white one when the residuals are correlated (never less than 1)."""
+    white = float(r @ r) / max(dof, 1)
+    n = len(r) // blocks
+    if n < 2:
+        return white
+    sums = r[:n * blocks].reshape(blocks, n).sum(axis=1)
+    ratio = float(np.var(sums, ddof=1)) / max(n * float(np.var(r[:n * blocks])), 1e-300)
+    return white * max(ratio, 1.0)
+
+
+def _cost_of(result: Any) -> float:
+    value = float(np.einsum("i,i->", result.fun, result.fun))
+    return value if math.isfinite(value) and np.all(np.isfinite(result.x)) and result.x[0] > 1e-8 else math.inf
+
+
+def profile_static_level(problem: _Problem, res: Any,
+                         refit: Callable[[Any, np.ndarray], Any]) -> tuple[Any, StaticProfile]:
+    """The static level that least-squares the data, its continuous parameters refitted (module docstring).
+
+    Parameters
+    ----------
+    problem : FrictionProblem
+        The friction fit's problem (its ``static`` is changed; left at the fitted level).
+    res : OptimizeResult
+        The fit without stiction (``problem.static`` 0): where the search starts.
+    refit : callable
+        ``refit(problem, x0) -> OptimizeResult``: the continuous parameters fitted at ``problem.static``.
+
+    Returns
+    -------
+    res : OptimizeResult
+        The fit at the chosen level.
+    profile : StaticProfile
+    """
+    best, best_cost, level = res, _cost_of(res), 0.0
+    fits: dict[float, tuple[float, float, float]] = {}       # level -> (cost, a, b) of its refit
+    for _ in range(MAX_ROUNDS):
+        levels = candidate_levels(problem, best.x)
+        predicted = _predicted_costs(problem, best.x, levels)
+        improved = False
+        start_cost = best_cost
+        for j in np.argsort(predicted)[:REFITS_PER_ROUND]:
+            candidate = float(levels[j])
+            if candidate in fits or not predicted[j] < start_cost:
+                continue
+            problem.at_level(candidate)
+            with np.errstate(over="ignore", invalid="ignore"):
+                fitted = refit(problem, best.x)
+            cost = _cost_of(fitted)
+            fits[candidate] = (cost, float(fitted.x[0]), float(fitted.x[1]))
+            if cost < best_cost:
+                best, best_cost, level, improved = fitted, cost, candidate, True
+        if not improved:
+            break
+    level = max(level, float(problem.unpack(best.x)[2]))
+    fits[level] = (best_cost, float(best.x[0]), float(best.x[1]))
+    ceiling = best_cost + PROFILE_QUANTILE * _noise_variance(np.asarray(best.fun, float), problem.dof)
+    inside = _bracket(problem, best, ceiling, fits, refit) + [level]
+    problem.at_level(level)
+    ab = [fits[lv][1:] for lv in inside]
+    ranges = {"a": (min(p[0] for p in ab), max(p[0] for p in ab)), "b": (min(p[1] for p in ab), max(p[1] for p in ab))}
+    return best, StaticProfile(level, min(inside), max(inside), ranges, len(fits))
+
+
+def _bracket(problem: _Problem, best: Any, ceiling: float, fits: dict[float, tuple[float, float, float]],
+             refit: Callable[[Any, np.ndarray], Any]) -> list[float]:
+    """The levels whose refitted cost is below ``ceiling``: those refitted already, and of the levels whose
+    predicted cost is below it, the lowest and the highest, each refitted and, when it lands above the
+    ceiling, replaced by the next one inwards (at most :data:`MAX_BRACKET_REFITS` per side)."""
+    inside = [lv for lv, (cost, _, _) in fits.items() if cost <= ceiling]
+    levels = candidate_levels(problem, best.x)
+    predicted = _predicted_costs(problem, best.x, levels)
+    near = [float(lv) for lv, p in zip(levels, predicted) if p <= ceiling]
+    for order in (near, near[::-1]):
+        for lv in order[:MAX_BRACKET_REFITS]:
+            if lv not in fits:
+                problem.at_level(lv)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    fitted = refit(problem, best.x)
+                fits[lv] = (_cost_of(fitted), float(fitted.x[0]), float(fitted.x[1]))
+            if fits[lv][0] <= ceiling:
+                inside.append(lv)
+                break
+    return inside
