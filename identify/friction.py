@@ -23,7 +23,7 @@ handful of evaluations.  When the regression fails (too few moving samples), the
 linear output-error fit with a small friction guess is the start.  On long data
 (:data:`PREFIX_MIN_ROWS`) the first iterations run on the first quarter of every segment
 (:func:`_prefix_start`), and the fit stops once a step would move the parameters by less
-than :data:`FINAL_STEP` standard errors, taking that step without evaluating it: on the
+than :data:`~identify.friction_solver.FINAL_STEP` standard errors, taking that step without evaluating it: on the
 10 000-sample runs of ``motorid bench accuracy`` two evaluations on all rows (and three on
 a quarter) instead of five or six.  Stick/slip kinks leave nearby local minima
 a fraction of a standard error apart, so this can land on a neighbour of the minimum that
@@ -57,14 +57,23 @@ from motorsim.checks import ParameterError, check_bool
 from motorsim.recording import Recording
 
 from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
-from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
+from .data import (
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    first_rows,
+    prepare_segments,
+    residual_unit,
+)
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .stiction import StaticProfile, profile_static_level
+from .friction_solver import levenberg_marquardt, reachable_cost, sum_squares
 from .model_structures import ModelStructure
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
+from .stiction import GATE_ROWS, StaticProfile, profile_static_level, stiction_evident
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import is_separable, separable_candidate, static_gain_ceiling
@@ -73,14 +82,8 @@ if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
 __all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse", "friction_candidate", "FrictionScan",
-           "solve_friction", "friction_parameter_names", "FrictionProblem", "levenberg_marquardt", "sum_squares"]
+           "solve_friction", "friction_parameter_names", "FrictionProblem"]
 
-
-
-def sum_squares(r: np.ndarray) -> float:
-    """``r . r`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine
-    (on 15 000 rows and a loaded 2-core machine, 13 ms against 6 us)."""
-    return float(np.einsum("i,i->", r, r))
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -191,10 +194,7 @@ class FrictionProblem:
 
     def reachable_cost(self, r: np.ndarray, J: np.ndarray | None) -> float:
         """The residual sum a full Gauss–Newton step from residuals ``r`` with Jacobian ``J`` would reach."""
-        if J is None:
-            return math.inf
-        _, H, g = _scaled_normal_equations(J, r)
-        return sum_squares(r) - _reachable(H, g)
+        return math.inf if J is None else reachable_cost(r, J)
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """Residuals at ``x`` (rad or rad/s, segments concatenated)."""
@@ -293,10 +293,14 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
 
 def _with_profile(est: Estimate, profile: StaticProfile) -> Estimate:
     """The estimate of the ``stiction`` structure: the static level, and the profile's bracket as its model range
-    (the level's, and ``a``'s and ``b``'s over the levels in the bracket)."""
+    (the level's, and ``a``'s and ``b``'s over the levels in the bracket).  The bracket's ends are forces
+    ``|b u + d|`` at the fitted ``b``; as forces of the motor they are as uncertain as ``b``, so each end is
+    carried to the far end of ``b``'s interval."""
     extra = {k: v for k, v in est.extra.items() if k != "dead_zone"}
     extra["static_friction"] = profile.level
-    ranges = {"static_friction": (profile.low, profile.high)}
+    low_b, high_b = (abs(x / est.b) if math.isfinite(x) else math.inf for x in est.confidence_interval()["b"])
+    low_b, high_b = min(low_b, high_b, 1.0), max(low_b, high_b, 1.0)
+    ranges = {"static_friction": (max(profile.low * low_b, est.extra["friction"]), profile.high * high_b)}
     if profile.ranges["a"] != (est.a, est.a) or profile.ranges["b"] != (est.b, est.b):
         ranges.update(profile.ranges)
     return dataclasses.replace(est, structure="stiction", extra=extra, model_range=ranges)
@@ -491,7 +495,12 @@ def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, n
         with np.errstate(over="ignore", invalid="ignore"):
             problem = FrictionProblem(segs, names)
             if start is not None and len(start) == problem.n_global + len(segs):
-                res = levenberg_marquardt(problem, np.asarray(start, float))
+                x = np.asarray(start, float)
+                if not stiction_evident(FrictionProblem(first_rows(segs, GATE_ROWS), names), x):
+                    # nothing calls for a static level: the friction fit it contains is this candidate's
+                    r = problem.residuals(x)
+                    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), sum_squares(r)), r)
+                res = levenberg_marquardt(problem, x)
             else:
                 problem, res = solve_friction(recs, segs, names, delay)
             res, _ = profile_static_level(problem, res, levenberg_marquardt)
@@ -653,7 +662,7 @@ PREFIX_MIN_ROWS = 8000
 PREFIX_SHARE = 0.25
 #: Sign changes of the measured speed the prefix needs (reversals or rests to tell friction apart).
 PREFIX_REVERSALS = 4
-#: Standard errors of the prefix's fit (as :data:`FINAL_STEP`) below which its step is its last.
+#: Standard errors of the prefix's fit (as :data:`~identify.friction_solver.FINAL_STEP`) below which its step is its last.
 PREFIX_STEP = 10.0
 #: Largest ratio of the mean square residual on all rows to the prefix's at the prefix's parameters.
 PREFIX_MISFIT = 4.0
@@ -688,128 +697,6 @@ def _prefix_start(problem: FrictionProblem, x0: np.ndarray) -> np.ndarray:
         r = problem.evaluate(res.x, True)[0]
     misfit = sum_squares(r) / problem.n_rows
     return res.x if misfit <= PREFIX_MISFIT * sum_squares(res.fun) / head.n_rows else x0
-
-
-def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
-    """Damped Gauss-Newton step (scaled); parameters at their lower bound that the step would push
-    below it are held there and the step is solved again for the others (an active set)."""
-    free = np.ones(len(g), bool)
-    step = np.zeros(len(g))
-    for _ in range(len(g) + 1):
-        sub = np.ix_(free, free)
-        step[:] = 0.0
-        step[free] = -np.linalg.solve(H[sub] + damping * np.eye(int(free.sum())), g[free])
-        blocked = free & at_bound & (step < 0)
-        if not blocked.any():
-            return step
-        free &= ~blocked
-    return step
-
-
-def _scaled_normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Column norms of ``J``, and ``H = Js^T Js``, ``g = Js^T r`` with ``Js`` its columns scaled to unit norm."""
-    norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-    # a column the data barely see (the initial speed of a segment that starts stuck by friction)
-    # is held, not scaled up to a step of 1e14
-    unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
-    norms[unseen] = 1.0
-    Js = J / norms
-    Js[:, unseen] = 0.0
-    return norms, Js.T @ Js, Js.T @ r
-
-
-def _reachable(H: np.ndarray, g: np.ndarray) -> float:
-    """``g^T H^+ g``: the decrease of the residual sum a full Gauss–Newton step promises (by least squares)."""
-    try:
-        value = float(g @ np.linalg.lstsq(H, g, rcond=1e-12)[0])
-    except np.linalg.LinAlgError:
-        return 0.0
-    return value if math.isfinite(value) else math.inf
-
-
-#: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
-#: Levenberg–Marquardt step is the last one (:func:`levenberg_marquardt`).  On the 10 000-sample
-#: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
-#: 0.0023 of them, after one of 0.025 it was 2e-5: what stopping leaves is far below the spread.
-FINAL_STEP = 0.2
-
-
-def levenberg_marquardt(problem: FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
-                         final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
-    """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
-
-    With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
-    solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
-    when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
-    parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
-    cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).  It also
-    stops when the step would move the parameters by less than ``final_step`` (default
-    :data:`FINAL_STEP`) standard errors: the step promises ``delta^T J^T J delta``, which is
-    ``final_step^2`` times the residuals' variance ``cost / dof`` at that length.  That last step is taken without a new
-    evaluation (the residuals moved by ``J delta``): near the minimum Gauss–Newton converges
-    about quadratically, so what is left after it is far below ``final_step`` standard errors
-    (noise-free data never stop this way: their residuals shrink with the step).
-
-    With a ``bound`` (a residual sum), the fit also stops, with status 3, as soon as the least residual
-    sum of the model linearised at the current point (``cost - g^T H^-1 g``, what a full Gauss–Newton
-    step would reach) exceeds it: a candidate model that cannot come near the best one is left there.
-    """
-    final_step = FINAL_STEP if final_step is None else final_step
-    lower = problem.lower_bounds()
-    x = np.maximum(x0, lower)
-    r, J = problem.evaluate(x, True)
-    cost = sum_squares(r)
-    damping = 1e-4
-    status = 0
-    normal = None
-    rejected = False
-    for _ in range(max_iterations):
-        assert J is not None
-        if normal is None:           # once per accepted step: a rejected one only raises the damping
-            normal = _scaled_normal_equations(J, r)
-            if bound < math.inf and cost - _reachable(normal[1], normal[2]) > bound:
-                status = 3
-                break
-        norms, H, g = normal
-        try:
-            step = _bounded_step(H, g, damping, x <= lower) / norms
-        except np.linalg.LinAlgError:
-            damping *= 10.0
-            continue
-        scaled = step * norms
-        predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
-        if predicted <= max(1e-12 * cost, final_step ** 2 * cost / problem.dof):
-            if predicted > 1e-12 * cost:
-                x_new = np.maximum(x + step, lower)
-                r = r + J @ (x_new - x)
-                x, cost = x_new, sum_squares(r)
-            status = 1
-            break
-        x_new = np.maximum(x + step, lower)
-        with np.errstate(over="ignore", invalid="ignore"):
-            r_new = problem.evaluate(x_new, False)[0]      # the sensitivities only once the step is taken
-        cost_new = sum_squares(r_new)
-        if np.isfinite(cost_new) and cost_new < cost:
-            with np.errstate(over="ignore", invalid="ignore"):
-                r_new, J_new = problem.evaluate(x_new, True)
-            small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
-            done = cost - cost_new <= 1e-10 * cost or small
-            x, r, J, cost = x_new, r_new, J_new, cost_new
-            normal = None
-            if not rejected:         # a step taken right after a rejected one keeps its damping (no zigzag)
-                damping = max(damping / 5.0, 1e-12)
-            rejected = False
-            if done:
-                status = 1
-                break
-        else:
-            rejected = True
-            damping *= 10.0
-            if damping > 1e12:
-                status = 2
-                break
-    from scipy.optimize import OptimizeResult  # imported when used: slow to import
-    return OptimizeResult(x=x, fun=r, jac=J, cost=0.5 * cost, status=status)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:

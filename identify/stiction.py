@@ -26,8 +26,11 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "MAX_LEVELS", "PROFILE_QUANTILE",
-           "MAX_ROUNDS"]
+__all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "stiction_evident", "MAX_LEVELS",
+           "PROFILE_QUANTILE", "MAX_ROUNDS", "GATE_LEVELS", "GATE_ROWS"]
+
+#: Rows (the first of every segment) on which the default tests whether a static level is worth fitting.
+GATE_ROWS = 1000
 
 #: Most candidate levels one scan evaluates (quantiles of the distinct forces above the friction level).
 MAX_LEVELS = 160
@@ -38,6 +41,8 @@ PROFILE_QUANTILE = 3.841
 MAX_ROUNDS = 6
 #: Refits at most on either side of the best level while the bracket is widened.
 MAX_BRACKET_REFITS = 4
+#: Levels next above the friction (and as many spread up to three times it) that :func:`stiction_evident` tries.
+GATE_LEVELS = 3
 #: Levels refitted per round of the search: those of least predicted cost.
 REFITS_PER_ROUND = 8
 
@@ -68,7 +73,9 @@ class StaticProfile:
     level : float
         The static friction ``c_s`` (rad/s^2), at least the fitted friction ``c``.
     low, high : float
-        The profile's bracket of ``c_s`` (rad/s^2).
+        The profile's bracket of ``c_s`` (rad/s^2): from the largest force that sticks at its lowest level
+        (the friction level at least) to the least force that breaks away at its highest (``inf`` when
+        none does).
     ranges : dict of str to (float, float)
         ``a`` and ``b`` over the levels in the bracket (their refits).
     refits : int
@@ -82,17 +89,23 @@ class StaticProfile:
     refits: int
 
 
-def candidate_levels(problem: _Problem, x: np.ndarray) -> np.ndarray:
-    """The levels that give the distinct responses, at the parameters ``x``: the friction ``c``, and midway
-    between consecutive distinct forces ``|b v_k + d|`` above it (at most :data:`MAX_LEVELS`, evenly among
-    them by rank).  Midway, a refit that moves ``b`` and ``d`` a little keeps the same decisions."""
+def _forces(problem: _Problem, x: np.ndarray) -> np.ndarray:
+    """The distinct forces ``|b v_k + d|`` the data apply at the parameters ``x``, sorted."""
     a, b, c, d, zone = problem.unpack(x)
     forces = []
     for seg in problem.segments:
         u = np.asarray(seg.drive, dtype=float)[:-1]
         v = np.where(np.abs(u) > zone, u - np.sign(u) * zone, 0.0)
         forces.append(np.abs(b * v + d))
-    found = np.unique(np.concatenate(forces)) if forces else np.zeros(0)
+    return np.unique(np.concatenate(forces)) if forces else np.zeros(0)
+
+
+def candidate_levels(problem: _Problem, x: np.ndarray) -> np.ndarray:
+    """The levels that give the distinct responses, at the parameters ``x``: the friction ``c``, and midway
+    between consecutive distinct forces ``|b v_k + d|`` above it (at most :data:`MAX_LEVELS`, evenly among
+    them by rank).  Midway, a refit that moves ``b`` and ``d`` a little keeps the same decisions."""
+    c = problem.unpack(x)[2]
+    found = _forces(problem, x)
     found = found[found >= c]
     middles = 0.5 * (found[:-1] + found[1:])
     if len(middles) > MAX_LEVELS:
@@ -122,6 +135,32 @@ def _noise_variance(r: np.ndarray, dof: int, blocks: int = 32) -> float:
     sums = r[:n * blocks].reshape(blocks, n).sum(axis=1)
     ratio = float(np.var(sums, ddof=1)) / max(n * float(np.var(r[:n * blocks])), 1e-300)
     return white * max(ratio, 1.0)
+
+
+def stiction_evident(problem: _Problem, x: np.ndarray) -> bool:
+    """Whether a static level above the friction could fit the data better than the fit at ``x`` without one
+    (``problem.static`` 0) by more than the noise: the predicted cost (one Gauss–Newton step, the continuous
+    parameters refitted, linearised) at the first :data:`GATE_LEVELS` candidate levels above the friction and
+    as many spread up to three times it, against :data:`PROFILE_QUANTILE` residual variances below the cost.
+
+    A cheap test (a dozen evaluations, on the rows the caller gives, e.g. the first few thousand) that lets the
+    default leave the profile out where nothing in the data calls for it.  Leaves ``problem.static`` at 0.
+    """
+    problem.at_level(0.0)
+    r = problem.residuals(x)
+    cost = float(r @ r)
+    levels = candidate_levels(problem, x)[1:]
+    friction = float(problem.unpack(x)[2])
+    spread = levels[levels <= 3.0 * friction + 1e-300]
+    if len(spread) > GATE_LEVELS:
+        spread = spread[np.unique(np.round(np.linspace(GATE_LEVELS, len(spread) - 1, GATE_LEVELS)).astype(int))]
+    chosen = np.unique(np.concatenate([levels[:GATE_LEVELS], spread]))
+    if not len(chosen) or not math.isfinite(cost):
+        return False
+    ceiling = cost - PROFILE_QUANTILE * _noise_variance(np.asarray(r, float), problem.dof)
+    predicted = _predicted_costs(problem, x, chosen)
+    problem.at_level(0.0)
+    return bool(np.min(predicted) < ceiling)
 
 
 def _cost_of(result: Any) -> float:
@@ -175,7 +214,15 @@ def profile_static_level(problem: _Problem, res: Any,
     problem.at_level(level)
     ab = [fits[lv][1:] for lv in inside]
     ranges = {"a": (min(p[0] for p in ab), max(p[0] for p in ab)), "b": (min(p[1] for p in ab), max(p[1] for p in ab))}
-    return best, StaticProfile(level, min(inside), max(inside), ranges, len(fits))
+    # every level between the same two forces gives the same response: the bracket reaches from the largest
+    # force the lowest level in it holds (the friction level at least) to the least force the highest lets go
+    forces = _forces(problem, best.x)
+    friction = float(problem.unpack(best.x)[2])
+    below = forces[forces <= min(inside)]
+    above = forces[forces > max(inside)]
+    low = max(float(below[-1]), friction) if len(below) else friction
+    high = float(above[0]) if len(above) else math.inf
+    return best, StaticProfile(level, low, high, ranges, len(fits))
 
 
 def _bracket(problem: _Problem, best: Any, ceiling: float, fits: dict[float, tuple[float, float, float]],
