@@ -662,7 +662,8 @@ PREFIX_MIN_ROWS = 8000
 PREFIX_SHARE = 0.25
 #: Sign changes of the measured speed the prefix needs (reversals or rests to tell friction apart).
 PREFIX_REVERSALS = 4
-#: Standard errors of the prefix's fit (as :data:`~identify.friction_solver.FINAL_STEP`) below which its step is its last.
+#: Standard errors of the prefix's fit (as :data:`~identify.friction_solver.FINAL_STEP`) below which its step
+#: is its last.
 PREFIX_STEP = 10.0
 #: Largest ratio of the mean square residual on all rows to the prefix's at the prefix's parameters.
 PREFIX_MISFIT = 4.0

@@ -194,7 +194,8 @@ def compiled_response() -> Callable[..., None] | None:
         """``function`` compiled, the helpers it calls by ``names`` replaced by their compiled forms."""
         scope = dict(function.__globals__, **{n: helpers[n] for n in names})
         return jit(types.FunctionType(function.__code__, scope, function.__name__))
-    helpers = {"_event_value": jit(_event_value), "event_interval": jit(event_interval)}
+    helpers: dict[str, Callable[..., object]] = {"_event_value": jit(_event_value),
+                                                 "event_interval": jit(event_interval)}
     helpers["_moving_sensitivities"] = jit(_moving_sensitivities)
     helpers["_event_sensitivities"] = compiled(_event_sensitivities, ("_event_value",))
     return compiled(response_pass, tuple(helpers))

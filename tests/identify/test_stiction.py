@@ -81,7 +81,7 @@ def _judged(est, truth_a, truth_b):
     """Within 1 %, or inside covering intervals narrower than +-25 %; and never clear with an interval that misses.
 
     The intervals are the 99.9 % ones: a 95 % interval misses one run in twenty by design, and the 24 runs here
-    would then miss about two (measured: one, ``a`` 2.1 standard errors off by 0.011 %); at 99.9 % all 24 must hold.
+    would then miss about two (measured: one, ``a`` 2.0 standard errors off by 0.011 %); at 99.9 % all 24 must hold.
     """
     ci = est.confidence_interval(0.999)
     covered = ci["a"][0] <= truth_a <= ci["a"][1] and ci["b"][0] <= truth_b <= ci["b"][1]
