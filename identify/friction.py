@@ -496,7 +496,7 @@ def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, n
             problem = FrictionProblem(segs, names)
             if start is not None and len(start) == problem.n_global + len(segs):
                 x = np.asarray(start, float)
-                if not stiction_evident(FrictionProblem(first_rows(segs, GATE_ROWS), names), x):
+                if not stiction_evident(FrictionProblem(first_rows(segs, GATE_ROWS), names), x, levenberg_marquardt):
                     # nothing calls for a static level: the friction fit it contains is this candidate's
                     r = problem.residuals(x)
                     return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), sum_squares(r)), r)

@@ -160,3 +160,4 @@ def reachable_cost(r: np.ndarray, J: np.ndarray) -> float:
     """The residual sum a full Gauss–Newton step from residuals ``r`` with Jacobian ``J`` would reach."""
     _, H, g = _scaled_normal_equations(J, r)
     return sum_squares(r) - _reachable(H, g)
+

@@ -131,7 +131,8 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
         - ``auto``: ``input_delay`` (``"auto"`` or samples), ``structures`` (subset of
           ``("linear", "bias", "friction", "dead-zone")``), ``fix_bias``.
         - ``oe``: ``input_delay`` (default 0, or ``"auto"``), ``fit_bias``, ``jac``, ``covariance``.
-        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``.
+        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``,
+          ``static_friction``.
         - ``iv``: ``input_delay`` (default 0, or ``"auto"``).
         - ``euler-ls``, ``zoh-ls``: none.
 

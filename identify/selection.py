@@ -7,7 +7,9 @@
   device's own delay when the recording declares one, ``input_delay_samples``), times
 * structure ``linear`` (``oe``), ``bias`` (``oe`` with a constant acceleration ``d``),
   ``friction`` (``oe-friction``: Coulomb friction ``c`` and ``d``) and ``dead-zone``
-  (``oe-friction``: ``c``, ``d`` and a duty dead zone),
+  (``oe-friction``: ``c``, ``d`` and a duty dead zone), and, judged after them, ``stiction``
+  (``oe-friction``: ``c``, ``d`` and a static friction above ``c``, where a test on the first rows
+  finds one) and ``second-order``,
 
 each by the estimator that would return it, on the same rows (every segment from row ``N``; on
 long data the first :data:`SELECTION_ROWS` of them), and returns the **simplest candidate whose fit

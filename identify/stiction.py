@@ -26,14 +26,16 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from .comparison import BLOCKS, CLOSE, LEVEL, statistic
+
 __all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "stiction_evident", "MAX_LEVELS",
-           "PROFILE_QUANTILE", "MAX_ROUNDS", "GATE_LEVELS", "GATE_ROWS"]
+           "PROFILE_QUANTILE", "MAX_ROUNDS", "GATE_LEVELS", "GATE_ROWS", "GATE_FACTOR", "GATE_REFITS", "LOCAL_LEVELS"]
 
 #: Rows (the first of every segment) on which the default tests whether a static level is worth fitting.
 GATE_ROWS = 1000
 
 #: Most candidate levels one scan evaluates (quantiles of the distinct forces above the friction level).
-MAX_LEVELS = 160
+MAX_LEVELS = 64
 #: Residual variances of cost within which a level is in the profile's bracket: the 95 % quantile of
 #: chi-square with one degree of freedom.
 PROFILE_QUANTILE = 3.841
@@ -43,6 +45,15 @@ MAX_ROUNDS = 6
 MAX_BRACKET_REFITS = 4
 #: Levels next above the friction (and as many spread up to three times it) that :func:`stiction_evident` tries.
 GATE_LEVELS = 3
+#: Share of the selection's threshold the gate's statistic must reach: on a thousand rows the 32 batch means
+#: are 31 samples each and the statistic has a fraction of its power on all rows.  Measured at the first
+#: 1000 rows: 6.3-2600 with static friction 1.6-2 times the friction (a sine, a multisine, 1000 and 360
+#: counts), 1.0 on the position loop of ``motorid bench selection`` (a random load torque, no stiction).
+GATE_FACTOR = 0.25
+#: Levels the gate refits (those of least predicted cost).
+GATE_REFITS = 2
+#: Levels on either side of the current one that the search's later rounds and the bracket try.
+LOCAL_LEVELS = 12
 #: Levels refitted per round of the search: those of least predicted cost.
 REFITS_PER_ROUND = 8
 
@@ -139,18 +150,25 @@ def _noise_variance(r: np.ndarray, dof: int, blocks: int = 32) -> float:
     return white * max(ratio, 1.0)
 
 
-def stiction_evident(problem: _Problem, x: np.ndarray) -> bool:
-    """Whether a static level above the friction could fit the data better than the fit at ``x`` without one
-    (``problem.static`` 0) by more than the noise: the predicted cost (one Gauss–Newton step, the continuous
-    parameters refitted, linearised) at the first :data:`GATE_LEVELS` candidate levels above the friction and
-    as many spread up to three times it, against :data:`PROFILE_QUANTILE` residual variances below the cost.
+def stiction_evident(problem: _Problem, x: np.ndarray, refit: Callable[[Any, np.ndarray], Any],
+                     level: float = LEVEL) -> bool:
+    """Whether a static level above the friction fits the data better than the fit at ``x`` without one
+    (``problem.static`` 0) beyond the noise, as the default's selection would judge it.
 
-    A cheap test (a dozen evaluations, on the rows the caller gives, e.g. the first few thousand) that lets the
-    default leave the profile out where nothing in the data calls for it.  Leaves ``problem.static`` at 0.
+    The first :data:`GATE_LEVELS` candidate levels above the friction and as many spread up to three times
+    it are ranked by the cost one Gauss–Newton step would reach; the best :data:`GATE_REFITS` of them are
+    refitted (``refit(problem, x0)``, as in :func:`profile_static_level`), and the best refit is compared with
+    the fit without a static level refitted on the same rows, by the selection's batch-means statistic
+    (:func:`identify.comparison.statistic`), which must reach :data:`GATE_FACTOR` times the threshold of one
+    more parameter at ``level``, and by the residual sum, which must drop by
+    :data:`~identify.comparison.CLOSE` of it at least.  A cheap test (a few evaluations on the rows the caller
+    gives, e.g. the first thousand) that lets the default leave the profile out where the data do not call for
+    it.  Leaves ``problem.static`` at 0.
     """
+    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
     problem.at_level(0.0)
-    r = problem.residuals(x)
-    cost = float(r @ r)
+    r0 = np.array(problem.residuals(x), dtype=float)
+    cost = float(r0 @ r0)
     levels = candidate_levels(problem, x)[1:]
     friction = float(problem.unpack(x)[2])
     spread = levels[levels <= 3.0 * friction + 1e-300]
@@ -159,10 +177,29 @@ def stiction_evident(problem: _Problem, x: np.ndarray) -> bool:
     chosen = np.unique(np.concatenate([levels[:GATE_LEVELS], spread]))
     if not len(chosen) or not math.isfinite(cost):
         return False
-    ceiling = cost - PROFILE_QUANTILE * _noise_variance(np.asarray(r, float), problem.dof)
     predicted = _predicted_costs(problem, x, chosen)
+    order = [j for j in np.argsort(predicted)[:GATE_REFITS] if predicted[j] < (1.0 - 0.5 * CLOSE) * cost]
+    if not order:                                   # not even the linearised step comes near
+        problem.at_level(0.0)
+        return False
+    # on these rows, the fit without a static level is refitted too: what a level adds, not what the rows do
     problem.at_level(0.0)
-    return bool(np.min(predicted) < ceiling)
+    with np.errstate(over="ignore", invalid="ignore"):
+        base = refit(problem, x)
+    if _cost_of(base) < cost:
+        x, r0, cost = base.x, np.asarray(base.fun, dtype=float), _cost_of(base)
+    best = np.asarray(r0)
+    for j in order:
+        problem.at_level(float(chosen[j]))
+        with np.errstate(over="ignore", invalid="ignore"):
+            fitted = refit(problem, x)
+        if _cost_of(fitted) < float(best @ best):
+            best = np.asarray(fitted.fun, dtype=float)
+    problem.at_level(0.0)
+    drop = cost - float(best @ best)
+    if not drop >= CLOSE * cost:
+        return False
+    return bool(statistic(r0 - best, drop, best) >= GATE_FACTOR * float(fdtri(1, BLOCKS - 1, 1.0 - level)))
 
 
 def _cost_of(result: Any) -> float:
@@ -191,8 +228,10 @@ def profile_static_level(problem: _Problem, res: Any,
     """
     best, best_cost, level = res, _cost_of(res), 0.0
     fits: dict[float, tuple[float, float, float]] = {}       # level -> (cost, a, b) of its refit
-    for _ in range(MAX_ROUNDS):
+    for round_ in range(MAX_ROUNDS):
         levels = candidate_levels(problem, best.x)
+        if round_:                           # the first round looks everywhere; the next ones near its level
+            levels = _near(levels, level)
         predicted = _predicted_costs(problem, best.x, levels)
         improved = False
         start_cost = best_cost
@@ -227,13 +266,19 @@ def profile_static_level(problem: _Problem, res: Any,
     return best, StaticProfile(level, low, high, ranges, len(fits))
 
 
+def _near(levels: np.ndarray, level: float) -> np.ndarray:
+    """The :data:`LOCAL_LEVELS` levels on either side of ``level`` (and the friction level, the first)."""
+    i = int(np.searchsorted(levels, level))
+    return np.unique(np.concatenate([levels[:1], levels[max(i - LOCAL_LEVELS, 0):i + LOCAL_LEVELS + 1]]))
+
+
 def _bracket(problem: _Problem, best: Any, ceiling: float, fits: dict[float, tuple[float, float, float]],
              refit: Callable[[Any, np.ndarray], Any]) -> list[float]:
     """The levels whose refitted cost is below ``ceiling``: those refitted already, and of the levels whose
     predicted cost is below it, the lowest and the highest, each refitted and, when it lands above the
     ceiling, replaced by the next one inwards (at most :data:`MAX_BRACKET_REFITS` per side)."""
     inside = [lv for lv, (cost, _, _) in fits.items() if cost <= ceiling]
-    levels = candidate_levels(problem, best.x)
+    levels = _near(candidate_levels(problem, best.x), problem.static)
     predicted = _predicted_costs(problem, best.x, levels)
     near = [float(lv) for lv, p in zip(levels, predicted) if p <= ceiling]
     for order in (near, near[::-1]):
