@@ -9,14 +9,16 @@ a profile over those candidate levels (:func:`candidate_levels`), each level's c
 parameters (``a``, ``b``, ``c``, ``d``, the initial speeds) refitted by the friction fit's own
 Levenberg–Marquardt.
 
-The search (:func:`profile_static_level`) scans the candidate levels with the continuous
-parameters held (one response without sensitivities each), refits at the best level, and
-repeats from there until the level stays.  Its interval is the profile's: the bracket of levels
-whose refitted cost is within :data:`PROFILE_QUANTILE` residual variances of the least (the
-likelihood-ratio interval of one parameter, Venzon & Moolgavkar 1988), the residual variance
-taken from the batch means of the residuals (an encoder's rounding stays put while the shaft
-sticks, so the residuals are correlated).  The ``a`` and ``b`` of every level in that bracket
-are kept too: they widen ``a``'s and ``b``'s intervals to cover every level the data allow.
+The search (:func:`profile_static_level`) ranks the candidate levels by the cost one Gauss–Newton step
+from the current fit would reach (the continuous parameters refitted, linearised), refits the best
+:data:`REFITS_PER_ROUND` of them, and repeats from the best refit, near its level, until no refit
+improves.  Its interval is the profile's: the levels whose refitted cost is within :data:`PROFILE_QUANTILE`
+residual variances of the least (the likelihood-ratio interval of one parameter, Venzon & Moolgavkar
+1988), the residual variance taken from the batch means of the residuals (an encoder's rounding stays
+put while the shaft sticks, so the residuals are correlated), widened to the forces between which those
+levels lie.  The ``a`` and ``b`` of every level in that bracket are kept too: they widen ``a``'s and
+``b``'s intervals to cover every level the data allow.  :func:`stiction_evident` is the default's cheap
+test of whether the search is worth making.
 """
 from __future__ import annotations
 
@@ -29,7 +31,8 @@ import numpy as np
 from .comparison import BLOCKS, CLOSE, LEVEL, statistic
 
 __all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "stiction_evident", "MAX_LEVELS",
-           "PROFILE_QUANTILE", "MAX_ROUNDS", "GATE_LEVELS", "GATE_ROWS", "GATE_FACTOR", "GATE_REFITS", "LOCAL_LEVELS"]
+           "PROFILE_QUANTILE", "MAX_ROUNDS", "GATE_LEVELS", "GATE_ROWS", "GATE_FACTOR", "GATE_REFITS", "LOCAL_LEVELS",
+           "REFITS_PER_ROUND", "MAX_BRACKET_REFITS"]
 
 #: Rows (the first of every segment) on which the default tests whether a static level is worth fitting.
 GATE_ROWS = 1000
