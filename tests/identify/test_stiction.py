@@ -13,8 +13,9 @@ A, B, C = 25.0, 3.0, 60.0
 
 def _recording(ratio, multisine, counts_per_rev, seed, friction=C):
     """6000 samples at 5 ms of the motor (a = 25, b = 3, friction 60 rad/s^2) under one sine of 5 rad/s,
-    amplitude 200, or a three-line multisine, read by an encoder whose phase (where the shaft's zero falls within a count) the seed draws, as a
-    rig's is wherever the shaft was at power-up, with 1e-4 counts of noise."""
+    amplitude 200, or a three-line multisine, read by an encoder whose phase (where the shaft's zero falls
+    within a count) the seed draws, as a rig's is wherever the shaft was at power-up, with 1e-4 counts of
+    noise."""
     n, h = 6000, 0.005
     t = np.arange(n) * h
     excitation = Multisine((2.0, 7.0, 19.0), (90, 70, 50), (0, 1, 2)) if multisine else Sine(5.0, 200)
