@@ -489,7 +489,9 @@ def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, n
                        start: Sequence[float] | None = None) -> CandidateFit:
     """The friction model with a static level (:mod:`identify.stiction`) fitted on ``segs`` at ``delay``, scored
     as a candidate of the model selection (``name``: the structure's), its friction fit started from ``start``
-    (the friction structure's fit on the same rows) when given."""
+    (the friction structure's fit on the same rows) when given.  With a start, the level is fitted only where
+    :func:`identify.stiction.stiction_evident` finds one worth it on the first rows; elsewhere the candidate
+    comes back unfitted, with a note saying why."""
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=False)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
@@ -497,9 +499,10 @@ def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, n
             if start is not None and len(start) == problem.n_global + len(segs):
                 x = np.asarray(start, float)
                 if not stiction_evident(FrictionProblem(first_rows(segs, GATE_ROWS), names), x, levenberg_marquardt):
-                    # nothing calls for a static level: the friction fit it contains is this candidate's
-                    r = problem.residuals(x)
-                    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), sum_squares(r)), r)
+                    # nothing calls for a static level: not a candidate (its fit would be the friction fit's)
+                    return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=(
+                        f"no static level above the friction fits the first {GATE_ROWS} rows better beyond the "
+                        "noise")), None)
                 res = levenberg_marquardt(problem, x)
             else:
                 problem, res = solve_friction(recs, segs, names, delay)
