@@ -234,7 +234,8 @@ class PredictionErrorFit:
 
 def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[Segment], *, friction: bool,
                            disturbance_pole: float | None = None, disturbance: bool = True,
-                           start: tuple[float, float, float, float] | None = None) -> PredictionErrorFit:
+                           start: tuple[float, float, float, float] | None = None,
+                           noise_start: tuple[float, float] | None = None) -> PredictionErrorFit:
     """Fit the model of the module docstring to ``segments`` (the recordings cut at gaps, the duty delayed).
 
     Parameters
@@ -251,6 +252,9 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
         filter settles, an output-error fit), to test whether the data show one.
     start : (a, b, c, bias), optional
         Start values of the motor's parameters (default: the regression start of :func:`identify.start.initial_guess`).
+    noise_start : (phi, log(Q/R)), optional
+        Start values of the disturbance's (a neighbouring fit's); default: the best of a grid
+        (:data:`START_POLES` x :data:`START_LOG_RATIOS`).
     """
     h = recordings[0].sample_period
     problem = _Problem(segments, friction, h, disturbance_pole, disturbance)
@@ -264,8 +268,13 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
     if friction and not c0 > 0:
         c0 = 1e-3 * abs(b0) * float(np.max(np.abs(np.concatenate([s.drive for s in segments]))))
     best, best_cost = None, math.inf
-    for phi in (START_POLES if disturbance_pole is None else (disturbance_pole,)) if disturbance else (0.0,):
-        for lr in START_LOG_RATIOS if disturbance else (0.0,):
+    poles = START_POLES if disturbance_pole is None else (disturbance_pole,)
+    ratios = START_LOG_RATIOS
+    if noise_start is not None:
+        poles = (noise_start[0],) if disturbance_pole is None else poles
+        ratios = (noise_start[1],)
+    for phi in poles if disturbance else (0.0,):
+        for lr in ratios if disturbance else (0.0,):
             x = problem.pack(a0, b0, c0, bias0, phi, lr)
             r = problem.innovations(x)
             cost = float(r @ r)

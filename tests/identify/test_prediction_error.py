@@ -130,9 +130,9 @@ def _open_loop_runs():
 
 
 def test_open_loop_runs_are_not_taken_for_closed_loop():
-    # measured: at most 0.02 on these; the rule is FEEDBACK_SHARE
+    # measured: at most 0.044 on these (the closed loops below: 0.88 and more); the rule is FEEDBACK_SHARE
     shares = [feedback_share(rec) for rec in _open_loop_runs()]
-    assert max(shares) < 0.05 < FEEDBACK_SHARE, shares
+    assert max(shares) < 0.1 < FEEDBACK_SHARE, shares
     assert not any(feedback_evidence(rec) for rec in _open_loop_runs())
 
 
