@@ -204,7 +204,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.nda
     pending = [0] * motor.input_delay
     e, g, p, q = (x.tolist() for x in zoh_matrices(motor.a, motor.b, h))
     bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
-    linear, dead_zone = motor.friction == 0, motor.dead_zone
+    linear, dead_zone = motor.breakaway == 0, motor.dead_zone
     w, th = float(initial_speed), 0.0
     for k in range(n):
         counts[k] = c = math.floor((th + noise[k]) * scale) + offset
