@@ -246,7 +246,7 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
         drive = seg.duty[first - input_delay:stop - input_delay]
         t = seg.time[first:stop]
         if kind == "speed" and not np.all(np.isfinite(output)):
-            raise ParameterError(f"recordings[{i}] has non-finite speed values")
+            raise ParameterError(f"{recordings[i].name(i)} has non-finite speed values")
         out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
                            kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
     return out
@@ -328,7 +328,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
         _check_moves(i, r)
-        check_speed_agrees(r, f"recordings[{i}]")
+        check_speed_agrees(r, r.name(i))
         _warn_saturation(i, r)
 
 
@@ -445,8 +445,8 @@ def _check_input_scale(largest: float, unit: str) -> None:
 def _check_moves(i: int, r: Recording) -> None:
     y, kind = _measured_output(r)
     if y.min() == y.max():
-        what = "encoder count" if r.counts is not None else kind
-        raise NotIdentifiableError(f"recordings[{i}]: the {what} never changes (stuck at {y[0]:g}): the "
+        what, stuck = ("encoder count", f"{r.counts[0]}") if r.counts is not None else (kind, f"{y[0]:g}")
+        raise NotIdentifiableError(f"{r.name(i)}: the {what} never changes (stuck at {stuck}): the "
                                    "encoder is stuck or the motor did not move; check the wiring and "
                                    "that the duty exceeds the motor's dead zone")
 
@@ -455,12 +455,12 @@ def _warn_saturation(i: int, r: Recording) -> None:
     limit = r.input_limit
     share = float(np.mean(np.abs(r.duty) >= limit)) if r.input_unit == "duty" and limit is not None else 0.0
     if share > _SATURATION_SHARE:
-        warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
+        warnings.warn(f"{r.name(i)}: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
                       "the samples; the motor sees a square wave and the estimate rests on few "
                       "transitions: lower the amplitude", UserWarning, stacklevel=4)
     elif r.reference is None and (runs := r.saturated_runs()):
         # open loop only: a controller's duty at the limit is its own choice, not a clipped excitation
-        warnings.warn(f"recordings[{i}]: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
+        warnings.warn(f"{r.name(i)}: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
                       f"{sum(n for _, n in runs)} samples (the first from row {runs[0][0]}): the input the "
                       "excitation asked for did not reach the motor there; the samples stay in the fit (the "
                       "recorded duty is the one applied); lower the amplitude if the fit or its residuals look "

@@ -488,6 +488,7 @@ def _recording(path: str, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np
                 speed_unit=units.get("speed", "rad/s"), angle_unit=units.get("angle", "rad"))
     except ValueError as exc:
         raise ImportFormatError(f"{path}: {exc}") from None
+    rec = dataclasses.replace(rec, path=str(path))       # every later refusal names the file
     if "angle" in specs and units["angle"] == "rad":
         _check_angle_unit(path, rec, specs["angle"], stated=angle_stated)
     return rec
