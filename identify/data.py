@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
 from typing import Any, Sequence
 
@@ -22,7 +23,8 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "check_speed_agrees", "check_constant_input_runs", "prepare_segments", "first_rows", "delayed_segments",
+           "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "prepare_segments", "first_rows",
+           "delayed_segments",
            "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
@@ -44,7 +46,14 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
     """
     if isinstance(recordings, Recording):
         recordings = [recordings]
-    recs = list(recordings)
+    if isinstance(recordings, (str, bytes, os.PathLike)):
+        raise ParameterTypeError(f"recordings must be a Recording or a sequence of them, got the path {recordings!r}: "
+                                 "read it first (motorsim.read_recording)")
+    try:
+        recs = list(recordings)
+    except TypeError:
+        raise ParameterTypeError("recordings must be a Recording or a sequence of them, got "
+                                 f"{type(recordings).__name__}") from None
     if not recs:
         raise ParameterError("recordings must hold at least one Recording, got none")
     for i, r in enumerate(recs):
@@ -327,7 +336,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
                                    "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
-        _check_moves(i, r)
+        check_output_moves(r, r.name(i))
         check_speed_agrees(r, r.name(i))
         _warn_saturation(i, r)
 
@@ -442,11 +451,12 @@ def _check_input_scale(largest: float, unit: str) -> None:
                                    "far from 1; give the input in its real unit (duty, V, %)")
 
 
-def _check_moves(i: int, r: Recording) -> None:
+def check_output_moves(r: Recording, name: str = "recording") -> None:
+    """Refuse a recording whose measured output (counts, angle or speed) never changes, naming it ``name``."""
     y, kind = _measured_output(r)
-    if y.min() == y.max():
+    if len(y) and y.min() == y.max():
         what, stuck = ("encoder count", f"{r.counts[0]}") if r.counts is not None else (kind, f"{y[0]:g}")
-        raise NotIdentifiableError(f"{r.name(i)}: the {what} never changes (stuck at {stuck}): the "
+        raise NotIdentifiableError(f"{name}: the {what} never changes (stuck at {stuck}): the "
                                    "encoder is stuck or the motor did not move; check the wiring and "
                                    "that the duty exceeds the motor's dead zone")
 

@@ -20,7 +20,7 @@ from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .causality import check_input_leads
-from .data import as_recordings, check_constant_input_runs, check_speed_agrees
+from .data import as_recordings, check_constant_input_runs, check_output_moves, check_speed_agrees
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
@@ -125,8 +125,9 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
     options = dict(options or {})
     recs = as_recordings(recordings)
-    for i, rec in enumerate(recs):   # a speed column in another unit than its counts: every method's, not only some
-        check_speed_agrees(rec, rec.name(i))
+    for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check
+        check_output_moves(rec, rec.name(i))      # a stuck encoder
+        check_speed_agrees(rec, rec.name(i))      # a speed column in another unit than its counts
     check_input_leads(recs)      # an input logged late: a negative delay no model has
     if outliers == "keep":
         return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), ())

@@ -50,7 +50,7 @@ from typing import Iterable, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
@@ -90,6 +90,8 @@ def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) ->
     arr: np.ndarray
     if isinstance(value, np.ndarray) and value.dtype == dtype and value.base is None and not value.flags.writeable:
         arr = value
+    elif dtype is float:
+        arr = np.array(real_array(name, value), dtype=float, copy=True)
     else:
         arr = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:

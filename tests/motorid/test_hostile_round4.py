@@ -107,3 +107,97 @@ def test_the_path_is_never_written_back(runs, tmp_path):
     write_recording(rec, tmp_path / "copy.csv")
     assert str(runs) not in (tmp_path / "copy.csv").read_text()
     assert read_recording(tmp_path / "copy.csv").path == str(tmp_path / "copy.csv")
+
+
+# --- pathological numbers: one clear line, or the right answer ----------------------------------------
+
+def test_a_sample_period_below_the_devices_microsecond_is_refused(capsys):
+    assert main(["control", "design", "--controller", "pi", "--a", "25", "--b", "3", "--sample-period", "1e-320"]) == 2
+    line = _error(capsys)
+    assert "--sample-period" in line and "1e-06" in line and "1e-320" in line
+
+
+def test_a_duration_of_no_countable_samples_is_refused(tmp_path, capsys):
+    from motorsim.checks import ParameterError
+    from motorsim.rig import MAX_SAMPLES
+    with pytest.raises(ParameterError, match="duration must be under"):
+        Experiment(Sine(10.0, 200), 0.001, 1e308)
+    assert MAX_SAMPLES * 0.001 > 3600 * 24 * 7           # a week at 1 kHz is still a run
+    assert main(["live", "--port", "fake://?a=25&b=3", "--duration", "1e308", "--quiet",
+                 "--out", str(tmp_path / "o.csv")]) == 2
+    assert "duration" in _error(capsys) and not (tmp_path / "o.csv").exists()
+
+
+def test_a_phase_of_many_turns_is_the_phase_within_one_turn():
+    dt, n = 0.005, 400
+    far = Sine(10.0, 200, 1e308).duty(n, dt, 255)
+    near = Sine(10.0, 200, math.fmod(1e308, 2 * math.pi)).duty(n, dt, 255)
+    assert np.array_equal(far, near) and np.any(far != 0)
+    assert np.array_equal(Sine(10.0, 200, 0.3).duty(n, dt, 255), Sine(10.0, 200, 0.3 + 0.0).duty(n, dt, 255))
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: __import__("identify").fit(None), "recordings must be a Recording or a sequence of them, got NoneType"),
+    (lambda: __import__("identify").fit("r.csv"), "got the path 'r.csv'"),
+    (lambda: __import__("motorsim").simulate(Motor(25.0, 3.0), ["a", "b"], [0.0, 0.1]),
+     r"duty must be an array of real numbers, got \['a', 'b'\]"),
+], ids=["fit-none", "fit-a-path", "simulate-strings"])
+def test_the_python_api_names_a_wrong_argument(call, match):
+    from motorsim.checks import ParameterTypeError
+    with pytest.raises(ParameterTypeError, match=match):
+        call()
+
+
+# --- a flag that would have no effect is refused ---------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def model_path(runs):
+    path = runs / "m.json"
+    assert main(["identify", str(runs / "r.csv"), "--method", "oe", "--save", str(path)]) == 0
+    return path
+
+
+@pytest.mark.parametrize("argv, flags", [
+    (["identify", "{r}", "--counts-per-rev", "1000"], ["--counts-per-rev"]),
+    (["identify", "{r}", "--input-limit", "100"], ["--input-limit"]),
+    (["frequency", "{r}", "--method", "sines", "--segment", "100"], ["segment", "'sines'"]),
+    (["control", "design", "--controller", "pi", "--a", "25", "--b", "3", "--repetitions", "10"], ["--repetitions"]),
+    (["control", "design", "--controller", "pi", "--a", "25", "--b", "3", "--seed", "3"], ["--seed"]),
+    (["control", "design", "--controller", "pi", "--model", "{m}", "--a", "30"], ["--model", "--a"]),
+    (["demo", "--out", "{o}", "--no-plots", "--no-control", "--duration", "1", "--reference", "step:10"],
+     ["--reference", "--no-control"]),
+    (["demo", "--out", "{o}", "--no-plots", "--no-control", "--duration", "1", "--duty-weight", "0.1"],
+     ["--duty-weight", "--no-control"]),
+], ids=["identify-counts-per-rev-on-v1", "identify-input-limit-on-v1", "frequency-segment-not-welch",
+        "control-repetitions-nothing-drawn", "control-seed-nothing-drawn", "control-model-and-a",
+        "demo-reference-no-control", "demo-duty-weight-no-control"])
+def test_a_flag_without_effect_is_refused(runs, model_path, tmp_path, argv, flags, capsys):
+    argv = [a.format(r=runs / "r.csv", m=model_path, o=tmp_path / "o") for a in argv]
+    assert main(argv) == 2
+    line = _error(capsys)
+    assert all(flag in line for flag in flags), line
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_draw_flags_still_work_with_a_covariance(model_path, capsys):
+    assert main(["control", "design", "--controller", "pi", "--model", str(model_path), "--seed", "3",
+                 "--repetitions", "20"]) == 0
+    assert "--seed 3" in capsys.readouterr().out
+
+
+# --- a unit a column's name states and a flag contradicts -------------------------------------------------
+
+@pytest.mark.parametrize("header, flags, said", [
+    ("t_ms,u,y", ["--time", "t_ms:s", "--input", "u:duty", "--angle", "y"], ("'t_ms' is in ms", "gives s")),
+    ("t,u_pct,y", ["--time", "t", "--input", "u_pct:duty", "--angle", "y"], ("'u_pct' is in %", "gives duty")),
+    ("t,u,y_deg", ["--time", "t", "--input", "u:duty", "--angle", "y_deg:rad"], ("'y_deg' is in deg", "gives rad")),
+], ids=["time", "input", "angle"])
+def test_a_unit_the_column_name_states_may_not_be_contradicted(runs, tmp_path, header, flags, said, capsys):
+    rec = read_recording(runs / "r.csv")
+    angle = rec.counts * 2 * math.pi / rec.counts_per_rev
+    lab = tmp_path / "lab.csv"
+    lab.write_text(header + "\n" + "".join(f"{float(t)!r},{int(u)},{float(y)!r}\n"
+                                           for t, u, y in zip(rec.time, rec.duty, angle)))
+    assert main(["identify", str(lab), *flags]) == 2
+    line = _error(capsys)
+    assert all(s in line for s in said), line
