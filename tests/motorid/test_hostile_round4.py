@@ -201,3 +201,10 @@ def test_a_unit_the_column_name_states_may_not_be_contradicted(runs, tmp_path, h
     assert main(["identify", str(lab), *flags]) == 2
     line = _error(capsys)
     assert all(s in line for s in said), line
+
+
+def test_design_refuses_an_angle_noise_whose_variance_is_no_float(tmp_path, capsys):
+    assert main(["design", "--a", "25", "--b", "3", "--sample-period", "0.005", "--counts-per-rev", "16667",
+                 "--angle-noise", "1e308", "--out", str(tmp_path / "d"), "--no-plots"]) == 2
+    line = _error(capsys)
+    assert "angle_noise" in line and "1e+100" in line and "1e+308" in line
