@@ -10,12 +10,16 @@ from motorsim.lazy import lazy_attributes
 #: public name -> the module of this package that defines it
 _WHERE = {
     "NotIdentifiableError": "errors", "Estimate": "estimate",
+    "SelectionReport": "selection_report", "CandidateReport": "selection_report",
     "structures": "model_structures", "structure": "model_structures", "ModelStructure": "model_structures",
     "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
+    "method_options": "methods", "option_declarations": "methods", "check_options": "methods",
+    "EstimatorOption": "methods",
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
     "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",
     "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",
-    "fit_reference_iv": "closed_loop",
+    "fit_reference_iv": "closed_loop", "fit_prediction_error": "prediction_error",
+    "feedback_evidence": "feedback",
     "design_sine": "design", "predicted_stderr": "design", "DesignPoint": "design", "SineDesign": "design",
     "design_multisine": "design", "MultisineDesign": "design",
     "fit_percent": "validation", "nrmse_fit": "validation", "simulated_speed": "validation",
@@ -25,6 +29,8 @@ _WHERE = {
     "BestLinearApproximation": "best_linear", "best_linear_approximation": "best_linear",
     "fit_frequency_response": "frequency_fit",
     "feedforward_constants": "feedforward", "FeedforwardConstants": "feedforward",
+    "BatchFit": "batch", "BATCHED_METHODS": "batch", "fit_batch": "batch", "fit_output_error_batch": "batch",
+    "output_error_batchable": "batch",
 }
 
 __all__ = list(_WHERE)

@@ -22,6 +22,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from .data import declared_input_delay
 from .errors import NotIdentifiableError
 
 __all__ = ["check_input_leads", "input_lead_test", "LeadTest", "LEAD_ROWS", "LEAD_LEVEL", "MATERIAL", "WHITE_LAGS"]
@@ -39,13 +40,6 @@ MATERIAL = 0.9
 #: of freedom, at :data:`LEAD_LEVEL`): a model that is wrong in another way (strong Coulomb friction
 #: fitted linearly) can fit better with a shifted input too, but leaves structure in its residuals.
 WHITE_LAGS = 10
-
-
-def _declared_delay(rec: Recording) -> int:
-    try:
-        return max(0, int(str(rec.metadata.get("input_delay_samples", "0"))))
-    except ValueError:
-        return 0
 
 
 def _residuals(rec: Recording, delay: int) -> np.ndarray | None:
@@ -100,7 +94,7 @@ def _input_lead_test(rec: Recording) -> LeadTest:
     seg = seg.slice(0, n)
     recorded = seg.slice(0, n - 1)
     earlier = dataclasses.replace(seg, duty=np.concatenate([seg.duty[1:], seg.duty[-1:]])).slice(0, n - 1)
-    delay = _declared_delay(rec)
+    delay = declared_input_delay(rec)
     r0, r1 = _residuals(recorded, delay), _residuals(earlier, delay)
     if r0 is None or r1 is None or len(r0) != len(r1):
         return none
@@ -132,7 +126,7 @@ def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | No
         if test.leads():
             name = names[i] if names is not None else rec.name(i)
             unit = "rad" if rec.angle is not None or rec.counts is not None else "rad/s"
-            delay = _declared_delay(rec)
+            delay = declared_input_delay(rec)
             declared = f" (input_delay_samples {delay} declared)" if delay else ""
             raise NotIdentifiableError(
                 f"{name}: the output answers its recorded input one sample before it{declared}: with the input "

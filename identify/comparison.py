@@ -103,6 +103,10 @@ class Candidate:
         Whether the data cannot tell it from the best.
     note : str
         Why it failed, when it did.
+    fitted_by : str
+        The estimator that fitted it when not the structure's own (``pem-disturbance`` in a closed loop).
+    fit_options : tuple of (str, value) pairs
+        That estimator's options besides the delay.
     """
 
     structure: str
@@ -113,6 +117,8 @@ class Candidate:
     statistic: float = math.nan
     within_noise: bool = False
     note: str = ""
+    fitted_by: str = ""
+    fit_options: tuple[tuple[str, Any], ...] = ()
 
     @property
     def n_params(self) -> int:
@@ -122,25 +128,23 @@ class Candidate:
     @property
     def method(self) -> str:
         """The estimator that fits this candidate."""
-        return STRUCTURES[self.structure].method
+        return self.fitted_by or STRUCTURES[self.structure].method
 
     def options(self) -> dict[str, Any]:
         """``fit(recordings, method, **options)`` reproduces the candidate on all rows."""
+        if self.fitted_by:
+            return {"input_delay": self.input_delay, **dict(self.fit_options)}
         return {"input_delay": self.input_delay, **STRUCTURES[self.structure].options}
 
     @property
     def label(self) -> str:
         return f"{self.structure}, delay {self.input_delay}"
 
-    def to_dict(self) -> dict:
-        return {"structure": self.structure, "input_delay": self.input_delay, "method": self.method,
-                "a": self.a, "b": self.b, "residual_sum": self.residual_sum, "statistic": self.statistic,
-                "within_noise": self.within_noise, **({"note": self.note} if self.note else {})}
-
 
 @dataclasses.dataclass(frozen=True)
 class Selection:
-    """What :func:`select_model` compared and chose.
+    """What :func:`select_model` compared and chose (kept with the estimate as an
+    :class:`identify.SelectionReport`).
 
     Attributes
     ----------
@@ -161,6 +165,8 @@ class Selection:
         What the data cannot answer, and what the selection left out and why.
     level : float
         Level of the test.
+    criterion : str
+        The test, in words.
     """
 
     candidates: tuple[Candidate, ...]
@@ -171,6 +177,7 @@ class Selection:
     doubt: str = ""
     notes: tuple[str, ...] = ()
     level: float = LEVEL
+    criterion: str = "simplest candidate within the noise of the best (batch-means test)"
 
     def comparison(self) -> str:
         """The runner-up against the chosen model, in plain words."""
@@ -182,14 +189,6 @@ class Selection:
                     f"threshold {threshold(other, self.best, self.level):.3g}); the simpler one is kept")
         return (f"{other.label} fits worse by T = {other.statistic:.3g} noise units "
                 f"(threshold {threshold(other, self.best, self.level):.3g})")
-
-    def to_dict(self) -> dict:
-        """JSON-ready: every candidate with its score, the chosen one, whether the choice was clear."""
-        return {"criterion": "simplest candidate within the noise of the best (batch-means test)",
-                "level": self.level, "chosen": self.chosen.to_dict(), "best": self.best.to_dict(),
-                "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
-                "clear": self.clear, "doubt": self.doubt, "notes": list(self.notes),
-                "candidates": [c.to_dict() for c in self.candidates]}
 
 
 @dataclasses.dataclass(eq=False)

@@ -24,8 +24,8 @@ from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
            "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "prepare_segments", "first_rows",
-           "delayed_segments",
-           "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note", "CLOSED_LOOP_SATURATED_SHARE"]
+           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note",
+           "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -210,6 +210,18 @@ def _measured_output(rec: Recording, rows: slice = slice(None)) -> tuple[np.ndar
     if rec.speed is None:   # a Recording always holds angle, counts or speed
         raise ParameterError("recording holds neither angle, counts nor speed")
     return rec.speed[rows], "speed"
+
+
+def declared_input_delay(recordings: Recording | Sequence[Recording]) -> int:
+    """The input delay, in samples, every recording's device declares (metadata ``input_delay_samples``), else 0."""
+    recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
+    declared = []
+    for r in recs:
+        try:
+            declared.append(max(0, int(str(r.metadata.get("input_delay_samples", "0")))))
+        except ValueError:
+            declared.append(0)
+    return min(declared, default=0)
 
 
 def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip: int = 0,

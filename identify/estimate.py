@@ -16,7 +16,7 @@ import dataclasses
 import math
 import os
 import statistics
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 
@@ -33,6 +33,7 @@ from .model_file import (
     read_estimate_document,
 )
 from .model_structures import ModelStructure, structure, structure_of
+from .selection_report import SelectionReport
 
 if TYPE_CHECKING:
     import control
@@ -81,11 +82,12 @@ class Estimate:
     data_files : tuple of (str, str)
         The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
         ``motorid identify --save``).
-    selection : mapping, optional
+    selection : SelectionReport, optional
         How the default estimator chose this model (:func:`identify.selection.fit_selected`):
         every candidate (structure, input delay, fit, score), the chosen one, the best, the
         runner-up, whether the choice was ``clear`` and the ``doubt`` line; None when a method
-        was named.
+        was named.  A mapping given here (the JSON document's ``selection`` object) is read
+        with :meth:`SelectionReport.from_dict`.
     model_range : mapping of str to (float, float)
         For ``a`` and ``b`` when the selection found candidates it cannot rule out that disagree:
         the range of their values (``inf`` when a static gain fits as well).
@@ -137,7 +139,7 @@ class Estimate:
     input_unit: str = "duty"
     data_files: tuple[tuple[str, str], ...] = ()
     covariance_method: str = ""
-    selection: Mapping[str, Any] | None = None
+    selection: SelectionReport | None = None
     notes: tuple[str, ...] = ()
     model_range: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     input_limit: float | None = None
@@ -168,6 +170,8 @@ class Estimate:
             object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "data_files", tuple((str(p), str(h)) for p, h in self.data_files))
         object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
+        if isinstance(self.selection, Mapping):
+            object.__setattr__(self, "selection", SelectionReport.from_dict(self.selection))
         object.__setattr__(self, "model_range", {str(k): (float(lo), float(hi))
                                                  for k, (lo, hi) in dict(self.model_range).items()})
         if self.input_limit is not None:

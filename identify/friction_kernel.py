@@ -18,10 +18,11 @@ from __future__ import annotations
 import cmath
 import functools
 import math
-import os
 from typing import Callable
 
 import numpy as np
+
+from motorsim.compiled import numba_jit
 
 __all__ = ["response_pass", "event_interval", "compiled_response", "kernel_for", "KERNEL_MIN_ROWS"]
 
@@ -177,14 +178,10 @@ def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q:
 @functools.cache
 def compiled_response() -> Callable[..., None] | None:
     """:func:`response_pass` compiled by numba (cached on disk); None without numba or with ``MOTORID_NUMBA=0``."""
-    if os.environ.get("MOTORID_NUMBA", "1") == "0":
-        return None
-    try:
-        import numba
-    except ImportError:
+    jit = numba_jit()
+    if jit is None:
         return None
     import types
-    jit = numba.njit(cache=True)
 
     def compiled(function, names=()):
         """``function`` compiled, the helpers it calls by ``names`` replaced by their compiled forms."""

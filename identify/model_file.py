@@ -67,7 +67,7 @@ def estimate_document(est: Any) -> dict:
                     "residual_rms": est.residual_unit, "speed": getattr(est, "speed_unit", "rad/s")}
     doc["notes"] = list(est.notes) + ([f"{_MISSING_NOTE}{missing}"] if missing else [])
     if est.selection is not None:
-        doc["selection"] = est.selection
+        doc["selection"] = est.selection.to_dict()
     if est.model_range:
         doc["model_range"] = {k: list(v) for k, v in est.model_range.items()}
     doc["data_files"] = [{"path": p, "sha256": h} for p, h in est.data_files]
@@ -214,7 +214,7 @@ def estimate_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
                 residual_unit=units.get("residual_rms", "rad/s"), input_unit=units.get("input", "duty"),
                 data_files=tuple((x["path"], x["sha256"]) for x in files),
                 covariance_method=f.get("covariance_method", str, ""),
-                selection=f.get("selection", (dict, type(None)), None),
+                selection=_selection(f.get("selection", (dict, type(None)), None)),
                 notes=tuple(n for n in notes if not n.startswith(_MISSING_NOTE)),
                 model_range=_model_range(f.get("model_range", (dict, type(None)), None) or {}),
                 input_limit=_input_limit(f.get("input_limit", (int, float, type(None)), None)),
@@ -245,6 +245,14 @@ def _parameters_v2(f: _Fields, method: str, names: tuple[str, ...]) -> tuple[str
             extra[key] = f.real(key, f.get(key, (int, float, type(None))), finite=False)
     delay = check_int("estimate field 'input_delay'", f.get("input_delay", int, 0), lo=0, allow_integral_float=False)
     return found.name, extra, delay
+
+
+def _selection(value: dict | None) -> Any:
+    """The :class:`identify.SelectionReport` of a document's ``selection`` object (None when absent)."""
+    if value is None:
+        return None
+    from .selection_report import SelectionReport
+    return SelectionReport.from_dict(value)
 
 
 def _counts_per_rev(value: int | None) -> int | None:

@@ -58,13 +58,16 @@ from .data import (
     as_recordings,
     check_excitation,
     check_input_delay,
+    declared_input_delay,
     delayed_segments,
     first_rows,
     saturation_note,
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .feedback import feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
+from .selection_report import SelectionReport
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
@@ -181,7 +184,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
     notes: list[str] = []
     if input_delay == "auto":
-        known = _declared_delay(recs)
+        known = declared_input_delay(recs)
         top = max(largest_delay(recs, max_delay), known)
         delays = list(range(known, top + 1))
         if known:
@@ -293,17 +296,6 @@ def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], Ca
     return best
 
 
-def _declared_delay(recs: list[Recording]) -> int:
-    """The input delay every recording's device declares (``input_delay_samples``), else 0."""
-    declared = []
-    for r in recs:
-        try:
-            declared.append(max(0, int(str(r.metadata.get("input_delay_samples", "0")))))
-        except ValueError:
-            declared.append(0)
-    return min(declared)
-
-
 #: Rows on which the candidates are compared: on longer data, the first rows of every segment (in
 #: proportion); the chosen candidate is then fitted on all rows.  25 times the 2000 rows on which every
 #: class of the tests is told apart; half the selection's time on a 10^6-row file at 10^5 rows.
@@ -366,11 +358,15 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     >>> est = fit(rec)
     >>> print(f"{est.method}, delay {est.input_delay}, a = {est.a:.3f}, b = {est.b:.4f}")
     oe, delay 2, a = 25.000, b = 3.0000
-    >>> est.selection["chosen"]["structure"], est.selection["clear"]
+    >>> est.selection.chosen.structure, est.selection.clear
     ('linear', True)
     """
     recs = as_recordings(recordings)
     check_excitation(recs, 2)
+    if structures is None:
+        evidence = feedback_evidence(recs)
+        if evidence:
+            return fit_closed_loop(recs, evidence, input_delay=input_delay, fix_bias=fix_bias)
     swept = _counts_swept(recs)
     few_note = ""
     if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a second pole from their rounding
@@ -435,7 +431,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         selection = dataclasses.replace(selection, clear=False, doubt=(
             f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
             "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
-    return dataclasses.replace(est, selection=selection.to_dict(), notes=tuple(
+    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection), notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
 
 
@@ -456,7 +452,7 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
                                  fix_bias=fix_bias, screen=screen)
         if input_delay != "auto":
             return selection, ""
-        top = max(largest_delay(recs, max_delay), _declared_delay(recs))
+        top = max(largest_delay(recs, max_delay), declared_input_delay(recs))
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)

@@ -18,7 +18,8 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["friction_run", "friction_run_python", "friction_interval", "compiled_kernel", "COMPILE_AFTER"]
+__all__ = ["friction_run", "friction_run_python", "friction_interval", "compiled_kernel", "numba_jit",
+           "COMPILE_AFTER"]
 
 
 def friction_interval(a: float, force: float, c: float, w: float, th: float, h: float) -> tuple[float, float]:
@@ -99,16 +100,25 @@ def friction_run(a: float, force: np.ndarray, c: float, h: np.ndarray, speed: np
         kernel(a, force, c, h, speed, angle)
 
 
-@functools.cache
-def compiled_kernel() -> Callable[..., None] | None:
-    """:func:`friction_run_python` compiled by numba (None without numba or with ``MOTORID_NUMBA=0``)."""
+def numba_jit() -> Callable[[Callable], Callable] | None:
+    """``numba.njit(cache=True)``, or None without numba or with ``MOTORID_NUMBA=0`` (every compiled
+    per-sample loop of the project asks here, so one switch turns them all off)."""
     if os.environ.get("MOTORID_NUMBA", "1") == "0":
         return None
     try:
         import numba
     except ImportError:
         return None
-    interval = numba.njit(cache=True)(friction_interval)
+    return numba.njit(cache=True)
+
+
+@functools.cache
+def compiled_kernel() -> Callable[..., None] | None:
+    """:func:`friction_run_python` compiled by numba (None without numba or with ``MOTORID_NUMBA=0``)."""
+    jit = numba_jit()
+    if jit is None:
+        return None
+    interval = jit(friction_interval)
 
     def run(a, force, c, h, speed, angle):
         w, th = speed[0], angle[0]
@@ -117,4 +127,4 @@ def compiled_kernel() -> Callable[..., None] | None:
             speed[k + 1] = w
             angle[k + 1] = th
 
-    return numba.njit(cache=True)(run)
+    return jit(run)

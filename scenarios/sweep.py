@@ -1,10 +1,10 @@
 """Scenario sweeps: every grid point x estimator x repetition, in parallel, streamed to a tidy CSV.
 
 :func:`run_point` does one grid point: all its repetitions at once through the
-batch engine (:mod:`scenarios.batch`) when the setting is linear and every
-sample arrives, else one :meth:`SimRig.run <motorsim.rig.SimRig.run>` and one
-:func:`identify.fit` per repetition -- the path users take.  Estimators with a
-batched implementation (``scenarios.batch.BATCHED_METHODS``) use it; any other
+batch engine (simulated by :mod:`motorsim.batch`, fitted by :mod:`identify.batch`) when the
+setting is linear and every sample arrives, else one :meth:`SimRig.run <motorsim.rig.SimRig.run>`
+and one :func:`identify.fit` per repetition -- the path users take.  Estimators with a
+batched implementation (``identify.BATCHED_METHODS``, and ``oe``) use it; any other
 name from ``identify.available_methods()`` is fitted with ``identify.fit`` on
 recordings of the same counts.  Where the setting has an input delay, every
 method that takes ``input_delay`` is fitted with ``input_delay="auto"`` (one
@@ -32,30 +32,27 @@ import dataclasses
 import json
 import math
 import os
+import re
 import time
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from identify import fit
-from identify.uncertainty import cramer_rao_bound
+from identify import (
+    BATCHED_METHODS,
+    cramer_rao_bound,
+    fit,
+    fit_batch,
+    fit_output_error_batch,
+    output_error_batchable,
+)
+from motorsim.batch import encoder_counts_batch, is_batchable, simulate_batch, speed_batch
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.files import atomic_writer, make_output_dir, write_atomically
 from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
-from .batch import (
-    BATCHED_METHODS,
-    MethodOutcome,
-    encoder_counts_batch,
-    fit_batch,
-    is_batchable,
-    regression_batch,
-    simulate_batch,
-    speed_batch,
-)
-from .batch_output_error import output_error_batch
 from .executors import points_executor, results_in_order
 from .scenario import GridPoint, Scenario, Setting
 
@@ -91,6 +88,63 @@ def axis_column(axis: str) -> str:
 def repetition_seed(seed: int, point: int, repetition: int) -> np.random.SeedSequence:
     """The seed of one repetition: ``SeedSequence(seed).spawn(...)[point].spawn(...)[repetition]``."""
     return np.random.SeedSequence(seed, spawn_key=(point, repetition))
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodOutcome:
+    """One estimator's results over the repetitions of one grid point.
+
+    Attributes
+    ----------
+    method : str
+        Estimator name.
+    a, b : ndarray, shape (repetitions,)
+        Estimates, ``nan`` where the fit failed.
+    failure : tuple of str
+        ``''`` where the fit succeeded, else why it failed.
+    """
+
+    method: str
+    a: np.ndarray
+    b: np.ndarray
+    failure: tuple
+
+    @property
+    def n_failed(self) -> int:
+        """Failed repetitions."""
+        return sum(1 for f in self.failure if f)
+
+    def failure_summary(self, top: int = 3) -> str:
+        """The most common reasons with their counts, ``reason (n) | ...``.
+
+        Reasons are grouped by their words with every number masked as ``#`` (``cond 3.1e+08`` and
+        ``cond 2.7e+08`` are one reason); a group shows its first message as it was.
+        """
+        first: dict[str, str] = {}
+        counts: collections.Counter[str] = collections.Counter()
+        for reason in self.failure:
+            if reason:
+                key = _NUMBER.sub("#", reason)
+                first.setdefault(key, reason)
+                counts[key] += 1
+        return " | ".join(f"{first[key]} ({n})" for key, n in counts.most_common(top))
+
+    def statistics(self, name: str, truth: float) -> dict[str, float]:
+        """Mean, bias in % of ``truth``, standard deviation (ddof 1) and RMSE of parameter ``name``."""
+        x = getattr(self, name)
+        x = x[np.isfinite(x)]
+        if len(x) == 0:
+            return {"mean": math.nan, "bias_pct": math.nan, "std": math.nan, "rmse": math.nan}
+        # Deviations from the first value first, so identical repetitions give a std of exactly 0.
+        d = x - x[0]
+        mean = float(x[0] + np.mean(d))
+        return {"mean": mean, "bias_pct": 100.0 * (mean - truth) / truth,
+                "std": float(np.std(d, ddof=1)) if len(x) > 1 else math.nan,
+                "rmse": float(np.sqrt(np.mean((x - truth) ** 2)))}
+
+
+#: A number in a message (integer, decimal, exponent, sign), masked when reasons are grouped.
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,7 +206,7 @@ def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
 
 def _fit_or_reason(recording: Recording, method: str, auto_delay: bool = False) -> tuple[float, float, str]:
     """Fit; where the setting has an input delay, methods that take ``input_delay`` choose it ("auto")."""
-    from identify.methods import method_options
+    from identify import method_options
     options = {"input_delay": "auto"} if auto_delay and "input_delay" in method_options(method) else {}
     try:
         est = fit(recording, method=method, outliers="keep", **options)
@@ -253,8 +307,8 @@ def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
 def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
     """All repetitions through the batch engine, in chunks of about ``_CHUNK_SAMPLES`` samples.
 
-    Batched estimators fit whole chunks, ``oe`` too (:mod:`scenarios.batch_output_error`,
-    rows it cannot fit fall back to ``identify.fit``); the others get one Recording per
+    Batched estimators fit whole chunks (:mod:`identify.batch`), ``oe`` too (rows it cannot fit
+    fall back to ``identify.fit``); the others get one Recording per
     repetition built from the same counts.
     """
     duty, n = exp.duty(), exp.n_samples
@@ -274,8 +328,8 @@ def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
                 fits.why[m][lo:hi] = f.failure
         recordings = [_batch_recording(s, duty, row) for row in counts]
         rest = {j: list(other) for j in range(hi - lo)}
-        if "oe" in other and _oe_batchable(recordings[0]):
-            a, b = _output_error_rows(s, counts, duty)
+        if "oe" in other and output_error_batchable(recordings[0]):
+            a, b = fit_output_error_batch(counts, duty, s.sample_period, s.counts_per_rev)
             for j in map(int, np.flatnonzero(np.isfinite(a))):
                 fits.a["oe"][lo + j], fits.b["oe"][lo + j] = a[j], b[j]
                 rest[j].remove("oe")
@@ -288,50 +342,6 @@ def _batch_recording(s: Setting, duty: np.ndarray, counts: np.ndarray) -> Record
     return Recording(time=np.arange(len(duty)) * s.sample_period, duty=duty, sample_period=s.sample_period,
                      counts=counts.astype(np.int64), counts_per_rev=s.counts_per_rev,
                      metadata={"source": "scenarios.batch"})
-
-
-def _oe_batchable(recording: Recording) -> bool:
-    """Whether ``oe`` would take its separable path: the shared duty excites, the segment is uniform."""
-    import warnings
-
-    from identify.data import as_recordings, check_excitation, prepare_segments
-    from identify.variable_projection import is_separable
-    recs = as_recordings(recording)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            check_excitation(recs, 2)
-    except ValueError:
-        return False
-    segments = prepare_segments(recs, 0)
-    return len(segments) == 1 and is_separable(segments, with_bias=False)
-
-
-def _output_error_rows(s: Setting, counts: np.ndarray, duty: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``oe`` of every row at once, started from ``zoh-ls``'s regression on the same counts.
-
-    The fit's minimum does not depend on where it starts (the per-fit path starts
-    unstartable rows on a grid of ``a``, here at the other rows' median: a test checks
-    that the estimates agree).
-    """
-    speed = speed_batch(counts, s.counts_per_rev, s.sample_period)
-    theta1, _, _ = regression_batch(speed, duty)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        start = np.where((theta1 > 0) & (theta1 < 1), -np.log(theta1) / s.sample_period, np.nan)
-    angle = counts * (2.0 * math.pi / s.counts_per_rev)
-    a, b = output_error_batch(angle, duty, s.sample_period, start)
-    # rows the regression could not start (noisy, fast sines): from the median of the fitted
-    # rows, or from identify's grid start on the first row when none was fitted
-    late = np.flatnonzero(~np.isfinite(start))
-    if len(late):
-        if np.any(np.isfinite(a)):
-            a0 = float(np.nanmedian(a))
-        else:
-            from identify.data import as_recordings, prepare_segments
-            from identify.start import grid_guess
-            a0 = grid_guess(prepare_segments(as_recordings(_batch_recording(s, duty, counts[late[0]])), 0))[0]
-        a[late], b[late] = output_error_batch(angle[late], duty, s.sample_period, np.full(len(late), a0))
-    return a, b
 
 
 def _run_point_job(point: GridPoint, methods: tuple, repetitions: int, seed: int) -> PointResult:

@@ -111,7 +111,7 @@ def estimate_sweep_time(scenario: Scenario, workers: int | None = None) -> Sweep
     import scipy.optimize  # noqa: F401  (loaded here so that no probe below is timed with its import)
     import scipy.signal  # noqa: F401  (likewise: the estimators import it on first use)
 
-    from identify.methods import method_function
+    from identify import method_function
 
     from .sweep import run_point, runs_batched
     for method in scenario.methods:

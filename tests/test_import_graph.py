@@ -163,3 +163,62 @@ def test_nothing_outside_the_app_imports_it():
                  if a.split(".")[0] != "motorid"
                  for b, line in sorted(targets.items()) if b.split(".")[0] == "motorid"]
     assert not offenders, "only motorid may import motorid:\n" + "\n".join(offenders)
+
+
+#: What a package may import of another: ``PUBLIC[importer][imported]`` is ``"package"`` when only the
+#: names the imported package exports (its ``__all__``) count as public, ``"module"`` when a
+#: module's own ``__all__`` counts too (the module and the name not underscore-prefixed).  identify's
+#: public names are its package index (its modules are topic modules behind it); motorsim's modules
+#: are public one by one (``motorsim.checks``, ``motorsim.batch``, ...).
+PUBLIC = {"scenarios": {"identify": "package", "motorsim": "module"}}
+
+
+def _public_names(module: str) -> set[str]:
+    import importlib
+    return set(getattr(importlib.import_module(module), "__all__", ()))
+
+
+def private_imports(tree: ast.Module, rules: dict[str, str]) -> list[str]:
+    """The imports in ``tree`` of names that ``rules`` (imported package -> "package" or "module")
+    does not count as public, each as ``"module.name (line N)"``."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            pairs = [(alias.name, None) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            pairs = [(node.module, alias.name) for alias in node.names]
+        else:
+            continue
+        for module, name in pairs:
+            package = module.split(".")[0]
+            if package not in rules:
+                continue
+            if name is None:        # ``import identify.x``: every name of the module within reach
+                if module != package:
+                    found.append(f"{module} (line {node.lineno})")
+                continue
+            public = name in _public_names(package) or (
+                rules[package] == "module" and not any(p.startswith("_") for p in module.split("."))
+                and name in _public_names(module))
+            if name.startswith("_") or not public:
+                found.append(f"{module}.{name} (line {node.lineno})")
+    return found
+
+
+def test_private_imports_are_found():
+    source = ("from identify import fit\nfrom identify.sensitivity import phi_functions\n"
+              "def f():\n    from motorsim.plant import Motor, _private\n    import identify.data\n"
+              "from motorsim.checks import ParameterError\n")
+    found = private_imports(ast.parse(source), PUBLIC["scenarios"])
+    assert found == ["identify.sensitivity.phi_functions (line 2)", "motorsim.plant._private (line 4)",
+                     "identify.data (line 5)"]
+
+
+@pytest.mark.parametrize("importer", sorted(PUBLIC))
+def test_imports_across_packages_are_public(importer):
+    offenders = []
+    for module, path in sorted(_sources().items()):
+        if module.split(".")[0] == importer:
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+            offenders += [f"{module} imports {x}" for x in private_imports(tree, PUBLIC[importer])]
+    assert not offenders, f"{importer} may import only public names:\n" + "\n".join(offenders)

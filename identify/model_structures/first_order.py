@@ -74,6 +74,23 @@ class FirstOrder(ModelStructure):
         left, = project_out_initial_state(s0, angle, segment.output - (resp.angle if angle else resp.speed))
         return segment.output - left
 
+    def values_from_discrete(self, pole: np.ndarray, gain: np.ndarray,
+                             sample_period: float) -> tuple[np.ndarray, np.ndarray]:
+        """``a`` and ``b`` of the exact zero-order-hold model with this pole and gain, elementwise.
+
+        The inverse of :meth:`discrete_linear_part`: ``omega[k+1] = pole omega[k] + gain u[k]`` with
+        ``pole = exp(-a h)`` and ``gain = (b/a)(1 - pole)``, so ``a = -ln(pole)/h`` and
+        ``b = a gain/(1 - pole)``; ``nan`` where ``pole`` is not in (0, 1) (no stable model of this
+        structure has it).
+        """
+        pole = np.asarray(pole, dtype=float)
+        ok = (pole > 0) & (pole < 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inside = np.where(ok, pole, 0.5)
+            a = -np.log(inside) / sample_period
+            b = a * gain / (1.0 - inside)
+        return np.where(ok, a, np.nan), np.where(ok, b, np.nan)
+
 
 class FirstOrderBias(FirstOrder):
     """``b / (s + a)`` and a constant acceleration ``d``."""

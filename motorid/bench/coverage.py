@@ -92,7 +92,7 @@ def bench_coverage(argv: Sequence[str]) -> int:
             hit = ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
             covered += hit
             close += abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01
-            called = bool(est.selection and est.selection.get("clear"))
+            called = bool(est.selection and est.selection.clear)
             clear += called
             clear_covered += called and hit
         share = covered / args.seeds

@@ -97,14 +97,14 @@ def _fits(samples: int, repeats: int, verbose: bool) -> list[tuple[Goal, float]]
                                  (FRICTION_FIT_GOAL, OE_FRICTION_GOAL))):
         rec = _multisine(samples, share)
         default = fit(rec)
-        chosen = default.selection["chosen"] if default.selection else {}
+        chosen = default.selection.chosen.label if default.selection else "no selection"
         t_default, t_oe, t_friction = interleaved_times(
             [functools.partial(fit, rec), functools.partial(fit, rec, "oe", input_delay=0),
              functools.partial(fit, rec, "oe-friction", input_delay=0)], repeats)
         figures += [(goals[0], t_default / t_oe), (goals[1], t_friction / t_oe)]
         if verbose:
-            print(f"{label:28s} {samples} samples: default {1e3 * t_default:7.1f} ms ({chosen.get('structure')}, "
-                  f"delay {chosen.get('input_delay')}), one oe fit {1e3 * t_oe:6.2f} ms, one oe-friction fit "
+            print(f"{label:28s} {samples} samples: default {1e3 * t_default:7.1f} ms ({chosen}), "
+                  f"one oe fit {1e3 * t_oe:6.2f} ms, one oe-friction fit "
                   f"{1e3 * t_friction:6.2f} ms")
     return figures
 

@@ -16,11 +16,12 @@ from typing import Sequence
 
 import numpy as np
 
+from identify import fit_batch
 from motorid.bench.flags import integer
 from motorid.bench.timing import median_time
+from motorsim.batch import encoder_counts_batch, simulate_batch, speed_batch
 from motorsim.excitation import Sine
 from motorsim.plant import Motor
-from scenarios.batch import encoder_counts_batch, fit_batch, simulate_batch, speed_batch
 
 __all__ = ["bench_sweep", "python_control_loop"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from motorid.arguments import CommandError, print_to_stderr
 from motorid.commands.importing import (
@@ -15,6 +15,9 @@ from motorid.commands.importing import (
 )
 from motorid.progress import Ticker
 from motorsim.recording import Recording
+
+if TYPE_CHECKING:
+    from identify.selection_report import SelectionReport
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation",
            "in_speed_unit"]
@@ -82,7 +85,7 @@ def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword options the flags give the estimator; a flag the method does not take is an error."""
-    from identify.methods import method_options
+    from identify import method_options
     accepted = method_options(args.method)
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
@@ -92,7 +95,8 @@ def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
         if value is unset:
             continue
         if name not in accepted:
-            raise CommandError(f"{flag} is not supported by method {args.method!r}")
+            takes = f"its options are {', '.join(accepted)}" if accepted else "it takes no options"
+            raise CommandError(f"{flag} is not supported by method {args.method!r}: {takes}")
         options[name] = value
     return options
 
@@ -189,21 +193,20 @@ def _say_estimate(files: list[str]) -> None:
                         f"{max(1, round(SECONDS_PER_BYTE * total))} s (longer when friction is fitted)")
 
 
-def format_selection(selection: dict, checks: dict[str, float]) -> str:
+def format_selection(selection: SelectionReport, checks: dict[str, float]) -> str:
     """The ``model`` section: the chosen structure, the runner-up in plain words, the residual checks."""
-    chosen = selection["chosen"]
-    lines = [f"model       {chosen['structure']}, input delay {chosen['input_delay']} samples ({chosen['method']}), "
+    chosen = selection.chosen
+    lines = [f"model       {chosen.structure}, input delay {chosen.input_delay} samples ({chosen.method}), "
              f"chosen as the simplest fit within the noise of the best; "
-             + ("a clear choice" if selection["clear"] else "NOT a clear choice (see the note)")]
-    other = selection.get("runner_up")
+             + ("a clear choice" if selection.clear else "NOT a clear choice (see the note)")]
+    other = selection.runner_up
     if other:
-        if other["within_noise"]:
+        if other.within_noise:
             words = "the data cannot tell it from the chosen one"
         else:
-            words = f"fits worse by {other['statistic']:.3g} noise units (the test's threshold is about 11)"
-        lines.append(f"  runner-up {other['structure']}, input delay {other['input_delay']}: {words}")
-    fitted = sum(1 for c in selection["candidates"] if c.get("residual_sum") is not None)
-    lines.append(f"  compared  {fitted} candidate fits (structure x input delay; --json lists them)")
+            words = f"fits worse by {other.statistic:.3g} noise units (the test's threshold is about 11)"
+        lines.append(f"  runner-up {other.structure}, input delay {other.input_delay}: {words}")
+    lines.append(f"  compared  {len(selection.candidates)} candidate fits (structure x input delay; --json lists them)")
 
     def verdict(p: float, good: str, bad: str) -> str:
         if not p == p:          # nan: e.g. the speed never changes sign

@@ -293,7 +293,7 @@ def _report(args: argparse.Namespace, recording, path, running, plot=None) -> in
                            f"({loss_pct:.3g} %), above --max-loss {args.max_loss:g} %; {path} is kept but not "
                            f"identified: check the cable and the baud rate, or raise --max-loss")
     from hardware.protocol import DEVICE_INPUT_DELAY
-    from identify.methods import method_options
+    from identify import method_options
     # the device applies each duty one tick after its sample: a known delay, not one to search for
     options = {"input_delay": DEVICE_INPUT_DELAY} if "input_delay" in method_options(args.method) else {}
     estimate = fit(recording, method=args.method, outliers="keep", **options)

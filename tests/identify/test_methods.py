@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from identify import available_methods
-from identify.methods import method_function, method_options
+from identify import DEFAULT_METHOD, available_methods, check_options, fit, method_options, option_declarations
+from identify.methods import method_function
+from motorsim import Experiment, Motor, SimRig, Sine
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 
@@ -17,7 +18,48 @@ def test_every_registered_name_resolves_to_an_estimator_of_this_package(method):
     function = method_function(method)
     assert callable(function) and function.__module__.startswith("identify.")
     assert next(iter(inspect.signature(function).parameters)) == "recordings"
-    assert method_options(method) == tuple(inspect.signature(function).parameters)[1:]
+
+#: Every method's options as its function took them before they were declared (its signature after the
+#: recordings): the declaration accepts exactly these.
+ACCEPTED = {
+    "auto": ("input_delay", "structures", "fix_bias"),
+    "euler-ls": (),
+    "zoh-ls": (),
+    "oe": ("input_delay", "fit_bias", "jac", "covariance"),
+    "iv": ("input_delay", "iterations"),
+    "oe-friction": ("input_delay", "fix_bias", "dead_zone"),
+    "iv-reference": ("input_delay",),
+    "oe-electrical": ("input_delay",),
+    "pem-disturbance": ("input_delay", "friction", "disturbance_pole"),
+}
+
+
+def test_every_method_accepts_the_options_it_accepted():
+    assert {m: method_options(m) for m in (DEFAULT_METHOD, *available_methods())} == ACCEPTED
+
+
+@pytest.mark.parametrize("method", [DEFAULT_METHOD, *available_methods()])
+def test_each_declaration_is_its_functions_keywords_with_their_defaults(method):
+    # the declaration is what fit and the command line check: it must be what the function takes
+    params = list(inspect.signature(method_function(method)).parameters.values())[1:]
+    declared = option_declarations(method)
+    assert [(o.name, o.default) for o in declared] == [(p.name, p.default) for p in params]
+    assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in params)
+    assert all(o.kind and o.help and "\n" not in o.help for o in declared)
+
+
+@pytest.mark.parametrize("method, option, message", [
+    ("oe", "fix_bias", "method 'oe' has no option 'fix_bias': its options are input_delay, fit_bias, jac, covariance"),
+    ("zoh-ls", "input_delay", "method 'zoh-ls' has no option 'input_delay': it takes no options"),
+    ("auto", "fit_bias", "method 'auto' has no option 'fit_bias': its options are input_delay, structures, fix_bias"),
+], ids=["oe", "none", "auto"])
+def test_an_option_the_method_does_not_take_is_refused_naming_it(method, option, message):
+    rec = SimRig(Motor(25.0, 3.0)).run(Experiment(Sine(10.0, 200), 0.005, 1.0))
+    with pytest.raises(TypeError, match=message):         # as Python's own for an unexpected keyword
+        fit(rec, method, **{option: True})
+    with pytest.raises(ValueError, match="method must be one of"):
+        check_options("ols", {})
+    check_options(method, {o: None for o in ACCEPTED[method]})       # every declared one passes
 
 
 def test_an_unknown_name_is_refused_with_the_known_ones():

@@ -104,5 +104,5 @@ def test_the_default_picks_the_structure_that_predicts_the_held_out_step_best():
             est = fit(prbs, method, input_delay="auto", **options)
             scores[name] = validate(est, step).fit_percent
     assert validate(default, step).fit_percent >= max(scores.values()) - 0.05
-    assert default.selection["chosen"]["input_delay"] == 1          # the lab's own model has one sample
+    assert default.selection.chosen.input_delay == 1          # the lab's own model has one sample
     assert abs(math.degrees(default.static_gain) / K_STATIC - 1) < 0.02

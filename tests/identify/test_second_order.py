@@ -122,7 +122,7 @@ def test_a_delay_at_the_edge_of_what_the_data_allow_is_never_clear():
     rec = rig.run(Experiment(MULTISINE, 0.005, 1.2))            # 240 rows: delays up to 12 only
     est = fit(rec)
     if est.input_delay == 12:
-        assert not est.selection["clear"] and "longest searched" in est.selection["doubt"]
+        assert not est.selection.clear and "longest searched" in est.selection.doubt
 
 
 @pytest.mark.parametrize("counts_per_rev, sample_period", [(360, 0.002), (1000, 0.005), (360, 0.005)])
@@ -160,4 +160,4 @@ def test_a_speed_column_averaged_over_each_interval_is_not_a_clear_second_pole()
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= 25.0 <= ci["a"][1] and ci["b"][0] <= 3.0 <= ci["b"][1]
     if est.structure == "second-order":
-        assert not est.selection["clear"] and "average speed over each interval" in est.selection["doubt"]
+        assert not est.selection.clear and "average speed over each interval" in est.selection.doubt

@@ -7,7 +7,6 @@ against the truth by one rule: ``a`` and ``b`` within 1 % of the truth, or the t
 inside intervals narrower than +-25 %.
 """
 import dataclasses
-import json
 import math
 
 import numpy as np
@@ -15,6 +14,7 @@ import pytest
 
 from identify import Estimate, fit
 from identify.comparison import LEVEL, threshold
+from identify.estimate import json_ready
 from identify.selection import fit_selected, residual_checks, select_model
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, SimRig, Sine
 
@@ -50,22 +50,22 @@ def test_one_sine_on_a_hobby_encoder_is_right_or_honestly_doubtful(counts, omega
         # only honest doubt is allowed instead: the truth inside the intervals, the choice called unclear
         # (measured: 44 counts at 30 rad/s, 3.5 counts of amplitude: b -1.3 %, interval [2.90, 5.49])
         ci = est.confidence_interval(0.95)
-        assert not est.selection["clear"], missed
+        assert not est.selection.clear, missed
         assert all(ci[n][0] <= t <= ci[n][1] for n, t in (("a", A), ("b", B))), missed
-    assert est.input_delay == 0 and est.selection["chosen"]["structure"] == "linear"
+    assert est.input_delay == 0 and est.selection.chosen.structure == "linear"
     # the candidates the data cannot rule out are inside the intervals, and an unclear choice says why
     ci = est.confidence_interval(0.95)
-    for c in est.selection["candidates"]:
-        if c["within_noise"]:
-            assert ci["a"][0] <= c["a"] <= ci["a"][1] and ci["b"][0] <= c["b"] <= ci["b"][1]
-    if not est.selection["clear"]:
-        assert "a second frequency" in est.selection["doubt"] and est.selection["doubt"] in est.notes
+    for c in est.selection.candidates:
+        if c.within_noise:
+            assert ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1]
+    if not est.selection.clear:
+        assert "a second frequency" in est.selection.doubt and est.selection.doubt in est.notes
 
 
 @pytest.mark.parametrize("delay", [1, 2, 3, 4])
 def test_a_multisine_finds_the_true_delay(delay):
     est = fit(_run(input_delay=delay, noise=1e-4))
-    assert est.input_delay == delay and est.selection["clear"]
+    assert est.input_delay == delay and est.selection.clear
     assert est.a == pytest.approx(A, rel=1e-3) and est.b == pytest.approx(B, rel=1e-3)
 
 
@@ -73,7 +73,7 @@ def test_a_multisine_finds_the_true_delay(delay):
 def test_coulomb_friction_is_chosen_and_fitted(share):
     friction = share * B * 200                       # a share of the largest drive b u
     est = fit(_run(Sine(10.0, 200), friction=friction))
-    assert est.selection["chosen"]["structure"] in ("friction", "dead-zone")
+    assert est.selection.chosen.structure in ("friction", "dead-zone")
     assert est.input_delay == 0
     assert not _accepted(est, {"a": A, "b": B})
     assert est.extra["friction"] == pytest.approx(friction, rel=0.05) or est.extra["dead_zone"] > 0
@@ -81,14 +81,14 @@ def test_coulomb_friction_is_chosen_and_fitted(share):
 
 def test_a_bias_is_chosen_and_fitted():
     est = fit(_run(bias=40.0))
-    assert est.selection["chosen"]["structure"] == "bias"
+    assert est.selection.chosen.structure == "bias"
     assert est.a == pytest.approx(A, rel=1e-3) and est.extra["bias"] == pytest.approx(40.0, rel=1e-2)
 
 
 @pytest.mark.parametrize("zone", [15.0, 30.0])
 def test_a_dead_zone_is_chosen_and_fitted(zone):
     est = fit(_run(Sine(10.0, 200), dead_zone=zone))
-    assert est.selection["chosen"]["structure"] == "dead-zone"
+    assert est.selection.chosen.structure == "dead-zone"
     assert est.a == pytest.approx(A, rel=0.01) and est.b == pytest.approx(B, rel=0.01)
     assert est.extra["dead_zone"] == pytest.approx(zone, rel=0.02)
 
@@ -96,7 +96,7 @@ def test_a_dead_zone_is_chosen_and_fitted(zone):
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_clean_linear_motor_stays_linear_within_a_thousandth(seed):
     est = fit(_run(noise=1e-4, seed=seed))
-    assert est.selection["chosen"]["structure"] == "linear" and est.input_delay == 0
+    assert est.selection.chosen.structure == "linear" and est.input_delay == 0
     assert est.a == pytest.approx(A, rel=1e-3) and est.b == pytest.approx(B, rel=1e-3)
     assert est.method == "oe" and "friction" not in est.extra
 
@@ -106,8 +106,8 @@ def test_the_default_is_fit_selected_and_reproducible_by_its_method():
     est = fit(rec)
     same = fit_selected(rec)
     assert est.a == same.a and est.b == same.b
-    chosen = est.selection["chosen"]
-    forced = fit(rec, est.method, input_delay=chosen["input_delay"])
+    chosen = est.selection.chosen
+    forced = fit(rec, est.method, input_delay=chosen.input_delay)
     assert forced.a == est.a and forced.b == est.b
 
 
@@ -115,9 +115,9 @@ def test_every_candidate_is_scored_by_the_model_that_is_returned():
     # the chosen candidate's fit on the common rows and the returned fit on all rows are one model
     rec = _run(Sine(10.0, 200), friction=90.0)
     est = fit(rec)
-    chosen = est.selection["chosen"]
-    assert chosen["method"] == est.method == "oe-friction"
-    assert est.a == pytest.approx(chosen["a"], rel=1e-3) and est.b == pytest.approx(chosen["b"], rel=1e-3)
+    chosen = est.selection.chosen
+    assert chosen.method == est.method == "oe-friction"
+    assert est.a == pytest.approx(chosen.a, rel=1e-3) and est.b == pytest.approx(chosen.b, rel=1e-3)
 
 
 def test_oe_friction_ranks_its_own_delays_by_its_own_fits():
@@ -138,7 +138,7 @@ def test_a_delay_at_the_top_of_the_range_is_never_returned_silently():
 def test_friction_is_not_fitted_when_the_speed_never_reverses_and_the_note_says_so():
     rec = _run(Sine(10.0, 60), bias=300.0)          # always forward: friction acts as a constant
     est = fit(rec)
-    assert est.selection["chosen"]["structure"] == "bias"
+    assert est.selection.chosen.structure == "bias"
     assert any("never reverses" in n for n in est.notes)
 
 
@@ -175,7 +175,8 @@ def test_data_that_cannot_answer_are_said_plainly():
 def test_selection_and_range_survive_json():
     est = fit(_run(Sine(10.0, 200), counts=44))
     back = Estimate.from_json(est.to_json())
-    assert back.selection == json.loads(json.dumps(est.selection))
+    assert back.selection is not None and json_ready(back.selection.to_dict()) == json_ready(est.selection.to_dict())
+    assert back.to_json() == est.to_json()          # the typed report writes back what it read
     assert back.notes == est.notes
     for name in ("a", "b"):
         assert back.confidence_interval()[name] == pytest.approx(est.confidence_interval()[name])
@@ -195,9 +196,9 @@ def test_a_device_that_declares_its_delay_is_never_given_less():
     rec = _run(Sine(10.0, 200), counts=44, input_delay=1)
     declared = dataclasses.replace(rec, metadata={**rec.metadata, "input_delay_samples": "1"})
     est = fit(declared)
-    assert est.input_delay >= 1 and all(c["input_delay"] >= 1 for c in est.selection["candidates"])
+    assert est.input_delay >= 1 and all(c.input_delay >= 1 for c in est.selection.candidates)
     assert any("input_delay_samples" in n for n in est.notes)
-    assert not _accepted(est, {"a": A, "b": B}) or not est.selection["clear"]
+    assert not _accepted(est, {"a": A, "b": B}) or not est.selection.clear
 
 
 def test_delayed_segments_equal_each_delays_own_preparation():
@@ -244,7 +245,7 @@ def test_friction_and_dead_zones_are_found_beyond_the_sine(excitation, plant):
     # (71 % fit against 95 %) was kept, and every delay called within the noise
     rec = _run(excitation, counts=1000, duration=10.0, **plant)
     est = fit(rec)
-    structure = est.selection["chosen"]["structure"]
+    structure = est.selection.chosen.structure
     if "dead_zone" in plant and isinstance(excitation, PRBS):
         # a binary input never enters the dead zone: it is exactly the gain b (1 - z/180), which the
         # data cannot tell from b; that is returned, and the note says why and what would separate them
@@ -266,13 +267,13 @@ def test_the_range_carries_each_candidates_own_interval():
     # each candidate's own interval (the chosen fit's, carried to its value) reaches it
     rec = _run(Sine(10.0, 200), counts=100, noise=2e-4, seed=11, friction=150.0, input_delay=2)
     est = fit(rec)
-    assert not est.selection["clear"]
+    assert not est.selection.clear
     lo, hi = est.confidence_interval(0.95)["b"]
-    spanned = [c["b"] for c in est.selection["candidates"] if c["within_noise"]]
+    spanned = [c.b for c in est.selection.candidates if c.within_noise]
     assert hi > max(spanned) and lo < min(spanned)
     assert not _accepted(est, {"a": A, "b": B}), est.notes
-    assert any(c["structure"] == "friction" and c["input_delay"] == 2 and c["within_noise"]
-               for c in est.selection["candidates"])
+    assert any(c.structure == "friction" and c.input_delay == 2 and c.within_noise
+               for c in est.selection.candidates)
 
 
 def test_on_a_handful_of_counts_every_candidate_as_close_as_the_best_is_covered():
@@ -280,15 +281,15 @@ def test_on_a_handful_of_counts_every_candidate_as_close_as_the_best_is_covered(
     # candidates' residual sums differ by under 1 %; every such candidate's a and b lie in the intervals
     rig = SimRig(Motor(A, B), Encoder(44), drop_rate=0.02, rng=np.random.default_rng(3))
     est = fit(rig.run(Experiment(Sine(40.0, 200, 0.9), DT, 10.0)))
-    assert any("sweeps only" in n for n in est.notes) and not est.selection["clear"]
+    assert any("sweeps only" in n for n in est.notes) and not est.selection.clear
     ci = est.confidence_interval(0.95)
-    cands = est.selection["candidates"]
+    cands = est.selection.candidates
     # the first-order family's: a second pole fits the rounding closer still, and is covered too
-    least = min(c["residual_sum"] for c in cands if c["structure"] != "second-order")
-    close = [c for c in cands if c["residual_sum"] <= 1.01 * least]
+    least = min(c.residual_sum for c in cands if c.structure != "second-order")
+    close = [c for c in cands if c.residual_sum <= 1.01 * least]
     assert len(close) > 4
     for c in close:
-        assert ci["a"][0] <= c["a"] <= ci["a"][1] and ci["b"][0] <= c["b"] <= ci["b"][1], c
+        assert ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1], c
     # and every interval allows one count in the 5 swept (20 %) around each of them: the truth is inside
     assert any("one count in 5" in n for n in est.notes)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
@@ -326,7 +327,7 @@ def test_no_screen_overrules_a_fit_friction_left_out_is_fitted_when_the_residual
     monkeypatch.setattr(selection, "SCREEN_SHARE", 2.0)
     rig = SimRig(Motor(A, B, friction=100.0), Encoder(angle_noise=1e-4), rng=np.random.default_rng(4))
     est = fit(rig.run(Experiment(Sine(10.0, 200), DT, 10.0)))
-    assert est.selection["chosen"]["structure"] in ("friction", "dead-zone")
+    assert est.selection.chosen.structure in ("friction", "dead-zone")
     assert any("fitted after all" in n for n in est.notes)
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
@@ -364,7 +365,7 @@ def test_a_position_loop_with_friction_and_a_fed_back_load_is_never_a_narrow_wro
     covered = ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
     close = abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01
     assert covered or close
-    assert covered or not est.selection["clear"]
+    assert covered or not est.selection.clear
 
 
 def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
@@ -377,4 +378,4 @@ def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
         return dataclasses.replace(est, covariance=np.full_like(est.covariance, np.inf), model_range={})
     monkeypatch.setattr(selection, "_chosen_fit", singular)
     est = fit(_run(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3))))
-    assert not est.selection["clear"] and "no finite interval for a and b" in est.selection["doubt"]
+    assert not est.selection.clear and "no finite interval for a and b" in est.selection.doubt

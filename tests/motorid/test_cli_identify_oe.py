@@ -43,8 +43,10 @@ def test_friction_flags_reach_the_estimator(runs, capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--method", "zoh-ls", "--input-delay", "2"], "--input-delay is not supported by method 'zoh-ls'"),
-    (["--method", "oe", "--fix-bias"], "--fix-bias is not supported by method 'oe'"),
+    (["--method", "zoh-ls", "--input-delay", "2"],
+     "--input-delay is not supported by method 'zoh-ls': it takes no options"),
+    (["--method", "oe", "--fix-bias"],
+     "--fix-bias is not supported by method 'oe': its options are input_delay, fit_bias, jac, covariance"),
 ], ids=["input-delay-zoh-ls", "fix-bias-oe"])
 def test_unsupported_flags_are_user_errors(runs, capsys, argv, message):
     train, _ = runs

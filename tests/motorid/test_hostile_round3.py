@@ -236,8 +236,8 @@ def test_fix_bias_holds_the_bias_at_zero_in_the_default_fit_too(rec_path):
     from identify import fit
     from motorsim import read_recording
     rec = read_recording(rec_path)
-    structures = {c["structure"] for c in fit(rec, fix_bias=True).selection["candidates"]}
-    assert "bias" in {c["structure"] for c in fit(rec).selection["candidates"]} and "bias" not in structures
+    structures = {c.structure for c in fit(rec, fix_bias=True).selection.candidates}
+    assert "bias" in {c.structure for c in fit(rec).selection.candidates} and "bias" not in structures
 
 
 @pytest.mark.parametrize("argv, match", [

@@ -17,6 +17,7 @@ from motorid.commands.sweep import format_sweep_table
 from scenarios.scenario import load_scenario, scenario_from_dict
 from scenarios.sweep import (
     CSV_COLUMNS,
+    MethodOutcome,
     read_sweep_csv,
     repetition_seed,
     run_point,
@@ -138,13 +139,14 @@ def test_failed_fits_are_counted_with_their_reason_not_dropped(tmp_path):
 
 
 def test_estimators_are_found_by_name(monkeypatch, tmp_path):
-    # A new entry in identify's method table is swept without any change to the sweep;
+    # A new entry in identify's method table (and its options, none) is swept without any change to the sweep;
     # it has no batched implementation, so it goes through identify.fit on the same counts.
     def shifted(recordings):
         import dataclasses
         est = identify.fit_zoh_ls(recordings)
         return dataclasses.replace(est, method="shifted", a=est.a + 1.0)
     monkeypatch.setitem(identify.methods._METHODS, "shifted", shifted)
+    monkeypatch.setitem(identify.methods._OPTIONS, "shifted", ())
     data = {"repetitions": 3, "seed": 1, "bench": {"duration": 1.0, "angle_noise": 2e-4}}
     summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = {r["method"]: r for r in read_sweep_csv(summary.csv_path)}
@@ -286,3 +288,12 @@ def test_batched_oe_equals_identify_fit_per_repetition(frequency, angle_noise):
     np.testing.assert_allclose(f.a, s.a, rtol=1e-9)
     np.testing.assert_allclose(f.b, s.b, rtol=1e-9)
     assert format_sweep_table(scenario, fast.rows()) == format_sweep_table(scenario, slow.rows())
+
+
+def test_failure_reasons_group_by_the_message_with_its_numbers_masked():
+    # each repetition's message carries its own figure; grouped verbatim, every group had one member
+    failures = ("singular: cond 3.1e+08 after 12 steps", "singular: cond 2.7e+08 after 9 steps", "",
+                "recording is too short: 1 regression rows", "singular: cond -4e+07 after 3 steps")
+    outcome = MethodOutcome("oe", np.zeros(5), np.zeros(5), failures)
+    assert outcome.failure_summary() == ("singular: cond 3.1e+08 after 12 steps (3) | "
+                                         "recording is too short: 1 regression rows (1)")

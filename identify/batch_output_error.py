@@ -1,8 +1,8 @@
 """``oe`` on many repetitions at once: the separable Gauss--Newton of ``identify.variable_projection`` row by row.
 
-The repetitions of one sweep point share the duty and the (uniform) clock and
-differ only in their encoder readings, so every quantity of the separable fit
-(:mod:`identify.variable_projection`: ``b``, the initial speed and the offset
+The kernel of :func:`identify.batch.fit_output_error_batch`.  The repetitions of one sweep
+point share the duty and the (uniform) clock and differ only in their encoder readings, so
+every quantity of the separable fit (:mod:`identify.variable_projection`: ``b``, the initial speed and the offset
 projected out, Gauss--Newton in ``a`` alone) is a 2-D array with one row per
 repetition and one ``a`` per row.  The first-order filters with a different
 pole per row are solved in closed form over blocks,
@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from identify.sensitivity import phi_functions
+from .sensitivity import phi_functions
 
 __all__ = ["output_error_batch"]
 

@@ -1,0 +1,309 @@
+"""Recordings made inside a feedback loop: recognised, and fitted by a method that stays consistent there.
+
+In a closed loop the duty answers the measured output, so whatever disturbs the shaft reaches
+the duty too, and an output-error fit (``oe``, ``oe-friction``: the default's candidates) is
+biased by it -- by 30 % and more in a position loop with a load torque.  :func:`feedback_evidence`
+says why a recording looks closed loop:
+
+* the file has a ``reference`` column (what a controller tracked), or
+* its metadata name a ``controller`` (every closed-loop run motorsim records says so), or
+* the duty is explained by the measured output beyond what its own past explains: regressed on
+  its last :data:`INPUT_LAGS` values, the duty's residual shrinks by at least :data:`FEEDBACK_SHARE`
+  when the output (the angle and its last two differences, or the speed and its last two values)
+  at the same and the previous samples joins them.  An open-loop duty is set beforehand, so the
+  output, which only answers it, adds nothing beyond its past: on every open-loop run the tests
+  try (sines, multisines, chirps, PRBS, steps, the lab's files) the share stays below 5 %.
+
+:func:`fit_closed_loop` then fits ``pem-disturbance`` (:mod:`identify.prediction_error`: a
+prediction-error fit with a torque disturbance entering where the input does) with and without
+Coulomb friction, at each delay in ``0 ... CLOSED_LOOP_DELAYS`` (from a declared one), widening
+the range, doubling, to :data:`CLOSED_LOOP_LARGEST_DELAY` while a delay at its top cannot be ruled
+out (in a stiff loop the prediction errors tell neighbouring delays apart only weakly), and
+chooses by the likelihood ratio (the simplest candidate within the noise of the best, at the
+default's level).  Every candidate the data cannot rule out whose ``a`` or ``b`` falls outside
+the chosen fit's interval widens it.  The fit is consistent under feedback only when the
+disturbance model describes the real one, which the data can only test, so the chosen candidate
+is refitted with the disturbance as a random walk and the interval always holds both fits'
+intervals; the choice is called clear only when the two agree, no other candidate widened the
+interval, the delay is not at the top of the range searched, and the innovations are white.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from motorsim.checks import ParameterError, check_int
+from motorsim.recording import Recording
+
+from .comparison import LEVEL, Candidate, Selection, largest_delay, threshold
+from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
+from .errors import NotIdentifiableError
+from .estimate import Estimate
+from .friction import speed_reverses
+from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_error, solve_prediction_error
+from .selection_report import SelectionReport
+
+__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "FEEDBACK_SHARE", "INPUT_LAGS",
+           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "TEST_ROWS"]
+
+#: Share of the duty's unexplained variance the output must explain for a recording to count as closed loop.
+FEEDBACK_SHARE = 0.3
+#: Past duty values the duty is first regressed on.
+INPUT_LAGS = 10
+#: Rows of each recording the data test looks at.
+TEST_ROWS = 4_000
+#: The input delays, in samples, the closed-loop fit tries first (from the declared one) ...
+CLOSED_LOOP_DELAYS = 3
+#: ... and the largest it widens to, doubling, while the best is at the top (fewer on short data).
+CLOSED_LOOP_LARGEST_DELAY = 15
+
+
+def feedback_share(recording: Recording) -> float:
+    """Share of the duty's innovation that the output's innovation at the same or the previous sample explains.
+
+    The duty's innovation is what its own last :data:`INPUT_LAGS` values leave unexplained; the output's
+    (the angle, else the speed) is what its own and the duty's last :data:`INPUT_LAGS` values leave.  In open
+    loop the duty is set beforehand: the output's innovation, noise and disturbance, cannot reach it.  In a
+    closed loop the controller answers the output at once.
+
+    Parameters
+    ----------
+    recording : Recording
+        One run (its first :data:`TEST_ROWS` rows of gap-free stretches are used).
+
+    Returns
+    -------
+    float
+        The squared canonical correlation, in [0, 1]; nan when the run is too short or either innovation vanishes.
+    """
+    nu: list[np.ndarray] = []
+    eta: list[np.ndarray] = []
+    used = 0
+    for seg in recording.segments():
+        if used >= TEST_ROWS:
+            break
+        seg = seg.slice(0, min(len(seg), TEST_ROWS - used))
+        used += len(seg)
+        n = len(seg)
+        if n < max(MIN_SEGMENT_SAMPLES, 6 * INPUT_LAGS):
+            continue
+        u = np.asarray(seg.duty, dtype=float)
+        angle = seg.measured_angle()
+        y = np.asarray(angle if angle is not None else seg.speed, dtype=float)
+        m = n - INPUT_LAGS
+        X = np.empty((m, 2 * INPUT_LAGS + 1))        # row k: u and y at k-L ... k-1, and 1
+        X[:, :INPUT_LAGS] = sliding_window_view(u[:-1], INPUT_LAGS)
+        X[:, INPUT_LAGS:-1] = sliding_window_view(y[:-1], INPUT_LAGS)
+        X[:, -1] = 1.0
+        own = np.r_[np.arange(INPUT_LAGS), 2 * INPUT_LAGS]
+        nu_k = _residual(X[:, own], u[INPUT_LAGS:])
+        eta_k = _residual(X, y[INPUT_LAGS:])
+        nu.append(nu_k[1:])
+        eta.append(np.column_stack([eta_k[1:], eta_k[:-1]]))
+    if not nu:
+        return math.nan
+    v = np.concatenate(nu)
+    E = np.vstack(eta)
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(E))):
+        return math.nan
+    vv = float(v @ v)
+    if not vv > 0 or not np.all(np.linalg.norm(E, axis=0) > 0):
+        return math.nan
+    explained = v - _residual(E, v)
+    return float(min(max(float(explained @ explained) / vv, 0.0), 1.0))
+
+
+def _residual(X: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``t`` less its least-squares projection on the columns of ``X`` (scaled first; by the normal equations,
+    with a ridge of 1e-10 of their scale, which is all a share to two digits needs)."""
+    scale = np.linalg.norm(X, axis=0)
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    G = Xs.T @ Xs
+    coef = np.linalg.solve(G + 1e-10 * np.eye(len(G)), Xs.T @ t)
+    return t - Xs @ coef
+
+
+def feedback_evidence(recordings: Recording | Sequence[Recording]) -> str:
+    """Why the recordings look recorded in a closed loop, in words; ``""`` when nothing says so.
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+    """
+    recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
+    for rec in recs:
+        if rec.reference is not None:
+            return "the file has a reference column (what a controller tracked)"
+        controller = rec.metadata.get("controller") if rec.metadata else None
+        if controller:
+            return f"the file declares a controller ({controller})"
+    for rec in recs:
+        share = feedback_share(rec)
+        if math.isfinite(share) and share >= FEEDBACK_SHARE:
+            return (f"the measured output explains {100 * share:.0f} % of the duty beyond what the duty's own past "
+                    "explains: the duty answers the output")
+    return ""
+
+
+def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, *, input_delay: int | str = "auto",
+                    fix_bias: bool = False) -> Estimate:
+    """The default on a closed-loop recording: ``pem-disturbance`` candidates, chosen by evidence (module docstring).
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Checked runs (:func:`identify.data.as_recordings`).
+    evidence : str
+        Why they look closed loop (:func:`feedback_evidence`), for the note.
+    input_delay : int or "auto"
+        ``"auto"`` tries ``declared ... max(declared, CLOSED_LOOP_DELAYS)``; an integer fixes it.
+    fix_bias : bool
+        Not supported here (the disturbance's level is the bias); refused.
+
+    Returns
+    -------
+    Estimate
+        Made by ``pem-disturbance`` on all rows, with ``selection`` and ``notes`` as the default gives them.
+    """
+    recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
+    if fix_bias:
+        raise ParameterError("fix_bias cannot be held in a closed loop: the torque disturbance's level is the bias "
+                             f"({evidence}); leave it out, or name a method")
+    declared = declared_input_delay(recs)
+    auto = input_delay == "auto"
+    if auto:
+        cap = max(largest_delay(recs, CLOSED_LOOP_LARGEST_DELAY), declared)
+        top = min(max(declared, CLOSED_LOOP_DELAYS), cap)
+        delays = list(range(declared, top + 1))
+    else:
+        cap = top = check_int("input_delay", input_delay, 0, 10**6)
+        delays = [top]
+    skip = cap                                     # every candidate on the same rows
+    reverses = speed_reverses(recs)
+    fitted: list[tuple[Candidate, PredictionErrorFit]] = []
+
+    def scan(ds: Sequence[int]) -> None:
+        for d in ds:
+            segs = prepare_segments(recs, d, skip=skip)
+            if not segs:
+                raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
+                                           f"{d} samples")
+            linear = solve_prediction_error(recs, segs, friction=False)
+            fitted.append((_candidate("bias", d, linear), linear))
+            if reverses:                           # friction from the linear fit at the same delay
+                v = linear.values()
+                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]))
+                fitted.append((_candidate("friction", d, fit), fit))
+    scan(delays)
+    while auto and top < cap and _top_plausible(fitted, top):
+        # a delay at the top of the range the data cannot rule out: widen the range, as far as the data allow
+        top, previous = min(2 * top + 1, cap), top
+        scan(range(previous + 1, top + 1))
+    selection = _choose(fitted)
+    chosen = selection.chosen
+    fit = next(f for c, f in fitted if c is chosen)
+    if skip != chosen.input_delay:           # the chosen candidate on all its rows, from where it stands
+        v = fit.values()
+        fit = solve_prediction_error(recs, prepare_segments(recs, chosen.input_delay),
+                                     friction=fit.problem.friction,
+                                     start=(v["a"], v["b"], v["friction"], v["bias"]))
+    est = estimate_from(recs, fit, chosen.input_delay)
+    others, apart = _material(recs, est, fit, [c for c, _ in fitted if c.within_noise and c is not chosen])
+    notes = [f"recorded in a closed loop: {evidence}; fitted by prediction error with a torque disturbance "
+             "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
+             "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
+    est = _union(est, others)
+    edge = auto and chosen.input_delay == top and top > declared
+    if edge:
+        apart.append(f"a delay at the top of the {top + 1} searched")
+    clear = est.covariance_method == "gauss-newton" and not apart
+    doubt = ""
+    if apart:
+        span_a = [min(e.a for e in [est, *others]), max(e.a for e in [est, *others])]
+        span_b = [min(e.b for e in [est, *others]), max(e.b for e in [est, *others])]
+        doubt = (f"under feedback the answer depends on what the data cannot pin down ({', '.join(apart)}): a in "
+                 f"[{span_a[0]:.4g}, {span_a[1]:.4g}] 1/s, b in [{span_b[0]:.4g}, {span_b[1]:.4g}]; the intervals "
+                 "cover them all; a run with a richer reference (or open loop) would separate them")
+    elif not clear:
+        doubt = ("the closed-loop fit's innovations are not white: its disturbance model is only approximate; the "
+                 "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
+                 "feedback adds")
+    selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
+    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
+                               notes=tuple(([doubt] if doubt else []) + notes))
+
+
+def _top_plausible(fitted: list[tuple[Candidate, PredictionErrorFit]], top: int) -> bool:
+    """Whether a candidate at delay ``top`` is the best or within the noise of it."""
+    scored = _choose(list(fitted)).candidates
+    return any(c.input_delay == top and c.within_noise for c in scored)
+
+
+def _candidate(structure: str, delay: int, fit: PredictionErrorFit) -> Candidate:
+    v = fit.values()
+    return Candidate(structure, delay, v["a"], v["b"], fit.cost, fitted_by="pem-disturbance",
+                     fit_options=(("friction", fit.problem.friction),))
+
+
+def _choose(fitted: list[tuple[Candidate, PredictionErrorFit]]) -> Selection:
+    """The simplest candidate whose likelihood ratio against the best is within :func:`threshold`."""
+    n = fitted[0][1].problem.n_rows
+    best = min((c for c, _ in fitted), key=lambda c: c.residual_sum)
+    scored = []
+    for c, _ in fitted:
+        stat = n * math.log(c.residual_sum / best.residual_sum) if c is not best else 0.0
+        within = c is best or stat <= threshold(c, best, LEVEL)
+        scored.append(dataclasses.replace(c, statistic=stat, within_noise=within))
+    for i, (_, f) in enumerate(fitted):
+        fitted[i] = (scored[i], f)
+    best = next(c for c in scored if c.statistic == 0.0)
+    ranked = sorted((c for c in scored if c.within_noise), key=lambda c: (c.n_params, c.residual_sum))
+    chosen = ranked[0]
+    rest = list(ranked[1:]) or sorted((c for c in scored if c is not chosen), key=lambda c: c.residual_sum)
+    return Selection(tuple(scored), chosen, best, rest[0] if rest else None, level=LEVEL,
+                     criterion="simplest candidate within the noise of the best (likelihood ratio of the "
+                               "prediction errors)")
+
+
+def _material(recs: list[Recording], est: Estimate, fit: PredictionErrorFit,
+              within: list[Candidate]) -> tuple[list[Estimate], list[str]]:
+    """The fits whose intervals the answer's must hold, and what sets them apart from the chosen fit.
+
+    The chosen candidate refitted with its disturbance a random walk, always (the disturbance model is an
+    assumption the data can only test, and under feedback it moves ``a`` and ``b``); the candidates within
+    the noise whose ``a`` or ``b`` fall outside the chosen fit's 95 % intervals.  The second list names
+    each fit whose values and the chosen fit's are not inside each other's intervals.
+    """
+    ci = est.confidence_interval(0.95)
+
+    def inside(other: Estimate | Candidate, interval: dict) -> bool:
+        return interval["a"][0] <= other.a <= interval["a"][1] and interval["b"][0] <= other.b <= interval["b"][1]
+    out, apart = [], []
+    for c in within:
+        if not inside(c, ci):
+            out.append(fit_prediction_error(recs, input_delay=c.input_delay,
+                                            friction=dict(c.fit_options).get("friction", False)))
+            apart.append(c.label)
+    v = fit.values()
+    if v["disturbance_pole"] < 1.0 - 1e-6:
+        walk = estimate_from(recs, solve_prediction_error(
+            recs, fit.problem.segments, friction=fit.problem.friction, disturbance_pole=1.0,
+            start=(v["a"], v["b"], v["friction"], v["bias"])), est.input_delay)
+        out.append(walk)
+        if not (inside(walk, ci) and inside(est, walk.confidence_interval(0.95))):
+            apart.append("the disturbance as a random walk")
+    return out, apart
+
+
+def _union(est: Estimate, others: list[Estimate]) -> Estimate:
+    """``est`` whose ``model_range`` holds its own and every other fit's 95 % intervals of ``a`` and ``b``."""
+    ranges = {}
+    for name in ("a", "b"):
+        spans = [e.confidence_interval(0.95)[name] for e in [est, *others]]
+        ranges[name] = (min(s[0] for s in spans), max(s[1] for s in spans))
+    return dataclasses.replace(est, model_range=ranges)

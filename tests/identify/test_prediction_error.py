@@ -1,0 +1,187 @@
+"""``pem-disturbance`` and the default on recordings made inside a feedback loop.
+
+The closed-loop recordings come from a position loop written here, sample by sample, with the
+exact friction interval of :func:`motorsim.compiled.friction_interval`: a PD controller on the
+encoder counts (its derivative a difference of counts) tracks slow sines through Coulomb friction
+while a random torque ``d_{k+1} = 0.99 d_k + sigma e_k`` loads the shaft -- the loop feeds the
+torque back into the duty, which is what biases an output-error fit.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from identify import fit
+from identify.data import prepare_segments
+from identify.feedback import FEEDBACK_SHARE, feedback_evidence, feedback_share
+from identify.prediction_error import compiled_filter_pass, filter_pass, fit_prediction_error
+from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Recording, SimRig, Sine, Step
+from motorsim.checks import ParameterError
+from motorsim.compiled import friction_interval
+from motorsim.plant import simulate
+
+A, B, FRICTION = 25.0, 3.0, 60.0
+
+
+def position_loop(seed: int, *, samples: int = 8000, h: float = 0.001, cpr: int = 2000, friction: float = FRICTION,
+                  disturbance: float = 4.2, reference: bool = True, delay: int = 0) -> Recording:
+    """The PD loop of the module docstring (``disturbance``: the torque's innovation, rad/s^2 per sample; the
+    duty reaching the motor ``delay`` samples after it was logged, as over a serial link)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) * h
+    ref = 2.0 * np.sin(2 * np.pi * 0.5 * t) + 1.0 * np.sin(2 * np.pi * 1.3 * t + 1)
+    counts = np.zeros(samples, dtype=np.int64)
+    duty = np.zeros(samples)
+    w = th = d = 0.0
+    previous = 0
+    for k in range(samples):
+        c = math.floor(th / (2 * math.pi) * cpr)
+        counts[k] = c
+        speed = (c - previous) * 2 * math.pi / cpr / h if k else 0.0
+        previous = c
+        duty[k] = u = float(np.clip(np.round(400.0 * (ref[k] - c * 2 * math.pi / cpr) - 8.0 * speed), -255, 255))
+        d = 0.99 * d + disturbance * rng.standard_normal()
+        applied = duty[k - delay] if k >= delay else 0.0
+        w, th = friction_interval(A, B * applied + d, friction, w, th, h)
+    extra = {"reference": ref, "metadata": {"reference_unit": "rad"}} if reference else {}
+    return Recording(time=t, duty=duty, sample_period=h, counts=counts, counts_per_rev=cpr, **extra)
+
+
+@pytest.fixture(scope="module")
+def loops() -> list[Recording]:
+    return [position_loop(seed) for seed in range(3)]
+
+
+def test_compiled_pass_equals_the_python_one(loops):
+    # the same function, compiled or not: equal to rounding (1e-12 of the largest innovation)
+    compiled = compiled_filter_pass()
+    if compiled is None:
+        pytest.skip("numba is not installed: the Python pass is the only one")
+    seg = prepare_segments([loops[0]], 0)[0]
+    a, h = 24.0, 0.001
+    e = math.exp(-a * h)
+    p = -math.expm1(-a * h) / a
+    args = (seg.drive, seg.output, False, e, p, (h - p) / a, a, h, 2.9, 55.0, 1.0, 0.98, 3e6, 0.0)
+    out = [np.empty(len(seg.time)), np.empty(len(seg.time))]
+    log_dets = [compiled(*args, out[0]), filter_pass(*args, out[1])]
+    assert np.max(np.abs(out[0] - out[1])) <= 1e-12 * np.max(np.abs(out[1]))
+    assert log_dets[0] == pytest.approx(log_dets[1], rel=1e-12)
+
+
+def test_noise_free_open_loop_is_exact():
+    # no disturbance and an exact angle: the criterion is zero at the truth; found to the optimiser's tolerance
+    h = 0.002
+    duty = Multisine((3.0, 17.0, 70.0), (80, 60, 40), (0, 1, 2)).duty(1500, h).astype(float)
+    t = np.arange(1500) * h
+    rec = Recording(time=t, duty=duty, sample_period=h, angle=simulate(Motor(A, B), duty, t).angle)
+    est = fit_prediction_error(rec, friction=False)
+    assert est.a == pytest.approx(A, rel=1e-6)
+    assert est.b == pytest.approx(B, rel=1e-6)
+
+
+def test_closed_loop_with_a_fed_back_torque_within_standard_errors(loops):
+    # the disturbance model is the generating one: a and b within 3 standard errors on each fixed seed; the
+    # filter's friction step near a reversal takes the sign of the filtered speed, which is approximate, so c
+    # is held to 20 % (measured: 2 %, 0.4 %, 19 % on these seeds)
+    for rec in loops:
+        est = fit_prediction_error(rec)
+        se = est.stderr()
+        assert abs(est.a - A) <= 3 * se["a"], (est.a, se["a"])
+        assert abs(est.b - B) <= 3 * se["b"], (est.b, se["b"])
+        assert abs(est.values()["friction"] - FRICTION) <= 0.2 * FRICTION
+        assert se["a"] < 0.05 * A                      # and the interval is informative
+        assert 0.9 < est.extra["disturbance_pole"] < 1.0
+
+
+def test_output_error_is_biased_where_the_prediction_error_fit_is_not(loops):
+    # the premise: an output-error fit of the family misses a or b by more than 5 % (measured on this seed:
+    # a +7 %, b -11 %), where pem-disturbance is within 3 standard errors (the test above)
+    oe = fit(loops[0], method="oe-friction", input_delay=0)
+    assert max(abs(oe.a / A - 1), abs(oe.b / B - 1)) > 0.05
+
+
+def test_random_walk_disturbance_leaves_the_bias_undetermined(loops):
+    est = fit_prediction_error(loops[0], disturbance_pole=1.0)
+    assert est.extra["disturbance_pole"] == 1.0
+    assert math.isinf(est.stderr()["bias"])
+    assert math.isfinite(est.stderr()["a"])
+
+
+@pytest.mark.parametrize("options, words", [
+    ({"friction": "yes"}, "friction must be True or False"),
+    ({"disturbance_pole": 1.5}, "disturbance_pole must be in [0, 1]"),
+    ({"input_delay": "auto"}, "input_delay must be an integer"),
+])
+def test_bad_options_are_refused_by_name(loops, options, words):
+    with pytest.raises(ParameterError, match=words.replace("[", r"\[").replace("]", r"\]")):
+        fit_prediction_error(loops[0], **options)
+
+
+def _open_loop_runs():
+    excitations = [Sine(10.0, 200), Sine(1.0, 150), Multisine((3.0, 17.0, 70.0), (80, 60, 40), (0, 1, 2)),
+                   Chirp(), PRBS(), Step()]
+    for excitation in excitations:
+        for cpr, noise, h in ((44, 0.0, 0.005), (1000, 0.0, 0.001), (16667, 1e-3, 0.005)):
+            rig = SimRig(Motor(A, B, friction=20.0, input_delay=1), Encoder(cpr, angle_noise=noise),
+                         rng=np.random.default_rng(cpr))
+            yield rig.run(Experiment(excitation, h, 4.0))
+
+
+def test_open_loop_runs_are_not_taken_for_closed_loop():
+    # measured: at most 0.02 on these; the rule is FEEDBACK_SHARE
+    shares = [feedback_share(rec) for rec in _open_loop_runs()]
+    assert max(shares) < 0.05 < FEEDBACK_SHARE, shares
+    assert not any(feedback_evidence(rec) for rec in _open_loop_runs())
+
+
+def test_closed_loop_is_recognised_by_its_reference_its_controller_or_its_data():
+    from motorsim.control import ClosedLoopExperiment, OneStepMPC, PISpeed, PlantModel, parse_reference
+    rec = position_loop(7, samples=4000)
+    assert "reference column" in feedback_evidence(rec)
+    bare = position_loop(7, samples=4000, reference=False)
+    assert feedback_share(bare) > 0.5
+    assert "explains" in feedback_evidence(bare)
+    model = PlantModel(A, B, 0.005, 1000)
+    for controller, spec in ((PISpeed(model), "sine:10,2"), (OneStepMPC(model), "sine:10,10")):
+        run = SimRig(Motor(A, B, friction=20.0), Encoder(1000)).run(
+            ClosedLoopExperiment(controller, parse_reference(spec), 3.0))
+        assert "controller" in feedback_evidence(run) or "reference" in feedback_evidence(run)
+        plain = Recording(time=run.time, duty=run.duty, sample_period=run.sample_period, counts=run.counts,
+                          counts_per_rev=run.counts_per_rev)
+        assert feedback_share(plain) > 0.5
+
+
+def test_default_on_a_closed_loop_covers_the_motor_and_says_why(loops):
+    # the done-when rule: within 1 %, or the truth inside intervals narrower than +-25 %; clear only if covering
+    for rec in loops:
+        est = fit(rec)
+        assert est.method == "pem-disturbance"
+        assert any("closed loop" in note for note in est.notes)
+        ci = est.confidence_interval(0.95)
+        covers = ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+        within = abs(est.a / A - 1) < 0.01 and abs(est.b / B - 1) < 0.01
+        narrow = (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A and (ci["b"][1] - ci["b"][0]) / 2 < 0.25 * B
+        assert within or (covers and narrow), (est.a, est.b, ci)
+        assert covers or not est.selection.clear
+        assert est.selection.chosen.method == "pem-disturbance"
+        assert est.structure == "friction"
+
+
+def test_default_covers_a_delay_the_closed_loop_cannot_pin_down():
+    # a duty acting 2 samples after it is logged: in this stiff loop the prediction errors hardly tell delays
+    # 0-3 apart (measured: within 0.02 % of each other), and a falls from 24.9 to 22.8 as the delay assumed
+    # shrinks; the interval must hold the truth, and the choice is not clear
+    rec = position_loop(3, samples=8000, delay=2, reference=False)
+    est = fit(rec)
+    assert est.method == "pem-disturbance"
+    ci = est.confidence_interval(0.95)
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A
+    assert not est.selection.clear
+
+
+def test_default_refuses_a_held_bias_in_a_closed_loop(loops):
+    with pytest.raises(ParameterError, match="fix_bias"):
+        fit(loops[0], fix_bias=True)
