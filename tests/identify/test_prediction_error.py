@@ -41,7 +41,7 @@ def position_loop(seed: int, *, samples: int = 8000, h: float = 0.001, cpr: int 
         counts[k] = c
         speed = (c - previous) * 2 * math.pi / cpr / h if k else 0.0
         previous = c
-        duty[k] = u = float(np.clip(np.round(400.0 * (ref[k] - c * 2 * math.pi / cpr) - 8.0 * speed), -255, 255))
+        duty[k] = float(np.clip(np.round(400.0 * (ref[k] - c * 2 * math.pi / cpr) - 8.0 * speed), -255, 255))
         d = 0.99 * d + disturbance * rng.standard_normal()
         applied = duty[k - delay] if k >= delay else 0.0
         w, th = friction_interval(A, B * applied + d, friction, w, th, h)
