@@ -30,7 +30,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-from .data import as_recordings, check_excitation
+from .data import as_recordings
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .validation import fit_percent
@@ -135,7 +135,6 @@ def fit_euler_ls(recordings) -> Estimate:
         ``method = "euler-ls"``.
     """
     recs = as_recordings(recordings)
-    check_excitation(recs, 2)       # the same refusals (a stuck encoder, a constant input) as every estimator's
     A, y = regression_rows(recs)
     x, cov_x, rms = solve_least_squares(A, y)
     dt = recs[0].sample_period
@@ -166,7 +165,6 @@ def fit_zoh_ls(recordings) -> Estimate:
         When ``theta1`` is not in (0, 1) (no stable first-order ZOH model matches the data).
     """
     recs = as_recordings(recordings)
-    check_excitation(recs, 2)       # the same refusals (a stuck encoder, a constant input) as every estimator's
     A, y = regression_rows(recs)
     x, cov_x, rms = solve_least_squares(A, y)
     dt = recs[0].sample_period
