@@ -23,9 +23,9 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "prepare_segments", "first_rows",
-           "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note",
-           "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
+           "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "check_input_changes",
+           "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
+           "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -321,6 +321,22 @@ def _check_delay_fits(recordings: Sequence[Recording], input_delay: int) -> None
                                    "be meaningless; check the delay or record a longer run")
 
 
+def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
+    """Refuse recordings whose input is zero or constant throughout (not persistently exciting).
+
+    Returns the pooled input.
+    """
+    duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
+    constant = bool(len(duty) and duty.min() == duty.max())     # two reductions, no temporary arrays
+    if constant and duty[0] == 0:
+        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
+                                   "use a sine, multisine or PRBS")
+    if constant:
+        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
+                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    return duty
+
+
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
     """Raise :class:`NotIdentifiableError` (or warn) when the data cannot determine the parameters.
 
@@ -338,14 +354,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     if total < 3 * n_params + 4:
         raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
                                    f"record at least {3 * n_params + 4} (a few time constants) samples")
-    duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
-    constant = bool(duty.min() == duty.max())           # two reductions, no temporary arrays
-    if constant and duty[0] == 0:
-        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
-                                   "use a sine, multisine or PRBS")
-    if constant:
-        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
-                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    duty = check_input_changes(recordings)
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
         check_output_moves(r, r.name(i))

@@ -20,7 +20,13 @@ from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .causality import check_input_leads
-from .data import as_recordings, check_constant_input_runs, check_output_moves, check_speed_agrees
+from .data import (
+    as_recordings,
+    check_constant_input_runs,
+    check_input_changes,
+    check_output_moves,
+    check_speed_agrees,
+)
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
@@ -126,7 +132,11 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     options = dict(options or {})
     recs = as_recordings(recordings)
     for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check
-        check_output_moves(rec, rec.name(i))      # a stuck encoder
+        try:
+            check_output_moves(rec, rec.name(i))  # a stuck encoder...
+        except NotIdentifiableError:
+            check_input_changes(recs)             # ...unless the input never changed either: that is said first
+            raise
         check_speed_agrees(rec, rec.name(i))      # a speed column in another unit than its counts
     check_input_leads(recs)      # an input logged late: a negative delay no model has
     if outliers == "keep":
