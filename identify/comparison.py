@@ -41,6 +41,7 @@ searched range is never returned without a note.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Callable, Mapping, Sequence
 
@@ -204,8 +205,13 @@ class CandidateFit:
 
 
 def threshold(c: Candidate, best: Candidate, level: float) -> float:
+    return _threshold(max(best.n_params - c.n_params, 1), level)
+
+
+@functools.lru_cache(maxsize=64)
+def _threshold(k: int, level: float) -> float:
+    """``k`` times the ``1 - level`` quantile of ``F(k, BLOCKS - k)`` (a few values, asked for every candidate)."""
     from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
-    k = max(best.n_params - c.n_params, 1)
     return k * float(fdtri(k, BLOCKS - k, 1.0 - level))
 
 
@@ -221,8 +227,15 @@ def block_sums(x: np.ndarray) -> np.ndarray:
     n = len(x)
     if n == 0:
         return np.zeros((0, *np.shape(x)[1:]))
+    return np.add.reduceat(x, _block_starts(n), axis=0)
+
+
+@functools.lru_cache(maxsize=16)
+def _block_starts(n: int) -> np.ndarray:
+    """First row of each block of :func:`block_sums` for ``n`` rows (the same few lengths, asked for often)."""
     starts = np.linspace(0, n, min(BLOCKS, n) + 1).astype(int)[:-1]
-    return np.add.reduceat(x, starts, axis=0)
+    starts.flags.writeable = False
+    return starts
 
 
 def block_mean_p(scores: np.ndarray) -> float:
@@ -292,18 +305,18 @@ def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals:
     if float(np.einsum("i,i->", residuals, residuals)) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
         return None         # other noise dominates: the batch means see it
     phases = (np.arange(PHASES) + 0.5) / PHASES
-    out = np.empty((len(residuals), PHASES))
+    out = np.empty((PHASES, len(residuals)))        # a phase per row: each realisation one contiguous pass
     row = 0
     for seg, step in zip(segs, steps):
         n = len(seg.output)
         model = (seg.output - residuals[row:row + n]) / step
-        block = np.add.outer(model, phases)
-        block -= np.floor(block)
-        block *= -step
-        block -= block.mean(axis=0)
-        out[row:row + n] = block
+        for phase, realisation in zip(phases, out[:, row:row + n]):
+            np.add(model, phase, out=realisation)
+            realisation -= np.floor(realisation)
+            realisation *= -step
+            realisation -= realisation.mean()
         row += n
-    return out
+    return out.T
 
 
 def best_fit(fitted: list[CandidateFit]) -> CandidateFit | None:
@@ -343,8 +356,12 @@ def plausible(fitted: list[CandidateFit], level: float, factor: float = 1.0) -> 
     best = best_fit(fitted)
     if best is None:
         return []
-    return [f for f in fitted if f.residuals is not None and (
-        f is best or _close(f, best) or _against(f, best) <= factor * threshold(f.candidate, best.candidate, level))]
+    scored = [f for f in fitted if f.residuals is not None]
+    near = {id(f) for f in scored if f is best or _close(f, best)}
+    tested = [f for f in scored if id(f) not in near]
+    found = dict(zip(map(id, tested), _statistics(tested, best, None)))       # stacked, as the choice scores them
+    return [f for f in scored
+            if id(f) in near or found[id(f)] <= factor * threshold(f.candidate, best.candidate, level)]
 
 
 def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit]], level: float,
@@ -418,15 +435,41 @@ def _scored(fitted: list[CandidateFit], best: CandidateFit, level: float, recs: 
     reference = best.residuals
     assert reference is not None
     rounding = rounding_realisations(recs, segments[best.candidate.input_delay], reference)
+    others = [f for f in fitted if f is not best and f.residuals is not None and len(f.residuals) == len(reference)]
+    found = dict(zip(map(id, others), _statistics(others, best, rounding)))
     scored: list[Candidate] = []
     for f in fitted:
         c = f.candidate
         if f.residuals is None or len(f.residuals) != len(reference):
             scored.append(c)
             continue
-        t = 0.0 if f is best else _against(f, best, rounding)
+        t = 0.0 if f is best else found[id(f)]
         scored.append(dataclasses.replace(c, statistic=t, within_noise=t <= threshold(c, best.candidate, level)))
     return scored
+
+
+#: Candidates whose statistics :func:`_statistics` computes in one array (bounds its memory on long data).
+STATISTICS_AT_ONCE = 16
+
+
+def _statistics(fits: list[CandidateFit], best: CandidateFit, rounding: np.ndarray | None) -> list[float]:
+    """:func:`statistic` of every fit against the best, their differences stacked (one product with the
+    rounding realisations for several of them, not one each); the same sums, to rounding."""
+    reference = best.residuals
+    assert reference is not None
+    out: list[float] = []
+    for first in range(0, len(fits), STATISTICS_AT_ONCE):
+        group = fits[first:first + STATISTICS_AT_ONCE]
+        deltas = np.array([f.residuals for f in group])
+        deltas -= reference
+        excess = np.array([f.candidate.residual_sum - best.candidate.residual_sum for f in group])
+        norm2 = np.einsum("ij,ij->i", deltas, deltas)
+        spread = np.var(deltas @ rounding, axis=1, ddof=1) if rounding is not None else 0.0
+        deltas *= reference                          # in place: the products of the batch means
+        v = np.sum(block_sums(deltas.T) ** 2, axis=0) + spread
+        for e, n2, vi in zip(excess.tolist(), norm2.tolist(), v.tolist()):
+            out.append(0.0 if e <= 0 or n2 == 0 else (e * n2 / vi if vi > 0 else math.inf))
+    return out
 
 
 def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int | None, recs: list[Recording],

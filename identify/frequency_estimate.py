@@ -62,7 +62,7 @@ from motorsim.recording import Recording
 
 from .data import as_recordings
 from .errors import NotIdentifiableError
-from .sensitivity import phi_functions
+from .zoh_response import OUTPUTS, zoh_speed_response
 
 if TYPE_CHECKING:
     import control
@@ -74,48 +74,6 @@ __all__ = ["FrequencyResponse", "ModelResponse", "frequency_response", "zoh_spee
 
 #: The estimators ``frequency_response(method=...)`` accepts.
 ESTIMATORS = ("auto", "periodic", "sines", "welch")
-#: What the response's output is: the interval-mean speed from the angle, or the sampled speed column.
-OUTPUTS = ("angle", "speed")
-
-
-def zoh_speed_response(a: float, b: float, sample_period: float, omega: np.ndarray, *, output: str = "angle",
-                       input_delay: int = 0) -> np.ndarray:
-    """The exact ZOH response of ``b/(s + a)`` duty -> speed at ``omega`` rad/s (complex).
-
-    Parameters
-    ----------
-    a, b : float
-        Pole in 1/s and gain in (rad/s^2)/duty.
-    sample_period : float
-        Sample period ``dt`` in s.
-    omega : array_like
-        Angular frequencies in rad/s.
-    output : {"angle", "speed"}
-        ``"speed"``: the sampled speed, ``(b/a)(1 - e)/(z - e)``; ``"angle"``: the mean speed
-        over the interval the duty is held, ``phi1(a dt) G(z) + b dt phi2(a dt)`` (module docstring).
-    input_delay : int
-        Whole samples of input delay, a factor ``z^-input_delay``.
-
-    Examples
-    --------
-    >>> g = zoh_speed_response(25.0, 3.0, 0.005, [1e-6])
-    >>> round(float(abs(g[0])), 6)   # the static gain b/a
-    0.12
-    """
-    if output not in OUTPUTS:
-        raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
-    dt = check_real("sample_period", sample_period, positive=True)
-    w = np.asarray(omega, dtype=float)
-    x = a * dt
-    e = math.exp(-x)
-    z = np.exp(1j * w * dt)
-    p1, p2, _, _ = phi_functions(np.array([x]))
-    g = b * dt * p1[0] / (z - e)   # (b/a)(1 - e) = b dt phi1(x)
-    if output == "angle":
-        g = p1[0] * g + b * dt * p2[0]
-    return g * z ** (-int(input_delay))
-
-
 @dataclasses.dataclass(frozen=True)
 class FrequencyResponse:
     """An estimated frequency response duty -> speed, with its bound and coherence.
@@ -208,21 +166,29 @@ class FrequencyResponse:
     def model_of(self, estimate: Estimate, name: str | None = None) -> ModelResponse:
         """An estimate's model at these frequencies, with its variance from the estimate's covariance.
 
-        The linear part ``b/(s + a)`` with the estimate's input delay (friction, bias and dead zone
-        have no frequency response).  The variance is ``J C J^H`` with ``J`` the derivatives of the
-        response with respect to ``a`` and ``b`` (central differences) and ``C`` their covariance.
+        The linear part of the estimate's structure with its input delay
+        (:meth:`~identify.model_structures.ModelStructure.frequency_response`: ``b/(s + a)``, or both
+        poles of ``second-order``; friction, bias and dead zone have no frequency response).  The
+        variance is ``J C J^H`` with ``J`` the derivatives of the response with respect to the
+        structure's response parameters that the covariance holds (central differences) and ``C``
+        their covariance.
         """
-        delay = estimate.input_delay
-        g = self.model_response(estimate.a, estimate.b, delay)
+        model, delay = estimate.model_structure(), estimate.input_delay
+        values = estimate.values()
+
+        def response(v: dict[str, float]) -> np.ndarray:
+            return model.frequency_response(v, self.sample_period, self.omega, output=self.output, input_delay=delay)
+        g = response(values)
         variance = np.zeros(len(g))
         if estimate.covariance is not None:
-            cov = np.asarray(estimate.covariance)[:2, :2]
+            names = [n for n in model.response_parameters if n in estimate.param_names]
+            index = [estimate.param_names.index(n) for n in names]
+            cov = np.asarray(estimate.covariance)[np.ix_(index, index)]
             jac = []
-            for i, value in enumerate((estimate.a, estimate.b)):
-                h = 1e-6 * max(abs(value), 1e-9)
-                step = np.array([h, 0.0]) if i == 0 else np.array([0.0, h])
-                up = self.model_response(estimate.a + step[0], estimate.b + step[1], delay)
-                down = self.model_response(estimate.a - step[0], estimate.b - step[1], delay)
+            for n in names:
+                h = 1e-6 * max(abs(values[n]), 1e-9)
+                up = response({**values, n: values[n] + h})
+                down = response({**values, n: values[n] - h})
                 jac.append((up - down) / (2 * h))
             J = np.column_stack(jac)
             variance = np.einsum("ni,ij,nj->n", J, cov, J.conj()).real

@@ -343,6 +343,19 @@ class FrictionScan:
         self.best = best
         self.level = level
         self.starts: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+        self.linear: dict[tuple[int, bool], tuple[list[Segment], _LinearFit | None]] = {}
+
+    def linear_fit(self, recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
+                   near: float | None) -> _LinearFit | None:
+        """:func:`_linear_fit` on ``segs``, made once per delay and bias: the structures fitted at one delay
+        (the same rows) check themselves against the same linear fit, which only its start (``near``, the
+        first structure's pole) would tell from another's."""
+        kept = self.linear.get((delay, with_bias))
+        if kept is not None and kept[0] is segs:
+            return kept[1]
+        linear = _linear_fit(recs, segs, delay, with_bias, near)
+        self.linear[(delay, with_bias)] = (segs, linear)
+        return linear
 
     def bound(self, structure: str) -> float:
         """The residual sum above which a candidate of ``structure`` cannot be within :data:`STOP_FACTOR` times the
@@ -419,7 +432,7 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     if res.status == 3:
         return res
     near = float(res.x[0]) if np.isfinite(res.x[0]) else None
-    linear = _linear_fit(recs, segs, delay, "bias" in names, near)
+    linear = scan.linear_fit(recs, segs, delay, "bias" in names, near)
     if linear is not None and _suspicious(res, x0, linear):
         return solve_friction(recs, segs, names, delay)[1]
     if not (np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 and res.x[1] != 0):
@@ -517,8 +530,11 @@ def _regression_rows(seg: Segment, dead_zone: bool,
     top = float(np.max(np.abs(now), initial=0.0))
     keep = ((np.sign(now) == np.sign(nxt)) & (np.sign(instrument) == np.sign(now))
             & (np.abs(now) > 0.02 * top) & (np.abs(nxt) > 0.02 * top))
-    smallest_duty = np.min(np.abs(duties), axis=0)
-    rest = duties + ([np.mean([np.sign(u) for u in duties], axis=0)] if dead_zone else []) + [np.sign(now)]
+    # element by element (signs and their half-sums, minima: exact), not through a stacked array of the duties
+    smallest_duty = np.abs(duties[0]) if len(duties) == 1 else np.minimum(np.abs(duties[0]), np.abs(duties[1]))
+    signs = [] if not dead_zone else [np.sign(duties[0])] if len(duties) == 1 else [
+        (np.sign(duties[0]) + np.sign(duties[1])) / 2.0]
+    rest = duties + signs + [np.sign(now)]
     rest += [np.ones_like(now)] if fit_bias else []
     X = np.column_stack([now] + rest)
     Z = np.column_stack([instrument] + rest)
@@ -603,7 +619,7 @@ def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
     or when its parameters leave a mean square residual on all rows more than
     :data:`PREFIX_MISFIT` times the prefix's own (the rest of the data is not what the
     prefix saw; the whole fit then starts where it would without the prefix).  That check is
-    the whole fit's first evaluation: its residuals and Jacobian stay cached.
+    the whole fit's first evaluation: when it passes, its residuals and Jacobian stay cached.
     """
     if problem.n_rows < PREFIX_MIN_ROWS:
         return x0
@@ -618,9 +634,14 @@ def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
         res = _levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
         if not np.all(np.isfinite(res.x)):
             return x0
-        r = problem.evaluate(res.x, True)[0]
-    misfit = _sum_squares(r) / problem.n_rows
-    return res.x if misfit <= PREFIX_MISFIT * _sum_squares(res.fun) / head.n_rows else x0
+        # the residuals alone first (the response is the same with or without its sensitivities): a prefix
+        # that is refused then costs no Jacobian
+        r = problem.evaluate(res.x, False)[0]
+        misfit = _sum_squares(r) / problem.n_rows
+        if misfit > PREFIX_MISFIT * _sum_squares(res.fun) / head.n_rows:
+            return x0
+        problem.evaluate(res.x, True)
+    return res.x
 
 
 def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:

@@ -153,6 +153,20 @@ def _interval_constants(a: float, h: np.ndarray) -> tuple[np.ndarray, ...]:
     return h, e, p, q, dp, dq
 
 
+def _uniform_constants(a: float, h: float) -> tuple[np.ndarray, ...]:
+    """:func:`_interval_constants` of one interval ``h``, in floats where it is a handful of numpy calls on
+    one-element arrays (the same operations, so the same bits; the power series of small ``a h`` as there)."""
+    x = a * h
+    if abs(x) < 1e-5:
+        return _interval_constants(a, np.array([h]))
+    e = float(np.exp(-x))
+    one_minus = float(-np.expm1(-x))
+    p = one_minus / a
+    dp = h * (x * e - one_minus) / (x * x) * h
+    q = (h - p) / a
+    return tuple(np.array([v]) for v in (h, e, p, q, dp, (-dp - q) / a))
+
+
 def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
     """The mode of every interval from the speed at its start (see :class:`FrictionResponse`)."""
     w0 = w[:-1]
@@ -278,8 +292,8 @@ def _compiled(kernel, params: tuple[float, float, float, float, float], u: np.nd
     """The response by the compiled one-pass kernel (:mod:`identify.friction_kernel`): the interval
     constants and the rest threshold as :class:`_Intervals` has them, the rest in the kernel."""
     a, b, friction, bias, dead_zone = params
-    h = np.diff(t)
-    constants = _interval_constants(a, h[:1] if uniform and len(h) else h)
+    constants = _uniform_constants(a, float(t[1] - t[0])) if uniform and len(t) > 1 else \
+        _interval_constants(a, np.diff(t))
     top = max(float(np.max(np.abs(u), initial=0.0)) - dead_zone, 0.0)
     rest = _REST * max((abs(b) * top + abs(bias) + friction) / max(a, 1e-12), 1e-300)
     n = len(u) + 1

@@ -161,10 +161,12 @@ class _Problem:
     """The pooled innovations of every segment at a parameter vector: ``a, b, [c], bias, [phi], log(Q/R)``
     (``c`` with friction, ``phi`` unless the disturbance's pole is held)."""
 
-    def __init__(self, segments: Sequence[Segment], friction: bool, h: float, pole: float | None = None):
+    def __init__(self, segments: Sequence[Segment], friction: bool, h: float, pole: float | None = None,
+                 disturbance: bool = True):
         self.segments = list(segments)
         self.friction = friction
-        self.pole = pole
+        self.disturbance = disturbance
+        self.pole = pole if disturbance else 0.0
         self.h = h
         self.n_rows = sum(len(s.time) for s in self.segments)
         self.kernel = compiled_filter_pass() or filter_pass
@@ -185,11 +187,11 @@ class _Problem:
         c = v[2] if self.friction else 0.0
         bias = v[self.n_plant - 1]
         phi = self.pole if self.pole is not None else v[self.n_plant]
-        return v[0], v[1], c, bias, phi, v[-1]
+        return v[0], v[1], c, bias, phi, v[-1] if self.disturbance else -math.inf
 
     def pack(self, a: float, b: float, c: float, bias: float, phi: float, lr: float) -> np.ndarray:
-        return np.array([a, b] + ([c] if self.friction else []) + [bias] + ([phi] if self.pole is None else [])
-                        + [lr], dtype=float)
+        noise = ([phi] if self.pole is None else []) + [lr] if self.disturbance else []
+        return np.array([a, b] + ([c] if self.friction else []) + [bias] + noise, dtype=float)
 
     def innovations(self, x: np.ndarray) -> np.ndarray:
         """Each innovation over its standard deviation, all scaled by the geometric mean of those deviations
@@ -231,8 +233,9 @@ class PredictionErrorFit:
 
 
 def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[Segment], *, friction: bool,
-                           disturbance_pole: float | None = None,
-                           start: tuple[float, float, float, float] | None = None) -> PredictionErrorFit:
+                           disturbance_pole: float | None = None, disturbance: bool = True,
+                           start: tuple[float, float, float, float] | None = None,
+                           noise_start: tuple[float, float] | None = None) -> PredictionErrorFit:
     """Fit the model of the module docstring to ``segments`` (the recordings cut at gaps, the duty delayed).
 
     Parameters
@@ -244,11 +247,17 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
         Fit Coulomb friction (else ``c = 0``).
     disturbance_pole : float, optional
         Hold the disturbance's pole per sample at this value (1: a random walk) instead of fitting it.
+    disturbance : bool
+        False: no disturbance at all (``Q = 0``; the predictor is then the model simulated from a state the
+        filter settles, an output-error fit), to test whether the data show one.
     start : (a, b, c, bias), optional
         Start values of the motor's parameters (default: the regression start of :func:`identify.start.initial_guess`).
+    noise_start : (phi, log(Q/R)), optional
+        Start values of the disturbance's (a neighbouring fit's); default: the best of a grid
+        (:data:`START_POLES` x :data:`START_LOG_RATIOS`).
     """
     h = recordings[0].sample_period
-    problem = _Problem(segments, friction, h, disturbance_pole)
+    problem = _Problem(segments, friction, h, disturbance_pole, disturbance)
     if start is None:
         a0, b0 = initial_guess(recordings, segments)
         a0 = float(min(max(a0, 1e-3 / h), 0.5 / h)) if math.isfinite(a0) and a0 > 0 else 0.05 / h
@@ -259,8 +268,13 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
     if friction and not c0 > 0:
         c0 = 1e-3 * abs(b0) * float(np.max(np.abs(np.concatenate([s.drive for s in segments]))))
     best, best_cost = None, math.inf
-    for phi in (START_POLES if disturbance_pole is None else (disturbance_pole,)):
-        for lr in START_LOG_RATIOS:
+    poles = START_POLES if disturbance_pole is None else (disturbance_pole,)
+    ratios = START_LOG_RATIOS
+    if noise_start is not None:
+        poles = (noise_start[0],) if disturbance_pole is None else poles
+        ratios = (noise_start[1],)
+    for phi in poles if disturbance else (0.0,):
+        for lr in ratios if disturbance else (0.0,):
             x = problem.pack(a0, b0, c0, bias0, phi, lr)
             r = problem.innovations(x)
             cost = float(r @ r)
@@ -414,7 +428,7 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
     def residuals(z: np.ndarray) -> np.ndarray:
         x = to_x(z)
-        if not (x[0] * problem.h < 2.0 and math.isfinite(x[-1]) and abs(x[-1]) < 80.0):
+        if not (x[0] * problem.h < 2.0 and (not problem.disturbance or abs(x[-1]) < 80.0)):
             return np.full(problem.n_rows, 1e6)
         return problem.innovations(x)
 

@@ -65,7 +65,7 @@ from .data import (
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .feedback import feedback_evidence, fit_closed_loop
+from .feedback import ClosedLoopFit, feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
 from .selection_report import SelectionReport
 
@@ -363,10 +363,10 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     """
     recs = as_recordings(recordings)
     check_excitation(recs, 2)
-    if structures is None:
-        evidence = feedback_evidence(recs)
-        if evidence:
-            return fit_closed_loop(recs, evidence, input_delay=input_delay, fix_bias=fix_bias)
+    closed = _closed_loop(recs, structures, input_delay, fix_bias)
+    if closed.estimate is not None:
+        return closed.estimate
+    loop_note = closed.note
     swept = _counts_swept(recs)
     few_note = ""
     if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a second pole from their rounding
@@ -406,7 +406,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
-    notes = list(selection.notes) + _data_notes(recs, est, swept)
+    notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
     if material or resolution:
         est, doubt = _widen(est, chosen, material, resolution)
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
@@ -431,8 +431,27 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         selection = dataclasses.replace(selection, clear=False, doubt=(
             f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
             "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
+    if loop_note:
+        # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
+        selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
+            f"; {selection.doubt}" if selection.doubt else ""))
     return dataclasses.replace(est, selection=SelectionReport.from_selection(selection), notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
+
+
+#: The doubt of a closed-loop recording the default fits as any other (no disturbance found to feed back).
+LOOP_DOUBT = ("recorded in a closed loop: the measurement's rounding and noise reach the duty through the loop, "
+              "which the intervals do not model; they may not cover")
+
+
+def _closed_loop(recs: list[Recording], structures: Sequence[str] | None, input_delay: int | str,
+                 fix_bias: bool) -> ClosedLoopFit:
+    """The closed-loop fit (:func:`identify.feedback.fit_closed_loop`) of recordings made in a feedback loop
+    when every structure is asked for; no estimate (and no note) otherwise."""
+    evidence = feedback_evidence(recs) if structures is None else ""
+    if not evidence:
+        return ClosedLoopFit(None)
+    return fit_closed_loop(recs, evidence, input_delay=input_delay, fix_bias=fix_bias)
 
 
 #: The longest input delay, in samples, the default searches when the best delay is at the top of the range

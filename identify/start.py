@@ -26,13 +26,27 @@ __all__ = ["initial_guess", "regression_guess", "grid_guess"]
 def regression_guess(recordings: Sequence[Recording]) -> tuple[float, float] | None:
     """``zoh-ls``'s regression mapped exactly to ``(a, b)`` (without its fit score), or None.
 
-    None when the regression fails or finds no stable model with a nonzero gain.
+    None when the regression fails or finds no stable model with a nonzero gain.  Found once per
+    recording and kept with it (it never changes): the default's linear candidates at every input
+    delay start from it when their own regression finds no start.
 
     Parameters
     ----------
     recordings : sequence of Recording
         The pooled runs (one sample period).
     """
+    recs = list(recordings)
+    if len(recs) != 1:                  # pooled: nothing kept (a recording keeps only what it can pickle alone)
+        return _regression_guess(recs)
+    kept = recs[0].__dict__.get("_regression_guess")
+    if kept is None:
+        kept = (_regression_guess(recs),)
+        object.__setattr__(recs[0], "_regression_guess", kept)
+    return kept[0]
+
+
+def _regression_guess(recordings: Sequence[Recording]) -> tuple[float, float] | None:
+    """:func:`regression_guess`, computed."""
     try:
         A, y = regression_rows(recordings)
         (t1, t2), _, _ = solve_least_squares(A, y)

@@ -13,7 +13,9 @@ and a percentile of the predicted tracking RMS and of the margins, the share of 
 is unstable or badly damped, and warnings.  The draws are made once, never again: a draw with
 ``a <= 0`` (no motor of this model) is left out and counted, and a draw whose ``b`` has the other
 sign than the model's (the uncertainty does not know the motor's direction) is analysed as the
-plant it is, counted, and warned of.  :func:`robust_design` tunes a controller's knob
+plant it is, counted, and warned of.  A model with an electrical time constant keeps it in every
+drawn plant, and every loop is closed on the full plant
+(:meth:`~motorsim.control.PlantModel.speed_transfer_function`).  :func:`robust_design` tunes a controller's knob
 (``duty_weight`` of ``mpc``, ``time_constant`` of ``pi`` and ``position``) to the best worst-case
 tracking RMS over the same draws instead of the point estimate.
 """
@@ -325,6 +327,8 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         n_draws=len(draws), n_rejected=n_rejected, other_sign=other / len(draws),
         method=f"Monte Carlo: {len(draws)} plants (a, b) drawn from a normal distribution with the model's "
                "covariance (seeded)" + (f", {n_rejected} more with a <= 0 left out" if n_rejected else "")
+               + (f", electrical time constant {model.electrical_time_constant:g} s kept in every plant"
+                  if model.electrical_time_constant else "")
                + ", not a guaranteed bound")
 
 

@@ -205,6 +205,23 @@ class ModelStructure:
 
     #: The linear part written out, for messages.
     formula: str = "b/(s + a)"
+    #: The parameters the linear part's frequency response depends on, in the order a frequency-domain
+    #: fit estimates them (:func:`identify.fit_frequency_response`); a bias, friction or a dead zone has none.
+    response_parameters: tuple[str, ...] = ("a", "b")
+
+    def frequency_response(self, values: Mapping[str, float], sample_period: float, omega, *,
+                           output: str = "angle", input_delay: int = 0) -> np.ndarray:
+        """The exact zero-order-hold response of the linear part, input to speed, at ``omega`` rad/s (complex).
+
+        ``output`` as :class:`identify.FrequencyResponse`'s: ``"speed"``, the sampled speed;
+        ``"angle"``, the mean speed over the interval the input is held; ``input_delay`` whole samples
+        (a factor ``z^-input_delay``).  Here ``b/(s + a)``:
+        :func:`identify.frequency_estimate.zoh_speed_response`.
+        """
+        from ..zoh_response import zoh_speed_response
+        # the values as given, not checked against the bounds: a poor fit's model is still drawn
+        return zoh_speed_response(float(values["a"]), float(values["b"]), sample_period, omega, output=output,
+                                  input_delay=input_delay)
 
     def discrete_linear_part(self, values: Mapping[str, float], sample_period: float) -> tuple[list[float],
                                                                                                 list[float]]:

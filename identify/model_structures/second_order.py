@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
+from motorsim.checks import ParameterError, check_real
 from motorsim.plant import Motor, lag_coefficients, lag_response
 
 from .base import ModelStructure, Parameter
@@ -39,6 +40,32 @@ class SecondOrder(ModelStructure):
     options: Mapping[str, object] = {}
     rank = 1
     formula = "b/((s + a)(tau_e s + 1))"
+    response_parameters: tuple[str, ...] = ("a", "b", "electrical_time_constant")
+
+    def frequency_response(self, values: Mapping[str, float], sample_period: float, omega, *,
+                           output: str = "angle", input_delay: int = 0) -> np.ndarray:
+        """The exact zero-order-hold response at ``omega`` rad/s, both poles, in the simulator's coefficients.
+
+        Over a sample ``h`` with the input ``v`` held, :func:`motorsim.plant.lag_coefficients` give
+        ``omega' = e_a omega + b q i + b (p - q) v`` and ``i' = e_c i + (1 - e_c) v``, so
+        ``i(z) = (1 - e_c) / (z - e_c)`` and ``omega(z) = (b (p - q) + b q i(z)) / (z - e_a)`` per unit
+        input (``"speed"``); the angle advances by ``p omega + b s i + b (r - s) v`` over the interval,
+        so the mean speed there (``"angle"``) is that over ``h``.  At ``tau_e -> 0`` both are
+        :func:`identify.frequency_estimate.zoh_speed_response`'s.
+        """
+        from ..zoh_response import OUTPUTS
+        if output not in OUTPUTS:
+            raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        h = check_real("sample_period", sample_period, positive=True)
+        b, tau = float(values["b"]), float(values["electrical_time_constant"])
+        if not tau > 0:
+            raise ParameterError(f"electrical_time_constant must be > 0 s for its frequency response, got {tau!r}")
+        e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(float(values["a"]), 1.0 / tau, h))
+        z = np.exp(1j * np.asarray(omega, dtype=float) * h)
+        current = (1.0 - e_c) / (z - e_c)
+        speed = b * ((p - q) + q * current) / (z - e_a)
+        g = speed if output == "speed" else (p * speed + b * s * current + b * (r - s)) / h
+        return g * z ** (-int(input_delay))
 
     def plant(self, values: Mapping[str, float], input_delay: int = 0) -> Motor:
         v = self.values(values)

@@ -50,7 +50,7 @@ DEFAULT_REFERENCE = "sine:10,10"
 CONTROLLER_FLAGS = ("reference", "model", "duty_weight", "time_constant", "integral_weight", "min_phase_margin",
                     "feedforward", "derivative")
 #: Flags of :func:`add_model_arguments` (their ``dest``): the model a controller is designed from.
-MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay")
+MODEL_FLAGS = ("a", "b", "friction", "bias", "input_delay", "electrical_time_constant")
 #: Units a reference's levels may carry (``step:1500rpm``), per quantity the controller tracks.
 REFERENCE_UNITS = {"speed": ("rad/s", "deg/s", "rpm", "rev/s"), "angle": ("rad", "deg", "rev")}
 _UNIT_NUMBER = re.compile(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(rad/s|deg/s|rev/s|rpm|rad|deg|rev)(?![\w/])")
@@ -92,7 +92,8 @@ def add_controller_arguments(parser: argparse.ArgumentParser, *, required: bool 
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``."""
+    """Flags of the design model: ``--a``, ``--b``, ``--friction``, ``--bias``, ``--input-delay``,
+    ``--electrical-time-constant``."""
     m = parser.add_argument_group("model (what the controller is designed from)")
     m.add_argument("--a", type=float, default=None, help="pole a in 1/s (or --model)")
     m.add_argument("--b", type=float, default=None, help="gain b in (rad/s^2)/duty (or --model)")
@@ -100,6 +101,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--bias", type=float, default=None, help="constant acceleration d in rad/s^2 (default 0)")
     m.add_argument("--input-delay", dest="input_delay", type=int, default=None,
                    help="input delay in samples (default 0)")
+    m.add_argument("--electrical-time-constant", dest="electrical_time_constant", type=float, default=None,
+                   metavar="S", help="time constant tau_e in s of a lag between the duty and the torque, the "
+                                     "model b/((s+a)(tau_e s+1)) (default 0: none)")
     parser.set_defaults(design_model_flags=True)     # these flags describe the design model, as --model does
 
 
@@ -236,7 +240,7 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
     """The design model: ``--model FILE`` if given, else the motor flags; ``--sample-period``, ``--counts-per-rev``."""
     source: Any
     if getattr(args, "model", None):
-        given = [name for name in ("a", "b", "friction", "bias", "input_delay")
+        given = [name for name in MODEL_FLAGS
                  if getattr(args, "design_model_flags", False) and getattr(args, name, None) is not None]
         if given:
             flags = ", ".join("--" + name.replace("_", "-") for name in given)
@@ -247,7 +251,8 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
         source = {"a": args.a, "b": args.b, **{k: getattr(args, k, 0) or 0 for k in ("friction", "bias",
                                                                                        "input_delay")}}
         source = PlantModel(source["a"], source["b"], args.sample_period, args.counts_per_rev,
-                            friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"])
+                            friction=source["friction"], bias=source["bias"], input_delay=source["input_delay"],
+                            electrical_time_constant=getattr(args, "electrical_time_constant", None) or 0.0)
     return check_design_model(PlantModel.from_source(source, args.sample_period, args.counts_per_rev),
                               f"--model {args.model}" if getattr(args, "model", None) else "--a/--b")
 
@@ -383,7 +388,9 @@ def run_control(args: argparse.Namespace) -> int:
     prediction = controller.predict(reference, args.duration)
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
-          f"({model.input_delay * model.sample_period:.6g} s), dt = {model.sample_period:g} s, "
+          f"({model.input_delay * model.sample_period:.6g} s), "
+          + (f"electrical time constant {model.electrical_time_constant:g} s, " if model.electrical_time_constant
+             else "") + f"dt = {model.sample_period:g} s, "
           f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     if speed_unit != "rad/s":
         from motorsim.units import speed_in
@@ -536,6 +543,9 @@ def _print_robustness(args: argparse.Namespace, controller: Controller, covarian
     """The margins at the point estimate and, with a covariance, across the drawn plants, and warnings."""
     from motorsim.robustness import analyse_robustness, loop_margins
     print(f"margins at the point estimate: {loop_margins(controller).describe()}")
+    if controller.model.electrical_time_constant:
+        print(f"  (the full model, electrical time constant {controller.model.electrical_time_constant:g} s "
+              f"included; the design's first-order part alone: {controller.first_order_margins().describe()})")
     if covariance is None:
         print("robustness across the model's uncertainty: give --model FILE.json with a covariance")
         return

@@ -16,7 +16,10 @@ from motorid.arguments import CommandError, print_to_stderr
 from motorid.commands.identify import read_inputs
 from motorid.commands.importing import add_column_arguments
 
-__all__ = ["add_frequency_arguments", "run_frequency", "format_frequency_table"]
+__all__ = ["add_frequency_arguments", "run_frequency", "format_frequency_table", "FIT_STRUCTURES"]
+
+#: The structures ``--structure`` fits (those with a frequency response of their own).
+FIT_STRUCTURES = ("linear", "second-order")
 
 
 def add_frequency_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +41,12 @@ def add_frequency_arguments(parser: argparse.ArgumentParser) -> None:
                         help="welch's segment length in samples (default about a sixteenth of the run)")
     parser.add_argument("--level", type=float, default=0.95,
                         help="confidence level of the bounds, a probability (default 0.95)")
+    parser.add_argument("--structure", default=None, choices=FIT_STRUCTURES,
+                        help="also fit this model structure to the response, weighted by its bounds, print its "
+                             "parameters with standard errors and overlay it: linear b/(s+a), second-order "
+                             "b/((s+a)(tau_e s+1)) (default: no fit)")
+    parser.add_argument("--input-delay", dest="input_delay", type=int, default=0, metavar="N",
+                        help="whole samples of input delay in the --structure fit (default 0)")
     add_column_arguments(parser, required=False)
 
 
@@ -71,6 +80,32 @@ def _models(paths: list[str], frf) -> list:
     return models
 
 
+def _fit(args: argparse.Namespace, frf) -> Any:
+    """The ``--structure`` fit to ``frf`` (:func:`identify.fit_frequency_response`), None without the flag."""
+    from identify.errors import NotIdentifiableError
+    from identify.frequency_fit import fit_frequency_response
+    if args.input_delay != 0 and args.structure is None:
+        raise CommandError(f"--input-delay {args.input_delay} applies to the --structure fit: give --structure")
+    if not 0 <= args.input_delay <= 1000:
+        raise CommandError(f"--input-delay must be 0...1000 samples, got {args.input_delay!r}")
+    if args.structure is None:
+        return None
+    try:
+        return fit_frequency_response(frf, input_delay=args.input_delay, structure=args.structure)
+    except NotIdentifiableError as exc:
+        raise CommandError(f"--structure {args.structure}: {exc}") from exc
+
+
+def _describe_fit(estimate, structure: str) -> str:
+    """The fit's parameters with standard errors, and how well it fits within the bounds."""
+    se, units = estimate.stderr(), estimate.model_structure().units(estimate.input_unit)
+    values = estimate.values()
+    parts = [f"{n} = {values[n]:.6g} +- {se[n]:.2g} {units.get(n, '')}".rstrip() for n in estimate.param_names]
+    delay = f", input delay {estimate.input_delay} samples" if estimate.input_delay else ""
+    return (f"fit {structure}: {', '.join(parts)}{delay}; standardised residual RMS {estimate.residual_rms:.3g} "
+            f"(about 1 within the bounds), fit {estimate.fit_percent:.2f} %")
+
+
 def _distortion(recs) -> Any:
     """The BLA of odd-multisine runs (None for any other input)."""
     from identify.best_linear import best_linear_approximation
@@ -95,6 +130,9 @@ def run_frequency(args: argparse.Namespace) -> int:
     if distortion is not None and distortion.realisations >= 2:
         frf = distortion.frequency_response   # the BLA: its bound holds the nonlinear distortion too
     models = _models(args.model, frf)
+    fitted = _fit(args, frf)
+    if fitted is not None:
+        models.append(frf.model_of(fitted, name=f"{args.structure}"))
     output = {"angle": "interval-mean speed from the angle", "speed": "the speed column"}[frf.output]
     source = "duty" if frf.input_unit == "duty" else f"input ({frf.input_unit})"
     say(f"frequency response {source} -> speed ({output}), {frf.method}, {len(frf)} lines, "
@@ -105,6 +143,8 @@ def run_frequency(args: argparse.Namespace) -> int:
         where = ", ".join(f"{w:.3g}" for w in out[:12]) + (" ..." if len(out) > 12 else "")
         say(f"model {m.name}: " + (f"outside the data's bound at {len(out)} of {len(frf)} lines ({where} rad/s)"
                                    if len(out) else "within the data's bound at every line"))
+    if fitted is not None:
+        say(_describe_fit(fitted, args.structure))
     if distortion is not None:
         say(f"distortion  {distortion.summary()}")
     if args.plot:
@@ -116,6 +156,7 @@ def run_frequency(args: argparse.Namespace) -> int:
         doc = {"frequency_response": frf.to_dict(args.level),
                "models": [{"name": m.name, "gain_db": (20 * np.log10(np.abs(m.response))).tolist(),
                            "outside": frf.departures(m, args.level).tolist()} for m in models],
-               "distortion": None if distortion is None else distortion.to_dict()}
+               "distortion": None if distortion is None else distortion.to_dict(),
+               "fit": None if fitted is None else fitted.to_dict()}
         print(json.dumps(doc))
     return 0

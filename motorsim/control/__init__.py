@@ -29,6 +29,15 @@ Controllers
 :class:`LQRPosition` (``lqr-position``): LQR on the model with the input delay in the state.
 The pole-placement designs (``pi``, ``position``) keep ``min_phase_margin`` on the exact model,
 input delay included (:meth:`Controller.margins`), lengthening a time constant that cannot.
+
+A model with an electrical time constant (:attr:`PlantModel.electrical_time_constant`, the
+``second-order`` structure ``b / ((s + a)(tau_e s + 1))``): every design is made on its first-order
+part (the step feeds back the speed and past duties only), and judged on the full plant, exact with
+its delay (:meth:`PlantModel.speed_transfer_function`): the margins, the stability verdict, the
+prediction and the robustness draws.  ``pi`` and ``position`` keep ``min_phase_margin`` there; a
+design unstable there is refused (:class:`UnstableDesignError`), and one whose phase margin the
+electrical pole cuts by more than :data:`~motorsim.control.pole_placement.ELECTRICAL_PHASE_COST`
+degrees, to below :data:`MIN_PHASE_MARGIN`, is warned of (:class:`DesignLimitWarning`).
 :class:`ClosedLoopExperiment` asks a rig to run one of them against a :class:`Reference`.
 
 Layout
@@ -63,14 +72,14 @@ from .lqr import INTEGRAL_WEIGHT, LQRPosition, LQRSpeed, LQRSpeedIntegral
 from .model import PlantModel
 from .mpc import OneStepMPC
 from .pi import PISpeed
-from .pole_placement import MIN_PHASE_MARGIN, DesignLimitWarning
+from .pole_placement import MIN_PHASE_MARGIN, DesignLimitWarning, UnstableDesignError
 from .position import PositionPD
 from .references import Reference, parse_reference
 
 __all__ = ["PlantModel", "Reference", "parse_reference", "Controller", "OneStepMPC", "PISpeed", "PositionPD",
            "Feedforward", "LQRSpeed", "LQRSpeedIntegral", "LQRPosition", "Prediction", "ClosedLoopExperiment",
            "CONTROLLERS", "design_controller", "tracking_error", "feedforward_gains", "settings_from",
-           "DesignLimitWarning", "MIN_PHASE_MARGIN", "INTEGRAL_WEIGHT"]
+           "DesignLimitWarning", "UnstableDesignError", "MIN_PHASE_MARGIN", "INTEGRAL_WEIGHT"]
 
 # names of the fixed-point step this package no longer holds: old imports warn for one release
 __getattr__, __dir__ = lazy_attributes(__name__, moved=dict.fromkeys(("GAIN_BITS", "GAIN_ORDER", "gains_from_wire"),

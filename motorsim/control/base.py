@@ -99,29 +99,51 @@ class Controller:
         return ControlLoop(self.kind, self.gains(), self.preview, reference, duty_limit)
 
     def plant(self) -> control.TransferFunction:
-        """Duty to what the controller measures: speed in counts/sample, or counts for position."""
+        """Duty to what the controller measures: speed in counts/sample, or counts for position (the full
+        model: input delay and electrical time constant included)."""
+        return self._plant_of(self.model)
+
+    def _plant_of(self, model: PlantModel) -> control.TransferFunction:
         import control
-        p = self.model.speed_transfer_function()
+        p = model.speed_transfer_function()
         if self.quantity == "angle":
-            p = p * control.tf([1.0, 0.0], [1.0, -1.0], self.model.sample_period)
+            p = p * control.tf([1.0, 0.0], [1.0, -1.0], model.sample_period)
         return p
 
-    def closed_loop(self) -> tuple[control.TransferFunction, control.TransferFunction]:
-        """``(T_y, T_u)``: previewed reference to measured output and to duty, via ``control.feedback``."""
+    def closed_loop(self) -> tuple[control.LTI, control.LTI]:
+        """``(T_y, T_u)``: previewed reference to measured output and to duty, via ``control.feedback``.
+
+        Transfer functions; state-space systems for a model with an electrical time constant, whose
+        two poles near 1 (and an integrating law's) make the closed loop's polynomials lose digits
+        (about 1e-6 of the response, where state space keeps 1e-12).
+        """
         import control
         cr, cy = self.laws()
         p = self.plant()
-        sensitivity = control.feedback(control.tf([1.0], [1.0], self.model.sample_period), p * cy, sign=1)
+        one: control.LTI = control.tf([1.0], [1.0], self.model.sample_period)
+        if self.model.electrical_time_constant:
+            cr, cy, p, one = control.ss(cr), control.ss(cy), control.ss(p), control.ss([], [], [], 1.0,
+                                                                                         self.model.sample_period)
+        sensitivity = control.feedback(one, p * cy, sign=1)
         t_u = sensitivity * cr
         return p * t_u, t_u
 
     def margins(self) -> Margins:
-        """Gain, phase and delay margins of the loop broken at the duty, ``L = -Cy P``, on the model (delay included).
+        """Gain, phase and delay margins of the loop broken at the duty, ``L = -Cy P``, on the model (delay
+        and electrical time constant included).
 
         :func:`motorsim.robustness.loop_margins` gives the same on another plant.
         """
         _, cy = self.laws()
         loop = -(self.plant() * cy)
+        return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), self.model.sample_period)
+
+    def first_order_margins(self) -> Margins:
+        """:meth:`margins` of the same gains on the model's first-order part (:meth:`PlantModel.first_order`):
+        what a design that drops the electrical time constant would report; :meth:`margins` itself when
+        the model has none."""
+        _, cy = self.laws()
+        loop = -(self._plant_of(self.model.first_order()) * cy)
         return discrete_margins(np.ravel(loop.num[0][0]), np.ravel(loop.den[0][0]), self.model.sample_period)
 
     def is_stable(self) -> bool:

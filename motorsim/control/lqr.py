@@ -1,5 +1,9 @@
 """LQR designs on the exact model with the input delay in the state: :class:`LQRSpeed` (``lqr``),
-:class:`LQRSpeedIntegral` (``lqr-integral``) and :class:`LQRPosition` (``lqr-position``)."""
+:class:`LQRSpeedIntegral` (``lqr-integral``) and :class:`LQRPosition` (``lqr-position``).
+
+The state the firmware feeds back is the speed and the duties in the delay line: a model with an
+electrical time constant is designed on its first-order part, and the loop checked on the full model
+(:func:`~motorsim.control.pole_placement.check_full_model`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -11,6 +15,7 @@ from ..checks import ParameterError, check_real
 from ..fixed_point import SPEED_REFERENCE_BITS, SPEED_REFERENCE_LSB, gain_value, quantise_gain
 from .base import Controller, delay_line_laws
 from .model import PlantModel
+from .pole_placement import check_full_model
 
 __all__ = ["LQRSpeed", "LQRSpeedIntegral", "LQRPosition", "INTEGRAL_WEIGHT"]
 
@@ -58,6 +63,7 @@ class _LQR(Controller):
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "duty_weight", check_real("duty_weight", self.duty_weight, positive=True))
+        check_full_model(self)     # a design on the first-order part, checked with the electrical pole
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,8 +175,8 @@ class LQRSpeedIntegral(_LQR):
     kind: ClassVar[str] = "lqr-integral"
 
     def __post_init__(self):
-        super().__post_init__()
         object.__setattr__(self, "integral_weight", check_real("integral_weight", self.integral_weight, positive=True))
+        super().__post_init__()
 
     def state_gain(self) -> np.ndarray:
         """``K`` of ``u = -K x``, ``x = [y, u_{k-1}, ..., u_{k-D-1}, s]`` in counts per sample, duty, counts."""

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..checks import ParameterError, ParameterTypeError, check_int, check_real
-from ..plant import Motor, delay_at, zoh_matrices
+from ..plant import Motor, delay_at, lag_coefficients, zoh_matrices
 
 if TYPE_CHECKING:
     import control
@@ -36,6 +36,23 @@ class PlantModel:
         Constant acceleration ``d`` in rad/s^2.
     input_delay : int, optional
         Whole samples between a duty and the motor, >= 0.
+    electrical_time_constant : float, optional
+        Time constant ``tau_e`` in s of a lag between the duty and the torque, >= 0 (default 0:
+        none): the plant is then ``b / ((s + a)(tau_e s + 1))`` (the ``second-order`` structure,
+        :attr:`motorsim.plant.Motor.electrical_time_constant`).  The designs use the first-order
+        part (:meth:`speed_coefficients`, :meth:`first_order`); the margins, the stability
+        verdict and the predicted closed loop use the full plant (:meth:`speed_transfer_function`).
+
+    Notes
+    -----
+    With ``tau_e > 0`` the measured speed obeys, with the state ``[omega, i]`` (``i`` the lagged
+    drive) and the coefficients ``e_a, e_c, p, r, q, s`` of :func:`~motorsim.plant.lag_coefficients`
+    over one sample (the simulator's own),
+    ``omega' = e_a omega + b q i + b (p - q) v``, ``i' = e_c i + (1 - e_c) v`` and
+    ``angle' - angle = p omega + b s i + b (r - s) v``, so the duty to the differenced counts is
+    ``y(z) / u(z) = (S / h) n(z) / (z^(D+1) (z - e_a)(z - e_c))`` with
+    ``n(z) = p ((z - e_c) b (p - q) + b q (1 - e_c)) + b s (1 - e_c)(z - e_a) + b (r - s)(z - e_a)(z - e_c)``
+    and ``S`` the :attr:`speed_scale`; at ``tau_e = 0`` it is the first-order model of :mod:`motorsim.control`.
 
     Examples
     --------
@@ -51,10 +68,12 @@ class PlantModel:
     friction: float = 0.0
     bias: float = 0.0
     input_delay: int = 0
+    electrical_time_constant: float = 0.0
 
     def __post_init__(self):
-        motor = Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay)
-        for name in ("a", "b", "friction", "bias", "input_delay"):
+        motor = Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay,
+                      electrical_time_constant=self.electrical_time_constant)
+        for name in ("a", "b", "friction", "bias", "input_delay", "electrical_time_constant"):
             object.__setattr__(self, name, getattr(motor, name))
         if self.input_delay > 50:
             raise ParameterError(f"input_delay must be <= 50 samples for a controller, got {self.input_delay!r}")
@@ -69,8 +88,9 @@ class PlantModel:
         Parameters
         ----------
         source : Estimate, Motor or PlantModel
-            Anything with ``a`` and ``b``; an estimate's ``extra`` gives ``friction``,
-            ``bias`` and ``input_delay``, a Motor's fields give them directly.
+            Anything with ``a`` and ``b``; an estimate's model structure gives ``friction``,
+            ``bias``, ``input_delay`` and ``electrical_time_constant`` (its plant,
+            ``Estimate.motor()``), a Motor's fields give them directly.
         sample_period : float, optional
             Controller sample period in s (default: the source's, if it has one).  A source
             with a sample period of its own has its input delay counted again at this one (the
@@ -88,9 +108,11 @@ class PlantModel:
             raise ParameterTypeError("source must be an Estimate, a Motor or a PlantModel, "
                                      f"got {type(source).__name__}")
         extra = dict(getattr(source, "extra", {}) or {})
-        for name in ("friction", "bias", "input_delay"):
-            if hasattr(source, name) and not isinstance(source, type):
-                extra.setdefault(name, getattr(source, name))
+        plant = source.motor() if callable(getattr(source, "motor", None)) else source   # the structure's plant
+        for name in ("friction", "bias", "input_delay", "electrical_time_constant"):
+            for holder in (plant, source):
+                if hasattr(holder, name) and not isinstance(holder, type):
+                    extra.setdefault(name, getattr(holder, name))
         own_period = getattr(source, "sample_period", None)
         sample_period = sample_period if sample_period is not None else own_period
         if sample_period is None:
@@ -102,7 +124,7 @@ class PlantModel:
             delay = delay_at(delay, own_period, check_real("sample_period", sample_period, positive=True))
         return cls(float(source.a), float(source.b), sample_period, counts_per_rev,
                    friction=float(extra.get("friction", 0.0)), bias=float(extra.get("bias", 0.0)),
-                   input_delay=delay)
+                   input_delay=delay, electrical_time_constant=float(extra.get("electrical_time_constant", 0.0)))
 
     @property
     def speed_scale(self) -> float:
@@ -114,8 +136,18 @@ class PlantModel:
         """Counts per rad: ``counts_per_rev / (2 pi)``."""
         return self.counts_per_rev / (2.0 * math.pi)
 
+    def first_order(self) -> "PlantModel":
+        """This model without its electrical time constant: the first-order part the designs are made on."""
+        return dataclasses.replace(self, electrical_time_constant=0.0) if self.electrical_time_constant else self
+
+    def motor(self) -> Motor:
+        """The plant as the simulator's :class:`~motorsim.plant.Motor` (electrical time constant included)."""
+        return Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay,
+                     electrical_time_constant=self.electrical_time_constant)
+
     def speed_coefficients(self) -> tuple[float, float, float, float]:
-        """``(e, g, beta1, beta2)`` of the exact model (:mod:`motorsim.control`), in counts per sample per duty."""
+        """``(e, g, beta1, beta2)`` of the exact first-order model (:mod:`motorsim.control`), in counts per
+        sample per duty: the first-order part's when the model has an electrical time constant."""
         e, g, p, q = (float(x) for x in zoh_matrices(self.a, self.b, self.sample_period))
         h, s = self.sample_period, self.speed_scale
         return e, g * s, q / h * s, (p * g - e * q) / h * s
@@ -125,12 +157,26 @@ class PlantModel:
         return (self.bias - self.friction * sign) / self.b
 
     def speed_transfer_function(self) -> control.TransferFunction:
-        """Duty to measured speed (counts per sample), ``(beta1 z + beta2) / (z^(D+1) (z - e))``."""
+        """Duty to measured speed (counts per sample), ``(beta1 z + beta2) / (z^(D+1) (z - e))``; with an
+        electrical time constant the full plant's (class Notes), both poles exact."""
         import control
+        delay = np.r_[1.0, np.zeros(self.input_delay + 1)]
+        if self.electrical_time_constant:
+            num, den = self._lag_speed_polynomials()
+            return control.tf(num, np.polymul(delay, den), self.sample_period)
         e, _, b1, b2 = self.speed_coefficients()
-        den = np.polymul(np.r_[1.0, np.zeros(self.input_delay + 1)], [1.0, -e])
-        return control.tf([b1, b2], den, self.sample_period)
+        return control.tf([b1, b2], np.polymul(delay, [1.0, -e]), self.sample_period)
+
+    def _lag_speed_polynomials(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(S / h) n(z)`` and ``(z - e_a)(z - e_c)`` of the class Notes (no delay)."""
+        h, b = self.sample_period, self.b
+        e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(self.a, 1.0 / self.electrical_time_constant, h))
+        den = np.asarray(np.polymul([1.0, -e_a], [1.0, -e_c]))
+        num = np.polyadd(np.polyadd(p * b * np.array([p - q, -e_c * (p - q) + q * (1.0 - e_c)]),
+                                    b * s * (1.0 - e_c) * np.array([1.0, -e_a])), b * (r - s) * den)
+        return num * (self.speed_scale / h), den
 
     def metadata(self) -> dict[str, str]:
-        """The model as recording metadata ``model_NAME``."""
-        return {f"model_{f.name}": repr(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        """The model as recording metadata ``model_NAME`` (the electrical time constant only when nonzero)."""
+        return {f"model_{f.name}": repr(getattr(self, f.name)) for f in dataclasses.fields(self)
+                if f.name != "electrical_time_constant" or self.electrical_time_constant}

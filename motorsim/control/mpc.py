@@ -8,6 +8,7 @@ from ..checks import ParameterError, check_real
 from ..fixed_point import SPEED_REFERENCE_LSB, quantise_gain
 from .base import Controller, delay_line_laws
 from .model import PlantModel  # noqa: F401  (the examples')
+from .pole_placement import check_full_model
 
 __all__ = ["OneStepMPC"]
 
@@ -44,6 +45,12 @@ class OneStepMPC(Controller):
     ``lambda`` near 0 approaches dead-beat control of the measured speed, whose duty rings
     at the zero ``-beta2 / beta1`` (about -0.96 at 5 ms) of the differenced-counts model.
 
+    A model with an electrical time constant is predicted on its first-order part (the step
+    feeds back the speed and the past duties only); the loop is then checked on the full model
+    (:func:`~motorsim.control.pole_placement.check_full_model`): refused when unstable there, warned
+    of when the electrical pole costs more than
+    :data:`~motorsim.control.pole_placement.ELECTRICAL_PHASE_COST` degrees of phase margin.
+
     Examples
     --------
     >>> mpc = OneStepMPC(PlantModel(25.0, 3.0, 0.005, 16667))
@@ -59,6 +66,7 @@ class OneStepMPC(Controller):
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "duty_weight", check_real("duty_weight", self.duty_weight, nonnegative=True))
+        check_full_model(self)
 
     def _coefficients(self) -> tuple[float, list[float], float, float]:
         """``(K, [c_1 ... c_{D+1}], e^(D+1), g S_D)`` of ``y_hat = e^(D+1) y + beta1 u + sum c_m u_{k-m} + g S_D o``."""

@@ -25,12 +25,13 @@ class PISpeed(PolePlacement):
     is at the limit and the error pushes further into it (conditional integration).
     :meth:`predict` closes the loop on the full model (differenced counts, delay).
 
-    The model the poles are placed on has no input delay; the loop on the full one must keep
-    ``min_phase_margin`` degrees, or the time constant is lengthened until it does (a
-    :class:`DesignLimitWarning` names both time constants).  On the article's motor at 5 ms the
-    shortest time constants that keep 60 degrees are 16.7, 26 and 32.5 ms for an input delay of
-    0, 1 and 2 samples (45 degrees: 10.7, 19.4 and 25.4 ms); a step then overshoots by about 6 %
-    (about 27 % at 45 degrees), where 10 ms with one sample of delay leaves 6 degrees and 107 %.
+    The model the poles are placed on has no input delay (nor an electrical time constant: its
+    first-order part); the loop on the full one must keep ``min_phase_margin`` degrees, or the time
+    constant is lengthened until it does (a :class:`DesignLimitWarning` names both time constants).
+    On the article's motor at 5 ms the shortest time constants that keep 60 degrees are 16.7, 26
+    and 32.5 ms for an input delay of 0, 1 and 2 samples (45 degrees: 10.7, 19.4 and 25.4 ms); a
+    step then overshoots by about 6 % (about 27 % at 45 degrees), where 10 ms with one sample of
+    delay leaves 6 degrees and 107 %.
 
     Parameters
     ----------

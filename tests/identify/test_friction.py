@@ -211,3 +211,27 @@ def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
     for name in ("a", "b", "friction", "bias", "dead_zone"):
         # the two responses agree to ~1e-13; the fit amplifies that by its conditioning, far below CLOSE
         assert slow.value(name) == pytest.approx(fast.value(name), rel=1e-7, abs=1e-9), name
+
+
+def test_the_structures_at_one_delay_share_their_linear_fit(monkeypatch):
+    # each scanned candidate that is fitted in full checks itself against the linear model on its rows; the
+    # structures fitted at one delay (the same rows) share that fit, and it decides nothing differently from
+    # a fit of its own
+    from identify import friction
+    from identify.data import prepare_segments
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
+    made = []
+    linear_fit = friction._linear_fit
+    monkeypatch.setattr(friction, "_linear_fit", lambda *args: made.append(args[2]) or linear_fit(*args))
+    segs = prepare_segments([rec], 1, skip=2)
+    fitted = {}
+    for share in (True, False):
+        scan = friction.FrictionScan()
+        for structure in ("dead-zone", "friction"):
+            if not share:
+                scan.linear.clear()
+            fitted[share, structure] = friction.friction_candidate([rec], segs, 1, structure, False, scan=scan)
+    assert made == [1, 1, 1]                # once for both structures when shared, once for each when not
+    for structure in ("dead-zone", "friction"):
+        assert fitted[True, structure].refined
+        assert fitted[True, structure].candidate == fitted[False, structure].candidate

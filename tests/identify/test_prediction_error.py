@@ -130,9 +130,9 @@ def _open_loop_runs():
 
 
 def test_open_loop_runs_are_not_taken_for_closed_loop():
-    # measured: at most 0.02 on these; the rule is FEEDBACK_SHARE
+    # measured: at most 0.044 on these (the closed loops below: 0.88 and more); the rule is FEEDBACK_SHARE
     shares = [feedback_share(rec) for rec in _open_loop_runs()]
-    assert max(shares) < 0.05 < FEEDBACK_SHARE, shares
+    assert max(shares) < 0.1 < FEEDBACK_SHARE, shares
     assert not any(feedback_evidence(rec) for rec in _open_loop_runs())
 
 
@@ -180,6 +180,29 @@ def test_default_covers_a_delay_the_closed_loop_cannot_pin_down():
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
     assert (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A
     assert not est.selection.clear
+
+
+def test_default_fits_a_closed_loop_without_disturbance_by_output_error():
+    # a one-step MPC on the simulated bench: nothing is fed back but the encoder's rounding, output error is
+    # consistent (within 1 % here), but the rounding reaches the duty, so the choice is not called clear
+    from motorsim.control import ClosedLoopExperiment, OneStepMPC, PlantModel, parse_reference
+    rec = SimRig(Motor(A, B, friction=20.0), Encoder(1000), rng=np.random.default_rng(0)).run(
+        ClosedLoopExperiment(OneStepMPC(PlantModel(A, B, 0.005, 1000)), parse_reference("sine:10,10"), 6.0))
+    est = fit(rec)
+    assert est.method in ("oe", "oe-friction")
+    assert any("no disturbance the loop feeds back" in note for note in est.notes)
+    assert abs(est.a / A - 1) < 0.01 and abs(est.b / B - 1) < 0.01
+    assert not est.selection.clear
+
+
+def test_rounding_fed_back_through_a_derivative_is_fitted_as_a_disturbance_and_covered():
+    # the PD loop without a torque: its derivative of counts feeds the rounding back hard enough that a white
+    # disturbance is found; the answer is then pem-disturbance's, within 0.1 % and covering
+    rec = position_loop(5, samples=6000, disturbance=0.0)
+    est = fit(rec)
+    ci = est.confidence_interval(0.95)
+    assert abs(est.a / A - 1) < 1e-3 and abs(est.b / B - 1) < 1e-3
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
 
 
 def test_default_refuses_a_held_bias_in_a_closed_loop(loops):

@@ -379,3 +379,46 @@ def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
     monkeypatch.setattr(selection, "_chosen_fit", singular)
     est = fit(_run(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3))))
     assert not est.selection.clear and "no finite interval for a and b" in est.selection.doubt
+
+
+@pytest.mark.parametrize("with_rounding", [False, True], ids=["batch-means", "with-rounding"])
+def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
+    # the selection scores its candidates with their differences stacked (one product with the rounding
+    # realisations for many): each statistic is the candidate's own to rounding, for more candidates than
+    # one stack holds
+    from identify import comparison
+    from identify.comparison import Candidate, CandidateFit, statistic
+    rng = np.random.default_rng(4)
+    n = 3000
+    best_r = rng.normal(0, 1e-3, n)
+    best = CandidateFit(Candidate("linear", 0, 25.0, 3.0, float(best_r @ best_r)), best_r)
+    fits = []
+    for i in range(comparison.STATISTICS_AT_ONCE + 5):
+        r = best_r + rng.normal(0, 1e-4 * (i + 1), n) + 1e-4 * np.sin(np.arange(n) / (30.0 + i))
+        fits.append(CandidateFit(Candidate("bias", i % 11, 25.0, 3.0, float(r @ r)), r))
+    fits.append(CandidateFit(Candidate("bias", 3, 25.0, 3.0, best.candidate.residual_sum * 0.5), best_r * 0.9))
+    rounding = rng.uniform(-0.5, 0.5, (n, 16)) * 1e-3 if with_rounding else None
+    stacked = comparison._statistics(fits, best, rounding)
+    own = [statistic(f.residuals - best_r, f.candidate.residual_sum - best.candidate.residual_sum, best_r, rounding)
+           for f in fits]
+    assert stacked[-1] == own[-1] == 0.0                   # a smaller residual sum scores 0
+    assert stacked[:-1] == pytest.approx(own[:-1], rel=1e-12)
+    assert min(own[:-1]) > 0
+
+
+def test_the_rounding_realisations_are_the_encoder_rounding_at_each_phase():
+    # column j: -step frac(model / step + phase_j), centred per segment (model = output - residuals)
+    from identify.comparison import PHASES, rounding_realisations
+    from identify.data import prepare_segments
+    rec = _run(duration=2.0, counts=2000, noise=0.0)
+    segs = prepare_segments([rec], 0)
+    step = 2 * math.pi / 2000
+    residuals = np.concatenate([np.random.default_rng(i).uniform(-step / 2, step / 2, len(s.time))
+                                for i, s in enumerate(segs)])
+    got = rounding_realisations([rec], segs, residuals)
+    model = np.concatenate([s.output for s in segs]) - residuals
+    phases = (np.arange(PHASES) + 0.5) / PHASES
+    want = -step * np.mod(model[:, None] / step + phases, 1.0)
+    want -= want.mean(axis=0)               # one segment: centred over it
+    assert len(segs) == 1 and got.shape == (len(model), PHASES)
+    assert np.max(np.abs(got - want)) <= 1e-12 * step

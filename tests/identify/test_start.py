@@ -42,3 +42,23 @@ def test_grid_guess_is_the_dense_least_squares_solution(drop_rate):
     a_ref, b_ref = _dense_grid_guess(segments)
     assert a == a_ref                                  # the same grid point wins
     assert b == pytest.approx(b_ref, rel=1e-9)         # b from two exact solutions of one problem
+
+
+def test_the_regression_guess_is_kept_with_its_recording(monkeypatch):
+    # found once per recording (the default asks for it at every input delay) and kept with it: a recording
+    # that has been fitted still pickles (a sweep sends it to its workers); pooled recordings keep nothing
+    import pickle
+
+    from identify import start
+    runs = [SimRig(Motor(a, 3.0), Encoder(360, angle_noise=1e-3), rng=np.random.default_rng(a)).run(
+        Experiment(Sine(20.0, 150), 0.005, 2.0)) for a in (10, 25)]
+    fresh = [start._regression_guess([r]) for r in runs] + [start._regression_guess(runs)]
+    assert len(set(fresh)) == 3                                    # three different answers to tell apart
+    computed = []
+    compute = start._regression_guess
+    monkeypatch.setattr(start, "_regression_guess", lambda recs: computed.append(len(recs)) or compute(recs))
+    for _ in range(3):
+        assert [start.regression_guess([r]) for r in runs] + [start.regression_guess(runs)] == fresh
+    assert computed == [1, 1, 2, 2, 2]            # each recording once, the pooled pair every time
+    again = pickle.loads(pickle.dumps(runs[0]))
+    assert start.regression_guess([again]) == fresh[0] and computed[-1] == 2

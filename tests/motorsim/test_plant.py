@@ -191,3 +191,28 @@ def test_jittered_time_grid_equals_the_exact_per_interval_loop(jitter):
     exact = _speed_loop(motor, duty, t, 0.3)
     speed = simulate(motor, duty, t, initial_speed=0.3).speed
     assert np.max(np.abs(speed - exact)) <= 1e-12 * np.max(np.abs(exact))
+
+
+@pytest.mark.parametrize("dt, start", [(0.005, 1000.0), (0.25, 0.0)], ids=["float-grid", "bit-equal-intervals"])
+def test_a_long_run_in_blocks_has_the_bits_of_one_pass(monkeypatch, dt, start):
+    # the blocks carry each filter pass and the sum across: every sample sees the same operations in the
+    # same order, so the answer is the one-pass answer to the bit (not merely to rounding)
+    import motorsim.plant as plant
+    n = 4 * plant.ZOH_BLOCK + 1234
+    t = start + np.arange(n) * dt
+    duty = PRBS(seed=2).duty(n, dt).astype(float)
+    motor = Motor(25.0, 3.0, bias=-4.0)
+    blocked = simulate(motor, duty, t, initial_speed=0.7, initial_angle=-1.5)
+    monkeypatch.setattr(plant, "ZOH_BLOCK", 10 * n)
+    whole = simulate(motor, duty, t, initial_speed=0.7, initial_angle=-1.5)
+    assert np.array_equal(blocked.speed, whole.speed)
+    assert np.array_equal(blocked.angle, whole.angle)
+
+
+def test_simulate_tells_a_large_finite_duty_from_a_non_finite_one():
+    # the finiteness check sums the duty first: a sum that overflows is checked value by value
+    t = np.arange(4) * 0.01
+    out = simulate(Motor(25.0, 1e-10), np.full(4, 1e308), t)      # the duty's sum overflows, the run does not
+    assert np.all(np.isfinite(out.speed)) and out.speed[-1] > 0
+    with pytest.raises(ValueError, match="finite"):
+        simulate(Motor(25.0, 3.0), [0.0, np.nan, 0.0, 0.0], t)
