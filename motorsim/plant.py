@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .knobs import knob
 from .recursion import first_order_filter
 
@@ -282,8 +282,8 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     """
     if not isinstance(motor, Motor):
         raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
-    u = np.asarray(duty, dtype=float)
-    t = np.asarray(time, dtype=float)
+    u = real_array("duty", duty)
+    t = real_array("time", time)
     if u.ndim != 1 or t.shape != u.shape:
         raise ParameterError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
     if not (_all_finite(u) and _all_finite(t)):
