@@ -208,3 +208,11 @@ def test_design_refuses_an_angle_noise_whose_variance_is_no_float(tmp_path, caps
                  "--angle-noise", "1e308", "--out", str(tmp_path / "d"), "--no-plots"]) == 2
     line = _error(capsys)
     assert "angle_noise" in line and "1e+100" in line and "1e+308" in line
+
+
+def test_an_output_name_ending_in_a_separator_is_refused_not_written_as_a_file(runs, tmp_path, capsys):
+    # "m.json/" names a folder; Path() would drop the slash and write the file m.json
+    target = tmp_path / "m.json"
+    assert main(["identify", str(runs / "r.csv"), "--method", "oe", "--save", f"{target}/"]) == 2
+    assert "names a folder" in _error(capsys)
+    assert not target.exists()
