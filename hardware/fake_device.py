@@ -396,7 +396,7 @@ class FakeDevice:
 
     def _advance_motor(self, duty: float, h: float) -> None:
         """Hold ``duty`` for ``h`` s: the exact ZOH step (motorsim.plant's formulas), or
-        ``motorsim.simulate`` over the interval when there is Coulomb friction; behind an electrical lag,
+        ``motorsim.simulate`` over the interval when there is Coulomb or static friction; behind an electrical lag,
         its exact step (``motorsim.plant.lag_coefficients``)."""
         m = self._motor0
         if m.electrical_time_constant > 0:
@@ -407,7 +407,7 @@ class FakeDevice:
             self._speed_rad_s = e_a * w + p * (m.b * v + m.bias) + m.b * q * lag
             self._current = e_c * self._current + (1 - e_c) * v
             return
-        if m.friction == 0:
+        if m.breakaway == 0:
             if self._zoh is None or self._zoh[0] != h:
                 self._zoh = (h, *(float(x) for x in zoh_matrices(m.a, m.b, h)))
             _, e, g, p, q = self._zoh
@@ -613,7 +613,7 @@ def url_keys() -> tuple[str, ...]:
     >>> url_keys()[:6]
     ('a', 'b', 'friction', 'bias', 'dead_zone', 'input_delay')
     >>> url_keys()[6:9]
-    ('electrical_time_constant', 'counts_per_rev', 'count_offset')
+    ('electrical_time_constant', 'static_friction', 'counts_per_rev')
     """
     return tuple(k.name for k in _url_knobs())
 

@@ -113,7 +113,7 @@ def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | No
     recordings : sequence of Recording
         The runs to fit.
     names : sequence of str, optional
-        How to name each run in the message (default ``recordings[i]``).
+        How to name each run in the message (default its file, else ``recordings[i]``).
 
     Raises
     ------
@@ -124,7 +124,7 @@ def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | No
         test = input_lead_test(rec)
         rms0, rms1 = test.rms_recorded, test.rms_earlier
         if test.leads():
-            name = names[i] if names is not None else f"recordings[{i}]"
+            name = names[i] if names is not None else rec.name(i)
             unit = "rad" if rec.angle is not None or rec.counts is not None else "rad/s"
             delay = declared_input_delay(rec)
             declared = f" (input_delay_samples {delay} declared)" if delay else ""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
 from typing import Any, Sequence
 
@@ -22,9 +23,9 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "check_speed_agrees", "check_constant_input_runs", "prepare_segments", "first_rows", "delayed_segments",
-           "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit", "saturation_note", "CLOSED_LOOP_SATURATED_SHARE",
-           "declared_input_delay"]
+           "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "check_input_changes",
+           "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
+           "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
 #: Shortest segment (samples) an estimator uses; shorter ones carry almost no information.
 MIN_SEGMENT_SAMPLES = 4
@@ -45,7 +46,14 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
     """
     if isinstance(recordings, Recording):
         recordings = [recordings]
-    recs = list(recordings)
+    if isinstance(recordings, (str, bytes, os.PathLike)):
+        raise ParameterTypeError(f"recordings must be a Recording or a sequence of them, got the path {recordings!r}: "
+                                 "read it first (motorsim.read_recording)")
+    try:
+        recs = list(recordings)
+    except TypeError:
+        raise ParameterTypeError("recordings must be a Recording or a sequence of them, got "
+                                 f"{type(recordings).__name__}") from None
     if not recs:
         raise ParameterError("recordings must hold at least one Recording, got none")
     for i, r in enumerate(recs):
@@ -259,7 +267,7 @@ def prepare_segments(recordings: Sequence[Recording], input_delay: int = 0, skip
         drive = seg.duty[first - input_delay:stop - input_delay]
         t = seg.time[first:stop]
         if kind == "speed" and not np.all(np.isfinite(output)):
-            raise ParameterError(f"recordings[{i}] has non-finite speed values")
+            raise ParameterError(f"{recordings[i].name(i)} has non-finite speed values")
         out.append(Segment(time=t, drive=np.asarray(drive, float), output=np.asarray(output, float),
                            kind=kind, uniform=_is_uniform(t), recording=i, start=row + first))
     return out
@@ -313,6 +321,22 @@ def _check_delay_fits(recordings: Sequence[Recording], input_delay: int) -> None
                                    "be meaningless; check the delay or record a longer run")
 
 
+def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
+    """Refuse recordings whose input is zero or constant throughout (not persistently exciting).
+
+    Returns the pooled input.
+    """
+    duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
+    constant = bool(len(duty) and duty.min() == duty.max())     # two reductions, no temporary arrays
+    if constant and duty[0] == 0:
+        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
+                                   "use a sine, multisine or PRBS")
+    if constant:
+        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
+                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    return duty
+
+
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
     """Raise :class:`NotIdentifiableError` (or warn) when the data cannot determine the parameters.
 
@@ -330,18 +354,11 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     if total < 3 * n_params + 4:
         raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
                                    f"record at least {3 * n_params + 4} (a few time constants) samples")
-    duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
-    constant = bool(duty.min() == duty.max())           # two reductions, no temporary arrays
-    if constant and duty[0] == 0:
-        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
-                                   "use a sine, multisine or PRBS")
-    if constant:
-        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
-                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+    duty = check_input_changes(recordings)
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):
-        _check_moves(i, r)
-        check_speed_agrees(r, f"recordings[{i}]")
+        check_output_moves(r, r.name(i))
+        check_speed_agrees(r, r.name(i))
         _warn_saturation(i, r)
 
 
@@ -455,11 +472,12 @@ def _check_input_scale(largest: float, unit: str) -> None:
                                    "far from 1; give the input in its real unit (duty, V, %)")
 
 
-def _check_moves(i: int, r: Recording) -> None:
+def check_output_moves(r: Recording, name: str = "recording") -> None:
+    """Refuse a recording whose measured output (counts, angle or speed) never changes, naming it ``name``."""
     y, kind = _measured_output(r)
-    if y.min() == y.max():
-        what = "encoder count" if r.counts is not None else kind
-        raise NotIdentifiableError(f"recordings[{i}]: the {what} never changes (stuck at {y[0]:g}): the "
+    if len(y) and y.min() == y.max():
+        what, stuck = ("encoder count", f"{r.counts[0]}") if r.counts is not None else (kind, f"{y[0]:g}")
+        raise NotIdentifiableError(f"{name}: the {what} never changes (stuck at {stuck}): the "
                                    "encoder is stuck or the motor did not move; check the wiring and "
                                    "that the duty exceeds the motor's dead zone")
 
@@ -468,12 +486,12 @@ def _warn_saturation(i: int, r: Recording) -> None:
     limit = r.input_limit
     share = float(np.mean(np.abs(r.duty) >= limit)) if r.input_unit == "duty" and limit is not None else 0.0
     if share > _SATURATION_SHARE:
-        warnings.warn(f"recordings[{i}]: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
+        warnings.warn(f"{r.name(i)}: the duty sits at its limit +-{limit:g} for {100 * share:.0f} % of "
                       "the samples; the motor sees a square wave and the estimate rests on few "
                       "transitions: lower the amplitude", UserWarning, stacklevel=4)
     elif r.reference is None and (runs := r.saturated_runs()):
         # open loop only: a controller's duty at the limit is its own choice, not a clipped excitation
-        warnings.warn(f"recordings[{i}]: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
+        warnings.warn(f"{r.name(i)}: the duty is clipped at its limit +-{limit:g} in {len(runs)} run(s), "
                       f"{sum(n for _, n in runs)} samples (the first from row {runs[0][0]}): the input the "
                       "excitation asked for did not reach the motor there; the samples stay in the fit (the "
                       "recorded duty is the one applied); lower the amplitude if the fit or its residuals look "

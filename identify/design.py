@@ -147,7 +147,9 @@ def _checked_guesses(a, b, sample_period, duration, angle_noise, duty_limit, cou
         raise ParameterError(f"b must be nonzero, got {b!r}")
     return (a, b, check_real("sample_period", sample_period, positive=True),
             check_real("duration", duration, positive=True),
-            check_real("angle_noise", angle_noise, nonnegative=True), check_int("duty_limit", duty_limit, 1, 255),
+            # below 1e100 rad: its square (the noise variance) stays a float (1e308 overflowed)
+            check_real("angle_noise", angle_noise, nonnegative=True, below=1e100),
+            check_int("duty_limit", duty_limit, 1, 255),
             check_int("counts_per_rev", counts_per_rev, 1, 2**31 - 1))
 
 

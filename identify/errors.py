@@ -18,10 +18,13 @@ class CorruptedSamplesError(ValueError):
         The rows' ``seq`` numbers.
     reason : str
         Why they are suspect.
+    name : str, optional
+        How the message names the recording (its file; default ``recordings[recording]``).
     """
 
-    def __init__(self, recording: int, seq: tuple[int, ...], reason: str):
+    def __init__(self, recording: int, seq: tuple[int, ...], reason: str, name: str | None = None):
         self.recording, self.seq, self.reason = recording, tuple(seq), reason
         shown = ", ".join(map(str, self.seq[:10])) + (", ..." if len(self.seq) > 10 else "")
-        super().__init__(f"recordings[{recording}]: {reason} at seq {shown}; a corrupted sample? fix the data, or "
+        name = name or f"recordings[{recording}]"
+        super().__init__(f"{name}: {reason} at seq {shown}; a corrupted sample? fix the data, or "
                          "fit with outliers='drop' to drop them as gaps (--drop-outliers)")

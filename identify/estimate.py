@@ -234,6 +234,9 @@ class Estimate:
             if name in se and math.isfinite(se[name]):
                 lo, hi = ci[name]
                 text += f"   (stderr {se[name]:.2g})   95 % CI [{lo:.6g}, {hi:.6g}]"
+            elif name in self.model_range:                # a level fitted by a profile: its bracket
+                lo, hi = self.model_range[name]
+                text += f"   range [{lo:.6g}, {hi:.6g}]"
             return text.rstrip()
         lines = [f"method      {self.method}", *(line(n) for n in ("a", "b", *self.extra, "input_delay")),
                  f"b/a         {self.static_gain:.6g} (rad/s)/{self.input_unit}",

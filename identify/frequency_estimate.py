@@ -555,6 +555,9 @@ def frequency_response(recordings: Recording | Sequence[Recording], *, method: s
     parts = []
     for rec in recs:
         chosen, ex = _choose(rec, method, transient_periods)
+        if segment is not None and chosen != "welch":
+            raise ParameterError(f"segment applies to method 'welch' only, and method {chosen!r} was chosen "
+                                 f"(method={method!r}); got segment={segment!r}: drop it or choose method='welch'")
         if chosen == "periodic":
             period, harmonics = ex
             parts.append(_periodic(rec, period, harmonics, transient_periods))

@@ -23,7 +23,7 @@ handful of evaluations.  When the regression fails (too few moving samples), the
 linear output-error fit with a small friction guess is the start.  On long data
 (:data:`PREFIX_MIN_ROWS`) the first iterations run on the first quarter of every segment
 (:func:`_prefix_start`), and the fit stops once a step would move the parameters by less
-than :data:`FINAL_STEP` standard errors, taking that step without evaluating it: on the
+than :data:`~identify.friction_solver.FINAL_STEP` standard errors, taking that step without evaluating it: on the
 10 000-sample runs of ``motorid bench accuracy`` two evaluations on all rows (and three on
 a quarter) instead of five or six.  Stick/slip kinks leave nearby local minima
 a fraction of a standard error apart, so this can land on a neighbour of the minimum that
@@ -53,17 +53,27 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from motorsim.checks import check_bool
+from motorsim.checks import ParameterError, check_bool
 from motorsim.recording import Recording
 
 from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
-from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
+from .data import (
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    first_rows,
+    prepare_segments,
+    residual_unit,
+)
 from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
+from .friction_solver import levenberg_marquardt, reachable_cost, sum_squares
 from .model_structures import ModelStructure
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
+from .stiction import GATE_ROWS, StaticProfile, profile_static_level, stiction_evident
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import is_separable, separable_candidate, static_gain_ceiling
@@ -72,14 +82,8 @@ if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult
 
 __all__ = ["fit_output_error_friction", "speed_reverses", "segments_reverse", "friction_candidate", "FrictionScan",
-           "solve_friction", "friction_parameter_names"]
+           "solve_friction", "friction_parameter_names", "FrictionProblem"]
 
-
-
-def _sum_squares(r: np.ndarray) -> float:
-    """``r . r`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine
-    (on 15 000 rows and a loaded 2-core machine, 13 ms against 6 us)."""
-    return float(np.einsum("i,i->", r, r))
 
 
 def speed_reverses(recordings: Recording | list[Recording], *, rest_fraction: float = 0.02) -> bool:
@@ -110,7 +114,7 @@ def _reverses(speeds: Sequence[np.ndarray], rest_fraction: float) -> bool:
     return bool(np.any(w > 0) and np.any(w < 0)) or bool(np.any(np.abs(w) < rest_fraction * top))
 
 
-class _FrictionProblem:
+class FrictionProblem:
     """Residuals and analytic Jacobian of the friction model on pooled segments.
 
     The parameter vector holds the shared parameters ``names`` (``a``, ``b``,
@@ -119,11 +123,14 @@ class _FrictionProblem:
     projected out (residual and Jacobian columns centred: variable projection,
     Golub & Pereyra 1973).  Each segment keeps the modes of its last evaluation as
     the start of the next (:func:`identify.friction_response.friction_response`).
+    ``static`` is the static friction (the break-away level, not a fitted column: see
+    :mod:`identify.stiction`), 0 for none; set it with :meth:`at_level`.
     """
 
     def __init__(self, segments: list[Segment], names: tuple[str, ...]):
         self.segments = segments
         self.names = names
+        self.static = 0.0
         self.n_global = len(names)
         self.n_rows = sum(len(s.time) for s in segments)
         self.columns = [FRICTION_PARAMETERS.index(n) for n in names]
@@ -138,10 +145,17 @@ class _FrictionProblem:
         named = dict(zip(self.names, x[:self.n_global]))
         return named["a"], named["b"], named["friction"], named.get("bias", 0.0), named.get("dead_zone", 0.0)
 
+    def at_level(self, static: float) -> None:
+        """Set the static friction (rad/s^2; the friction level when smaller) for the evaluations that follow."""
+        if static != self.static:
+            self.static = float(static)
+            self._key = None
+
     def _response(self, x: np.ndarray, i: int, sensitivities: bool) -> FrictionResponse:
         seg = self.segments[i]
         resp = friction_response(*self.unpack(x), seg.drive, seg.time, float(x[self.n_global + i]),
-                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i])
+                                 uniform=seg.uniform, sensitivities=sensitivities, modes=self.modes[i],
+                                 static_friction=self.static)
         self.modes[i] = resp.modes
         return resp
 
@@ -178,6 +192,10 @@ class _FrictionProblem:
         self._key, self._value = key, (r, J)
         return r, J
 
+    def reachable_cost(self, r: np.ndarray, J: np.ndarray | None) -> float:
+        """The residual sum a full Gauss–Newton step from residuals ``r`` with Jacobian ``J`` would reach."""
+        return math.inf if J is None else reachable_cost(r, J)
+
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """Residuals at ``x`` (rad or rad/s, segments concatenated)."""
         return self.evaluate(x, False)[0]
@@ -200,7 +218,8 @@ class _FrictionProblem:
 
 
 def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
-                              fix_bias: bool = False, dead_zone: bool = True) -> Estimate:
+                              fix_bias: bool = False, dead_zone: bool = True,
+                              static_friction: bool = False) -> Estimate:
     """Fit ``a``, ``b``, Coulomb friction ``c``, bias ``d`` and a duty dead zone by output error.
 
     Parameters
@@ -216,6 +235,13 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     dead_zone : bool
         Also fit a dead zone ``z >= 0`` in input units: the motor receives
         ``u - sign(u) z`` when ``|u| > z``, else nothing (default True).
+    static_friction : bool
+        Also fit a static friction ``c_s >= c`` (stiction: the force the shaft at rest needs to break
+        away) by a profile over the levels the data apply (:mod:`identify.stiction`); needs
+        ``dead_zone=False`` (default False).  The estimate's structure is then ``stiction``, its
+        ``extra["static_friction"]`` the level, and the profile's bracket of levels (and the ``a`` and
+        ``b`` fitted across it) its :attr:`~identify.Estimate.model_range`.  With ``input_delay="auto"``
+        the delay is chosen by the fit without stiction.
 
     Returns
     -------
@@ -235,6 +261,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     input_delay = check_input_delay(input_delay)
     fix_bias = check_bool("fix_bias", fix_bias)
     dead_zone = check_bool("dead_zone", dead_zone)
+    if check_bool("static_friction", static_friction) and dead_zone:
+        raise ParameterError("static_friction=True fits no dead zone: pass dead_zone=False, got dead_zone=True")
     check_excitation(recs, 3 + (not fix_bias) + dead_zone)
     if input_delay == "auto":     # ranked by this model itself (the shortest delay within the noise of the best)
         delay = _select_delay(recs, "dead-zone" if dead_zone else "friction", fix_bias)
@@ -245,18 +273,37 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     segments = prepare_segments(recs, delay)
     names = friction_parameter_names(fix_bias=fix_bias, dead_zone=dead_zone)
     problem, res = solve_friction(recs, segments, names, delay)
+    profile = None
+    if static_friction:
+        res, profile = profile_static_level(problem, res, levenberg_marquardt)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    s2 = _sum_squares(res.fun) / problem.dof
+    s2 = sum_squares(res.fun) / problem.dof
     ends = np.cumsum([0] + [len(s.time) for s in segments])
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
     cov, cov_method = _covariance(recs, problem, res, s2, placed)
-    return Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
-                    residual_rms=math.sqrt(_sum_squares(res.fun) / problem.n_rows),
-                    fit_percent=segment_fit_percent(segments, placed),
-                    covariance=cov, param_names=names, covariance_method=cov_method,
-                    extra={"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay},
-                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit)
+    extra = {"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay}
+    est = Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
+                   residual_rms=math.sqrt(sum_squares(res.fun) / problem.n_rows),
+                   fit_percent=segment_fit_percent(segments, placed),
+                   covariance=cov, param_names=names, covariance_method=cov_method, extra=extra,
+                   residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
+                   input_limit=recs[0].input_limit)
+    return est if profile is None else _with_profile(est, profile)
+
+
+def _with_profile(est: Estimate, profile: StaticProfile) -> Estimate:
+    """The estimate of the ``stiction`` structure: the static level, and the profile's bracket as its model range
+    (the level's, and ``a``'s and ``b``'s over the levels in the bracket).  The bracket's ends are forces
+    ``|b u + d|`` at the fitted ``b``; as forces of the motor they are as uncertain as ``b``, so each end is
+    carried to the far end of ``b``'s interval."""
+    extra = {k: v for k, v in est.extra.items() if k != "dead_zone"}
+    extra["static_friction"] = profile.level
+    low_b, high_b = (abs(x / est.b) if math.isfinite(x) else math.inf for x in est.confidence_interval()["b"])
+    low_b, high_b = min(low_b, high_b, 1.0), max(low_b, high_b, 1.0)
+    ranges = {"static_friction": (max(profile.low * low_b, est.extra["friction"]), profile.high * high_b)}
+    if profile.ranges["a"] != (est.a, est.a) or profile.ranges["b"] != (est.b, est.b):
+        ranges.update(profile.ranges)
+    return dataclasses.replace(est, structure="stiction", extra=extra, model_range=ranges)
 
 
 def _select_delay(recs: list[Recording], structure: str, fix_bias: bool) -> int:
@@ -277,7 +324,7 @@ def friction_parameter_names(*, fix_bias: bool = False, dead_zone: bool = True) 
 
 
 def solve_friction(recordings: list[Recording], segments: list[Segment], names: tuple[str, ...],
-                   input_delay: int, *, thorough: bool = False) -> tuple[_FrictionProblem, OptimizeResult]:
+                   input_delay: int, *, thorough: bool = False) -> tuple[FrictionProblem, OptimizeResult]:
     """The friction model's least-squares fit on ``segments``: the problem and the optimiser's result.
 
     What :func:`fit_output_error_friction` does once the delay is fixed and the speed is known to
@@ -298,12 +345,12 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
     """
     if not segments:
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
-    problem = _FrictionProblem(segments, names)
+    problem = FrictionProblem(segments, names)
     x0 = _regression_start(problem)
     results = []
     if x0 is not None:
         with np.errstate(over="ignore", invalid="ignore"):
-            results.append(_levenberg_marquardt(problem, _prefix_start(problem, x0)))
+            results.append(levenberg_marquardt(problem, _prefix_start(problem, x0)))
     near = float(results[0].x[0]) if results and np.isfinite(results[0].x[0]) else None
     linear = _linear_fit(recordings, segments, input_delay, "bias" in names, near)
     if linear is not None and (thorough or not results or _suspicious(results[0], x0, linear)):
@@ -311,7 +358,7 @@ def solve_friction(recordings: list[Recording], segments: list[Segment], names: 
         # start lands worse than the linear model it contains (c = 0, no dead zone), start from that model
         for start in _linear_starts(problem, linear):
             with np.errstate(over="ignore", invalid="ignore"):
-                results.append(_levenberg_marquardt(problem, start))
+                results.append(levenberg_marquardt(problem, start))
     if not results:
         raise NotIdentifiableError("oe-friction: neither the regression nor the linear fit gives a start; "
                                    "the input does not move the motor")
@@ -407,8 +454,8 @@ def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, s
     except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
         return CandidateFit(Candidate(structure, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(res.fun, float)
-    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), _sum_squares(r)), r,
-                          refined=res.status != 3)
+    fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r,
+                          refined=res.status != 3, start=tuple(float(v) for v in res.x))
     if scan is not None and fitted.refined:
         scan.starts[structure] = (names, np.asarray(res.x, float))
         scan.best = min(scan.best, fitted.candidate.residual_sum)
@@ -420,7 +467,7 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound."""
     if not segs:
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
-    problem = _FrictionProblem(segs, names)
+    problem = FrictionProblem(segs, names)
     starts = [x for x in (scan.start(structure, names, len(segs)), _regression_start(problem)) if x is not None]
     if not starts:
         return solve_friction(recs, segs, names, delay)[1]
@@ -428,7 +475,7 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
     x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
         else starts[-1]
-    res = _levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
+    res = levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
     if res.status == 3:
         return res
     near = float(res.x[0]) if np.isfinite(res.x[0]) else None
@@ -441,10 +488,42 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
 
 
 def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, structure: ModelStructure, *,
-                        refine: bool = True, fix_bias: bool = False) -> CandidateFit:
-    """``structure`` (``friction`` or ``dead-zone``) as a candidate of the default's selection
-    (:func:`friction_candidate`; always fitted fully, ``refine`` has no effect)."""
+                        refine: bool = True, fix_bias: bool = False,
+                        starts: Sequence[tuple[float, ...]] = ()) -> CandidateFit:
+    """``structure`` (``friction``, ``dead-zone`` or ``stiction``) as a candidate of the default's selection
+    (:func:`friction_candidate`, or :func:`stiction_candidate` from the first of ``starts``, a friction
+    candidate's fit at the same delay, when given; always fitted fully, ``refine`` has no effect)."""
+    if structure.options.get("static_friction"):
+        return stiction_candidate(recs, segs, delay, structure.name, fix_bias, starts[0] if starts else None)
     return friction_candidate(recs, segs, delay, structure.name, fix_bias)
+
+
+def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str, fix_bias: bool,
+                       start: Sequence[float] | None = None) -> CandidateFit:
+    """The friction model with a static level (:mod:`identify.stiction`) fitted on ``segs`` at ``delay``, scored
+    as a candidate of the model selection (``name``: the structure's), its friction fit started from ``start``
+    (the friction structure's fit on the same rows) when given.  With a start, the level is fitted only where
+    :func:`identify.stiction.stiction_evident` finds one worth it on the first rows; elsewhere the candidate
+    comes back unfitted, with a note saying why."""
+    names = friction_parameter_names(fix_bias=fix_bias, dead_zone=False)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            problem = FrictionProblem(segs, names)
+            if start is not None and len(start) == problem.n_global + len(segs):
+                x = np.asarray(start, float)
+                if not stiction_evident(FrictionProblem(first_rows(segs, GATE_ROWS), names), x, levenberg_marquardt):
+                    # nothing calls for a static level: not a candidate (its fit would be the friction fit's)
+                    return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=(
+                        f"no static level above the friction fits the first {GATE_ROWS} rows better beyond the "
+                        "noise")), None)
+                res = levenberg_marquardt(problem, x)
+            else:
+                problem, res = solve_friction(recs, segs, names, delay)
+            res, _ = profile_static_level(problem, res, levenberg_marquardt)
+    except (NotIdentifiableError, np.linalg.LinAlgError) as exc:
+        return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
+    r = np.asarray(res.fun, float)
+    return CandidateFit(Candidate(name, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r)
 
 
 #: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
@@ -452,7 +531,7 @@ def structure_candidate(recs: list[Recording], segs: list[Segment], delay: int, 
 ROUNDING_DOMINATED = 4.0
 
 
-def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeResult, s2: float,
+def _covariance(recs: list[Recording], problem: FrictionProblem, res: OptimizeResult, s2: float,
                 placed: list[np.ndarray]) -> tuple[np.ndarray, str]:
     """The linearised encoder bootstrap when every angle is an encoder's and the residuals are mostly
     its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`).
@@ -460,7 +539,7 @@ def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeR
     jac = res.jac
     segs = problem.segments
     steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
-    variance = _sum_squares(res.fun) / problem.n_rows
+    variance = sum_squares(res.fun) / problem.n_rows
     encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
     if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
         cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
@@ -468,7 +547,7 @@ def _covariance(recs: list[Recording], problem: _FrictionProblem, res: OptimizeR
     return robust_covariance(jac, res.fun, s2, problem.n_global)
 
 
-def _regression_start(problem: _FrictionProblem) -> np.ndarray | None:
+def _regression_start(problem: FrictionProblem) -> np.ndarray | None:
     """A starting vector from one instrumental-variable regression on the measured speed.
 
     Over an interval where the speed keeps its sign ``s``, the exact ZOH step is linear in the
@@ -562,7 +641,7 @@ def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with
         found = separable_candidate(segments, near, with_bias=with_bias, ceiling=static_gain_ceiling(segments))
         if found is not None:
             a, b, bias, r, _ = found
-            return _LinearFit(a, b, bias, _sum_squares(r), speeds)
+            return _LinearFit(a, b, bias, sum_squares(r), speeds)
     fitted = linear_candidate(recs, segments, delay, with_bias)
     if fitted.residuals is None:
         return None
@@ -572,7 +651,7 @@ def _linear_fit(recs: list[Recording], segments: list[Segment], delay: int, with
 
 def _cost(res: OptimizeResult) -> float:
     """The fit's residual sum (inf when not finite or ``a`` left its bound)."""
-    cost = _sum_squares(res.fun)
+    cost = sum_squares(res.fun)
     return cost if math.isfinite(cost) and np.all(np.isfinite(res.x)) and res.x[0] > 1e-8 else math.inf
 
 
@@ -582,7 +661,7 @@ def _suspicious(res: OptimizeResult, x0: np.ndarray | None, linear: _LinearFit) 
     return far or _cost(res) > linear.cost * (1 + 1e-9)
 
 
-def _linear_starts(problem: _FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
+def _linear_starts(problem: FrictionProblem, linear: _LinearFit) -> list[np.ndarray]:
     """Starts from the linear fit: a little friction; a dead zone of a tenth of the input; much friction."""
     a0, b0 = linear.a, linear.b
     if b0 == 0 or not a0 > 0:
@@ -602,13 +681,14 @@ PREFIX_MIN_ROWS = 8000
 PREFIX_SHARE = 0.25
 #: Sign changes of the measured speed the prefix needs (reversals or rests to tell friction apart).
 PREFIX_REVERSALS = 4
-#: Standard errors of the prefix's fit (as :data:`FINAL_STEP`) below which its step is its last.
+#: Standard errors of the prefix's fit (as :data:`~identify.friction_solver.FINAL_STEP`) below which its step
+#: is its last.
 PREFIX_STEP = 10.0
 #: Largest ratio of the mean square residual on all rows to the prefix's at the prefix's parameters.
 PREFIX_MISFIT = 4.0
 
 
-def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
+def _prefix_start(problem: FrictionProblem, x0: np.ndarray) -> np.ndarray:
     """The start refined by the fit on the first rows of every segment, on long data.
 
     Far from the minimum each iteration only needs the rough direction; the first
@@ -629,141 +709,19 @@ def _prefix_start(problem: _FrictionProblem, x0: np.ndarray) -> np.ndarray:
                   for s in heads)
     if changes < PREFIX_REVERSALS:
         return x0
-    head = _FrictionProblem(heads, problem.names)
+    head = FrictionProblem(heads, problem.names)
     with np.errstate(over="ignore", invalid="ignore"):
-        res = _levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
+        res = levenberg_marquardt(head, x0, final_step=PREFIX_STEP)
         if not np.all(np.isfinite(res.x)):
             return x0
         # the residuals alone first (the response is the same with or without its sensitivities): a prefix
         # that is refused then costs no Jacobian
         r = problem.evaluate(res.x, False)[0]
-        misfit = _sum_squares(r) / problem.n_rows
-        if misfit > PREFIX_MISFIT * _sum_squares(res.fun) / head.n_rows:
+        misfit = sum_squares(r) / problem.n_rows
+        if misfit > PREFIX_MISFIT * sum_squares(res.fun) / head.n_rows:
             return x0
         problem.evaluate(res.x, True)
     return res.x
-
-
-def _bounded_step(H: np.ndarray, g: np.ndarray, damping: float, at_bound: np.ndarray) -> np.ndarray:
-    """Damped Gauss-Newton step (scaled); parameters at their lower bound that the step would push
-    below it are held there and the step is solved again for the others (an active set)."""
-    free = np.ones(len(g), bool)
-    step = np.zeros(len(g))
-    for _ in range(len(g) + 1):
-        sub = np.ix_(free, free)
-        step[:] = 0.0
-        step[free] = -np.linalg.solve(H[sub] + damping * np.eye(int(free.sum())), g[free])
-        blocked = free & at_bound & (step < 0)
-        if not blocked.any():
-            return step
-        free &= ~blocked
-    return step
-
-
-def _scaled_normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Column norms of ``J``, and ``H = Js^T Js``, ``g = Js^T r`` with ``Js`` its columns scaled to unit norm."""
-    norms = np.sqrt(np.einsum("ij,ij->j", J, J))
-    # a column the data barely see (the initial speed of a segment that starts stuck by friction)
-    # is held, not scaled up to a step of 1e14
-    unseen = norms <= 1e-9 * float(norms.max(initial=0.0))
-    norms[unseen] = 1.0
-    Js = J / norms
-    Js[:, unseen] = 0.0
-    return norms, Js.T @ Js, Js.T @ r
-
-
-def _reachable(H: np.ndarray, g: np.ndarray) -> float:
-    """``g^T H^+ g``: the decrease of the residual sum a full Gauss–Newton step promises (by least squares)."""
-    try:
-        value = float(g @ np.linalg.lstsq(H, g, rcond=1e-12)[0])
-    except np.linalg.LinAlgError:
-        return 0.0
-    return value if math.isfinite(value) else math.inf
-
-
-#: Standard errors (Mahalanobis length of the step, residual variance ``cost / dof``) below which the
-#: Levenberg–Marquardt step is the last one (:func:`_levenberg_marquardt`).  On the 10 000-sample
-#: friction runs of ``motorid bench accuracy`` the step after one of 0.14 standard errors was
-#: 0.0023 of them, after one of 0.025 it was 2e-5: what stopping leaves is far below the spread.
-FINAL_STEP = 0.2
-
-
-def _levenberg_marquardt(problem: _FrictionProblem, x0: np.ndarray, max_iterations: int = 200,
-                         final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
-    """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
-
-    With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
-    solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
-    when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
-    parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
-    cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).  It also
-    stops when the step would move the parameters by less than ``final_step`` (default
-    :data:`FINAL_STEP`) standard errors: the step promises ``delta^T J^T J delta``, which is
-    ``final_step^2`` times the residuals' variance ``cost / dof`` at that length.  That last step is taken without a new
-    evaluation (the residuals moved by ``J delta``): near the minimum Gauss–Newton converges
-    about quadratically, so what is left after it is far below ``final_step`` standard errors
-    (noise-free data never stop this way: their residuals shrink with the step).
-
-    With a ``bound`` (a residual sum), the fit also stops, with status 3, as soon as the least residual
-    sum of the model linearised at the current point (``cost - g^T H^-1 g``, what a full Gauss–Newton
-    step would reach) exceeds it: a candidate model that cannot come near the best one is left there.
-    """
-    final_step = FINAL_STEP if final_step is None else final_step
-    lower = problem.lower_bounds()
-    x = np.maximum(x0, lower)
-    r, J = problem.evaluate(x, True)
-    cost = _sum_squares(r)
-    damping = 1e-4
-    status = 0
-    normal = None
-    rejected = False
-    for _ in range(max_iterations):
-        assert J is not None
-        if normal is None:           # once per accepted step: a rejected one only raises the damping
-            normal = _scaled_normal_equations(J, r)
-            if bound < math.inf and cost - _reachable(normal[1], normal[2]) > bound:
-                status = 3
-                break
-        norms, H, g = normal
-        try:
-            step = _bounded_step(H, g, damping, x <= lower) / norms
-        except np.linalg.LinAlgError:
-            damping *= 10.0
-            continue
-        scaled = step * norms
-        predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
-        if predicted <= max(1e-12 * cost, final_step ** 2 * cost / problem.dof):
-            if predicted > 1e-12 * cost:
-                x_new = np.maximum(x + step, lower)
-                r = r + J @ (x_new - x)
-                x, cost = x_new, _sum_squares(r)
-            status = 1
-            break
-        x_new = np.maximum(x + step, lower)
-        with np.errstate(over="ignore", invalid="ignore"):
-            r_new = problem.evaluate(x_new, False)[0]      # the sensitivities only once the step is taken
-        cost_new = _sum_squares(r_new)
-        if np.isfinite(cost_new) and cost_new < cost:
-            with np.errstate(over="ignore", invalid="ignore"):
-                r_new, J_new = problem.evaluate(x_new, True)
-            small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
-            done = cost - cost_new <= 1e-10 * cost or small
-            x, r, J, cost = x_new, r_new, J_new, cost_new
-            normal = None
-            if not rejected:         # a step taken right after a rejected one keeps its damping (no zigzag)
-                damping = max(damping / 5.0, 1e-12)
-            rejected = False
-            if done:
-                status = 1
-                break
-        else:
-            rejected = True
-            damping *= 10.0
-            if damping > 1e12:
-                status = 2
-                break
-    from scipy.optimize import OptimizeResult  # imported when used: slow to import
-    return OptimizeResult(x=x, fun=r, jac=J, cost=0.5 * cost, status=status)
 
 
 def _no_reversal(recs: list[Recording], input_delay: int, fix_bias: bool) -> Estimate:

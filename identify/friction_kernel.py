@@ -48,9 +48,11 @@ def _event_value(w: complex, force: complex, c: complex, a: complex, h: float, s
     return target2 * grown, d_angle + target2 * (rest - grown / a)
 
 
-def event_interval(w: float, force: float, c: float, a: float, h: float, s: float) -> tuple[float, float]:
+def event_interval(w: float, force: float, c: float, a: float, h: float, s: float,
+                   static: float) -> tuple[float, float]:
     """End speed and angle increment of an event interval in floats (a plain step when it is not one: a mode
-    the fixed-point iteration of :mod:`identify.friction_response` is about to correct)."""
+    the fixed-point iteration of :mod:`identify.friction_response` is about to correct); at the zero the shaft
+    sticks while ``|force| <= static`` (the static friction, ``>= c``)."""
     target = (force - s * c) / a
     ratio = (w - target) / (-target) if target != 0 else 0.0
     if not ratio >= 1.0:
@@ -58,7 +60,7 @@ def event_interval(w: float, force: float, c: float, a: float, h: float, s: floa
         return target + (w - target) * e, target * h + (w - target) * (1.0 - e) / a
     t_zero = math.log(ratio) / a
     d_angle = target * t_zero + w / a
-    if abs(force) <= c:
+    if abs(force) <= static:
         return 0.0, d_angle
     rest = h - t_zero
     target2 = (force + s * c) / a
@@ -85,10 +87,10 @@ def _moving_sensitivities(sw: np.ndarray, sth: np.ndarray, col: np.ndarray, e: f
 
 def _event_sensitivities(sw: np.ndarray, sth: np.ndarray, col: np.ndarray, dw: np.ndarray, dth: np.ndarray,
                          w: float, force: float, c: float, a: float, h: float, s: float, v: float, b: float,
-                         v_zone: float) -> None:
+                         v_zone: float, static: float) -> None:
     """One event interval: the sensitivities carried through the event time, in place (the event step's
     partials with respect to ``(w, force, c, a)`` by complex step into ``dw``, ``dth``)."""
-    stick = abs(force) <= c
+    stick = abs(force) <= static
     for j in range(4):
         arg = w if j == 0 else force if j == 1 else c if j == 2 else a
         step = _COMPLEX_STEP * max(abs(arg), 1.0)
@@ -112,12 +114,14 @@ def _event_sensitivities(sw: np.ndarray, sth: np.ndarray, col: np.ndarray, dw: n
 def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q: np.ndarray, dp: np.ndarray,
                   dq: np.ndarray, a: float, b: float, c: float, d: float, z: float, w0: float, rest: float,
                   sens: bool, speed: np.ndarray, angle: np.ndarray, s_spd: np.ndarray, s_ang: np.ndarray,
-                  modes: np.ndarray) -> None:
+                  modes: np.ndarray, static: float) -> None:
     """Fill ``speed``, ``angle`` (from 0), ``modes`` and, with ``sens``, ``s_spd`` and ``s_ang`` (module docstring).
 
     ``u``: the duty of every interval (``len(h)``); ``h, e, p, q, dp, dq``: the interval constants of the
     friction response (``e = exp(-a h)`` and the rest, with their ``a``-derivatives), one per interval or
-    a single one for all (a uniform clock); ``rest``: the speed below which the shaft counts as at rest.
+    a single one for all (a uniform clock); ``rest``: the speed below which the shaft counts as at rest;
+    ``static``: the force the shaft at rest needs to break away (the static friction, ``>= c``; ``c`` without
+    stiction).  The static level moves only the decisions to stick, so it has no sensitivity column.
     """
     m = len(u)
     one = len(e) == 1
@@ -146,7 +150,7 @@ def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q:
             v_zone = 0.0
         force = b * v + d
         if abs(w) <= rest:
-            s = (1.0 if force > 0 else -1.0) if abs(force) > c else 0.0
+            s = (1.0 if force > 0 else -1.0) if abs(force) > static else 0.0
         else:
             s = 1.0 if w > 0 else -1.0
         end = e[i] * w + p[i] * (force - s * c)
@@ -163,9 +167,9 @@ def response_pass(u: np.ndarray, h: np.ndarray, e: np.ndarray, p: np.ndarray, q:
             if sens:
                 _moving_sensitivities(sw, sth, col, e[i], p[i], q[i], dp[i], dq[i], h[i], w, g, v, s, b * v_zone)
         else:                                           # the speed reaches zero inside the interval
-            w_next, d_angle = event_interval(w, force, c, a, h[i], s)
+            w_next, d_angle = event_interval(w, force, c, a, h[i], s, static)
             if sens:
-                _event_sensitivities(sw, sth, col, dw, dth, w, force, c, a, h[i], s, v, b, v_zone)
+                _event_sensitivities(sw, sth, col, dw, dth, w, force, c, a, h[i], s, v, b, v_zone, static)
         w = w_next
         th += d_angle
         speed[k + 1] = w
@@ -187,7 +191,8 @@ def compiled_response() -> Callable[..., None] | None:
         """``function`` compiled, the helpers it calls by ``names`` replaced by their compiled forms."""
         scope = dict(function.__globals__, **{n: helpers[n] for n in names})
         return jit(types.FunctionType(function.__code__, scope, function.__name__))
-    helpers = {"_event_value": jit(_event_value), "event_interval": jit(event_interval)}
+    helpers: dict[str, Callable[..., object]] = {"_event_value": jit(_event_value),
+                                                 "event_interval": jit(event_interval)}
     helpers["_moving_sensitivities"] = jit(_moving_sensitivities)
     helpers["_event_sensitivities"] = compiled(_event_sensitivities, ("_event_value",))
     return compiled(response_pass, tuple(helpers))

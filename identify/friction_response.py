@@ -118,7 +118,7 @@ class _Intervals:
     On a uniform clock the constants are computed once and broadcast (read-only views).
     """
 
-    def __init__(self, a, b, friction, bias, dead_zone, duty, time, uniform):
+    def __init__(self, a, b, friction, bias, dead_zone, duty, time, uniform, static):
         u = np.asarray(duty, dtype=float)[:-1]
         h = np.diff(np.asarray(time, dtype=float))
         m = len(h)
@@ -128,6 +128,7 @@ class _Intervals:
         self.v_zone = np.where(moving, -sign_u, 0.0)        # dv / d dead_zone
         self.force = b * self.v + bias
         self.a, self.b, self.c = a, b, friction
+        self.static = max(static, friction)                 # the break-away level
         self.uniform = bool(uniform) and m > 0
         once = h[:1] if self.uniform else h
         self.h, self.e, self.p, self.q, self.dp, self.dq = (
@@ -171,7 +172,7 @@ def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
     """The mode of every interval from the speed at its start (see :class:`FrictionResponse`)."""
     w0 = w[:-1]
     rest = np.abs(w0) <= iv.rest
-    s = np.where(rest, np.where(np.abs(iv.force) > iv.c, np.sign(iv.force), 0.0), np.sign(w0))
+    s = np.where(rest, np.where(np.abs(iv.force) > iv.static, np.sign(iv.force), 0.0), np.sign(w0))
     end = iv.e * w0 + iv.p * (iv.force - s * iv.c)
     event = ~rest & (s * end < 0)
     return (s * np.where(event, 2, 1)).astype(np.int8)
@@ -200,7 +201,7 @@ def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
         if m_k == 0:
             w_next, d_angle = 0.0, 0.0
         else:
-            w_next, d_angle = event_interval(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0)
+            w_next, d_angle = event_interval(x_k, force, c, a, h, 1.0 if m_k > 0 else -1.0, iv.static)
         x_at[j], x_next[j], th_at[j] = x_k, w_next, d_angle
         acc = w_next - b_next
     w = _rescanned(iv, f[:, None], start, special, x_at[:, None], x_next[:, None])[:, 0]
@@ -228,7 +229,7 @@ def _special_decay(iv: _Intervals, special: np.ndarray) -> np.ndarray:
 
 def friction_response(a: float, b: float, friction: float, bias: float, dead_zone: float, duty, time,
                       initial_speed: float = 0.0, *, uniform: bool | None = None, sensitivities: bool = True,
-                      modes: np.ndarray | None = None) -> FrictionResponse:
+                      modes: np.ndarray | None = None, static_friction: float = 0.0) -> FrictionResponse:
     """Exact ZOH response of the friction motor and its sensitivities (module docstring).
 
     Parameters
@@ -255,6 +256,10 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
         Also compute the derivatives (default True).
     modes : ndarray, optional
         Start of the mode iteration (a previous response's ``modes``).
+    static_friction : float
+        Static friction (stiction) in rad/s^2: the force ``|b v + d|`` the shaft at rest needs to break away,
+        and below which a speed reaching zero sticks; the friction level when smaller (default 0: none).
+        It moves only those decisions, so the response is piecewise constant in it and has no column for it.
 
     Returns
     -------
@@ -267,8 +272,8 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
     kernel = kernel_for(len(t))
     if kernel is not None:
         return _compiled(kernel, (a, b, friction, bias, dead_zone), np.asarray(duty, dtype=float)[:-1], t, uniform,
-                         float(initial_speed), sensitivities)
-    iv = _Intervals(a, b, friction, bias, dead_zone, duty, t, uniform)
+                         float(initial_speed), sensitivities, max(float(static_friction), friction))
+    iv = _Intervals(a, b, friction, bias, dead_zone, duty, t, uniform, float(static_friction))
     if modes is None or len(modes) != len(iv.h):
         lin = first_order_scan(iv.decay, (iv.p * iv.force)[:, None], np.array([initial_speed]), uniform)[:, 0]
         modes = _modes_of(iv, lin)
@@ -288,7 +293,7 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
 
 
 def _compiled(kernel, params: tuple[float, float, float, float, float], u: np.ndarray, t: np.ndarray, uniform: bool,
-              initial_speed: float, sensitivities: bool) -> FrictionResponse:
+              initial_speed: float, sensitivities: bool, static: float) -> FrictionResponse:
     """The response by the compiled one-pass kernel (:mod:`identify.friction_kernel`): the interval
     constants and the rest threshold as :class:`_Intervals` has them, the rest in the kernel."""
     a, b, friction, bias, dead_zone = params
@@ -302,7 +307,7 @@ def _compiled(kernel, params: tuple[float, float, float, float, float], u: np.nd
     s_spd, s_ang = np.empty(shape), np.empty(shape)
     modes = np.empty(n - 1, dtype=np.int8)
     kernel(np.ascontiguousarray(u), *constants, a, b, friction, bias, dead_zone, initial_speed, rest,
-           sensitivities, speed, angle, s_spd, s_ang, modes)
+           sensitivities, speed, angle, s_spd, s_ang, modes, static)
     if not sensitivities:
         return FrictionResponse(angle, speed, None, None, modes, 1)
     return FrictionResponse(angle, speed, s_ang, s_spd, modes, 1)
@@ -356,7 +361,7 @@ def _event_columns(iv: _Intervals, w0: np.ndarray, s: np.ndarray, events: np.nda
     """At the event intervals: the end speed's derivative with respect to the start speed and its forcing
     columns, and the same for the angle increment (through the event time, :func:`_event_partials`)."""
     k = len(events)
-    stick = np.abs(iv.force[events]) <= iv.c
+    stick = np.abs(iv.force[events]) <= iv.static
     _, _, dw, dth = _event_partials(w0[events], iv.force[events], iv.c, iv.a, iv.h[events], s[events], stick)
     d_force = np.zeros((k, len(FRICTION_PARAMETERS)))  # d(b v + d)/dparam
     d_force[:, 1] = iv.v[events]

@@ -103,7 +103,9 @@ _OPTIONS: dict[str, tuple[EstimatorOption, ...]] = {
     "oe-friction": (
         _input_delay(),
         _FIX_BIAS,
-        EstimatorOption("dead_zone", "bool", True, "also fit a dead zone of the input")),
+        EstimatorOption("dead_zone", "bool", True, "also fit a dead zone of the input"),
+        EstimatorOption("static_friction", "bool", False,
+                        "also fit a static friction above the friction (stiction; needs dead_zone false)")),
     "iv-reference": (_input_delay(0, "int"),),
     "oe-electrical": (_input_delay(),),
     "pem-disturbance": (
@@ -185,7 +187,7 @@ def option_declarations(method: str) -> tuple[EstimatorOption, ...]:
     --------
     >>> from identify import option_declarations
     >>> [(o.name, o.default) for o in option_declarations("oe-friction")]
-    [('input_delay', 0), ('fix_bias', False), ('dead_zone', True)]
+    [('input_delay', 0), ('fix_bias', False), ('dead_zone', True), ('static_friction', False)]
     """
     if method != DEFAULT_METHOD and method not in _METHODS:
         raise ParameterError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
@@ -246,7 +248,8 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
         - ``auto``: ``input_delay`` (``"auto"`` or samples), ``structures`` (subset of
           ``("linear", "bias", "friction", "dead-zone")``), ``fix_bias``.
         - ``oe``: ``input_delay`` (default 0, or ``"auto"``), ``fit_bias``, ``jac``, ``covariance``.
-        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``.
+        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``,
+          ``static_friction``.
         - ``iv``: ``input_delay`` (default 0, or ``"auto"``).
         - ``euler-ls``, ``zoh-ls``: none.
 

@@ -115,7 +115,7 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
             else:
                 end = e * w + p * (force - s * c)
                 if w != 0.0 and s * end < 0.0:
-                    w_next, d_angle = event_interval(w, force, c, a, h, s)
+                    w_next, d_angle = event_interval(w, force, c, a, h, s, c)
                 else:
                     w_next, d_angle = end, p * w + q * (force - s * c)
         else:

@@ -6,7 +6,8 @@ corrupted sample: with ``outliers="refuse"`` (the default of :func:`identify.fit
 refused with :class:`CorruptedSamplesError`, naming the recording and the rows' ``seq``; with
 ``outliers="drop"`` such rows are dropped as gaps, the fit is repeated, and every dropped row is
 reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.  In every
-case a run whose output answers its recorded input one sample before it (an input logged late,
+case a run whose speed column contradicts its counts or angle (:func:`identify.data.check_speed_agrees`)
+or whose output answers its recorded input one sample before it (an input logged late,
 :func:`identify.causality.check_input_leads`) is refused first, and one whose speed turns while
 its recorded input stays constant, at the fitted delay (:func:`identify.data.check_constant_input_runs`).
 """
@@ -19,7 +20,13 @@ from motorsim.checks import ParameterError
 from motorsim.recording import Recording
 
 from .causality import check_input_leads
-from .data import as_recordings, check_constant_input_runs
+from .data import (
+    as_recordings,
+    check_constant_input_runs,
+    check_input_changes,
+    check_output_moves,
+    check_speed_agrees,
+)
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
@@ -124,6 +131,13 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
     options = dict(options or {})
     recs = as_recordings(recordings)
+    for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check
+        try:
+            check_output_moves(rec, rec.name(i))  # a stuck encoder...
+        except NotIdentifiableError:
+            check_input_changes(recs)             # ...unless the input never changed either: that is said first
+            raise
+        check_speed_agrees(rec, rec.name(i))      # a speed column in another unit than its counts
     check_input_leads(recs)      # an input logged late: a negative delay no model has
     if outliers == "keep":
         return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), ())
@@ -133,12 +147,12 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         if not bad:
             continue
         if outliers == "refuse":
-            raise CorruptedSamplesError(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason)
+            raise CorruptedSamplesError(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason, rec.name(i))
         dropped.append(DroppedSamples(i, tuple(s.seq for s in bad), "implausible: " + bad[0].reason))
         recs[i] = rec.drop_rows(s.row for s in bad)
     est = estimator(recs, **options)
     for i, rec in enumerate(recs):        # a speed that turns under a constant recorded input: not the input it got
-        check_constant_input_runs(rec, f"recordings[{i}]", est.input_delay)
+        check_constant_input_runs(rec, rec.name(i), est.input_delay)
     found = _fit_outliers(est, recs, fitted=True)
     if not any(found):
         return ScreenedFit(with_encoder(est, recs), tuple(recs), tuple(dropped))
@@ -146,7 +160,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
     if outliers == "refuse":
         i = next(k for k, rows in enumerate(found) if rows)
-        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in found[i]), reason)
+        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in found[i]), reason, recs[i].name(i))
     for i, rows in enumerate(found):
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))

@@ -7,7 +7,9 @@
   device's own delay when the recording declares one, ``input_delay_samples``), times
 * structure ``linear`` (``oe``), ``bias`` (``oe`` with a constant acceleration ``d``),
   ``friction`` (``oe-friction``: Coulomb friction ``c`` and ``d``) and ``dead-zone``
-  (``oe-friction``: ``c``, ``d`` and a duty dead zone),
+  (``oe-friction``: ``c``, ``d`` and a duty dead zone), and, judged after them, ``stiction``
+  (``oe-friction``: ``c``, ``d`` and a static friction above ``c``, where a test on the first rows
+  finds one) and ``second-order``,
 
 each by the estimator that would return it, on the same rows (every segment from row ``N``; on
 long data the first :data:`SELECTION_ROWS` of them), and returns the **simplest candidate whose fit
@@ -199,7 +201,8 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         raise NotIdentifiableError(f"recording is too short for an input delay of {top} samples: no gap-free "
                                    "stretch is left; record longer or fix the dropped samples")
     fitted: list[CandidateFit] = []
-    higher = [s for s in wanted if STRUCTURES[s].rank > 0]
+    higher = [s for s in wanted if STRUCTURES[s].rank > 0 and STRUCTURES[s].linear]
+    sticking = [s for s in wanted if STRUCTURES[s].rank > 0 and not STRUCTURES[s].linear]
     wanted = tuple(s for s in wanted if STRUCTURES[s].rank == 0)
     linear = [s for s in wanted if STRUCTURES[s].linear]
     nonlinear = [s for s in wanted if not STRUCTURES[s].linear]
@@ -228,6 +231,8 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
+    if sticking and nonlinear:
+        fitted += _fit_sticking(recs, segments, fitted, sticking, fix_bias)
     if higher:
         fitted += _fit_higher(recs, segments, delays, higher, best_fit(fitted), notes)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
@@ -284,6 +289,24 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
             notes.append(f"{name} not a candidate: its fit finds the second pole faster than {MIN_TAU_SAMPLES:g} "
                          f"sample (tau_e {fastest:.2g} s at most): a lag that short is part of a sample's delay "
                          "at this sample period; a faster sample rate would show it")
+    return out
+
+
+def _fit_sticking(recs: list[Recording], segments: dict[int, list[Segment]], fitted: list[CandidateFit],
+                  names: list[str], fix_bias: bool) -> list[CandidateFit]:
+    """The nonlinear structures of a higher rank (static friction) at the best friction fit's delay and the
+    shorter ones (at most :data:`HIGHER_DELAYS`: sticking longer at each start looks like a later input), each
+    started from the friction fit there; judged after the family, like a second pole
+    (:func:`identify.comparison.choose`)."""
+    family = best_fit([f for f in fitted if not STRUCTURES[f.candidate.structure].linear])
+    if family is None:
+        return []
+    top = family.candidate.input_delay
+    out = []
+    for d in (d for d in segments if top - HIGHER_DELAYS < d <= top):
+        starts = [f.start for f in fitted if f.candidate.structure == "friction" and f.candidate.input_delay == d
+                  and f.refined and f.start]
+        out += [_candidate(recs, segments[d], d, name, fix_bias=fix_bias, starts=starts) for name in names]
     return out
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from motorid.arguments import CommandError
 
-__all__ = ["MODEL_SCALE_LIMIT", "MAX_SAMPLE_PERIOD", "MAX_REFERENCE_SAMPLES", "check_design_model",
+__all__ = ["MODEL_SCALE_LIMIT", "MIN_SAMPLE_PERIOD", "MAX_SAMPLE_PERIOD", "MAX_REFERENCE_SAMPLES", "check_design_model",
            "check_reference_times", "check_run_length"]
 
 #: The largest magnitude of a model's a, b, friction and bias (and 1 / it the smallest nonzero b):
@@ -21,6 +21,8 @@ MODEL_SCALE_LIMIT = 1e100
 
 #: The longest sample period a controller is designed for, in s: the device takes it in µs, in 32 bits.
 MAX_SAMPLE_PERIOD = (2**32 - 1) * 1e-6
+#: The shortest, in s: one µs, the device's unit (1e-320 s made the PI gains divide by zero).
+MIN_SAMPLE_PERIOD = 1e-6
 
 #: The largest time of a reference, in samples: the device counts samples in 32 bits.
 MAX_REFERENCE_SAMPLES = 2**32 - 1
@@ -29,13 +31,14 @@ MAX_REFERENCE_SAMPLES = 2**32 - 1
 def check_design_model(model: Any, source: str = "the model") -> Any:
     """``model`` (a, b, friction, bias) if each is finite and within :data:`MODEL_SCALE_LIMIT`; else CommandError.
 
-    Its ``sample_period`` must be at most :data:`MAX_SAMPLE_PERIOD` (checked first: a controller's gains
-    and reference follow from it, and a period of hours makes them fail for reasons it would not name).
+    Its ``sample_period`` must be in :data:`MIN_SAMPLE_PERIOD`...:data:`MAX_SAMPLE_PERIOD` (checked first: a
+    controller's gains and reference follow from it, and a period of hours makes them fail for reasons it would
+    not name).
     """
     dt = float(model.sample_period)
-    if not 0 < dt <= MAX_SAMPLE_PERIOD:
-        raise CommandError(f"--sample-period must be > 0 and at most {MAX_SAMPLE_PERIOD:.6g} s (the device takes it "
-                           f"in µs, 32 bits), got {dt!r}")
+    if not MIN_SAMPLE_PERIOD <= dt <= MAX_SAMPLE_PERIOD:
+        raise CommandError(f"--sample-period must be in {MIN_SAMPLE_PERIOD:g}...{MAX_SAMPLE_PERIOD:.6g} s (the device "
+                           f"takes it in µs, 32 bits), got {dt!r}")
     for name in ("a", "b", "friction", "bias"):
         value = float(getattr(model, name, 0.0) or 0.0)
         if not (math.isfinite(value) and abs(value) <= MODEL_SCALE_LIMIT):

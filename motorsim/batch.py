@@ -30,7 +30,7 @@ __all__ = ["is_batchable", "simulate_batch", "encoder_counts_batch", "speed_batc
 
 def is_batchable(motor: Motor, *, jitter: float = 0.0, drop_rate: float = 0.0) -> bool:
     """True when a setting can go through the batch engine (linear plant, uniform, complete samples)."""
-    return motor.friction == 0 and motor.bias == 0 and jitter == 0 and drop_rate == 0
+    return motor.breakaway == 0 and motor.bias == 0 and jitter == 0 and drop_rate == 0
 
 
 def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,

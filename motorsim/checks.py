@@ -24,8 +24,8 @@ from typing import Any, Collection
 
 import numpy as np
 
-__all__ = ["ParameterError", "ParameterTypeError", "check_int", "check_real", "check_bool", "check_choice", "is_int",
-           "is_real"]
+__all__ = ["ParameterError", "ParameterTypeError", "check_int", "check_real", "check_bool", "check_choice",
+           "real_array", "is_int", "is_real"]
 
 
 class ParameterError(ValueError):
@@ -83,6 +83,27 @@ def check_real(name: str, value: Any, *, positive: bool = False, nonnegative: bo
     if below is not None and not value < below:
         raise ParameterError(f"{name} must be < {below!r}, got {value!r}")
     return value
+
+
+def real_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a float array, or :class:`ParameterTypeError` naming ``name`` (not numpy's ``could not convert``).
+
+    Examples
+    --------
+    >>> real_array("duty", [1, 2.5]).tolist()
+    [1.0, 2.5]
+    >>> real_array("duty", ["a", "b"])
+    Traceback (most recent call last):
+    ...
+    motorsim.checks.ParameterTypeError: duty must be an array of real numbers, got ['a', 'b']
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        shown = repr(value)
+        raise ParameterTypeError(f"{name} must be an array of real numbers, got "
+                                 f"{shown if len(shown) <= 80 else shown[:77] + '...'}") from None
+    return arr
 
 
 def check_bool(name: str, value: Any) -> bool:

@@ -112,14 +112,22 @@ def unit_in_name(quantity: str, column: str) -> str | None:
     return suffixes.get("_".join(words[-2:])) or suffixes.get(words[-1])
 
 
+#: Spellings of one unit.
+_SAME_UNIT = {"µs": "us", "μs": "us"}
+
+
 def _resolve_unit(table: "Table", spec: ColumnSpec) -> tuple[ColumnSpec | None, str]:
     """``spec`` with its unit and where the unit came from (``given``, ``header``, ``default``), or
     None and the problem when nothing states the unit of a speed or input column."""
-    if spec.unit is not None:
-        return spec, "given"
     header = spec.column if isinstance(spec.column, str) else (
         table.names[spec.column] if table.has_header and spec.column < len(table.names) else None)
     stated = None if header is None else (table.units.get(header) or unit_in_name(spec.quantity, header))
+    if spec.unit is not None:
+        if stated is not None and _SAME_UNIT.get(stated, stated) != _SAME_UNIT.get(spec.unit, spec.unit):
+            return None, (f"the {spec.quantity} column {header!r} is in {stated}, as the file states, but "
+                          f"--{spec.quantity} gives {spec.unit}: one of them is wrong; give the unit the "
+                          "values are in")
+        return spec, "given"
     if stated is not None and stated not in UNITS[spec.quantity]:
         return None, (f"the {spec.quantity} column {spec.column!r} is in {stated}, as the file states, which is not "
                       f"a unit of the {spec.quantity} ({', '.join(UNITS[spec.quantity])})")
@@ -488,6 +496,7 @@ def _recording(path: str, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np
                 speed_unit=units.get("speed", "rad/s"), angle_unit=units.get("angle", "rad"))
     except ValueError as exc:
         raise ImportFormatError(f"{path}: {exc}") from None
+    rec = dataclasses.replace(rec, path=str(path))       # every later refusal names the file
     if "angle" in specs and units["angle"] == "rad":
         _check_angle_unit(path, rec, specs["angle"], stated=angle_stated)
     return rec

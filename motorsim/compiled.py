@@ -1,7 +1,8 @@
 """The friction simulation's per-sample loop, compiled by numba when it is installed.
 
 Coulomb friction makes each interval's solution depend on the sign of the speed
-(sticking at rest, a zero crossing inside the interval), so the exact simulation
+(sticking at rest, a zero crossing inside the interval, a break-away at the static
+level), so the exact simulation
 has no vectorised form: :func:`friction_run` walks the samples.  With numba
 (``pip install motorid[fast]``) the loop is compiled to machine code once a process
 has spent about as long in the Python loop as numba takes to import and compile
@@ -22,8 +23,13 @@ __all__ = ["friction_run", "friction_run_python", "friction_interval", "compiled
            "COMPILE_AFTER"]
 
 
-def friction_interval(a: float, force: float, c: float, w: float, th: float, h: float) -> tuple[float, float]:
+def friction_interval(a: float, force: float, c: float, w: float, th: float, h: float,
+                      static: float) -> tuple[float, float]:
     """Exact solution over ``h`` s of ``w' = -a w + force - c sign(w)`` with sticking at rest.
+
+    At rest the shaft stays put while ``|force| <= static`` (the static friction, ``>= c``) and
+    breaks away in the direction of ``force`` otherwise; a speed that reaches zero inside the
+    interval sticks there on the same rule.  ``static = c`` is plain Coulomb friction.
 
     Parameters
     ----------
@@ -37,6 +43,8 @@ def friction_interval(a: float, force: float, c: float, w: float, th: float, h: 
         Speed (rad/s) and angle (rad) at the interval's start.
     h : float
         Interval in s.
+    static : float
+        Static friction (the break-away level) in rad/s^2, ``>= c``.
 
     Returns
     -------
@@ -46,7 +54,7 @@ def friction_interval(a: float, force: float, c: float, w: float, th: float, h: 
     remaining = h
     while remaining > 0:
         if w == 0.0:
-            if abs(force) <= c:
+            if abs(force) <= static:
                 return 0.0, th  # stuck for the rest of the interval
             s = 1.0 if force > 0 else -1.0
         else:
@@ -68,14 +76,15 @@ def friction_interval(a: float, force: float, c: float, w: float, th: float, h: 
 
 
 def friction_run_python(a: float, force: np.ndarray, c: float, h: np.ndarray, speed: np.ndarray,
-                        angle: np.ndarray) -> None:
+                        angle: np.ndarray, static: float) -> None:
     """Fill ``speed[1:]`` and ``angle[1:]`` interval by interval from ``speed[0]``, ``angle[0]``.
 
-    ``force[k]`` (rad/s^2) acts over ``h[k]`` s; see :func:`friction_interval`.
+    ``force[k]`` (rad/s^2) acts over ``h[k]`` s; ``static`` is the break-away level; see
+    :func:`friction_interval`.
     """
     w, th = float(speed[0]), float(angle[0])
     for k in range(len(h)):
-        w, th = friction_interval(a, force[k], c, w, th, h[k])
+        w, th = friction_interval(a, force[k], c, w, th, h[k], static)
         speed[k + 1] = w
         angle[k + 1] = th
 
@@ -89,15 +98,15 @@ usage = {"python_intervals": 0}
 
 
 def friction_run(a: float, force: np.ndarray, c: float, h: np.ndarray, speed: np.ndarray,
-                 angle: np.ndarray) -> None:
+                 angle: np.ndarray, static: float) -> None:
     """:func:`friction_run_python`, by the compiled kernel once this process has run
     :data:`COMPILE_AFTER` intervals in Python and numba is available."""
     kernel = compiled_kernel() if usage["python_intervals"] >= COMPILE_AFTER else None
     if kernel is None:
-        friction_run_python(a, force, c, h, speed, angle)
+        friction_run_python(a, force, c, h, speed, angle, static)
         usage["python_intervals"] += len(h)
     else:
-        kernel(a, force, c, h, speed, angle)
+        kernel(a, force, c, h, speed, angle, static)
 
 
 def numba_jit() -> Callable[[Callable], Callable] | None:
@@ -120,10 +129,10 @@ def compiled_kernel() -> Callable[..., None] | None:
         return None
     interval = jit(friction_interval)
 
-    def run(a, force, c, h, speed, angle):
+    def run(a, force, c, h, speed, angle, static):
         w, th = speed[0], angle[0]
         for k in range(len(h)):
-            w, th = interval(a, force[k], c, w, th, h[k])
+            w, th = interval(a, force[k], c, w, th, h[k], static)
             speed[k + 1] = w
             angle[k + 1] = th
 

@@ -158,7 +158,8 @@ def prbs_bits(order: int, seed: int, n_bits: int) -> np.ndarray:
 
 
 def _phase_word(phase: float) -> int:
-    return int(round(phase / (2.0 * math.pi) * _TWO32)) % _TWO32
+    # fmod (exact, and the phase itself within one turn) first: a phase of 1e308 rad overflowed the product
+    return int(round(math.fmod(phase, 2.0 * math.pi) / (2.0 * math.pi) * _TWO32)) % _TWO32
 
 
 def _clamp(duty: np.ndarray, duty_limit: int) -> np.ndarray:

@@ -408,6 +408,10 @@ def check_output_path(path: str | os.PathLike, *, flag: str, inputs: Iterable[st
     ...
     motorsim.files.OutputFileError: --report fit: the extension names the format written; give one of .png, .pdf, .svg
     """
+    text = os.fspath(path)
+    if isinstance(text, str) and text.strip() and text.endswith(("/", os.sep)):
+        # Path() drops the separator: "m.json/" would otherwise be written as the file m.json
+        raise OutputFileError(f"{flag} {text}: a name ending in a path separator names a folder; give a file name")
     path = Path(path)
     if not str(path).strip():
         raise OutputFileError(f"{flag}: an empty path; give a file name")

@@ -13,7 +13,9 @@ Over an interval of length ``h`` with constant drive ``v`` (ZOH, exact)::
 
 With Coulomb friction ``c`` the speed obeys ``d omega/dt = -a omega + b v - c sign(omega) + d``
 piecewise; :func:`simulate` integrates it exactly, event by event (zero
-crossings and sticking when ``|b v + d| <= c`` at rest).
+crossings and sticking when ``|b v + d| <= c`` at rest).  With static friction ``c_s > c``
+(stiction) the shaft at rest breaks away only when ``|b v + d| > c_s``, and a speed that
+reaches zero sticks while ``|b v + d| <= c_s``.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .knobs import knob
 from .recursion import first_order_filter
 
@@ -58,6 +60,10 @@ class Motor:
         Time constant ``tau_e`` in s of a first-order lag between the drive and the motor's torque
         (the winding's ``L/R``, a driver's filter), >= 0 (default 0: none).  With it the linear
         part is ``b / ((s + a)(tau_e s + 1))``; not combined with Coulomb friction.
+    static_friction : float, optional
+        Static friction ``c_s`` in rad/s^2 (stiction): the force ``|b u + bias|`` the shaft at rest needs
+        to break away, and below which a speed reaching zero sticks; 0 (default) or ``>= friction``.
+        0 means none: the motor breaks away at the friction level (:attr:`breakaway`).
     """
 
     a: float = knob(unit="1/s", help="pole a of d omega/dt + a omega = b u, > 0")
@@ -68,6 +74,8 @@ class Motor:
     input_delay: int = knob(0, unit="samples", help="whole samples between command and motor, >= 0")
     electrical_time_constant: float = knob(0.0, unit="s", help="time constant of the lag between the drive and "
                                            "the torque (electrical pole 1/tau_e), >= 0")
+    static_friction: float = knob(0.0, unit="rad/s^2", help="static friction (stiction): the force the shaft at rest "
+                                  "needs to break away, 0 (none: the friction level) or >= friction")
 
     def __post_init__(self):
         object.__setattr__(self, "a", check_real("a", self.a, positive=True))
@@ -81,15 +89,25 @@ class Motor:
         object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, 0, 10**6))
         tau = check_real("electrical_time_constant", self.electrical_time_constant, nonnegative=True)
         object.__setattr__(self, "electrical_time_constant", tau)
-        if tau > 0 and self.friction > 0:
+        static = check_real("static_friction", self.static_friction, nonnegative=True)
+        if 0 < static < self.friction:
+            raise ParameterError(f"static_friction must be 0 (none) or >= friction ({self.friction!r} rad/s^2), "
+                                 f"got {self.static_friction!r}")
+        object.__setattr__(self, "static_friction", static)
+        if tau > 0 and self.breakaway > 0:
             raise ParameterError(f"electrical_time_constant must be 0 when friction is set (the simulator does not "
                                  f"combine a lag with Coulomb friction), got {self.electrical_time_constant!r} s "
-                                 f"with friction {self.friction!r}")
+                                 f"with friction {self.friction!r}, static_friction {self.static_friction!r}")
+
+    @property
+    def breakaway(self) -> float:
+        """The force (rad/s^2) above which the shaft at rest moves: the static friction, else the friction."""
+        return max(self.static_friction, self.friction)
 
     @property
     def is_linear(self) -> bool:
-        """True when friction, bias and dead zone are all zero (delay keeps it linear)."""
-        return self.friction == 0 and self.bias == 0 and self.dead_zone == 0
+        """True when friction, static friction, bias and dead zone are all zero (delay keeps it linear)."""
+        return self.breakaway == 0 and self.bias == 0 and self.dead_zone == 0
 
     @property
     def static_gain(self) -> float:
@@ -264,8 +282,8 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     """
     if not isinstance(motor, Motor):
         raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
-    u = np.asarray(duty, dtype=float)
-    t = np.asarray(time, dtype=float)
+    u = real_array("duty", duty)
+    t = real_array("time", time)
     if u.ndim != 1 or t.shape != u.shape:
         raise ParameterError(f"duty and time must be 1-D of equal length, got shapes {u.shape} and {t.shape}")
     if not (_all_finite(u) and _all_finite(t)):
@@ -284,7 +302,7 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
         run = lag_response(motor.a, motor.b, 1.0 / motor.electrical_time_constant, motor.bias, np.append(v, 0.0), t,
                            initial_speed=initial_speed, initial_current=float(motor.drive(np.array([duty_before]))[0]))
         return Trajectory(t, run.angle + initial_angle, run.speed)
-    if motor.friction == 0:
+    if motor.breakaway == 0:
         drive = v + motor.bias / motor.b if motor.bias else v
         if _nearly_uniform_zoh(motor.a, motor.b, h, drive, speed, angle):
             return Trajectory(t, angle, speed)
@@ -294,7 +312,7 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
         return Trajectory(t, angle, speed)
     from .compiled import friction_run
     friction_run(float(motor.a), motor.b * np.asarray(v, dtype=float) + motor.bias, float(motor.friction), h,
-                 speed, angle)
+                 speed, angle, float(motor.breakaway))
     return Trajectory(t, angle, speed)
 
 

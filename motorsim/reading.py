@@ -269,7 +269,8 @@ def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording
         rec = Recording(time=values.pop("time_s"), duty=values.pop("duty"), sample_period=sp,
                         counts=values.pop("counts", None), angle=values.pop("angle_rad", None),
                         speed=values.pop("speed_rad_s", None), seq=values.pop("seq", None),
-                        counts_per_rev=parsed.counts_per_rev, metadata=extra, reference=values.pop("reference", None))
+                        counts_per_rev=parsed.counts_per_rev, metadata=extra, reference=values.pop("reference", None),
+                        path=name)
     except (ValueError, TypeError):
         return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
     if check_samples:
@@ -331,7 +332,7 @@ def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
         rec = Recording(time=values["time_s"], duty=values["duty"], sample_period=sp,
                         counts=values.get("counts"), angle=values.get("angle_rad"),
                         speed=values.get("speed_rad_s"), seq=values.get("seq"), counts_per_rev=cpr,
-                        metadata=extra, reference=values.get("reference"))
+                        metadata=extra, reference=values.get("reference"), path=name)
     except (ValueError, TypeError) as exc:
         raise RecordingFormatError(f"{name}: {exc}") from None
     if check_samples:

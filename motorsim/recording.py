@@ -43,13 +43,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
 from typing import Iterable, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .checks import ParameterError, ParameterTypeError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
 from .sensors import backward_difference, counts_to_angle
@@ -89,6 +90,8 @@ def _as_array(name: str, value: ArrayLike, dtype: type, n: int | None = None) ->
     arr: np.ndarray
     if isinstance(value, np.ndarray) and value.dtype == dtype and value.base is None and not value.flags.writeable:
         arr = value
+    elif dtype is float:
+        arr = np.array(real_array(name, value), dtype=float, copy=True)
     else:
         arr = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1:
@@ -214,6 +217,10 @@ class Recording:
         Free-form ``key: value`` pairs (``input_unit``, ``source``, ...).
     reference : array_like, optional
         What a controller tracked at ``time[k]`` (closed-loop runs; unit in metadata ``reference_unit``).
+    path : str, optional
+        The file the recording was read from (set by the readers, kept by :meth:`slice` and
+        :meth:`drop_rows`): every refusal of these data names it instead of ``recordings[i]``.
+        Never written to a file.
 
     Examples
     --------
@@ -235,11 +242,12 @@ class Recording:
     counts_per_rev: int | None
     metadata: Mapping[str, str]
     reference: np.ndarray | None
+    path: str | None
 
     def __init__(self, time: ArrayLike, duty: ArrayLike, sample_period: float, counts: ArrayLike | None = None,
                  angle: ArrayLike | None = None, speed: ArrayLike | None = None, seq: ArrayLike | None = None,
                  counts_per_rev: int | None = None, metadata: Mapping[str, str] | None = None,
-                 reference: ArrayLike | None = None):
+                 reference: ArrayLike | None = None, path: str | os.PathLike | None = None):
         t = _as_array("time", time, float)
         n = len(t)
         columns = {"time": t, "duty": _as_array("duty", duty, float, n),
@@ -270,6 +278,24 @@ class Recording:
             raise ParameterTypeError(f"metadata must be a mapping, got {type(metadata).__name__}")
         object.__setattr__(self, "metadata", {str(k): str(v) for k, v in metadata.items()})
         _refuse_unit_metadata(self.metadata)
+        if path is not None and not isinstance(path, (str, os.PathLike)):
+            raise ParameterTypeError(f"path must be a str or path-like, got {type(path).__name__}")
+        object.__setattr__(self, "path", None if path is None else os.fspath(path))
+
+    def name(self, index: int | None = None) -> str:
+        """How a message names this recording: its :attr:`path`, else ``recordings[index]`` (``recording``).
+
+        Examples
+        --------
+        >>> rec = Recording(time=[0.0, 0.01], duty=[0, 1], sample_period=0.01, speed=[0, 0], path="run.csv")
+        >>> rec.name(0), rec.slice(0, 1).name(3)
+        ('run.csv', 'run.csv')
+        >>> Recording(time=[0.0, 0.01], duty=[0, 1], sample_period=0.01, speed=[0, 0]).name(2)
+        'recordings[2]'
+        """
+        if self.path is not None:
+            return self.path
+        return "recording" if index is None else f"recordings[{index}]"
 
     @classmethod
     def from_columns(cls, time: ArrayLike, duty: ArrayLike, **columns) -> "Recording":

@@ -26,7 +26,11 @@ from .recursion import first_order_filter
 from .sensors import Encoder
 
 __all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs",
-           "kept_samples"]
+           "kept_samples", "MAX_SAMPLES"]
+
+#: The most samples an experiment may ask for (the device counts them in 32 bits): beyond it
+#: ``duration / sample_period`` is no sample count (1e308 s overflowed to infinity).
+MAX_SAMPLES = 2**32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +60,9 @@ class Experiment:
         object.__setattr__(self, "sample_period", check_real("sample_period", self.sample_period, positive=True))
         object.__setattr__(self, "duration", check_real("duration", self.duration, positive=True))
         object.__setattr__(self, "duty_limit", check_int("duty_limit", self.duty_limit, 0, DUTY_LIMIT))
+        if not self.duration / self.sample_period < MAX_SAMPLES:
+            raise ParameterError(f"duration must be under {MAX_SAMPLES:g} samples of {self.sample_period!r} s, "
+                                 f"got {self.duration!r} s")
         if self.n_samples < 2:
             raise ParameterError(f"duration must cover at least 2 samples of {self.sample_period!r} s, "
                              f"got {self.duration!r} s")
@@ -261,7 +268,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, ti
     pending = [0] * motor.input_delay
     e, g, p, q = (x.tolist() for x in zoh_matrices(motor.a, motor.b, h))
     bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
-    linear, dead_zone = motor.friction == 0, motor.dead_zone
+    linear, dead_zone = motor.breakaway == 0, motor.dead_zone
     w, th = float(initial_speed), 0.0
     for k in range(n):
         counts[k] = c = math.floor((th + noise[k]) * scale) + offset

@@ -8,7 +8,7 @@ A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
     repetitions = 50
     methods = "all"                 # or a list of names from identify.available_methods()
 
-    [motor]                         # any knob of Motor: a, b, friction, bias, dead_zone, input_delay
+    [motor]                         # any knob of Motor: a, b, friction, static_friction, bias, dead_zone, input_delay
     a = 25.0
     b = 3.0
 

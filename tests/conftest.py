@@ -56,6 +56,10 @@ SLOW = {
 FIRMWARE = {
     "tests/hardware/test_firmware_emulation.py": "the firmware ELF under simavr, frame by frame",
     "tests/hardware/test_firmware_closed_loop.py": "the firmware's controllers under simavr",
+    "tests/hardware/test_harness_lifetime.py::test_the_harness_itself_ends_when_its_parent_is_killed":
+        "the real harness, its parent killed",
+    "tests/hardware/test_harness_lifetime.py::test_kill_9_of_motorid_live_on_avr_sim_leaves_no_emulator":
+        "motorid live on avr-sim://, killed by SIGKILL",
     "tests/motorid/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
         "motorid live on avr-sim://",
 }

@@ -8,8 +8,9 @@
  *
  * Prints "PTY <path>" on stdout once the pseudo-terminal exists, starts the AVR when the host
  * opens it (after --boot-delay s, as an Uno resets when its port is opened), runs until SIGTERM or
- * SIGINT, and prints one "STATS ..." line on stdout when it stops. SIGUSR1 hangs the firmware
- * (an endless loop with interrupts on) to test the AVR watchdog.
+ * SIGINT, or until the process that started it is gone (its parent pid changes: a parent killed
+ * by SIGKILL cannot stop it), and prints one "STATS ..." line on stdout when it stops. SIGUSR1
+ * hangs the firmware (an endless loop with interrupts on) to test the AVR watchdog.
  *
  * The motor  d omega/dt = -a omega + b u - c sign(omega)  is integrated exactly (zero-order
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
@@ -117,6 +118,15 @@ static void on_signal(int sig) {
 static void on_hang(int sig) {
     (void)sig;
     hang_requested = 1;
+}
+
+/* The process that started the harness; when it dies the harness is handed to another (init or
+   a subreaper), so a changed parent pid means nobody will ever stop it: stop on our own. */
+static pid_t parent_pid = 0;
+
+static int should_stop(void) {
+    if (!stop_requested && getppid() != parent_pid) stop_requested = 1;
+    return stop_requested;
 }
 
 /* Test hook (SIGUSR1): send the CPU into "rjmp ." at the top of the application flash with
@@ -292,7 +302,7 @@ static int bridge_open(bridge_t *b, avr_t *avr) {
 
 /* Block until the host opens the pseudo-terminal (or a stop is requested). */
 static void bridge_wait_for_host(bridge_t *b) {
-    while (!stop_requested) {
+    while (!should_stop()) {
         struct pollfd pfd = {b->master, POLLIN, 0};
         if (poll(&pfd, 1, 10) >= 0 && !(pfd.revents & POLLHUP)) return;
     }
@@ -438,12 +448,13 @@ static void housekeeping(harness_t *s, bridge_t *pty, double speed_cap, double w
        busy host, the emulation pauses. Nothing is lost and the firmware's own (emulated)
        timing is untouched; a real USB-serial link has large host buffers instead. */
     bridge_poll(pty);
-    while (!stop_requested && bridge_pending(pty) > 4096) {
+    while (!should_stop() && bridge_pending(pty) > 4096) {
         struct timespec ts = {0, 200000};
         nanosleep(&ts, NULL);
         s->flow_pauses++;
         bridge_poll(pty);
     }
+    should_stop();                                          /* the parent may be gone */
     if (!avr_cycle_timer_status(s->avr, motor_step, s)) {   /* cleared by an AVR reset */
         s->resets++;
         avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
@@ -488,6 +499,7 @@ static int run_emulation(harness_t *s, bridge_t *pty, double speed_cap) {
 }
 
 int main(int argc, char **argv) {
+    parent_pid = getppid();
     harness_t s;
     memset(&s, 0, sizeof(s));
     s.a = 25.0;

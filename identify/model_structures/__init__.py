@@ -16,13 +16,14 @@ from typing import Mapping
 from motorsim.checks import ParameterError
 
 from .base import ModelStructure, Parameter
-from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias
+from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
 
 __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of"]
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
-REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), SecondOrder())
+REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
+                                          SecondOrder())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -37,7 +38,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     --------
     >>> import identify
     >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone', 'second-order']
+    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """
@@ -61,7 +62,8 @@ def structure_of(method: str, param_names: tuple[str, ...]) -> ModelStructure:
     by what they fitted: a dead zone or friction (``oe-friction``), a bias, else the linear motor.
     """
     if method == "oe-friction":
-        return structure("dead-zone" if "dead_zone" in param_names else "friction")
+        return structure("dead-zone" if "dead_zone" in param_names else
+                         "stiction" if "static_friction" in param_names else "friction")
     for s in REGISTERED:
         if s.method == method and set(s.param_names) == set(param_names):
             return s

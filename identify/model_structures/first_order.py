@@ -4,7 +4,9 @@
 * ``bias``: ``+ d``, a constant acceleration (a driver offset, a load) (``oe`` with ``fit_bias``);
 * ``friction``: ``- c sign(omega) + d``, sticking at rest while ``|b u + d| <= c`` (``oe-friction``);
 * ``dead-zone``: friction, bias, and a duty band ``|u| <= z`` the driver does not deliver
-  (``oe-friction`` with ``dead_zone``).
+  (``oe-friction`` with ``dead_zone``);
+* ``stiction``: friction, bias, and a static friction ``c_s >= c`` the shaft at rest needs to break
+  away (``oe-friction`` with ``static_friction``); judged after the others (``rank`` 1).
 
 The input delay is not a parameter of a structure: every structure is fitted at every delay.
 """
@@ -15,13 +17,15 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
+from motorsim.plant import Motor
+
 from .base import ModelStructure, Parameter
 
 if TYPE_CHECKING:
     from ..data import Segment
 
-__all__ = ["FirstOrder", "FirstOrderBias", "CoulombFriction", "DeadZone", "POLE", "GAIN", "BIAS", "FRICTION",
-           "DEAD_ZONE", "INITIAL_WINDOW_TIME_CONSTANTS",
+__all__ = ["FirstOrder", "FirstOrderBias", "CoulombFriction", "DeadZone", "Stiction", "POLE", "GAIN", "BIAS",
+           "FRICTION", "STATIC_FRICTION", "DEAD_ZONE", "INITIAL_WINDOW_TIME_CONSTANTS",
            "MIN_INITIAL_WINDOW", "initial_state_rule"]
 
 #: Time constants ``1/a`` in the window that fixes a friction model's initial speed on held-out data.
@@ -35,6 +39,8 @@ GAIN = Parameter("b", "(rad/s^2)/{input}", -math.inf, math.inf, "gain of d omega
 BIAS = Parameter("bias", "rad/s^2", -math.inf, math.inf, "constant acceleration d (driver offset, load)")
 FRICTION = Parameter("friction", "rad/s^2", 0.0, math.inf, "Coulomb friction c")
 DEAD_ZONE = Parameter("dead_zone", "{input}", 0.0, math.inf, "input magnitude the driver does not deliver")
+STATIC_FRICTION = Parameter("static_friction", "rad/s^2", 0.0, math.inf,
+                            "static friction c_s (stiction): the force the shaft at rest needs to break away")
 
 
 def initial_state_rule(values: Mapping[str, float]) -> str:
@@ -46,7 +52,7 @@ def initial_state_rule(values: Mapping[str, float]) -> str:
 
 
 def _has_friction(values: Mapping[str, float]) -> bool:
-    return float(values.get("friction", 0.0)) > 0 or float(values.get("dead_zone", 0.0)) > 0
+    return any(float(values.get(n, 0.0)) > 0 for n in ("friction", "dead_zone", "static_friction"))
 
 
 class FirstOrder(ModelStructure):
@@ -124,6 +130,29 @@ class DeadZone(CoulombFriction):
     options: Mapping[str, object] = {}
 
 
+class Stiction(CoulombFriction):
+    """Friction, bias and a static friction ``c_s >= c``: the shaft at rest breaks away only when
+    ``|b u + d| > c_s``, and a speed reaching zero sticks while ``|b u + d| <= c_s``.
+
+    The static level moves only the decisions to stick, so ``oe-friction`` fits it by a profile
+    (:mod:`identify.stiction`).  The default judges it after the rest of the family (``rank`` 1):
+    chosen only where no simpler candidate is within the noise of its fit.
+    """
+
+    name = "stiction"
+    description = "friction c, static friction c_s >= c and bias d (oe-friction, static_friction)"
+    parameters = (POLE, GAIN, FRICTION, STATIC_FRICTION, BIAS)
+    fixed: Mapping[str, float] = {"dead_zone": 0.0}
+    options: Mapping[str, object] = {"dead_zone": False, "static_friction": True}
+    rank = 1
+
+    def plant(self, values: Mapping[str, float], input_delay: int = 0) -> Motor:
+        v = self.values(values)
+        static = v["static_friction"] if v["static_friction"] >= v["friction"] else 0.0
+        return Motor(v["a"], v["b"], friction=v["friction"], bias=v["bias"], static_friction=static,
+                     input_delay=input_delay)
+
+
 def _friction_segment_output(values: Mapping[str, float], seg: Segment) -> np.ndarray:
     """The friction model from an initial speed fitted on a short window at the segment's start.
 
@@ -138,12 +167,14 @@ def _friction_segment_output(values: Mapping[str, float], seg: Segment) -> np.nd
     from ..friction_response import friction_response
     params = (values["a"], values["b"], float(values.get("friction", 0.0)), float(values.get("bias", 0.0)),
               float(values.get("dead_zone", 0.0)))
+    static = float(values.get("static_friction", 0.0))
     h = float(np.median(np.diff(seg.time)))
     window = int(min(len(seg.time), max(MIN_INITIAL_WINDOW,
                                         math.ceil(INITIAL_WINDOW_TIME_CONSTANTS / max(values["a"] * h, 1e-12)))))
 
     def run(w0: float, stop: int) -> np.ndarray:
-        resp = friction_response(*params, seg.drive[:stop], seg.time[:stop], w0, sensitivities=False)
+        resp = friction_response(*params, seg.drive[:stop], seg.time[:stop], w0, sensitivities=False,
+                                 static_friction=static)
         if seg.kind == "angle":
             return resp.angle + float(np.mean(seg.output[:stop] - resp.angle))
         return resp.speed

@@ -83,7 +83,7 @@ def position_loop_recording(samples: int = 15_000, seed: int = 0):
     for k in range(samples):
         counts[k] = math.floor((th + noise[k]) * scale)
         duty[k] = u = loop.step(k, int(counts[k]))
-        w, th = friction_interval(a, b * u + load[k], c, w, th, dt)
+        w, th = friction_interval(a, b * u + load[k], c, w, th, dt, c)
     return Recording(time=np.arange(samples) * dt, duty=duty, sample_period=dt, counts=counts, counts_per_rev=cpr,
                      seq=np.arange(samples), metadata={"source": "motorid bench selection (position loop)"})
 

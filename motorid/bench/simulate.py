@@ -77,7 +77,7 @@ def _friction_paths(n: int, repeats: int) -> bool:
 
     def run(kernel):
         speed, angle = np.zeros(n), np.zeros(n)
-        kernel(25.0, force, 60.0, h, speed, angle)
+        kernel(25.0, force, 60.0, h, speed, angle, 60.0)
         return speed, angle
 
     kernel = compiled_kernel()

@@ -104,6 +104,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--electrical-time-constant", dest="electrical_time_constant", type=float, default=None,
                    metavar="S", help="time constant tau_e in s of a lag between the duty and the torque, the "
                                      "model b/((s+a)(tau_e s+1)) (default 0: none)")
+    parser.set_defaults(design_model_flags=True)     # these flags describe the design model, as --model does
 
 
 def refuse_controller_flags(args: argparse.Namespace, *, model_flags: bool = False) -> None:
@@ -239,6 +240,12 @@ def model_from_args(args: argparse.Namespace) -> PlantModel:
     """The design model: ``--model FILE`` if given, else the motor flags; ``--sample-period``, ``--counts-per-rev``."""
     source: Any
     if getattr(args, "model", None):
+        given = [name for name in MODEL_FLAGS
+                 if getattr(args, "design_model_flags", False) and getattr(args, name, None) is not None]
+        if given:
+            flags = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise CommandError(f"--model {args.model} gives the design model, and {flags} would be ignored: "
+                               "give one or the other")
         source = load_model_file(args.model)
     else:
         source = {"a": args.a, "b": args.b, **{k: getattr(args, k, 0) or 0 for k in ("friction", "bias",
@@ -352,9 +359,9 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
                    help="tune the design (mpc and the LQRs: --duty-weight, pi and position: "
                         "--time-constant) to the best "
                         "worst-case tracking over the drawn plants instead of the point estimate")
-    r.add_argument("--repetitions", type=int, default=100, metavar="N",
+    r.add_argument("--repetitions", type=int, default=None, metavar="N",
                    help="plants drawn from the covariance (default 100)")
-    r.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    r.add_argument("--seed", type=int, default=None, help="seed of the draws (default 0)")
 
 
 def run_control(args: argparse.Namespace) -> int:
@@ -374,6 +381,7 @@ def run_control(args: argparse.Namespace) -> int:
     controller = controller_from_args(args, model)
     reference = reference_from_args(args, controller, speed_unit, limit)
     covariance = _ab_covariance(args)
+    _check_draw_flags(args, covariance)
     robustness = None
     if args.robust:
         controller, robustness = _robust_controller(args, controller, covariance, reference)
@@ -510,6 +518,18 @@ def _robust_controller(args: argparse.Namespace, controller: Controller, covaria
     settings = controller.settings()
     return robust_design(controller.kind, controller.model, covariance, reference, args.duration,
                          n_draws=_repetitions(args), rng=np.random.default_rng(args.seed), **settings)
+
+
+def _check_draw_flags(args: argparse.Namespace, covariance: np.ndarray | None) -> None:
+    """Refuse ``--repetitions``/``--seed`` where nothing is drawn (no covariance); set their defaults."""
+    given = [flag for flag, name in (("--repetitions", "repetitions"), ("--seed", "seed"))
+             if getattr(args, name) is not None]
+    if given and covariance is None:
+        raise CommandError(f"{', '.join(given)} set{'s' if len(given) == 1 else ''} the plants drawn from a --model "
+                           "file's covariance, and this design has none (--a/--b, or a model without a covariance): "
+                           "nothing would be drawn")
+    args.repetitions = 100 if args.repetitions is None else args.repetitions
+    args.seed = 0 if args.seed is None else args.seed
 
 
 def _repetitions(args: argparse.Namespace) -> int:

@@ -117,15 +117,27 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where the table, recordings and figures go (default demo-output)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     c = parser.add_argument_group("closed loop")
-    c.add_argument("--reference", default="sine:30,10", metavar="KIND:ARGS",
+    c.add_argument("--reference", default=None, metavar="KIND:ARGS",
                    help="speed reference of the closed-loop part in rad/s (default sine:30,10)")
-    c.add_argument("--duty-weight", dest="duty_weight", type=float, default=1e-4, metavar="LAMBDA",
+    c.add_argument("--duty-weight", dest="duty_weight", type=float, default=None, metavar="LAMBDA",
                    help="the MPC's weight of u^2 in (rad/s)^2 per duty^2 (default 1e-4)")
     c.add_argument("--no-control", action="store_true", help="skip the closed-loop part")
 
 
+def _closed_loop_flags(args: argparse.Namespace) -> None:
+    """Refuse the closed-loop flags with ``--no-control`` (they would be ignored); else fill in their defaults."""
+    given = [flag for flag, name in (("--reference", "reference"), ("--duty-weight", "duty_weight"))
+             if getattr(args, name) is not None]
+    if args.no_control and given:
+        raise CommandError(f"{', '.join(given)} set{'s' if len(given) == 1 else ''} the closed-loop part, and "
+                           "--no-control skips it: give one or the other")
+    args.reference = "sine:30,10" if args.reference is None else args.reference
+    args.duty_weight = 1e-4 if args.duty_weight is None else args.duty_weight
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """Run the article's experiments, print and write Table 1, the recordings and the figures."""
+    _closed_loop_flags(args)
     try:
         freqs = [float(x) for x in args.frequencies.split(",")]
     except ValueError:

@@ -54,8 +54,18 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
 
 
 def column_flags_given(args: argparse.Namespace) -> bool:
-    """True when any column flag was given (the files are then foreign, not format v1)."""
-    return any(getattr(args, q, None) is not None for q in _QUANTITIES)
+    """True when any column flag was given (the files are then foreign, not format v1).
+
+    Without one, ``--counts-per-rev`` and ``--input-limit`` (which only describe a foreign file's
+    columns) are refused: a format-v1 recording states its own, and they would be ignored.
+    """
+    if any(getattr(args, q, None) is not None for q in _QUANTITIES):
+        return True
+    for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit")):
+        if getattr(args, name, None) is not None:
+            raise CommandError(f"{flag} describes a foreign file's columns (with --time, --input, ...); a format-v1 "
+                               f"recording states its own in its header, got {flag} {getattr(args, name)!r} alone")
+    return False
 
 
 def import_from_args(path: str, args: argparse.Namespace) -> Recording:

@@ -111,7 +111,7 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
     # within 3 standard errors of the truth.
     import math
 
-    from identify import friction
+    from identify import friction, friction_solver
     from motorsim.excitation import Sine
     n, dt, cpr = 10_000, 0.005, 4096
     t = np.arange(n) * dt
@@ -122,7 +122,7 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
     assert n >= friction.PREFIX_MIN_ROWS
     fast = fit(rec, method="oe-friction")
     monkeypatch.setattr(friction, "PREFIX_MIN_ROWS", 10 * n)
-    monkeypatch.setattr(friction, "FINAL_STEP", 0.0)
+    monkeypatch.setattr(friction_solver, "FINAL_STEP", 0.0)
     full = fit(rec, method="oe-friction")
     variance = full.residual_rms ** 2 * n / (n - 7)          # 5 shared parameters, initial speed, offset
     assert n * (fast.residual_rms ** 2 - full.residual_rms ** 2) <= variance
@@ -136,12 +136,12 @@ def _count_runs(monkeypatch):
     """Record the rows of every Levenberg–Marquardt run oe-friction makes."""
     from identify import friction
     runs = []
-    original = friction._levenberg_marquardt
+    original = friction.levenberg_marquardt
 
     def counted(problem, x0, *args, **kwargs):
         runs.append(problem.n_rows)
         return original(problem, x0, *args, **kwargs)
-    monkeypatch.setattr(friction, "_levenberg_marquardt", counted)
+    monkeypatch.setattr(friction, "levenberg_marquardt", counted)
     return runs
 
 

@@ -113,3 +113,37 @@ def _unloaded(cached):
     def loader():
         return cached()
     return loader
+
+
+@pytest.mark.parametrize("jitter", [False, True], ids=["uniform", "jitter"])
+@pytest.mark.parametrize("static", [1.6 * 75.0, 2.0 * 75.0], ids=["1.6x", "2x"])
+def test_stiction_response_equals_the_simulation_and_its_sensitivities_are_exact(static, jitter):
+    # the static level moves only the decisions to stick: the response is the simulator's (rounding only), and
+    # the other parameters' sensitivities stay exact (central differences, as above)
+    _, t = _inputs(jitter)
+    u = np.round(70 * np.sin(3.0 * np.arange(len(t)) * 0.005))     # forces up to 215 rad/s^2: the shaft stops often
+    ref = simulate(Motor(25.0, 3.0, friction=75.0, bias=5.0, static_friction=static), u, t, initial_speed=0.3)
+    x = np.array([25.0, 3.0, 75.0, 5.0, 0.0, 0.3])
+    resp = friction_response(*x[:5], u, t, x[5], static_friction=static)
+    plain = friction_response(*x[:5], u, t, x[5])
+    assert np.sum(resp.modes == 0) > np.sum(plain.modes == 0) + 50       # it sticks longer than friction alone
+    np.testing.assert_allclose(resp.speed, ref.speed, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(resp.angle, ref.angle - ref.angle[0], rtol=0, atol=1e-9)
+    for j in (0, 1, 2, 3, 5):
+        step = 1e-6 * max(abs(x[j]), 1.0)
+        hi, lo = x.copy(), x.copy()
+        hi[j] += step
+        lo[j] -= step
+        fd = (friction_response(*hi[:5], u, t, hi[5], sensitivities=False, static_friction=static).angle
+              - friction_response(*lo[:5], u, t, lo[5], sensitivities=False, static_friction=static).angle) / (2 * step)
+        assert np.max(np.abs(resp.angle_sensitivity[:, j] - fd)) <= 1e-5 * np.max(np.abs(fd)), f"column {j}"
+
+
+def test_a_static_level_at_or_below_the_friction_changes_nothing():
+    u, t = _inputs(False)
+    plain = friction_response(25.0, 3.0, 75.0, 5.0, 0.0, u, t, 0.3)
+    for static in (0.0, 40.0, 75.0):
+        same = friction_response(25.0, 3.0, 75.0, 5.0, 0.0, u, t, 0.3, static_friction=static)
+        np.testing.assert_array_equal(same.modes, plain.modes)
+        np.testing.assert_array_equal(same.angle, plain.angle)
+        np.testing.assert_array_equal(same.angle_sensitivity, plain.angle_sensitivity)

@@ -27,7 +27,7 @@ ACCEPTED = {
     "zoh-ls": (),
     "oe": ("input_delay", "fit_bias", "jac", "covariance"),
     "iv": ("input_delay", "iterations"),
-    "oe-friction": ("input_delay", "fix_bias", "dead_zone"),
+    "oe-friction": ("input_delay", "fix_bias", "dead_zone", "static_friction"),
     "iv-reference": ("input_delay",),
     "oe-electrical": ("input_delay",),
     "pem-disturbance": ("input_delay", "friction", "disturbance_pole"),

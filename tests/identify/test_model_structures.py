@@ -21,14 +21,15 @@ from motorsim.writing import write_recording
 
 VALUES = {"linear": {"a": 25.0, "b": 3.0}, "bias": {"a": 25.0, "b": 3.0, "bias": -4.0},
           "friction": {"a": 25.0, "b": 3.0, "friction": 30.0, "bias": 2.0},
-          "dead-zone": {"a": 25.0, "b": 3.0, "friction": 30.0, "bias": 2.0, "dead_zone": 12.0}}
+          "dead-zone": {"a": 25.0, "b": 3.0, "friction": 30.0, "bias": 2.0, "dead_zone": 12.0},
+          "stiction": {"a": 25.0, "b": 3.0, "friction": 30.0, "static_friction": 50.0, "bias": 2.0}}
 
 
 def test_the_registry_lists_every_structure_by_name_simplest_first():
     found = identify.structures()
-    assert list(found) == ["linear", "bias", "friction", "dead-zone", "second-order"]
-    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 4]
-    assert [s.rank for s in found.values()] == [0, 0, 0, 0, 1]
+    assert list(found) == ["linear", "bias", "friction", "dead-zone", "stiction", "second-order"]
+    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 5, 4]
+    assert [s.rank for s in found.values()] == [0, 0, 0, 0, 1, 1]
     assert all(isinstance(s, ModelStructure) and s.param_names[:2] == ("a", "b") for s in found.values())
     assert found["dead-zone"].units("V") == {"a": "1/s", "b": "(rad/s^2)/V", "friction": "rad/s^2",
                                              "bias": "rad/s^2", "dead_zone": "V"}

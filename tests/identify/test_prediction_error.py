@@ -44,7 +44,7 @@ def position_loop(seed: int, *, samples: int = 8000, h: float = 0.001, cpr: int 
         duty[k] = float(np.clip(np.round(400.0 * (ref[k] - c * 2 * math.pi / cpr) - 8.0 * speed), -255, 255))
         d = 0.99 * d + disturbance * rng.standard_normal()
         applied = duty[k - delay] if k >= delay else 0.0
-        w, th = friction_interval(A, B * applied + d, friction, w, th, h)
+        w, th = friction_interval(A, B * applied + d, friction, w, th, h, friction)
     extra = {"reference": ref, "metadata": {"reference_unit": "rad"}} if reference else {}
     return Recording(time=t, duty=duty, sample_period=h, counts=counts, counts_per_rev=cpr, **extra)
 

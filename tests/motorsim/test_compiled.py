@@ -21,7 +21,7 @@ def test_simulate_with_friction_is_the_same_on_both_paths(kernel_path):
     traj = simulate(motor, duty, t, initial_speed=0.5, initial_angle=2.0)
     speed, angle = np.empty(len(t)), np.empty(len(t))
     speed[0], angle[0] = 0.5, 2.0
-    friction_run_python(25.0, 3.0 * duty[:-1] + 1.0, 60.0, np.diff(t), speed, angle)
+    friction_run_python(25.0, 3.0 * duty[:-1] + 1.0, 60.0, np.diff(t), speed, angle, 60.0)
     assert np.sum(speed == 0.0) > 100                      # it does stick
     assert np.max(np.abs(traj.speed - speed)) <= 1e-12 * np.max(np.abs(speed))
     assert np.max(np.abs(traj.angle - angle)) <= 1e-12 * np.max(np.abs(angle))
