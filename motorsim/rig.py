@@ -22,6 +22,7 @@ from .fixed_point import ControlLoop
 from .knobs import Knob, knob, knobs_of
 from .plant import Motor, lag_coefficients, simulate, zoh_matrices
 from .recording import Recording
+from .recursion import first_order_filter
 from .sensors import Encoder
 
 __all__ = ["Experiment", "Rig", "SimRig", "bench_knobs", "jittered_times", "motor_metadata", "recorded_knobs",
@@ -112,8 +113,16 @@ class SimRig:
     record_speed : bool
         Also record the true instantaneous speed at each sample (``speed_rad_s``), as an
         ideal tachometer would; estimators then use it instead of differenced counts.
+    disturbance : float
+        A slowly varying random torque, as the acceleration it gives in rad/s^2 (its RMS; default 0:
+        none): an AR(1) sequence ``d[k+1] = r d[k] + disturbance sqrt(1 - r^2) e[k]``,
+        ``r = exp(-sample_period / disturbance_time)``, ``e`` standard normal, ``d[0] = 0``, held
+        over each sample interval and entering the motor as its ``bias`` does.  In closed loop the
+        controller feeds it back.
+    disturbance_time : float
+        Correlation time of the disturbance in s, > 0 (default 0.1).
     rng : numpy.random.Generator, optional
-        Source of noise, jitter and drops; required when any of them is nonzero.
+        Source of noise, jitter, drops and disturbance; required when any of them is nonzero.
     """
 
     motor: Motor
@@ -124,6 +133,8 @@ class SimRig:
     initial_speed: float = knob(0.0, unit="rad/s", help="speed at the first sample", recorded=True)
     record_speed: bool = knob(False, unit="", help="also record the true speed (an ideal tachometer)",
                               recorded=True)
+    disturbance: float = 0.0
+    disturbance_time: float = 0.1
     rng: np.random.Generator | None = None
 
     def __post_init__(self):
@@ -140,10 +151,16 @@ class SimRig:
         object.__setattr__(self, "jitter", jitter)
         object.__setattr__(self, "drop_rate", drop)
         object.__setattr__(self, "initial_speed", check_real("initial_speed", self.initial_speed))
-        needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0
+        object.__setattr__(self, "disturbance", check_real("disturbance", self.disturbance, nonnegative=True))
+        object.__setattr__(self, "disturbance_time", check_real("disturbance_time", self.disturbance_time,
+                                                                positive=True))
+        if self.disturbance > 0 and self.motor.electrical_time_constant > 0:
+            raise ParameterError(f"disturbance must be 0 with an electrical lag (its per-sample loop takes none), "
+                                 f"got {self.disturbance!r}")
+        needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0 or self.disturbance > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
-            raise ParameterTypeError(f"rng must be a numpy.random.Generator when noise, jitter or drops are set, "
-                            f"got {self.rng!r}")
+            raise ParameterTypeError(f"rng must be a numpy.random.Generator when noise, jitter, drops or a "
+                                     f"disturbance are set, got {self.rng!r}")
 
     def run(self, experiment: Experiment | ClosedLoopExperiment) -> Recording:
         """Simulate ``experiment`` and return what the bench would record.
@@ -169,12 +186,17 @@ class SimRig:
         duty = experiment.duty()
         k = np.arange(n)
         time = jittered_times(n, dt, self.jitter, self.rng)
-        traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
-        counts = self.encoder.counts(traj.angle, self.rng)
+        if self.disturbance > 0:   # the torque changes every sample: the per-sample loop, replaying the duty
+            noise = self._angle_noise(n)
+            _, counts, true_speed = _closed_loop(self.motor, self.encoder, _Replay(duty), time, noise,
+                                                 self.initial_speed, self._disturbance(n, dt))
+        else:
+            traj = simulate(self.motor, duty, time, initial_speed=self.initial_speed)
+            counts, true_speed = self.encoder.counts(traj.angle, self.rng), traj.speed
         keep = kept_samples(n, self.drop_rate, self.rng)
         meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
-                **recorded_knobs(self.encoder), **recorded_knobs(self)}
-        speed = traj.speed[keep] if self.record_speed else None
+                **recorded_knobs(self.encoder), **recorded_knobs(self), **self._disturbance_metadata()}
+        speed = true_speed[keep] if self.record_speed else None
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
                          speed=speed, seq=k[keep], counts_per_rev=self.encoder.counts_per_rev, metadata=meta)
 
@@ -182,24 +204,59 @@ class SimRig:
         """The closed-loop run: encoder, controller step and exact plant interval, sample by sample."""
         n, dt = experiment.n_samples, experiment.sample_period
         time = jittered_times(n, dt, self.jitter, self.rng)
-        noise = np.zeros(n)
-        if self.encoder.angle_noise > 0 and self.rng is not None:
-            noise = self.rng.normal(0.0, self.encoder.angle_noise, n)
+        noise = self._angle_noise(n)
         loop = experiment.controller.start(experiment.reference_samples(), experiment.duty_limit)
-        duty, counts, speed = _closed_loop(self.motor, self.encoder, loop, time, noise, self.initial_speed)
+        duty, counts, speed = _closed_loop(self.motor, self.encoder, loop, time, noise, self.initial_speed,
+                                           self._disturbance(n, dt))
         keep = kept_samples(n, self.drop_rate, self.rng)
         k = np.arange(n)
         meta = {"source": "SimRig", **experiment.metadata(), **motor_metadata(self.motor),
-                **recorded_knobs(self.encoder), **recorded_knobs(self)}
+                **recorded_knobs(self.encoder), **recorded_knobs(self), **self._disturbance_metadata()}
         return Recording(time=time[keep], duty=duty[keep], sample_period=dt, counts=counts[keep],
                          speed=speed[keep] if self.record_speed else None, seq=k[keep],
                          counts_per_rev=self.encoder.counts_per_rev, metadata=meta,
                          reference=experiment.reference_values()[keep])
 
 
-def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.ndarray, noise: np.ndarray,
-                 initial_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Duty, counts and true speed of a closed-loop run (the plant's intervals are exact ZOH)."""
+    def _angle_noise(self, n: int) -> np.ndarray:
+        """The encoder's angle noise at ``n`` samples in rad (zeros without noise)."""
+        if self.encoder.angle_noise > 0 and self.rng is not None:
+            return self.rng.normal(0.0, self.encoder.angle_noise, n)
+        return np.zeros(n)
+
+    def _disturbance(self, n: int, sample_period: float) -> np.ndarray | None:
+        """The AR(1) torque over each of the ``n`` sample intervals in rad/s^2, or None without one."""
+        if self.disturbance == 0 or self.rng is None:
+            return None
+        r = math.exp(-sample_period / self.disturbance_time)
+        e = self.rng.standard_normal(n) * self.disturbance * math.sqrt(1.0 - r * r)
+        e[0] = 0.0
+        return first_order_filter(r, e)
+
+    def _disturbance_metadata(self) -> dict[str, str]:
+        """The disturbance's settings as metadata lines, when there is one."""
+        if self.disturbance == 0:
+            return {}
+        return {"disturbance": repr(self.disturbance), "disturbance_time": repr(self.disturbance_time)}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Replay:
+    """A loop that applies a fixed duty sequence (an open-loop run through the per-sample loop)."""
+
+    duty: np.ndarray
+
+    def step(self, k: int, counts: int) -> int:
+        return int(self.duty[k])
+
+
+def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray,
+                 noise: np.ndarray, initial_speed: float, disturbance: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Duty, counts and true speed of a closed-loop run (the plant's intervals are exact ZOH).
+
+    ``disturbance`` (rad/s^2, one value per sample interval) adds to the motor's bias.
+    """
     n = len(time)
     h = np.diff(time)
     duty = np.zeros(n, dtype=np.int64)
@@ -223,6 +280,8 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.nda
         v = float(pending.pop(0))
         if dead_zone and v:  # Motor.drive, on one sample
             v = 0.0 if abs(v) <= dead_zone else v - math.copysign(dead_zone, v)
+        if disturbance is not None:
+            v += disturbance[k] / motor.b
         if linear:
             v += motor.bias / motor.b
             w, th = e[k] * w + g[k] * v, th + p[k] * w + q[k] * v
@@ -232,7 +291,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.nda
     return duty, counts, speed
 
 
-def _closed_loop_lag(motor: Motor, encoder: Encoder, loop: ControlLoop, time: np.ndarray, noise: np.ndarray,
+def _closed_loop_lag(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray, noise: np.ndarray,
                      initial_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_closed_loop` for a motor behind an electrical lag: each interval exact by the simulator's
     :func:`~motorsim.plant.lag_coefficients`, the current starting at 0 (as :func:`~motorsim.plant.simulate`'s)."""

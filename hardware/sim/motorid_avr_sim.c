@@ -16,10 +16,13 @@
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
  * at each sub-step from the firmware's registers, because simavr 1.6 does not emulate the PWM
  * waveform on the pin: u = +-OCR2A (pin 11, Timer 2) with the sign from the DIR pin (8), or
- * from IN1/IN2 (8/9). A PWM pin that is not an output (during reset) reads as 0, as the
+ * from IN1/IN2 (8/9). A drive that changed since the last sub-step was written somewhere inside
+ * it: the sub-step holds the old drive for its first half and the new one for its second, so
+ * that the motor sees each change when the firmware made it, on average (holding the new drive
+ * over the whole sub-step would apply every change half a sub-step early). A PWM pin that is not an output (during reset) reads as 0, as the
  * pull-down on the real board makes it. The encoder A/B inputs (pins 2/3) get one quadrature
- * edge per sub-step at most, when the shaft angle crosses a count boundary, so edges are spaced
- * as the motor turns them (to 1 us) up to 1 M counts/s.
+ * edge per sub-step at most, at the sub-step nearest the instant the shaft angle crosses a count
+ * boundary, so edges are spaced as the motor turns them (to 1 us) up to 1 M counts/s.
  *
  * --encoder-rate R ignores the motor and turns the encoder at exactly R counts/s (4x counts):
  * that is how the firmware's encoder ceiling is measured.
@@ -90,8 +93,10 @@ typedef struct harness {
     enum driver driver;
     double a, b, friction, counts_per_rev, encoder_rate;
     uint32_t substep;
-    /* exact ZOH coefficients over one sub-step, precomputed */
+    /* exact ZOH coefficients over one sub-step and over half of one, precomputed */
     double h, e, one_minus_e_over_a, h_minus_over_a;
+    double half_e, half_one_minus_e_over_a, half_h_minus_over_a;
+    double last_drive;   /* the drive over the previous sub-step */
     double speed;        /* rad/s */
     double position;     /* shaft angle in counts (4x) */
     int64_t emitted;     /* count the A/B pins currently show */
@@ -154,13 +159,10 @@ static void set_encoder_pins(harness_t *s) {
     if (B[q] != s->last_b) { s->last_b = B[q]; avr_raise_irq(s->enc_b, B[q]); }
 }
 
-static void integrate(harness_t *s) {
+/* The motor over a step of dt s at constant drive u, given e = exp(-a dt), p = (1 - e) / a and
+   q = dt - p. */
+static void advance(harness_t *s, double u, double e, double p, double q) {
     const double to_counts = s->counts_per_rev / (2.0 * M_PI);
-    if (s->encoder_rate != 0.0) {
-        s->position += s->encoder_rate * s->h;
-        return;
-    }
-    double u = drive(s);
     double force = s->b * u;
     double w = s->speed;
     if (s->friction > 0.0) {
@@ -169,14 +171,30 @@ static void integrate(harness_t *s) {
         force -= s->friction * sign;
     }
     double target = force / s->a;                             /* steady state of this step */
-    double w_next = s->e * w + target * (1.0 - s->e);
-    double angle = s->one_minus_e_over_a * w + target * s->h_minus_over_a;
+    double w_next = e * w + target * (1.0 - e);
+    double angle = p * w + target * q;
     if (s->friction > 0.0 && w != 0.0 && (w_next > 0) != (w > 0)) {
-        /* speed crosses zero inside the sub-step: stop there (friction holds it if it can) */
+        /* speed crosses zero inside the step: stop there (friction holds it if it can) */
         w_next = 0.0;
     }
     s->speed = w_next;
     s->position += angle * to_counts;
+}
+
+static void integrate(harness_t *s) {
+    if (s->encoder_rate != 0.0) {
+        s->position += s->encoder_rate * s->h;
+        return;
+    }
+    double u = drive(s);
+    if (u == s->last_drive) {
+        advance(s, u, s->e, s->one_minus_e_over_a, s->h_minus_over_a);
+        return;
+    }
+    /* changed inside this sub-step: the old drive for its first half, the new one for its second */
+    advance(s, s->last_drive, s->half_e, s->half_one_minus_e_over_a, s->half_h_minus_over_a);
+    advance(s, u, s->half_e, s->half_one_minus_e_over_a, s->half_h_minus_over_a);
+    s->last_drive = u;
 }
 
 /* Whether the firmware is between the two writes of a stack-pointer change: GCC moves SP by
@@ -196,7 +214,11 @@ static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *pa
     harness_t *s = param;
     (void)avr;
     integrate(s);
-    int64_t target = (int64_t)floor(s->position);
+    /* the edge of a count boundary crossed in (when - h/2, when + h/2]: each edge lands within half
+       a sub-step of its crossing, on average at it (the angle at the end of the sub-step would put
+       every edge half a sub-step late) */
+    double ahead = s->encoder_rate != 0.0 ? s->encoder_rate : s->speed * s->counts_per_rev / (2.0 * M_PI);
+    int64_t target = (int64_t)floor(s->position + 0.5 * s->h * ahead);
     if (target != s->emitted) {
         s->emitted += target > s->emitted ? 1 : -1;           /* one edge per sub-step */
         s->edges++;
@@ -410,6 +432,9 @@ static int start_avr(harness_t *s, const char *firmware) {
     s->e = exp(-s->a * s->h);
     s->one_minus_e_over_a = (1.0 - s->e) / s->a;
     s->h_minus_over_a = s->h - s->one_minus_e_over_a;
+    s->half_e = exp(-s->a * s->h / 2);
+    s->half_one_minus_e_over_a = (1.0 - s->half_e) / s->a;
+    s->half_h_minus_over_a = s->h / 2 - s->half_one_minus_e_over_a;
     s->enc_a = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
     s->enc_b = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
     avr_raise_irq(s->enc_a, 0);

@@ -2,27 +2,35 @@
 
 For each class of plant outside (and at the edge of) the first-order family — a driver's
 electrical lag, a delay past ten samples, a speed column that differences encoder counts, Coulomb
-friction — the default (``identify.fit`` with no method) runs on ``--seeds`` recordings of
-independent noise, and the benchmark prints, per class, how often the 95 % intervals of ``a`` and
-``b`` hold the truth (goal: at least 90 %), how often the answer is within 1 % of it, and the
-same coverage among the runs whose choice was called clear (goal: at least 90 % too: "clear" is
-said only where the intervals cover; a 95 % interval misses about one run in twenty by design, so
-no single run can promise more).  Exits 1 when a goal is missed.  Slow by design: one default fit
-per seed and class, about a second each.
+friction, a position loop that feeds a random torque back — the default (``identify.fit`` with no
+method) runs on ``--seeds`` recordings of independent noise, and the benchmark prints, per class,
+how often the 95 % intervals of ``a`` and ``b`` hold the truth (goal: at least 90 %), how often
+the answer is within 1 % of it, and the same coverage among the runs whose choice was called clear
+(goal: at least 90 % too: "clear" is said only where the intervals cover; a 95 % interval misses
+about one run in twenty by design, so no single run can promise more).  Exits 1 when a goal is
+missed.  Slow by design: one default fit per seed and class (a second to a minute each), run on
+``--workers`` processes, the progress on stderr.
+
+A class is one entry of :data:`CLASSES`: its name and a function ``(seed) -> Recording`` of a
+plant whose ``a`` and ``b`` are :data:`A` and :data:`B`.
 """
 from __future__ import annotations
 
 import argparse
-from typing import Callable, Sequence
+import functools
+import sys
+import time
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
 from motorid.bench.flags import integer
 
-__all__ = ["bench_coverage", "CLASSES", "COVERAGE_GOAL"]
+__all__ = ["bench_coverage", "CLASSES", "COVERAGE_GOAL", "A", "B", "Outcome", "coverage_run"]
 
 #: Share of runs whose 95 % intervals must hold the truth.
 COVERAGE_GOAL = 0.90
+#: The truth of every class: ``a`` in 1/s, ``b`` in (rad/s^2)/duty.
 A, B = 25.0, 3.0
 
 
@@ -31,74 +39,140 @@ def _multisine():
     return Multisine((3.0, 17.0, 70.0, 200.0), (60, 50, 40, 40), (0, 1, 2, 3))
 
 
-def _lag(seed: int):
+def _lag(time_constant: float, seed: int):
+    """A driver whose current lags by ``time_constant`` s, multisine, 1 ms, a fine encoder."""
     from motorsim import Encoder, Experiment, Motor, SimRig
-    rig = SimRig(Motor(A, B, electrical_time_constant=0.004), Encoder(angle_noise=1e-4),
+    rig = SimRig(Motor(A, B, electrical_time_constant=time_constant), Encoder(angle_noise=1e-4),
                  rng=np.random.default_rng(seed))
     return rig.run(Experiment(_multisine(), 0.001, 6.0))
 
 
-def _delay(seed: int):
+def _delay(samples: int, seed: int):
+    """An input delay of ``samples`` samples at 1 ms (a host-side loop), multisine, a fine encoder."""
     from motorsim import Encoder, Experiment, Motor, SimRig
-    rig = SimRig(Motor(A, B, input_delay=14), Encoder(angle_noise=1e-4), rng=np.random.default_rng(seed))
+    rig = SimRig(Motor(A, B, input_delay=samples), Encoder(angle_noise=1e-4), rng=np.random.default_rng(seed))
     return rig.run(Experiment(_multisine(), 0.001, 6.0))
 
 
-def _differenced(seed: int):
+def _differenced(counts_per_rev: int, sample_period: float, seed: int):
+    """A speed column only: the backward difference of ``counts_per_rev`` counts, rounded to 9 digits."""
     from motorsim import Encoder, Experiment, Motor, Multisine, Recording, SimRig
-    rig = SimRig(Motor(A, B), Encoder(360, count_offset=int(seed) % 360), rng=np.random.default_rng(seed))
+    rig = SimRig(Motor(A, B), Encoder(counts_per_rev, count_offset=int(seed) % counts_per_rev),
+                 rng=np.random.default_rng(seed))
     excitation = Multisine((2.0, 7.0, 23.0, 60.0), (60, 60, 50, 40), (0, 1, 2, seed % 7))
-    rec = rig.run(Experiment(excitation, 0.005, 10.0))
+    rec = rig.run(Experiment(excitation, sample_period, 10.0))
     speed = rec.measured_speed()
     speed[0] = 0.0
     return Recording(time=rec.time, duty=rec.duty, sample_period=rec.sample_period, speed=np.round(speed, 9))
 
 
 def _friction(seed: int):
+    """Coulomb friction of 60 rad/s^2, one sine, 1000 counts at 5 ms."""
     from motorsim import Encoder, Experiment, Motor, SimRig, Sine
     rig = SimRig(Motor(A, B, friction=60.0), Encoder(1000, angle_noise=1e-4), rng=np.random.default_rng(seed))
     return rig.run(Experiment(Sine(10.0, 200), 0.005, 6.0))
 
 
-#: class name -> recording maker ``(seed) -> Recording`` (the truth is a = 25, b = 3 throughout)
+def _position_loop(seed: int):
+    """A PD position loop tracking two slow sines, Coulomb friction of 60 rad/s^2 and a random
+    torque of 30 rad/s^2 RMS (correlation time 0.1 s) that the loop feeds back; 2000 counts, 1 ms,
+    15 s."""
+    from motorsim import Encoder, Motor, SimRig
+    from motorsim.control import ClosedLoopExperiment, PlantModel, PositionPD, Reference
+    controller = PositionPD(PlantModel(A, B, 0.001, 2000), time_constant=0.05)
+    reference = Reference("multisine", frequencies=(np.pi, 2.6 * np.pi), amplitudes=(2.0, 1.0), phases=(0.0, 1.0))
+    rig = SimRig(Motor(A, B, friction=60.0), Encoder(2000), disturbance=30.0, disturbance_time=0.1,
+                 rng=np.random.default_rng(seed))
+    return rig.run(ClosedLoopExperiment(controller, reference, 15.0))
+
+
+#: class name -> recording maker ``(seed) -> Recording`` (the truth is a = A, b = B throughout).
+#: A new class is one line here.
 CLASSES: dict[str, Callable[[int], object]] = {
-    "electrical lag 4 ms at 1 ms": _lag, "delay 14 samples at 1 ms": _delay,
-    "differenced speed, 360 counts": _differenced, "Coulomb friction": _friction,
+    "electrical lag 2 ms at 1 ms": functools.partial(_lag, 0.002),
+    "electrical lag 4 ms at 1 ms": functools.partial(_lag, 0.004),
+    "electrical lag 8 ms at 1 ms": functools.partial(_lag, 0.008),
+    "delay 13 samples at 1 ms": functools.partial(_delay, 13),
+    "delay 14 samples at 1 ms": functools.partial(_delay, 14),
+    "delay 20 samples at 1 ms": functools.partial(_delay, 20),
+    "differenced speed, 360 counts, 5 ms": functools.partial(_differenced, 360, 0.005),
+    "differenced speed, 1000 counts, 2 ms": functools.partial(_differenced, 1000, 0.002),
+    "Coulomb friction": _friction,
+    "PD position loop, friction, torque": _position_loop,
 }
+
+
+class Outcome(NamedTuple):
+    """One default fit of one class and seed, against the truth."""
+
+    covered: bool    #: both 95 % intervals hold the truth
+    close: bool      #: a and b within 1 % of the truth
+    clear: bool      #: the choice was called clear
+    seconds: float   #: the fit's time
+
+
+def coverage_run(name: str, seed: int) -> Outcome:
+    """The default fit on class ``name``'s recording of ``seed``, against the truth."""
+    import warnings
+
+    from identify import fit
+    rec = CLASSES[name](seed)
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fit(rec)
+    seconds = time.perf_counter() - start
+    ci = est.confidence_interval(0.95)
+    covered = bool(ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1])
+    close = bool(abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01)
+    return Outcome(covered, close, bool(est.selection and est.selection.clear), seconds)
+
+
+def _row(name: str, outcomes: list[Outcome]) -> tuple[str, bool]:
+    """The table row of one class and whether it meets both goals."""
+    n = len(outcomes)
+    covered = sum(o.covered for o in outcomes)
+    clear = [o for o in outcomes if o.clear]
+    clear_share = sum(o.covered for o in clear) / len(clear) if clear else 1.0
+    met = covered / n >= COVERAGE_GOAL and clear_share >= COVERAGE_GOAL
+    mean_s = sum(o.seconds for o in outcomes) / n
+    return (f"{name:38s} {n:5d} {100 * covered / n:7.0f} % {100 * sum(o.close for o in outcomes) / n:9.0f} % "
+            f"{len(clear):6d} {100 * clear_share:14.0f} % {mean_s:7.1f}   {'met' if met else 'MISSED'}"), met
+
+
+def _progress(name: str, done: int, total: int) -> None:
+    """``class: done/total`` on stderr: in place on a terminal, else a line every tenth of the class."""
+    if sys.stderr.isatty():
+        end = "\n" if done == total else ""
+        print(f"\r{name}: {done}/{total}", end=end, file=sys.stderr, flush=True)
+    elif done % max(1, total // 10) == 0 or done == total:
+        print(f"{name}: {done}/{total}", file=sys.stderr, flush=True)
 
 
 def bench_coverage(argv: Sequence[str]) -> int:
     """Run the benchmark (module docstring); 0 when every goal holds."""
-    import warnings
-
-    from identify import fit
+    from scenarios.executors import points_executor, results_in_order
     p = argparse.ArgumentParser(prog="motorid bench coverage", description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=integer(), default=100, help="recordings per class (default 100)")
-    p.add_argument("--only", choices=list(CLASSES), help="one class only")
+    p.add_argument("--only", choices=list(CLASSES), action="append",
+                   help="this class only (repeat for several; default every class)")
+    p.add_argument("--workers", type=integer(), default=None, metavar="N",
+                   help="worker processes (default: every core available)")
     args = p.parse_args(list(argv))
-    if args.seeds < 1:
-        p.error(f"--seeds must be >= 1, got {args.seeds}")
-    ok = True
-    print(f"{'class':32s} {'runs':>5s} {'covered':>8s} {'within 1 %':>10s} {'clear':>6s} {'clear, covered':>15s}")
-    for name, make in CLASSES.items():
-        if args.only and name != args.only:
-            continue
-        covered = close = clear = clear_covered = 0
-        for seed in range(args.seeds):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                est = fit(make(seed))
-            ci = est.confidence_interval(0.95)
-            hit = ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
-            covered += hit
-            close += abs(est.a / A - 1) <= 0.01 and abs(est.b / B - 1) <= 0.01
-            called = bool(est.selection and est.selection.clear)
-            clear += called
-            clear_covered += called and hit
-        share = covered / args.seeds
-        clear_share = clear_covered / clear if clear else 1.0
-        met = share >= COVERAGE_GOAL and clear_share >= COVERAGE_GOAL
-        ok &= met
-        print(f"{name:32s} {args.seeds:5d} {100 * share:7.0f} % {100 * close / args.seeds:9.0f} % {clear:6d} "
-              f"{100 * clear_share:14.0f} %   goal >= {100 * COVERAGE_GOAL:.0f} % both: {'met' if met else 'MISSED'}")
+    names = [n for n in CLASSES if not args.only or n in args.only]
+    jobs = [(name, seed) for name in names for seed in range(args.seeds)]
+    print(f"{'class':38s} {'runs':>5s} {'covered':>8s} {'within 1 %':>10s} {'clear':>6s} {'clear, covered':>15s} "
+          f"{'fit s':>7s}   goal >= {100 * COVERAGE_GOAL:.0f} % both", flush=True)
+    ok, outcomes, start = True, [], time.perf_counter()
+    with points_executor(args.workers, None) as (executor, window):
+        for i, outcome in enumerate(results_in_order(executor, coverage_run, jobs, window)):
+            outcomes.append(outcome)
+            name = jobs[i][0]
+            _progress(name, len(outcomes), args.seeds)
+            if len(outcomes) == args.seeds:
+                row, met = _row(name, outcomes)
+                print(row, flush=True)
+                ok &= met
+                outcomes = []
+    print(f"{len(jobs)} fits in {time.perf_counter() - start:.0f} s")
     return 0 if ok else 1

@@ -36,6 +36,19 @@ def test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent(tmp_p
     assert read_recording(out).metadata["complete"] == "true"
 
 
+@pytest.mark.parametrize("period", ["0.005", "0.001"])
+def test_live_fake_run_intervals_hold_the_motor_the_device_was_built_with(tmp_path, capsys, period):
+    # fake:// is an exact ZOH of the motor it was given, with the one-sample delay its recordings
+    # declare: the default's 95 % intervals hold a = 25 and b = 3 (measured a 24.99949 [24.99812,
+    # 25.00085] at 5 ms)
+    status, _ = _live(tmp_path, "fake://?a=25&b=3&speed=0", "--sine", "20,100", "--duration", "3",
+                      "--sample-period", period, "--json")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["a_ci95"][0] <= 25.0 <= result["a_ci95"][1]
+    assert result["b_ci95"][0] <= 3.0 <= result["b_ci95"][1]
+
+
 def test_live_writes_the_recording_and_prints_estimates_as_json(tmp_path, capsys):
     status, out = _live(tmp_path, "fake://?a=25&b=3&speed=0", "--duration", "4", "--prbs", "200,-200,9,3",
                         "--json", "--method", "zoh-ls")

@@ -52,3 +52,64 @@ def test_simrig_needs_an_rng_for_randomness():
 def test_experiment_validates(kwargs, match):
     with pytest.raises((TypeError, ValueError), match=match):
         Experiment(**kwargs)
+
+
+def _disturbance(seed, n, dt, rms, time_constant):
+    """The AR(1) torque SimRig draws first from its rng (no angle noise, jitter or drops)."""
+    from scipy.signal import lfilter
+    r = np.exp(-dt / time_constant)
+    e = np.random.default_rng(seed).standard_normal(n) * rms * np.sqrt(1 - r * r)
+    e[0] = 0.0
+    return lfilter([1.0], [1.0, -r], e)
+
+
+def test_a_disturbance_enters_the_motor_as_its_bias_does():
+    # linear motor: the run with the torque minus the run without is the motor's response to
+    # d / b added to the duty, exactly (superposition); rtol 1e-9 is rounding of the two paths
+    exp, motor = Experiment(Sine(10.0, 150), 0.002, 2.0), Motor(25.0, 3.0)
+    n = exp.n_samples
+    rig = SimRig(motor, record_speed=True, disturbance=20.0, disturbance_time=0.05, rng=np.random.default_rng(4))
+    with_torque = rig.run(exp)
+    d = _disturbance(4, n, 0.002, 20.0, 0.05)
+    expected = simulate(motor, exp.duty() + d / 3.0, np.arange(n) * 0.002)
+    np.testing.assert_allclose(with_torque.speed, expected.speed, rtol=1e-9, atol=1e-9)
+    assert with_torque.metadata["disturbance"] == "20.0" and with_torque.metadata["disturbance_time"] == "0.05"
+
+
+def test_the_disturbance_has_its_rms_and_correlation_time():
+    # 190 correlation times: the sample RMS within 20 % of 30 and the autocorrelation at one
+    # correlation time (50 samples of 2 ms = 0.1 s) near exp(-1) = 0.37, within 0.15 (standard
+    # errors of about 10 % and 0.07 over about 190 independent stretches)
+    d = _disturbance(0, 10000, 0.002, 30.0, 0.1)
+    assert np.sqrt(np.mean(d[500:] ** 2)) == pytest.approx(30.0, rel=0.2)
+    x = d[500:] - d[500:].mean()
+    assert np.dot(x[:-50], x[50:]) / np.dot(x, x) == pytest.approx(np.exp(-1.0), abs=0.15)
+
+
+def test_a_position_loop_feeds_the_disturbance_back():
+    # zero reference: without a torque the loop holds the shaft still (duty 0 throughout); with
+    # one, the duty answers it, against its sign (the duty opposes the torque's drift)
+    from motorsim.control import ClosedLoopExperiment, PlantModel, PositionPD, Reference
+    pd = PositionPD(PlantModel(25.0, 3.0, 0.001, 2000), time_constant=0.05)
+    exp = ClosedLoopExperiment(pd, Reference("constant", level=0.0), 5.0)
+    still = SimRig(Motor(25.0, 3.0), Encoder(2000)).run(exp)
+    assert not np.any(still.duty)
+    pushed = SimRig(Motor(25.0, 3.0), Encoder(2000), disturbance=30.0, rng=np.random.default_rng(2)).run(exp)
+    d = _disturbance(2, exp.n_samples, 0.001, 30.0, 0.1)
+    assert np.corrcoef(pushed.duty[1:], d[:-1])[0, 1] < -0.5
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"disturbance": -1.0}, "disturbance"),
+    ({"disturbance": 1.0, "disturbance_time": 0.0}, "disturbance_time"),
+], ids=["negative", "zero time"])
+def test_a_bad_disturbance_is_refused_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        SimRig(Motor(25.0, 3.0), rng=np.random.default_rng(0), **kwargs)
+
+
+def test_a_disturbance_needs_an_rng_and_no_electrical_lag():
+    with pytest.raises(TypeError, match="rng"):
+        SimRig(Motor(25.0, 3.0), disturbance=1.0)
+    with pytest.raises(ValueError, match="electrical lag"):
+        SimRig(Motor(25.0, 3.0, electrical_time_constant=0.004), disturbance=1.0, rng=np.random.default_rng(0))
