@@ -73,6 +73,15 @@ def _friction(seed: int):
     return rig.run(Experiment(Sine(10.0, 200), 0.005, 6.0))
 
 
+def _stiction(ratio: float, seed: int):
+    """Coulomb friction of 60 rad/s^2 whose break-away level is ``ratio`` times it, one sine, 1000 counts at 5 ms,
+    the encoder's phase drawn from the seed."""
+    from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+    rig = SimRig(Motor(A, B, friction=60.0, static_friction=ratio * 60.0),
+                 Encoder(1000, angle_noise=1e-4, count_offset=seed % 1000), rng=np.random.default_rng(seed))
+    return rig.run(Experiment(Sine(5.0, 200), 0.005, 6.0))
+
+
 def _position_loop(seed: int):
     """A PD position loop tracking two slow sines, Coulomb friction of 60 rad/s^2 and a random
     torque of 30 rad/s^2 RMS (correlation time 0.1 s) that the loop feeds back; 2000 counts, 1 ms,
@@ -98,6 +107,8 @@ CLASSES: dict[str, Callable[[int], object]] = {
     "differenced speed, 360 counts, 5 ms": functools.partial(_differenced, 360, 0.005),
     "differenced speed, 1000 counts, 2 ms": functools.partial(_differenced, 1000, 0.002),
     "Coulomb friction": _friction,
+    "static friction 1.6 x sliding": functools.partial(_stiction, 1.6),
+    "static friction 2 x sliding": functools.partial(_stiction, 2.0),
     "PD position loop, friction, torque": _position_loop,
 }
 
