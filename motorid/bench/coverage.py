@@ -55,11 +55,13 @@ def _delay(samples: int, seed: int):
 
 
 def _differenced(counts_per_rev: int, sample_period: float, seed: int):
-    """A speed column only: the backward difference of ``counts_per_rev`` counts, rounded to 9 digits."""
+    """A speed column only: the backward difference of ``counts_per_rev`` counts, rounded to 9 digits; the
+    multisine's phases drawn from the seed (with no sensor noise they are what makes two seeds two runs)."""
     from motorsim import Encoder, Experiment, Motor, Multisine, Recording, SimRig
-    rig = SimRig(Motor(A, B), Encoder(counts_per_rev, count_offset=int(seed) % counts_per_rev),
-                 rng=np.random.default_rng(seed))
-    excitation = Multisine((2.0, 7.0, 23.0, 60.0), (60, 60, 50, 40), (0, 1, 2, seed % 7))
+    rng = np.random.default_rng(seed)
+    rig = SimRig(Motor(A, B), Encoder(counts_per_rev), rng=rng)
+    phases = tuple(float(p) for p in rng.uniform(0.0, 2 * np.pi, 4))
+    excitation = Multisine((2.0, 7.0, 23.0, 60.0), (60, 60, 50, 40), phases)
     rec = rig.run(Experiment(excitation, sample_period, 10.0))
     speed = rec.measured_speed()
     speed[0] = 0.0
