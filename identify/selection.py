@@ -392,13 +392,13 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     loop_note = closed.note
     swept = _counts_swept(recs)
     few_note = ""
-    if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a second pole from their rounding
+    if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a richer structure from their rounding
         wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
         higher = [s for s in wanted if s in STRUCTURES and STRUCTURES[s].rank > 0]
         if higher:
             structures = [s for s in wanted if s not in higher]
             few_note = (f"{', '.join(higher)} not fitted: the encoder sweeps only {swept:.0f} counts, whose rounding "
-                        "a second pole would fit as well as any motor")
+                        f"{'they' if len(higher) > 1 else 'it'} would fit as well as any motor")
     selection, edge = _select_widening(recs, structures, input_delay, fix_bias)
     est = _chosen_fit(recs, selection.chosen, fix_bias)
     checks: dict[str, float] = {}
