@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.processes import processes_with
+
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
 
 # A parent that starts the harness through AvrSimulation.start() (the build replaced by a stand-in
@@ -125,7 +127,7 @@ def test_kill_9_of_motorid_live_on_avr_sim_leaves_no_emulator(tmp_path):
                 break
             time.sleep(0.05)
         assert proc.poll() is None, errors.read_text()
-        harnesses = [pid for pid in _processes_with(marker) if pid != proc.pid]
+        harnesses = [pid for pid in processes_with(marker) if pid != proc.pid]
         assert harnesses, "no emulator process found while live ran"
         proc.send_signal(signal.SIGKILL)
         proc.wait()
@@ -135,16 +137,3 @@ def test_kill_9_of_motorid_live_on_avr_sim_leaves_no_emulator(tmp_path):
             proc.kill()
             proc.wait()
     assert not left, f"emulator processes left running: {left}"
-
-
-def _processes_with(marker: str) -> list[int]:
-    needle = f"MOTORID_TEST_MARKER={marker}".encode()
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if needle in (entry / "environ").read_bytes().split(b"\0"):
-                    found.append(int(entry.name))
-            except OSError:
-                continue
-    return found

@@ -14,6 +14,7 @@ import pytest
 
 from motorid.cli import main
 from motorsim import Experiment, Motor, SimRig, Sine, write_recording
+from tests.recording_files import rewrite_column
 
 
 @pytest.fixture(scope="module")
@@ -327,21 +328,9 @@ def test_dask_names_an_address_that_is_none_without_contacting_anything(capsys):
 
 # --- confident wrong answers: what the data contradict is refused, naming the contradiction --------
 
-def _rewrite(path, out, column, change):
-    """``path`` with ``change(values)`` applied to ``column`` (a list of the cells as text), to ``out``."""
-    lines = path.read_text().splitlines()
-    header = [k for k, line in enumerate(lines) if line.startswith("seq")][0]
-    k = lines[header].split(",").index(column)
-    rows = [line.split(",") for line in lines[header + 1:]]
-    for row, value in zip(rows, change([row[k] for row in rows])):
-        row[k] = value
-    out.write_text("\n".join(lines[:header + 1] + [",".join(row) for row in rows]) + "\n")
-    return out
-
-
 @pytest.mark.parametrize("method", ["auto", "oe"])
 def test_an_input_logged_one_sample_late_is_refused(rec_path, tmp_path, method, capsys):
-    late = _rewrite(rec_path, tmp_path / "late.csv", "duty", lambda cells: ["0", *cells[:-1]])
+    late = rewrite_column(rec_path, tmp_path / "late.csv", "duty", lambda cells: ["0", *cells[:-1]])
     assert main(["identify", str(late), "--method", method]) == 2
     assert "answers its recorded input one sample before it" in _error(capsys)
 
@@ -363,7 +352,7 @@ def speed_rec_path(tmp_path_factory):
 @pytest.mark.parametrize("edit, factor", [
     (lambda p, out: out.write_text(p.read_text().replace("# counts_per_rev: 16667", "# counts_per_rev: 4167")),
      "0.25 x"),
-    (lambda p, out: _rewrite(p, out, "speed_rad_s", lambda cells: [repr(float(c) * 60 / (2 * math.pi))
+    (lambda p, out: rewrite_column(p, out, "speed_rad_s", lambda cells: [repr(float(c) * 60 / (2 * math.pi))
                                                                    for c in cells]), "9.55 x"),
 ], ids=["counts-per-rev-4x-off", "speed-in-rpm"])
 def test_a_speed_column_contradicting_the_counts_is_refused(speed_rec_path, tmp_path, edit, factor, capsys):
@@ -377,7 +366,7 @@ def test_a_speed_column_contradicting_the_counts_is_refused(speed_rec_path, tmp_
 
 
 def test_a_logged_input_flat_while_the_speed_turns_is_refused(rec_path, tmp_path, capsys):
-    flat = _rewrite(rec_path, tmp_path / "flat.csv", "duty",
+    flat = rewrite_column(rec_path, tmp_path / "flat.csv", "duty",
                     lambda cells: [str(max(-60, min(60, int(c)))) for c in cells])
     assert main(["identify", str(flat)]) == 2
     line = _error(capsys)

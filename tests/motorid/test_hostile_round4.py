@@ -8,13 +8,13 @@ file or parameter, the rule and the value.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from motorid.cli import main
 from motorsim import Experiment, Motor, SimRig, Sine, read_recording, write_recording
+from tests.recording_files import rewrite_column
 
 
 @pytest.fixture(scope="module")
@@ -33,18 +33,6 @@ def _error(capsys) -> str:
     return err[-1]
 
 
-def _rewrite(path: Path, out: Path, column: str, change) -> Path:
-    """``path`` with ``change(cells)`` applied to ``column`` (its cells as text), written to ``out``."""
-    lines = path.read_text().splitlines()
-    header = [k for k, line in enumerate(lines) if line.startswith("seq")][0]
-    k = lines[header].split(",").index(column)
-    rows = [line.split(",") for line in lines[header + 1:]]
-    for row, value in zip(rows, change([row[k] for row in rows])):
-        row[k] = value
-    out.write_text("\n".join(lines[:header + 1] + [",".join(row) for row in rows]) + "\n")
-    return out
-
-
 # --- every refusal of the data names the file they came from ------------------------------------------
 
 _BAD = {
@@ -61,7 +49,7 @@ _BAD = {
 @pytest.mark.parametrize("case", list(_BAD))
 def test_a_refusal_of_the_data_names_the_file_on_every_method(runs, tmp_path, case, method, capsys):
     source, column, change, rule = _BAD[case]
-    bad = _rewrite(runs / source, tmp_path / f"{case}.csv", column, change)
+    bad = rewrite_column(runs / source, tmp_path / f"{case}.csv", column, change)
     assert main(["identify", str(bad), "--method", method]) == 2
     line = _error(capsys)
     assert line.startswith(f"motorid: error: {bad}: ") and rule in line and "recordings[" not in line
@@ -70,7 +58,7 @@ def test_a_refusal_of_the_data_names_the_file_on_every_method(runs, tmp_path, ca
 def test_the_python_api_names_the_file_a_recording_was_read_from(runs, tmp_path):
     import identify
     from identify.errors import NotIdentifiableError
-    bad = _rewrite(runs / "r.csv", tmp_path / "late.csv", "duty", lambda cells: ["0", *cells[:-1]])
+    bad = rewrite_column(runs / "r.csv", tmp_path / "late.csv", "duty", lambda cells: ["0", *cells[:-1]])
     rec = read_recording(bad)
     assert rec.path == str(bad) and rec.slice(0, 100).path == str(bad) and rec.drop_rows([3]).path == str(bad)
     with pytest.raises(NotIdentifiableError, match=rf"^{bad}: the output answers"):
@@ -85,7 +73,7 @@ def test_the_python_api_names_the_file_a_recording_was_read_from(runs, tmp_path)
 def test_a_corrupted_row_found_by_the_python_api_names_the_file(runs, tmp_path):
     import identify
     from identify.errors import CorruptedSamplesError
-    bad = _rewrite(runs / "r.csv", tmp_path / "jump.csv", "counts",
+    bad = rewrite_column(runs / "r.csv", tmp_path / "jump.csv", "counts",
                    lambda cells: [str(int(c) + (10**7 if k == 100 else 0)) for k, c in enumerate(cells)])
     with pytest.raises(CorruptedSamplesError, match=rf"^{bad}: implausible"):
         identify.fit(read_recording(bad, check_samples=False))

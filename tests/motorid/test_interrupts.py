@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from motorsim import read_recording
+from tests.processes import processes_with
 
 ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD = 120.0   # s: only against a hung test, never a speed assertion
@@ -46,20 +47,6 @@ def _has_rows(path: Path):
     return lambda: path.exists() and path.stat().st_size > 0
 
 
-def _processes_with(marker: str) -> list[int]:
-    """Pids of the live processes whose environment carries ``marker``."""
-    needle = f"MOTORID_TEST_MARKER={marker}".encode()
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if needle in (entry / "environ").read_bytes().split(b"\0"):
-                    found.append(int(entry.name))
-            except OSError:
-                continue
-    return found
-
-
 def _signal_mid_run(args, mid_run, what: str, signum: int) -> tuple[int, str, str]:
     marker = uuid.uuid4().hex
     proc = _start(args, marker)
@@ -70,14 +57,14 @@ def _signal_mid_run(args, mid_run, what: str, signum: int) -> tuple[int, str, st
         out, err = proc.communicate(timeout=HANG_GUARD)
         # a child being reaped may take a moment to disappear from /proc
         deadline = time.monotonic() + 5.0
-        while _processes_with(marker) and time.monotonic() < deadline:
+        while processes_with(marker) and time.monotonic() < deadline:
             time.sleep(0.05)
-        left = _processes_with(marker)
+        left = processes_with(marker)
     finally:      # whatever failed, no process of this test outlives it
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for pid in _processes_with(marker):
+        for pid in processes_with(marker):
             os.kill(pid, signal.SIGKILL)
     assert not left, f"processes left running after the signal: {left}"
     return proc.returncode, out, err
