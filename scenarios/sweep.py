@@ -41,6 +41,7 @@ import numpy as np
 
 from identify import (
     BATCHED_METHODS,
+    BatchFit,
     cramer_rao_bound,
     fit,
     fit_batch,
@@ -91,23 +92,9 @@ def repetition_seed(seed: int, point: int, repetition: int) -> np.random.SeedSeq
 
 
 @dataclasses.dataclass(frozen=True)
-class MethodOutcome:
-    """One estimator's results over the repetitions of one grid point.
-
-    Attributes
-    ----------
-    method : str
-        Estimator name.
-    a, b : ndarray, shape (repetitions,)
-        Estimates, ``nan`` where the fit failed.
-    failure : tuple of str
-        ``''`` where the fit succeeded, else why it failed.
-    """
-
-    method: str
-    a: np.ndarray
-    b: np.ndarray
-    failure: tuple
+class MethodOutcome(BatchFit):
+    """One estimator's results over the repetitions of one grid point (the fields of
+    :class:`identify.BatchFit`: ``method``, ``a``, ``b``, ``failure``), with their failures summarised."""
 
     @property
     def n_failed(self) -> int:
