@@ -55,7 +55,7 @@ from .model_structures import ModelStructure, structures
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
            "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
-           "scan_delays", "separating_experiment", "statistic", "threshold"]
+           "scan_delays", "separating_experiment", "statistic", "threshold", "parameters_threshold"]
 
 #: Largest input delay in samples the selection tries.
 MAX_AUTO_DELAY = 10
@@ -205,11 +205,11 @@ class CandidateFit:
 
 
 def threshold(c: Candidate, best: Candidate, level: float) -> float:
-    return _threshold(max(best.n_params - c.n_params, 1), level)
+    return parameters_threshold(max(best.n_params - c.n_params, 1), level)
 
 
 @functools.lru_cache(maxsize=64)
-def _threshold(k: int, level: float) -> float:
+def parameters_threshold(k: int, level: float) -> float:
     """``k`` times the ``1 - level`` quantile of ``F(k, BLOCKS - k)`` (a few values, asked for every candidate)."""
     from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
     return k * float(fdtri(k, BLOCKS - k, 1.0 - level))

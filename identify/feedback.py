@@ -42,7 +42,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
-from .comparison import BLOCKS, LEVEL, Candidate, Selection, largest_delay, threshold
+from .comparison import LEVEL, Candidate, Selection, largest_delay, parameters_threshold, threshold
 from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
@@ -276,17 +276,11 @@ def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses:
     without = solve_prediction_error(recs, segs, friction=reverses, disturbance=False,
                                      start=(v["a"], v["b"], v["friction"], v["bias"]))
     ratio = with_.problem.n_rows * math.log(without.cost / with_.cost) if with_.cost > 0 else math.inf
-    limit = _ratio_limit(2)
+    limit = parameters_threshold(2, LEVEL)
     if ratio <= limit:
         return (f"the data show no disturbance the loop feeds back (likelihood ratio {ratio:.3g} of a fit with one, "
                 f"threshold {limit:.3g})")
     return ""
-
-
-def _ratio_limit(k: int) -> float:
-    """The likelihood ratio's threshold for ``k`` more parameters, as :func:`identify.comparison.threshold`."""
-    from scipy.special import fdtri  # the F quantile, lighter than scipy.stats
-    return k * float(fdtri(k, BLOCKS - k, 1.0 - LEVEL))
 
 
 def _noise(fit: PredictionErrorFit) -> tuple[float, float]:
