@@ -267,7 +267,8 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
 
 def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses: bool) -> str:
     """Why no disturbance is evidenced at ``delay`` (``""`` when one is): the likelihood ratio of the fit with a
-    disturbance against the fit without, within :func:`threshold` for its two parameters (pole and intensity)."""
+    disturbance against the fit without, within :func:`~identify.comparison.parameters_threshold` for its two
+    parameters (pole and intensity)."""
     segs = prepare_segments(recs, delay, skip=skip, rows=CLOSED_LOOP_ROWS)
     if not segs:
         return ""
