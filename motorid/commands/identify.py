@@ -85,13 +85,16 @@ def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword options the flags give the estimator; a flag the method does not take is an error."""
-    from identify import method_options
-    accepted = method_options(args.method)
+    from identify import option_declarations
+    declared = {o.name: o for o in option_declarations(args.method)}
+    accepted = tuple(declared)
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
         value = getattr(args, name)
-        if value is unset and name == "input_delay" and name in accepted:
-            value = "auto"          # the default: a missed delay biases a fit by far more than it costs
+        if value is unset and name == "input_delay" and name in accepted and "auto" in declared[name].kind:
+            # the default where the method can search it: a missed delay biases a fit by far more than it costs
+            # (a method whose delay is a fixed number, iv-reference or pem-disturbance, keeps its own default)
+            value = "auto"
         if value is unset:
             continue
         if name not in accepted:

@@ -73,3 +73,16 @@ def test_a_large_input_is_announced_with_an_estimate_first(tmp_path, capsys, mon
     assert main(["identify", str(path)]) == 0
     err = capsys.readouterr().err
     assert err.startswith("identify: ") and "expect about" in err.splitlines()[0]
+
+
+@pytest.mark.parametrize("method", ["iv-reference", "pem-disturbance"])
+def test_a_method_whose_delay_is_a_number_runs_without_the_delay_flag(tmp_path, capsys, method):
+    # the command's delay default is 'auto' only for methods that search it; these two refused it
+    from motorsim.control import ClosedLoopExperiment, OneStepMPC, PlantModel, parse_reference
+    rec = SimRig(Motor(25.0, 3.0), Encoder(1000), rng=np.random.default_rng(0)).run(
+        ClosedLoopExperiment(OneStepMPC(PlantModel(25.0, 3.0, 0.005, 1000)), parse_reference("sine:10,10"), 3.0))
+    path = tmp_path / "loop.csv"
+    write_recording(rec, path)
+    assert main(["identify", str(path), "--method", method, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["method"] == method and out["input_delay"] == 0
