@@ -275,21 +275,32 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
     for name in names:
         previous: tuple[float, ...] = ()
         fastest = 0.0
-        for d in near:
+        todo = list(near)
+        while todo:
+            d = todo.pop(0)
             first = _candidate(recs, first_rows(segments[d], HIGHER_FIRST_ROWS), d, name, refine=False,
                                starts=[previous] if previous else [])
-            if first.residuals is None or not first.start:
-                continue
-            previous = first.start
-            tau = 1.0 / first.start[1]
-            fastest = max(fastest, tau)
-            if tau >= MIN_TAU_SAMPLES * h:
-                out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
+            if first.residuals is not None and first.start:
+                previous = first.start
+                tau = 1.0 / first.start[1]
+                fastest = max(fastest, tau)
+                if tau >= MIN_TAU_SAMPLES * h:
+                    out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
+            if not todo:
+                todo = _lower_delay(out, name, d, delays)
         if not out and fastest:
             notes.append(f"{name} not a candidate: its fit finds the second pole faster than {MIN_TAU_SAMPLES:g} "
                          f"sample (tau_e {fastest:.2g} s at most): a lag that short is part of a sample's delay "
                          "at this sample period; a faster sample rate would show it")
     return out
+
+
+def _lower_delay(fitted: list[CandidateFit], name: str, lowest: int, delays: list[int]) -> list[int]:
+    """The delay below ``lowest`` (the shortest fitted) when the best fit of ``name`` so far is at it: a lag
+    of many samples stands in for as many samples of delay, more than :data:`HIGHER_DELAYS`; else none."""
+    best = best_fit([f for f in fitted if f.candidate.structure == name])
+    below = [d for d in delays if d < lowest]
+    return [max(below)] if best is not None and below and best.candidate.input_delay == lowest else []
 
 
 def _fit_sticking(recs: list[Recording], segments: dict[int, list[Segment]], fitted: list[CandidateFit],
@@ -498,11 +509,10 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
-        # the chosen delay at the top; or a best fit at the top that only a second pole's lag could stand in
-        # for (a first-order choice below the top is already within the noise of the best)
-        chosen_first = STRUCTURES[selection.chosen.structure].rank == 0
-        at_top = selection.chosen.input_delay == top or (not chosen_first and top in (
-            selection.best.input_delay, best_first.input_delay))
+        # the chosen delay at the top, or the best fit at the top: a misfit whose residual still falls at the
+        # top may fall much further past it, and a choice below the top "within the noise" of a best that is
+        # itself not the best is no answer (a long delay with friction: its misfit inflates the noise)
+        at_top = top in (selection.chosen.input_delay, selection.best.input_delay, best_first.input_delay)
         limit = largest_delay(recs, LARGEST_DELAY)
         if not at_top or top >= limit:
             break

@@ -161,3 +161,18 @@ def test_a_speed_column_averaged_over_each_interval_is_not_a_clear_second_pole()
     assert ci["a"][0] <= 25.0 <= ci["a"][1] and ci["b"][0] <= 3.0 <= ci["b"][1]
     if est.structure == "second-order":
         assert not est.selection.clear and "average speed over each interval" in est.selection.doubt
+
+
+@pytest.mark.parametrize("delay", [2, 5])
+def test_a_slow_lag_behind_a_delay_is_found_with_its_own_delay(delay):
+    # a 10-sample lag stands in for about 9 samples of delay: the first-order best (delay 11-14) was more than
+    # eight delays above the true one, and the second pole, fitted only that far down, came out one sample
+    # late, a = 24.78 [24.76, 24.80], "a clear choice"
+    rig = SimRig(Motor(25.0, 3.0, electrical_time_constant=0.01, input_delay=delay), Encoder(angle_noise=1e-4),
+                 rng=np.random.default_rng(delay))
+    est = fit(rig.run(Experiment(MULTISINE, 0.001, 4.0)))
+    assert est.structure == "second-order" and est.input_delay == delay
+    assert abs(est.a / 25.0 - 1) < 0.01 and abs(est.b / 3.0 - 1) < 0.01
+    se = est.stderr()     # the truth within 4 standard errors, as above
+    for name, truth in (("a", 25.0), ("b", 3.0), ("electrical_time_constant", 0.01)):
+        assert abs(est.value(name) - truth) <= 4 * se[name], name
