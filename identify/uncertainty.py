@@ -53,7 +53,7 @@ def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: 
     size (a in 1/s, an encoder offset in rad) do not spoil the conditioning.
     Returns a matrix of ``inf`` when ``J`` is rank-deficient.
     """
-    J = np.asarray(jacobian, dtype=float)
+    J = _without_idle_nuisances(np.asarray(jacobian, dtype=float), keep)
     scale = np.linalg.norm(J, axis=0)
     if np.any(scale == 0) or not np.all(np.isfinite(J)):
         return np.full((keep, keep), math.inf)
@@ -62,6 +62,16 @@ def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: 
         return np.full((keep, keep), math.inf)
     inv = (vt.T / sv**2) @ vt
     return noise_variance * inv[:keep, :keep] / np.outer(scale[:keep], scale[:keep])
+
+
+def _without_idle_nuisances(J: np.ndarray, keep: int) -> np.ndarray:
+    """``J`` without the columns past the first ``keep`` that are exactly zero: a segment's initial state
+    that moves no residual at the fit (a shaft at rest that friction holds there: a speed of exactly 0 sticks)
+    is held where it is, rather than making every parameter's variance infinite."""
+    if J.ndim != 2 or J.shape[1] <= keep:
+        return J
+    idle = ~np.any(J[:, keep:], axis=0)
+    return J[:, np.concatenate([np.ones(keep, dtype=bool), ~idle])] if np.any(idle) else J
 
 
 def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int, max_lag: int) -> np.ndarray:
@@ -83,7 +93,7 @@ def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int
     max_lag : int
         ``L`` in samples, >= 0.
     """
-    J = np.asarray(jacobian, dtype=float)
+    J = _without_idle_nuisances(np.asarray(jacobian, dtype=float), keep)
     scale = np.linalg.norm(J, axis=0)
     if np.any(scale == 0) or not np.all(np.isfinite(J)):
         return np.full((keep, keep), math.inf)

@@ -235,3 +235,20 @@ def test_the_structures_at_one_delay_share_their_linear_fit(monkeypatch):
     for structure in ("dead-zone", "friction"):
         assert fitted[True, structure].refined
         assert fitted[True, structure].candidate == fitted[False, structure].candidate
+
+
+def test_a_shaft_that_starts_at_rest_keeps_its_intervals_on_an_angle_column():
+    # a sine from rest: friction holds the shaft, so the segment's initial speed, fitted at exactly 0, moves
+    # no residual (its Jacobian column is zero).  That made the information matrix singular and every
+    # interval infinite ("no interval for a, b, friction, bias") on a fit within 0.1 % of the truth; the idle
+    # initial speed is now held where it is.  360 counts written as degrees, 1e-4 rad of noise, fixed seed.
+    from motorsim import Encoder, Experiment, SimRig, Sine
+    rig = SimRig(Motor(25.0, 3.0, friction=60.0), Encoder(360, angle_noise=1e-4), rng=np.random.default_rng(0))
+    rec = rig.run(Experiment(Sine(10.0, 200), 0.005, 8.0))
+    angle = Recording(time=rec.time, duty=rec.duty, sample_period=rec.sample_period, angle=rec.measured_angle())
+    est = fit(angle, method="oe-friction", input_delay=0, dead_zone=False)
+    se = est.stderr()
+    for name, truth in (("a", 25.0), ("b", 3.0), ("friction", 60.0)):
+        # finite, and the truth within 4 standard errors of a run whose answer is within 1 %
+        assert np.isfinite(se[name]) and abs(est.value(name) - truth) <= 4 * se[name], name
+        assert abs(est.value(name) / truth - 1) < 0.01, name
