@@ -253,9 +253,9 @@ def search_static_level(problem: _Problem, res: Any, refit: Callable[[Any, np.nd
     best, best_cost, level = res, _cost_of(res), 0.0
     fits: dict[float, tuple[float, float, float]] = {}       # level -> (cost, a, b) of its refit
     for round_ in range(MAX_ROUNDS):
-        levels = candidate_levels(problem, best.x, max_levels)
-        if round_:                           # the first round looks everywhere; the next ones near its level
-            levels = _near(levels, level)
+        # the first round looks everywhere (evenly among the levels); the next ones at every level near its own
+        levels = _near(candidate_levels(problem, best.x, len(_forces(problem, best.x))), level) if round_ else \
+            candidate_levels(problem, best.x, max_levels)
         predicted = _predicted_costs(problem, best.x, levels)
         improved = False
         start_cost = best_cost

@@ -56,6 +56,20 @@ def test_oe_friction_fits_the_static_level_and_its_bracket_holds_the_truth(ratio
     assert est.motor().static_friction == est.extra["static_friction"]
 
 
+def test_a_narrow_well_in_the_static_level_s_cost_is_found():
+    # static friction 100 rad/s^2 (5/3 of the sliding level) under the sine, 6 s from SimRig (1e-4 rad of
+    # noise, fixed seed): the cost over the levels has a narrow well, two levels wide, that the scans' evenly
+    # spread levels stepped over, and the search stopped at 86 (a = 24.84 [24.835, 24.848], b 0.5 % low,
+    # intervals without the truth); its later rounds now try every level near their own
+    from motorsim import Encoder, Experiment, SimRig
+    rig = SimRig(Motor(A, B, friction=C, static_friction=100.0), Encoder(1000, angle_noise=1e-4),
+                 rng=np.random.default_rng(0))
+    rec = rig.run(Experiment(Sine(5.0, 200), 0.005, 6.0))
+    est = fit(rec, "oe-friction", input_delay=0, dead_zone=False, static_friction=True)
+    assert est.a == pytest.approx(A, rel=1e-3) and est.b == pytest.approx(B, rel=1e-3)
+    assert _covers(est, "a", A) and _covers(est, "b", B) and _covers(est, "static_friction", 100.0)
+
+
 def test_without_stiction_the_level_stays_at_the_friction():
     est = fit(_recording(0.0, True, 1000, 0), "oe-friction", input_delay=0, dead_zone=False, static_friction=True)
     low, _ = est.confidence_interval()["static_friction"]
