@@ -443,6 +443,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
     if material or resolution:
         est, doubt = _widen(est, chosen, material, resolution)
+        est = _cover_richer(recs, est, chosen, material, fix_bias)
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
@@ -617,6 +618,34 @@ def _widen(est: Estimate, chosen: Candidate, material: list[Candidate],
     if top >= 1e6 * max(est.a, 1.0):
         ranges["a"] = (ranges["a"][0], math.inf)
     return dataclasses.replace(est, model_range=ranges), doubt
+
+
+#: Candidates of a higher rank than the chosen one at most whose own intervals :func:`_cover_richer` fits.
+RICHER_FITS = 3
+
+
+def _cover_richer(recs: list[Recording], est: Estimate, chosen: Candidate, material: list[Candidate],
+                  fix_bias: bool) -> Estimate:
+    """The estimate whose intervals also hold the own 95 % intervals of the candidates of a higher rank than the
+    chosen one among ``material`` (the :data:`RICHER_FITS` of least residual, each fitted on all rows): a second
+    pole that fits as well knows ``a`` and ``b`` less precisely than the chosen first-order fit, whose relative
+    width :func:`_widen` carries to it (one sine through a lag: a 30 times narrower interval, around the
+    first-order model's value), and at each delay it sits elsewhere."""
+    rank = STRUCTURES[chosen.structure].rank
+    richer = sorted((c for c in material if STRUCTURES[c.structure].rank > rank), key=lambda c: c.residual_sum)
+    if not richer or "a" not in est.model_range:
+        return est
+    ranges = dict(est.model_range)
+    for candidate in richer[:RICHER_FITS]:
+        try:
+            own = _chosen_fit(recs, candidate, fix_bias).confidence_interval(0.95)
+        except (NotIdentifiableError, ValueError):
+            continue
+        for name in ("a", "b"):
+            low, high = own[name]
+            if math.isfinite(low) and math.isfinite(high):
+                ranges[name] = (min(ranges[name][0], low), max(ranges[name][1], high))
+    return dataclasses.replace(est, model_range=ranges)
 
 
 def _counts_swept(recs: list[Recording]) -> float:

@@ -1,8 +1,9 @@
 """``motorid bench coverage``: how often the default's intervals hold the truth of plants known exactly.
 
 For each class of plant outside (and at the edge of) the first-order family — a driver's
-electrical lag, a delay past ten samples, a speed column that differences encoder counts, Coulomb
-friction, a position loop that feeds a random torque back — the default (``identify.fit`` with no
+electrical lag (behind a delay, under one sine), a delay past ten samples (with friction), a speed column
+that differences encoder counts, Coulomb friction, a position or a speed loop that feeds a random torque
+back — the default (``identify.fit`` with no
 method) runs on ``--seeds`` recordings of independent noise, and the benchmark prints, per class,
 how often the 95 % intervals of ``a`` and ``b`` hold the truth (goal: at least 90 %), how often
 the answer is within 1 % of it, and the same coverage among the runs whose choice was called clear
@@ -39,18 +40,21 @@ def _multisine():
     return Multisine((3.0, 17.0, 70.0, 200.0), (60, 50, 40, 40), (0, 1, 2, 3))
 
 
-def _lag(time_constant: float, seed: int):
-    """A driver whose current lags by ``time_constant`` s, multisine, 1 ms, a fine encoder."""
+def _lag(time_constant: float, seed: int, input_delay: int = 0, sine: bool = False):
+    """A driver whose current lags by ``time_constant`` s behind ``input_delay`` samples, multisine (or one sine
+    of 20 rad/s), 1 ms, a fine encoder."""
+    from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+    rig = SimRig(Motor(A, B, electrical_time_constant=time_constant, input_delay=input_delay),
+                 Encoder(angle_noise=1e-4), rng=np.random.default_rng(seed))
+    return rig.run(Experiment(Sine(20.0, 200) if sine else _multisine(), 0.001, 6.0))
+
+
+def _delay(samples: int, seed: int, friction: float = 0.0):
+    """An input delay of ``samples`` samples at 1 ms (a host-side loop), Coulomb friction ``friction``
+    rad/s^2, multisine, a fine encoder."""
     from motorsim import Encoder, Experiment, Motor, SimRig
-    rig = SimRig(Motor(A, B, electrical_time_constant=time_constant), Encoder(angle_noise=1e-4),
+    rig = SimRig(Motor(A, B, input_delay=samples, friction=friction), Encoder(angle_noise=1e-4),
                  rng=np.random.default_rng(seed))
-    return rig.run(Experiment(_multisine(), 0.001, 6.0))
-
-
-def _delay(samples: int, seed: int):
-    """An input delay of ``samples`` samples at 1 ms (a host-side loop), multisine, a fine encoder."""
-    from motorsim import Encoder, Experiment, Motor, SimRig
-    rig = SimRig(Motor(A, B, input_delay=samples), Encoder(angle_noise=1e-4), rng=np.random.default_rng(seed))
     return rig.run(Experiment(_multisine(), 0.001, 6.0))
 
 
@@ -97,21 +101,37 @@ def _position_loop(seed: int):
     return rig.run(ClosedLoopExperiment(controller, reference, 15.0))
 
 
+def _speed_loop(seed: int):
+    """A PI speed loop tracking two sines (20 and 10 rad/s), Coulomb friction of 60 rad/s^2 and a random torque of
+    30 rad/s^2 RMS (correlation time 0.1 s) that the loop feeds back; 2000 counts, 1 ms, 15 s."""
+    from motorsim import Encoder, Motor, SimRig
+    from motorsim.control import ClosedLoopExperiment, PISpeed, PlantModel, Reference
+    controller = PISpeed(PlantModel(A, B, 0.001, 2000), time_constant=0.05)
+    reference = Reference("multisine", frequencies=(2 * np.pi, 5.2 * np.pi), amplitudes=(20.0, 10.0), phases=(0.0, 1.0))
+    rig = SimRig(Motor(A, B, friction=60.0), Encoder(2000), disturbance=30.0, disturbance_time=0.1,
+                 rng=np.random.default_rng(seed))
+    return rig.run(ClosedLoopExperiment(controller, reference, 15.0))
+
+
 #: class name -> recording maker ``(seed) -> Recording`` (the truth is a = A, b = B throughout).
 #: A new class is one line here.
 CLASSES: dict[str, Callable[[int], object]] = {
     "electrical lag 2 ms at 1 ms": functools.partial(_lag, 0.002),
     "electrical lag 4 ms at 1 ms": functools.partial(_lag, 0.004),
     "electrical lag 8 ms at 1 ms": functools.partial(_lag, 0.008),
+    "electrical lag 10 ms, delay 3, at 1 ms": functools.partial(_lag, 0.01, input_delay=3),
+    "electrical lag 3 ms, one sine, at 1 ms": functools.partial(_lag, 0.003, sine=True),
     "delay 13 samples at 1 ms": functools.partial(_delay, 13),
     "delay 14 samples at 1 ms": functools.partial(_delay, 14),
     "delay 20 samples at 1 ms": functools.partial(_delay, 20),
+    "delay 15 samples, Coulomb friction": functools.partial(_delay, 15, friction=60.0),
     "differenced speed, 360 counts, 5 ms": functools.partial(_differenced, 360, 0.005),
     "differenced speed, 1000 counts, 2 ms": functools.partial(_differenced, 1000, 0.002),
     "Coulomb friction": _friction,
     "static friction 1.6 x sliding": functools.partial(_stiction, 1.6),
     "static friction 2 x sliding": functools.partial(_stiction, 2.0),
     "PD position loop, friction, torque": _position_loop,
+    "PI speed loop, friction, torque": _speed_loop,
 }
 
 

@@ -34,6 +34,23 @@ def test_the_position_loop_class_feeds_a_random_torque_back():
     assert not np.array_equal(rec.duty, CLASSES["PD position loop, friction, torque"](1).duty)
 
 
+def test_the_speed_loop_class_feeds_a_random_torque_back():
+    rec = CLASSES["PI speed loop, friction, torque"](0)
+    assert rec.reference is not None and rec.metadata["controller"] == "pi"
+    assert rec.metadata["disturbance"] == "30.0" and float(rec.metadata["true_friction"]) == 60.0
+    assert not np.array_equal(rec.duty, CLASSES["PI speed loop, friction, torque"](1).duty)
+
+
+@pytest.mark.parametrize("name, delay, tau, friction", [
+    ("electrical lag 10 ms, delay 3, at 1 ms", "3", 0.01, 0.0),
+    ("delay 15 samples, Coulomb friction", "15", 0.0, 60.0),
+])
+def test_the_combined_classes_are_the_plants_they_name(name, delay, tau, friction):
+    rec = CLASSES[name](0)
+    assert rec.metadata["true_input_delay"] == delay and float(rec.metadata.get("true_friction", 0.0)) == friction
+    assert float(rec.metadata.get("true_electrical_time_constant", 0.0)) == tau
+
+
 def test_an_unknown_class_or_no_seed_is_refused(capsys):
     with pytest.raises(SystemExit):
         bench_coverage(["--only", "no such class"])
