@@ -193,3 +193,16 @@ def test_one_sine_through_a_lag_is_covered_by_the_intervals(tau, sample_period, 
     assert abs(est.a / 25.0 - 1) < 0.01 and abs(est.b / 3.0 - 1) < 0.01
     assert ci["a"][0] <= 25.0 <= ci["a"][1] and ci["b"][0] <= 3.0 <= ci["b"][1]
     assert (ci["a"][1] - ci["a"][0]) < 0.01 * 25.0                # and still narrow: 0.1 % at most
+
+
+def test_a_prbs_behind_a_delay_finds_the_lag_from_a_poor_first_order_start():
+    # a PRBS through a 6 ms lag behind 3 samples: the first-order start pole is 4.6 for 25, and the search from the
+    # best start on the lag's grid slid to tau_e at its lower bound, a = 21.5 [20.9, 22.2], which the default
+    # returned as a clear choice after its own candidate had found 25; a search ending at that bound now tries the
+    # next starts
+    rig = SimRig(Motor(25.0, 3.0, electrical_time_constant=0.006, input_delay=3), Encoder(angle_noise=1e-4),
+                 rng=np.random.default_rng(0))
+    rec = rig.run(Experiment(PRBS(hold=5), 0.001, 6.0))
+    est = fit_output_error_electrical(rec, input_delay=3)
+    assert abs(est.a / 25.0 - 1) < 0.001 and abs(est.b / 3.0 - 1) < 0.001
+    assert abs(est.extra["electrical_time_constant"] / 0.006 - 1) < 0.01
