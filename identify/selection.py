@@ -263,7 +263,8 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
 
     A lag between the duty and the torque is what a first-order model absorbs as a longer input
     delay, so the second pole's own delay is the first-order best delay or shorter: those (at most
-    :data:`HIGHER_DELAYS`, from the best down, each started from its neighbour's poles) are fitted,
+    :data:`HIGHER_DELAYS`, from the best down, each started from its neighbour's poles, and further down
+    while the best of them is at the shortest fitted: :func:`_lower_delay`) are fitted,
     first on the first :data:`HIGHER_FIRST_ROWS` rows; where that fit finds the pole slower than
     :data:`MIN_TAU_SAMPLES` samples it is fitted on all rows and becomes a candidate, else its own
     fit has shown the pole too fast for this sample period to tell from a delay, which is said.
