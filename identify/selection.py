@@ -252,9 +252,9 @@ def _fit_higher_ranks(recs: list[Recording], segments: dict[int, list[Segment]],
     scored here, they are fitted once, on the wider range."""
     if not (sticking or higher):
         return []
-    if widened_at is not None:
-        family = choose(fitted, level, [], widened_at, recs, segments)
-        if family.chosen.input_delay == widened_at and family.best.input_delay == widened_at:
+    best = best_fit(fitted)
+    if widened_at is not None and best is not None and best.candidate.input_delay == widened_at:
+        if choose(fitted, level, [], widened_at, recs, segments).chosen.input_delay == widened_at:
             return []
     out = _fit_sticking(recs, segments, fitted, sticking, fix_bias, level, notes) if sticking else []
     if higher:
