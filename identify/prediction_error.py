@@ -54,17 +54,19 @@ from .validation import segment_fit_percent
 
 __all__ = ["fit_prediction_error", "solve_prediction_error", "PredictionErrorFit", "innovations", "PARAMETERS",
            "filter_pass", "compiled_filter_pass",
-           "DIFFUSE", "START_POLES", "START_LOG_RATIOS"]
+           "DIFFUSE", "STEADY", "START_POLES", "START_LOG_RATIOS"]
 
 #: The fitted parameters, in order (``friction`` left out when ``friction=False``).
 PARAMETERS = ("a", "b", "friction", "bias", "disturbance_pole", "log_disturbance_ratio")
 #: The initial state's variance, in units of what one measurement tells of it (a diffuse start).
 DIFFUSE = 1e2
+#: Relative change of the filter's covariance in one step below which its gain is held (the steady state).
+STEADY = 1e-13
 
 
 def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: float, q: float, a: float,
-                 h: float, b: float, c: float, bias: float, phi: float, ratio: float, w0: float,
-                 eps: np.ndarray) -> float:
+                h: float, b: float, c: float, bias: float, phi: float, ratio: float, w0: float,
+                eps: np.ndarray) -> float:
     """Innovations of the Kalman predictor over one uniform segment, each over its standard deviation
     (in units of the measurement's), into ``eps``; returns the sum of the logarithms of their variances
     (module docstring).
@@ -73,6 +75,10 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     each with a variance :data:`DIFFUSE` times what one sample can tell): its gain settles as the data
     pin the state, so a segment's initial state costs no parameter.  The variances are in units of the
     measurement's (``R = 1``); ``ratio`` is ``Q/R``.
+
+    The covariance's recursion does not depend on the data: once a step changes none of its six numbers
+    by more than :data:`STEADY` of their size, the gain is the steady one and the rest of the pass
+    skips the recursion (the innovations then differ from the full recursion's by about ``STEADY``).
     """
     n = len(u)
     th = y[0] if not speed_kind else 0.0
@@ -84,26 +90,25 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
     p22 = DIFFUSE / (h * h) / (h * h)
     log_det = 0.0
+    steady = False
+    s_var = k0 = k1 = k2 = scale = 1.0
+    g0 = g1 = g2 = 0.0
     for k in range(n):
-        if speed_kind:
-            ek = y[k] - w
-            s_var = p11 + 1.0
-            g0, g1, g2 = 0.0, p11, p12
-        else:
-            ek = y[k] - th
-            s_var = p00 + 1.0
-            g0, g1, g2 = p00, p01, p02
-        eps[k] = ek / math.sqrt(s_var)
-        log_det += math.log(s_var)
-        th += g0 / s_var * ek
-        w += g1 / s_var * ek
-        d += g2 / s_var * ek
-        p00 -= g0 * g0 / s_var
-        p01 -= g0 * g1 / s_var
-        p02 -= g0 * g2 / s_var
-        p11 -= g1 * g1 / s_var
-        p12 -= g1 * g2 / s_var
-        p22 -= g2 * g2 / s_var
+        if not steady:
+            if speed_kind:
+                s_var = p11 + 1.0
+                g0, g1, g2 = 0.0, p11, p12
+            else:
+                s_var = p00 + 1.0
+                g0, g1, g2 = p00, p01, p02
+            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
+            scale = 1.0 / math.sqrt(s_var)
+            log_det += math.log(s_var)
+        ek = y[k] - (w if speed_kind else th)
+        eps[k] = ek * scale
+        th += k0 * ek
+        w += k1 * ek
+        d += k2 * ek
         force = b * u[k] + bias + d
         if c > 0.0:
             if w == 0.0:
@@ -123,20 +128,45 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
         th += d_angle
         w = w_next
         d = phi * d
-        # the time update F P F^T + Q of the linear part, F = [[1, p, q], [0, e, p], [0, 0, phi]]
-        r00 = p00 + p * p01 + q * p02
-        r01 = p01 + p * p11 + q * p12
-        r02 = p02 + p * p12 + q * p22
-        r11 = e * p11 + p * p12
-        r12 = e * p12 + p * p22
-        r22 = phi * p22
+        if steady:
+            continue
+        # the measurement update, then the time update F P F^T + Q of the linear part,
+        # F = [[1, p, q], [0, e, p], [0, 0, phi]]
+        m00 = p00 - g0 * k0
+        m01 = p01 - g0 * k1
+        m02 = p02 - g0 * k2
+        m11 = p11 - g1 * k1
+        m12 = p12 - g1 * k2
+        m22 = p22 - g2 * k2
+        r00 = m00 + p * m01 + q * m02
+        r01 = m01 + p * m11 + q * m12
+        r02 = m02 + p * m12 + q * m22
+        r11 = e * m11 + p * m12
+        r12 = e * m12 + p * m22
+        r22 = phi * m22
+        n00, n01, n02 = p00, p01, p02
         if not speed_kind:
-            p00 = r00 + p * r01 + q * r02
-            p01 = e * r01 + p * r02
-            p02 = phi * r02
-        p11 = e * r11 + p * r12
-        p12 = phi * r12
-        p22 = phi * r22 + ratio
+            n00 = r00 + p * r01 + q * r02
+            n01 = e * r01 + p * r02
+            n02 = phi * r02
+        n11 = e * r11 + p * r12
+        n12 = phi * r12
+        n22 = phi * r22 + ratio
+        steady = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
+                  and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
+                  and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
+        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
+        if steady:
+            # the gain of the next step, held from there on
+            if speed_kind:
+                s_var = p11 + 1.0
+                g0, g1, g2 = 0.0, p11, p12
+            else:
+                s_var = p00 + 1.0
+                g0, g1, g2 = p00, p01, p02
+            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
+            scale = 1.0 / math.sqrt(s_var)
+            log_det += (n - 1 - k) * math.log(s_var)
     return log_det
 
 
