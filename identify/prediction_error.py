@@ -443,13 +443,20 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
     Levenberg–Marquardt (MINPACK, through :func:`scipy.optimize.least_squares`) in coordinates that keep
     ``a > 0``, ``c > 0`` and ``0 < phi < 1`` without bounds (logarithms and a logistic), with a
-    forward-difference Jacobian carried back to the parameters by the chain rule.
+    forward-difference Jacobian carried back to the parameters by the chain rule.  With the pole held at 1
+    the bias is held at its start: it is then the disturbance's starting level, which the filter's diffuse
+    start already takes, so the criterion hardly depends on it and its step would only stall the others'
+    (its Jacobian column is returned as zeros).
     """
     from scipy.optimize import least_squares  # imported when used: slow to import
     positive = [0] + ([2] if problem.friction else [])
     pole = problem.pole_index
+    held = [problem.n_plant - 1] if problem.pole is not None and problem.pole >= 1.0 else []
+    free = np.array([j for j in range(len(x0)) if j not in held], dtype=int)
 
-    def to_x(z: np.ndarray) -> np.ndarray:
+    def to_x(z_free: np.ndarray) -> np.ndarray:
+        z = np.array(z0, dtype=float)
+        z[free] = z_free
         x = np.array(z, dtype=float)
         x[positive] = np.exp(np.clip(z[positive], -700.0, 700.0))
         if pole is not None:
@@ -467,12 +474,13 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     if pole is not None:
         phi0 = min(max(float(x0[pole]), 1e-6), 1.0 - 1e-6)
         z0[pole] = math.log(phi0 / (1.0 - phi0))
-    res = least_squares(residuals, z0, method="lm", x_scale="jac")
+    res = least_squares(residuals, z0[free], method="lm", x_scale="jac")
     x = to_x(res.x)
     scale = np.ones(len(x))                      # dx/dz of each coordinate
     scale[positive] = x[positive]
     if pole is not None:
         scale[pole] = x[pole] * (1.0 - x[pole])
+    jac = np.zeros((len(res.fun), len(x)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        jac = np.where(scale > 0, res.jac / np.where(scale > 0, scale, 1.0), 0.0)
+        jac[:, free] = np.where(scale[free] > 0, res.jac / np.where(scale[free] > 0, scale[free], 1.0), 0.0)
     return x, res.fun, jac
