@@ -47,7 +47,7 @@ from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import speed_reverses
-from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_error, solve_prediction_error
+from .prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
@@ -240,7 +240,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
                                      friction=fit.problem.friction,
                                      start=(v["a"], v["b"], v["friction"], v["bias"]))
     est = estimate_from(recs, fit, chosen.input_delay)
-    others, apart = _material(recs, est, fit, [c for c, _ in fitted if c.within_noise and c is not chosen])
+    others, apart = _material(recs, est, fit, [(c, f) for c, f in fitted if c.within_noise and c is not chosen])
     notes = [f"recorded in a closed loop: {evidence}; fitted by prediction error with a torque disturbance "
              "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
              "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
@@ -323,23 +323,26 @@ def _choose(fitted: list[tuple[Candidate, PredictionErrorFit]]) -> Selection:
 
 
 def _material(recs: list[Recording], est: Estimate, fit: PredictionErrorFit,
-              within: list[Candidate]) -> tuple[list[Estimate], list[str]]:
+              within: list[tuple[Candidate, PredictionErrorFit]]) -> tuple[list[Estimate], list[str]]:
     """The fits whose intervals the answer's must hold, and what sets them apart from the chosen fit.
 
     The chosen candidate refitted with its disturbance a random walk, always (the disturbance model is an
     assumption the data can only test, and under feedback it moves ``a`` and ``b``); the candidates within
-    the noise whose ``a`` or ``b`` fall outside the chosen fit's 95 % intervals.  The second list names
-    each fit whose values and the chosen fit's are not inside each other's intervals.
+    the noise whose ``a`` or ``b`` fall outside the chosen fit's 95 % intervals, each refitted on all rows
+    from where its fit on the compared rows stands.  The second list names each fit whose values and the
+    chosen fit's are not inside each other's intervals.
     """
     ci = est.confidence_interval(0.95)
 
     def inside(other: Estimate | Candidate, interval: dict) -> bool:
         return interval["a"][0] <= other.a <= interval["a"][1] and interval["b"][0] <= other.b <= interval["b"][1]
     out, apart = [], []
-    for c in within:
+    for c, near in within:
         if not inside(c, ci):
-            out.append(fit_prediction_error(recs, input_delay=c.input_delay,
-                                            friction=dict(c.fit_options).get("friction", False)))
+            w = near.values()
+            full = solve_prediction_error(recs, prepare_segments(recs, c.input_delay), friction=near.problem.friction,
+                                          start=(w["a"], w["b"], w["friction"], w["bias"]), noise_start=_noise(near))
+            out.append(estimate_from(recs, full, c.input_delay))
             apart.append(c.label)
     v = fit.values()
     if v["disturbance_pole"] < 1.0 - 1e-6:
