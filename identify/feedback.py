@@ -216,14 +216,15 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
             if not segs:
                 raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
                                            f"{d} samples")
-            # the disturbance's start from the neighbouring delay's fit (the first searches a grid)
-            near = _noise(fitted[-2 if reverses else -1][1]) if fitted else None
-            linear = solve_prediction_error(recs, segs, friction=False, noise_start=near)
+            # each structure starts where the neighbouring delay's fit of it stands (the first: the linear fit
+            # from the regression guess and a grid of disturbances, friction from the linear fit)
+            near = fitted[-2 if reverses else -1][1] if fitted else None
+            linear = solve_prediction_error(recs, segs, friction=False, start=_plant(near),
+                                            noise_start=_noise(near) if near else None)
             fitted.append((_candidate("bias", d, linear), linear))
-            if reverses:                           # friction from the linear fit at the same delay
-                v = linear.values()
-                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]),
-                                             noise_start=_noise(linear))
+            if reverses:
+                near = fitted[-2][1] if len(fitted) > 2 else linear
+                fit = solve_prediction_error(recs, segs, friction=True, start=_plant(near), noise_start=_noise(near))
                 fitted.append((_candidate("friction", d, fit), fit))
     scan(delays)
     while auto and top < cap and _top_plausible(fitted, top):
@@ -282,6 +283,14 @@ def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses:
         return (f"the data show no disturbance the loop feeds back (likelihood ratio {ratio:.3g} of a fit with one, "
                 f"threshold {limit:.3g})")
     return ""
+
+
+def _plant(fit: PredictionErrorFit | None) -> tuple[float, float, float, float] | None:
+    """A fit's ``a, b, c, bias``, as the start of a neighbouring one (None: none)."""
+    if fit is None:
+        return None
+    v = fit.values()
+    return v["a"], v["b"], v["friction"], v["bias"]
 
 
 def _noise(fit: PredictionErrorFit) -> tuple[float, float]:
