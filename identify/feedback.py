@@ -235,11 +235,9 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     chosen = selection.chosen
     fit = next(f for c, f in fitted if c is chosen)
     if skip != chosen.input_delay or sum(len(r) for r in recs) > CLOSED_LOOP_ROWS:
-        # the chosen candidate on all its rows, from where it stands
-        v = fit.values()
+        # the chosen candidate on all its rows, from where it stands (its disturbance too)
         fit = solve_prediction_error(recs, prepare_segments(recs, chosen.input_delay),
-                                     friction=fit.problem.friction,
-                                     start=(v["a"], v["b"], v["friction"], v["bias"]))
+                                     friction=fit.problem.friction, start=_plant(fit), noise_start=_noise(fit))
     est = estimate_from(recs, fit, chosen.input_delay)
     others, apart = _material(recs, est, fit, [(c, f) for c, f in fitted if c.within_noise and c is not chosen])
     notes = [f"recorded in a closed loop: {evidence}; fitted by prediction error with a torque disturbance "
@@ -348,9 +346,8 @@ def _material(recs: list[Recording], est: Estimate, fit: PredictionErrorFit,
     out, apart = [], []
     for c, near in within:
         if not inside(c, ci):
-            w = near.values()
             full = solve_prediction_error(recs, prepare_segments(recs, c.input_delay), friction=near.problem.friction,
-                                          start=(w["a"], w["b"], w["friction"], w["bias"]), noise_start=_noise(near))
+                                          start=_plant(near), noise_start=_noise(near))
             out.append(estimate_from(recs, full, c.input_delay))
             apart.append(c.label)
     v = fit.values()
