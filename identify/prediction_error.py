@@ -17,15 +17,17 @@ disturbance as a state::
 
 where ``delta`` enters exactly where the input does.  The exact zero-order-hold step of the
 family (:func:`identify.friction_kernel.event_interval` for an interval in which friction
-stops the shaft) moves the state; the filter's steady-state gain (from the discrete Riccati
-equation at ``Q/R``) corrects it with each innovation.  The parameters ``a, b, c, bias, phi``
+stops the shaft) moves the state; the Kalman gain, from a diffuse start through the Riccati
+recursion at ``Q/R`` and held once that has settled (:data:`STEADY`), corrects it with each
+innovation.  The parameters ``a, b, c, bias, phi``
 and ``log(Q/R)`` minimise the sum of squared innovations (the quadratic prediction-error
 criterion; only the ratio ``Q/R`` shapes the predictor).  The covariance is
 :func:`identify.uncertainty.robust_covariance` of the innovations (Gauss–Newton when they are
 white, else Newey–West).
 
-With ``phi = 1`` the disturbance is a random walk, with ``Q = 0`` there is none (the fit is
-then an output-error fit with a filter that settles on the measured trajectory).  Without
+With ``phi = 1`` the disturbance is a random walk (its start is then the bias, which is held where
+it starts), with ``Q = 0`` there is none (the fit is then an output-error fit with a filter that
+settles on the measured trajectory).  Without
 friction (``friction=False``) ``c = 0``.
 
 The filter's pass over the samples is compiled by numba when it is installed (the optional
@@ -243,6 +245,12 @@ class _Problem:
         return out * math.exp(0.5 * log_det / max(self.n_rows, 1))
 
 
+def _sum_of_squares(r: np.ndarray) -> float:
+    """``r @ r`` by numpy's own loop: OpenBLAS runs a dot product of more than 10^4 numbers on threads, which
+    on a busy machine wait milliseconds for a free core."""
+    return float(np.einsum("i,i->", r, r))
+
+
 @dataclasses.dataclass
 class PredictionErrorFit:
     """A solved :class:`_Problem`: the parameters, the scaled innovations, their Jacobian and the criterion."""
@@ -255,7 +263,7 @@ class PredictionErrorFit:
     @property
     def cost(self) -> float:
         """The sum of the squared scaled innovations."""
-        return float(self.residuals @ self.residuals)
+        return _sum_of_squares(self.residuals)
 
     def values(self) -> dict[str, float]:
         a, b, c, bias, phi, lr = self.problem.unpack(self.x)
@@ -307,7 +315,7 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
         for lr in ratios if disturbance else (0.0,):
             x = problem.pack(a0, b0, c0, bias0, phi, lr)
             r = problem.innovations(x)
-            cost = float(r @ r)
+            cost = _sum_of_squares(r)
             if cost < best_cost:
                 best, best_cost = x, cost
     assert best is not None
@@ -356,7 +364,7 @@ def fit_prediction_error(recordings: Recording | Sequence[Recording], *, input_d
         disturbance's pole per sample (``disturbance_pole``) and ``log(Q/R)`` (``log_disturbance_ratio``);
         ``residual_rms`` is the scaled innovations'; ``fit_percent`` the model's simulated speed against
         the measured one.  With the pole at 1 the bias is the disturbance's
-        starting level, not a parameter: its variance is ``inf``.
+        starting level, not a parameter: it stays at its start (0) and its variance is ``inf``.
 
     Raises
     ------
@@ -429,7 +437,7 @@ def _covariance(fit: PredictionErrorFit) -> tuple[np.ndarray, str]:
         use = [j for j in use if j != problem.pole_index]
     lead = [j for j in use if j < keep]
     r = fit.residuals
-    s2 = float(r @ r) / max(len(r) - len(use), 1)
+    s2 = _sum_of_squares(r) / max(len(r) - len(use), 1)
     cov_used, method = robust_covariance(jac[:, use], r, s2, len(lead))
     cov = np.diag(np.full(keep, math.inf))
     for i, ji in enumerate(lead):
