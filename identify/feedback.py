@@ -22,10 +22,11 @@ prediction-error fit with a torque disturbance entering where the input does) wi
 Coulomb friction, at each delay in ``0 ... CLOSED_LOOP_DELAYS`` (from a declared one), widening
 the range, doubling, to :data:`CLOSED_LOOP_LARGEST_DELAY` while a delay at its top cannot be ruled
 out (in a stiff loop the prediction errors tell neighbouring delays apart only weakly; each
-delay's fits start where the neighbouring delay's stand), and chooses by the likelihood ratio (the simplest candidate within the noise of the best, at the
-default's level).  Every candidate the data cannot rule out whose ``a`` or ``b`` falls outside
-the chosen fit's interval widens it.  The fit is consistent under feedback only when the
-disturbance model describes the real one, which the data can only test, so the chosen candidate
+delay's fits start where the neighbouring delay's stand), and chooses by the likelihood ratio
+(the simplest candidate within the noise of the best, at the default's level).  Every candidate
+the data cannot rule out whose ``a`` or ``b`` falls outside the chosen fit's interval widens it.
+The fit is consistent under feedback only when the disturbance model describes the real one,
+which the data can only test, so the chosen candidate
 is refitted with the disturbance as a random walk and the interval always holds both fits'
 intervals; the choice is called clear only when the two agree, no other candidate widened the
 interval, the delay is not at the top of the range searched, and the innovations are white.
