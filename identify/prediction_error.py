@@ -55,7 +55,7 @@ from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
 __all__ = ["fit_prediction_error", "solve_prediction_error", "PredictionErrorFit", "innovations", "PARAMETERS",
-           "filter_pass", "compiled_filter_pass",
+           "filter_pass", "covariance_step", "compiled_filter_pass",
            "DIFFUSE", "STEADY", "START_POLES", "START_LOG_RATIOS"]
 
 #: The fitted parameters, in order (``friction`` left out when ``friction=False``).
@@ -92,20 +92,18 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
     p22 = DIFFUSE / (h * h) / (h * h)
     log_det = 0.0
-    steady = False
+    settled = steady = False
     s_var = k0 = k1 = k2 = scale = 1.0
     g0 = g1 = g2 = 0.0
     for k in range(n):
         if not steady:
-            if speed_kind:
-                s_var = p11 + 1.0
-                g0, g1, g2 = 0.0, p11, p12
-            else:
-                s_var = p00 + 1.0
-                g0, g1, g2 = p00, p01, p02
+            s_var = (p11 if speed_kind else p00) + 1.0
+            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
             k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
             scale = 1.0 / math.sqrt(s_var)
-            log_det += math.log(s_var)
+            # once settled, this gain and this variance hold for the rest of the segment
+            log_det += (n - k if settled else 1) * math.log(s_var)
+            steady = settled
         ek = y[k] - (w if speed_kind else th)
         eps[k] = ek * scale
         th += k0 * ek
@@ -132,44 +130,40 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
         d = phi * d
         if steady:
             continue
-        # the measurement update, then the time update F P F^T + Q of the linear part,
-        # F = [[1, p, q], [0, e, p], [0, 0, phi]]
-        m00 = p00 - g0 * k0
-        m01 = p01 - g0 * k1
-        m02 = p02 - g0 * k2
-        m11 = p11 - g1 * k1
-        m12 = p12 - g1 * k2
-        m22 = p22 - g2 * k2
-        r00 = m00 + p * m01 + q * m02
-        r01 = m01 + p * m11 + q * m12
-        r02 = m02 + p * m12 + q * m22
-        r11 = e * m11 + p * m12
-        r12 = e * m12 + p * m22
-        r22 = phi * m22
-        n00, n01, n02 = p00, p01, p02
-        if not speed_kind:
-            n00 = r00 + p * r01 + q * r02
-            n01 = e * r01 + p * r02
-            n02 = phi * r02
-        n11 = e * r11 + p * r12
-        n12 = phi * r12
-        n22 = phi * r22 + ratio
-        steady = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
-                  and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
-                  and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
+        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
+                                                       phi, ratio, speed_kind)
+        settled = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
+                   and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
+                   and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
         p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
-        if steady:
-            # the gain of the next step, held from there on
-            if speed_kind:
-                s_var = p11 + 1.0
-                g0, g1, g2 = 0.0, p11, p12
-            else:
-                s_var = p00 + 1.0
-                g0, g1, g2 = p00, p01, p02
-            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
-            scale = 1.0 / math.sqrt(s_var)
-            log_det += (n - 1 - k) * math.log(s_var)
     return log_det
+
+
+def covariance_step(p00: float, p01: float, p02: float, p11: float, p12: float, p22: float, g0: float, g1: float,
+                    g2: float, k0: float, k1: float, k2: float, e: float, p: float, q: float, phi: float, ratio: float,
+                    speed_kind: bool) -> tuple[float, float, float, float, float, float]:
+    """One step of the filter's covariance (the six numbers of the symmetric ``P``): the measurement update
+    with the gain ``k = g / s``, then the time update ``F P F^T + Q`` of the linear part,
+    ``F = [[1, p, q], [0, e, p], [0, 0, phi]]``, ``Q`` the disturbance's ``ratio`` (the angle's row left as
+    it is when the speed is measured)."""
+    m00 = p00 - g0 * k0
+    m01 = p01 - g0 * k1
+    m02 = p02 - g0 * k2
+    m11 = p11 - g1 * k1
+    m12 = p12 - g1 * k2
+    m22 = p22 - g2 * k2
+    r00 = m00 + p * m01 + q * m02
+    r01 = m01 + p * m11 + q * m12
+    r02 = m02 + p * m12 + q * m22
+    r11 = e * m11 + p * m12
+    r12 = e * m12 + p * m22
+    r22 = phi * m22
+    n00, n01, n02 = p00, p01, p02
+    if not speed_kind:
+        n00 = r00 + p * r01 + q * r02
+        n01 = e * r01 + p * r02
+        n02 = phi * r02
+    return n00, n01, n02, e * r11 + p * r12, phi * r12, phi * r22 + ratio
 
 
 @functools.cache
@@ -179,7 +173,7 @@ def compiled_filter_pass() -> Callable[..., float] | None:
     if jit is None:
         return None
     import types
-    scope = dict(filter_pass.__globals__, event_interval=jit(event_interval))
+    scope = dict(filter_pass.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step))
     return jit(types.FunctionType(filter_pass.__code__, scope, filter_pass.__name__))
 
 
