@@ -88,7 +88,7 @@ def _fit_output_error(counts: np.ndarray, duty: np.ndarray, h: float, counts_per
 def test_hello_ack_reports_protocol_version_clock_and_power_on_reset(sine_run):
     device, _ = sine_run
     assert device.version == P.PROTOCOL_VERSION
-    assert device.firmware_version == 0x0501   # 5.1 (major << 8 | minor)
+    assert device.firmware_version == 0x0502   # 5.2 (major << 8 | minor)
     assert device.counts_per_rev == 0          # config.h leaves ENCODER_COUNTS_PER_REV unset
     assert device.f_cpu_hz == 16_000_000
     assert device.max_payload == P.MAX_PAYLOAD
