@@ -23,7 +23,7 @@ def test_acceptance_live_fake_run_recovers_a_and_b_within_one_percent(tmp_path, 
     assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
 
 
-def test_live_on_the_emulated_firmware_recovers_a_and_b_and_its_intervals_hold_them(tmp_path, capsys):
+def test_live_on_the_emulated_firmware_holds_a_and_b_in_its_intervals(tmp_path, capsys):
     # The whole chain a user runs: CLI -> SerialRig -> pty -> simavr running the real firmware ELF.
     # The firmware takes each tick's duty and count at one instant, the same every period, and the
     # harness turns its motor exactly: the default's 95 % intervals hold a = 25 and b = 3 (measured
