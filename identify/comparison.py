@@ -55,7 +55,7 @@ from .model_structures import ModelStructure, structures
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
            "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
-           "scan_delays", "separating_experiment", "statistic", "threshold", "parameters_threshold"]
+           "far_worse", "scan_delays", "separating_experiment", "statistic", "threshold", "parameters_threshold"]
 
 #: Largest input delay in samples the selection tries.
 MAX_AUTO_DELAY = 10
@@ -324,9 +324,10 @@ def best_fit(fitted: list[CandidateFit]) -> CandidateFit | None:
     return min(ok, key=lambda f: f.candidate.residual_sum) if ok else None
 
 
-def _far_worse(here: list[CandidateFit], fitted: list[CandidateFit], level: float) -> bool:
-    """Whether every candidate of ``here`` is far beyond the noise of the best so far."""
-    best = best_fit(fitted)
+def far_worse(here: Sequence[CandidateFit], fitted: Sequence[CandidateFit], level: float) -> bool:
+    """Whether every candidate of ``here`` is far beyond the noise of the best of ``fitted`` (:data:`STOP_FACTOR`
+    times the threshold of the test at ``level``; a failed fit counts as far beyond it)."""
+    best = best_fit(list(fitted))
     if best is None or any(f is best for f in here):
         return False
     for f in here:
@@ -373,7 +374,7 @@ def scan_delays(delays: Sequence[int], fit_at: Callable[[int], list[CandidateFit
     for d in delays:
         here = fit_at(d)
         fitted += here
-        worse = worse + 1 if _far_worse(here, fitted, level) else 0
+        worse = worse + 1 if far_worse(here, fitted, level) else 0
         if worse == STOP_AFTER and d < delays[-1]:
             skipped = f"delay {d + 1}" if d + 1 == delays[-1] else f"delays {d + 1}-{delays[-1]}"
             notes.append(f"{skipped} not fitted: the fit worsened far beyond the noise for "

@@ -439,7 +439,8 @@ def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, s
 
     With ``scan`` (the candidates of one selection, :class:`FrictionScan`) the fit starts from the
     better (lower residual sum) of the regression's start and the neighbouring delay's fit, makes one
-    Levenberg–Marquardt run, and stops early when even its Gauss–Newton step could not bring it within
+    Levenberg–Marquardt run, and stops early (at that start itself, or at any point of the run) when even
+    its Gauss–Newton step could not bring it within
     :data:`STOP_FACTOR` times the noise of the best residual sum so far (:meth:`FrictionScan.bound`):
     such a candidate comes back with ``refined=False`` and its residuals where it stopped (a residual
     sum that bounds its full fit's from above), and ``friction_candidate`` without ``scan`` fits it fully.
@@ -475,7 +476,16 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
     costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
     x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
         else starts[-1]
-    res = levenberg_marquardt(problem, _prefix_start(problem, x0), bound=scan.bound(structure))
+    bound = scan.bound(structure)
+    if math.isfinite(bound) and problem.n_rows >= PREFIX_MIN_ROWS:
+        # the bound at the start itself, before the prefix's iterations: the test the solver makes at its first
+        # point (what it is on data too short for a prefix), so a candidate far from the best costs one evaluation
+        x = np.maximum(x0, lower)
+        r, J = problem.evaluate(x, True)
+        if problem.reachable_cost(r, J) > bound:
+            from scipy.optimize import OptimizeResult  # imported when used: slow to import
+            return OptimizeResult(x=x, fun=r, jac=J, cost=0.5 * sum_squares(r), status=3)
+    res = levenberg_marquardt(problem, _prefix_start(problem, x0), bound=bound)
     if res.status == 3:
         return res
     near = float(res.x[0]) if np.isfinite(res.x[0]) else None

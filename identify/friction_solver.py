@@ -83,7 +83,11 @@ def levenberg_marquardt(problem: BoundedProblem, x0: np.ndarray, max_iterations:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
 
     With a handful of parameters the normal equations (columns scaled to unit norm) are a tiny
-    solve, so each iteration costs one evaluation of the response and its sensitivities.  Stops
+    solve, so each iteration costs one evaluation of the response and its sensitivities.  A step that
+    would take a parameter below its bound is cut where the first one meets it (that one lands on its
+    bound and is held there while the steps push it outward): a step clipped at the bound instead, the
+    other parameters moved as if it were free, can climb the cost (a dead zone fitted towards 0 had
+    its steps rejected one after another).  Stops
     when an accepted step lowers the cost by less than 1e-10 of it or moves every scaled
     parameter by less than 1e-10, when the Gauss-Newton step promises less than 1e-12 of the
     cost (converged to rounding), or when the damping exceeds 1e12 (no descent left).  It also
@@ -120,6 +124,11 @@ def levenberg_marquardt(problem: BoundedProblem, x0: np.ndarray, max_iterations:
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue
+        crossing = np.flatnonzero((x + step < lower) & (step < 0))
+        if len(crossing):       # cut at the first bound it meets: that parameter lands on it, held from then on
+            first = crossing[np.argmin((lower[crossing] - x[crossing]) / step[crossing])]
+            step *= (lower[first] - x[first]) / step[first]
+            step[first] = lower[first] - x[first]            # exactly on it, not a rounding away
         scaled = step * norms
         predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
         if predicted <= max(1e-12 * cost, final_step ** 2 * cost / problem.dof):

@@ -41,6 +41,7 @@ from .comparison import (
     LEVEL,
     MATERIAL,
     MAX_AUTO_DELAY,
+    STOP_AFTER,
     STRUCTURES,
     Candidate,
     CandidateFit,
@@ -49,6 +50,7 @@ from .comparison import (
     block_mean_p,
     block_sums,
     choose,
+    far_worse,
     largest_delay,
     plausible,
     refine,
@@ -143,7 +145,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
                  input_delay: int | str = "auto", max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
-                 level: float = LEVEL, screen: bool = True) -> Selection:
+                 level: float = LEVEL, screen: bool = True, widening: bool = False) -> Selection:
     """Fit the candidate models and choose the simplest one within the noise of the best.
 
     Parameters
@@ -165,6 +167,11 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         Screen friction and the dead zone by the score test first (module docstring); False fits them
         whenever the speed reverses (what :func:`fit_selected` does when the chosen model's residuals
         then correlate with the sign of the speed).
+    widening : bool
+        The caller searches a wider delay range when the choice is at the top of this one (as
+        :func:`fit_selected` does): when the first-order family's choice and best fit are both at the top,
+        the structures of a higher rank are not fitted (whatever they scored, the range is widened, and
+        they are fitted on the wider one).
 
     Returns
     -------
@@ -231,11 +238,28 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
-    if sticking and nonlinear:
-        fitted += _fit_sticking(recs, segments, fitted, sticking, fix_bias)
-    if higher:
-        fitted += _fit_higher(recs, segments, delays, higher, best_fit(fitted), notes)
+    fitted += _fit_higher_ranks(recs, segments, delays, fitted, sticking if nonlinear else [], higher, fix_bias,
+                                level, notes, top if widening and input_delay == "auto" else None)
     return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+
+
+def _fit_higher_ranks(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],
+                      fitted: list[CandidateFit], sticking: list[str], higher: list[str], fix_bias: bool, level: float,
+                      notes: list[str], widened_at: int | None) -> list[CandidateFit]:
+    """The structures of a higher rank, static levels first (:func:`_fit_sticking`), then second poles
+    (:func:`_fit_higher`); none when the first-order family's choice and its best fit are both at
+    ``widened_at``, the top of a range the caller widens then (:func:`_select_widening`): whatever they
+    scored here, they are fitted once, on the wider range."""
+    if not (sticking or higher):
+        return []
+    best = best_fit(fitted)
+    if widened_at is not None and best is not None and best.candidate.input_delay == widened_at:
+        if choose(fitted, level, [], widened_at, recs, segments).chosen.input_delay == widened_at:
+            return []
+    out = _fit_sticking(recs, segments, fitted, sticking, fix_bias, level, notes) if sticking else []
+    if higher:
+        out += _fit_higher(recs, segments, delays, higher, fitted + out, level, notes)
+    return out
 
 
 def _candidate(recs: list[Recording], segs: list[Segment], delay: int, name: str, *, refine: bool = True,
@@ -258,7 +282,7 @@ MIN_TAU_SAMPLES = 0.25
 
 
 def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int], names: list[str],
-                best: CandidateFit | None, notes: list[str]) -> list[CandidateFit]:
+                fitted: list[CandidateFit], level: float, notes: list[str]) -> list[CandidateFit]:
     """The structures of a higher rank (a second pole) at the delays up to the best first-order delay.
 
     A lag between the duty and the torque is what a first-order model absorbs as a longer input
@@ -266,16 +290,21 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
     :data:`HIGHER_DELAYS`, from the best down, each started from its neighbour's poles) are fitted,
     first on the first :data:`HIGHER_FIRST_ROWS` rows; where that fit finds the pole slower than
     :data:`MIN_TAU_SAMPLES` samples it is fitted on all rows and becomes a candidate, else its own
-    fit has shown the pole too fast for this sample period to tell from a delay, which is said.
+    fit has shown the pole too fast for this sample period to tell from a delay, which is said.  The
+    scan down stops, as a delay scan does (:func:`identify.comparison.scan_delays`), once the full fits
+    at :data:`~identify.comparison.STOP_AFTER` delays in a row are far beyond the noise of the best of all
+    fitted so far (a friction model's, say, which no linear second pole comes near).
     """
     h = recs[0].sample_period
+    best = best_fit(fitted)
     top = best.candidate.input_delay if best is not None else delays[0]
     near = sorted((d for d in delays if top - HIGHER_DELAYS < d <= top), reverse=True) or [delays[0]]
     out: list[CandidateFit] = []
     for name in names:
         previous: tuple[float, ...] = ()
         fastest = 0.0
-        for d in near:
+        worse = 0
+        for i, d in enumerate(near):
             first = _candidate(recs, first_rows(segments[d], HIGHER_FIRST_ROWS), d, name, refine=False,
                                starts=[previous] if previous else [])
             if first.residuals is None or not first.start:
@@ -283,8 +312,16 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
             previous = first.start
             tau = 1.0 / first.start[1]
             fastest = max(fastest, tau)
-            if tau >= MIN_TAU_SAMPLES * h:
-                out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
+            if tau < MIN_TAU_SAMPLES * h:
+                continue
+            out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
+            worse = worse + 1 if far_worse(out[-1:], [*fitted, *out], level) else 0
+            if worse == STOP_AFTER and i + 1 < len(near):
+                left = near[-1], near[i + 1]
+                notes.append(f"{name} not fitted at {'delay' if left[0] == left[1] else 'delays'} "
+                             f"{left[0]}{'' if left[0] == left[1] else f'-{left[1]}'}: the fit worsened far beyond "
+                             f"the noise of the best for {STOP_AFTER} delays in a row")
+                break
         if not out and fastest:
             notes.append(f"{name} not a candidate: its fit finds the second pole faster than {MIN_TAU_SAMPLES:g} "
                          f"sample (tau_e {fastest:.2g} s at most): a lag that short is part of a sample's delay "
@@ -293,20 +330,38 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
 
 
 def _fit_sticking(recs: list[Recording], segments: dict[int, list[Segment]], fitted: list[CandidateFit],
-                  names: list[str], fix_bias: bool) -> list[CandidateFit]:
+                  names: list[str], fix_bias: bool, level: float, notes: list[str]) -> list[CandidateFit]:
     """The nonlinear structures of a higher rank (static friction) at the best friction fit's delay and the
     shorter ones (at most :data:`HIGHER_DELAYS`: sticking longer at each start looks like a later input), each
     started from the friction fit there; judged after the family, like a second pole
-    (:func:`identify.comparison.choose`)."""
+    (:func:`identify.comparison.choose`).
+
+    The delays are fitted from the best friction fit's down, and the scan stops, as a delay scan does
+    (:func:`identify.comparison.scan_delays`), once the fits at :data:`~identify.comparison.STOP_AFTER`
+    delays in a row are far beyond the noise of the best of all fitted so far: each delay further from
+    the one the data fit best fits worse.  Where the static level is left out by its gate (its fit would
+    be the friction fit's), the friction fit at that delay stands for it.
+    """
     family = best_fit([f for f in fitted if not STRUCTURES[f.candidate.structure].linear])
     if family is None:
         return []
     top = family.candidate.input_delay
-    out = []
-    for d in (d for d in segments if top - HIGHER_DELAYS < d <= top):
-        starts = [f.start for f in fitted if f.candidate.structure == "friction" and f.candidate.input_delay == d
-                  and f.refined and f.start]
-        out += [_candidate(recs, segments[d], d, name, fix_bias=fix_bias, starts=starts) for name in names]
+    out: list[CandidateFit] = []
+    worse = 0
+    delays = sorted((d for d in segments if top - HIGHER_DELAYS < d <= top), reverse=True)
+    for i, d in enumerate(delays):
+        friction = [f for f in fitted if f.candidate.structure == "friction" and f.candidate.input_delay == d]
+        starts = [f.start for f in friction if f.refined and f.start]
+        here = [_candidate(recs, segments[d], d, name, fix_bias=fix_bias, starts=starts) for name in names]
+        out += here
+        judged = [f for f in here if f.residuals is not None] or friction
+        worse = worse + 1 if judged and far_worse(judged, [*fitted, *out], level) else 0
+        if worse == STOP_AFTER and i + 1 < len(delays):
+            left = delays[-1], delays[i + 1]
+            notes.append(f"{', '.join(names)} not fitted at {'delay' if left[0] == left[1] else 'delays'} "
+                         f"{left[0]}{'' if left[0] == left[1] else f'-{left[1]}'}: the fit worsened far beyond "
+                         f"the noise of the best for {STOP_AFTER} delays in a row below the best friction fit's")
+            break
     return out
 
 
@@ -490,11 +545,12 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
     max_delay = MAX_AUTO_DELAY
     widened = False
     while True:
+        top = max(largest_delay(recs, max_delay), declared_input_delay(recs))
+        limit = largest_delay(recs, LARGEST_DELAY)
         selection = select_model(recs, structures=structures, input_delay=input_delay, max_delay=max_delay,
-                                 fix_bias=fix_bias, screen=screen)
+                                 fix_bias=fix_bias, screen=screen, widening=top < limit)
         if input_delay != "auto":
             return selection, ""
-        top = max(largest_delay(recs, max_delay), declared_input_delay(recs))
         first_order = [c for c in selection.candidates if STRUCTURES[c.structure].rank == 0 and
                        math.isfinite(c.residual_sum)]
         best_first = min(first_order, key=lambda c: c.residual_sum, default=selection.best)
@@ -503,7 +559,6 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
         chosen_first = STRUCTURES[selection.chosen.structure].rank == 0
         at_top = selection.chosen.input_delay == top or (not chosen_first and top in (
             selection.best.input_delay, best_first.input_delay))
-        limit = largest_delay(recs, LARGEST_DELAY)
         if not at_top or top >= limit:
             break
         max_delay = min(2 * max_delay, limit)

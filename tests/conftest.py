@@ -29,6 +29,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: test id -> why it is slow (seconds measured alone on a 2-core machine)
 SLOW = {
+    "tests/identify/test_selection.py::test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_far_beyond_the_best":
+        "5 s: two selections on a 3000-sample delayed run, the second scanning every delay",
+    "tests/identify/test_selection.py::test_a_choice_at_the_top_of_the_range_leaves_the_higher_ranks_to_the_wider_one":
+        "5 s: two defaults on a 3000-sample run whose delay widens the range",
     "tests/motorsim/test_robustness.py::test_robust_design_measured_rms_stays_within_its_predicted_worst_case":
         "4 s: nine candidate designs judged on 60 drawn plants, then four SimRig runs",
     "tests/motorid/test_article_figures.py": "6 s: the whole demo, its closed loop included, once for the module",

@@ -187,6 +187,23 @@ def test_a_candidate_that_cannot_come_near_the_best_stops_early_and_is_refitted_
     assert stopped.candidate.residual_sum >= full.candidate.residual_sum > 1000 * best.candidate.residual_sum
 
 
+def test_a_long_candidate_far_from_the_best_stops_at_its_start_without_a_run(monkeypatch):
+    # on data long enough for the prefix stage, the bound is tested at the start itself: a candidate that cannot
+    # come near the best costs one evaluation there, no Levenberg-Marquardt run (not even the prefix's)
+    from identify import friction
+    from identify.data import prepare_segments
+    from identify.friction import FrictionScan, friction_candidate
+    rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0), n=10_000)
+    assert len(rec.time) >= friction.PREFIX_MIN_ROWS
+    best = friction_candidate([rec], prepare_segments([rec], 0), 0, "friction", False)
+    runs = _count_runs(monkeypatch)
+    stopped = friction_candidate([rec], prepare_segments([rec], 3), 3, "friction", False,
+                                 scan=FrictionScan(best.candidate.residual_sum))
+    assert runs == [] and not stopped.refined
+    full = friction_candidate([rec], prepare_segments([rec], 3), 3, "friction", False)
+    assert stopped.candidate.residual_sum >= full.candidate.residual_sum > 1000 * best.candidate.residual_sum
+
+
 def test_neighbouring_delays_share_their_start():
     from identify.data import prepare_segments
     from identify.friction import FrictionScan, friction_candidate

@@ -422,3 +422,75 @@ def test_the_rounding_realisations_are_the_encoder_rounding_at_each_phase():
     want -= want.mean(axis=0)               # one segment: centred over it
     assert len(segs) == 1 and got.shape == (len(model), PHASES)
     assert np.max(np.abs(got - want)) <= 1e-12 * step
+
+
+def _friction_sine_1ms(seconds=4.0, delay=0, counts=1000, seed=0):
+    """One sine through Coulomb friction at 1 ms on a coarse encoder: the differenced speed is so coarse that
+    zoh-ls's regression puts the pole near 400 1/s (a = 25)."""
+    rig = SimRig(Motor(A, B, friction=60.0, input_delay=delay), Encoder(counts, angle_noise=1e-4),
+                 rng=np.random.default_rng(seed))
+    return rig.run(Experiment(Sine(10.0, 200), 0.001, seconds))
+
+
+def test_a_linear_candidate_the_regression_cannot_start_is_fitted_in_a_from_the_grid(monkeypatch):
+    # the separable iteration in a fails from the regression's pole; from the grid's it reaches the minimum of the
+    # general Levenberg-Marquardt fit (which the candidate took before, at twenty times the cost)
+    from identify import output_error
+    from identify.data import prepare_segments
+    rec = _friction_sine_1ms()
+    segs = prepare_segments([rec], 0)
+    assert output_error.regression_start(segs) > 10 * A          # the regression's pole: far off
+    general = output_error.solve_output_error([rec], segs, 0)
+    monkeypatch.setattr(output_error, "solve_output_error", lambda *a, **k: pytest.fail("general fit used"))
+    for with_bias in (False, True):
+        fitted = output_error.linear_candidate([rec], segs, 0, with_bias)
+        assert fitted.refined
+        if not with_bias:
+            # the same least-squares minimum: a and b to the iterations' stopping tolerances
+            assert fitted.candidate.a == pytest.approx(float(general.result.x[0]), rel=1e-8)
+            assert fitted.candidate.b == pytest.approx(float(general.result.x[1]), rel=1e-8)
+            assert fitted.candidate.residual_sum == pytest.approx(float(general.result.fun @ general.result.fun),
+                                                                  rel=1e-9)
+
+
+def test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_far_beyond_the_best(monkeypatch):
+    # a long delay through friction: below the friction fit's delay every second-pole and static-level fit is far
+    # worse than it; the scan down stops after two such delays (said in a note), and the choice is the one the
+    # full scan makes
+    from identify import selection
+    rec = _friction_sine_1ms(seconds=3.0, delay=8, counts=16667)
+    stopped = select_model(rec)
+    assert stopped.chosen.structure == "friction" and stopped.chosen.input_delay == 8
+    tried = {s: sorted(c.input_delay for c in stopped.candidates if c.structure == s)
+             for s in ("stiction", "second-order")}
+    assert len(tried["stiction"]) <= 3 and len(tried["second-order"]) <= 3
+    assert any(n.startswith("second-order not fitted at delays") for n in stopped.notes)
+    monkeypatch.setattr(selection, "STOP_AFTER", 10 ** 6)
+    full = select_model(rec)
+    assert (full.chosen.structure, full.chosen.input_delay) == (stopped.chosen.structure, stopped.chosen.input_delay)
+    assert full.chosen.a == stopped.chosen.a and full.chosen.b == stopped.chosen.b
+    assert len([c for c in full.candidates if c.structure == "second-order"]) > len(tried["second-order"])
+
+
+def test_a_choice_at_the_top_of_the_range_leaves_the_higher_ranks_to_the_wider_one(monkeypatch):
+    # the delay range is widened when the first-order choice and best fit are at its top; the second pole and the
+    # static level are then fitted once, on the wider range, and the answer is the same as when they are fitted
+    # on both
+    from identify import selection
+    rig = SimRig(Motor(A, B, friction=30.0, input_delay=13), Encoder(angle_noise=1e-4), rng=np.random.default_rng(0))
+    rec = rig.run(Experiment(Multisine((3.0, 17.0, 70.0, 200.0), (60, 50, 40, 40), (0, 1, 2, 3)), 0.001, 3.0))
+    calls = []
+    for name in ("_fit_higher", "_fit_sticking"):
+        original = getattr(selection, name)
+        monkeypatch.setattr(selection, name, lambda *a, _f=original, _n=name, **k: calls.append(_n) or _f(*a, **k))
+    once = fit(rec)
+    assert sorted(calls) == ["_fit_higher", "_fit_sticking"]
+    assert once.input_delay == 13 and any("searched up to 20" in n for n in once.notes)
+    calls.clear()
+    select_model_widening = selection.select_model
+    monkeypatch.setattr(selection, "select_model",
+                        lambda *a, **k: select_model_widening(*a, **{**k, "widening": False}))
+    both = fit(rec)
+    assert sorted(calls) == ["_fit_higher", "_fit_higher", "_fit_sticking", "_fit_sticking"]
+    assert (both.a, both.b, both.input_delay, both.structure) == (once.a, once.b, once.input_delay, once.structure)
+    assert both.confidence_interval() == once.confidence_interval()
