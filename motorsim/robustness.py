@@ -14,7 +14,8 @@ is unstable or badly damped, and warnings.  The draws are made once, never again
 ``a <= 0`` (no motor of this model) is left out and counted, and a draw whose ``b`` has the other
 sign than the model's (the uncertainty does not know the motor's direction) is analysed as the
 plant it is, counted, and warned of.  A model with an electrical time constant keeps it in every
-drawn plant, and every loop is closed on the full plant
+drawn plant, or draws it too when the covariance has its row (``(a, b, electrical_time_constant)``, a
+draw with ``tau_e < 0`` left out and counted like ``a <= 0``), and every loop is closed on the full plant
 (:meth:`~motorsim.control.PlantModel.speed_transfer_function`).  :func:`robust_design` tunes a controller's knob
 (``duty_weight`` of ``mpc``, ``time_constant`` of ``pi`` and ``position``) to the best worst-case
 tracking RMS over the same draws instead of the point estimate.
@@ -195,17 +196,21 @@ class ModelDraws(Sequence[PlantModel]):
 
 def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator
                 ) -> ModelDraws:
-    """Plants with ``(a, b)`` drawn from a normal distribution around ``model``'s, drawn once.
+    """Plants with ``(a, b)`` (and the electrical time constant) drawn from a normal distribution around
+    ``model``'s, drawn once.
 
     Parameters
     ----------
     model : PlantModel
         The point estimate (its other fields are kept).
-    covariance : array_like, shape (2, 2)
-        Covariance of ``(a, b)``, in (1/s)^2, (1/s)((rad/s^2)/duty), ((rad/s^2)/duty)^2.
+    covariance : array_like, shape (2, 2) or (3, 3)
+        Covariance of ``(a, b)``, in (1/s)^2, (1/s)((rad/s^2)/duty), ((rad/s^2)/duty)^2; or of
+        ``(a, b, electrical_time_constant)`` (s) for a model with an electrical time constant, which is
+        then drawn too (else every plant keeps the model's).
     n_draws : int
-        Plants to draw, once: a draw with ``a <= 0`` is left out and counted (``n_rejected``), one
-        whose ``b`` has the other sign than the model's is kept and counted (``n_other_sign``).
+        Plants to draw, once: a draw with ``a <= 0`` (or a negative electrical time constant) is left out
+        and counted (``n_rejected``), one whose ``b`` has the other sign than the model's is kept and
+        counted (``n_other_sign``).
     rng : numpy.random.Generator
         The source of randomness.
 
@@ -216,17 +221,33 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     >>> len(draws) + draws.n_rejected, 0.05 < draws.n_other_sign / len(draws) < 0.1   # P(b > 0) = 6.7 %
     (1000, True)
     """
-    cov = np.asarray(covariance, dtype=float)
-    if cov.shape != (2, 2) or not np.all(np.isfinite(cov)):
-        raise ParameterError(f"covariance must be a finite 2 x 2 array of (a, b), got shape {cov.shape}")
+    cov = _checked_covariance(model, covariance)
     n_draws = check_int("n_draws", n_draws, 1, 10**6)
     if not isinstance(rng, np.random.Generator):
         raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
-    ab = rng.multivariate_normal([model.a, model.b], cov, size=n_draws)
-    keep = (ab[:, 0] > 0) & (ab[:, 1] != 0)
-    out = tuple(dataclasses.replace(model, a=float(a), b=float(b)) for a, b in ab[keep])
-    other = int(np.sum(np.sign(ab[keep, 1]) != np.sign(model.b)))
+    mean = [model.a, model.b, model.electrical_time_constant][:len(cov)]
+    drawn = rng.multivariate_normal(mean, cov, size=n_draws)
+    keep = (drawn[:, 0] > 0) & (drawn[:, 1] != 0) & (drawn[:, 2] >= 0 if len(cov) == 3 else True)
+    tau = model.electrical_time_constant
+    out = tuple(dataclasses.replace(model, a=float(row[0]), b=float(row[1]),
+                                    electrical_time_constant=float(row[2]) if len(row) == 3 else tau)
+                for row in drawn[keep])
+    other = int(np.sum(np.sign(drawn[keep, 1]) != np.sign(model.b)))
     return ModelDraws(out, n_rejected=int(n_draws - keep.sum()), n_other_sign=other)
+
+
+def _checked_covariance(model: PlantModel, covariance: np.ndarray) -> np.ndarray:
+    """``covariance`` as a finite 2 x 2 array over ``(a, b)`` or 3 x 3 over ``(a, b, electrical_time_constant)``
+    (the latter only for a model with an electrical time constant)."""
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape not in ((2, 2), (3, 3)) or not np.all(np.isfinite(cov)):
+        raise ParameterError(f"covariance must be a finite 2 x 2 array of (a, b), or 3 x 3 of (a, b, "
+                             f"electrical_time_constant), got shape {cov.shape}")
+    if len(cov) == 3 and not model.electrical_time_constant > 0:
+        raise ParameterError("covariance is 3 x 3 (a, b, electrical_time_constant) but the model has no electrical "
+                             "time constant to draw around (electrical_time_constant="
+                             f"{model.electrical_time_constant!r}); pass the 2 x 2 block of (a, b)")
+    return cov
 
 
 def _draw_rms(controller: Controller, model: PlantModel, r_ahead: np.ndarray, ref: np.ndarray,
@@ -257,8 +278,9 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
     ----------
     controller : Controller
         Designed at the point estimate; its gains are kept for every drawn plant.
-    covariance : array_like, shape (2, 2)
-        Covariance of ``(a, b)`` (e.g. ``Estimate.covariance`` restricted to them).
+    covariance : array_like, shape (2, 2) or (3, 3)
+        Covariance of ``(a, b)`` (e.g. ``Estimate.covariance`` restricted to them), or of ``(a, b,
+        electrical_time_constant)`` to draw that too (:func:`draw_models`).
     reference : Reference
         What the loop tracks (rad/s, or rad for position).
     duration : float
@@ -298,6 +320,7 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         raise ParameterError(f"no plant to analyse: all {n_rejected} plants drawn from the covariance have a <= 0; "
                              "the model's a is not known well enough for a robustness analysis")
     other = sum(np.sign(m.b) != np.sign(model.b) for m in draws)
+    tau_drawn = any(m.electrical_time_constant != model.electrical_time_constant for m in draws)
     h = model.sample_period
     n = int(round(duration / h))
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
@@ -325,10 +348,12 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         worst_delay_margin=float(min(g.delay_margin for g in margins)),
         percentile=percentile, unstable=unstable / len(draws), badly_damped=damped / len(draws),
         n_draws=len(draws), n_rejected=n_rejected, other_sign=other / len(draws),
-        method=f"Monte Carlo: {len(draws)} plants (a, b) drawn from a normal distribution with the model's "
-               "covariance (seeded)" + (f", {n_rejected} more with a <= 0 left out" if n_rejected else "")
+        method=f"Monte Carlo: {len(draws)} plants ({'a, b, tau_e' if tau_drawn else 'a, b'}) drawn from a normal "
+               "distribution with the model's covariance (seeded)"
+               + (f", {n_rejected} more with {'a <= 0 or tau_e < 0' if tau_drawn else 'a <= 0'} left out"
+                  if n_rejected else "")
                + (f", electrical time constant {model.electrical_time_constant:g} s kept in every plant"
-                  if model.electrical_time_constant else "")
+                  if model.electrical_time_constant and not tau_drawn else "")
                + ", not a guaranteed bound")
 
 
@@ -349,8 +374,8 @@ def robust_design(kind: str, model: PlantModel, covariance: np.ndarray, referenc
         ``mpc``, ``pi``, ``position``, ``lqr``, ``lqr-integral`` or ``lqr-position``.
     model : PlantModel
         The point estimate.
-    covariance : array_like, shape (2, 2)
-        Covariance of ``(a, b)``.
+    covariance : array_like, shape (2, 2) or (3, 3)
+        Covariance of ``(a, b)``, or of ``(a, b, electrical_time_constant)`` (:func:`draw_models`).
     reference : Reference
         What the loop tracks.
     duration : float

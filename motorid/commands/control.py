@@ -380,7 +380,7 @@ def run_control(args: argparse.Namespace) -> int:
     check_run_length(args.duration, model.sample_period)
     controller = controller_from_args(args, model)
     reference = reference_from_args(args, controller, speed_unit, limit)
-    covariance = _ab_covariance(args)
+    covariance = _model_covariance(args)
     _check_draw_flags(args, covariance)
     robustness = None
     if args.robust:
@@ -497,14 +497,21 @@ def _loop_poles(controller: Controller) -> np.ndarray:
     return control.feedback(-(controller.plant() * cy), 1).poles()
 
 
-def _ab_covariance(args: argparse.Namespace) -> np.ndarray | None:
-    """The covariance of ``(a, b)`` of the ``--model`` file, None without one."""
+def _model_covariance(args: argparse.Namespace) -> np.ndarray | None:
+    """The covariance of ``(a, b)`` of the ``--model`` file, of ``(a, b, electrical_time_constant)`` when the model
+    has one with a finite variance (the robustness draws it too); None without a covariance."""
     if not getattr(args, "model", None):
         return None
     est = load_model_file(args.model)
     if est.covariance is None or not np.all(np.isfinite(est.covariance[:2, :2])):
         return None
-    return np.asarray(est.covariance[:2, :2], dtype=float)
+    rows = [0, 1]
+    names = list(est.param_names or ())
+    if est.extra.get("electrical_time_constant", 0.0) > 0 and "electrical_time_constant" in names:
+        tau = names.index("electrical_time_constant")
+        if np.all(np.isfinite(est.covariance[np.ix_([0, 1, tau], [0, 1, tau])])):
+            rows.append(tau)
+    return np.asarray(est.covariance[np.ix_(rows, rows)], dtype=float)
 
 
 def _robust_controller(args: argparse.Namespace, controller: Controller, covariance: np.ndarray | None,

@@ -33,7 +33,8 @@ def test_design_from_a_second_order_model_prints_tau_e_and_the_full_models_margi
     assert f"the design's first-order part alone: {lqr.first_order_margins().describe()})" in out
     assert lqr.margins().phase_margin < lqr.first_order_margins().phase_margin - 10      # what was hidden
     assert "electrical time constant 0.004 s costs the lqr-position design" in err
-    assert "electrical time constant 0.004 s kept in every plant" in out
+    # the saved model's covariance has tau_e's row: the plants are drawn with it
+    assert "plants (a, b, tau_e) drawn from a normal distribution" in out and "kept in every plant" not in out
 
 
 def test_a_first_order_model_prints_no_electrical_line(tmp_path, capsys):

@@ -175,3 +175,51 @@ def test_draws_with_a_at_or_below_zero_are_left_out_counted_and_warned_of():
     with pytest.raises(ParameterError, match="all 7 plants drawn from the covariance have a <= 0"):
         analyse_robustness(PISpeed(model), None, parse_reference("sine:10,10"), 0.5, rng=np.random.default_rng(0),
                            models=ModelDraws((), n_rejected=7))
+
+
+TAU_MODEL = PlantModel(25.0, 3.0, 0.001, 16667, input_delay=1, electrical_time_constant=0.004)
+
+
+def test_the_electrical_time_constant_is_drawn_with_a_and_b_from_a_three_by_three_covariance():
+    n = 4000
+    cov = np.diag([0.04, 1e-4, 1e-6])                       # tau_e 4 ms +- 1 ms
+    cov[0, 2] = cov[2, 0] = 0.5 * np.sqrt(0.04 * 1e-6)      # a and tau_e correlated, 0.5
+    draws = draw_models(TAU_MODEL, cov, n, np.random.default_rng(1))
+    taus = np.array([m.electrical_time_constant for m in draws])
+    a = np.array([m.a for m in draws])
+    # P(tau_e < 0) = Phi(-4) = 3e-5, 0.13 draws expected (more than 3: 1e-5); mean and spread within 4 standard
+    # errors of theirs
+    assert draws.n_rejected <= 3 and len(draws) + draws.n_rejected == n
+    assert abs(taus.mean() - 0.004) <= 4 * 1e-3 / np.sqrt(n)
+    assert abs(taus.std() / 1e-3 - 1) <= 4 / np.sqrt(2 * n)
+    assert abs(np.corrcoef(a, taus)[0, 1] - 0.5) <= 4 * (1 - 0.25) / np.sqrt(n)
+    # a 2 x 2 covariance keeps the model's tau_e in every plant
+    kept = draw_models(TAU_MODEL, cov[:2, :2], 10, np.random.default_rng(1))
+    assert {m.electrical_time_constant for m in kept} == {0.004}
+
+
+def test_draws_with_a_negative_electrical_time_constant_are_left_out_and_counted():
+    n = 2000
+    draws = draw_models(TAU_MODEL, np.diag([0.04, 1e-4, 0.004 ** 2]), n, np.random.default_rng(0))
+    # tau_e 4 ms +- 4 ms: P(tau_e < 0) = Phi(-1) = 0.159; 4 binomial standard deviations, 0.008 each
+    assert draws.n_rejected / n == pytest.approx(0.159, abs=0.033)
+    assert all(m.electrical_time_constant >= 0 for m in draws)
+
+
+def test_a_three_by_three_covariance_needs_a_model_with_an_electrical_time_constant():
+    with pytest.raises(ParameterError, match="no electrical time constant to draw around"):
+        draw_models(PlantModel(25.0, 3.0, 0.001, 16667), np.eye(3) * 1e-6, 5, np.random.default_rng(0))
+
+
+def test_an_uncertain_electrical_time_constant_widens_the_margins_a_design_can_count_on():
+    # PI on a 4 ms lag at 1 ms: the lag costs phase; drawn with +-1.5 ms, the worst phase margin over 100 plants
+    # is lower than with the lag fixed at its estimate
+    pi = PISpeed(TAU_MODEL, time_constant=0.03)
+    ab = np.diag([0.01, 1e-6])
+    fixed = analyse_robustness(pi, ab, parse_reference("sine:10,10"), 0.5, n_draws=100, rng=np.random.default_rng(0))
+    full = np.zeros((3, 3))
+    full[:2, :2], full[2, 2] = ab, 0.0015 ** 2
+    drawn = analyse_robustness(pi, full, parse_reference("sine:10,10"), 0.5, n_draws=100, rng=np.random.default_rng(0))
+    assert "(a, b, tau_e) drawn" in drawn.method and "kept in every plant" in fixed.method
+    # a and b barely move (0.4 % and 0.03 %): the spread of the margins is the lag's
+    assert drawn.worst_phase_margin < fixed.worst_phase_margin - 3.0
