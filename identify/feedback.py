@@ -21,11 +21,12 @@ tests).  :func:`feedback_evidence` says why a recording looks closed loop:
 prediction-error fit with a torque disturbance entering where the input does) with and without
 Coulomb friction, at each delay in ``0 ... CLOSED_LOOP_DELAYS`` (from a declared one), widening
 the range, doubling, to :data:`CLOSED_LOOP_LARGEST_DELAY` while a delay at its top cannot be ruled
-out (in a stiff loop the prediction errors tell neighbouring delays apart only weakly), and
-chooses by the likelihood ratio (the simplest candidate within the noise of the best, at the
-default's level).  Every candidate the data cannot rule out whose ``a`` or ``b`` falls outside
-the chosen fit's interval widens it.  The fit is consistent under feedback only when the
-disturbance model describes the real one, which the data can only test, so the chosen candidate
+out (in a stiff loop the prediction errors tell neighbouring delays apart only weakly; each
+delay's fits start where the neighbouring delay's stand), and chooses by the likelihood ratio
+(the simplest candidate within the noise of the best, at the default's level).  Every candidate
+the data cannot rule out whose ``a`` or ``b`` falls outside the chosen fit's interval widens it.
+The fit is consistent under feedback only when the disturbance model describes the real one,
+which the data can only test, so the chosen candidate
 is refitted with the disturbance as a random walk and the interval always holds both fits'
 intervals; the choice is called clear only when the two agree, no other candidate widened the
 interval, the delay is not at the top of the range searched, and the innovations are white.
@@ -47,7 +48,7 @@ from .data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction import speed_reverses
-from .prediction_error import PredictionErrorFit, estimate_from, fit_prediction_error, solve_prediction_error
+from .prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
@@ -216,14 +217,15 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
             if not segs:
                 raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for a delay of "
                                            f"{d} samples")
-            # the disturbance's start from the neighbouring delay's fit (the first searches a grid)
-            near = _noise(fitted[-2 if reverses else -1][1]) if fitted else None
-            linear = solve_prediction_error(recs, segs, friction=False, noise_start=near)
+            # each structure starts where the neighbouring delay's fit of it stands (the first: the linear fit
+            # from the regression guess and a grid of disturbances, friction from the linear fit)
+            near = fitted[-2 if reverses else -1][1] if fitted else None
+            linear = solve_prediction_error(recs, segs, friction=False, start=_plant(near),
+                                            noise_start=_noise(near) if near else None)
             fitted.append((_candidate("bias", d, linear), linear))
-            if reverses:                           # friction from the linear fit at the same delay
-                v = linear.values()
-                fit = solve_prediction_error(recs, segs, friction=True, start=(v["a"], v["b"], 0.0, v["bias"]),
-                                             noise_start=_noise(linear))
+            if reverses:
+                near = fitted[-2][1] if len(fitted) > 2 else linear
+                fit = solve_prediction_error(recs, segs, friction=True, start=_plant(near), noise_start=_noise(near))
                 fitted.append((_candidate("friction", d, fit), fit))
     scan(delays)
     while auto and top < cap and _top_plausible(fitted, top):
@@ -234,13 +236,11 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     chosen = selection.chosen
     fit = next(f for c, f in fitted if c is chosen)
     if skip != chosen.input_delay or sum(len(r) for r in recs) > CLOSED_LOOP_ROWS:
-        # the chosen candidate on all its rows, from where it stands
-        v = fit.values()
+        # the chosen candidate on all its rows, from where it stands (its disturbance too)
         fit = solve_prediction_error(recs, prepare_segments(recs, chosen.input_delay),
-                                     friction=fit.problem.friction,
-                                     start=(v["a"], v["b"], v["friction"], v["bias"]))
+                                     friction=fit.problem.friction, start=_plant(fit), noise_start=_noise(fit))
     est = estimate_from(recs, fit, chosen.input_delay)
-    others, apart = _material(recs, est, fit, [c for c, _ in fitted if c.within_noise and c is not chosen])
+    others, apart = _material(recs, est, fit, [(c, f) for c, f in fitted if c.within_noise and c is not chosen])
     notes = [f"recorded in a closed loop: {evidence}; fitted by prediction error with a torque disturbance "
              "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
              "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
@@ -284,6 +284,14 @@ def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses:
     return ""
 
 
+def _plant(fit: PredictionErrorFit | None) -> tuple[float, float, float, float] | None:
+    """A fit's ``a, b, c, bias``, as the start of a neighbouring one (None: none)."""
+    if fit is None:
+        return None
+    v = fit.values()
+    return v["a"], v["b"], v["friction"], v["bias"]
+
+
 def _noise(fit: PredictionErrorFit) -> tuple[float, float]:
     """A fit's disturbance pole and ``log(Q/R)``, as the start of a neighbouring one."""
     v = fit.values()
@@ -323,23 +331,25 @@ def _choose(fitted: list[tuple[Candidate, PredictionErrorFit]]) -> Selection:
 
 
 def _material(recs: list[Recording], est: Estimate, fit: PredictionErrorFit,
-              within: list[Candidate]) -> tuple[list[Estimate], list[str]]:
+              within: list[tuple[Candidate, PredictionErrorFit]]) -> tuple[list[Estimate], list[str]]:
     """The fits whose intervals the answer's must hold, and what sets them apart from the chosen fit.
 
     The chosen candidate refitted with its disturbance a random walk, always (the disturbance model is an
     assumption the data can only test, and under feedback it moves ``a`` and ``b``); the candidates within
-    the noise whose ``a`` or ``b`` fall outside the chosen fit's 95 % intervals.  The second list names
-    each fit whose values and the chosen fit's are not inside each other's intervals.
+    the noise whose ``a`` or ``b`` fall outside the chosen fit's 95 % intervals, each refitted on all rows
+    from where its fit on the compared rows stands.  The second list names each fit whose values and the
+    chosen fit's are not inside each other's intervals.
     """
     ci = est.confidence_interval(0.95)
 
     def inside(other: Estimate | Candidate, interval: dict) -> bool:
         return interval["a"][0] <= other.a <= interval["a"][1] and interval["b"][0] <= other.b <= interval["b"][1]
     out, apart = [], []
-    for c in within:
+    for c, near in within:
         if not inside(c, ci):
-            out.append(fit_prediction_error(recs, input_delay=c.input_delay,
-                                            friction=dict(c.fit_options).get("friction", False)))
+            full = solve_prediction_error(recs, prepare_segments(recs, c.input_delay), friction=near.problem.friction,
+                                          start=_plant(near), noise_start=_noise(near))
+            out.append(estimate_from(recs, full, c.input_delay))
             apart.append(c.label)
     v = fit.values()
     if v["disturbance_pole"] < 1.0 - 1e-6:

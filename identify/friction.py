@@ -389,7 +389,7 @@ class FrictionScan:
     def __init__(self, best: float = math.inf, level: float = LEVEL):
         self.best = best
         self.level = level
-        self.starts: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+        self.starts: dict[str, tuple[tuple[str, ...], np.ndarray, list[Segment]]] = {}
         self.linear: dict[tuple[int, bool], tuple[list[Segment], _LinearFit | None]] = {}
 
     def linear_fit(self, recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
@@ -415,16 +415,17 @@ class FrictionScan:
         far = STOP_FACTOR * k * float(_f_quantile(k, BLOCKS - k, 1.0 - self.level))
         return self.best * (1.0 + far)
 
-    def start(self, structure: str, names: tuple[str, ...], n_segments: int) -> np.ndarray | None:
-        """This structure's last fit, else another structure's, its dead zone dropped or added at 0."""
+    def start(self, structure: str, names: tuple[str, ...], segs: list[Segment]) -> tuple[np.ndarray, bool] | None:
+        """This structure's last fit, else another structure's, its dead zone dropped or added at 0; and whether
+        it was fitted on ``segs`` themselves (another structure at the same delay)."""
         for source in (structure, *[s for s in self.starts if s != structure]):
             if source not in self.starts:
                 continue
-            fitted_names, x = self.starts[source]
-            if len(x) - len(fitted_names) != n_segments:
+            fitted_names, x, fitted_on = self.starts[source]
+            if len(x) - len(fitted_names) != len(segs):
                 continue
             shared = dict(zip(fitted_names, x[:len(fitted_names)]))
-            return np.concatenate([[shared.get(n, 0.0) for n in names], x[len(fitted_names):]])
+            return np.concatenate([[shared.get(n, 0.0) for n in names], x[len(fitted_names):]]), fitted_on is segs
         return None
 
 
@@ -458,25 +459,33 @@ def friction_candidate(recs: list[Recording], segs: list[Segment], delay: int, s
     fitted = CandidateFit(Candidate(structure, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r,
                           refined=res.status != 3, start=tuple(float(v) for v in res.x))
     if scan is not None and fitted.refined:
-        scan.starts[structure] = (names, np.asarray(res.x, float))
+        scan.starts[structure] = (names, np.asarray(res.x, float), segs)
         scan.best = min(scan.best, fitted.candidate.residual_sum)
     return fitted
 
 
 def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, ...], delay: int, structure: str,
                  scan: FrictionScan) -> OptimizeResult:
-    """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound."""
+    """:func:`solve_friction` from the better of the regression's start and the neighbour's fit, with the bound;
+    from another structure's fit on the same rows alone, where there is one."""
     if not segs:
         raise NotIdentifiableError("recording is too short: no gap-free stretch long enough for the delay")
     problem = FrictionProblem(segs, names)
-    starts = [x for x in (scan.start(structure, names, len(segs)), _regression_start(problem)) if x is not None]
+    bound = scan.bound(structure)
+    lower = problem.lower_bounds()
+    found = scan.start(structure, names, segs)
+    if found is not None and found[1]:
+        # another structure's minimum on these very rows (the dead zone dropped or added at 0): the start, as it
+        # is, the regression's and the prefix's rough starts no nearer
+        x0 = found[0]
+        res = levenberg_marquardt(problem, x0, bound=bound)
+        return res if res.status == 3 else _checked_scanned(recs, segs, names, delay, scan, res, x0)
+    starts = [x for x in (None if found is None else found[0], _regression_start(problem)) if x is not None]
     if not starts:
         return solve_friction(recs, segs, names, delay)[1]
-    lower = problem.lower_bounds()
     costs = [float(np.sum(problem.residuals(np.maximum(x, lower)) ** 2)) for x in starts]
     x0 = starts[int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan)))] if np.any(np.isfinite(costs)) \
         else starts[-1]
-    bound = scan.bound(structure)
     if math.isfinite(bound) and problem.n_rows >= PREFIX_MIN_ROWS:
         # the bound at the start itself, before the prefix's iterations: the test the solver makes at its first
         # point (what it is on data too short for a prefix), so a candidate far from the best costs one evaluation
@@ -486,8 +495,13 @@ def _scanned_fit(recs: list[Recording], segs: list[Segment], names: tuple[str, .
             from scipy.optimize import OptimizeResult  # imported when used: slow to import
             return OptimizeResult(x=x, fun=r, jac=J, cost=0.5 * sum_squares(r), status=3)
     res = levenberg_marquardt(problem, _prefix_start(problem, x0), bound=bound)
-    if res.status == 3:
-        return res
+    return res if res.status == 3 else _checked_scanned(recs, segs, names, delay, scan, res, x0)
+
+
+def _checked_scanned(recs: list[Recording], segs: list[Segment], names: tuple[str, ...], delay: int,
+                     scan: FrictionScan, res: OptimizeResult, x0: np.ndarray) -> OptimizeResult:
+    """A scanned fit ``res`` from ``x0``, refitted by :func:`solve_friction` when the linear model it contains
+    beats it or ``x0`` was far from that model's pole; refused when it landed on ``a <= 0``."""
     near = float(res.x[0]) if np.isfinite(res.x[0]) else None
     linear = scan.linear_fit(recs, segs, delay, "bias" in names, near)
     if linear is not None and _suspicious(res, x0, linear):

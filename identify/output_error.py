@@ -230,8 +230,9 @@ class OutputErrorProblem:
             else:
                 err = seg.output - resp.speed
                 s0 = resp.speed_sensitivity[:, 2]
-            ss = float(s0 @ s0)
-            w = float(s0 @ err) / ss if ss > 0 else 0.0
+            # numpy's own sums, not BLAS: threaded above 10^4 samples, which stalls on a busy machine
+            ss = float(np.einsum("i,i->", s0, s0))
+            w = float(np.einsum("i,i->", s0, err)) / ss if ss > 0 else 0.0
             w0[i] = w
             r[row:row + n] = err - w * s0
             if J is not None:
@@ -249,7 +250,7 @@ class OutputErrorProblem:
             g = resp.speed_sensitivity[:, self._columns]
             g[:, 0] += w * resp.speed_initial_speed_a
         if ss > 0:
-            g -= np.outer(s0, (s0 @ g) / ss)
+            g -= np.outer(s0, np.einsum("i,ij->j", s0, g) / ss)
         return g
 
     def residuals(self, x: np.ndarray) -> np.ndarray:

@@ -17,15 +17,17 @@ disturbance as a state::
 
 where ``delta`` enters exactly where the input does.  The exact zero-order-hold step of the
 family (:func:`identify.friction_kernel.event_interval` for an interval in which friction
-stops the shaft) moves the state; the filter's steady-state gain (from the discrete Riccati
-equation at ``Q/R``) corrects it with each innovation.  The parameters ``a, b, c, bias, phi``
+stops the shaft) moves the state; the Kalman gain, from a diffuse start through the Riccati
+recursion at ``Q/R`` and held once that has settled (:data:`STEADY`), corrects it with each
+innovation.  The parameters ``a, b, c, bias, phi``
 and ``log(Q/R)`` minimise the sum of squared innovations (the quadratic prediction-error
 criterion; only the ratio ``Q/R`` shapes the predictor).  The covariance is
 :func:`identify.uncertainty.robust_covariance` of the innovations (Gauss–Newton when they are
 white, else Newey–West).
 
-With ``phi = 1`` the disturbance is a random walk, with ``Q = 0`` there is none (the fit is
-then an output-error fit with a filter that settles on the measured trajectory).  Without
+With ``phi = 1`` the disturbance is a random walk (its start is then the bias, which is held where
+it starts), with ``Q = 0`` there is none (the fit is then an output-error fit with a filter that
+settles on the measured trajectory).  Without
 friction (``friction=False``) ``c = 0``.
 
 The filter's pass over the samples is compiled by numba when it is installed (the optional
@@ -53,18 +55,20 @@ from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
 __all__ = ["fit_prediction_error", "solve_prediction_error", "PredictionErrorFit", "innovations", "PARAMETERS",
-           "filter_pass", "compiled_filter_pass",
-           "DIFFUSE", "START_POLES", "START_LOG_RATIOS"]
+           "filter_pass", "covariance_step", "compiled_filter_pass",
+           "DIFFUSE", "STEADY", "START_POLES", "START_LOG_RATIOS"]
 
 #: The fitted parameters, in order (``friction`` left out when ``friction=False``).
 PARAMETERS = ("a", "b", "friction", "bias", "disturbance_pole", "log_disturbance_ratio")
 #: The initial state's variance, in units of what one measurement tells of it (a diffuse start).
 DIFFUSE = 1e2
+#: Relative change of the filter's covariance in one step below which its gain is held (the steady state).
+STEADY = 1e-13
 
 
 def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: float, q: float, a: float,
-                 h: float, b: float, c: float, bias: float, phi: float, ratio: float, w0: float,
-                 eps: np.ndarray) -> float:
+                h: float, b: float, c: float, bias: float, phi: float, ratio: float, w0: float,
+                eps: np.ndarray) -> float:
     """Innovations of the Kalman predictor over one uniform segment, each over its standard deviation
     (in units of the measurement's), into ``eps``; returns the sum of the logarithms of their variances
     (module docstring).
@@ -73,6 +77,10 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     each with a variance :data:`DIFFUSE` times what one sample can tell): its gain settles as the data
     pin the state, so a segment's initial state costs no parameter.  The variances are in units of the
     measurement's (``R = 1``); ``ratio`` is ``Q/R``.
+
+    The covariance's recursion does not depend on the data: once a step changes none of its six numbers
+    by more than :data:`STEADY` of their size, the gain is the steady one and the rest of the pass
+    skips the recursion (the innovations then differ from the full recursion's by about ``STEADY``).
     """
     n = len(u)
     th = y[0] if not speed_kind else 0.0
@@ -84,26 +92,23 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
     p22 = DIFFUSE / (h * h) / (h * h)
     log_det = 0.0
+    settled = steady = False
+    s_var = k0 = k1 = k2 = scale = 1.0
+    g0 = g1 = g2 = 0.0
     for k in range(n):
-        if speed_kind:
-            ek = y[k] - w
-            s_var = p11 + 1.0
-            g0, g1, g2 = 0.0, p11, p12
-        else:
-            ek = y[k] - th
-            s_var = p00 + 1.0
-            g0, g1, g2 = p00, p01, p02
-        eps[k] = ek / math.sqrt(s_var)
-        log_det += math.log(s_var)
-        th += g0 / s_var * ek
-        w += g1 / s_var * ek
-        d += g2 / s_var * ek
-        p00 -= g0 * g0 / s_var
-        p01 -= g0 * g1 / s_var
-        p02 -= g0 * g2 / s_var
-        p11 -= g1 * g1 / s_var
-        p12 -= g1 * g2 / s_var
-        p22 -= g2 * g2 / s_var
+        if not steady:
+            s_var = (p11 if speed_kind else p00) + 1.0
+            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
+            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
+            scale = 1.0 / math.sqrt(s_var)
+            # once settled, this gain and this variance hold for the rest of the segment
+            log_det += (n - k if settled else 1) * math.log(s_var)
+            steady = settled
+        ek = y[k] - (w if speed_kind else th)
+        eps[k] = ek * scale
+        th += k0 * ek
+        w += k1 * ek
+        d += k2 * ek
         force = b * u[k] + bias + d
         if c > 0.0:
             if w == 0.0:
@@ -123,21 +128,42 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
         th += d_angle
         w = w_next
         d = phi * d
-        # the time update F P F^T + Q of the linear part, F = [[1, p, q], [0, e, p], [0, 0, phi]]
-        r00 = p00 + p * p01 + q * p02
-        r01 = p01 + p * p11 + q * p12
-        r02 = p02 + p * p12 + q * p22
-        r11 = e * p11 + p * p12
-        r12 = e * p12 + p * p22
-        r22 = phi * p22
-        if not speed_kind:
-            p00 = r00 + p * r01 + q * r02
-            p01 = e * r01 + p * r02
-            p02 = phi * r02
-        p11 = e * r11 + p * r12
-        p12 = phi * r12
-        p22 = phi * r22 + ratio
+        if steady:
+            continue
+        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
+                                                       phi, ratio, speed_kind)
+        settled = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
+                   and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
+                   and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
+        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
     return log_det
+
+
+def covariance_step(p00: float, p01: float, p02: float, p11: float, p12: float, p22: float, g0: float, g1: float,
+                    g2: float, k0: float, k1: float, k2: float, e: float, p: float, q: float, phi: float, ratio: float,
+                    speed_kind: bool) -> tuple[float, float, float, float, float, float]:
+    """One step of the filter's covariance (the six numbers of the symmetric ``P``): the measurement update
+    with the gain ``k = g / s``, then the time update ``F P F^T + Q`` of the linear part,
+    ``F = [[1, p, q], [0, e, p], [0, 0, phi]]``, ``Q`` the disturbance's ``ratio`` (the angle's row left as
+    it is when the speed is measured)."""
+    m00 = p00 - g0 * k0
+    m01 = p01 - g0 * k1
+    m02 = p02 - g0 * k2
+    m11 = p11 - g1 * k1
+    m12 = p12 - g1 * k2
+    m22 = p22 - g2 * k2
+    r00 = m00 + p * m01 + q * m02
+    r01 = m01 + p * m11 + q * m12
+    r02 = m02 + p * m12 + q * m22
+    r11 = e * m11 + p * m12
+    r12 = e * m12 + p * m22
+    r22 = phi * m22
+    n00, n01, n02 = p00, p01, p02
+    if not speed_kind:
+        n00 = r00 + p * r01 + q * r02
+        n01 = e * r01 + p * r02
+        n02 = phi * r02
+    return n00, n01, n02, e * r11 + p * r12, phi * r12, phi * r22 + ratio
 
 
 @functools.cache
@@ -147,7 +173,7 @@ def compiled_filter_pass() -> Callable[..., float] | None:
     if jit is None:
         return None
     import types
-    scope = dict(filter_pass.__globals__, event_interval=jit(event_interval))
+    scope = dict(filter_pass.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step))
     return jit(types.FunctionType(filter_pass.__code__, scope, filter_pass.__name__))
 
 
@@ -213,6 +239,12 @@ class _Problem:
         return out * math.exp(0.5 * log_det / max(self.n_rows, 1))
 
 
+def _sum_of_squares(r: np.ndarray) -> float:
+    """``r @ r`` by numpy's own loop: OpenBLAS runs a dot product of more than 10^4 numbers on threads, which
+    on a busy machine wait milliseconds for a free core."""
+    return float(np.einsum("i,i->", r, r))
+
+
 @dataclasses.dataclass
 class PredictionErrorFit:
     """A solved :class:`_Problem`: the parameters, the scaled innovations, their Jacobian and the criterion."""
@@ -225,7 +257,7 @@ class PredictionErrorFit:
     @property
     def cost(self) -> float:
         """The sum of the squared scaled innovations."""
-        return float(self.residuals @ self.residuals)
+        return _sum_of_squares(self.residuals)
 
     def values(self) -> dict[str, float]:
         a, b, c, bias, phi, lr = self.problem.unpack(self.x)
@@ -277,7 +309,7 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
         for lr in ratios if disturbance else (0.0,):
             x = problem.pack(a0, b0, c0, bias0, phi, lr)
             r = problem.innovations(x)
-            cost = float(r @ r)
+            cost = _sum_of_squares(r)
             if cost < best_cost:
                 best, best_cost = x, cost
     assert best is not None
@@ -326,7 +358,7 @@ def fit_prediction_error(recordings: Recording | Sequence[Recording], *, input_d
         disturbance's pole per sample (``disturbance_pole``) and ``log(Q/R)`` (``log_disturbance_ratio``);
         ``residual_rms`` is the scaled innovations'; ``fit_percent`` the model's simulated speed against
         the measured one.  With the pole at 1 the bias is the disturbance's
-        starting level, not a parameter: its variance is ``inf``.
+        starting level, not a parameter: it stays at its start (0) and its variance is ``inf``.
 
     Raises
     ------
@@ -399,7 +431,7 @@ def _covariance(fit: PredictionErrorFit) -> tuple[np.ndarray, str]:
         use = [j for j in use if j != problem.pole_index]
     lead = [j for j in use if j < keep]
     r = fit.residuals
-    s2 = float(r @ r) / max(len(r) - len(use), 1)
+    s2 = _sum_of_squares(r) / max(len(r) - len(use), 1)
     cov_used, method = robust_covariance(jac[:, use], r, s2, len(lead))
     cov = np.diag(np.full(keep, math.inf))
     for i, ji in enumerate(lead):
@@ -413,13 +445,20 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
     Levenberg–Marquardt (MINPACK, through :func:`scipy.optimize.least_squares`) in coordinates that keep
     ``a > 0``, ``c > 0`` and ``0 < phi < 1`` without bounds (logarithms and a logistic), with a
-    forward-difference Jacobian carried back to the parameters by the chain rule.
+    forward-difference Jacobian carried back to the parameters by the chain rule.  With the pole held at 1
+    the bias is held at its start: it is then the disturbance's starting level, which the filter's diffuse
+    start already takes, so the criterion hardly depends on it and its step would only stall the others'
+    (its Jacobian column is returned as zeros).
     """
     from scipy.optimize import least_squares  # imported when used: slow to import
     positive = [0] + ([2] if problem.friction else [])
     pole = problem.pole_index
+    held = [problem.n_plant - 1] if problem.pole is not None and problem.pole >= 1.0 else []
+    free = np.array([j for j in range(len(x0)) if j not in held], dtype=int)
 
-    def to_x(z: np.ndarray) -> np.ndarray:
+    def to_x(z_free: np.ndarray) -> np.ndarray:
+        z = np.array(z0, dtype=float)
+        z[free] = z_free
         x = np.array(z, dtype=float)
         x[positive] = np.exp(np.clip(z[positive], -700.0, 700.0))
         if pole is not None:
@@ -437,12 +476,13 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     if pole is not None:
         phi0 = min(max(float(x0[pole]), 1e-6), 1.0 - 1e-6)
         z0[pole] = math.log(phi0 / (1.0 - phi0))
-    res = least_squares(residuals, z0, method="lm", x_scale="jac")
+    res = least_squares(residuals, z0[free], method="lm", x_scale="jac")
     x = to_x(res.x)
     scale = np.ones(len(x))                      # dx/dz of each coordinate
     scale[positive] = x[positive]
     if pole is not None:
         scale[pole] = x[pole] * (1.0 - x[pole])
+    jac = np.zeros((len(res.fun), len(x)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        jac = np.where(scale > 0, res.jac / np.where(scale > 0, scale, 1.0), 0.0)
+        jac[:, free] = np.where(scale[free] > 0, res.jac / np.where(scale[free] > 0, scale[free], 1.0), 0.0)
     return x, res.fun, jac

@@ -64,7 +64,7 @@ FIRMWARE = {
         "the real harness, its parent killed",
     "tests/hardware/test_harness_lifetime.py::test_kill_9_of_motorid_live_on_avr_sim_leaves_no_emulator":
         "motorid live on avr-sim://, killed by SIGKILL",
-    "tests/motorid/test_live.py::test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent":
+    "tests/motorid/test_live.py::test_live_on_the_emulated_firmware_holds_a_and_b_in_its_intervals":
         "motorid live on avr-sim://",
 }
 

@@ -316,7 +316,8 @@ class AvrSimulation:
 
     Use as a context manager; :attr:`port_path` is the pty, :attr:`stats` (after exit) holds
     the harness's last words: ``emulated_s``, ``wall_s``, ``ratio``, ``counts`` (what the
-    encoder pins showed, 4x), ``edges``, ``resets``, ``speed_rad_s``.
+    encoder pins showed, 4x), ``edges``, ``resets``, ``speed_rad_s``, ``unwatched_drive_changes`` (drive
+    changes no register write announced, so applied from the middle of their microsecond).
 
     Parameters
     ----------

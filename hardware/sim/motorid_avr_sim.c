@@ -16,13 +16,17 @@
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
  * at each sub-step from the firmware's registers, because simavr 1.6 does not emulate the PWM
  * waveform on the pin: u = +-OCR2A (pin 11, Timer 2) with the sign from the DIR pin (8), or
- * from IN1/IN2 (8/9). A drive that changed since the last sub-step was written somewhere inside
- * it: the sub-step holds the old drive for its first half and the new one for its second, so
- * that the motor sees each change when the firmware made it, on average (holding the new drive
- * over the whole sub-step would apply every change half a sub-step early). A PWM pin that is not an output (during reset) reads as 0, as the
- * pull-down on the real board makes it. The encoder A/B inputs (pins 2/3) get one quadrature
- * edge per sub-step at most, at the sub-step nearest the instant the shaft angle crosses a count
- * boundary, so edges are spaced as the motor turns them (to 1 us) up to 1 M counts/s.
+ * from IN1/IN2 (8/9). Each write to those registers is watched (simavr's register IRQs), so a
+ * sub-step that saw the drive change is split at the CPU cycle of the write: the motor sees every
+ * change at the cycle the firmware made it. (Holding a change from the middle of its sub-step,
+ * as the harness once did, put it up to half a sub-step from the write, by the same amount in
+ * every period, since a tick comes at the same phase of the sub-steps.) A change no write
+ * announced (STATS counts them; none is known) is held from the sub-step's middle.
+ * A PWM pin that is not an output (during reset) reads as 0, as the pull-down on the real board
+ * makes it. The encoder A/B inputs (pins 2/3) get one quadrature edge per sub-step at most, at
+ * the CPU cycle the shaft angle crosses a count boundary (extrapolated from the sub-step's start
+ * at its speed, which 1 us cannot change measurably), so a pin read sees the count of the shaft
+ * at that cycle, up to 1 M counts/s.
  *
  * --encoder-rate R ignores the motor and turns the encoder at exactly R counts/s (4x counts):
  * that is how the firmware's encoder ceiling is measured.
@@ -60,6 +64,7 @@
 #include <termios.h>
 
 #include <simavr/avr_ioport.h>
+#include <simavr/sim_interrupts.h>
 #include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
 #include <simavr/sim_elf.h>
@@ -70,6 +75,7 @@
 #define REG_DDRB 0x24
 #define REG_PORTB 0x25
 #define REG_PIND 0x29
+#define REG_PCIFR 0x3B
 #define REG_PORTD 0x2B
 #define REG_DDRD 0x2A
 #define REG_MCUSR 0x54
@@ -87,16 +93,37 @@
 
 enum driver { DRIVER_DIR_PWM, DRIVER_IN1_IN2 };
 
+/* A register write that changed the drive: from this CPU cycle on the motor sees `drive`. */
+typedef struct drive_change {
+    avr_cycle_count_t cycle;
+    double drive;
+} drive_change_t;
+
+#define MAX_DRIVE_CHANGES 16   /* per sub-step; the firmware writes at most 3 drive registers per tick */
+#define N_DRIVE_REGISTERS 4
+
+struct harness;
+/* One watched drive register: which, and the harness it reports to. */
+typedef struct drive_watch {
+    struct harness *s;
+    uint16_t address;
+} drive_watch_t;
+
 typedef struct harness {
     avr_t *avr;
     avr_irq_t *enc_a, *enc_b;
     enum driver driver;
     double a, b, friction, counts_per_rev, encoder_rate;
     uint32_t substep;
-    /* exact ZOH coefficients over one sub-step and over half of one, precomputed */
+    /* exact ZOH coefficients over one sub-step, precomputed */
     double h, e, one_minus_e_over_a, h_minus_over_a;
-    double half_e, half_one_minus_e_over_a, half_h_minus_over_a;
-    double last_drive;   /* the drive over the previous sub-step */
+    double last_drive;   /* the drive at the end of the previous sub-step */
+    drive_change_t changes[MAX_DRIVE_CHANGES];   /* written since, in cycle order */
+    int n_changes;
+    double written_drive; /* the drive of the registers after the last change written */
+    drive_watch_t watches[N_DRIVE_REGISTERS];
+    uint64_t unwatched_changes; /* drive changes no register write announced (held from mid sub-step) */
+    int edge_direction;  /* the edge scheduled inside this sub-step: +1, -1, or 0 for none */
     double speed;        /* rad/s */
     double position;     /* shaft angle in counts (4x) */
     int64_t emitted;     /* count the A/B pins currently show */
@@ -139,17 +166,64 @@ static void hang_firmware(avr_t *avr) {
     avr->pc = HANG_ADDRESS;
 }
 
-static double drive(const harness_t *s) {
+static const uint16_t DRIVE_REGISTERS[N_DRIVE_REGISTERS] = {REG_DDRB, REG_PORTB, REG_TCCR2A, REG_OCR2A};
+
+/* The drive the registers give, with `value` in place of register `address` (0: none). */
+static double drive_with(const harness_t *s, uint16_t address, uint8_t value) {
     const uint8_t *d = s->avr->data;
-    if (!(d[REG_DDRB] & (1 << PWM_BIT))) return 0.0;          /* floating: pull-down */
+    uint8_t ddrb = address == REG_DDRB ? value : d[REG_DDRB];
+    uint8_t portb = address == REG_PORTB ? value : d[REG_PORTB];
+    uint8_t tccr2a = address == REG_TCCR2A ? value : d[REG_TCCR2A];
+    uint8_t ocr2a = address == REG_OCR2A ? value : d[REG_OCR2A];
+    if (!(ddrb & (1 << PWM_BIT))) return 0.0;                  /* floating: pull-down */
     double magnitude;
-    if (d[REG_TCCR2A] & (1 << BIT_COM2A1)) magnitude = d[REG_OCR2A];
-    else magnitude = (d[REG_PORTB] & (1 << PWM_BIT)) ? 255.0 : 0.0;
-    int dir = (d[REG_PORTB] >> DIR_BIT) & 1;
+    if (tccr2a & (1 << BIT_COM2A1)) magnitude = ocr2a;
+    else magnitude = (portb & (1 << PWM_BIT)) ? 255.0 : 0.0;
+    int dir = (portb >> DIR_BIT) & 1;
     if (s->driver == DRIVER_DIR_PWM) return dir ? magnitude : -magnitude;
-    int in2 = (d[REG_PORTB] >> IN2_BIT) & 1;
+    int in2 = (portb >> IN2_BIT) & 1;
     if (dir == in2) return 0.0;                               /* brake or coast */
     return dir ? magnitude : -magnitude;
+}
+
+static double drive(const harness_t *s) { return drive_with(s, 0, 0); }
+
+/* A drive register written (before or after simavr stores it: the value is substituted): a
+   change of the drive is queued with the cycle of the write. */
+static void on_drive_write(struct avr_irq_t *irq, uint32_t value, void *param) {
+    drive_watch_t *w = param;
+    harness_t *s = w->s;
+    (void)irq;
+    double u = drive_with(s, w->address, (uint8_t)value);
+    if (u == s->written_drive || s->n_changes == MAX_DRIVE_CHANGES) return;
+    s->changes[s->n_changes].cycle = s->avr->cycle;
+    s->changes[s->n_changes].drive = u;
+    s->n_changes++;
+    s->written_drive = u;
+}
+
+/* PCIFR is write-one-to-clear on the chip: a 1 clears that pin-change flag and so its pending
+   interrupt. simavr 1.6 has no handler for it and stores the byte written, so a firmware that
+   clears a flag itself (having counted an edge without its interrupt) would get the interrupt
+   anyway, and the flag set instead of cleared. */
+static void on_pcifr_write(avr_t *avr, avr_io_addr_t address, uint8_t value, void *param) {
+    (void)param;
+    for (int i = 0; i < avr->interrupts.vector_count; i++) {
+        avr_int_vector_t *vector = avr->interrupts.vector[i];
+        if (vector->raised.reg == address && (value & (1 << vector->raised.bit))) {
+            avr_clear_interrupt(avr, vector);
+            avr->data[address] &= ~(1 << vector->raised.bit);
+        }
+    }
+}
+
+static void watch_drive_registers(harness_t *s) {
+    for (int i = 0; i < N_DRIVE_REGISTERS; i++) {
+        s->watches[i].s = s;
+        s->watches[i].address = DRIVE_REGISTERS[i];
+        avr_irq_register_notify(avr_iomem_getirq(s->avr, DRIVE_REGISTERS[i], NULL, AVR_IOMEM_IRQ_ALL),
+                                on_drive_write, &s->watches[i]);
+    }
 }
 
 static void set_encoder_pins(harness_t *s) {
@@ -161,7 +235,7 @@ static void set_encoder_pins(harness_t *s) {
 
 /* The motor over a step of dt s at constant drive u, given e = exp(-a dt), p = (1 - e) / a and
    q = dt - p. */
-static void advance(harness_t *s, double u, double e, double p, double q) {
+static void advance_exact(harness_t *s, double u, double e, double p, double q) {
     const double to_counts = s->counts_per_rev / (2.0 * M_PI);
     double force = s->b * u;
     double w = s->speed;
@@ -181,19 +255,46 @@ static void advance(harness_t *s, double u, double e, double p, double q) {
     s->position += angle * to_counts;
 }
 
-static void integrate(harness_t *s) {
+/* The motor over `cycles` CPU cycles at constant drive u. */
+static void advance(harness_t *s, double u, avr_cycle_count_t cycles) {
+    if (cycles == 0) return;
+    if (cycles == s->substep) { advance_exact(s, u, s->e, s->one_minus_e_over_a, s->h_minus_over_a); return; }
+    double dt = cycles / (double)s->avr->frequency;
+    double e = exp(-s->a * dt);
+    advance_exact(s, u, e, (1.0 - e) / s->a, dt - (1.0 - e) / s->a);
+}
+
+/* The motor over the sub-step (when - substep, when]: each drive from the cycle it was written. */
+static void integrate(harness_t *s, avr_cycle_count_t when) {
     if (s->encoder_rate != 0.0) {
         s->position += s->encoder_rate * s->h;
+        s->n_changes = 0;
         return;
     }
-    double u = drive(s);
-    if (u == s->last_drive) {
-        advance(s, u, s->e, s->one_minus_e_over_a, s->h_minus_over_a);
-        return;
+    avr_cycle_count_t start = when - s->substep, at = start;
+    double u = s->last_drive;
+    int used = 0;
+    while (used < s->n_changes && s->changes[used].cycle <= when) {
+        avr_cycle_count_t c = s->changes[used].cycle > at ? s->changes[used].cycle : at;
+        advance(s, u, c - at);
+        at = c;
+        u = s->changes[used++].drive;
     }
-    /* changed inside this sub-step: the old drive for its first half, the new one for its second */
-    advance(s, s->last_drive, s->half_e, s->half_one_minus_e_over_a, s->half_h_minus_over_a);
-    advance(s, u, s->half_e, s->half_one_minus_e_over_a, s->half_h_minus_over_a);
+    /* writes after `when` (the timer fires at the end of an instruction) belong to the next one */
+    memmove(s->changes, s->changes + used, (size_t)(s->n_changes - used) * sizeof(s->changes[0]));
+    s->n_changes -= used;
+    double now = drive(s);
+    double expected = s->n_changes ? s->changes[s->n_changes - 1].drive : u;
+    if (now != expected) {
+        /* a change no write announced: from the middle of the sub-step */
+        s->unwatched_changes++;
+        avr_cycle_count_t middle = start + s->substep / 2;
+        if (middle > at) { advance(s, u, middle - at); at = middle; }
+        u = now;
+        s->n_changes = 0;
+        s->written_drive = now;
+    }
+    advance(s, u, when - at);
     s->last_drive = u;
 }
 
@@ -210,20 +311,48 @@ static int stack_pointer_half_written(const avr_t *avr) {
     return 0;
 }
 
-static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *param) {
+/* The edge scheduled by motor_step, at the cycle its count boundary is crossed. */
+static avr_cycle_count_t encoder_edge(avr_t *avr, avr_cycle_count_t when, void *param) {
     harness_t *s = param;
-    (void)avr;
-    integrate(s);
-    /* the edge of a count boundary crossed in (when - h/2, when + h/2]: each edge lands within half
-       a sub-step of its crossing, on average at it (the angle at the end of the sub-step would put
-       every edge half a sub-step late) */
-    double ahead = s->encoder_rate != 0.0 ? s->encoder_rate : s->speed * s->counts_per_rev / (2.0 * M_PI);
-    int64_t target = (int64_t)floor(s->position + 0.5 * s->h * ahead);
+    (void)avr; (void)when;
+    if (s->edge_direction) {
+        s->emitted += s->edge_direction;
+        s->edge_direction = 0;
+        s->edges++;
+        set_encoder_pins(s);
+    }
+    return 0;
+}
+
+/* The pins show floor(angle) in counts: an edge due and not shown is shown now (a reversal, or
+   faster than one count per sub-step), and the next boundary crossed inside the coming sub-step
+   gets its edge at the cycle of the crossing. */
+static void schedule_edge(harness_t *s, avr_cycle_count_t when) {
+    double rate = s->encoder_rate != 0.0 ? s->encoder_rate : s->speed * s->counts_per_rev / (2.0 * M_PI);
+    avr_cycle_timer_cancel(s->avr, encoder_edge, s);
+    s->edge_direction = 0;
+    int64_t target = (int64_t)floor(s->position);
     if (target != s->emitted) {
         s->emitted += target > s->emitted ? 1 : -1;           /* one edge per sub-step */
         s->edges++;
         set_encoder_pins(s);
+        return;
     }
+    if (rate == 0.0) return;
+    double distance = rate > 0 ? (double)(s->emitted + 1) - s->position : s->position - (double)s->emitted;
+    double cycles = ceil(distance / fabs(rate) * s->avr->frequency);
+    if (cycles >= s->substep) return;                          /* not inside this sub-step */
+    avr_cycle_count_t at = when + (avr_cycle_count_t)(cycles > 0 ? cycles : 0);
+    s->edge_direction = rate > 0 ? 1 : -1;
+    if (at <= s->avr->cycle) { encoder_edge(s->avr, at, s); return; }
+    avr_cycle_timer_register(s->avr, at - s->avr->cycle, encoder_edge, s);
+}
+
+static avr_cycle_count_t motor_step(avr_t *avr, avr_cycle_count_t when, void *param) {
+    harness_t *s = param;
+    (void)avr;
+    integrate(s, when);
+    schedule_edge(s, when);
     /* simavr 1.6 copies every PORTD write onto the pin IRQs, so the firmware enabling its
        pull-ups (or writing another PORTD pin) overrides what the encoder drives: put the
        encoder's levels back. */
@@ -432,9 +561,8 @@ static int start_avr(harness_t *s, const char *firmware) {
     s->e = exp(-s->a * s->h);
     s->one_minus_e_over_a = (1.0 - s->e) / s->a;
     s->h_minus_over_a = s->h - s->one_minus_e_over_a;
-    s->half_e = exp(-s->a * s->h / 2);
-    s->half_one_minus_e_over_a = (1.0 - s->half_e) / s->a;
-    s->half_h_minus_over_a = s->h / 2 - s->half_one_minus_e_over_a;
+    watch_drive_registers(s);
+    avr_register_io_write(s->avr, REG_PCIFR, on_pcifr_write, NULL);
     s->enc_a = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
     s->enc_b = avr_io_getirq(s->avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
     avr_raise_irq(s->enc_a, 0);
@@ -490,10 +618,10 @@ static int run_emulation(harness_t *s, bridge_t *pty, double speed_cap) {
     double wall = wall_seconds() - wall0;
     double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
     printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
-           "stack_bytes=%d flow_pauses=%llu state=%d\n",
+           "stack_bytes=%d flow_pauses=%llu unwatched_drive_changes=%llu state=%d\n",
            emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s->emitted,
            (unsigned long long)s->edges, (unsigned long long)s->resets, s->speed, 0x8FF - s->min_sp,
-           (unsigned long long)s->flow_pauses, state);
+           (unsigned long long)s->flow_pauses, (unsigned long long)s->unwatched_changes, state);
     fflush(stdout);
     return state;
 }

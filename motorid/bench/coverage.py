@@ -91,14 +91,9 @@ def _stiction(ratio: float, seed: int):
 def _position_loop(seed: int):
     """A PD position loop tracking two slow sines, Coulomb friction of 60 rad/s^2 and a random
     torque of 30 rad/s^2 RMS (correlation time 0.1 s) that the loop feeds back; 2000 counts, 1 ms,
-    15 s."""
-    from motorsim import Encoder, Motor, SimRig
-    from motorsim.control import ClosedLoopExperiment, PlantModel, PositionPD, Reference
-    controller = PositionPD(PlantModel(A, B, 0.001, 2000), time_constant=0.05)
-    reference = Reference("multisine", frequencies=(np.pi, 2.6 * np.pi), amplitudes=(2.0, 1.0), phases=(0.0, 1.0))
-    rig = SimRig(Motor(A, B, friction=60.0), Encoder(2000), disturbance=30.0, disturbance_time=0.1,
-                 rng=np.random.default_rng(seed))
-    return rig.run(ClosedLoopExperiment(controller, reference, 15.0))
+    15 s (:func:`motorid.bench.selection.torque_loop_recording`)."""
+    from motorid.bench.selection import torque_loop_recording
+    return torque_loop_recording(15_000, seed)
 
 
 def _speed_loop(seed: int):

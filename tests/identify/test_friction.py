@@ -210,8 +210,10 @@ def test_neighbouring_delays_share_their_start():
     rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
     scan = FrictionScan()
     first = friction_candidate([rec], prepare_segments([rec], 0, skip=2), 0, "dead-zone", False, scan=scan)
-    assert first.refined and scan.start("friction", ("a", "b", "friction", "bias"), 1) is not None
-    warm = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False, scan=scan)
+    next_rows = prepare_segments([rec], 1, skip=2)
+    start = scan.start("friction", ("a", "b", "friction", "bias"), next_rows)
+    assert first.refined and start is not None and not start[1]       # a start from other rows
+    warm = friction_candidate([rec], next_rows, 1, "friction", False, scan=scan)
     cold = friction_candidate([rec], prepare_segments([rec], 1, skip=2), 1, "friction", False)
     # the same minimum from either start (noise-free: to the fit's stopping tolerance)
     assert warm.candidate.a == pytest.approx(cold.candidate.a, rel=CLOSE)

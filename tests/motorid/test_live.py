@@ -23,16 +23,19 @@ def test_acceptance_live_fake_run_recovers_a_and_b_within_one_percent(tmp_path, 
     assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
 
 
-def test_live_on_the_emulated_firmware_recovers_a_and_b_within_one_percent(tmp_path, capsys):
+def test_live_on_the_emulated_firmware_holds_a_and_b_in_its_intervals(tmp_path, capsys):
     # The whole chain a user runs: CLI -> SerialRig -> pty -> simavr running the real firmware ELF.
-    # oe measured -0.036 % / -0.021 % here (the emulated bench's 4 us micros() and interrupt timing
-    # are outside oe's noise model, so its own stderr is smaller than that); 1 % is the bound asserted here.
+    # The firmware takes each tick's duty and count at one instant, the same every period, and the
+    # harness turns its motor exactly: the default's 95 % intervals hold a = 25 and b = 3 (measured
+    # a 24.99945 [24.99809, 25.00082], b 2.99996 [2.99983, 3.00009]; firmware 5.1 read a 77 ppm
+    # low, outside its interval).
     status, out = _live(tmp_path, "avr-sim://?a=25&b=3", "--sine", "20,100", "--duration", "3", "--json")
     assert status == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result["method"] == "oe" and result["samples_received"] == 600
     assert result["link_frames_lost"] == 0 and result["device_samples_dropped"] == 0
-    assert result["a"] == pytest.approx(25.0, rel=0.01) and result["b"] == pytest.approx(3.0, rel=0.01)
+    assert result["a_ci95"][0] <= 25.0 <= result["a_ci95"][1]
+    assert result["b_ci95"][0] <= 3.0 <= result["b_ci95"][1]
     assert read_recording(out).metadata["complete"] == "true"
 
 

@@ -6,10 +6,10 @@
 // it has just read with the controller's integer step (motorsim/fixed_point.py is the reference).
 //
 // Timing: Timer 1 (CTC, /8) is the sample clock. At each tick its interrupt applies the duty
-// latched at the previous tick and snapshots the encoder count and micros() (a fixed number of
-// cycles after the compare, whatever the controller; the duty's magnitude is written the
-// instruction before the count freezes, so the two are one instant), computes this sample's duty (the
-// waveform's or the controller's, with interrupts re-enabled: the encoder may preempt it),
+// latched at the previous tick and snapshots the encoder count and micros() at the tick's
+// instant, 40 us after the compare to 3 cycles whenever the interrupt started (the pins read and
+// the duty written by adjacent instructions, so the two are one instant), computes this sample's
+// duty (the waveform's or the controller's, with interrupts re-enabled: the encoder may preempt it),
 // queues the SAMPLE and latches the duty for the next tick: an exact zero-order hold with a
 // one-sample delay, the same in open and closed loop.
 // loop() only parses received bytes and sends at most one frame per pass.
@@ -29,7 +29,7 @@
 // ---------------------------------------------------------------------------------------------
 // Protocol constants (hardware/PROTOCOL.md)
 #define PROTOCOL_VERSION 6
-#define FIRMWARE_VERSION 0x0501  // major << 8 | minor: 5.1
+#define FIRMWARE_VERSION 0x0502  // major << 8 | minor: 5.2
 #define MAX_PAYLOAD 60
 #define MAX_BODY (MAX_PAYLOAD + 4)
 #define MAX_ENCODED (MAX_BODY + 2)
@@ -377,16 +377,21 @@ static inline void latch_duty(int16_t duty) {
   next_level = duty >= 0 ? DIR_FORWARD_LEVEL : !DIR_FORWARD_LEVEL;
 }
 
-// The direction of the latched duty (its magnitude is written by the tick itself, see the Timer 1
-// ISR). Interrupts must be off.
-static inline void apply_latched_direction(void) __attribute__((always_inline));
-static inline void apply_latched_direction(void) {
-  uint8_t level = next_level;
-  if (level) *dir_port |= dir_mask; else *dir_port &= ~dir_mask;
-#if DRIVER_TYPE == DRIVER_IN1_IN2
-  if (level) *in2_port &= ~in2_mask; else *in2_port |= in2_mask;
-#endif
+// The direction port's value with the latched duty's direction (the tick writes it, and the
+// magnitude, at its instant; see the Timer 1 ISR). Interrupts must be off.
+static inline uint8_t latched_direction_port(void) __attribute__((always_inline));
+static inline uint8_t latched_direction_port(void) {
+  uint8_t port = *dir_port;
+  return next_level ? port | dir_mask : port & ~dir_mask;
 }
+
+#if DRIVER_TYPE == DRIVER_IN1_IN2
+// IN2, the other direction pin, to the latched duty's direction. Interrupts must be off.
+static inline void apply_latched_in2(void) __attribute__((always_inline));
+static inline void apply_latched_in2(void) {
+  if (next_level) *in2_port &= ~in2_mask; else *in2_port |= in2_mask;
+}
+#endif
 
 static void setup_bridge(void) {
   PWM_OCR = 0;
@@ -414,17 +419,22 @@ static void setup_bridge(void) {
 // ---------------------------------------------------------------------------------------------
 // Encoder: pin-change interrupt, register-level.
 
-static inline uint8_t encoder_pins(void) __attribute__((always_inline));
-static inline uint8_t encoder_pins(void) {
-  uint8_t pins = ENC_PIN_REG;
+// The encoder's (A << 1 | B) from a read of its port.
+static inline uint8_t encoder_bits(uint8_t pins) __attribute__((always_inline));
+static inline uint8_t encoder_bits(uint8_t pins) {
   uint8_t now = 0;
   if (pins & ENC_A_MASK) now |= 2;
   if (pins & ENC_B_MASK) now |= 1;
   return now;
 }
 
-ISR(ENC_PCINT_vect) {
-  uint8_t now = encoder_pins();
+static inline uint8_t encoder_pins(void) __attribute__((always_inline));
+static inline uint8_t encoder_pins(void) { return encoder_bits(ENC_PIN_REG); }
+
+// Count the transition from the pins last seen to `now`. Interrupts must be off (this ISR, or the
+// tick's instant, which counts an edge whose interrupt has not run yet).
+static inline void encoder_step(uint8_t now) __attribute__((always_inline));
+static inline void encoder_step(uint8_t now) {
   int8_t d = decode_table[enc_previous | now];
   enc_previous = now << 2;
   if (d == 0) return;
@@ -434,6 +444,10 @@ ISR(ENC_PCINT_vect) {
   }
   if (d > 0) enc_count++;
   else enc_count--;
+}
+
+ISR(ENC_PCINT_vect) {
+  encoder_step(encoder_pins());
 }
 
 // Select the decoding table and the pins that interrupt (x4: A and B; x2, x1: A only).
@@ -718,6 +732,22 @@ static void timer_plan(uint32_t period_us) {
   sub_long = ticks % m;                 // the first sub_long sub-intervals last q + 1
 }
 
+// The instant of a tick, in Timer 1 counts (0.5 us) after its compare: the duty is written and the
+// count read then, however late the interrupt started. Its start waits for the interrupts
+// running or pending (an encoder edge, the UART, Timer 0: a few us each, chained, and they may
+// preempt its prologue), likelier the faster the motor turns and the busier the line, so a duty
+// written and a count read at its start were taken at instants that jittered with the speed,
+// which no model of the motor has. Under emulation the interrupt reaches its wait 7 us after the
+// compare, 35 us at worst seen (a 500 us period at 500000 baud): the instant is 40 us after the
+// compare (a tick starting later takes its instant when it starts). From its wait to the instant
+// interrupts are off, so nothing can delay the instant, and the wait decodes the encoder itself
+// (an edge is counted within about 1 us, sooner than by its interrupt), an edge in the last
+// TICK_LAST_POLL counts at the instant from the pins. The UART loses nothing: a byte received
+// waits in its two-byte buffer, and one to send waits for the instant (at 500000 baud, a byte
+// every 20 us, the line may idle for up to 15 us a tick).
+#define TICK_INSTANT 80
+#define TICK_LAST_POLL 8
+
 // Start the sample clock planned by timer_plan(). Interrupts must be off.
 static void timer_start(void) {
   sub_pos = 0;
@@ -725,13 +755,14 @@ static void timer_start(void) {
   TCCR1B = 0;
   TCNT1 = 0;
   OCR1A = sub_len_q + (sub_long ? 1 : 0);
+  OCR1B = TICK_INSTANT;                 // its flag (no interrupt) marks a tick's instant
   TIFR1 = _BV(OCF1A);
   TIMSK1 = _BV(OCIE1A);
   TCCR1B = _BV(WGM12) | _BV(CS11);      // CTC on OCR1A, clk/8
 }
 
-// ISR_NOBLOCK: interrupts are back on from the first instruction, so the encoder interrupt is
-// never held off by this one for more than the few cycles of the snapshot below. This
+// ISR_NOBLOCK: interrupts are back on from the first instruction, and after the snapshot at the
+// instant; in between this interrupt decodes the encoder itself. This
 // interrupt cannot re-enter: the next compare is a whole period (>= 100 us) away, and it masks
 // itself before the long part.
 ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
@@ -746,18 +777,41 @@ ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
   }
   if (!running) return;
   TIMSK1 = 0;
-  // 1. apply the duty latched at the previous tick (duty 0 at tick 0) and snapshot the counts at
-  //    the same instant: the count freezes at cli() (an edge whose interrupt has not started by
-  //    then waits), so the magnitude is written by the instruction just before it, and the
-  //    direction (a sign change passes through magnitude 0) and the snapshot follow with
-  //    interrupts off. The duty and the counts of a tick are thus taken within a cycle or two,
-  //    not the ~60 cycles of a whole apply_duty() after cli(), which read as a 3.7 us input
-  //    delay (a and b 0.015 % low on a 25 1/s motor).
+  // 1. at the tick's instant (TICK_INSTANT), apply the duty latched at the previous tick (duty 0
+  //    at tick 0) and snapshot the counts: three adjacent instructions read the pins and write
+  //    the duty's magnitude and direction (in assembly, so that the compiler puts nothing
+  //    between them: a cycle apart, the count's instant is the duty's, and a sign change drives
+  //    the new magnitude the old way for one cycle; IN2 of an IN1/IN2 bridge follows). The count
+  //    is the pins': an edge since the last one counted is counted here from the pins, not from
+  //    its interrupt flag (an edge between reading the flag and the pins would be missed), the
+  //    flag cleared first so that a later edge still interrupts. After the last sample the duty
+  //    stays as it is until stop_run() zeroes it.
   uint8_t live = tick_index < cfg.n_samples;    // only this ISR changes tick_index during a run
-  uint8_t magnitude = next_magnitude;
-  if (live) PWM_OCR = magnitude;
+  uint8_t magnitude = live ? next_magnitude : PWM_OCR;
+  uint8_t counted = enc_decoding == 4 ? 3 : 2;  // the pins whose change interrupts: A and B, or A
   cli();
-  if (live) apply_latched_direction();
+  volatile uint8_t *direction = dir_port;
+  uint8_t direction_value = live ? latched_direction_port() : *direction;
+  TIFR1 = _BV(OCF1B);                           // a compare B of an earlier (sub-)period
+  if (TCNT1 < TICK_INSTANT) {                   // (a tick that started after its instant: now)
+    while (TCNT1 < TICK_INSTANT - TICK_LAST_POLL) {   // the encoder decoded here meanwhile
+      uint8_t now = encoder_pins();
+      if ((now ^ (enc_previous >> 2)) & counted) encoder_step(now);
+    }
+    while (!(TIFR1 & _BV(OCF1B))) {}            // 3 cycles a turn: the instant to 3 cycles
+  }
+  PCIFR = _BV(ENC_PCIE);   // PCIFn is PCIEn's bit: cleared, an edge from here on interrupts
+  uint8_t pins;
+  __asm__ __volatile__("in %0, %1\n\tsts %2, %3\n\tst %a4, %5"
+                       : "=&r"(pins)
+                       : "I"(_SFR_IO_ADDR(ENC_PIN_REG)), "n"(_SFR_MEM_ADDR(PWM_OCR)), "r"(magnitude),
+                         "e"(direction), "r"(direction_value)
+                       : "memory");
+#if DRIVER_TYPE == DRIVER_IN1_IN2
+  if (live) apply_latched_in2();
+#endif
+  uint8_t now = encoder_bits(pins);
+  if ((now ^ (enc_previous >> 2)) & counted) encoder_step(now);
   int32_t counts = enc_count;
   uint32_t errors = enc_errors;
   uint32_t now_us = micros();
