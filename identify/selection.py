@@ -168,10 +168,10 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
         whenever the speed reverses (what :func:`fit_selected` does when the chosen model's residuals
         then correlate with the sign of the speed).
     widening : bool
-        The caller searches a wider delay range when the choice is at the top of this one (as
-        :func:`fit_selected` does): when the first-order family's choice and best fit are both at the top,
-        the structures of a higher rank are not fitted (whatever they scored, the range is widened, and
-        they are fitted on the wider one).
+        The caller searches a wider delay range when the best fit is at the top of this one (as
+        :func:`fit_selected` does): when the first-order family's best fit is at the top, the structures
+        of a higher rank are not fitted (whatever they scored, the range is widened, and they are fitted
+        on the wider one).
 
     Returns
     -------
@@ -247,15 +247,14 @@ def _fit_higher_ranks(recs: list[Recording], segments: dict[int, list[Segment]],
                       fitted: list[CandidateFit], sticking: list[str], higher: list[str], fix_bias: bool, level: float,
                       notes: list[str], widened_at: int | None) -> list[CandidateFit]:
     """The structures of a higher rank, static levels first (:func:`_fit_sticking`), then second poles
-    (:func:`_fit_higher`); none when the first-order family's choice and its best fit are both at
-    ``widened_at``, the top of a range the caller widens then (:func:`_select_widening`): whatever they
-    scored here, they are fitted once, on the wider range."""
+    (:func:`_fit_higher`); none when the first-order family's best fit is at ``widened_at``, the top of a
+    range the caller widens then (:func:`_select_widening`): whatever they scored here, they are fitted
+    once, on the wider range."""
     if not (sticking or higher):
         return []
     best = best_fit(fitted)
     if widened_at is not None and best is not None and best.candidate.input_delay == widened_at:
-        if choose(fitted, level, [], widened_at, recs, segments).chosen.input_delay == widened_at:
-            return []
+        return []
     out = _fit_sticking(recs, segments, fitted, sticking, fix_bias, level, notes) if sticking else []
     if higher:
         out += _fit_higher(recs, segments, delays, higher, fitted + out, level, notes)

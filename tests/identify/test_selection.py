@@ -488,7 +488,7 @@ def test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_fa
 
 
 def test_a_choice_at_the_top_of_the_range_leaves_the_higher_ranks_to_the_wider_one(monkeypatch):
-    # the delay range is widened when the first-order choice and best fit are at its top; the second pole and the
+    # the delay range is widened when the first-order family's best fit is at its top; the second pole and the
     # static level are then fitted once, on the wider range, and the answer is the same as when they are fitted
     # on both
     from identify import selection
