@@ -318,10 +318,7 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
                     out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
                     worse = worse + 1 if far_worse(out[-1:], [*fitted, *out], level) else 0
                     if worse == STOP_AFTER and i + 1 < len(scan):
-                        left = scan[-1], scan[i + 1]
-                        notes.append(f"{name} not fitted at {'delay' if left[0] == left[1] else 'delays'} "
-                                     f"{left[0]}{'' if left[0] == left[1] else f'-{left[1]}'}: the fit worsened "
-                                     f"far beyond the noise of the best for {STOP_AFTER} delays in a row")
+                        notes.append(_stopped_note(name, scan[i + 1:], ""))
                         break
             if i + 1 == len(scan):
                 scan += _lower_delay(out, name, d, delays)
@@ -369,12 +366,17 @@ def _fit_sticking(recs: list[Recording], segments: dict[int, list[Segment]], fit
         judged = [f for f in here if f.residuals is not None] or friction
         worse = worse + 1 if judged and far_worse(judged, [*fitted, *out], level) else 0
         if worse == STOP_AFTER and i + 1 < len(delays):
-            left = delays[-1], delays[i + 1]
-            notes.append(f"{', '.join(names)} not fitted at {'delay' if left[0] == left[1] else 'delays'} "
-                         f"{left[0]}{'' if left[0] == left[1] else f'-{left[1]}'}: the fit worsened far beyond "
-                         f"the noise of the best for {STOP_AFTER} delays in a row below the best friction fit's")
+            notes.append(_stopped_note(", ".join(names), delays[i + 1:], " below the best friction fit's"))
             break
     return out
+
+
+def _stopped_note(what: str, skipped: Sequence[int], where: str) -> str:
+    """The note of a scan down the delays that stopped before ``skipped``: they were not fitted, and why."""
+    low, high = min(skipped), max(skipped)
+    delays = f"delay {low}" if low == high else f"delays {low}-{high}"
+    return (f"{what} not fitted at {delays}: the fit worsened far beyond the noise of the best for {STOP_AFTER} "
+            f"delays in a row{where}")
 
 
 def _refined_best(fitted: list[CandidateFit], refit: Callable[[CandidateFit], CandidateFit]) -> CandidateFit | None:

@@ -23,7 +23,7 @@ from hardware import protocol as P
 from hardware.errors import DeviceFaultError
 from hardware.serial_rig import SerialRig
 from hardware.sim.device_link import DeviceLink
-from hardware.sim.launcher import build, missing_tools, open_avr_sim
+from hardware.sim.launcher import open_avr_sim
 from motorsim import PRBS, Chirp, Constant, Experiment, Multisine, OddMultisine, Sine, Step
 
 A, B, COUNTS_PER_REV = 25.0, 3.0, 16667
@@ -38,15 +38,6 @@ def _open(baudrate: int = 250000, **query):
 
 
 pytestmark = pytest.mark.firmware
-
-
-@pytest.fixture(scope="module")
-def built():
-    """Firmware and harness built once (``make firmware avr-sim``); skipped without the AVR toolchain."""
-    missing = missing_tools()
-    if missing:
-        pytest.skip(f"the AVR toolchain is missing: {', '.join(missing)} (make firmware-deps installs it)")
-    return build()
 
 
 @contextlib.contextmanager

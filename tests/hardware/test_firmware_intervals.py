@@ -17,7 +17,7 @@ import pytest
 
 import identify
 from hardware.serial_rig import SerialRig
-from hardware.sim.launcher import build, missing_tools, open_avr_sim
+from hardware.sim.launcher import open_avr_sim
 from motorsim import Experiment, Multisine, Sine
 
 pytestmark = pytest.mark.firmware
@@ -32,15 +32,6 @@ CASES = [
     (0.001, 25.0, 3.0, Multisine((3.0, 11.0, 37.0), (40, 40, 40))),   # -34 (21) -> -8 (22)
 ]
 IDS = ["5 ms sine", "1 ms sine", "2 ms sine a 40 b 5", "1 ms multisine"]
-
-
-@pytest.fixture(scope="module")
-def built():
-    """Firmware and harness built once (``make firmware avr-sim``); skipped without the AVR toolchain."""
-    missing = missing_tools()
-    if missing:
-        pytest.skip(f"the AVR toolchain is missing: {', '.join(missing)} (make firmware-deps installs it)")
-    return build()
 
 
 @pytest.mark.parametrize("period, a, b, excitation", CASES, ids=IDS)
