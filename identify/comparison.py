@@ -52,6 +52,7 @@ from motorsim.recording import Recording
 from .data import Segment, prepare_segments
 from .errors import NotIdentifiableError
 from .model_structures import ModelStructure, structures
+from .sums import sum_squares
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
            "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
@@ -270,7 +271,7 @@ def block_mean_p(scores: np.ndarray) -> float:
 def statistic(delta: np.ndarray, excess: float, reference: np.ndarray, rounding: np.ndarray | None = None) -> float:
     """``T = excess |delta|^2 / V`` with ``V`` the batch-means variance of ``delta . e`` (module docstring),
     plus the variance of ``delta . e`` over the encoder's rounding at other phases when given."""
-    norm2 = float(np.einsum("i,i->", delta, delta))   # not a threaded BLAS dot: slow on a busy machine
+    norm2 = sum_squares(delta)
     if excess <= 0 or norm2 == 0:
         return 0.0
     v = float(np.sum(block_sums(delta * reference) ** 2))
@@ -302,7 +303,7 @@ def rounding_realisations(recs: list[Recording], segs: list[Segment], residuals:
         if seg.kind != "angle" or not cpr or recs[seg.recording].counts is None:
             return None
         steps.append(2 * math.pi / cpr)
-    if float(np.einsum("i,i->", residuals, residuals)) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
+    if sum_squares(residuals) / len(residuals) > ROUNDING_DOMINATED * max(steps) ** 2 / 12:
         return None         # other noise dominates: the batch means see it
     phases = (np.arange(PHASES) + 0.5) / PHASES
     out = np.empty((PHASES, len(residuals)))        # a phase per row: each realisation one contiguous pass

@@ -70,10 +70,11 @@ from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
-from .friction_solver import levenberg_marquardt, reachable_cost, sum_squares
+from .friction_solver import levenberg_marquardt, reachable_cost
 from .model_structures import ModelStructure
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .stiction import GATE_ROWS, StaticProfile, profile_static_level, stiction_evident
+from .sums import sum_squares
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 from .variable_projection import is_separable, separable_candidate, static_gain_ceiling

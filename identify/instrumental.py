@@ -38,6 +38,7 @@ from .estimate import Estimate
 from .output_error import select_delay
 from .sensitivity import UNIFORM_RTOL, phi_functions, zoh_response
 from .start import initial_guess, regression_guess
+from .sums import dot
 from .validation import fit_percent
 
 __all__ = ["fit_instrumental_variables"]
@@ -96,11 +97,6 @@ def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) 
     return w
 
 
-def _dot(x: np.ndarray, y: np.ndarray) -> float:
-    """``x . y`` by numpy's own loop (a multi-threaded BLAS ``dot`` is many times slower on a busy machine)."""
-    return float(np.einsum("i,i->", x, y))
-
-
 @dataclasses.dataclass(frozen=True)
 class _IvSolution:
     """One IV solve: ``theta = (e, b)``, the regressor and instrument columns, ``M = Z^T Phi``.
@@ -121,8 +117,8 @@ class _IvSolution:
 
     def instrument_gram(self) -> np.ndarray:
         """``Z^T Z``."""
-        xv = _dot(self.x, self.v)
-        return np.array([[_dot(self.x, self.x), xv], [xv, _dot(self.v, self.v)]])
+        xv = dot(self.x, self.v)
+        return np.array([[dot(self.x, self.x), xv], [xv, dot(self.v, self.v)]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,8 +139,8 @@ class _IvRegression:
         y = np.concatenate([w[2:] for w, _, _ in stretches])
         u1 = np.concatenate([np.asarray(u[1:-1], dtype=float) for _, u, _ in stretches])
         u0 = np.concatenate([np.asarray(u[:-2], dtype=float) for _, u, _ in stretches])
-        moments = {"w1": _dot(w_now, u1), "w0": _dot(w_now, u0), "y1": _dot(y, u1), "y0": _dot(y, u0),
-                   "11": _dot(u1, u1), "10": _dot(u1, u0), "00": _dot(u0, u0)}
+        moments = {"w1": dot(w_now, u1), "w0": dot(w_now, u0), "y1": dot(y, u1), "y0": dot(y, u0),
+                   "11": dot(u1, u1), "10": dot(u1, u0), "00": dot(u0, u0)}
         return cls(stretches, w_now, y, h, u1, u0, moments)
 
     def instruments(self, a: float, b: float) -> np.ndarray:
@@ -153,8 +149,8 @@ class _IvRegression:
 
     def instrument_moments(self, x_inst: np.ndarray) -> dict:
         """The dot products of the instruments with the fixed columns (once per instrument)."""
-        return {"xw": _dot(x_inst, self.w_now), "xy": _dot(x_inst, self.y),
-                "x1": _dot(x_inst, self.u_now), "x0": _dot(x_inst, self.u_before)}
+        return {"xw": dot(x_inst, self.w_now), "xy": dot(x_inst, self.y),
+                "x1": dot(x_inst, self.u_now), "x0": dot(x_inst, self.u_before)}
 
     def solve(self, a_filter: float, x_inst: np.ndarray, x_moments: dict, columns: bool = True) -> _IvSolution:
         """IV solve with the input filter at ``a_filter`` and instruments ``x_inst``.
@@ -260,7 +256,7 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
     h, y = regression.h, regression.y
     e = float(sol.theta[0])
     resid = sol.residuals(y)
-    rss = _dot(resid, resid)
+    rss = dot(resid, resid)
     s2 = rss / max(len(y) - 2, 1)
     Minv = np.linalg.inv(sol.M)
     cov_theta = s2 * Minv @ sol.instrument_gram() @ Minv.T

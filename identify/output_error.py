@@ -52,6 +52,7 @@ from .estimate import Estimate
 from .model_structures import ModelStructure
 from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
+from .sums import dot, sum_squares
 from .uncertainty import covariance_from_jacobian, robust_covariance
 from .validation import segment_fit_percent, segment_speeds
 from .variable_projection import (
@@ -230,9 +231,8 @@ class OutputErrorProblem:
             else:
                 err = seg.output - resp.speed
                 s0 = resp.speed_sensitivity[:, 2]
-            # numpy's own sums, not BLAS: threaded above 10^4 samples, which stalls on a busy machine
-            ss = float(np.einsum("i,i->", s0, s0))
-            w = float(np.einsum("i,i->", s0, err)) / ss if ss > 0 else 0.0
+            ss = sum_squares(s0)
+            w = dot(s0, err) / ss if ss > 0 else 0.0
             w0[i] = w
             r[row:row + n] = err - w * s0
             if J is not None:
@@ -366,14 +366,14 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
                                         coarse_samples=COARSE_SAMPLES, refine=refine)
             if found is not None:
                 a, b, bias, r, refined = found
-                return CandidateFit(Candidate(name, delay, a, b, float(np.einsum("i,i->", r, r))), r, bias, refined)
+                return CandidateFit(Candidate(name, delay, a, b, sum_squares(r)), r, bias, refined)
     try:
         solution = solve_output_error(recs, segs, delay, with_bias=with_bias)
     except NotIdentifiableError as exc:
         return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(solution.result.fun, float)
     x = solution.result.x
-    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), float(np.einsum("i,i->", r, r))), r,
+    return CandidateFit(Candidate(name, delay, float(x[0]), float(x[1]), sum_squares(r)), r,
                    float(x[2]) if with_bias else 0.0)
 
 
@@ -468,7 +468,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
     res, problem = solution.result, solution.problem
     r = res.fun
     dof = problem.n_rows - problem.n_global - problem.n_nuisance
-    rss = float(np.einsum("i,i->", r, r))  # not BLAS: a threaded dot is slow on a busy machine
+    rss = sum_squares(r)
     s2 = rss / max(dof, 1)
     a, b, bias = problem.unpack(res.x)
     models = solution.model_outputs()

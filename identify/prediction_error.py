@@ -51,6 +51,7 @@ from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .friction_kernel import event_interval
 from .start import initial_guess
+from .sums import sum_squares
 from .uncertainty import robust_covariance
 from .validation import segment_fit_percent
 
@@ -239,12 +240,6 @@ class _Problem:
         return out * math.exp(0.5 * log_det / max(self.n_rows, 1))
 
 
-def _sum_of_squares(r: np.ndarray) -> float:
-    """``r @ r`` by numpy's own loop: OpenBLAS runs a dot product of more than 10^4 numbers on threads, which
-    on a busy machine wait milliseconds for a free core."""
-    return float(np.einsum("i,i->", r, r))
-
-
 @dataclasses.dataclass
 class PredictionErrorFit:
     """A solved :class:`_Problem`: the parameters, the scaled innovations, their Jacobian and the criterion."""
@@ -257,7 +252,7 @@ class PredictionErrorFit:
     @property
     def cost(self) -> float:
         """The sum of the squared scaled innovations."""
-        return _sum_of_squares(self.residuals)
+        return sum_squares(self.residuals)
 
     def values(self) -> dict[str, float]:
         a, b, c, bias, phi, lr = self.problem.unpack(self.x)
@@ -309,7 +304,7 @@ def solve_prediction_error(recordings: Sequence[Recording], segments: Sequence[S
         for lr in ratios if disturbance else (0.0,):
             x = problem.pack(a0, b0, c0, bias0, phi, lr)
             r = problem.innovations(x)
-            cost = _sum_of_squares(r)
+            cost = sum_squares(r)
             if cost < best_cost:
                 best, best_cost = x, cost
     assert best is not None
@@ -431,7 +426,7 @@ def _covariance(fit: PredictionErrorFit) -> tuple[np.ndarray, str]:
         use = [j for j in use if j != problem.pole_index]
     lead = [j for j in use if j < keep]
     r = fit.residuals
-    s2 = _sum_of_squares(r) / max(len(r) - len(use), 1)
+    s2 = sum_squares(r) / max(len(r) - len(use), 1)
     cov_used, method = robust_covariance(jac[:, use], r, s2, len(lead))
     cov = np.diag(np.full(keep, math.inf))
     for i, ji in enumerate(lead):

@@ -33,6 +33,7 @@ from motorsim.recording import Recording
 from .data import as_recordings
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .sums import dot
 from .validation import fit_percent
 
 __all__ = ["regression_rows", "solve_least_squares", "fit_euler_ls", "fit_zoh_ls"]
@@ -64,7 +65,7 @@ def solve_least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.nd
         raise NotIdentifiableError(f"recording is too short: {n} regression rows for {p} parameters; "
                                    "record more samples")
     cols = [np.ascontiguousarray(A[:, j], dtype=float) for j in range(p)]
-    scale = np.sqrt([_dot(c, c) for c in cols])
+    scale = np.sqrt([dot(c, c) for c in cols])
     if np.any(scale == 0):
         which = ["speed", "input"][int(np.flatnonzero(scale == 0)[0])] if p == 2 else "a regressor"
         raise NotIdentifiableError(f"{which} is identically zero: the input is not persistently exciting "
@@ -74,20 +75,15 @@ def solve_least_squares(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.nd
     if not sv[-1] > 0 or sv[-1] / sv[0] < 1e-10:
         raise NotIdentifiableError("regressors are (nearly) collinear: the input is not persistently exciting "
                                    "(use a sine, multisine or PRBS that moves the motor)")
-    x = np.linalg.solve(r, [_dot(qj, y) for qj in q]) / scale
+    x = np.linalg.solve(r, [dot(qj, y) for qj in q]) / scale
     resid = np.array(y, dtype=float)
     for c, xj in zip(cols, x):
         resid -= xj * c
-    rss = _dot(resid, resid)
+    rss = dot(resid, resid)
     # cov = s^2 (A^T A)^{-1} = s^2 (R^T R)^{-1} of the scaled A (no explicit inverse of A^T A)
     r_inv = np.linalg.inv(r)
     cov = rss / max(n - p, 1) * (r_inv @ r_inv.T) / np.outer(scale, scale)
     return x, cov, math.sqrt(rss / n)
-
-
-def _dot(x: np.ndarray, y: np.ndarray) -> float:
-    """``x . y`` by numpy's own loop: a multi-threaded BLAS ``dot`` is many times slower on a busy machine."""
-    return float(np.einsum("i,i->", x, y))
 
 
 def _thin_qr(columns: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
@@ -104,10 +100,10 @@ def _thin_qr(columns: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
         v = v.copy()
         for _ in range(2):
             for i, qi in enumerate(q):
-                c = _dot(qi, v)
+                c = dot(qi, v)
                 r[i, j] += c
                 v -= c * qi
-        r[j, j] = math.sqrt(_dot(v, v))
+        r[j, j] = math.sqrt(dot(v, v))
         q.append(v / r[j, j] if r[j, j] > 0 else v)
     return q, r
 

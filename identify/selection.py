@@ -72,6 +72,7 @@ from .estimate import Estimate
 from .feedback import ClosedLoopFit, feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
 from .selection_report import SelectionReport
+from .sums import sum_squares
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 
@@ -135,7 +136,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     keep = np.sqrt(np.einsum("ij,ij->j", G, G)) > 1e-9 * np.sqrt(np.einsum("ij,ij->j", J, J)).max(initial=1.0)
     G = G[:, keep]
     k = G.shape[1]
-    rss = float(np.einsum("i,i->", r, r))
+    rss = sum_squares(r)
     if k == 0 or rss == 0:
         return 1.0, 0.0
     step = G @ np.linalg.lstsq(G, r, rcond=None)[0]

@@ -29,6 +29,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from .comparison import BLOCKS, CLOSE, LEVEL, statistic
+from .sums import sum_squares
 
 __all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "search_static_level", "stiction_evident",
            "MAX_LEVELS", "WIDE_LEVELS", "WIDE_REFITS",
@@ -210,7 +211,7 @@ def stiction_evident(problem: _Problem, x: np.ndarray, refit: Callable[[Any, np.
 
 
 def _cost_of(result: Any) -> float:
-    value = float(np.einsum("i,i->", result.fun, result.fun))
+    value = sum_squares(result.fun)
     return value if math.isfinite(value) and np.all(np.isfinite(result.x)) and result.x[0] > 1e-8 else math.inf
 
 

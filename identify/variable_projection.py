@@ -33,6 +33,7 @@ from motorsim.recursion import first_order_filter
 
 from .data import Segment, first_rows
 from .sensitivity import phi_functions
+from .sums import dot
 
 __all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
            "regression_start", "static_gain_ceiling"]
@@ -54,11 +55,10 @@ MAX_ITERATIONS = 30
 
 
 def _dot(x: np.ndarray, y: np.ndarray) -> float:
-    """``x . y``; long vectors by numpy's own loop, as a multi-threaded BLAS ``dot`` is many times slower
-    on a busy machine (short ones stay on one thread)."""
+    """``x . y``; long vectors by :func:`identify.sums.dot` (short ones stay on one BLAS thread)."""
     if len(x) < _BLAS_BELOW:
         return float(x.dot(y))
-    return float(np.einsum("i,i->", x, y))
+    return dot(x, y)
 
 
 _BLAS_BELOW = 4096
