@@ -560,9 +560,9 @@ def _select_widening(recs: list[Recording], structures: Sequence[str] | None, in
     """
     max_delay = MAX_AUTO_DELAY
     widened = False
+    limit = largest_delay(recs, LARGEST_DELAY)
     while True:
         top = max(largest_delay(recs, max_delay), declared_input_delay(recs))
-        limit = largest_delay(recs, LARGEST_DELAY)
         selection = select_model(recs, structures=structures, input_delay=input_delay, max_delay=max_delay,
                                  fix_bias=fix_bias, screen=screen, widening=top < limit)
         if input_delay != "auto":
