@@ -239,10 +239,14 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
 def _checked_covariance(model: PlantModel, covariance: np.ndarray) -> np.ndarray:
     """``covariance`` as a finite 2 x 2 array over ``(a, b)`` or 3 x 3 over ``(a, b, electrical_time_constant)``
     (the latter only for a model with an electrical time constant)."""
-    cov = np.asarray(covariance, dtype=float)
+    try:
+        cov = np.asarray(covariance, dtype=float)
+    except (TypeError, ValueError):
+        cov = np.full(0, math.nan)
     if cov.shape not in ((2, 2), (3, 3)) or not np.all(np.isfinite(cov)):
+        found = f"shape {cov.shape}" if cov.shape not in ((2, 2), (3, 3)) else "non-finite entries"
         raise ParameterError(f"covariance must be a finite 2 x 2 array of (a, b), or 3 x 3 of (a, b, "
-                             f"electrical_time_constant), got shape {cov.shape}")
+                             f"electrical_time_constant), got {found if cov.size else repr(covariance)}")
     if len(cov) == 3 and not model.electrical_time_constant > 0:
         raise ParameterError("covariance is 3 x 3 (a, b, electrical_time_constant) but the model has no electrical "
                              "time constant to draw around (electrical_time_constant="

@@ -106,6 +106,11 @@ def test_robust_design_refuses_a_controller_without_a_knob_and_a_bad_covariance(
                       rng=np.random.default_rng(0))
     with pytest.raises(ParameterError, match="covariance"):
         draw_models(MODELS[0], np.eye(3), 5, np.random.default_rng(0))
+    # not numbers, or not finite: the parameter and what it got, not numpy's own error
+    with pytest.raises(ParameterError, match="covariance must be .* got 'x'"):
+        draw_models(MODELS[0], "x", 5, np.random.default_rng(0))
+    with pytest.raises(ParameterError, match="covariance must be .* got non-finite entries"):
+        draw_models(MODELS[0], np.full((2, 2), np.nan), 5, np.random.default_rng(0))
 
 
 class _StillRunning(Exception):
