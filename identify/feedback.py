@@ -113,11 +113,14 @@ def feedback_share(recording: Recording) -> float:
         The squared canonical correlation, in [0, 1]; nan when the run is too short, or either innovation
         vanishes (a constant duty: nothing to test).
     """
-    recording = recording.slice(0, min(len(recording), SCAN_ROWS))
-    n_all = len(recording)
-    if n_all < MIN_STRETCH:
+    n_all = min(len(recording), SCAN_ROWS)
+    h = recording.sample_period
+    angle = recording.measured_angle(slice(0, n_all))
+    output = angle if angle is not None else (recording.speed[:n_all] if recording.speed is not None else None)
+    if output is None or n_all < MIN_STRETCH:
         return math.nan
-    index = sample_index(recording)
+    time = np.asarray(recording.time[:n_all], dtype=float)
+    index = _sample_index(time, np.asarray(recording.seq[:n_all], dtype=np.int64), h)
     cuts = np.flatnonzero(np.diff(index) != 1) + 1
     stretches, used = [], 0
     for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), n_all]):
@@ -130,23 +133,18 @@ def feedback_share(recording: Recording) -> float:
     if not stretches:
         return math.nan
     first, last = stretches[0][0], stretches[-1][1]
-    time = np.asarray(recording.time[first:last], dtype=float)
-    delta = clock_deviation(time, index[first:last], recording.sample_period)
-    u_all = np.asarray(recording.duty[first:last], dtype=float)
-    output = recording.measured_angle(slice(first, last))
-    if output is None and recording.speed is not None:
-        output = recording.speed[first:last]
-    if output is None:
-        return math.nan
+    delta = np.zeros(n_all)
+    delta[first:last] = clock_deviation(time[first:last], index[first:last], h)
+    u_all = np.asarray(recording.duty[:n_all], dtype=float)
     y_all = np.asarray(output, dtype=float)
     blocks = []
     for lo, hi in stretches:
-        u, y, d = u_all[lo - first:hi - first], y_all[lo - first:hi - first], delta[lo - first:hi - first]
+        u, y = u_all[lo:hi], y_all[lo:hi]
         X = np.empty((hi - lo - INPUT_LAGS, 2 * INPUT_LAGS + 1))   # row k: u and y at k-L ... k-1, and 1
         X[:, :INPUT_LAGS] = sliding_window_view(u[:-1], INPUT_LAGS)
         X[:, INPUT_LAGS:-1] = sliding_window_view(y[:-1], INPUT_LAGS)
         X[:, -1] = 1.0
-        blocks.append((X, _clock_columns(d, u), u[INPUT_LAGS:], y[INPUT_LAGS:]))
+        blocks.append((X, _clock_columns(delta[lo:hi], u), u[INPUT_LAGS:], y[INPUT_LAGS:]))
     X = np.vstack([blk[0] for blk in blocks])
     clock = np.vstack([blk[1] for blk in blocks])
     clock = clock[:, np.any(clock != 0, axis=0)]           # a regular clock explains nothing: no columns
@@ -186,7 +184,7 @@ SILENT_DUTY = 1e-9
 
 
 def sample_index(recording: Recording) -> np.ndarray:
-    """Each row's sample number: ``seq``, with a sample the time column shows lost counted as lost too.
+    """Each row's sample number, from 0: ``seq``, with a sample the time column shows lost counted as lost too.
 
     A step of ``seq`` counts as it says; an interval of :data:`LOST_SAMPLE_INTERVAL` sample periods or
     longer counts as the whole periods it holds, when that is more (a file without ``seq`` that lost samples)
@@ -200,10 +198,15 @@ def sample_index(recording: Recording) -> np.ndarray:
     >>> sample_index(rec).tolist()
     [0, 1, 3, 4]
     """
-    seq = np.asarray(recording.seq, dtype=np.int64)
+    return _sample_index(np.asarray(recording.time, dtype=float), np.asarray(recording.seq, dtype=np.int64),
+                         recording.sample_period)
+
+
+def _sample_index(time: np.ndarray, seq: np.ndarray, sample_period: float) -> np.ndarray:
+    """:func:`sample_index` of the columns ``time`` and ``seq``."""
     if len(seq) < 2:
         return seq - seq[:1]
-    periods = np.diff(np.asarray(recording.time, dtype=float)) / recording.sample_period
+    periods = np.diff(time) / sample_period
     if periods.min() <= 2 - LOST_SAMPLE_INTERVAL:
         return seq - seq[0]
     lost = np.where(periods >= LOST_SAMPLE_INTERVAL, np.rint(periods), 1).astype(np.int64)
