@@ -135,6 +135,8 @@ def feedback_share(recording: Recording) -> float:
     first, last = stretches[0][0], stretches[-1][1]
     delta = np.zeros(n_all)
     delta[first:last] = clock_deviation(time[first:last], index[first:last], h)
+    if not np.max(np.abs(delta)) > REGULAR_CLOCK:
+        delta[:] = 0.0                                     # the arithmetic of a regular time column
     u_all = np.asarray(recording.duty[:n_all], dtype=float)
     y_all = np.asarray(output, dtype=float)
     blocks = []
@@ -179,6 +181,9 @@ RATE_SPAN = 2
 #: ... and how many such rates, ending at the last samples, the clock's deviations multiply: the rate and its
 #: change, which carry a smooth waveform's rate one sample on.
 RATES = 2
+#: Deviations from a regular clock all below this many sample periods are the arithmetic of the time column
+#: (``k * h`` in floating point), not a clock's: they are taken as none.
+REGULAR_CLOCK = 1e-6
 #: A duty's innovation this small against the duty (root mean squares) is the arithmetic's rounding.
 SILENT_DUTY = 1e-9
 
