@@ -4,7 +4,7 @@ A right model gives the same ``a`` and ``b`` on every part of its recording; a m
 registered structure (a warming motor, asymmetric gains, a load switched on, ...) does not, whatever was
 chosen.  The plants are known exactly: the right ones simulated by the bench (an exact ZOH), the ones past
 the structures integrated by ``motorid.bench.misfits`` (checked here against python-control's own
-simulation on the linear motor).  The rule for every plant past the structures is the issue's: the default
+simulation on the linear motor).  The rule for every plant past the structures: the default
 never calls a choice clear with an interval that misses the truth (or the range it spans).
 """
 import json
