@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 EXTRAS ?= test,dask,lint,fast,docs,ros,wpilib
 
-.PHONY: demo test test-fast lint docs venv clean
+.PHONY: demo test test-fast test-realtime lint docs venv clean
 
 # Reinstalled when the dependencies (pyproject.toml) or the extras (this file) change.
 $(STAMP): pyproject.toml Makefile
@@ -30,6 +30,11 @@ test: $(STAMP)
 # Everything but the tests marked slow or firmware (pyproject.toml lists the markers).
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow and not firmware"
+
+# The tests that run the emulated rigs against the wall clock (marker realtime): they show the
+# host keeping up with the firmware's real deadlines, so they need an idle machine; not in `test`.
+test-realtime: $(STAMP)
+	$(BIN)/python -m pytest -q -m realtime --realtime
 
 # ruff and mypy, configured in pyproject.toml; any finding fails.
 lint: $(STAMP)
