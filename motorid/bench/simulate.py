@@ -84,7 +84,7 @@ def _friction_paths(n: int, repeats: int) -> bool:
     if kernel is None:
         t_py, = interleaved_times([lambda: run(friction_run_python)], repeats)
         print(f"friction loop (Python)   {n / t_py / 1e6:10.2f} M samples/s  ({t_py * 1e3:.2f} ms); numba not "
-              "installed (motorid[fast])")
+              "loaded (MOTORID_NUMBA=0, or not installed)")
         return True
     t_py, t_nb = interleaved_times([lambda: run(friction_run_python), lambda: run(kernel)], repeats)
     slow, fast = run(friction_run_python), run(kernel)
