@@ -166,6 +166,9 @@ def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
         yield view[:kept]
 
 
+_THREADS = False
+
+
 def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
     """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
 
@@ -180,7 +183,7 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int
         import pyarrow.csv
     except ImportError:
         return None
-    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=True)
+    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=_THREADS)
     convert_options = pyarrow.csv.ConvertOptions(
         column_types={h: pyarrow.int64() if h in INTEGER_COLUMNS else pyarrow.float64() for h in header},
         null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
