@@ -30,8 +30,8 @@ it starts), with ``Q = 0`` there is none (the fit is then an output-error fit wi
 settles on the measured trajectory).  Without
 friction (``friction=False``) ``c = 0``.
 
-The filter's pass over the samples is compiled by numba when it is installed (the optional
-extra ``fast``); without it the same function runs in Python, slower, with the same numbers.
+The filter's pass over the samples is compiled by numba (a dependency where it has wheels); without
+it, or with ``MOTORID_NUMBA=0``, the same function runs in Python, slower, with the same numbers.
 """
 from __future__ import annotations
 

@@ -180,7 +180,7 @@ def kernel_path(request, monkeypatch):
     from motorsim import compiled
     if request.param == "numba":
         if compiled.compiled_kernel() is None:
-            pytest.skip("numba is not installed (the optional 'fast' extra)")
+            pytest.skip("numba is not installed or MOTORID_NUMBA=0")
         monkeypatch.setattr(compiled, "COMPILE_AFTER", 0)
     else:
         monkeypatch.setattr(compiled, "COMPILE_AFTER", 10 ** 18)
