@@ -72,11 +72,24 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
 #: Largest relative difference of the sample periods of recordings pooled at one period (the tests of one
 #: routine on one loop differ by microseconds: their medians of a jittered clock).
 POOL_PERIOD_RTOL = 0.005
+#: ... or, when every recording's clock jitters, by at most the least of their jitters (half their intervals'
+#: range), up to this share: their medians move within it.
+POOL_PERIOD_JITTER_LIMIT = 0.05
+
+
+def _jitter(rec: Recording) -> float:
+    """Half the range of a non-uniform clock's intervals relative to its period (0 on a uniform clock), at most
+    :data:`POOL_PERIOD_JITTER_LIMIT`: medians of such clocks differ by as much without being other rates."""
+    try:
+        low, high = float(rec.metadata["time_step_min"]), float(rec.metadata["time_step_max"])
+    except (KeyError, ValueError):
+        return 0.0
+    return min(POOL_PERIOD_JITTER_LIMIT, max(0.0, (high - low) / 2 / rec.sample_period))
 
 
 def _common_period(recs: list[Recording]) -> list[Recording]:
     """``recs`` at one sample period: their own when they share it; when they differ by at most
-    :data:`POOL_PERIOD_RTOL`, the median of the periods weighted by samples (said by a warning when they
+    :data:`POOL_PERIOD_RTOL` (or the least jitter of their clocks, :func:`_jitter`), the median of the periods weighted by samples (said by a warning when they
     differ by more than 1e-6 of it); refused beyond."""
     dts = sorted({r.sample_period for r in recs})
     if len(dts) == 1:
@@ -87,8 +100,9 @@ def _common_period(recs: list[Recording]) -> list[Recording]:
     cumulative = np.cumsum(weights[order])
     common = float(periods[order][np.searchsorted(cumulative, cumulative[-1] / 2)])
     spread = max(abs(dts[0] / common - 1), abs(dts[-1] / common - 1))
-    if spread > POOL_PERIOD_RTOL:
-        raise ParameterError(f"recordings must share one sample_period (within {100 * POOL_PERIOD_RTOL:g} %) to be "
+    if spread > max(POOL_PERIOD_RTOL, min(_jitter(r) for r in recs)):
+        raise ParameterError(f"recordings must share one sample_period (within {100 * POOL_PERIOD_RTOL:g} %, or "
+                             "the jitter of their clocks) to be "
                              f"pooled, got {[float(f'{d:.6g}') for d in dts]} s: resample them to one rate first")
     if spread > 1e-6:
         warnings.warn(f"the recordings' sample periods differ by up to {100 * spread:.2g} % ({dts[0]:.6g} to "
