@@ -23,7 +23,8 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "check_speed_agrees", "check_constant_input_runs", "ConstantInputTurnWarning", "check_output_moves", "check_input_changes",
+           "check_speed_agrees", "check_constant_input_runs", "ConstantInputTurnWarning", "check_output_moves",
+           "check_input_changes", "POOL_PERIOD_RTOL",
            "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
            "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
@@ -89,8 +90,9 @@ def _jitter(rec: Recording) -> float:
 
 def _common_period(recs: list[Recording]) -> list[Recording]:
     """``recs`` at one sample period: their own when they share it; when they differ by at most
-    :data:`POOL_PERIOD_RTOL` (or the least jitter of their clocks, :func:`_jitter`), the median of the periods weighted by samples (said by a warning when they
-    differ by more than 1e-6 of it); refused beyond."""
+    :data:`POOL_PERIOD_RTOL` (or the least jitter of their clocks, :func:`_jitter`), the median of the
+    periods weighted by samples (said by a warning when they differ by more than 1e-6 of it); refused
+    beyond."""
     dts = sorted({r.sample_period for r in recs})
     if len(dts) == 1:
         return recs

@@ -78,6 +78,22 @@ def with_encoder(estimate: Estimate, recordings: Sequence[Recording]) -> Estimat
     return dataclasses.replace(estimate, counts_per_rev=found.pop())
 
 
+def _refuse_inner_outliers(found: list[list[int]], recs: Sequence[Recording], reason: str) -> str:
+    """Refuse the outliers inside runs (:class:`CorruptedSamplesError`); those at a run's start are said (a
+    :class:`RunStartWarning`) and left to be dropped: returns the reason they are dropped for."""
+    inner = [[k for k in rows if not _at_run_start(recs[i], k)] for i, rows in enumerate(found)]
+    if any(inner):
+        i = next(k for k, rows in enumerate(inner) if rows)
+        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in inner[i]), reason, recs[i].name(i))
+    for i, rows in enumerate(found):
+        if rows:
+            seqs = ", ".join(str(int(recs[i].seq[k])) for k in rows)
+            warnings.warn(f"{recs[i].name(i)}: the first samples of a run (seq {seqs}) stand out from the fit "
+                          "(a logger's or a speed filter's start-up?): left out of it as gaps",
+                          RunStartWarning, stacklevel=3)
+    return f"{reason}, at the start of a run: a logger's start-up?"
+
+
 @dataclasses.dataclass(frozen=True)
 class ScreenedFit:
     """The estimate, the recordings it was fitted on (corrupted rows dropped), and what was dropped."""
@@ -178,17 +194,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     found = _confirmed(found, recs, estimator, options)
     reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
     if outliers == "refuse":
-        inner = [[k for k in rows if not _at_run_start(recs[i], k)] for i, rows in enumerate(found)]
-        if any(inner):
-            i = next(k for k, rows in enumerate(inner) if rows)
-            raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in inner[i]), reason, recs[i].name(i))
-        reason = f"{reason}, at the start of a run: a logger's start-up?"
-        for i, rows in enumerate(found):     # a run's first samples: said and left out, not called corrupted
-            if rows:
-                seqs = ", ".join(str(int(recs[i].seq[k])) for k in rows)
-                warnings.warn(f"{recs[i].name(i)}: the first samples of a run (seq {seqs}) stand out from the fit "
-                              "(a logger's or a speed filter's start-up?): left out of it as gaps",
-                              RunStartWarning, stacklevel=2)
+        reason = _refuse_inner_outliers(found, recs, reason)
     for i, rows in enumerate(found):
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))
