@@ -460,13 +460,7 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
             notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
                          "states")
     if "time" in defaulted and "time" in cols:
-        doubt = _time_unit_doubt(specs["time"], cols["time"])
-        if doubt:
-            problems.append(doubt)
-        else:
-            notes.append(f"the time column {specs['time'].column!r} has no unit: read in s, as its intervals "
-                         f"(median {_median_interval(cols['time']):.6g}) leave no doubt; give --time "
-                         f"{specs['time'].column}:UNIT if they are not seconds")
+        _time_unit_inferred(specs["time"], cols["time"], problems, notes)
     if not problems:
         problems += _counts_problems(table, specs, cols, counts_per_rev)
     if "time" in cols and specs["time"].unit is not None:
@@ -499,6 +493,17 @@ def _time_unit_doubt(spec: ColumnSpec, t: np.ndarray) -> str | None:
     return (f"the time column {spec.column!r} has no unit and the file does not state one; its median interval "
             f"{step:.6g} leaves it in doubt ({step:.6g} s, or ms, or us?): give --time {spec.column}:UNIT with "
             "UNIT one of s, ms, us")
+
+
+def _time_unit_inferred(spec: ColumnSpec, t: np.ndarray, problems: list[str], notes: list[str]) -> None:
+    """A time column read in s by default: a problem when its intervals leave that in doubt, else a note."""
+    doubt = _time_unit_doubt(spec, t)
+    if doubt:
+        problems.append(doubt)
+    else:
+        notes.append(f"the time column {spec.column!r} has no unit: read in s, as its intervals (median "
+                     f"{_median_interval(t):.6g}) leave no doubt; give --time {spec.column}:UNIT if they are not "
+                     "seconds")
 
 
 def shift_input(rec: Recording, rows: int) -> Recording:
