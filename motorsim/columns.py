@@ -470,7 +470,7 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     for note in notes:                 # said once the file is accepted
         warnings.warn(note, UserWarning, stacklevel=2)
     rec = _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
-    return shift_input(rec, input_shift) if input_shift else rec
+    return shift_input(rec, input_shift)
 
 
 #: The median interval (in the column's own numbers) below which a time column without a unit is read in s with
