@@ -440,26 +440,8 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     else:
         table = read_table(path)
     problems += _shared_columns(table, specs)
-    cols = {}
-    defaulted = set()
-    notes: list[str] = []
-    for quantity, spec in list(specs.items()):
-        try:
-            cols[quantity] = table.column(spec)
-        except ImportFormatError as exc:
-            problems.append(str(exc))
-            continue
-        resolved, source = _resolve_unit(table, spec)
-        if resolved is None:
-            problems.append(source)
-            continue
-        specs[quantity] = resolved
-        if source == "default":
-            defaulted.add(quantity)
-        elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
-            notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
-                         "states")
-    if "time" in defaulted and "time" in cols:
+    cols, defaulted, notes = _columns_read(table, specs, problems)
+    if "time" in defaulted:
         _time_unit_inferred(specs["time"], cols["time"], problems, notes)
     if not problems:
         problems += _counts_problems(table, specs, cols, counts_per_rev)
@@ -493,6 +475,32 @@ def _time_unit_doubt(spec: ColumnSpec, t: np.ndarray) -> str | None:
     return (f"the time column {spec.column!r} has no unit and the file does not state one; its median interval "
             f"{step:.6g} leaves it in doubt ({step:.6g} s, or ms, or us?): give --time {spec.column}:UNIT with "
             "UNIT one of s, ms, us")
+
+
+def _columns_read(table: Table, specs: dict[str, ColumnSpec], problems: list[str]
+                  ) -> tuple[dict[str, np.ndarray], set[str], list[str]]:
+    """Each named column, its unit resolved into ``specs``: the columns, the quantities left to their default
+    unit, and the notes to say once the file is accepted; every problem appended to ``problems``."""
+    cols = {}
+    defaulted = set()
+    notes: list[str] = []
+    for quantity, spec in list(specs.items()):
+        try:
+            cols[quantity] = table.column(spec)
+        except ImportFormatError as exc:
+            problems.append(str(exc))
+            continue
+        resolved, source = _resolve_unit(table, spec)
+        if resolved is None:
+            problems.append(source)
+            continue
+        specs[quantity] = resolved
+        if source == "default":
+            defaulted.add(quantity)
+        elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
+            notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
+                         "states")
+    return cols, defaulted, notes
 
 
 def _time_unit_inferred(spec: ColumnSpec, t: np.ndarray, problems: list[str], notes: list[str]) -> None:
