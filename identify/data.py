@@ -377,8 +377,12 @@ def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
         raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
                                    "use a sine, multisine or PRBS")
     if constant:
-        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
-                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+        unit = recordings[0].input_unit
+        raise NotIdentifiableError(f"input is constant ({duty[0]:g} {unit} throughout): it is not persistently "
+                                   "exciting, a and b cannot be separated (a step recorded from its first sample, "
+                                   "such as SysId's dynamic test alone, holds no input before it: pool it with the "
+                                   "routine's other tests, or record from before the step); use a sine, "
+                                   "multisine or PRBS")
     return duty
 
 
