@@ -204,7 +204,9 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
              + ("a clear choice" if selection.clear else "NOT a clear choice (see the note)")]
     other = selection.runner_up
     if other:
-        if other.within_noise:
+        if other.within_noise and selection.clear:      # the intervals hold it: no contradiction of "clear"
+            words = "fits as well, its a and b within the chosen one's intervals: either gives the same answer"
+        elif other.within_noise:
             words = "the data cannot tell it from the chosen one"
         else:
             words = f"fits worse by {other.statistic:.3g} noise units (the test's threshold is about 11)"
