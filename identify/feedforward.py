@@ -101,10 +101,10 @@ def apart(value: float, low: float, high: float, digits: int = 4) -> tuple[str, 
     ('0.12', '0.11995', '0.12005')
     """
     for n in range(digits, 11):
-        shown = tuple(f"{x:.{n}g}" for x in (value, low, high))
-        if (shown[0] != shown[1] or value == low) and (shown[0] != shown[2] or value == high):
-            return shown
-    return shown
+        v, lo, hi = (f"{x:.{n}g}" for x in (value, low, high))
+        if (v != lo or value == low) and (v != hi or value == high):
+            break
+    return v, lo, hi
 
 
 def _ratio_range(top: tuple[float, float], bottom: tuple[float, float]) -> tuple[float, float]:
