@@ -482,7 +482,11 @@ def _turn(w: np.ndarray) -> tuple[float, float, float]:
     """The rise and fall of a run's speed smoothed over :data:`RUN_SMOOTHING` of it, and the noise they
     are judged against (:data:`RUN_NOISE_FACTOR` smoothed standard deviations, or two rounding steps)."""
     width = max(1, int(len(w) * RUN_SMOOTHING))
-    smooth = np.convolve(w, np.full(width, 1.0 / width), mode="valid") if width > 1 else w
+    if width > 1:                     # a running mean by cumulative sums: linear in the run, whatever its width
+        total = np.concatenate([[0.0], np.cumsum(w - w[0])])
+        smooth = (total[width:] - total[:-width]) / width + w[0]
+    else:
+        smooth = w
     rise = float(np.max(smooth - np.minimum.accumulate(smooth)))
     fall = float(np.max(np.maximum.accumulate(smooth) - smooth))
     sigma, step = _run_noise(w)
