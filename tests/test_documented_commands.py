@@ -96,6 +96,7 @@ def documented_commands() -> list[tuple[str, str]]:
     for doc in DOCS:
         for number, line in _blocks(doc.read_text(encoding="utf-8")):
             line = line[2:] if line.startswith("$ ") else line
+            line = line.removeprefix(".venv/bin/")          # the README's tour, runnable as pasted in a clone
             if not line.startswith(("motorid ", "make ")):
                 continue
             code = re.split(r"\s+#\s", line, maxsplit=1)[0]
