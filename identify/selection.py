@@ -574,8 +574,8 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
 
 def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
     """An answer whose intervals say nothing is no clear choice: a zero standard error from data with a residual
-    (a degenerate covariance: the interval made infinite) or an interval wider than the value itself (a ramp, a
-    few steps: the run does not determine it)."""
+    (a degenerate covariance: the interval made infinite) or the chosen fit's own 95 % interval wider than the
+    value itself (a ramp, a few steps: the run does not determine it)."""
     se = est.stderr()
     exact = [n for n in ("a", "b") if se[n] == 0 and est.residual_rms > 0]
     if exact:
@@ -586,8 +586,9 @@ def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Se
             f"the chosen fit's covariance is degenerate (a zero standard error for {' and '.join(exact)} from data "
             "with a residual), so it gives no interval; " + (selection.doubt or "a richer input (several "
                                                              "frequencies, a step) would pin them down")))
-    wide = [n for n, (low, high) in est.confidence_interval(0.95).items() if n in ("a", "b") and
-            math.isfinite(se[n]) and (high - low) / 2 > abs(est.value(n))]
+    # the chosen fit's own interval (not the range of candidates the data cannot rule out, which may be a richer
+    # structure's wide one around a well-determined answer)
+    wide = [n for n in ("a", "b") if math.isfinite(se[n]) and 1.959963984540054 * se[n] > abs(est.value(n))]
     if wide and not exact:
         # an interval wider than the value itself (a ramp, a few steps): the run does not determine it
         ci = est.confidence_interval(0.95)
