@@ -168,7 +168,7 @@ def _quiet_broken_pipe() -> int:
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning as the command line shows it: ``motorid: warning: ...`` on stderr."""
     from motorid.arguments import print_to_stderr
-    print_to_stderr(f"motorid: warning: {message}")
+    print_to_stderr(f"motorid: warning: {' '.join(str(message).split())}")
 
 
 def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -> int:
@@ -206,7 +206,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:
         from motorid.interrupts import signals_as_interrupts
-        with signals_as_interrupts() as checkpoint:
+        from motorid.terminal import printable_output
+        with signals_as_interrupts() as checkpoint, printable_output():
             return _parse_and_run(argv, checkpoint)
     except KeyboardInterrupt as exc:
         from motorid.interrupts import describe_interrupt, exit_status
@@ -218,7 +219,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _say(line: str) -> None:
     try:
-        print(line, file=sys.stderr, flush=True)
+        from motorsim.text import printable
+        print(printable(line), file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
 
