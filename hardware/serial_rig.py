@@ -680,7 +680,8 @@ class _RunState:
             meta["incomplete_reason"] = " ".join(reason.split())
         if rig.device is not None:
             d = rig.device
-            meta.update(board=printable(d.board) or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
+            meta.update(board=printable(d.board) or "?",
+                        firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
         meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
