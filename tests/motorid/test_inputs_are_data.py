@@ -116,3 +116,124 @@ def test_commands_print_under_an_ascii_locale(argv, tmp_path):
     # before: "internal error: UnicodeEncodeError: 'ascii' codec can't encode character '\xe9'", exit 1
     assert done.returncode == 0, done.stderr.decode("ascii", "replace")
     assert done.stdout.isascii() and done.stderr.isascii() and b"Error" not in done.stderr
+
+
+# --- a .mat file: only the file named is read, in a memory the file can honestly fill ------------------------
+
+_V73_HEADER = (b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+               .ljust(116) + b"\x00" * 8 + b"\x00\x02IM")
+
+
+def _v73(path, fill):
+    """A MATLAB v7.3 file (HDF5 behind MATLAB's 512-byte header) with t, u and what ``fill`` adds."""
+    h5py = pytest.importorskip("h5py")
+    import numpy as np
+    with h5py.File(path, "w", userblock_size=512) as f:
+        f["t"] = (np.arange(100) * 0.01)[None, :]
+        f["u"] = np.ones((1, 100))
+        fill(f, h5py, np)
+    with open(path, "r+b") as f:
+        f.write(_V73_HEADER)
+    return path
+
+
+def _import(path, out):
+    return main(["import", str(path), "--time", "t", "--input", "u:duty", "--speed", "y:rad/s", "--out", str(out)])
+
+
+def test_a_mat_variable_linked_to_another_file_is_refused_not_followed(tmp_path, capsys):
+    import numpy as np
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(tmp_path / "other.h5", "w") as g:
+        g["data"] = (np.arange(100.0) * 7)[None, :]
+    path = _v73(tmp_path / "link.mat", lambda f, h5py, np: f.__setitem__(
+        "y", h5py.ExternalLink(str(tmp_path / "other.h5"), "/data")))
+    # before: exit 0, the other file's values copied into the recording
+    assert _import(path, tmp_path / "o.csv") == 2
+    line = _error(capsys)
+    assert "the variable 'y' is a link to another file" in line and "reads only the file it is given" in line
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_mat_variable_stored_in_another_file_is_refused_not_read(tmp_path, capsys):
+    import numpy as np
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(np.arange(100, dtype="<f8").tobytes())
+    path = _v73(tmp_path / "external.mat", lambda f, h5py, np: f.create_dataset(
+        "y", shape=(100, 1), dtype="<f8", external=[(str(secret), 0, 800)]))
+    assert _import(path, tmp_path / "o.csv") == 2              # before: exit 0, the secret file's bytes imported
+    line = _error(capsys)
+    assert "the variable 'y' keeps its values in another file" in line and "external storage" in line
+
+
+def test_a_mat_virtual_dataset_over_another_file_is_refused(tmp_path, capsys):
+    import numpy as np
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(tmp_path / "other.h5", "w") as g:
+        g["data"] = np.arange(100.0)
+
+    def fill(f, h5py, np):
+        layout = h5py.VirtualLayout(shape=(100,), dtype="<f8")
+        layout[:] = h5py.VirtualSource(str(tmp_path / "other.h5"), "data", shape=(100,))
+        f.create_virtual_dataset("y", layout)
+    assert _import(_v73(tmp_path / "virtual.mat", fill), tmp_path / "o.csv") == 2
+    assert "virtual dataset" in _error(capsys)
+
+
+def test_a_v73_decompression_bomb_is_refused_by_its_claimed_size(tmp_path, capsys):
+    # 4 kB of file claiming 2.4 GB of zeros (chunks never written: the fill value); before: 7 GB of memory
+    path = _v73(tmp_path / "bomb.mat", lambda f, h5py, np: f.create_dataset(
+        "y", shape=(1, 300_000_000), dtype="<f8", chunks=(1, 1 << 20), compression="gzip"))
+    assert _import(path, tmp_path / "o.csv") == 2
+    line = _error(capsys)
+    assert "the variable 'y' claims 1x300000000 values of 8 bytes" in line and "decompression bomb" in line
+
+
+def _v5_bomb(path, n_values, dims):
+    """A v5 .mat file: t and u, then a compressed double variable y of ``dims`` holding ``n_values`` zeros."""
+    import io
+    import struct
+    import zlib
+
+    import numpy as np
+    import scipy.io as sio
+
+    def tag(kind, n):
+        return struct.pack("<II", kind, n)
+    body = (tag(6, 8) + struct.pack("<II", 6, 0) + tag(5, 8) + struct.pack("<ii", *dims)
+            + struct.pack("<HH", 1, 1) + b"y\0\0\0" + tag(9, 8 * n_values))
+    deflate = zlib.compressobj(6)
+    parts = [deflate.compress(tag(14, len(body) + 8 * n_values) + body)]
+    zeros = bytes(1 << 22)
+    for start in range(0, 8 * n_values, len(zeros)):
+        parts.append(deflate.compress(zeros[:min(len(zeros), 8 * n_values - start)]))
+    packed = b"".join(parts) + deflate.flush()
+    head = io.BytesIO()
+    sio.savemat(head, {"t": np.arange(100) * 0.01, "u": np.ones(100)}, do_compression=True)
+    path.write_bytes(head.getvalue() + tag(15, len(packed)) + packed)
+    return path
+
+
+@pytest.mark.parametrize("dims", [(1, 12_000_000), (1, 100)], ids=["claimed", "understated"])
+def test_a_v5_decompression_bomb_is_refused_before_it_is_unpacked(tmp_path, dims, capsys):
+    # 96 MB of zeros packed into about 100 kB: more than 32 x the file and the 64 MiB any file may unpack to
+    path = _v5_bomb(tmp_path / "bomb.mat", 12_000_000, dims)
+    assert path.stat().st_size < 200_000
+    assert _import(path, tmp_path / "o.csv") == 2
+    line = _error(capsys)
+    assert "the variable 'y'" in line and "decompression bomb" in line and str(path) in line
+
+
+def test_an_honest_compressed_mat_file_still_reads(tmp_path):
+    import numpy as np
+    import scipy.io as sio
+
+    from motorsim import read_recording
+    rng = np.random.default_rng(1)
+    n = 200_000
+    t = np.arange(n) * 1e-3
+    sio.savemat(tmp_path / "run.mat", {"t": t, "u": np.where(t > 1, 100.0, 0.0),
+                                       "y": np.round(100 * (1 - np.exp(-np.maximum(t - 1, 0))) + rng.normal(size=n))},
+                do_compression=True)
+    assert _import(tmp_path / "run.mat", tmp_path / "o.csv") == 0
+    assert len(read_recording(tmp_path / "o.csv")) == n
