@@ -237,3 +237,88 @@ def test_an_honest_compressed_mat_file_still_reads(tmp_path):
                 do_compression=True)
     assert _import(tmp_path / "run.mat", tmp_path / "o.csv") == 0
     assert len(read_recording(tmp_path / "o.csv")) == n
+
+
+# --- robot logs: damaged records, sparse files, FIFOs ------------------------------------------------------
+
+def _wpilog(path, n=400):
+    wpiutil = pytest.importorskip("wpiutil", reason="robotpy-wpiutil (the wpilib extra) is not installed")
+    from wpiutil.log import DoubleLogEntry
+    log = wpiutil.DataLogWriter(str(path))
+    volts = DoubleLogEntry(log, "voltage-drive", "Volt", 1_000_000)
+    speed = DoubleLogEntry(log, "velocity-drive", "Rotation per Second", 1_000_000)
+    for k in range(n):
+        volts.append(2.0 if k > 50 else 0.0, 1_000_000 + 5000 * k)
+        speed.append(0.1 * k, 1_000_000 + 5000 * k)
+    log.flush()
+    log.stop()
+    return path
+
+
+def _records(data: bytes):
+    """(offset, entry, payload size, header length) of each record of a .wpilog's bytes."""
+    pos = 12 + int.from_bytes(data[8:12], "little")
+    while pos < len(data):
+        h = data[pos]
+        n_entry, n_size, n_time = (h & 3) + 1, ((h >> 2) & 3) + 1, ((h >> 4) & 7) + 1
+        entry = int.from_bytes(data[pos + 1:pos + 1 + n_entry], "little")
+        size = int.from_bytes(data[pos + 1 + n_entry:pos + 1 + n_entry + n_size], "little")
+        yield pos, entry, size, n_entry
+        pos += 1 + n_entry + n_size + n_time + size
+
+
+def _import_log(path, out):
+    return main(["import", str(path), "--time", "time_s", "--input", "voltage-drive", "--speed", "velocity-drive",
+                 "--out", str(out)])
+
+
+def test_a_wpilog_record_shorter_than_its_type_is_refused_naming_the_byte(tmp_path, capsys):
+    data = bytearray(_wpilog(tmp_path / "good.wpilog").read_bytes())
+    pos, _, _, n_entry = [r for r in _records(bytes(data)) if r[1] != 0][300]
+    data[pos + 1 + n_entry] = 4                                  # a double's record now says 4 bytes
+    (tmp_path / "short.wpilog").write_bytes(bytes(data))
+    # before: "internal error: TypeError: not a double", exit 1
+    assert _import_log(tmp_path / "short.wpilog", tmp_path / "o.csv") == 2
+    assert _error(capsys).endswith(f"byte {pos}: the record of 'voltage-drive' (double) holds 4 bytes, a double "
+                                   "holds 8; a damaged log")
+
+
+@pytest.mark.parametrize("cut", ["3 bytes short", "length past the end"])
+def test_a_wpilog_cut_inside_its_last_record_keeps_the_rest_and_says_so(tmp_path, cut, capsys):
+    from motorsim import read_recording
+    data = bytearray(_wpilog(tmp_path / "good.wpilog").read_bytes())
+    if cut == "3 bytes short":
+        data = data[:-3]
+    else:
+        pos, _, _, n_entry = list(_records(bytes(data)))[-1]
+        data[pos + 1 + n_entry] = 200
+    (tmp_path / "cut.wpilog").write_bytes(bytes(data))
+    assert _import_log(tmp_path / "cut.wpilog", tmp_path / "o.csv") == 0
+    assert "the log ends inside a record" in capsys.readouterr().err     # before: 399 of 400 rows, unsaid
+    assert len(read_recording(tmp_path / "o.csv")) == 399
+
+
+def test_a_sparse_wpilog_is_refused_at_once(tmp_path, capsys):
+    head = _wpilog(tmp_path / "good.wpilog").read_bytes()[:200]
+    for size in (1_200_000_000, 200_000_000):          # over the size a log may have; a file of zeros under it
+        path = tmp_path / f"sparse{size}.wpilog"
+        with open(path, "wb") as f:
+            f.write(head)
+            f.truncate(size)                            # a hole: no disk used
+        assert _import_log(path, tmp_path / "o.csv") == 2   # before: over a minute and a half, then SIGTERM
+        line = _error(capsys)
+        assert ("over the 268435456 bytes it may have" in line if size > 268435456
+                else "a control record with no payload" in line)
+
+
+@pytest.mark.parametrize("name", ["x.wpilog", "x.mcap", "x.db3", "x.mat", "x.csv"])
+def test_a_fifo_given_as_a_file_is_refused_not_waited_on(tmp_path, name, capsys):
+    path = tmp_path / name
+    os.mkfifo(path)
+    if name.endswith(".csv"):
+        argv = ["identify", str(path)]
+    else:
+        argv = ["import", str(path), "--time", "t", "--input", "u:duty", "--speed", "y:rad/s",
+                "--out", str(tmp_path / "o.csv")]
+    assert main(argv) == 2
+    assert "FIFO" in _error(capsys)
