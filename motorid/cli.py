@@ -180,6 +180,7 @@ def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -
     args = build_parser().parse_args(argv)
     checkpoint()                  # an interrupt the imports swallowed is raised here, before the command runs
     try:
+        _check_numbers(args)
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning    # one line, not the source line that warned
             check_outputs(args)
@@ -194,6 +195,23 @@ def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -
     except Exception as exc:
         checkpoint()              # an interrupt that C code turned into this error is raised instead
         return _report_error(exc, args.traceback)
+
+
+#: The largest magnitude of any number flag: past it no quantity of a motor, a run or a design makes sense, and
+#: the arithmetic that follows (squares, products, counts) leaves a float's range or rounds to nothing.
+FLAG_MAGNITUDE = 1e15
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Refuse a number flag that is not finite or past :data:`FLAG_MAGNITUDE` (each command bounds its own
+    flags more narrowly where it knows better); ``--max-memory`` is bytes, and exempt."""
+    import math
+
+    from motorid.arguments import CommandError
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not (math.isfinite(value) and abs(value) <= FLAG_MAGNITUDE):
+            raise CommandError(f"--{name.replace('_', '-')} must be a finite number within +-{FLAG_MAGNITUDE:g}, "
+                               f"got {value!r}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

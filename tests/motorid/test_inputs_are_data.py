@@ -322,3 +322,57 @@ def test_a_fifo_given_as_a_file_is_refused_not_waited_on(tmp_path, name, capsys)
                 "--out", str(tmp_path / "o.csv")]
     assert main(argv) == 2
     assert "FIFO" in _error(capsys)
+
+
+# --- numbers: every flag bounded, no result that silently degenerates --------------------------------------
+
+@pytest.mark.parametrize("flags, said", [
+    (["--controller", "mpc", "--duty-weight", "1e14"], "--duty-weight 1e+14"),
+    (["--controller", "lqr", "--duty-weight", "1e14"], "--duty-weight 1e+14"),
+    (["--controller", "position", "--time-constant", "1e14"], "--time-constant 1e+14"),
+])
+def test_a_tuning_that_leaves_no_feedback_is_refused(flags, said, capsys):
+    # before: exit 0 with every gain 0, "closed-loop poles: none (no feedback ...)" (at 1e308 too, now past the
+    # bound of every number flag)
+    assert main(["control", "design", "--a", "25", "--b", "3", *flags]) == 2
+    line = _error(capsys)
+    assert "the design has no feedback, every gain on the measurement is 0" in line and said in line
+
+
+def test_the_designs_with_their_defaults_keep_their_feedback(capsys):
+    for kind in ("mpc", "lqr", "lqr-integral", "lqr-position", "pi", "position"):
+        assert main(["control", "design", "--a", "25", "--b", "3", "--controller", kind]) == 0
+    assert "no feedback" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["simulate", "--a", "25", "--b", "3", "--initial-speed", "1e308"], "initial_speed must be within +-1e+12"),
+    (["simulate", "--a", "25", "--b", "3", "--angle-noise", "1e308"], "angle_noise must be within +-1e+12"),
+    (["simulate", "--a", "25", "--b", "3", "--count-offset", str(2**62)], "counts must stay within +-2**53"),
+    (["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--duration", "1e308"],
+     "--duration must be a finite number within +-1e+15"),
+])
+def test_a_number_flag_past_any_bench_is_refused(tmp_path, argv, said, capsys):
+    out = ["--duration", "1", "--out", str(tmp_path / "s.csv")] if argv[0] == "simulate" else []
+    # before: exit 0 with counts of -9223372036854775808 (INT64_MIN) in the recording
+    try:
+        status = main([*argv, *out])
+    except SystemExit as stop:         # refused where the flag is parsed
+        status = stop.code
+    assert status == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said in err
+    assert not (tmp_path / "s.csv").exists()
+
+
+def test_robust_draws_are_bounded_and_the_seed_is_checked(model_doc, tmp_path, capsys):
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(model_doc))
+    base = ["control", "design", "--model", str(path), "--controller", "pi", "--robust"]
+    # before: hours of work (100 draws took 34 s here)
+    assert main([*base, "--repetitions", "100000"]) == 2
+    assert "--repetitions must be in 1...1000, got 100000" in _error(capsys)
+    with pytest.raises(SystemExit) as stop:       # before: "internal error: ValueError: expected non-negative integer"
+        main([*base, "--seed", "-1"])
+    assert stop.value.code == 2
+    assert "--seed must be an integer >= 0, got '-1'" in capsys.readouterr().err
