@@ -202,12 +202,18 @@ def _read_bytes(path: str) -> bytes:
         raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
+#: The error values of Excel, LibreOffice and Google Sheets (#N/A, #VALUE!, #DIV/0!, #NAME? ...).
+_SPREADSHEET_ERROR = re.compile(r"#(?:N/A|NA|[A-Z][A-Z0-9_/]*[!?]|GETTING_DATA)(?:[\s,;\t]|$)")
+
+
 def _read_text(path: str) -> Table:
     try:
         text = _read_bytes(path).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and s.lstrip()[0] not in "#%"]
+    # a line starting with # or % is a comment, unless it starts with a spreadsheet's error value (#N/A): a row
+    rows = [(i + 1, s) for i, s in enumerate(text.splitlines())
+            if s.strip() and (s.lstrip()[0] not in "#%" or _SPREADSHEET_ERROR.match(s.lstrip()))]
     if not rows:
         raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
     first = rows[0][1]
@@ -228,7 +234,9 @@ def _read_text(path: str) -> Table:
         for c, cell in enumerate(cells):
             x = _number(cell)
             if x is None or not math.isfinite(x):
-                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}")
+                said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
+                    if _SPREADSHEET_ERROR.match(cell) else ""
+                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:
         raise ImportFormatError(f"{path}: a header but no data rows")

@@ -376,3 +376,42 @@ def test_robust_draws_are_bounded_and_the_seed_is_checked(model_doc, tmp_path, c
         main([*base, "--seed", "-1"])
     assert stop.value.code == 2
     assert "--seed must be an integer >= 0, got '-1'" in capsys.readouterr().err
+
+
+# --- silent: read-only outputs, spreadsheet errors, pauses -------------------------------------------------
+
+@pytest.mark.parametrize("argv, flag", [(["identify", "{rec}", "--save", "{out}.json"], "--save"),
+                                        (["simulate", "--a", "25", "--b", "3", "--out", "{out}.csv"], "--out")])
+def test_a_read_only_output_is_refused_not_replaced(rec_path, tmp_path, argv, flag, capsys):
+    ext = ".json" if flag == "--save" else ".csv"
+    out = tmp_path / f"kept{ext}"
+    out.write_text("the user's own\n")
+    out.chmod(0o444)
+    # before: replaced without a word (os.replace needs only the folder's permission)
+    assert main([a.format(rec=rec_path, out=tmp_path / "kept") for a in argv]) == 2
+    line = _error(capsys)
+    assert line.startswith(f"motorid: error: {flag} {out}: it is read-only (mode 0444)")
+    assert out.read_text() == "the user's own\n"
+
+
+@pytest.mark.parametrize("cell", ["#N/A", "#DIV/0!", "#VALUE!"])
+def test_a_spreadsheet_error_row_is_refused_not_skipped_as_a_comment(tmp_path, cell, capsys):
+    path = tmp_path / "lab.csv"
+    path.write_text(f"# exported\nt,u_duty,y_rad_s\n0,1,0\n0.01,1,0.1\n{cell},{cell},{cell}\n0.02,1,0.2\n")
+    # before: exit 0, the row dropped as a comment and 3 samples written without a word
+    assert main(["import", str(path), "--time", "t", "--input", "u_duty", "--speed", "y_rad_s",
+                 "--out", str(tmp_path / "o.csv")]) == 2
+    assert f"line 5: column 't' must hold a finite number, got '{cell}' (a spreadsheet's error value" in _error(capsys)
+
+
+def test_an_hours_pause_is_said_and_read_as_two_segments(tmp_path, capsys):
+    from motorsim import read_recording
+    rows = ["t,u_duty,y_rad_s"] + [f"{k * 0.01 + (3600 if k >= 150 else 0):.2f},100,{k * 0.001:.4f}"
+                                   for k in range(300)]
+    (tmp_path / "pause.csv").write_text("\n".join(rows) + "\n")
+    assert main(["import", str(tmp_path / "pause.csv"), "--time", "t", "--input", "u_duty", "--speed", "y_rad_s",
+                 "--out", str(tmp_path / "o.csv")]) == 0
+    # before: nothing said of the 360 000 periods between the two halves
+    assert ("1 gap(s), 360000 sample periods of 0.01 s with no row, the longest 3600 s after t = 1.49 s: read as 2 "
+            "segments") in capsys.readouterr().err
+    assert [len(s) for s in read_recording(tmp_path / "o.csv").segments()] == [150, 150]
