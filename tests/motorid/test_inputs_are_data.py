@@ -415,3 +415,14 @@ def test_an_hours_pause_is_said_and_read_as_two_segments(tmp_path, capsys):
     assert ("1 gap(s), 360000 sample periods of 0.01 s with no row, the longest 3600 s after t = 1.49 s: read as 2 "
             "segments") in capsys.readouterr().err
     assert [len(s) for s in read_recording(tmp_path / "o.csv").segments()] == [150, 150]
+
+
+@pytest.mark.parametrize("make, said", [(os.mkfifo, "not a regular file (a FIFO (named pipe))"),
+                                        (lambda p: Path(p).write_text('name = "x\\u001b[2J\\nforged"\n'),
+                                         "name must be printable text, got 'x\\x1b[2J\\nforged'")])
+def test_a_scenario_that_is_a_fifo_or_names_itself_with_escapes_is_refused(tmp_path, make, said, capsys):
+    path = tmp_path / "s.toml"
+    make(path)
+    # before: "an existing .toml file, got 's.toml'" for a FIFO that exists; the name printed raw in the table
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert said in _error(capsys)
