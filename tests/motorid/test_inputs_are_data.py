@@ -426,3 +426,13 @@ def test_a_scenario_that_is_a_fifo_or_names_itself_with_escapes_is_refused(tmp_p
     # before: "an existing .toml file, got 's.toml'" for a FIFO that exists; the name printed raw in the table
     assert main(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
     assert said in _error(capsys)
+
+
+def test_control_design_states_the_feedforward_of_the_friction_and_bias_it_was_given(capsys):
+    # before: "feedforward kS 0 duty ... k0 -0 duty" whatever --friction and --bias said
+    assert main(["control", "design", "--a", "25", "--b", "3", "--friction", "5", "--bias", "2",
+                 "--controller", "pi"]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("feedforward kS"))
+    # closed form: kS = c / b = 5/3, kV = a / b = 25/3, kA = 1 / b, k0 = -d / b = -2/3
+    assert line.startswith("feedforward kS 1.667 duty, kV 8.333 duty/(rad/s), kA 0.3333 duty/(rad/s^2), "
+                           "k0 -0.6667 duty"), line
