@@ -436,3 +436,13 @@ def test_control_design_states_the_feedforward_of_the_friction_and_bias_it_was_g
     # closed form: kS = c / b = 5/3, kV = a / b = 25/3, kA = 1 / b, k0 = -d / b = -2/3
     assert line.startswith("feedforward kS 1.667 duty, kV 8.333 duty/(rad/s), kA 0.3333 duty/(rad/s^2), "
                            "k0 -0.6667 duty"), line
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "1e308", "abc"])
+def test_a_recordings_input_limit_that_is_no_magnitude_is_refused(rec_path, tmp_path, value, capsys):
+    path = tmp_path / "r.csv"
+    path.write_text(rec_path.read_text().replace("# sample_period:", f"# input_limit: {value}\n# sample_period:", 1))
+    # before: taken as unknown, exit 0, the checks of a run at its limit silently off
+    assert main(["identify", str(path)]) == 2
+    assert f"metadata input_limit must be a number > 0 (the largest input magnitude the drive accepts) or none, got " \
+           f"'{value}'" in _error(capsys)
