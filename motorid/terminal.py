@@ -83,7 +83,7 @@ def printable_output() -> Iterator[None]:
                 changed.append((stream, old))
     original = sys.stdout
     if original is not None:
-        sys.stdout = _PrintableStdout(original)       # type: ignore[assignment]
+        sys.stdout = _PrintableStdout(original)
     try:
         yield
     finally:
