@@ -95,6 +95,8 @@ class Knob:
                 value = float(text)
                 if not value.is_integer():
                     raise ParameterError(text)
+                if abs(value) > 2**63:          # 1e308 is an integer to float(), and no count of anything
+                    raise ParameterError(f"{self.name} must be an integer within +-2**63, got {text!r}")
                 return int(value)
             value = float(text)
         except ValueError:
