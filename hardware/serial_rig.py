@@ -19,6 +19,10 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
   device fault (:class:`DeviceFaultError`) raise with the samples received so far
   attached as ``exc.recording``;
+- on a port that keeps simulated time (``fake://`` and ``avr-sim://`` by default, whose
+  ports have a ``clock()``: :mod:`hardware.lockstep`), every timeout, the HEARTBEATs and the
+  deadline count the device's simulated seconds and the HEARTBEATs are sent from the reading
+  loop, so a run's recording does not depend on the machine's load;
 - whenever a run is left early (an error, Ctrl-C, or SIGTERM raised as an exception),
   STOP is sent and END awaited for :data:`STOP_TIMEOUT` s, so the recording attached to
   the exception (``exc.recording``, also on a ``KeyboardInterrupt``) holds the samples
@@ -105,7 +109,9 @@ class SerialRig:
     timeout : float
         Seconds without a new sample during a run (silence, or frames that do not advance
         ``seq``) before :class:`RigTimeoutError`; a run also ends in that error once it takes
-        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).
+        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).  On a port that keeps
+        simulated time (``fake://``, ``avr-sim://``; :mod:`hardware.lockstep`) these seconds,
+        ``hello_timeout``'s, ``command_timeout``'s and the HEARTBEATs' are the device's simulated ones.
     hello_timeout : float
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
@@ -158,6 +164,8 @@ class SerialRig:
         self._boot: P.Boot | None = None
         self._backlog: list = []
         self._write_lock = threading.Lock()
+        self._now: Callable[[], float] = time.monotonic
+        self._simulated = False
         self.device: P.HelloAck | None = None
 
     # -------------------------------------------------------------- connection
@@ -187,6 +195,9 @@ class SerialRig:
                 self._port = stack.enter_context(open_port(self.port, self.baudrate, _READ_TIMEOUT))
             else:
                 self._port = self.port
+            clock = getattr(self._port, "clock", None)
+            self._simulated = callable(clock)
+            self._now = clock if callable(clock) else time.monotonic
             self._stack = stack
             self._handshake()
         except BaseException:
@@ -195,8 +206,14 @@ class SerialRig:
             stack.close()
             raise
 
+    @property
+    def simulated_time(self) -> bool:
+        """Whether the open port keeps the device's simulated time (every timeout then counts it)."""
+        return self._simulated
+
     def close(self) -> None:
         """Close the port (if this rig opened it)."""
+        self._now, self._simulated = time.monotonic, False
         stack, self._stack, self._port = self._stack, None, None
         if stack is not None:
             stack.close()
@@ -234,10 +251,10 @@ class SerialRig:
         return [msg for _, msg in frames]
 
     def _handshake(self) -> None:
-        start = time.monotonic()
+        start = self._now()
         next_hello, sent = start, 0
         while True:
-            now = time.monotonic()
+            now = self._now()
             if now >= next_hello:
                 self._write(P.Hello(P.PROTOCOL_VERSION))
                 sent += 1
@@ -252,8 +269,8 @@ class SerialRig:
                     return
                 if isinstance(msg, P.Nak) and msg.refused_type == P.MsgType.HELLO and msg.reason == P.NakReason.BUSY:
                     self._write(P.Stop())   # a run left over from an earlier session: stop it, then retry
-                    next_hello = time.monotonic()
-            if time.monotonic() - start > self.hello_timeout:
+                    next_hello = self._now()
+            if self._now() - start > self.hello_timeout:
                 raise RigTimeoutError(
                     f"the device on {self.port_name} never answered HELLO ({sent} sent over "
                     f"{self.hello_timeout:g} s): check the port, the baud rate ({self.baudrate}) and that "
@@ -281,8 +298,8 @@ class SerialRig:
         run_frames: list = []
         for attempt in range(3):
             frame_seq = self._write(msg)
-            deadline = time.monotonic() + self.command_timeout
-            while time.monotonic() < deadline:
+            deadline = self._now() + self.command_timeout
+            while self._now() < deadline:
                 replies = self._read()
                 for i, reply in enumerate(replies):
                     if isinstance(reply, P.Ack) and reply.acked_frame_seq == frame_seq and reply.acked_type == msg_type:
@@ -313,17 +330,24 @@ class SerialRig:
         sample (silence, or frames that do not advance ``seq``: a device repeating itself),
         and the run's deadline, its duration plus :func:`run_margin`.
         """
-        start = last_progress = loop_end = time.monotonic()
+        start = last_progress = loop_end = self._now()
         duration = run.experiment.duration
         margin = run_margin(duration, self.timeout)
         deadline = start + duration + margin
         frames = 0
+        # In simulated time the heartbeats go from here, at the device's own instants.
+        beat = self.watchdog_ms / 4000 if self.watchdog_ms and self.simulated_time else 0.0
+        next_beat = start + beat
         while run.end is None:
+            if beat and self._now() >= next_beat:
+                self._write(P.Heartbeat())
+                next_beat = self._now() + beat
             msgs = self._read()
-            now = time.monotonic()
+            now = self._now()
             # An iteration far longer than a read timeout means this process was not running
             # (or a callback was slow): that is not the device's silence, nor its slowness.
-            if now - loop_end > 0.25:
+            # (In simulated time a slow host stops the device's clock too.)
+            if now - loop_end > 0.25 and not self.simulated_time:
                 last_progress += now - loop_end - _READ_TIMEOUT
                 deadline += now - loop_end - _READ_TIMEOUT
             loop_end = now
@@ -345,7 +369,7 @@ class SerialRig:
             if run.boot is not None:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
-            loop_end = time.monotonic()
+            loop_end = self._now()
         return run.end
 
     # -------------------------------------------------------------- the run
@@ -403,7 +427,7 @@ class SerialRig:
             run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
-            with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms else None):
+            with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms and not self.simulated_time else None):
                 end = self._receive_run(run, on_sample)
             ended = True
             if end.reason != P.EndReason.COMPLETE:
@@ -442,8 +466,8 @@ class SerialRig:
                 flush = getattr(self._port, "flush", None)
                 if flush is not None:
                     flush()
-                deadline = time.monotonic() + STOP_TIMEOUT
-                while wait and run.end is None and run.boot is None and time.monotonic() < deadline:
+                deadline = self._now() + STOP_TIMEOUT
+                while wait and run.end is None and run.boot is None and self._now() < deadline:
                     run.accept(self._read(), None)
             except Exception:
                 return

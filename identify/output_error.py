@@ -224,13 +224,13 @@ class OutputErrorProblem:
                                 sensitivities=jacobian)
             if seg.kind == "angle":
                 err = seg.output - resp.angle
-                s0 = resp.angle_sensitivity[:, 2]
+                s0 = resp.angle_initial_speed
                 # project out the offset (centre), then solve for the initial speed
                 err = err - err.mean()
                 s0 = s0 - s0.mean()
             else:
                 err = seg.output - resp.speed
-                s0 = resp.speed_sensitivity[:, 2]
+                s0 = resp.speed_initial_speed
             ss = sum_squares(s0)
             w = dot(s0, err) / ss if ss > 0 else 0.0
             w0[i] = w

@@ -171,13 +171,24 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print_to_stderr(f"motorid: warning: {' '.join(str(message).split())}")
 
 
+def _traceback_flag(argv: Sequence[str]) -> tuple[list[str], bool]:
+    """``argv`` without ``--traceback`` and whether it was there: the flag works wherever it is put (the
+    error's hint says 're-run with --traceback', and users add it at the end), not only before the command."""
+    argv = list(argv)
+    end = argv.index("--") if "--" in argv else len(argv)
+    found = "--traceback" in argv[:end]
+    return [a for a in argv[:end] if a != "--traceback"] + argv[end:], found
+
+
 def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -> int:
     import contextlib
     import warnings
 
     from motorid.outputs import check_outputs, has_outputs, input_paths
     from motorsim.files import deferred_outputs
+    argv, traceback_anywhere = _traceback_flag(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.traceback = args.traceback or traceback_anywhere
     checkpoint()                  # an interrupt the imports swallowed is raised here, before the command runs
     try:
         _check_numbers(args)

@@ -303,6 +303,21 @@ def plot_design(frequencies, stderr_a, stderr_b, path=None, *, marks: Sequence[t
     return _finish(fig, path)
 
 
+#: An interval longer than this many median intervals is a gap a line is not drawn across (a pause between tests).
+GAP_FACTOR = 1.5
+
+
+def broken_at_gaps(t: np.ndarray, *series: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``t`` and ``series`` with a nan row inserted in every gap (an interval over :data:`GAP_FACTOR` median
+    intervals), so that a line plot draws the runs apart instead of a straight line across the pause."""
+    t = np.asarray(t, dtype=float)
+    steps = np.diff(t)
+    if len(steps) == 0:
+        return (t, *(np.asarray(y, dtype=float) for y in series))
+    gaps = np.flatnonzero(steps > GAP_FACTOR * np.median(steps)) + 1
+    return (np.insert(t, gaps, np.nan), *(np.insert(np.asarray(y, dtype=float), gaps, np.nan) for y in series))
+
+
 def plot_validation(report, estimate, path=None, *, title: str = "", frequency_response=None) -> Figure:
     """Validation figure: measured vs model speed, their difference against time, the residual
     autocorrelation and the residual-input cross-correlation, each correlation with its 95 % band,
@@ -331,14 +346,15 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
     unit = getattr(estimate, "speed_unit", "rad/s")        # the unit the data came in; the fit is in rad/s
     per = 1.0 / SPEED_UNITS[unit]
     ax = fig.add_subplot(grid[0, :])
-    ax.plot(report.time, per * report.measured_speed, color="0.3", lw=0.8, label="measured ω")
-    ax.plot(report.time, per * report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
+    t, measured, simulated = broken_at_gaps(report.time, report.measured_speed, report.simulated_speed)
+    ax.plot(t, per * measured, color="0.3", lw=0.8, label="measured ω")
+    ax.plot(t, per * simulated, color="tab:orange", lw=0.8, ls="--",
             label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g} (rad/s²)/{estimate.input_unit}, "
                   f"fit {report.fit_percent:.1f} %")
     ax.set_ylabel(f"ω [{unit}]")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7, frameon=False)
     res = fig.add_subplot(grid[1, :], sharex=ax)
-    res.plot(report.time, per * (report.measured_speed - report.simulated_speed), color="tab:purple", lw=0.7)
+    res.plot(t, per * (measured - simulated), color="tab:purple", lw=0.7)
     res.axhline(0, color="0.5", lw=0.6)
     res.set_xlabel("time [s]")
     res.set_ylabel(f"measured − model\nω [{unit}]")

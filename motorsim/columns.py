@@ -27,7 +27,7 @@ from .robot_logs import is_robot_log, read_log_table
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
-           "UNIT_REQUIRED", "unit_in_name"]
+           "UNIT_NAMES", "UNIT_REQUIRED", "unit_in_name", "shift_input", "SECONDS_BEYOND_DOUBT", "MAX_INPUT_SHIFT"]
 
 class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
@@ -97,6 +97,18 @@ UNIT_SUFFIXES: dict[str, dict[str, str]] = {
 }
 
 
+#: a column named by its unit alone (``rpm``, ``ms``, ``pwm``): the names no other quantity or unit shares (not
+#: ``s`` or ``v``, which a column of speed or velocity may be called)
+UNIT_NAMES: dict[str, dict[str, str]] = {
+    "time": {"ms": "ms", "msec": "ms", "millis": "ms", "us": "us", "usec": "us", "micros": "us", "µs": "us",
+             "μs": "us", "sec": "s", "seconds": "s"},
+    "input": {"volts": "V", "pct": "%", "percent": "%"},
+    "speed": {"rpm": "rpm", "rps": "rev/s", "dps": "deg/s"},
+    "angle": {},
+    "counts": {},
+}
+
+
 def unit_in_name(quantity: str, column: str) -> str | None:
     """The unit a column's name ends with (``time_ms`` -> ``ms``), or None.
 
@@ -104,8 +116,12 @@ def unit_in_name(quantity: str, column: str) -> str | None:
     --------
     >>> unit_in_name("speed", "w_degs"), unit_in_name("input", "u_pct"), unit_in_name("time", "t")
     ('deg/s', '%', None)
+    >>> unit_in_name("speed", "rpm"), unit_in_name("time", "millis"), unit_in_name("speed", "v")
+    ('rpm', 'ms', None)
     """
     words = [w for w in re.split(r"[_\-\s\[\]()./]+", column.lower()) if w]
+    if len(words) == 1:
+        return UNIT_NAMES.get(quantity, {}).get(words[0])
     if len(words) < 2:
         return None
     suffixes = UNIT_SUFFIXES.get(quantity, {})
@@ -307,7 +323,8 @@ def read_table(path: str | os.PathLike) -> Table:
 
 def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: str | ColumnSpec,
                      speed: str | ColumnSpec | None = None, angle: str | ColumnSpec | None = None,
-                     counts: str | ColumnSpec | None = None, counts_per_rev: int | None = None) -> Recording:
+                     counts: str | ColumnSpec | None = None, counts_per_rev: int | None = None,
+                     input_shift: int = 0) -> Recording:
     """Read a foreign file and map its columns to a :class:`Recording`.
 
     Parameters
@@ -320,6 +337,13 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         The measured quantity (at least one), in the same form.
     counts_per_rev : int, optional
         Encoder resolution in counts/rev, for counts (or an angle in ``counts``).
+    input_shift : int
+        Move the input this many rows earlier (:func:`shift_input`): a log whose command is written
+        just after the state it answers needs 1.
+
+    A time column whose unit nothing states is read in s only where its intervals leave no doubt
+    (a median below :data:`SECONDS_BEYOND_DOUBT`, said by a warning); otherwise it is refused as
+    an unlabelled speed is.  Every problem of the columns is named in one message.
 
     Returns
     -------
@@ -352,6 +376,47 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     else:
         table = read_table(path)
     problems += _shared_columns(table, specs)
+    cols, defaulted, notes = _columns_read(table, specs, problems)
+    if "time" in defaulted:
+        _time_unit_inferred(specs["time"], cols["time"], problems, notes)
+    if not problems:
+        problems += _counts_problems(table, specs, cols, counts_per_rev)
+    if "time" in cols and specs["time"].unit is not None:
+        problems += _time_problems(table, specs["time"], cols["time"])
+    if problems:
+        _refuse(path, problems)
+    for note in notes:                 # said once the file is accepted
+        warnings.warn(note, UserWarning, stacklevel=2)
+    rec = _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+    return shift_input(rec, input_shift)
+
+
+#: The median interval (in the column's own numbers) below which a time column without a unit is read in s with
+#: no doubt: 0.05 s is a 20 Hz log, 0.05 ms a 20 kHz one no logger of a motor writes, 0.05 us none at all.
+SECONDS_BEYOND_DOUBT = 0.05
+#: Below this median interval a time column without a unit is in doubt too (100 kHz as seconds).
+_SECONDS_FLOOR = 1e-5
+
+
+def _median_interval(t: np.ndarray) -> float:
+    steps = np.diff(t[np.isfinite(t)])
+    return float(np.median(steps)) if len(steps) else math.nan
+
+
+def _time_unit_doubt(spec: ColumnSpec, t: np.ndarray) -> str | None:
+    """The problem of a time column with no unit whose intervals leave its unit in doubt, or None."""
+    step = _median_interval(t)
+    if not math.isfinite(step) or step <= 0 or _SECONDS_FLOOR <= step <= SECONDS_BEYOND_DOUBT:
+        return None                   # too short or not increasing: said where the time is checked
+    return (f"the time column {spec.column!r} has no unit and the file does not state one; its median interval "
+            f"{step:.6g} leaves it in doubt ({step:.6g} s, or ms, or us?): give --time {spec.column}:UNIT with "
+            "UNIT one of s, ms, us")
+
+
+def _columns_read(table: Table, specs: dict[str, ColumnSpec], problems: list[str]
+                  ) -> tuple[dict[str, np.ndarray], set[str], list[str]]:
+    """Each named column, its unit resolved into ``specs``: the columns, the quantities left to their default
+    unit, and the notes to say once the file is accepted; every problem appended to ``problems``."""
     cols = {}
     defaulted = set()
     notes: list[str] = []
@@ -371,15 +436,55 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
             notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
                          "states")
-    if not problems:
-        problems += _counts_problems(table, specs, cols, counts_per_rev)
-    if "time" in cols and specs["time"].unit is not None:
-        problems += _time_problems(table, specs["time"], cols["time"])
-    if problems:
-        _refuse(path, problems)
-    for note in notes:                 # said once the file is accepted
-        warnings.warn(note, UserWarning, stacklevel=2)
-    return _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+    return cols, defaulted, notes
+
+
+def _time_unit_inferred(spec: ColumnSpec, t: np.ndarray, problems: list[str], notes: list[str]) -> None:
+    """A time column read in s by default: a problem when its intervals leave that in doubt, else a note."""
+    doubt = _time_unit_doubt(spec, t)
+    if doubt:
+        problems.append(doubt)
+    else:
+        notes.append(f"the time column {spec.column!r} has no unit: read in s, as its intervals (median "
+                     f"{_median_interval(t):.6g}) leave no doubt; give --time {spec.column}:UNIT if they are not "
+                     "seconds")
+
+
+def shift_input(rec: Recording, rows: int) -> Recording:
+    """``rec`` with its input moved ``rows`` samples earlier (later when negative): a log whose command is written
+    just after the state it answers.  Each sample takes the input logged ``rows`` samples after it (by ``seq``);
+    samples with none logged there are dropped (they become gaps), and the metadata say ``input_shift_rows``.
+
+    Examples
+    --------
+    >>> rec = Recording(time=np.arange(5) * 0.01, duty=[0, 0, 5, 5, 5], sample_period=0.01, speed=[0, 0, 0, 1, 2])
+    >>> shifted = shift_input(rec, 1)
+    >>> shifted.duty.tolist(), shifted.seq.tolist(), shifted.metadata["input_shift_rows"]
+    ([0.0, 5.0, 5.0, 5.0], [0, 1, 2, 3], '1')
+    """
+    if isinstance(rows, bool) or not isinstance(rows, (int, np.integer)) or not -MAX_INPUT_SHIFT <= rows <= \
+            MAX_INPUT_SHIFT:
+        raise ParameterError(f"input shift must be a whole number of rows in -{MAX_INPUT_SHIFT}...{MAX_INPUT_SHIFT}, "
+                             f"got {rows!r}")
+    if rows == 0:
+        return rec
+    k = np.searchsorted(rec.seq, rec.seq + rows)
+    k = np.minimum(k, len(rec) - 1)
+    have = rec.seq[k] == rec.seq + rows
+    if have.sum() < 2:
+        raise ParameterError(f"input shift of {rows} rows leaves fewer than 2 samples of the {len(rec)}")
+    kept = np.flatnonzero(have)
+
+    def cut(x):
+        return None if x is None else x[kept]
+    return dataclasses.replace(rec, time=rec.time[kept], duty=rec.duty[k[kept]], counts=cut(rec.counts),
+                               angle=cut(rec.angle), speed=cut(rec.speed), seq=rec.seq[kept],
+                               reference=cut(rec.reference),
+                               metadata={**rec.metadata, "input_shift_rows": str(int(rows))})
+
+
+#: The largest input shift, in rows.
+MAX_INPUT_SHIFT = 10_000
 
 
 def _shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> list[str]:
@@ -401,9 +506,15 @@ def _shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> list[str]:
 
 
 def _read_log(path: str, base: str | None) -> Table:
-    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages."""
+    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages (the log's
+    longest entry's when it has no ``base``: every column named wrong is then said at once)."""
     try:
-        names, columns, units = read_log_table(path, base)
+        try:
+            names, columns, units = read_log_table(path, base)
+        except RecordingFormatError as exc:
+            if base is None or f"no column named {base!r}" not in str(exc):
+                raise
+            names, columns, units = read_log_table(path, None)
     except RecordingFormatError as exc:
         raise ImportFormatError(str(exc)) from None
     return Table(path, names, columns, np.zeros(len(columns[0]), dtype=int), True, units)

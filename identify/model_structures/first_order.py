@@ -76,7 +76,7 @@ class FirstOrder(ModelStructure):
                             bias=float(values.get("bias", 0.0)), uniform=segment.uniform, sensitivities=False)
         angle = segment.kind == "angle"
         # the initial speed (and angle offset) by least squares: the measured output less what is left
-        s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+        s0 = resp.angle_initial_speed if angle else resp.speed_initial_speed
         left, = project_out_initial_state(s0, angle, segment.output - (resp.angle if angle else resp.speed))
         return segment.output - left
 

@@ -4,8 +4,9 @@ Each maker integrates a motor ``dω/dt = -a ω + b u`` (``a`` = :data:`A`, ``b``
 has one value) with one thing no registered structure describes — a driver that limits its current, a load
 switched on partway, a duty clipped below the one logged, friction that weakens with speed, forward and
 reverse gains that differ, a motor warming over the run, a speed column timed between encoder edges, a
-gearbox's backlash, cogging torque, an arm lifted against gravity, a slow quasi-static ramp — and records what a bench would: the
-logged duty held over each sample, encoder counts (or the speed column a firmware prints).
+gearbox's backlash, cogging torque, an arm lifted against gravity, a slow quasi-static ramp — and records
+what a bench would: the logged duty held over each sample, encoder counts (or the speed column a firmware
+prints).
 
 The integration is classical Runge--Kutta on :data:`SUBSTEPS` sub-steps of every sample (the duty held
 over the sample, as the bench holds it), which is exact to far below the encoder's resolution for these

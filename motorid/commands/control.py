@@ -44,6 +44,8 @@ __all__ = ["add_controller_arguments", "add_model_arguments", "controller_from_a
            "reference_from_args", "refuse_controller_flags",
            "ClosedLoopRow", "compare_designs", "format_closed_loop_table", "add_control_arguments", "run_control"]
 
+#: The input limit of a model in % that states none: the whole of the scale.
+PERCENT_LIMIT = 100.0
 #: The reference when the model's top speed is unknown (an input in V or % without an input limit), and
 #: of position controllers: rad/s or rad.
 DEFAULT_REFERENCE = "sine:10,10"
@@ -360,7 +362,8 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=2.0, help="length of the predicted response in s (default 2)")
     p.add_argument("--input-limit", dest="input_limit", type=float, default=None, metavar="LIMIT",
                    help="largest input magnitude the drive accepts, in the model's input unit (default: the "
-                        "model file's input_limit; 255 for a model in duty); a design that needs more is warned of")
+                        "model file's input_limit; 255 for a model in duty, 100 for %%); a design that needs more "
+                        "is warned of")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="also plot the predicted response")
     r = p.add_argument_group("robustness (plants drawn from a --model file's covariance of a and b)")
     r.add_argument("--robust", action="store_true",
@@ -485,7 +488,8 @@ def _reference_text(args: argparse.Namespace, reference: Reference, controller: 
 
 
 def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
-    """The design model's input unit and limit: ``--input-limit``, else the model file's, else 255 for duty."""
+    """The design model's input unit and limit: ``--input-limit``, else the model file's, else 255 for duty and
+    100 for %."""
     unit, limit = "duty", None
     if getattr(args, "model", None):
         estimate = load_model_file(args.model)
@@ -496,6 +500,8 @@ def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
         limit = args.input_limit
     if limit is None and unit == "duty":
         limit = float(DUTY_LIMIT)
+    if limit is None and unit == "%":
+        limit = PERCENT_LIMIT          # a percentage's own full scale: no drive gives more than all of it
     return unit, limit
 
 

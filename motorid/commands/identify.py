@@ -204,7 +204,9 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
              + ("a clear choice" if selection.clear else "NOT a clear choice (see the note)")]
     other = selection.runner_up
     if other:
-        if other.within_noise:
+        if other.within_noise and selection.clear:      # the intervals hold it: no contradiction of "clear"
+            words = "fits as well, its a and b within the chosen one's intervals: either gives the same answer"
+        elif other.within_noise:
             words = "the data cannot tell it from the chosen one"
         else:
             words = f"fits worse by {other.statistic:.3g} noise units (the test's threshold is about 11)"
@@ -227,7 +229,7 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
 def format_estimate(est) -> str:
     """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA;
     for data in another speed unit (rpm, ...), the speed figures in that unit too."""
-    from identify.feedforward import feedforward_constants
+    from identify.feedforward import apart, feedforward_constants
     text = f"{est}\n{feedforward_constants(est).describe()}"
     figures = in_speed_unit(est)
     if figures is None:
@@ -243,7 +245,7 @@ def format_estimate(est) -> str:
                      f"{est.input_limit:g} {u} (b/a x limit, linear model)")
     ff = figures["feedforward"]
     lines.append("SysId      " + ", ".join(
-        f"{k} {ff[k]:.4g} [{ff[k + '_ci95'][0]:.4g}, {ff[k + '_ci95'][1]:.4g}] {ff[k + '_unit']}"
+        "{} {} [{}, {}] {}".format(k, *apart(ff[k], *ff[k + "_ci95"]), ff[k + "_unit"])
         if math.isfinite(ff[k + "_ci95"][0]) else f"{k} {ff[k]:.4g} {ff[k + '_unit']}" for k in ("kS", "kV", "kA"))
         + f" (u = kS sign(v) + kV v + kA dv/dt, v in {unit})")
     return "\n".join([text, *lines])

@@ -47,6 +47,9 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
     group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
     group.add_argument("--counts-per-rev", dest="import_counts_per_rev", type=int, metavar="N",
                        help="encoder resolution of --counts (or --angle COL:counts), counts/rev")
+    group.add_argument("--input-shift", dest="input_shift", type=int, default=0, metavar="ROWS",
+                       help="move the input column ROWS rows earlier: a log that writes each command just after "
+                            "the state it answers needs 1 (default 0)")
     group.add_argument("--input-limit", dest="input_limit", type=float, metavar="LIMIT",
                        help="largest input magnitude the drive accepts, in the input's unit (e.g. 12 for "
                             "u:V, 100 for u:%%); kept as the metadata input_limit, carried into the model "
@@ -61,8 +64,9 @@ def column_flags_given(args: argparse.Namespace) -> bool:
     """
     if any(getattr(args, q, None) is not None for q in _QUANTITIES):
         return True
-    for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit")):
-        if getattr(args, name, None) is not None:
+    for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit"),
+                       ("--input-shift", "input_shift")):
+        if getattr(args, name, None) not in (None, 0):
             raise CommandError(f"{flag} describes a foreign file's columns (with --time, --input, ...); a format-v1 "
                                f"recording states its own in its header, got {flag} {getattr(args, name)!r} alone")
     return False
@@ -77,7 +81,8 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
         rec = import_recording(path, time=args.time, input=args.input, speed=args.speed, angle=args.angle,
-                               counts=args.counts, counts_per_rev=args.import_counts_per_rev)
+                               counts=args.counts, counts_per_rev=args.import_counts_per_rev,
+                               input_shift=getattr(args, "input_shift", 0))
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
     _say_gaps(path, rec)

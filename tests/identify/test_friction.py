@@ -221,7 +221,7 @@ def test_neighbouring_delays_share_their_start():
 
 
 def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
-    # without numba (the optional extra 'fast') the vectorised response is used: the same fit to rounding
+    # without numba (MOTORID_NUMBA=0, or where it cannot install) the vectorised response: the same fit to rounding
     from identify import friction_response as response_module
     rec = _run(Motor(25.0, 3.0, friction=40.0, dead_zone=12.0), freq=25.0)
     fast = fit_output_error_friction(rec)

@@ -110,14 +110,14 @@ def test_file_refusals_name_file_line_column_and_rule(tmp_path, text, kwargs, ma
     path = tmp_path / "raw.csv"
     path.write_text(text)
     with pytest.raises(ImportFormatError, match=match):
-        import_recording(path, **{"time": "t", "input": "u:duty", "speed": "y:rad/s", **kwargs})
+        import_recording(path, **{"time": "t:s", "input": "u:duty", "speed": "y:rad/s", **kwargs})
 
 
 def test_matlab_v5_vectors_and_matrix(tmp_path):
     from scipy import io
     t = np.arange(4) * 0.01
     io.savemat(tmp_path / "run.mat", {"t": t[:, None], "u": np.ones(4), "y": np.arange(4.0)})
-    rec = import_recording(tmp_path / "run.mat", time="t", input="u:V", speed="y:rev/s")
+    rec = import_recording(tmp_path / "run.mat", time="t:s", input="u:V", speed="y:rev/s")
     np.testing.assert_allclose(rec.speed, np.arange(4.0) * 2 * math.pi, rtol=1e-15)
     io.savemat(tmp_path / "matrix.mat", {"data": np.column_stack([t * 1000, np.ones(4), np.arange(4.0)])})
     rec = import_recording(tmp_path / "matrix.mat", time="0:ms", input="1:V", speed="2:deg/s")
@@ -148,7 +148,7 @@ def test_matlab_v73_with_h5py(tmp_path):
         f["y"] = np.arange(3.0)[None, :]
     with open(path, "r+b") as fh:
         fh.write(b"MATLAB 7.3 MAT-file".ljust(124) + b"\x00\x02IM")
-    rec = import_recording(path, time="t", input="u:duty", speed="y:rad/s")
+    rec = import_recording(path, time="t:s", input="u:duty", speed="y:rad/s")
     assert rec.sample_period == 0.1 and rec.speed.tolist() == [0.0, 1.0, 2.0]
 
 
@@ -186,14 +186,15 @@ def test_a_speed_or_input_column_without_a_unit_is_refused_with_the_units(tmp_pa
 
 def test_every_column_problem_is_said_in_one_message(tmp_path):
     path = tmp_path / "lab.csv"
-    path.write_text("t_ms,pwm,rpm\n0,10,0\n1,10,1\n2,10,2\n")
+    path.write_text("t,pwm,rpm\n0,10,0\n1,10,1\n2,10,2\n")
     with pytest.raises(ImportFormatError) as info:
-        import_recording(path, time="t_ms:ms", input="pwm", speed="speed", angle="theta:furlong")
+        import_recording(path, time="t", input="pwm", speed="speed", angle="theta:furlong")
     text = str(info.value)
-    assert text.startswith(f"{path}: 3 problems with the columns: (1) ")
+    assert text.startswith(f"{path}: 4 problems with the columns: (1) ")
     assert "the unit of the angle column must be one of" in text            # (1) a unit that is none
     assert "the input column 'pwm' has no unit" in text                     # (2) nothing states it
     assert "no column named 'speed' for the speed" in text                  # (3) a name not in the file
+    assert "the time column 't' has no unit" in text and "in doubt" in text  # (4) intervals of 1: s, ms, us?
 
 
 def test_a_speed_in_rpm_is_kept_as_the_recordings_speed_unit(tmp_path):
