@@ -38,6 +38,7 @@ import contextlib
 import dataclasses
 import threading
 import time
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -47,10 +48,13 @@ from motorsim.control import ClosedLoopExperiment
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+from motorsim.text import printable
 
 from . import protocol as P
 from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
+
+_FAULT_NAMES = ", ".join(f"{c.value} {c.name}" for c in P.FaultCode)
 
 __all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT", "run_margin"]
 
@@ -431,6 +435,10 @@ class SerialRig:
             problems = run.check(end)
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
+            if run.counter_wraps:
+                warnings.warn(f"the device's 32-bit encoder counter wrapped {len(run.counter_wraps)} time(s) "
+                              f"during the run (first at sample {run.counter_wraps[0]}): the counts are unwrapped "
+                              "(metadata counter_wraps)", UserWarning, stacklevel=2)
             return run.recording(self, complete=True)
         except BaseException as exc:   # an error, Ctrl-C, SIGTERM: stop the motor, keep what arrived
             if started and not ended:
@@ -549,6 +557,8 @@ class _RunState:
         self.rx0, self.lost0 = rig._reader.rx_errors, rig._link_lost
         self.unaccepted: list = []
         self._first_us = self._prev_us = self._unwrapped = 0
+        self._raw_counts = 0
+        self.counter_wraps: list[int] = []      # the samples at which the device's int32 counter wrapped
 
     @property
     def n(self) -> int:
@@ -592,14 +602,15 @@ class _RunState:
                     self.duty_mismatches += 1
                 self.encoder_flags += msg.flags & 1
                 self.late_flags += (msg.flags >> 1) & 1
+                counts = self._unwrap_counts(k, msg.counts)
                 self.last_index = k
                 self.seq.append(k)
                 self.time.append(t)
                 self.duty.append(msg.duty)
-                self.counts.append(msg.counts)
+                self.counts.append(counts)
                 if on_sample is not None:
                     try:
-                        on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                        on_sample(RecordedSample(k, t, msg.duty, counts))
                     except BaseException:
                         self.unaccepted = msgs[i + 1:]    # still received: recorded when the run is stopped
                         raise
@@ -612,6 +623,29 @@ class _RunState:
                 self.boot = msg
                 return
 
+    def _unwrap_counts(self, k: int, raw: int) -> int:
+        """The count of sample ``k`` on a counter that does not wrap: the device's is an int32, which wraps
+        from 2**31 - 1 to -2**31 on a long run (about 36 hours at 16 667 counts/rev and 1000 rpm, or a
+        device started near its end); a step of more than 2**31 counts between two samples is a wrap."""
+        if not self.counts:
+            self._raw_counts = raw
+            return raw
+        step = (raw - self._raw_counts + 2**31) % 2**32 - 2**31
+        if step != raw - self._raw_counts:
+            self.counter_wraps.append(k)
+        self._raw_counts = raw
+        return self.counts[-1] + step
+
+    def describe_fault(self) -> str:
+        """The FAULT received, by name (a code this version does not know said as such)."""
+        if self.fault is None:
+            return ""
+        try:
+            name = P.FaultCode(self.fault.code).name
+        except ValueError:
+            name = f"code {self.fault.code} (not a fault code this version of motorid knows: {_FAULT_NAMES})"
+        return f"FAULT {name} at sample {self.fault.seq}"
+
     def describe_end(self) -> str:
         out = []
         if self.end is not None:
@@ -620,16 +654,15 @@ class _RunState:
             except ValueError:
                 out.append(f"END reason {self.end.reason}")
         if self.fault is not None:
-            try:
-                name = P.FaultCode(self.fault.code).name
-            except ValueError:
-                name = f"code {self.fault.code}"
-            out.append(f"FAULT {name} at sample {self.fault.seq}")
+            out.append(self.describe_fault())
         return ", ".join(out) + f"; {self.n} samples received"
 
     def check(self, e: P.End) -> list[str]:
         """END ``e`` against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
         problems = []
+        if self.fault is not None and self.fault.code not in set(P.FaultCode):
+            problems.append(f"the device reported {self.describe_fault()}; what it means for the samples is "
+                            "unknown (a firmware newer than this host?)")
         if self.duty_mismatches:
             problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's (or the controller's) "
                             f"(first: {self.first_mismatch})")
@@ -671,7 +704,8 @@ class _RunState:
             meta["incomplete_reason"] = " ".join(reason.split())
         if rig.device is not None:
             d = rig.device
-            meta.update(board=d.board or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
+            meta.update(board=printable(d.board) or "?",
+                        firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
         meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
@@ -685,6 +719,9 @@ class _RunState:
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
             meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
+        if self.counter_wraps:
+            meta.update(counter_wraps=str(len(self.counter_wraps)),
+                        counter_wrap_samples=" ".join(map(str, self.counter_wraps[:10])))
         ticks, lost = self.losses(n)
         meta.update(samples_ticked=str(ticks), samples_lost=str(lost),
                     loss_fraction=f"{lost / ticks:.6g}" if ticks else "0")

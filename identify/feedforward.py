@@ -170,6 +170,9 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
     if b == 0:
         raise ParameterError("b must be nonzero for feedforward constants, got 0.0")
     extra = dict(getattr(estimate, "extra", {}) or {})
+    for key in ("friction", "bias"):          # a design model (PlantModel, Motor) holds them as attributes
+        if key not in extra and isinstance(getattr(estimate, key, None), (int, float)):
+            extra[key] = getattr(estimate, key)
     c, d = float(extra.get("friction", 0.0)), float(extra.get("bias", 0.0))
     names = tuple(getattr(estimate, "param_names", ("a", "b")))
     cov = getattr(estimate, "covariance", None)

@@ -218,12 +218,18 @@ def _read_bytes(path: str) -> bytes:
         raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
+#: The error values of Excel, LibreOffice and Google Sheets (#N/A, #VALUE!, #DIV/0!, #NAME? ...).
+_SPREADSHEET_ERROR = re.compile(r"#(?:N/A|NA|[A-Z][A-Z0-9_/]*[!?]|GETTING_DATA)(?:[\s,;\t]|$)")
+
+
 def _read_text(path: str) -> Table:
     try:
         text = _read_bytes(path).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and s.lstrip()[0] not in "#%"]
+    # a line starting with # or % is a comment, unless it starts with a spreadsheet's error value (#N/A): a row
+    rows = [(i + 1, s) for i, s in enumerate(text.splitlines())
+            if s.strip() and (s.lstrip()[0] not in "#%" or _SPREADSHEET_ERROR.match(s.lstrip()))]
     if not rows:
         raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
     first = rows[0][1]
@@ -244,96 +250,26 @@ def _read_text(path: str) -> Table:
         for c, cell in enumerate(cells):
             x = _number(cell)
             if x is None or not math.isfinite(x):
-                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}")
+                said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
+                    if _SPREADSHEET_ERROR.match(cell) else ""
+                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:
         raise ImportFormatError(f"{path}: a header but no data rows")
     return Table(path, names, tuple(values.T.copy()), np.array([line for line, _ in rows]), has_header)
 
 
-#: Seconds the reader of a MATLAB file may take in its own process before the file is refused.
-MAT_READ_SECONDS = 120.0
-
-
 def _read_mat(path: str) -> Table:
+    """A MATLAB file's variables as a table (:mod:`motorsim.mat_files`: only this file read, memory bounded,
+    in a process of its own)."""
+    from .mat_files import MatFileRefused, read_mat_variables
     raw = _read_bytes(path)
     if not raw:
         raise ImportFormatError(f"{path}: an empty file (0 bytes), not a MATLAB .mat file")
-    kind, payload = _loadmat_isolated(raw)
-    if kind == "v7.3":
-        return _read_mat_hdf5(path)
-    if kind == "error":
-        raise ImportFormatError(f"{path}: a damaged or truncated MATLAB .mat file scipy cannot read ({payload})")
-    if kind == "crashed":
-        raise ImportFormatError(f"{path}: a damaged MATLAB .mat file: scipy's reader crashed on it ({payload}); "
-                                "save it again from MATLAB, or export the columns as CSV")
-    return _table_from_variables(path, payload)
-
-
-def _loadmat_isolated(raw: bytes) -> tuple[str, Any]:
-    """``scipy.io.loadmat`` of ``raw`` in a child process: ``("ok", variables)``, ``("v7.3", None)``,
-    ``("error", text)`` or ``("crashed", text)``.
-
-    scipy's compiled reader can crash the interpreter on a damaged file (a single changed byte gives a
-    bus error in scipy 1.17), which no ``except`` can catch; in its own process the crash only ends
-    that process, and the file is refused in one line.  On POSIX the child is forked (nothing to
-    import again, a few ms); the child is given :data:`MAT_READ_SECONDS`.
-    """
-    import multiprocessing
-
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    ctx = multiprocessing.get_context(method)
-    receive, send = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_loadmat_child, args=(raw, send), daemon=True)  # type: ignore[attr-defined]
-    child.start()
-    send.close()
     try:
-        message = receive.recv() if receive.poll(MAT_READ_SECONDS) else None
-    except EOFError:                    # the child ended without a word: it crashed
-        message = None
-    finally:
-        receive.close()
-    child.join(1.0)
-    if child.is_alive():
-        child.kill()
-        child.join()
-        return "crashed", f"no answer in {MAT_READ_SECONDS:g} s"
-    if message is None:
-        code = child.exitcode
-        return "crashed", f"signal {-code}" if code is not None and code < 0 else f"exit status {code}"
-    return message
-
-
-def _loadmat_child(raw: bytes, send: Any) -> None:
-    """The child of :func:`_loadmat_isolated`: sends the numeric variables (the others by name only).
-    A crash says nothing here (no fault handler's dump): the parent says it in one line."""
-    import faulthandler
-    import io as bytes_io
-
-    from scipy import io
-    faulthandler.disable()
-    try:
-        data = io.loadmat(bytes_io.BytesIO(raw), squeeze_me=False)
-    except NotImplementedError:     # MATLAB v7.3: HDF5
-        send.send(("v7.3", None))
-        return
-    except Exception as exc:   # noqa: BLE001 -- scipy's reader raises a zoo on a damaged file (MatReadError,
-        # OSError "could not read bytes", IndexError, UnboundLocalError, MemoryError for a huge declared size...)
-        send.send(("error", f"{type(exc).__name__}: {exc}"))
-        return
-    send.send(("ok", {k: v if isinstance(v, np.ndarray) and v.dtype.kind in "biuf" else None
-                      for k, v in data.items() if not k.startswith("__")}))
-
-
-def _read_mat_hdf5(path: str) -> Table:
-    try:
-        import h5py  # optional: MATLAB v7.3 files only
-    except ImportError:
-        raise ImportFormatError(f"{path}: a MATLAB v7.3 (HDF5) file: reading it needs h5py (pip install h5py), "
-                                "or save it from MATLAB with save(FILE, '-v7')") from None
-    with h5py.File(path, "r") as f:
-        # MATLAB writes column-major arrays: h5py sees them transposed
-        variables = {k: np.asarray(f[k]).T for k in f.keys() if isinstance(f[k], h5py.Dataset)}
+        variables = read_mat_variables(raw)
+    except MatFileRefused as exc:
+        raise ImportFormatError(f"{path}: {exc}") from None
     return _table_from_variables(path, variables)
 
 

@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from motorid.arguments import CommandError, print_to_stderr
+from motorid.arguments import _seed as seed_flag
 from motorid.ranges import check_design_model, check_reference_times, check_run_length
 from motorsim.control import (
     CONTROLLERS,
@@ -272,7 +273,14 @@ def controller_from_args(args: argparse.Namespace, model: PlantModel) -> Control
     if ignored:
         flags = ", ".join("--" + k.replace("_", "-") for k in sorted(ignored))
         raise CommandError(f"{flags} {'does' if len(ignored) == 1 else 'do'} not apply to --controller {kind}")
-    return design_controller(kind, model, **settings)
+    controller = design_controller(kind, model, **settings)
+    if kind != "feedforward" and not np.any(np.asarray(controller.laws()[1].num[0][0], dtype=float)):
+        tuning = ", ".join(f"--{k.replace('_', '-')} {values[k]:g}" for k in sorted(given & {"duty_weight",
+                           "integral_weight", "time_constant"}))
+        raise CommandError(f"--controller {kind}: the design has no feedback, every gain on the measurement is 0 "
+                           + (f"with {tuning}; give a value nearer the default"
+                              if tuning else "for this model; check its a and b"))
+    return controller
 
 
 @dataclasses.dataclass(frozen=True)
@@ -363,8 +371,8 @@ def add_control_arguments(parser: argparse.ArgumentParser) -> None:
                         "--time-constant) to the best "
                         "worst-case tracking over the drawn plants instead of the point estimate")
     r.add_argument("--repetitions", type=int, default=None, metavar="N",
-                   help="plants drawn from the covariance (default 100)")
-    r.add_argument("--seed", type=int, default=None, help="seed of the draws (default 0)")
+                   help="plants drawn from the covariance, at most 1000 (default 100)")
+    r.add_argument("--seed", type=seed_flag, default=None, help="seed of the draws, an integer >= 0 (default 0)")
 
 
 def run_control(args: argparse.Namespace) -> int:
@@ -545,9 +553,16 @@ def _check_draw_flags(args: argparse.Namespace, covariance: np.ndarray | None) -
     args.seed = 0 if args.seed is None else args.seed
 
 
+#: The most plants ``--repetitions`` draws (100 000 ran for hours: some 0.05-0.3 s a draw).
+MAX_DRAWS = 1000
+
+
 def _repetitions(args: argparse.Namespace) -> int:
-    if not 1 <= args.repetitions <= 100_000:
-        raise CommandError(f"--repetitions must be in 1...100000, got {args.repetitions!r}")
+    if not 1 <= args.repetitions <= MAX_DRAWS:
+        raise CommandError(f"--repetitions must be in 1...{MAX_DRAWS}, got {args.repetitions!r}: each draw is a "
+                           "closed loop analysed in full (margins, tracking), and --robust analyses every draw at "
+                           f"each setting it tries; {MAX_DRAWS} draws give the 95th percentile's probability "
+                           "within +-1.4 %")
     return int(args.repetitions)
 
 

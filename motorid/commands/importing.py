@@ -85,12 +85,29 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
                                input_shift=getattr(args, "input_shift", 0))
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
+    _say_gaps(path, rec)
     limit = getattr(args, "input_limit", None)
     if limit is not None:
         if not (math.isfinite(limit) and limit > 0):
             raise CommandError(f"--input-limit must be a number > 0 {rec.input_unit}, got {limit!r}")
         rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_limit": f"{limit:g}"})
     return rec
+
+
+def _say_gaps(path: str, rec: Recording) -> None:
+    """Say where the time column jumps over whole sample periods: each gap splits the run into segments fitted
+    apart (an hour's pause is a pause between runs, not 360 000 samples lost)."""
+    import numpy as np
+    steps = np.diff(np.asarray(rec.seq, dtype=np.int64)) - 1
+    gaps = np.flatnonzero(steps > 0)
+    if not len(gaps):
+        return
+    k = int(gaps[np.argmax(steps[gaps])])
+    longest = int(steps[k]) * rec.sample_period
+    print_to_stderr(f"motorid: note: {path}: the time column has {len(gaps)} gap(s), {int(steps[gaps].sum())} sample "
+                    f"periods of {rec.sample_period:g} s with no row, the longest {longest:.6g} s after t = "
+                    f"{float(rec.time[k]):.6g} s: read as {len(gaps) + 1} segments fitted apart (a pause or rows "
+                    "lost, never samples made up)")
 
 
 def _is_motorid_recording(path: str) -> bool:
