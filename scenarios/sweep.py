@@ -48,7 +48,7 @@ from identify import (
     fit_output_error_batch,
     output_error_batchable,
 )
-from motorsim.batch import encoder_counts_batch, is_batchable, simulate_batch, speed_batch
+from motorsim.batch import encoder_counts_batch, is_batchable, simulate_batch, speed_batch, unbatchable_parts
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.files import atomic_writer, make_output_dir, write_atomically
 from motorsim.recording import Recording
@@ -182,7 +182,9 @@ class PointResult:
 
 def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
     motor = setting.motor()
-    if not (motor.is_linear and motor.input_delay == 0 and setting.jitter == 0 and setting.drop_rate == 0
+    # the bound of the first-order motor: for that plant alone (an electrical lag is linear but not it)
+    if not (motor.is_linear and not unbatchable_parts(motor) and motor.input_delay == 0 and setting.jitter == 0
+            and setting.drop_rate == 0
             and not setting.record_speed):
         return None
     bound = cramer_rao_bound(setting.a, setting.b, duty, setting.sample_period,
