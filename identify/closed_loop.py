@@ -143,7 +143,7 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
     p = -math.expm1(-a * h) / a
     q = (h - p) / a
     resid = w_next - e * w_now - b * (q * u[:, 0] + (p * p - e * q) * u[:, 1]) / h
-    return Estimate(method="iv-reference", a=a, b=b, n_samples=len(w_next), sample_period=h,
+    return Estimate(method="iv-reference", structure="linear", a=a, b=b, n_samples=len(w_next), sample_period=h,
                     residual_rms=float(np.sqrt(np.mean(resid ** 2))),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), extra={"input_delay": delay},
                     input_unit=recs[0].input_unit, input_limit=recs[0].input_limit)

@@ -32,7 +32,7 @@ from .model_file import (
     json_ready,
     read_estimate_document,
 )
-from .model_structures import ModelStructure, structure, structure_of
+from .model_structures import ModelStructure, structure, structure_fitted
 from .selection_report import SelectionReport
 
 if TYPE_CHECKING:
@@ -71,8 +71,9 @@ class Estimate:
         (constant acceleration ``d``) in rad/s^2, ``dead_zone`` in input units (an
         ``"input_delay"`` key given here is moved to :attr:`input_delay`).
     structure : str
-        Name of the model structure (:func:`identify.structures`); found from ``method`` and
-        ``param_names`` when not given.
+        Name of the model structure (:func:`identify.structures`); every estimator names it.  When
+        not given (an estimate made by hand), the registered structure whose parameters are exactly
+        ``param_names`` (``a``, ``b``: the linear motor); refused when none is.
     input_delay : int
         Whole samples between a duty being commanded and reaching the motor, >= 0.
     residual_unit : str
@@ -156,7 +157,7 @@ class Estimate:
             object.__setattr__(self, "input_delay", delay)
         object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, lo=0))
         object.__setattr__(self, "extra", {k: float(v) for k, v in extra.items()})
-        found = structure(self.structure) if self.structure else structure_of(self.method, tuple(self.param_names))
+        found = structure(self.structure) if self.structure else structure_fitted(self.param_names)
         object.__setattr__(self, "structure", found.name)
         unset = [n for n in self.param_names if n not in ("a", "b", *self.extra)]
         if unset:

@@ -32,7 +32,7 @@ from motorsim.checks import check_int
 from motorsim.recording import Recording
 from motorsim.recursion import first_order_filter
 
-from .data import as_recordings, check_excitation, check_input_delay, prepare_segments
+from .data import DEFAULT_INPUT_DELAY, as_recordings, check_excitation, check_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .output_error import select_delay
@@ -202,7 +202,8 @@ class _IvRegression:
         return self.solve(a_new, x_inst, xm, last)
 
 
-def fit_instrumental_variables(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+def fit_instrumental_variables(recordings: Recording | list[Recording], *,
+                               input_delay: int | str = DEFAULT_INPUT_DELAY,
                                iterations: int = 3) -> Estimate:
     """Refined-IV estimate of ``a``, ``b`` from averaged (differenced) speed.
 
@@ -211,7 +212,8 @@ def fit_instrumental_variables(recordings: Recording | list[Recording], *, input
     recordings : Recording or sequence of Recording
         Pooled over gap-free segments.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"`` chooses it by output error).
+        Input delay in samples, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`), chosen by
+        output error.
     iterations : int
         IV passes after the ``zoh-ls`` start, >= 1 (default 3).
 
@@ -262,7 +264,7 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
     cov_theta = s2 * Minv @ sol.instrument_gram() @ Minv.T
     jac = np.array([[-1.0 / (e * h), 0.0], [0.0, 1.0]])
     cov = jac @ cov_theta @ jac.T
-    return Estimate(method="iv", a=a, b=b, n_samples=len(y), sample_period=h,
+    return Estimate(method="iv", structure="linear", a=a, b=b, n_samples=len(y), sample_period=h,
                     residual_rms=math.sqrt(rss / len(y)),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), covariance=cov,
                     extra={"input_delay": delay}, input_unit=recs[0].input_unit, input_limit=recs[0].input_limit,

@@ -24,6 +24,8 @@ import numpy as np
 from motorsim.checks import ParameterError, check_real
 from motorsim.plant import Motor, Trajectory, simulate
 
+from ..estimators import OE, Estimator
+
 if TYPE_CHECKING:
     import control
 
@@ -86,10 +88,11 @@ class ModelStructure:
     fixed : mapping of str to float
         Parameters of the wider family this structure holds at a value (``friction = 0`` for a
         linear one); :meth:`values` fills them in.
-    method : str
-        The estimator that fits it (``identify.fit(rec, method, **options)``).
+    estimator : identify.estimators.Estimator
+        The estimator that fits it, as an object (:attr:`method` is its name:
+        ``identify.fit(rec, method, **options)``).
     options : mapping
-        The options that make ``method`` fit exactly this structure.
+        The options that make its estimator fit exactly this structure.
     linear : bool
         Whether the model is linear in the input (a bias counts as linear: an affine input);
         the default screens the nonlinear ones.
@@ -105,11 +108,16 @@ class ModelStructure:
     description: str = ""
     parameters: tuple[Parameter, ...] = ()
     fixed: Mapping[str, float] = {}
-    method: str = ""
+    estimator: Estimator = OE
     options: Mapping[str, Any] = {}
     linear: bool = True
     in_default: bool = True
     rank: int = 0
+
+    @property
+    def method(self) -> str:
+        """The name of the estimator that fits it (``identify.fit(rec, method, **options)``)."""
+        return self.estimator.name
 
     @property
     def param_names(self) -> tuple[str, ...]:

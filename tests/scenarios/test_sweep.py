@@ -145,8 +145,7 @@ def test_estimators_are_found_by_name(monkeypatch, tmp_path):
         import dataclasses
         est = identify.fit_zoh_ls(recordings)
         return dataclasses.replace(est, method="shifted", a=est.a + 1.0)
-    monkeypatch.setitem(identify.methods._METHODS, "shifted", shifted)
-    monkeypatch.setitem(identify.methods._OPTIONS, "shifted", ())
+    monkeypatch.setitem(identify.methods.ESTIMATORS, "shifted", identify.methods.Estimator("shifted", shifted))
     data = {"repetitions": 3, "seed": 1, "bench": {"duration": 1.0, "angle_noise": 2e-4}}
     summary = run_scenario(scenario_from_dict(data), tmp_path, workers=1)
     rows = {r["method"]: r for r in read_sweep_csv(summary.csv_path)}
