@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, check_bool
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
@@ -611,7 +612,7 @@ def _regression_start(problem: FrictionProblem) -> np.ndarray | None:
         if not (0.0 < e < 1.0) or gain == 0.0:
             return None
         a = -math.log(e) / h
-        p = -math.expm1(-a * h) / a
+        p = first_order_coefficients(a, h)[1]
         if dead_zone:
             zone = max(0.0, -float(beta[1 + n_u]) / gain)
     rest = 1 + n_u + dead_zone

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from motorsim.checks import check_int
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 from motorsim.recursion import first_order_filter
 
@@ -89,7 +90,7 @@ def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) 
     p, q = h * p1, h * h * p2
     v = np.asarray(u[:-2], dtype=float)
     w = np.zeros(len(v))                             # w_0 = 0, w_{k+1} = e w_k + p u_k
-    first_order_filter(math.exp(-a * h), p * v[:-1], out=w[1:])
+    first_order_filter(first_order_coefficients(a, h)[0], p * v[:-1], out=w[1:])
     w *= p
     w += q * v
     w *= b
@@ -273,7 +274,5 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
 
 def _filter_coefficients(a: float, h: float) -> tuple[float, float]:
     """``(q / h, (p^2 - e q) / h)``: the filtered input per unit ``b`` is ``c1 u_k + c0 u_{k-1}``."""
-    e = math.exp(-a * h)
-    p = -math.expm1(-a * h) / a
-    q = (h - p) / a
+    e, p, q = first_order_coefficients(a, h)
     return q / h, (p * p - e * q) / h

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, check_real
-from motorsim.plant import Motor, Trajectory, simulate
+from motorsim.plant import Motor, Trajectory, first_order_coefficients, simulate
 
 from ..estimators import OE, Estimator
 
@@ -235,8 +235,8 @@ class ModelStructure:
                                                                                                 list[float]]:
         """Numerator and denominator in ``z`` of the exact zero-order-hold model (no delay)."""
         v = self.values(values)
-        a, b, h = v["a"], v["b"], sample_period
-        return [-b / a * math.expm1(-a * h)], [1.0, -math.exp(-a * h)]
+        e, p, _ = first_order_coefficients(v["a"], sample_period)
+        return [v["b"] * p], [1.0, -e]
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}: {', '.join(self.param_names)}>"
