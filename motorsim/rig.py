@@ -154,9 +154,6 @@ class SimRig:
         object.__setattr__(self, "disturbance", check_real("disturbance", self.disturbance, nonnegative=True))
         object.__setattr__(self, "disturbance_time", check_real("disturbance_time", self.disturbance_time,
                                                                 positive=True))
-        if self.disturbance > 0 and self.motor.electrical_time_constant > 0:
-            raise ParameterError(f"disturbance must be 0 with an electrical lag (its per-sample loop takes none), "
-                                 f"got {self.disturbance!r}")
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0 or self.disturbance > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
             raise ParameterTypeError(f"rng must be a numpy.random.Generator when noise, jitter, drops or a "

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, check_real
-from motorsim.plant import Motor, Trajectory, first_order_coefficients, simulate
+from motorsim.plant import Motor, Stepper, Trajectory, first_order_coefficients, simulate
 
 from ..estimators import OE, Estimator
 
@@ -164,6 +164,22 @@ class ModelStructure:
         v = self.values(values)
         return Motor(v["a"], v["b"], friction=v.get("friction", 0.0), bias=v.get("bias", 0.0),
                      dead_zone=v.get("dead_zone", 0.0), input_delay=input_delay)
+
+    def state_space(self, values: Mapping[str, float]) -> control.StateSpace:
+        """Its continuous system, the linear part with these values: states ``angle``, ``speed`` (and the
+        structure's own, e.g. the lag's ``current``), input ``duty``, outputs ``angle`` and ``speed``
+        (:meth:`motorsim.plant.Motor.state_space`; delay and nonlinear parts omitted)."""
+        return self.plant(values).state_space()
+
+    def discretise(self, values: Mapping[str, float], sample_period: float) -> control.StateSpace:
+        """Its exact discretisation over a held sample (zero-order hold) at ``sample_period`` s, the linear
+        part (:meth:`motorsim.plant.Motor.discretise`)."""
+        return self.plant(values).discretise(sample_period)
+
+    def stepper(self, values: Mapping[str, float], intervals) -> Stepper:
+        """One exact step of its state per sample interval, every part included (:class:`motorsim.plant.Stepper`:
+        what a per-sample loop runs; the input delay is the caller's delay line)."""
+        return Stepper(self.plant(values), intervals)
 
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
