@@ -57,6 +57,7 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
+from .consistency import PartCheck, part_checks, widened_range
 from .data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -512,6 +513,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         est, doubt = averaged
         selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
             f"; {selection.doubt}" if selection.doubt else ""))
+    est, selection = _unsure_intervals(est, selection)
     se = est.stderr()
     if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
         # a choice whose own fit cannot say how well it knows a and b is no clear choice
@@ -530,8 +532,62 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
         selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
             f"; {selection.doubt}" if selection.doubt else ""))
-    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection), notes=tuple(
+    est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
+    report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
+    return dataclasses.replace(est, selection=report, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
+
+
+def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
+                 open_loop: bool) -> tuple[Estimate, Selection, tuple[PartCheck, ...]]:
+    """The chosen answer against the data's own parts (:mod:`identify.consistency`): where parts disagree the
+    intervals widen to hold each part's, and where a part's ``a`` or ``b`` is materially off the answer is not
+    clear, the doubt saying which part differs and what it suggests.  Not made on a recording made in a loop
+    (its output-error residual holds the fed-back noise, which the input answers)."""
+    if not open_loop:
+        return est, selection, ()
+    parts = part_checks(est, recs)
+    differ = [c for c in parts if not c.agree]
+    if not differ:
+        return est, selection, parts
+    ci = est.confidence_interval(0.95)
+    est = dataclasses.replace(est, model_range=widened_range({"a": ci["a"], "b": ci["b"]}, differ))
+    material = [c for c in differ if c.material]
+    if material:
+        first = min(material, key=lambda c: c.p_value)
+        others = f" (and {len(material) - 1} more split{'s' if len(material) > 2 else ''}: see the part checks)" \
+            if len(material) > 1 else ""
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the model's a and b differ between parts of the recording, {first.split} (p = {first.p_value:.2g}): "
+            f"{first.hint}{others}; no single a and b fits it all, so this is not a clear choice; the intervals "
+            "hold every part's" + (f"; {selection.doubt}" if selection.doubt else "")))
+    return est, selection, parts
+
+
+def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
+    """An answer whose intervals say nothing is no clear choice: a zero standard error from data with a residual
+    (a degenerate covariance: the interval made infinite) or an interval wider than the value itself (a ramp, a
+    few steps: the run does not determine it)."""
+    se = est.stderr()
+    exact = [n for n in ("a", "b") if se[n] == 0 and est.residual_rms > 0]
+    if exact:
+        # a covariance that knows a parameter exactly from data with a residual is degenerate: it is no interval
+        ranges = est.model_range or {n: est.confidence_interval(0.95)[n] for n in ("a", "b")}
+        est = dataclasses.replace(est, model_range={**ranges, **{n: (-math.inf, math.inf) for n in exact}})
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the chosen fit's covariance is degenerate (a zero standard error for {' and '.join(exact)} from data "
+            "with a residual), so it gives no interval; " + (selection.doubt or "a richer input (several "
+                                                             "frequencies, a step) would pin them down")))
+    wide = [n for n, (low, high) in est.confidence_interval(0.95).items() if n in ("a", "b") and
+            math.isfinite(se[n]) and (high - low) / 2 > abs(est.value(n))]
+    if wide and not exact:
+        # an interval wider than the value itself (a ramp, a few steps): the run does not determine it
+        ci = est.confidence_interval(0.95)
+        said = ", ".join(f"{n} in [{ci[n][0]:.4g}, {ci[n][1]:.4g}]" for n in wide)
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the run does not determine {' and '.join(wide)} ({said}, 95 %): this is not a clear choice; "
+            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
+    return est, selection
 
 
 #: The doubt of a closed-loop recording the default fits as any other (no disturbance found to feed back).

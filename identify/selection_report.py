@@ -20,6 +20,7 @@ from motorsim.checks import ParameterError, ParameterTypeError
 
 if TYPE_CHECKING:
     from .comparison import Candidate, Selection
+    from .consistency import PartCheck
 
 __all__ = ["CandidateReport", "SelectionReport"]
 
@@ -109,6 +110,10 @@ class SelectionReport:
         Level of the test that calls a candidate worse than the best.
     criterion : str
         The rule of the choice, in words.
+    checks : tuple of PartCheck
+        The chosen model's ``a`` and ``b`` on parts of the recording (early and late, forward and reverse, low
+        and high drive, slow and fast: :mod:`identify.consistency`); a material disagreement makes the choice
+        unclear.
 
     Examples
     --------
@@ -130,6 +135,7 @@ class SelectionReport:
     candidates: tuple[CandidateReport, ...]
     level: float
     criterion: str = "simplest candidate within the noise of the best (batch-means test)"
+    checks: tuple[PartCheck, ...] = ()
 
     @classmethod
     def from_selection(cls, selection: Selection) -> SelectionReport:
@@ -148,7 +154,8 @@ class SelectionReport:
                 "best": self.best.to_dict(),
                 "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
                 "clear": self.clear, "doubt": self.doubt, "notes": list(self.notes),
-                "candidates": [c.to_dict() for c in self.candidates]}
+                "candidates": [c.to_dict() for c in self.candidates],
+                **({"checks": [c.to_dict() for c in self.checks]} if self.checks else {})}
 
     @classmethod
     def from_dict(cls, d: Any) -> SelectionReport:
@@ -160,6 +167,7 @@ class SelectionReport:
             (a ``ValueError``; ``ParameterTypeError`` for the wrong kind) naming the field that is
             missing or wrong, e.g. ``selection.chosen.input_delay``.
         """
+        from .consistency import PartCheck
         f = _Checked(d, "selection")
         raw = f.get("candidates", list)
         runner_up = f.get("runner_up", (dict, type(None)))
@@ -169,7 +177,9 @@ class SelectionReport:
                    clear=f.flag("clear"), doubt=f.text("doubt"), notes=tuple(f.texts("notes")),
                    candidates=tuple(CandidateReport.from_dict(c, f"selection.candidates[{i}]")
                                     for i, c in enumerate(raw)),
-                   level=f.real("level"), criterion=f.text("criterion"))
+                   level=f.real("level"), criterion=f.text("criterion"),
+                   checks=tuple(PartCheck.from_dict(c, f"selection.checks[{i}]")
+                                for i, c in enumerate(f.get("checks", list, []))))
 
 
 class _Checked:

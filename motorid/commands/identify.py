@@ -223,6 +223,8 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
         verdict(checks["whiteness_p"], "white", "NOT white"),
         verdict(checks["input_p"], "independent of the input", "CORRELATED with the input"),
         verdict(checks["sign_p"], "independent of sign(speed)", "CORRELATED with sign(speed): friction?")]))
+    for check in selection.checks:
+        lines.append(f"  parts     {check.describe()}")
     return "\n".join(lines)
 
 

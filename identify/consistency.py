@@ -1,0 +1,442 @@
+"""Part checks: does the chosen model give the same ``a`` and ``b`` on every fair part of the recording?
+
+A model that is right for the plant gives the same ``a`` and ``b`` — within their intervals — on any
+part of the data: early and late, forward and reverse motion, low and high drive, slow and fast.  A
+model that is wrong (a motor that warms over the run, a load switched on partway, a driver whose forward
+gain differs from its reverse one, that clips the duty or limits its current, friction that weakens with
+speed) fits some parts with other values than others, *whatever structure was chosen*: this check needs
+no structure that describes the misfit, only the chosen one's answer.  It is the default's last word on
+whether a choice is clear (:func:`identify.selection.fit_selected`).
+
+The test, for each split of the rows into two parts ``S`` and its complement, is a Chow test in its
+output-error form.  Letting ``a``, ``b`` and a constant acceleration ``d`` take other values on ``S``,
+``dω/dt = -(a + δa 1_S) ω + (b + δb 1_S) v + δd 1_S``, the model output moves, to first order, along
+the responses of the chosen model's pole to the inputs ``-1_S ω``, ``1_S v`` and ``1_S`` (``ω`` the
+model's speed over each interval, ``v`` the drive the structure's gain multiplies: the duty past its dead
+zone, the current behind its lag).  These columns and the model's own (the same without ``1_S``, the
+Coulomb friction's ``-sign ω`` when the structure has it, each segment's initial state) are fitted to the
+chosen model's residual by least squares, starting from the full fit: one Gauss--Newton step of the
+model with per-part parameters.  Its ``(δa, δb, δd)`` are tested against zero with the batch-means
+sandwich covariance (:data:`~identify.comparison.BLOCKS` blocks of consecutive rows, so correlated
+residuals — a misfit's, an encoder's rounding — are allowed for) as Hotelling's ``T^2``, an
+``F(k, m - k)`` variate; the parts' values are the step's ``a``, ``b`` on each side, with their
+intervals from the same covariance.
+
+The parts (:data:`SPLITS`):
+
+* ``early / late``: the first and the second half of the rows (a drift, a load switched on);
+* ``forward / reverse``: ``ω > 0`` against ``ω < 0`` for ``a`` and ``d``, ``v > 0`` against ``v < 0`` for
+  ``b`` (an asymmetric driver or gearbox);
+* ``low / high drive``: ``|v|`` at or below its median against above (a duty clipped, a current limit);
+* ``slow / fast``: ``|ω|`` at or below its median against above (friction or drag that varies with speed).
+
+A split is left out where either part holds less than :data:`MIN_PART_SHARE` of the rows (a run in one
+direction only), or where the drive takes one magnitude (a binary PRBS has no low and high drive).  The
+level of each test is :data:`~identify.comparison.LEVEL` divided by the number of splits made
+(Bonferroni): on a right model the whole check rejects in about one run in a thousand.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from motorsim.recording import Recording
+
+from .comparison import LEVEL, MATERIAL, block_sums
+from .data import Segment
+
+__all__ = ["PartCheck", "part_checks", "SPLITS", "MIN_PART_SHARE", "MAX_ROWS"]
+
+#: The splits, in the order they are made and reported: name and the two parts' names.
+SPLITS: dict[str, tuple[str, str]] = {
+    "early / late": ("early", "late"),
+    "forward / reverse": ("forward", "reverse"),
+    "low / high drive": ("low drive", "high drive"),
+    "slow / fast": ("slow", "fast"),
+}
+#: Share of the rows each part must hold for its split to be made.
+MIN_PART_SHARE = 0.1
+#: Share of the drive's (and the speed's) energy each part must hold for its split to be made: the half of the
+#: rows at the lower drive of a multisine holds about 8 % of its energy.
+MIN_ENERGY_SHARE = 0.02
+#: Rows the check uses at most (the first of every segment, in proportion): its cost stays a few model
+#: responses however long the recording.
+MAX_ROWS = 200_000
+
+
+@dataclasses.dataclass(frozen=True)
+class PartCheck:
+    """One split of the rows into two parts, and whether the chosen model's ``a`` and ``b`` agree on them.
+
+    Attributes
+    ----------
+    split : str
+        Its name (a key of :data:`SPLITS`).
+    parts : tuple of str
+        The two parts' names.
+    a, b : tuple of float
+        ``a`` (1/s) and ``b`` on each part (one Gauss--Newton step of per-part parameters from the full fit).
+    a_interval, b_interval : tuple of (float, float)
+        Their 95 % intervals, part by part.
+    p_value : float
+        Of the test that the parts share ``a``, ``b`` and the constant acceleration.
+    agree : bool
+        ``p_value`` at or above the level.
+    material : bool
+        A part's ``a`` or ``b`` differs from the full fit's by more than :data:`~identify.comparison.MATERIAL`
+        (relative): disagreement that makes the choice unclear.
+    hint : str
+        What the difference suggests, in words ("" when the parts agree).
+    """
+
+    split: str
+    parts: tuple[str, str]
+    a: tuple[float, float]
+    b: tuple[float, float]
+    a_interval: tuple[tuple[float, float], tuple[float, float]]
+    b_interval: tuple[tuple[float, float], tuple[float, float]]
+    p_value: float
+    agree: bool
+    material: bool
+    hint: str = ""
+
+    def describe(self) -> str:
+        """One line: the split, each part's ``a`` and ``b``, the p-value and the verdict."""
+        (p, q) = self.parts
+        verdict = "agree" if self.agree else "DIFFER" + (f": {self.hint}" if self.hint else "")
+        return (f"{self.split}: a {_g(self.a[0])} {p}, {_g(self.a[1])} {q}; b {_g(self.b[0])} {p}, "
+                f"{_g(self.b[1])} {q} (p = {self.p_value:.2g}) {verdict}")
+
+    def to_dict(self) -> dict:
+        """The check's object in ``selection.checks`` of the estimate's JSON document."""
+        return {"split": self.split, "parts": list(self.parts), "a": list(self.a), "b": list(self.b),
+                "a_interval": [list(x) for x in self.a_interval], "b_interval": [list(x) for x in self.b_interval],
+                "p_value": self.p_value, "agree": self.agree, "material": self.material, "hint": self.hint}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "selection.checks") -> PartCheck:
+        """The check of a document's object (``where`` names it in errors)."""
+        from .selection_report import _Checked
+        f = _Checked(d, where)
+
+        def pair(name: str) -> tuple[float, float]:
+            values = f.get(name, list)
+            if len(values) != 2 or not all(v is None or isinstance(v, (int, float)) and not isinstance(v, bool)
+                                           for v in values):
+                raise _bad(where, name, "a list of two numbers", values)
+            return tuple(math.nan if v is None else float(v) for v in values)  # type: ignore[return-value]
+
+        def intervals(name: str) -> tuple[tuple[float, float], tuple[float, float]]:
+            values = f.get(name, list)
+            if len(values) != 2:
+                raise _bad(where, name, "a list of two intervals", values)
+            out = []
+            for v in values:
+                if not (isinstance(v, list) and len(v) == 2 and all(
+                        x is None or isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+                    raise _bad(where, name, "a list of two intervals", values)
+                out.append(tuple(math.nan if x is None else float(x) for x in v))
+            return out[0], out[1]  # type: ignore[return-value]
+
+        parts = f.texts("parts")
+        if len(parts) != 2:
+            raise _bad(where, "parts", "a list of two names", parts)
+        return cls(split=f.text("split"), parts=(parts[0], parts[1]), a=pair("a"), b=pair("b"),
+                   a_interval=intervals("a_interval"), b_interval=intervals("b_interval"),
+                   p_value=f.real("p_value"), agree=f.flag("agree"), material=f.flag("material"),
+                   hint=f.text("hint", ""))
+
+
+def _bad(where: str, name: str, rule: str, value: Any) -> Exception:
+    from motorsim.checks import ParameterError
+    return ParameterError(f"estimate field '{where}.{name}' must be {rule}, got {value!r:.80}")
+
+
+def _g(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def part_checks(estimate: Any, recordings: Sequence[Recording], *, level: float = LEVEL) -> tuple[PartCheck, ...]:
+    """The chosen model's ``a`` and ``b`` on each split of the recordings' rows (module docstring).
+
+    Parameters
+    ----------
+    estimate : Estimate
+        A fit of ``recordings`` by a first-order or second-order structure.
+    recordings : sequence of Recording
+        The data it was fitted on.
+    level : float
+        Level of the whole check; each split's test is at ``level`` over the number of splits made.
+
+    Returns
+    -------
+    tuple of PartCheck
+        One per split made (none where the model's output cannot be formed).
+    """
+    rows = _rows(estimate, recordings)
+    if rows is None:
+        return ()
+    splits = _split_labels(rows)
+    if not splits:
+        return ()
+    each = level / len(splits)
+    own = _columns(rows, _own_inputs(rows))
+    return tuple(_check(estimate, rows, own, name, labels, each) for name, labels in splits.items())
+
+
+def _own_inputs(rows: _Rows) -> list[np.ndarray]:
+    """The inputs whose responses are the chosen model's own directions: ``a``, ``b``, ``d`` (and friction)."""
+    w = rows.speed
+    return [-w, rows.drive, np.ones(len(w))] + ([-np.sign(w)] if rows.friction else [])
+
+
+@dataclasses.dataclass
+class _Rows:
+    """The chosen model on every segment, what the checks need, segments concatenated."""
+
+    residual: np.ndarray          # measured less model output (angle or speed)
+    speed: np.ndarray             # model speed over each interval (held like the drive; last row 0)
+    drive: np.ndarray             # the drive the gain multiplies, over each interval
+    order: np.ndarray             # the row's place in the run, 0 ... 1
+    respond: list[Callable[..., np.ndarray]]   # per segment: x (its rows) -> projected response
+    bounds: list[tuple[int, int]]  # per segment: its rows
+    friction: bool
+    output_rms: float             # of the measured output less each segment's first value
+
+
+def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
+    """The chosen model on the recordings' segments (the first :data:`MAX_ROWS` rows, in proportion)."""
+    from .data import first_rows
+    from .sensitivity import zoh_response
+    from .validation import _models
+    values = estimate.values()
+    a = float(values["a"])
+    if not (math.isfinite(a) and math.isfinite(float(values["b"]))):
+        return None
+    pairs: list[tuple[Segment, np.ndarray]] = []
+    for rec in recordings:
+        try:
+            pairs += _models(estimate, rec)
+        except Exception:          # a recording the model cannot be formed on: no check (said by the caller)
+            return None
+    if not pairs:
+        return None
+    segs = first_rows([seg for seg, _ in pairs], MAX_ROWS)
+    residual, speed, drive, order, bounds, outputs = [], [], [], [], [], []
+    respond: list[Callable[..., np.ndarray]] = []
+    total = sum(len(seg.time) for seg, _ in pairs)
+    done = 0
+    start = 0
+    tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
+    zone = float(values.get("dead_zone", 0.0) or 0.0)
+    for seg, (full, model) in zip(segs, pairs):
+        n = len(seg.time)
+        model = model[:n]
+        t = seg.time
+        angle = seg.kind == "angle"
+        if not np.all(np.isfinite(model)):
+            return None
+        w = np.diff(model) / np.diff(t) if angle else 0.5 * (model[:-1] + model[1:])
+        v = np.asarray(seg.drive, dtype=float)
+        if zone > 0:
+            v = np.sign(v) * np.maximum(np.abs(v) - zone, 0.0)
+        if tau > 0:
+            v = _lagged(v, t, tau)
+        residual.append(seg.output - model)
+        outputs.append(seg.output - seg.output[0])
+        speed.append(np.append(w, 0.0))
+        drive.append(np.append(v[:-1], 0.0))
+        order.append((done + np.arange(n)) / max(total - 1, 1))
+        done += len(full.time)
+        free = zoh_response(a, 0.0, np.zeros(n), t, 1.0, uniform=seg.uniform, sensitivities=False)
+        respond.append(functools.partial(_respond, a, t, seg.uniform, angle, free.angle if angle else free.speed))
+        bounds.append((start, start + n))
+        start += n
+    return _Rows(np.concatenate(residual), np.concatenate(speed), np.concatenate(drive), np.concatenate(order),
+                 respond, bounds, float(values.get("friction", 0.0) or 0.0) > 0,
+                 float(np.sqrt(np.mean(np.concatenate(outputs) ** 2))))
+
+
+def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, s0: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The response of the pole ``a`` to the held input ``x`` on one segment, its initial state projected out."""
+    from .sensitivity import project_out_initial_state, zoh_response
+    r = zoh_response(a, 1.0, x, t, 0.0, uniform=uniform, sensitivities=False)
+    return project_out_initial_state(s0, angle, r.angle if angle else r.speed)[0]
+
+
+def _lagged(v: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """The drive behind a first-order lag ``tau``, averaged over each interval (the gain multiplies that)."""
+    h = np.diff(t)
+    e = np.exp(-h / tau)
+    i = np.zeros(len(v))
+    for k in range(len(v) - 1):          # short: the check runs once per default fit
+        i[k + 1] = e[k] * i[k] + (1 - e[k]) * v[k]
+    mean = v[:-1] + (i[:-1] - v[:-1]) * tau / h * (1 - e)
+    return np.append(mean, 0.0)
+
+
+def _split_labels(rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Each split's part ``S`` as masks for the ``a``, ``b`` and ``d`` columns (module docstring); splits whose
+    parts are too small left out."""
+    w, v = rows.speed, rows.drive
+    moving_v = np.abs(v[v != 0])
+    out = {}
+
+    def enough(mask: np.ndarray, weight: np.ndarray) -> bool:
+        rows_share = float(np.mean(mask))
+        total = float(np.sum(weight))
+        share = float(np.sum(weight[mask])) / total if total > 0 else 0.0
+        return (MIN_PART_SHARE <= rows_share <= 1 - MIN_PART_SHARE
+                and MIN_ENERGY_SHARE <= share <= 1 - MIN_ENERGY_SHARE)
+    late = rows.order >= 0.5
+    out["early / late"] = (late, late, late)
+    fwd_w, fwd_v = w > 0, v > 0
+    if enough(fwd_w, w * w) and enough(fwd_v, v * v):
+        out["forward / reverse"] = (fwd_w, fwd_v, fwd_w)
+    if len(moving_v) and len(np.unique(moving_v)) > 2:
+        high = np.abs(v) > np.median(moving_v)
+        if enough(high, v * v):
+            out["low / high drive"] = (high, high, high)
+    fast = np.abs(w) > np.median(np.abs(w))
+    if enough(fast, w * w):
+        out["slow / fast"] = (fast, fast, fast)
+    return out
+
+
+#: Residual, relative to the output's RMS, at or below which a fit is exact (rounding, not noise): no test.
+EXACT = 1e-9
+
+
+def _exact(rows: _Rows) -> bool:
+    """Whether the model reproduces the data to rounding (:data:`EXACT`)."""
+    r = rows.residual
+    return bool(np.sqrt(np.mean(r * r)) <= EXACT * rows.output_rms)
+
+
+def _columns(rows: _Rows, xs: Sequence[np.ndarray]) -> np.ndarray:
+    """The projected responses to the inputs ``xs`` (full length), segment by segment, as columns."""
+    out = np.empty((len(rows.residual), len(xs)))
+    for (lo, hi), respond in zip(rows.bounds, rows.respond):
+        for j, x in enumerate(xs):
+            out[lo:hi, j] = respond(x[lo:hi])
+    return out
+
+
+def _check(estimate: Any, rows: _Rows, own: np.ndarray, name: str,
+           masks: tuple[np.ndarray, np.ndarray, np.ndarray], level: float) -> PartCheck:
+    """One split's test and its parts' values (module docstring); ``own``: the model's own columns."""
+    from scipy import stats
+    w, v = rows.speed, rows.drive
+    s_a, s_b, s_d = masks
+    parted = [-w * s_a, v * s_b, np.ones(len(w)) * s_d] + ([-np.sign(w) * s_d] if rows.friction else [])
+    X = np.column_stack([own, _columns(rows, parted)])
+    r = rows.residual
+    if _exact(rows):
+        # the model reproduces the data to its rounding: nothing to test, every part takes its values
+        a, b = float(estimate.a), float(estimate.b)
+        return PartCheck(name, SPLITS[name], (a, a), (b, b), ((a, a), (a, a)), ((b, b), (b, b)), 1.0, True, False)
+    scale = np.linalg.norm(X, axis=0)
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    beta, *_ = np.linalg.lstsq(Xs, r, rcond=None)
+    r1 = r - Xs @ beta
+    bread = np.linalg.pinv(Xs.T @ Xs)
+    g = block_sums(Xs * r1[:, None])
+    m = len(g)
+    meat = g.T @ g * (m / max(m - 1, 1))
+    cov = bread @ meat @ bread / np.outer(scale, scale)
+    beta = beta / scale
+    p_own = own.shape[1]
+    k = X.shape[1] - p_own
+    delta = beta[p_own:]
+    cd = cov[p_own:, p_own:]
+    try:
+        t2 = float(delta @ np.linalg.solve(cd, delta))
+    except np.linalg.LinAlgError:
+        t2 = math.nan
+    p = float(stats.f.sf(t2 * (m - k) / (k * (m - 1)), k, m - k)) if math.isfinite(t2) and m > k else math.nan
+    a0, b0 = float(estimate.a), float(estimate.b)
+    # part S takes the base values plus its delta; the complement the base values
+    a_rest, b_rest = a0 + beta[0], b0 + beta[1]
+    a_s, b_s = a_rest + delta[0], b_rest + delta[1]
+    var_a_rest, var_b_rest = cov[0, 0], cov[1, 1]
+    ia, ib = p_own, p_own + 1
+    var_a_s = cov[0, 0] + cov[ia, ia] + 2 * cov[0, ia]
+    var_b_s = cov[1, 1] + cov[ib, ib] + 2 * cov[1, ib]
+    z = float(stats.norm.ppf(0.975))
+
+    def interval(x: float, var: float) -> tuple[float, float]:
+        se = math.sqrt(max(var, 0.0))
+        return (x - z * se, x + z * se)
+    first, second = SPLITS[name]
+    # the labels' first part is the complement of S for every split but forward / reverse
+    if name == "forward / reverse":
+        a_pair, b_pair = (a_s, a_rest), (b_s, b_rest)
+        ai = (interval(a_s, var_a_s), interval(a_rest, var_a_rest))
+        bi = (interval(b_s, var_b_s), interval(b_rest, var_b_rest))
+    else:
+        a_pair, b_pair = (a_rest, a_s), (b_rest, b_s)
+        ai = (interval(a_rest, var_a_rest), interval(a_s, var_a_s))
+        bi = (interval(b_rest, var_b_rest), interval(b_s, var_b_s))
+    agree = not (math.isfinite(p) and p < level)
+    material = (not agree) and any(abs(x - a0) > MATERIAL * abs(a0) for x in a_pair) or (not agree) and any(
+        abs(x - b0) > MATERIAL * abs(b0) for x in b_pair)
+    hint = "" if agree else _hint(name, a_pair, b_pair, (first, second))
+    return PartCheck(name, (first, second), (float(a_pair[0]), float(a_pair[1])), (float(b_pair[0]), float(b_pair[1])),
+                     ai, bi, p, agree, bool(material), hint)
+
+
+def _hint(name: str, a: tuple[float, float], b: tuple[float, float], parts: tuple[str, str]) -> str:
+    """What a disagreement of the parts suggests, in the user's words: the parameter that moved materially
+    between them (``b`` first, then ``a``), else the constant acceleration (the only other one tested)."""
+    def moved(x: tuple[float, float]) -> float:
+        return (x[1] - x[0]) / max(abs(x[0]), abs(x[1]), 1e-300)
+    da, db = moved(a), moved(b)
+    p, q = parts
+    big_a, big_b = abs(da) >= MATERIAL, abs(db) >= MATERIAL
+    if name == "early / late":
+        if not (big_a or big_b):
+            return "a constant torque changes over the run: a load switched on or off?"
+        which = [f"{n} {'rises' if d > 0 else 'falls'} from {_g(x[0])} to {_g(x[1])}" for n, d, x, big in
+                 (("a", da, a, big_a), ("b", db, b, big_b)) if big]
+        return f"{' and '.join(which)} over the run: warming, a load or a setting that changed?"
+    if name == "forward / reverse":
+        if big_b:
+            return f"b {p} {_g(b[0])}, {q} {_g(b[1])}: an asymmetric driver or gearbox?"
+        if big_a:
+            return f"a {p} {_g(a[0])}, {q} {_g(a[1])}: drag or friction that differs by direction?"
+        return "a constant torque differs by direction: friction or a load on one side?"
+    if name == "low / high drive":
+        if big_b:
+            why = "the driver clips or limits current?" if db < 0 else "a dead zone or friction the model misses?"
+            where = f"b {_g(b[0])} {p}, {_g(b[1])} {q}"
+            return f"the gain is {'lower' if db < 0 else 'higher'} at high duty ({where}): {why}"
+        if big_a:
+            return f"a {_g(a[0])} {p}, {_g(a[1])} {q}: a driver whose response changes with the duty?"
+        return "a constant torque that changes with the duty: a nonlinearity in the driver?"
+    if big_a:
+        return (f"a {_g(a[0])} {p}, {_g(a[1])} {q}: "
+                + ("drag that grows with speed?" if da > 0 else "friction that weakens with speed?"))
+    if big_b:
+        return f"the gain changes with speed (b {_g(b[0])} {p}, {_g(b[1])} {q}): a current limit the model misses?"
+    return "friction that changes with speed?"
+
+
+def widened_range(ranges: Mapping[str, tuple[float, float]],
+                  checks: Sequence[PartCheck]) -> dict[str, tuple[float, float]]:
+    """``ranges`` (``a`` and ``b`` intervals) widened to hold every disagreeing part's own 95 % interval."""
+    out = dict(ranges)
+    for check in checks:
+        if check.agree:
+            continue
+        for name, intervals in (("a", check.a_interval), ("b", check.b_interval)):
+            lo, hi = out[name]
+            for x0, x1 in intervals:
+                if math.isfinite(x0) and math.isfinite(x1):
+                    lo, hi = min(lo, x0), max(hi, x1)
+            out[name] = (lo, hi)
+    return out
