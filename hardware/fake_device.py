@@ -16,7 +16,7 @@ What it emulates, as the firmware does it
   integer arithmetic, queues a SAMPLE, and applies ``duty_k`` at tick ``k + 1``
   (``DEVICE_INPUT_DELAY``: the duty held from tick ``k`` to ``k + 1`` is ``duty_{k-1}``,
   0 at ``k = 0``) while the motor is simulated exactly over each period
-  (``motorsim.simulate`` over that interval).
+  (its exact step, :class:`motorsim.plant.Stepper`).
 - Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
   ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
   :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against),
