@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 
 from identify import Estimate, fit
-from identify.comparison import LEVEL
-from identify.consistency import SPLITS, PartCheck, part_checks
+from identify.consistency import PART_LEVEL, SPLITS, PartCheck, part_checks
 from motorid.bench import misfits
 from motorsim import Encoder, Experiment, Motor, Multisine, Recording, SimRig
 from motorsim.checks import ParameterError
@@ -110,7 +109,7 @@ def test_the_parts_of_an_asymmetric_gain_find_each_direction_s_gain():
     check = next(c for c in est.selection.checks if c.split == "forward / reverse")
     assert check.b[0] == pytest.approx(misfits.B_FORWARD, rel=0.01)
     assert check.b[1] == pytest.approx(misfits.B_REVERSE, rel=0.01)
-    assert check.p_value < LEVEL / len(est.selection.checks)
+    assert check.p_value < PART_LEVEL / len(est.selection.checks)
 
 
 @pytest.mark.slow
