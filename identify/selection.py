@@ -57,7 +57,7 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
-from .consistency import PartCheck, part_checks, widened_range
+from .consistency import PartCheck, consistency, widened_range
 from .data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -542,16 +542,25 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
                  open_loop: bool) -> tuple[Estimate, Selection, tuple[PartCheck, ...]]:
     """The chosen answer against the data's own parts (:mod:`identify.consistency`): where parts disagree the
     intervals widen to hold each part's, and where a part's ``a`` or ``b`` is materially off the answer is not
-    clear, the doubt saying which part differs and what it suggests.  Not made on a recording made in a loop
-    (its output-error residual holds the fed-back noise, which the input answers)."""
+    clear, the doubt saying which part differs and what it suggests.  Where the residuals are correlated at the
+    blocks' scale and the blocks' jackknife knows ``a`` or ``b`` less well than the chosen fit's own covariance,
+    the interval widens to the jackknife's.  Not made on a recording made in a loop (its output-error residual
+    holds the fed-back noise, which the input answers)."""
     if not open_loop:
         return est, selection, ()
-    parts = part_checks(est, recs)
+    found = consistency(est, recs)
+    parts = found.checks
     differ = [c for c in parts if not c.agree]
-    if not differ:
-        return est, selection, parts
     ci = est.confidence_interval(0.95)
-    est = dataclasses.replace(est, model_range=widened_range({"a": ci["a"], "b": ci["b"]}, differ))
+    ranges = {"a": ci["a"], "b": ci["b"]}
+    se = est.stderr()
+    wider = {n: x for n, x in found.block_stderr.items() if not x <= se[n]}
+    for name, x in wider.items():
+        value, half = float(est.value(name)), 1.959963984540054 * x
+        ranges[name] = (min(ranges[name][0], value - half), max(ranges[name][1], value + half))
+    if not (differ or wider):
+        return est, selection, parts
+    est = dataclasses.replace(est, model_range=widened_range(ranges, differ))
     material = [c for c in differ if c.material]
     if material:
         first = min(material, key=lambda c: c.p_value)
