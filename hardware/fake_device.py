@@ -16,7 +16,7 @@ What it emulates, as the firmware does it
   integer arithmetic, queues a SAMPLE, and applies ``duty_k`` at tick ``k + 1``
   (``DEVICE_INPUT_DELAY``: the duty held from tick ``k`` to ``k + 1`` is ``duty_{k-1}``,
   0 at ``k = 0``) while the motor is simulated exactly over each period
-  (``motorsim.simulate`` over that interval).
+  (its exact step, :class:`motorsim.plant.Stepper`).
 - Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
   ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
   :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against),
@@ -63,7 +63,7 @@ import numpy as np
 from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
-from motorsim.plant import Motor, lag_coefficients, simulate, zoh_matrices
+from motorsim.plant import Motor, Stepper
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
@@ -184,7 +184,7 @@ class FakeDevice:
         if not isinstance(self.rng, np.random.Generator):
             raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
-        self._zoh: tuple[float, ...] | None = None
+        self._stepper: Stepper | None = None          # the plant's exact step over the last interval length
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -472,29 +472,11 @@ class FakeDevice:
         self.runs_started += 1
 
     def _advance_motor(self, duty: float, h: float) -> None:
-        """Hold ``duty`` for ``h`` s: the exact ZOH step (motorsim.plant's formulas), or
-        ``motorsim.simulate`` over the interval when there is Coulomb or static friction; behind an electrical lag,
-        its exact step (``motorsim.plant.lag_coefficients``)."""
-        m = self._motor0
-        if m.electrical_time_constant > 0:
-            e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(m.a, 1.0 / m.electrical_time_constant, h))
-            v = float(m.drive(np.array([duty]))[0])
-            w, lag = self._speed_rad_s, self._current - v
-            self._angle += p * w + r * (m.b * v + m.bias) + m.b * s * lag
-            self._speed_rad_s = e_a * w + p * (m.b * v + m.bias) + m.b * q * lag
-            self._current = e_c * self._current + (1 - e_c) * v
-            return
-        if m.breakaway == 0:
-            if self._zoh is None or self._zoh[0] != h:
-                self._zoh = (h, *(float(x) for x in zoh_matrices(m.a, m.b, h)))
-            _, e, g, p, q = self._zoh
-            v = float(m.drive(np.array([duty]))[0]) + m.bias / m.b
-            w = self._speed_rad_s
-            self._angle += p * w + q * v
-            self._speed_rad_s = e * w + g * v
-            return
-        traj = simulate(m, [duty, duty], [0.0, h], initial_speed=self._speed_rad_s, initial_angle=self._angle)
-        self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
+        """Hold ``duty`` for ``h`` s: the plant's exact step (:class:`motorsim.plant.Stepper`)."""
+        if self._stepper is None or self._stepper._h[0] != h:
+            self._stepper = Stepper(self._motor0, h)
+        self._angle, self._speed_rad_s, self._current = self._stepper.step(
+            0, (self._angle, self._speed_rad_s, self._current), duty)
 
     def _ticks(self, now: float) -> None:
         cfg = self._run_config

@@ -44,6 +44,7 @@ import numpy as np
 
 from motorsim.checks import ParameterError, check_real
 from motorsim.compiled import numba_jit
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
@@ -231,9 +232,7 @@ class _Problem:
         out = np.empty(self.n_rows)
         row = 0
         h = self.h
-        e = math.exp(-a * h)
-        p = -math.expm1(-a * h) / a
-        q = (h - p) / a
+        e, p, q = first_order_coefficients(a, h)
         log_det = 0.0
         for seg, w0 in zip(self.segments, self.w0):
             n = len(seg.time)

@@ -59,6 +59,7 @@ from .comparison import (
 )
 from .consistency import PartCheck, consistency, widened_range
 from .data import (
+    DEFAULT_INPUT_DELAY,
     Segment,
     as_recordings,
     check_excitation,
@@ -146,7 +147,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
 
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
-                 input_delay: int | str = "auto", max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
+                 input_delay: int | str = DEFAULT_INPUT_DELAY, max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
                  level: float = LEVEL, screen: bool = True, widening: bool = False) -> Selection:
     """Fit the candidate models and choose the simplest one within the noise of the best.
 
@@ -415,7 +416,7 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
     return out
 
 
-def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: int | str = "auto",
+def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: int | str = DEFAULT_INPUT_DELAY,
                  structures: Sequence[str] | None = None, fix_bias: bool = False) -> Estimate:
     """The default estimator: delay and structure chosen by evidence, fitted on all rows.
 

@@ -177,16 +177,16 @@ def _one_size(n: int, repeats: int) -> tuple[float, float]:
     start = fit(rec, method="zoh-ls", outliers="keep")
     noise = np.random.default_rng(0).standard_normal(n)
     t_oe, t_pass, t_ref, t_iv, t_auto = interleaved_times(
-        [lambda: fit(rec, method="oe", outliers="keep", covariance="gauss-newton"),
+        [lambda: fit(rec, method="oe", outliers="keep", covariance="gauss-newton", input_delay=0),
          lambda: lfilter([1.0], [1.0, -0.9], noise),
          lambda: reference_output_error(angle, duty, dt, (start.a, start.b)),
-         lambda: fit(rec, method="iv", outliers="keep"),
-         lambda: fit(rec, method="oe", outliers="keep")],
+         lambda: fit(rec, method="iv", outliers="keep", input_delay=0),
+         lambda: fit(rec, method="oe", outliers="keep", input_delay=0)],
         repeats)
-    est = fit(rec, method="oe", outliers="keep", covariance="gauss-newton")
+    est = fit(rec, method="oe", outliers="keep", covariance="gauss-newton", input_delay=0)
     a, b = reference_output_error(angle, duty, dt, (start.a, start.b))
     diff = max(abs(est.a - a) / abs(a), abs(est.b - b) / abs(b))
-    peak = _peak_bytes(lambda: fit(rec, method="oe", outliers="keep", covariance="gauss-newton"))
+    peak = _peak_bytes(lambda: fit(rec, method="oe", outliers="keep", covariance="gauss-newton", input_delay=0))
     print(f"{n:>8d} {t_oe * 1e3:8.1f} ms {t_pass * 1e3:6.2f} ms {t_oe / t_pass:6.1f} {t_ref * 1e3:11.1f} ms "
           f"{t_oe / t_ref:6.2f} {diff:12.1e} {peak / n:10.0f} {t_iv * 1e3:9.1f} ms {t_iv / t_pass:6.1f} "
           f"{t_auto * 1e3:11.1f} ms")

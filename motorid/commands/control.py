@@ -401,7 +401,10 @@ def run_control(args: argparse.Namespace) -> int:
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
           f"({model.input_delay * model.sample_period:.6g} s), "
           + (f"electrical time constant {model.electrical_time_constant:g} s, " if model.electrical_time_constant
-             else "") + f"dt = {model.sample_period:g} s, "
+             else "")
+          + (f"static friction {model.static_friction:g} rad/s^2, " if model.static_friction else "")
+          + (f"dead zone {model.dead_zone:g} {unit} (not compensated: the design and its prediction are on the "
+             "linear part), " if model.dead_zone else "") + f"dt = {model.sample_period:g} s, "
           f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
     if speed_unit != "rad/s":
         from motorsim.units import speed_in

@@ -48,8 +48,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                              "bias, Coulomb friction, dead zone - chosen by evidence, as identify.fit does; "
                              "name a method to force it)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
-                        help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
-                             "for them: one fit per candidate delay 0-10)")
+                        help="input delay in samples, or 'auto' to estimate it (default auto for every method that "
+                             "can: one fit per candidate delay 0-10, as identify.fit does)")
     parser.add_argument("--fix-bias", action="store_true",
                         help="hold the constant acceleration (bias, rad/s^2) at 0 (auto: no bias candidate; "
                              "oe-friction)")
@@ -85,23 +85,27 @@ def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword options the flags give the estimator; a flag the method does not take is an error."""
-    from identify import option_declarations
-    declared = {o.name: o for o in option_declarations(args.method)}
-    accepted = tuple(declared)
+    from identify import method_options
+    accepted = method_options(args.method)
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
         value = getattr(args, name)
-        if value is unset and name == "input_delay" and name in accepted and "auto" in declared[name].kind:
-            # the default where the method can search it: a missed delay biases a fit by far more than it costs
-            # (a method whose delay is a fixed number, iv-reference or pem-disturbance, keeps its own default)
-            value = "auto"
-        if value is unset:
+        if value is unset:           # the method's own default (the input delay's: identify.data.DEFAULT_INPUT_DELAY)
             continue
         if name not in accepted:
             takes = f"its options are {', '.join(accepted)}" if accepted else "it takes no options"
             raise CommandError(f"{flag} is not supported by method {args.method!r}: {takes}")
         options[name] = value
     return options
+
+
+def _input_delay_option(args: argparse.Namespace) -> Any:
+    """The input delay the estimator was run with: the flag's, else the method's declared default (None: none)."""
+    from identify import option_declarations
+    given = estimator_options(args)
+    if "input_delay" in given:
+        return given["input_delay"]
+    return next((o.default for o in option_declarations(args.method) if o.name == "input_delay"), None)
 
 
 def run_identify(args: argparse.Namespace) -> int:
@@ -132,7 +136,7 @@ def run_identify(args: argparse.Namespace) -> int:
         from identify.selection import residual_checks
         checks = residual_checks(est, recs[0])
         say(format_selection(est.selection, checks))
-    elif estimator_options(args).get("input_delay") == "auto":
+    elif _input_delay_option(args) == "auto":
         say(f"delay       {est.input_delay} samples, the shortest within the noise of the best "
             "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
