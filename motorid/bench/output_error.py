@@ -154,9 +154,9 @@ def goal_figures() -> list[tuple[Goal, float]]:
         angle, duty = np.asarray(rec.measured_angle()), rec.duty.astype(float)
         start = fit(rec, method="zoh-ls", outliers="keep")
         rounds = interleaved_rounds(
-            [functools.partial(fit, rec, method="oe", outliers="keep", covariance="gauss-newton"),
+            [functools.partial(fit, rec, method="oe", outliers="keep", covariance="gauss-newton", input_delay=0),
              functools.partial(reference_output_error, angle, duty, dt, (start.a, start.b))], 5, clock=cpu_clock)
-        est = fit(rec, method="oe", outliers="keep", covariance="gauss-newton")
+        est = fit(rec, method="oe", outliers="keep", covariance="gauss-newton", input_delay=0)
         a, b = reference_output_error(angle, duty, dt, (start.a, start.b))
         agree = max(abs(est.a - a) / abs(a), abs(est.b - b) / abs(b)) <= AGREEMENT
         ratios.append(median_ratio(rounds, 0, 1) if agree else math.nan)
