@@ -82,9 +82,9 @@ MIN_PART_SHARE = 0.1
 MIN_ENERGY_SHARE = 0.02
 #: Rows the check uses at most (windows spread over every segment, in proportion: :func:`_windows`): its cost
 #: stays a few model responses however long the recording.
-MAX_ROWS = 20_000
+MAX_ROWS = 6_000
 #: Windows of a long segment the check takes (:func:`_windows`), and the fewest rows of one.
-WINDOWS = 8
+WINDOWS = 4
 MIN_WINDOW = 250
 
 
@@ -475,7 +475,8 @@ def _fit_on(mom: _Moments, idx: list[int]) -> tuple[np.ndarray, np.ndarray, int,
     m = len(blocks)
     own = mom.block_xr[:, idx] - np.einsum("mij,j->mi", blocks, beta)
     rest = gram[None] - blocks
-    if not np.all(np.linalg.cond(rest) < 1e12):
+    eig = np.linalg.eigvalsh(rest)              # symmetric: the condition from the eigenvalues, no SVD
+    if not np.all(eig[:, 0] > 1e-12 * eig[:, -1]):
         return beta / scale, np.full((p, p), math.inf), m, classical, dof
     scores = own + np.einsum("mij,mj->mi", blocks, np.linalg.solve(rest, own[..., None])[..., 0])
     meat = np.einsum("mi,mj->ij", scores, scores) * ((m - 1) / m)
