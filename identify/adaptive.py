@@ -64,6 +64,8 @@ _Z = statistics.NormalDist().inv_cdf(0.5 + _LEVEL / 2)
 _MAX_ROUNDS = 40
 _GROWTH = 3.0          # a block lasts at most this many times the motor time so far
 _MARGIN = 1.08         # blocks run this much longer than predicted: one more round costs more
+_AIM = 0.8             # blocks are designed to bring the intervals to this share of the target: the
+                       # prediction is the linear model's, and friction or a lag take some of the information
 _PARAMS = ("a", "b")
 
 
@@ -158,6 +160,13 @@ class UntilResult:
         Motor time of every run in s.
     breakaway : float or None
         Duty where the shaft first turned in the ranging runs (None with a guess).
+    fitted_recording : Recording
+        The runs the estimate is made on, joined: ``identify.fit(result.fitted_recording)``
+        reproduces :attr:`estimate`.
+    fitted_from : int
+        Index of the first run the estimates use: the ranging half-sines (slow ramps from rest, where
+        the encoder's rounding is most of the signal) find the break-away duty and the amplitude, and
+        are left out of the fits once another run follows them.
     """
 
     reached: bool
@@ -169,6 +178,8 @@ class UntilResult:
     target: float
     motor_time: float
     breakaway: float | None
+    fitted_from: int = 0
+    fitted_recording: Recording | None = None
 
     @property
     def clear(self) -> bool:
@@ -179,6 +190,7 @@ class UntilResult:
         """JSON-ready summary with every round."""
         return {"reached": self.reached, "stop": self.stop, "reason": self.reason, "target_pct": self.target,
                 "motor_time_s": self.motor_time, "breakaway_duty": self.breakaway, "clear": self.clear,
+                "fitted_from_run": self.fitted_from + 1,
                 "rounds": [r.to_dict() for r in self.rounds]}
 
 
@@ -300,6 +312,16 @@ class _State:
     descriptions: list
     rounds: list
     motor_time: float = 0.0
+    halfsines: int = 0
+
+    @property
+    def fitted_from(self) -> int:
+        """The first run the fits use: after the ranging half-sines once another run follows them."""
+        return self.halfsines if len(self.runs) > self.halfsines else 0
+
+    @property
+    def fitted(self) -> list:
+        return self.runs[self.fitted_from:]
 
 
 def _fit(recording: Recording, fit_options: Mapping[str, Any]) -> tuple[Estimate | None, str]:
@@ -308,16 +330,27 @@ def _fit(recording: Recording, fit_options: Mapping[str, Any]) -> tuple[Estimate
         return fit(recording, outliers="keep", **fit_options), ""
     except (NotIdentifiableError, ParameterError) as exc:
         return None, str(exc)
+    except (ArithmeticError, np.linalg.LinAlgError) as exc:      # a numerical failure on data this poor
+        return None, f"the fit failed ({type(exc).__name__}: {exc})"
 
 
-def _breakaway(run: Recording, delay: int, noise_counts: float = 3.0) -> float | None:
-    """Duty at which the counts first move by more than ``noise_counts`` from their start (None if never)."""
+def _breakaway(run: Recording, delay: int) -> float | None:
+    """Duty at which the counts first move clearly from where they started (None if never).
+
+    "Clearly": a running median of five counts more than three counts, and more than six times
+    the counts' own noise (from the differences of the first 20 samples, at rest), from the start.
+    """
     c = np.asarray(run.counts, dtype=float)
-    moved = np.flatnonzero(np.abs(c - c[0]) > noise_counts)
+    if len(c) < 10:
+        return None
+    d = np.diff(c[:20])
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2)
+    smooth = np.array([np.median(c[max(0, k - 2):k + 3]) for k in range(len(c))])
+    moved = np.flatnonzero(np.abs(smooth - np.median(c[:5])) > max(3.0, 6 * noise))
     if len(moved) == 0:
         return None
     k = max(int(moved[0]) - 1 - delay, 0)
-    return float(abs(run.duty[:k + 1]).max()) if k >= 0 else 0.0
+    return float(np.abs(run.duty[:k + 1]).max())
 
 
 def _peak_speed(run: Recording) -> float:
@@ -411,15 +444,17 @@ def run_until(rig: Any, target: float, *, sample_period: float = 0.005, duty_lim
     state = _State([], [], [])
     min_block = max(0.25, 40 * sample_period)
 
-    def do(phase: str, excitation: Excitation, duration: float, why: str, predicted: Mapping[str, float]
-           ) -> UntilRound:
+    def do(phase: str, excitation: Excitation, duration: float, why: str, predicted: Mapping[str, float],
+           halfsine: bool = False) -> UntilRound:
         n = max(int(round(duration / sample_period)), 20)
         exp = Experiment(excitation, sample_period, n * sample_period, duty_limit)
         rec = runner(rig, exp)
         state.runs.append(rec)
         state.descriptions.append(excitation.describe())
+        state.halfsines += bool(halfsine)
         state.motor_time += n * sample_period
-        est, problem = _fit(join_runs(state.runs, state.descriptions), fit_options)
+        first = state.fitted_from
+        est, problem = _fit(join_runs(state.runs[first:], state.descriptions[first:]), fit_options)
         if est is None:
             intervals, reach, clear = {}, {k: math.inf for k in _PARAMS}, None
             why = f"{why}; the estimator refused the runs so far: {problem}" if problem else why
@@ -438,8 +473,9 @@ def run_until(rig: Any, target: float, *, sample_period: float = 0.005, duty_lim
         last = state.rounds[-1] if state.rounds else None
         reached = stop == "target"
         recording = join_runs(state.runs, state.descriptions) if state.runs else None
-        return UntilResult(reached, stop, reason, est if last is not None and last.estimate is est else est,
-                           recording, tuple(state.rounds), target, state.motor_time, breakaway)  # type: ignore
+        return UntilResult(reached, stop, reason, est, recording, tuple(state.rounds), target,  # type: ignore
+                           state.motor_time, breakaway, state.fitted_from,
+                           join_runs(state.fitted, state.descriptions[state.fitted_from:]) if state.runs else None)
 
     # ---- the opening
     breakaway: float | None = None
@@ -451,29 +487,40 @@ def run_until(rig: Any, target: float, *, sample_period: float = 0.005, duty_lim
                 return finish("budget", f"the time budget of {max_time:g} s was spent on ranging: the shaft "
                                         f"did not turn clearly up to duty {amplitude}", breakaway)
             ex = Sine(math.pi / length, amplitude)            # half a sine: up from 0 and back
-            rnd = do("ranging", ex, length, f"ranging: half a sine up to duty {amplitude}", {})
+            rnd = do("ranging", ex, length, f"ranging: half a sine up to duty {amplitude}", {}, halfsine=True)
             r = state.runs[-1]
             ba = _breakaway(r, input_delay)
             if ba is not None and breakaway is None:
                 breakaway = ba
             moved = abs(int(r.counts.max()) - int(r.counts.min()))
             speed, travel = _peak_speed(r), _travel(r)
-            turned = moved > 50 and ba is not None and ba < 0.7 * amplitude
+            turned = moved > 20 and ba is not None and ba < 0.85 * amplitude
             over = (max_speed is not None and speed > 0.5 * max_speed) or \
                    (max_travel is not None and travel > 0.5 * max_travel)
-            rough = rnd.estimate is not None and max(rnd.reach.values()) < 50
-            if (turned and rough) or over or amplitude >= duty_limit:
+            if turned or over or amplitude >= duty_limit:
                 break
             amplitude = min(2 * amplitude, duty_limit)
         if breakaway is None:
             return finish("limits", f"the shaft did not turn at any duty up to {amplitude} (duty limit "
                                     f"{duty_limit}): a and b cannot be excited; check the motor's supply "
                                     f"and wiring, or raise the duty limit", breakaway)
-        if state.rounds[-1].estimate is None:
-            # one broadband block at the amplitude found, then design from its estimate
+        last = state.rounds[-1]
+        if last.estimate is None or max(last.reach.values()) > 50:
+            # a slow half-sine shows b/a; a broadband block at the amplitude the budgets allow shows a
             from motorsim.excitation import PRBS
-            do("ranging", PRBS(max(amplitude, 1), 7, 1, max(1, int(round(0.01 / sample_period)))),
-               max(min_block, 1.0), "ranging: a PRBS at the amplitude found, for a first a and b", {})
+            level = float(duty_limit - 2)
+            if last.estimate is not None and last.estimate.a > 0:
+                gain = abs(last.estimate.b / last.estimate.a)
+                if max_speed is not None:
+                    level = min(level, max_speed / gain)
+                if max_travel is not None:      # a bit of 10 ms moves the shaft at most gain * level * 0.01
+                    level = min(level, max_travel / (20 * gain * 0.01))
+            level = int(max(amplitude if breakaway is None else breakaway + 1, min(level, duty_limit)))
+            level = min(level, duty_limit)
+            length = max(min_block, 0.5)
+            if state.motor_time + length <= max_time:
+                do("ranging", PRBS(level, -level, 7, max(1, int(round(0.01 / sample_period))), 1), length,
+                   f"ranging: a PRBS of duty ±{level} for a first a (a slow half-sine shows b/a only)", {})
     else:
         ga, gb = guess
         f = min(max(ga, 2 * 2 * math.pi / 1.0), 0.8 * math.pi / sample_period)
@@ -575,7 +622,7 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
         # no interval yet: the encoder's rounding, ten times over, as the noise
         cpr = state.runs[-1].counts_per_rev or 16667
         sigma2 = 10 * (2 * math.pi / cpr) ** 2 / 12
-        info = sum((information(a, b, r.duty, dt, delay) for r in state.runs), np.zeros((2, 2)))
+        info = sum((information(a, b, r.duty, dt, delay) for r in state.fitted), np.zeros((2, 2)))
         var = _variances(info)
         reach_now = np.where(np.isfinite(var) & (var >= 0),
                              100 * _Z * np.sqrt(sigma2 * np.abs(var)) / np.abs([a, b]), 1e3)
@@ -587,7 +634,7 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     else:
         a_set = [a / 4, a, 4 * a]
     a_set = sorted({x for x in a_set if x > 0})
-    pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay) for r in state.runs), np.zeros((2, 2)))
+    pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay) for r in state.fitted), np.zeros((2, 2)))
              for aa in a_set]
     hi_f = 0.8 * math.pi / dt
     best = None
@@ -604,7 +651,7 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
         worst_time, worst_reach = 0.0, np.zeros(2)
         for aa, past in zip(a_set, pasts):
             blk = information(aa, b * aa / a, duty, dt, delay)
-            sec, reach = _time_to_target(past, blk, unit, reach_now, target, left)
+            sec, reach = _time_to_target(past, blk, unit, reach_now, _AIM * target, left)
             sec = max(sec, unit)
             worst_time, worst_reach = max(worst_time, sec), np.maximum(worst_reach, reach)
         key = (worst_time, float(np.max(worst_reach)))

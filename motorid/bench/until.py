@@ -109,38 +109,44 @@ def _fit_reach(recordings) -> float:
             return math.inf
 
 
-def fixed_time(seed: int, kind: str, target: float, tries: int = 4) -> float:
+def fixed_time(seed: int, kind: str, target: float, tries: int = 5) -> float:
     """Motor time of the fixed experiment ``kind`` (``best``, ``article``, ``prbs``) until within ``target`` %.
 
-    ``inf`` when none of the runs tried (at most the longest allowed) is within target.
+    A first run of 1 s, then runs of the length the last fit's intervals predict (their width falls
+    as ``1/sqrt(T)``: ``T (reach / target)^2``, 5 % more), each a fresh run from rest: the shortest
+    run found within target, ``inf`` when none is (at most the longest allowed).  The best sine is
+    designed (:func:`identify.design.design_sine`) for the true motor and each run's length.
     """
     from identify.design import ARTICLE_FREQUENCIES, design_sine
     from motorsim import PRBS, Experiment, Sine
     s = rig_spec(seed)
     longest = _longest(target)
-    if kind == "best":
-        d = design_sine(s.a, s.b, SAMPLE_PERIOD, counts_per_rev=1000, angle_noise=1e-2, duration=5.0,
-                        duty_limit=253).best
-        parts = [Sine(d.frequency, d.amplitude)]
-    elif kind == "article":
-        parts = [Sine(f, 200) for f in ARTICLE_FREQUENCIES]
-    elif kind == "prbs":
-        parts = [PRBS(200, -200, 12, 2, 1)]
-    else:
+    if kind not in ("best", "article", "prbs"):
         raise ValueError(f"kind must be best, article or prbs, got {kind!r}")
-    length = 2.0
+    length, found = 1.0, math.inf
     for attempt in range(tries):
+        if kind == "best":
+            d = design_sine(s.a, s.b, SAMPLE_PERIOD, counts_per_rev=1000, angle_noise=1e-2,
+                            duration=max(length, 0.2), duty_limit=253, n_frequencies=16).best
+            parts = [Sine(d.frequency, d.amplitude)]
+        elif kind == "article":
+            parts = [Sine(f, 200) for f in ARTICLE_FREQUENCIES]
+        else:
+            parts = [PRBS(200, -200, 12, 2, 1)]
         rig = until_rig(seed, 1000 + attempt)
         each = max(round(length / len(parts) / SAMPLE_PERIOD), 40) * SAMPLE_PERIOD
         recs = [rig.run(Experiment(x, SAMPLE_PERIOD, each)) for x in parts]
         reach = _fit_reach(recs)
         total = each * len(parts)
         if reach <= target:
-            return total
-        if not math.isfinite(reach) or total >= longest:
-            return math.inf
-        length = min(longest, max(total * 1.25, total * (reach / target) ** 2 * 1.05))
-    return math.inf
+            found = min(found, total)
+        if not math.isfinite(reach):
+            break
+        nxt = min(longest, max(0.2, total * (reach / target) ** 2 * 1.05))
+        if (reach <= target and nxt >= 0.9 * total) or (reach > target and total >= longest):
+            break
+        length = nxt
+    return found
 
 
 class UntilOutcome(NamedTuple):
@@ -237,6 +243,7 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
         print(f"{'rig':>4s} {'kind':8s} {'a 1/s':>7s} {'adaptive':>8s} {'rounds':>6s} {'best':>8s} {'article':>8s} "
               f"{'prbs':>8s}  covered")
         outs = [results[("adaptive", s, t)] for s in range(n_rigs)]
+        kinds = sorted({o.kind for o in outs})  # type: ignore[union-attr]
         for o in outs:
             assert isinstance(o, UntilOutcome)
             fx = [results.get((k, o.seed, t), math.nan) for k in ("best", "article", "prbs")]
@@ -248,6 +255,10 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
         print(f"adaptive: reached {len(reached)} of {len(outs)}, median {_median([o.motor_time for o in reached]):.3g} s,"
               f" {_median([float(o.rounds) for o in outs]):.3g} rounds, covered {100 * covered:.1f} % "
               f"(goal >= {100 * UNTIL_COVERAGE_GOAL:.0f} %), {_median([o.seconds for o in outs]):.2g} s CPU per run")
+        for kind in kinds:
+            of = [o for o in outs if o.kind == kind]  # type: ignore[union-attr]
+            print(f"  {kind:8s}: covered {sum(o.covered for o in of)} of {len(of)}, "  # type: ignore[union-attr]
+                  f"median {_median([o.motor_time for o in of if o.reached]):.3g} s")  # type: ignore[union-attr]
         ok &= covered >= UNTIL_COVERAGE_GOAL
         timed = [o for o in outs if ("best", o.seed, t) in results]
         if not timed:
@@ -260,6 +271,12 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
             print(f"{k:8s}: reached {len(fin)} of {len(xs)}, median {med[k]:.3g} s")
         adaptive = [o.motor_time if o.reached else math.inf for o in timed]
         ratio = _median(adaptive) / _median([float(results[("best", o.seed, t)]) for o in timed])  # type: ignore
+        both = [(o.motor_time, float(results[("best", o.seed, t)])) for o in timed  # type: ignore[arg-type]
+                if o.reached and math.isfinite(float(results[("best", o.seed, t)]))]  # type: ignore[arg-type]
+        if both:
+            print(f"where both reach it ({len(both)} rigs): median adaptive {_median([x for x, _ in both]):.3g} s, "
+                  f"best sine {_median([y for _, y in both]):.3g} s, median ratio "
+                  f"{_median([x / y for x, y in both]):.3g} x")
         pairs = [(float(results[("article", o.seed, t)]), o.motor_time) for o in timed  # type: ignore[arg-type]
                  if o.reached and math.isfinite(float(results[("article", o.seed, t)]))]  # type: ignore[arg-type]
         speedup = _median([art / ada for art, ada in pairs]) if pairs else math.nan
