@@ -298,7 +298,7 @@ def join_runs(runs: Sequence[Recording], descriptions: Sequence[str] | None = No
     meta["excitation"] = " ; ".join(descriptions)
     meta["runs"] = str(len(runs))
     meta["duration"] = repr(sum(float(r.metadata.get("duration", len(r) * dt)) for r in runs))
-    speed = None if any(s is None for s in speeds) else np.concatenate(speeds)
+    speed = None if any(x is None for x in speeds) else np.concatenate([x for x in speeds if x is not None])
     return Recording(time=np.concatenate(times), duty=np.concatenate(duties), sample_period=dt,
                      counts=np.concatenate(counts), speed=speed, seq=np.concatenate(seqs),
                      counts_per_rev=runs[0].counts_per_rev, metadata=meta)
@@ -355,14 +355,14 @@ def _breakaway(run: Recording, delay: int) -> float | None:
 
 def _peak_speed(run: Recording) -> float:
     """Largest differenced speed of a run in rad/s."""
-    angle = 2 * math.pi * np.asarray(run.counts, float) / run.counts_per_rev
+    angle = 2 * math.pi * np.asarray(run.counts, float) / (run.counts_per_rev or 1)
     if len(angle) < 2:
         return 0.0
     return float(np.max(np.abs(np.diff(angle))) / run.sample_period)
 
 
 def _travel(run: Recording) -> float:
-    angle = 2 * math.pi * np.asarray(run.counts, float) / run.counts_per_rev
+    angle = 2 * math.pi * np.asarray(run.counts, float) / (run.counts_per_rev or 1)
     return float(angle.max() - angle.min())
 
 
@@ -439,140 +439,181 @@ def run_until(rig: Any, target: float, *, sample_period: float = 0.005, duty_lim
         guess = (ga, gb)
     input_delay = check_int("input_delay", input_delay, 0, 1000)
     max_rounds = check_int("max_rounds", max_rounds, 1, 10_000)
-    fit_options = dict(fit_options or {})
-    runner = run if run is not None else (lambda r, e: r.run(e))
-    state = _State([], [], [])
-    min_block = max(0.25, 40 * sample_period)
+    loop = _Loop(rig, target, sample_period, duty_limit, max_time, max_speed, max_travel, guess,
+                 dict(fit_options or {}), input_delay, max_rounds, on_round,
+                 run if run is not None else (lambda r, e: r.run(e)))
+    return loop.opening() or loop.rounds()
 
-    def do(phase: str, excitation: Excitation, duration: float, why: str, predicted: Mapping[str, float],
+
+@dataclasses.dataclass
+class _Loop:
+    """The state and the steps of :func:`run_until` (arguments already checked)."""
+
+    rig: Any
+    target: float
+    sample_period: float
+    duty_limit: int
+    max_time: float
+    max_speed: float | None
+    max_travel: float | None
+    guess: tuple[float, float] | None
+    fit_options: dict
+    input_delay: int
+    max_rounds: int
+    on_round: Callable[[UntilRound], None] | None
+    runner: Callable[[Any, Experiment], Recording]
+    state: _State = dataclasses.field(default_factory=lambda: _State([], [], []))
+    breakaway: float | None = None
+
+    @property
+    def min_block(self) -> float:
+        return max(0.25, 40 * self.sample_period)
+
+    def do(self, phase: str, excitation: Excitation, duration: float, why: str, predicted: Mapping[str, float],
            halfsine: bool = False) -> UntilRound:
-        n = max(int(round(duration / sample_period)), 20)
-        exp = Experiment(excitation, sample_period, n * sample_period, duty_limit)
-        rec = runner(rig, exp)
+        """Run one block, fit the runs so far, record and report the round."""
+        state, dt = self.state, self.sample_period
+        n = max(int(round(duration / dt)), 20)
+        rec = self.runner(self.rig, Experiment(excitation, dt, n * dt, self.duty_limit))
         state.runs.append(rec)
         state.descriptions.append(excitation.describe())
         state.halfsines += bool(halfsine)
-        state.motor_time += n * sample_period
+        state.motor_time += n * dt
         first = state.fitted_from
-        est, problem = _fit(join_runs(state.runs[first:], state.descriptions[first:]), fit_options)
+        est, problem = _fit(join_runs(state.runs[first:], state.descriptions[first:]), self.fit_options)
+        intervals: dict[str, tuple[float, float]] = {}
         if est is None:
-            intervals, reach, clear = {}, {k: math.inf for k in _PARAMS}, None
+            reach, clear = {k: math.inf for k in _PARAMS}, None
             why = f"{why}; the estimator refused the runs so far: {problem}" if problem else why
         else:
             intervals, reach = _reach(est)
             clear = bool(est.selection.clear) if est.selection is not None else True
-        rnd = UntilRound(len(state.rounds) + 1, phase, excitation.describe(), n * sample_period,
-                         state.motor_time, why, est, intervals, reach, clear, dict(predicted))
+        rnd = UntilRound(len(state.rounds) + 1, phase, excitation.describe(), n * dt, state.motor_time, why, est,
+                         intervals, reach, clear, dict(predicted))
         state.rounds.append(rnd)
-        if on_round is not None:
-            on_round(rnd)
+        if self.on_round is not None:
+            self.on_round(rnd)
         return rnd
 
-    def finish(stop: str, reason: str, breakaway: float | None) -> UntilResult:
+    def finish(self, stop: str, reason: str) -> UntilResult:
+        state = self.state
         est = next((r.estimate for r in reversed(state.rounds) if r.estimate is not None), None)
-        last = state.rounds[-1] if state.rounds else None
-        reached = stop == "target"
         recording = join_runs(state.runs, state.descriptions) if state.runs else None
-        return UntilResult(reached, stop, reason, est, recording, tuple(state.rounds), target,  # type: ignore
-                           state.motor_time, breakaway, state.fitted_from,
-                           join_runs(state.fitted, state.descriptions[state.fitted_from:]) if state.runs else None)
+        fitted = join_runs(state.fitted, state.descriptions[state.fitted_from:]) if state.runs else None
+        return UntilResult(stop == "target", stop, reason, est, recording, tuple(state.rounds),  # type: ignore
+                           self.target, state.motor_time, self.breakaway, state.fitted_from, fitted)
 
-    # ---- the opening
-    breakaway: float | None = None
-    if guess is None:
-        amplitude = max(8, duty_limit // 8)
+    def opening(self) -> UntilResult | None:
+        """The ranging (or the guess's sine); a result when it already has to stop."""
+        if self.guess is not None:
+            ga, gb = self.guess
+            f = min(max(ga, 2 * 2 * math.pi / 1.0), 0.8 * math.pi / self.sample_period)
+            amp = _amplitude(ga, gb, f, self.duty_limit, self.max_speed, self.max_travel)
+            length = max(self.min_block, min(2.0, 6 * 2 * math.pi / f))
+            self.do("opening", Sine(f, amp), length, f"opening: a sine at the guess's corner a = {ga:.4g} 1/s", {})
+            return None
+        amplitude = max(8, self.duty_limit // 8)
         while True:
-            length = max(min_block, 0.5)
-            if state.motor_time + length > max_time:
-                return finish("budget", f"the time budget of {max_time:g} s was spent on ranging: the shaft "
-                                        f"did not turn clearly up to duty {amplitude}", breakaway)
+            length = max(self.min_block, 0.5)
+            if self.state.motor_time + length > self.max_time:
+                return self.finish("budget", f"the time budget of {self.max_time:g} s was spent on ranging: the "
+                                             f"shaft did not turn clearly up to duty {amplitude}")
             ex = Sine(math.pi / length, amplitude)            # half a sine: up from 0 and back
-            rnd = do("ranging", ex, length, f"ranging: half a sine up to duty {amplitude}", {}, halfsine=True)
-            r = state.runs[-1]
-            ba = _breakaway(r, input_delay)
-            if ba is not None and breakaway is None:
-                breakaway = ba
-            moved = abs(int(r.counts.max()) - int(r.counts.min()))
-            speed, travel = _peak_speed(r), _travel(r)
-            turned = moved > 20 and ba is not None and ba < 0.85 * amplitude
-            over = (max_speed is not None and speed > 0.5 * max_speed) or \
-                   (max_travel is not None and travel > 0.5 * max_travel)
-            if turned or over or amplitude >= duty_limit:
+            self.do("ranging", ex, length, f"ranging: half a sine up to duty {amplitude}", {}, halfsine=True)
+            if self._ranged(self.state.runs[-1], amplitude) or amplitude >= self.duty_limit:
                 break
-            amplitude = min(2 * amplitude, duty_limit)
-        if breakaway is None:
-            return finish("limits", f"the shaft did not turn at any duty up to {amplitude} (duty limit "
-                                    f"{duty_limit}): a and b cannot be excited; check the motor's supply "
-                                    f"and wiring, or raise the duty limit", breakaway)
-        last = state.rounds[-1]
+            amplitude = min(2 * amplitude, self.duty_limit)
+        if self.breakaway is None:
+            return self.finish("limits", f"the shaft did not turn at any duty up to {amplitude} (duty limit "
+                                         f"{self.duty_limit}): a and b cannot be excited; check the motor's supply "
+                                         f"and wiring, or raise the duty limit")
+        last = self.state.rounds[-1]
         if last.estimate is None or max(last.reach.values()) > 50:
-            # a slow half-sine shows b/a; a broadband block at the amplitude the budgets allow shows a
-            from motorsim.excitation import PRBS
-            level = float(duty_limit - 2)
-            if last.estimate is not None and last.estimate.a > 0:
-                gain = abs(last.estimate.b / last.estimate.a)
-                if max_speed is not None:
-                    level = min(level, max_speed / gain)
-                if max_travel is not None:      # a bit of 10 ms moves the shaft at most gain * level * 0.01
-                    level = min(level, max_travel / (20 * gain * 0.01))
-            level = int(max(amplitude if breakaway is None else breakaway + 1, min(level, duty_limit)))
-            level = min(level, duty_limit)
-            length = max(min_block, 0.5)
-            if state.motor_time + length <= max_time:
-                do("ranging", PRBS(level, -level, 7, max(1, int(round(0.01 / sample_period))), 1), length,
-                   f"ranging: a PRBS of duty ±{level} for a first a (a slow half-sine shows b/a only)", {})
-    else:
-        ga, gb = guess
-        f = min(max(ga, 2 * 2 * math.pi / 1.0), 0.8 * math.pi / sample_period)
-        amp = _amplitude(ga, gb, f, duty_limit, max_speed, max_travel)
-        length = max(min_block, min(2.0, 6 * 2 * math.pi / f))
-        do("opening", Sine(f, amp), length, f"opening: a sine at the guess's corner a = {ga:.4g} 1/s", {})
+            self._broadband(last, amplitude)
+        return None
 
-    # ---- the rounds
-    designs_since_multisine = 0
-    while True:
+    def _ranged(self, run: Recording, amplitude: int) -> bool:
+        """Note the break-away duty; whether the shaft turned clearly or the budgets say stop doubling."""
+        ba = _breakaway(run, self.input_delay)
+        if ba is not None and self.breakaway is None:
+            self.breakaway = ba
+        counts = np.asarray(run.counts)
+        moved = abs(int(counts.max()) - int(counts.min()))
+        turned = moved > 20 and ba is not None and ba < 0.85 * amplitude
+        over = (self.max_speed is not None and _peak_speed(run) > 0.5 * self.max_speed) or \
+               (self.max_travel is not None and _travel(run) > 0.5 * self.max_travel)
+        return turned or over
+
+    def _broadband(self, last: UntilRound, amplitude: int) -> None:
+        """A slow half-sine shows b/a; a PRBS at the amplitude the budgets allow shows a."""
+        from motorsim.excitation import PRBS
+        level = float(self.duty_limit - 2)
+        if last.estimate is not None and last.estimate.a > 0:
+            gain = abs(last.estimate.b / last.estimate.a)
+            if self.max_speed is not None:
+                level = min(level, self.max_speed / gain)
+            if self.max_travel is not None:      # a bit of 10 ms moves the shaft at most gain * level * 0.01
+                level = min(level, self.max_travel / (20 * gain * 0.01))
+        floor = amplitude if self.breakaway is None else self.breakaway + 1
+        level = min(int(max(floor, min(level, self.duty_limit))), self.duty_limit)
+        length = max(self.min_block, 0.5)
+        if self.state.motor_time + length <= self.max_time:
+            self.do("ranging", PRBS(level, -level, 7, max(1, int(round(0.01 / self.sample_period))), 1), length,
+                    f"ranging: a PRBS of duty ±{level} for a first a (a slow half-sine shows b/a only)", {})
+
+    def rounds(self) -> UntilResult:
+        """Fit, check, design, run: until the target or a reason to stop."""
+        since_multisine = 0
+        while True:
+            stop = self._stop()
+            if isinstance(stop, UntilResult):
+                return stop
+            a0, b0 = stop
+            last = self.state.rounds[-1]
+            left = self.max_time - self.state.motor_time
+            if last.clear is False and since_multisine >= 1 and last.estimate is not None:
+                since_multisine = 0
+                block = _multisine_block(a0, b0, self.sample_period, self.duty_limit,
+                                         min(left, max(2.0, self.state.motor_time)), self.max_speed)
+                if block is not None:
+                    self.do("design", block[0], block[1], "the structure is not a clear choice: a multisine over "
+                                                          "a/10 ... 10 a for the evidence between the candidates", {})
+                    continue
+            since_multisine += 1
+            design = _design_block(self.state, last, a0, b0, self.target, self.sample_period, self.duty_limit, left,
+                                   self.max_speed, self.max_travel, self.min_block, self.fit_options, self.breakaway)
+            if isinstance(design, str):
+                return self.finish("limits", design)
+            ex, length, predicted, why = design
+            self.do("design", ex, length, why, predicted)
+
+    def _stop(self) -> UntilResult | tuple[float, float]:
+        """The result when the loop stops here, else the ``(a, b)`` to design the next block for."""
+        state, target = self.state, self.target
         last = state.rounds[-1]
         est = last.estimate
         if est is not None and all(last.reach[k] <= target for k in _PARAMS) and last.clear:
-            return finish("target", f"both 95 % intervals within ±{target:g} % after {state.motor_time:.4g} s "
-                                    f"of motor time (a ±{_pct(last.reach['a'])}, b ±{_pct(last.reach['b'])}); "
-                                    f"the structure '{est.structure}' is a clear choice", breakaway)
-        left = max_time - state.motor_time
-        if len(state.rounds) >= max_rounds:
-            return finish("rounds", _short(last, target, f"stopped after {max_rounds} rounds"), breakaway)
-        if left < min_block:
-            return finish("budget", _short(last, target, f"the time budget of {max_time:g} s is spent"), breakaway)
+            return self.finish("target", f"both 95 % intervals within ±{target:g} % after {state.motor_time:.4g} s "
+                                         f"of motor time (a ±{_pct(last.reach['a'])}, b ±{_pct(last.reach['b'])}); "
+                                         f"the structure '{est.structure}' is a clear choice")
+        if len(state.rounds) >= self.max_rounds:
+            return self.finish("rounds", _short(last, target, f"stopped after {self.max_rounds} rounds"))
+        if self.max_time - state.motor_time < self.min_block:
+            return self.finish("budget", _short(last, target, f"the time budget of {self.max_time:g} s is spent"))
         if est is None:
             if len(state.rounds) >= 3 and all(r.estimate is None for r in state.rounds[-3:]):
-                return finish("model", f"the estimator refused the runs three rounds running: {last.why}",
-                              breakaway)
-            a0, b0 = (guess if guess is not None else (10.0, 1.0))
-        else:
-            a0, b0 = float(est.a), float(est.b)
-            if not (math.isfinite(a0) and math.isfinite(b0)) or a0 <= 0 or b0 == 0:
-                return finish("model", f"the fitted model has a = {a0:.4g} 1/s, b = {b0:.4g}: not a stable "
-                                       f"first-order motor to design for", breakaway)
-        if breakaway is not None and max_speed is not None and breakaway * abs(b0) / a0 > max_speed:
-            return finish("limits", f"the break-away duty {breakaway:g} already drives the shaft at about "
-                                    f"{breakaway * abs(b0) / a0:.3g} rad/s, above --max-speed {max_speed:g} rad/s: "
-                                    f"no amplitude above break-away stays within the speed budget", breakaway)
-        not_clear = last.clear is False
-        if not_clear and designs_since_multisine >= 1 and est is not None:
-            designs_since_multisine = 0
-            block = _multisine_block(a0, b0, sample_period, duty_limit, min(left, max(2.0, state.motor_time)),
-                                     max_speed)
-            if block is not None:
-                ex, length = block
-                do("design", ex, length, "the structure is not a clear choice: a multisine over a/10 ... 10 a "
-                                         "for the evidence between the candidates", {})
-                continue
-        designs_since_multisine += 1
-        design = _design_block(state, last, a0, b0, target, sample_period, duty_limit, left, max_speed,
-                               max_travel, min_block, fit_options, breakaway)
-        if isinstance(design, str):
-            return finish("limits", design, breakaway)
-        ex, length, predicted, why = design
-        do("design", ex, length, why, predicted)
+                return self.finish("model", f"the estimator refused the runs three rounds running: {last.why}")
+            return self.guess if self.guess is not None else (10.0, 1.0)
+        a0, b0 = float(est.a), float(est.b)
+        if not (math.isfinite(a0) and math.isfinite(b0)) or a0 <= 0 or b0 == 0:
+            return self.finish("model", f"the fitted model has a = {a0:.4g} 1/s, b = {b0:.4g}: not a stable "
+                                        f"first-order motor to design for")
+        speed = None if self.breakaway is None else self.breakaway * abs(b0) / a0
+        if speed is not None and self.max_speed is not None and speed > self.max_speed:
+            return self.finish("limits", f"the break-away duty {self.breakaway:g} already drives the shaft at about "
+                                         f"{speed:.3g} rad/s, above the speed budget {self.max_speed:g} rad/s: no "
+                                         f"amplitude above break-away stays within it")
+        return a0, b0
 
 
 def _short(last: UntilRound, target: float, head: str) -> str:
@@ -697,8 +738,8 @@ def _two_tone(frequency: float, amplitude: int, highest: float) -> Excitation:
 
 
 def _what(ex: Excitation) -> str:
-    freqs = getattr(ex, "frequencies", ())
-    amps = getattr(ex, "amplitudes", ())
+    freqs: tuple = getattr(ex, "frequencies", ())
+    amps: tuple = getattr(ex, "amplitudes", ())
     if len(freqs) == 1:
         return f"sine at {freqs[0]:.4g} rad/s, duty {amps[0]}"
     return "lines at " + ", ".join(f"{f:.4g}" for f in freqs) + " rad/s, duty " + "+".join(str(x) for x in amps)

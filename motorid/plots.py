@@ -22,7 +22,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["plot_run", "plot_overlay", "plot_validation", "plot_sweep_frequency", "plot_sweep_heatmap",
-           "plot_design", "plot_prediction", "plot_tracking", "plot_bode", "bode_axes", "axis_label", "LivePlot", "plot_until"]
+           "plot_design", "plot_prediction", "plot_tracking", "plot_bode", "bode_axes", "axis_label", "LivePlot",
+           "plot_until"]
 
 #: Dots per inch of the PNGs.
 DPI = 110

@@ -35,6 +35,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from motorid.bench.flags import integer, reals
+from motorsim.excitation import Excitation
 
 __all__ = ["bench_until", "until_rig", "UntilOutcome", "until_run", "fixed_time", "UNTIL_COVERAGE_GOAL",
            "SPEED_GOAL", "ARTICLE_GOAL", "bench_until_coverage"]
@@ -124,6 +125,7 @@ def fixed_time(seed: int, kind: str, target: float, tries: int = 5) -> float:
     if kind not in ("best", "article", "prbs"):
         raise ValueError(f"kind must be best, article or prbs, got {kind!r}")
     length, found = 1.0, math.inf
+    parts: list[Excitation]
     for attempt in range(tries):
         if kind == "best":
             d = design_sine(s.a, s.b, SAMPLE_PERIOD, counts_per_rev=1000, angle_noise=1e-2,
@@ -198,7 +200,6 @@ def _fmt(x: float) -> str:
 
 def bench_until(argv: Sequence[str]) -> int:
     """Run the benchmark (module docstring); 0 when every goal holds."""
-    from scenarios.executors import points_executor, results_in_order
     p = argparse.ArgumentParser(prog="motorid bench until", description=__doc__.splitlines()[0])
     p.add_argument("--rigs", type=integer(), default=100, help="seeded rigs (default 100)")
     p.add_argument("--targets", type=reals(), default=[1.0], metavar="PCT[,PCT]",
@@ -230,60 +231,64 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
     jobs = [("adaptive", seed, t) for t in targets for seed in range(n_rigs)]
     jobs += [(k, seed, t) for t in targets for seed in range(min(fixed_rigs, n_rigs))
              for k in ("best", "article", "prbs")]
-    results: dict[tuple, object] = {}
+    adaptive: dict[tuple[int, float], UntilOutcome] = {}
+    fixed: dict[tuple[str, int, float], float] = {}
     start = time.perf_counter()
     with points_executor(workers, None) as (executor, window):
         for i, (job, out) in enumerate(results_in_order(executor, _job, [(j,) for j in jobs], window)):
-            results[job] = out
+            if isinstance(out, UntilOutcome):
+                adaptive[(job[1], job[2])] = out
+            else:
+                fixed[job] = float(out)
             if (i + 1) % max(1, len(jobs) // 20) == 0 or i + 1 == len(jobs):
                 print(f"until: {i + 1}/{len(jobs)} runs", file=sys.stderr, flush=True)
     ok = True
     for t in targets:
-        print(f"\ntarget ±{t:g} %  (motor seconds until both 95 % intervals are within it)")
-        print(f"{'rig':>4s} {'kind':8s} {'a 1/s':>7s} {'adaptive':>8s} {'rounds':>6s} {'best':>8s} {'article':>8s} "
-              f"{'prbs':>8s}  covered")
-        outs = [results[("adaptive", s, t)] for s in range(n_rigs)]
-        kinds = sorted({o.kind for o in outs})  # type: ignore[union-attr]
-        for o in outs:
-            assert isinstance(o, UntilOutcome)
-            fx = [results.get((k, o.seed, t), math.nan) for k in ("best", "article", "prbs")]
-            print(f"{o.seed:4d} {o.kind:8s} {o.a:7.3g} {_fmt(o.motor_time if o.reached else math.inf)} "
-                  f"{o.rounds:6d} {' '.join(_fmt(x) for x in fx)}  {'yes' if o.covered else 'NO'}"
-                  f"{'' if o.reached else '  (' + o.stop + ')'}{'' if o.clear else '  not clear'}")
-        reached = [o for o in outs if o.reached]
-        covered = sum(o.covered for o in outs) / len(outs)
-        print(f"adaptive: reached {len(reached)} of {len(outs)}, median {_median([o.motor_time for o in reached]):.3g} s,"
-              f" {_median([float(o.rounds) for o in outs]):.3g} rounds, covered {100 * covered:.1f} % "
-              f"(goal >= {100 * UNTIL_COVERAGE_GOAL:.0f} %), {_median([o.seconds for o in outs]):.2g} s CPU per run")
-        for kind in kinds:
-            of = [o for o in outs if o.kind == kind]  # type: ignore[union-attr]
-            print(f"  {kind:8s}: covered {sum(o.covered for o in of)} of {len(of)}, "  # type: ignore[union-attr]
-                  f"median {_median([o.motor_time for o in of if o.reached]):.3g} s")  # type: ignore[union-attr]
-        ok &= covered >= UNTIL_COVERAGE_GOAL
-        timed = [o for o in outs if ("best", o.seed, t) in results]
-        if not timed:
-            continue
-        med = {}
-        for k in ("best", "article", "prbs"):
-            xs = [float(results[(k, o.seed, t)]) for o in timed]  # type: ignore[arg-type]
-            fin = [x for x in xs if math.isfinite(x)]
-            med[k] = _median(fin)
-            print(f"{k:8s}: reached {len(fin)} of {len(xs)}, median {med[k]:.3g} s")
-        adaptive = [o.motor_time if o.reached else math.inf for o in timed]
-        ratio = _median(adaptive) / _median([float(results[("best", o.seed, t)]) for o in timed])  # type: ignore
-        both = [(o.motor_time, float(results[("best", o.seed, t)])) for o in timed  # type: ignore[arg-type]
-                if o.reached and math.isfinite(float(results[("best", o.seed, t)]))]  # type: ignore[arg-type]
-        if both:
-            print(f"where both reach it ({len(both)} rigs): median adaptive {_median([x for x, _ in both]):.3g} s, "
-                  f"best sine {_median([y for _, y in both]):.3g} s, median ratio "
-                  f"{_median([x / y for x, y in both]):.3g} x")
-        pairs = [(float(results[("article", o.seed, t)]), o.motor_time) for o in timed  # type: ignore[arg-type]
-                 if o.reached and math.isfinite(float(results[("article", o.seed, t)]))]  # type: ignore[arg-type]
-        speedup = _median([art / ada for art, ada in pairs]) if pairs else math.nan
-        print(f"median adaptive / median best sine  {ratio:6.3g} x   goal <= {SPEED_GOAL:g}: "
-              f"{'met' if ratio <= SPEED_GOAL else 'MISSED'}")
-        print(f"article / adaptive (median over {len(pairs)} rigs where the article reaches it)  {speedup:6.3g} x   "
-              f"goal >= {ARTICLE_GOAL:g}: {'met' if speedup >= ARTICLE_GOAL else 'MISSED'}")
-        ok &= ratio <= SPEED_GOAL and (not pairs or speedup >= ARTICLE_GOAL)
+        outs = [adaptive[(seed, t)] for seed in range(n_rigs)]
+        ok &= _report_target(t, outs, {(k, s): v for (k, s, tt), v in fixed.items() if tt == t})
     print(f"{len(jobs)} runs in {time.perf_counter() - start:.0f} s")
     return 0 if ok else 1
+
+
+def _report_target(t: float, outs: list[UntilOutcome], fixed: dict[tuple[str, int], float]) -> bool:
+    """The table and the goals of one target; whether the goals hold."""
+    print(f"\ntarget ±{t:g} %  (motor seconds until both 95 % intervals are within it)")
+    print(f"{'rig':>4s} {'kind':8s} {'a 1/s':>7s} {'adaptive':>8s} {'rounds':>6s} {'best':>8s} {'article':>8s} "
+          f"{'prbs':>8s}  covered")
+    for o in outs:
+        fx = [fixed.get((k, o.seed), math.nan) for k in ("best", "article", "prbs")]
+        print(f"{o.seed:4d} {o.kind:8s} {o.a:7.3g} {_fmt(o.motor_time if o.reached else math.inf)} "
+              f"{o.rounds:6d} {' '.join(_fmt(x) for x in fx)}  {'yes' if o.covered else 'NO'}"
+              f"{'' if o.reached else '  (' + o.stop + ')'}{'' if o.clear else '  not clear'}")
+    reached = [o for o in outs if o.reached]
+    covered = sum(o.covered for o in outs) / len(outs)
+    print(f"adaptive: reached {len(reached)} of {len(outs)}, median {_median([o.motor_time for o in reached]):.3g} s, "
+          f"{_median([float(o.rounds) for o in outs]):.3g} rounds, covered {100 * covered:.1f} % "
+          f"(goal >= {100 * UNTIL_COVERAGE_GOAL:.0f} %), {_median([o.seconds for o in outs]):.2g} s CPU per run")
+    for kind in sorted({o.kind for o in outs}):
+        of = [o for o in outs if o.kind == kind]
+        print(f"  {kind:8s}: covered {sum(o.covered for o in of)} of {len(of)}, "
+              f"median {_median([o.motor_time for o in of if o.reached]):.3g} s")
+    ok = covered >= UNTIL_COVERAGE_GOAL
+    timed = [o for o in outs if ("best", o.seed) in fixed]
+    if not timed:
+        return ok
+    for k in ("best", "article", "prbs"):
+        fin = [fixed[(k, o.seed)] for o in timed if math.isfinite(fixed[(k, o.seed)])]
+        print(f"{k:8s}: reached {len(fin)} of {len(timed)}, median {_median(fin):.3g} s")
+    times = [o.motor_time if o.reached else math.inf for o in timed]
+    ratio = _median(times) / _median([fixed[("best", o.seed)] for o in timed])
+    both = [(o.motor_time, fixed[("best", o.seed)]) for o in timed
+            if o.reached and math.isfinite(fixed[("best", o.seed)])]
+    if both:
+        print(f"where both reach it ({len(both)} rigs): median adaptive {_median([x for x, _ in both]):.3g} s, "
+              f"best sine {_median([y for _, y in both]):.3g} s, "
+              f"median ratio {_median([x / y for x, y in both]):.3g} x")
+    pairs = [(fixed[("article", o.seed)], o.motor_time) for o in timed
+             if o.reached and math.isfinite(fixed[("article", o.seed)])]
+    speedup = _median([art / ada for art, ada in pairs]) if pairs else math.nan
+    print(f"median adaptive / median best sine  {ratio:6.3g} x   goal <= {SPEED_GOAL:g}: "
+          f"{'met' if ratio <= SPEED_GOAL else 'MISSED'}")
+    print(f"article / adaptive (median over {len(pairs)} rigs where the article reaches it)  {speedup:6.3g} x   "
+          f"goal >= {ARTICLE_GOAL:g}: {'met' if speedup >= ARTICLE_GOAL else 'MISSED'}")
+    return ok and ratio <= SPEED_GOAL and (not pairs or speedup >= ARTICLE_GOAL)

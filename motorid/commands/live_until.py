@@ -58,6 +58,11 @@ def check_until_flags(args: argparse.Namespace) -> None:
         raise CommandError(f"--max-time must leave room for one block of 40 samples twice "
                            f"(>= {80 * args.sample_period:g} s at --sample-period {args.sample_period:g}), "
                            f"got {args.max_time!r}")
+    _check_until_companions(args)
+
+
+def _check_until_companions(args: argparse.Namespace) -> None:
+    """Refuse the flags --until replaces (a controller, an excitation, a model beyond a and b) or half a guess."""
     if getattr(args, "controller", None):
         raise CommandError("--until designs open-loop excitations: leave out --controller")
     from motorid.arguments import EXCITATION_FLAGS
@@ -157,8 +162,9 @@ def run_live_until(args: argparse.Namespace) -> int:
 
 
 def _refuse_existing(path: str) -> None:
-    from motorsim.files import check_output_path
     import os
+
+    from motorsim.files import check_output_path
     if os.path.lexists(path):
         raise CommandError(f"--out {path} exists; give --overwrite to replace it, or another --out")
     check_output_path(path, flag="--out")
