@@ -238,6 +238,9 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
         for i, (job, out) in enumerate(results_in_order(executor, _job, [(j,) for j in jobs], window)):
             if isinstance(out, UntilOutcome):
                 adaptive[(job[1], job[2])] = out
+                print(f"rig {out.seed:3d} {out.kind:8s} a {out.a:7.3g}: {out.motor_time:7.3g} s, {out.rounds} rounds, "
+                      f"{out.stop}, {'covered' if out.covered else 'NOT covered'}"
+                      f"{'' if out.clear else ', not clear'}", file=sys.stderr, flush=True)
             else:
                 fixed[job] = float(out)
             if (i + 1) % max(1, len(jobs) // 20) == 0 or i + 1 == len(jobs):

@@ -160,7 +160,7 @@ def run_live(args: argparse.Namespace) -> int:
     from motorid.commands.live_until import check_until_flags, run_live_until
     check_until_flags(args)                             # before the port opens
     if args.until is not None:
-        return run_live_until(args)
+        return run_live_until(args, default_out_path)
     refuse_controller_flags(args, model_flags=True)     # before the port opens
     named = args.out is not None
     if not named:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import Callable
 
 from motorid.arguments import CommandError, print_to_stderr
 
@@ -100,13 +101,15 @@ def _guess(args: argparse.Namespace) -> tuple[float, float] | None:
     return None
 
 
-def run_live_until(args: argparse.Namespace) -> int:
-    """The ``--until`` loop on the opened rig; 0 when the target is reached, 3 when it stopped short."""
+def run_live_until(args: argparse.Namespace, default_out_path: Callable[[], str]) -> int:
+    """The ``--until`` loop on the opened rig; 0 when the target is reached, 3 when it stopped short.
+
+    ``default_out_path`` names the recording when ``--out`` is not given (``live``'s rule).
+    """
     from hardware.errors import RigError
     from hardware.protocol import DEVICE_INPUT_DELAY
     from hardware.serial_rig import SerialRig
     from identify.adaptive import DEFAULT_MAX_TIME, run_until
-    from motorid.commands.live import default_out_path
     from motorid.progress import ProgressBar
     from motorsim.files import check_output_path
     say = print_to_stderr if args.json else print

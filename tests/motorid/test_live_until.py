@@ -17,7 +17,7 @@ def _until(tmp_path, url, *extra):
 
 
 def test_until_on_fake_stops_within_target_with_intervals_holding_the_built_motor(tmp_path, capsys):
-    # the motor the issue names: a slow one, a = 2 1/s; fake:// is an exact ZOH with the device's
+    # a slow motor, a = 2 1/s, where fixed sines do worst; fake:// is an exact ZOH with the device's
     # one-sample delay and a 16667-count encoder (measured: 2 rounds, 1 s, a ±0.23 %, b ±0.07 %)
     model = tmp_path / "model.json"
     status, out = _until(tmp_path, "fake://?a=2&b=0.3&speed=0", "--until", "1", "--json", "--save", str(model))
