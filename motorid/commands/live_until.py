@@ -154,7 +154,10 @@ def run_live_until(args: argparse.Namespace, default_out_path: Callable[[], str]
                                max_time=max_time, max_speed=args.max_speed, max_travel=args.max_travel,
                                guess=guess, fit_options={"input_delay": DEVICE_INPUT_DELAY},
                                input_delay=DEVICE_INPUT_DELAY, on_round=on_round, run=run)
-    except BaseException as exc:      # a rig error, Ctrl-C: keep the runs that arrived
+    except BaseException as exc:      # a rig error, Ctrl-C: keep the runs that arrived, the one cut short too
+        partial = getattr(exc, "recording", None)
+        if partial is not None and len(partial) > 1 and (not runs or partial is not runs[-1]):
+            runs.append(partial)
         kept = _keep_runs(runs, args.out, f"{type(exc).__name__}: {exc}")
         if isinstance(exc, RigError):
             raise CommandError(f"{exc}; {kept}" if kept else str(exc)) from None

@@ -84,3 +84,13 @@ def test_until_plot_draws_the_rounds(tmp_path, capsys):
     png = tmp_path / "until.csv.until.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert math.isfinite(len(png.read_bytes()))
+
+
+def test_a_fault_mid_run_keeps_the_samples_that_arrived(tmp_path, capsys):
+    # the device disconnects at its 50th sample of the first (ranging) run: nothing is lost
+    status, out = _until(tmp_path, "fake://?a=2&b=0.3&speed=0&disconnect_at=50", "--until", "1")
+    assert status == 2
+    err = capsys.readouterr().err
+    assert f"in {out} (complete: false)" in err
+    rec = read_recording(out)
+    assert rec.metadata["complete"] == "false" and 40 <= len(rec) < 100
