@@ -2,7 +2,8 @@
 
 ``protocol`` is the executable form of ``hardware/PROTOCOL.md``; ``SerialRig``
 runs an :class:`~motorsim.rig.Experiment` on a device over any pyserial port or
-URL; ``fake_device`` is an emulated Arduino on a pty (``fake://?a=25&b=3``).
+URL; ``fake_device`` is an emulated Arduino (``fake://?a=25&b=3``), run like ``avr-sim://`` in
+simulated time, in lock-step with the host (``lockstep``).
 """
 from .errors import (
                      DeviceFaultError,

@@ -79,4 +79,4 @@ $(SIM_BIN): hardware/sim/motorid_avr_sim.c
 	cc -O2 -Wall -std=gnu11 $$(pkg-config --cflags simavr) $< -o $@ \
 	  $$(pkg-config --libs simavr) -lelf -lutil -lm
 
-test: firmware avr-sim
+test test-realtime: firmware avr-sim

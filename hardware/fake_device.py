@@ -16,7 +16,7 @@ What it emulates, as the firmware does it
   integer arithmetic, queues a SAMPLE, and applies ``duty_k`` at tick ``k + 1``
   (``DEVICE_INPUT_DELAY``: the duty held from tick ``k`` to ``k + 1`` is ``duty_{k-1}``,
   0 at ``k = 0``) while the motor is simulated exactly over each period
-  (``motorsim.simulate`` over that interval).
+  (its exact step, :class:`motorsim.plant.Stepper`).
 - Closed loop (protocol v2): after a CONTROL naming a controller and a REFERENCE, tick
   ``k`` computes ``duty_k`` from the counts just read with the controller's integer step,
   :class:`motorsim.fixed_point.ControlLoop` (the reference the firmware's C step is tested against),
@@ -27,8 +27,13 @@ What it emulates, as the firmware does it
 
 POSIX only (Linux, macOS): it needs ``os.openpty``.
 
-Time: ``speed`` scales the device clock against the wall clock (1 = real time);
-``speed=0`` ticks as fast as the host reads, losslessly (for tests).
+Time: a :class:`FakeDevice` started with :meth:`FakeDevice.start` runs on the wall clock in a
+thread: ``speed`` scales the device clock against it (1 = real time) and ``speed=0`` ticks as
+fast as the host reads, losslessly.  ``fake://`` URLs run it in lock-step with the host instead
+(:class:`FakeLockstepPort`, no thread, no pty): the device's clock is simulated time that moves
+only as the host reads, so a run gives the same recording however loaded the machine is, and
+``speed`` only paces it against the wall clock (0: as fast as the host goes).  ``realtime=1``
+keeps the threaded device on a pty.
 
 Fault injection (:class:`FaultPlan`) acts on the device-to-host SAMPLE frames
 (bit flips, frames lost on the link, garbage bytes) and on the device itself
@@ -58,13 +63,14 @@ import numpy as np
 from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
-from motorsim.plant import Motor, lag_coefficients, simulate, zoh_matrices
+from motorsim.plant import Motor, Stepper
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
 from . import protocol as P
+from .lockstep import LockstepPort
 
-__all__ = ["FaultPlan", "FakeDevice", "open_fake", "parse_fake_url", "url_keys"]
+__all__ = ["FaultPlan", "FakeDevice", "FakeLockstepPort", "open_fake", "parse_fake_url", "url_keys"]
 
 _SAMPLE_WIRE = 21
 
@@ -178,7 +184,7 @@ class FakeDevice:
         if not isinstance(self.rng, np.random.Generator):
             raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
         self._motor0 = dataclasses.replace(motor, input_delay=0)
-        self._zoh: tuple[float, ...] | None = None
+        self._stepper: Stepper | None = None          # the plant's exact step over the last interval length
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -190,6 +196,10 @@ class FakeDevice:
         self._thread: threading.Thread | None = None
         self._stop_event = threading.Event()
         self.error: BaseException | None = None
+        self._lockstep = False
+        self._sim_time = 0.0
+        self._running = self._link_down = self._booted = False
+        self._next_tick = 0.0
 
     # -------------------------------------------------------------- lifecycle
     def start(self) -> "FakeDevice":
@@ -217,6 +227,58 @@ class FakeDevice:
                     os.close(fd)
         self._master = self._slave = -1
 
+    def start_lockstep(self) -> "FakeDevice":
+        """Run in simulated time, driven by :meth:`advance` (no thread, no pty); returns ``self``."""
+        if self._thread is not None or self._lockstep:
+            raise RuntimeError("this FakeDevice is already started")
+        self._lockstep = True
+        self._sim_time = 0.0
+        self._reset()
+        return self
+
+    @property
+    def link_down(self) -> bool:
+        """Whether the device has closed the link (a ``disconnect_at`` fault)."""
+        return self._link_down
+
+    def advance(self, until: float, data: bytes = b"", *, stop_on_frame: bool = True) -> bytes:
+        """In lock-step: take the host's ``data`` now, run the device to ``until`` s of simulated time.
+
+        Stops early, with ``stop_on_frame``, as soon as the device has something to send (an
+        answer to ``data``, a SAMPLE, ...).  Returns the bytes sent; :attr:`sim_time` is where it stopped.
+        """
+        if not self._lockstep:
+            raise RuntimeError("advance() drives a FakeDevice started with start_lockstep()")
+        if data and self._booted and not self._link_down:
+            self._accept_bytes(data)          # bytes that arrive in the bootloader are lost
+        boot_at = float(self.faults.boot_delay)
+        while not self._link_down and not (stop_on_frame and self._out):
+            t = until
+            if not self._booted:
+                t = min(t, boot_at)
+            elif self._running:
+                t = min(t, self._next_tick)
+            self._sim_time = max(self._sim_time, t)
+            if not self._booted and self._sim_time >= boot_at:
+                self._booted = True
+                self._send(P.Boot(self.faults.version, 1))
+                self._last_rx = self._sim_time
+            if self._running:
+                self._ticks(self._sim_time)
+            if self._running:
+                self._check_watchdog(self._sim_time)
+            if t >= until:
+                break
+        out = bytes(self._out)
+        self._out.clear()
+        self._queued_samples = 0
+        return out
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated seconds since :meth:`start_lockstep`."""
+        return self._sim_time
+
     def __enter__(self) -> "FakeDevice":
         return self.start()
 
@@ -232,7 +294,12 @@ class FakeDevice:
         except BaseException as exc:  # surfaced to tests through .error
             self.error = exc
 
-    def _run_firmware(self) -> None:
+    def _now(self) -> float:
+        """The device's clock: simulated seconds in lock-step, else the wall clock."""
+        return self._sim_time if self._lockstep else time.monotonic()
+
+    def _reset(self) -> None:
+        """The firmware's state after a reset (before BOOT)."""
         self._out = bytearray()
         self._queued_samples = 0
         self._tx_frame_seq = 0
@@ -247,7 +314,12 @@ class FakeDevice:
         self._silent = False
         self._angle, self._speed_rad_s = 0.0, 0.0
         self._current = 0.0           # the drive behind an electrical lag (motor.electrical_time_constant)
-        self._idle_since = time.monotonic()
+        self._idle_since = self._now()
+        self._last_rx = self._now()
+        self._booted = False
+
+    def _run_firmware(self) -> None:
+        self._reset()
         if self.faults.boot_delay:
             self._stop_event.wait(self.faults.boot_delay)
             self._drain_input(discard=True)
@@ -290,7 +362,12 @@ class FakeDevice:
                 time.sleep(0.01)
                 return
             raise
-        if discard or self.faults.mute:
+        if not discard:
+            self._accept_bytes(data)
+
+    def _accept_bytes(self, data: bytes) -> None:
+        """Bytes from the host, frame by frame as the firmware's receiver takes them."""
+        if self.faults.mute:
             return
         parts, overflow = self._splitter.split(data)
         if overflow:      # an overlong frame, discarded up to the next 0x00: one error
@@ -314,7 +391,7 @@ class FakeDevice:
             self.rx_errors += 1
             self._send(P.Nak(msg_type, frame_seq, _nak_reason(msg_type, payload)))
             return
-        self._last_rx = time.monotonic()   # any valid frame refreshes the watchdog
+        self._last_rx = self._now()   # any valid frame refreshes the watchdog
         if isinstance(msg, P.Heartbeat):
             return
         if isinstance(msg, P.Stop):
@@ -380,7 +457,7 @@ class FakeDevice:
             self._duty_seq = P.expand(wave, cfg.n_samples, cfg.duty_limit)
         self._dt = cfg.sample_period_us * 1e-6
         # the motor coasted with duty 0 since the last run
-        idle = (time.monotonic() - self._idle_since) * (self.speed or 1.0)
+        idle = (self._now() - self._idle_since) * (1.0 if self._lockstep else (self.speed or 1.0))
         if idle > 0:
             self._advance_motor(0.0, idle)
         # the firmware applies each duty at the tick after the one that computed it (DEVICE_INPUT_DELAY)
@@ -390,39 +467,21 @@ class FakeDevice:
         self._t0_us = int(self.rng.integers(0, 2**32))   # micros() is wherever it is
         self._counters = dict(sent=0, dropped=0, encoder_errors=0, overruns=0)
         self._overflow_reported = False
-        self._next_tick = time.monotonic()
+        self._next_tick = self._now()
         self._running = True
         self.runs_started += 1
 
     def _advance_motor(self, duty: float, h: float) -> None:
-        """Hold ``duty`` for ``h`` s: the exact ZOH step (motorsim.plant's formulas), or
-        ``motorsim.simulate`` over the interval when there is Coulomb or static friction; behind an electrical lag,
-        its exact step (``motorsim.plant.lag_coefficients``)."""
-        m = self._motor0
-        if m.electrical_time_constant > 0:
-            e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(m.a, 1.0 / m.electrical_time_constant, h))
-            v = float(m.drive(np.array([duty]))[0])
-            w, lag = self._speed_rad_s, self._current - v
-            self._angle += p * w + r * (m.b * v + m.bias) + m.b * s * lag
-            self._speed_rad_s = e_a * w + p * (m.b * v + m.bias) + m.b * q * lag
-            self._current = e_c * self._current + (1 - e_c) * v
-            return
-        if m.breakaway == 0:
-            if self._zoh is None or self._zoh[0] != h:
-                self._zoh = (h, *(float(x) for x in zoh_matrices(m.a, m.b, h)))
-            _, e, g, p, q = self._zoh
-            v = float(m.drive(np.array([duty]))[0]) + m.bias / m.b
-            w = self._speed_rad_s
-            self._angle += p * w + q * v
-            self._speed_rad_s = e * w + g * v
-            return
-        traj = simulate(m, [duty, duty], [0.0, h], initial_speed=self._speed_rad_s, initial_angle=self._angle)
-        self._angle, self._speed_rad_s = float(traj.angle[1]), float(traj.speed[1])
+        """Hold ``duty`` for ``h`` s: the plant's exact step (:class:`motorsim.plant.Stepper`)."""
+        if self._stepper is None or self._stepper._h[0] != h:
+            self._stepper = Stepper(self._motor0, h)
+        self._angle, self._speed_rad_s, self._current = self._stepper.step(
+            0, (self._angle, self._speed_rad_s, self._current), duty)
 
     def _ticks(self, now: float) -> None:
         cfg = self._run_config
         while self._running:
-            if self.speed == 0:
+            if self.speed == 0 and not self._lockstep:
                 # unpaced: wait for the host to read (lossless). The queue counts samples: under load
                 # the pty takes a frame in pieces, and a byte count of a partly written queue reads one
                 # frame short of full (it dropped samples then)
@@ -444,7 +503,7 @@ class FakeDevice:
             if f.repeat_at is not None and k > f.repeat_at and self._repeated is not None:
                 self._send_sample(self._repeated)      # the same sample again; k never advances
                 self._counters["sent"] -= 1            # a repeat is not a new sample sent
-                self._next_tick += self._dt / self.speed if self.speed else 0.0
+                self._next_tick += self._tick_interval()
                 continue
             counts = int(self.encoder.counts(np.array([self._angle]), self.rng)[0])
             duty = self._loop.step(k, counts) if self._loop is not None else int(self._duty_seq[k])
@@ -464,10 +523,16 @@ class FakeDevice:
             else:
                 self._send_sample(sample)
             self._k += 1
-            self._next_tick += self._dt / self.speed if self.speed else 0.0
+            self._next_tick += self._tick_interval()
             if self._k >= cfg.n_samples:
                 self.duty = 0
                 self._end(P.EndReason.COMPLETE)
+
+    def _tick_interval(self) -> float:
+        """The device clock's time from one tick to the next."""
+        if self._lockstep:
+            return self._dt
+        return self._dt / self.speed if self.speed else 0.0
 
     def _unread_bytes(self) -> int:
         """Bytes written to the pty that the host has not read yet (FIONREAD on the slave end)."""
@@ -499,7 +564,7 @@ class FakeDevice:
         c = self._counters
         self._running = False
         self.duty = 0
-        self._idle_since = time.monotonic()
+        self._idle_since = self._now()
         end = P.End(int(reason), c["sent"], c["dropped"], c["encoder_errors"], min(self.rx_errors, 0xFFFF),
                     c["overruns"])
         self.last_end = end
@@ -516,6 +581,11 @@ class FakeDevice:
             self._watchdog_trip()
 
     def _disconnect(self) -> None:
+        if self._lockstep:          # the host reads what was sent before, then the port fails
+            self.duty = 0
+            self._running = False
+            self._link_down = True
+            return
         # Let the host read what was sent before the disconnect (up to 1 s), so that the
         # fault is exactly "the link ends after sample disconnect_at - 1".
         deadline = time.monotonic() + 3.0
@@ -550,7 +620,7 @@ class FakeDevice:
         if self._silent or self.faults.mute:
             return
         self._out += wire
-        if sample:
+        if sample and not self._lockstep:   # in lock-step the host's buffer takes every frame at once
             self._queued_samples += 1
         self._flush()
 
@@ -592,7 +662,9 @@ _MOTOR_DEFAULTS = {"a": 25.0, "b": 3.0}
 #: Keys of the emulated device itself (not bench knobs, not faults).
 _DEVICE_KNOBS = (
     Knob("seed", FakeDevice, int, 0, "", "seed of the angle noise and of the injected faults"),
-    Knob("speed", FakeDevice, float, 1.0, "", "device time per wall-clock time (0: as fast as the host reads)"),
+    Knob("speed", FakeDevice, float, 1.0, "", "device time per wall-clock time at most (0: as fast as the host reads)"),
+    Knob("realtime", FakeDevice, bool, False, "", "on the wall clock in a thread, on a pty (default: in lock-step "
+                                                 "with the host, in simulated time)"),
     Knob("queue", FakeDevice, int, 16, "SAMPLE frames", "transmit queue length"),
 )
 #: Keys earlier versions accepted, and their names now.
@@ -606,7 +678,7 @@ def _url_knobs() -> tuple[Knob, ...]:
 
 def url_keys() -> tuple[str, ...]:
     """The query keys of ``fake://``: the motor's and encoder's bench knobs, the device's
-    (``seed``, ``speed``, ``queue``) and the :class:`FaultPlan` fields.
+    (``seed``, ``speed``, ``realtime``, ``queue``) and the :class:`FaultPlan` fields.
 
     Examples
     --------
@@ -621,9 +693,11 @@ def url_keys() -> tuple[str, ...]:
 def parse_fake_url(url: str) -> FakeDevice:
     """A (not yet started) :class:`FakeDevice` from ``fake://?a=25&b=3&...``.
 
+    Whether it runs in lock-step (:func:`open_fake`) is the URL's ``realtime`` key (:func:`fake_url_realtime`).
+
     Query keys (:func:`url_keys`): the bench knobs of ``Motor`` (``a``, ``b``, defaults 25 and 3;
     ``friction``, ``bias``, ``dead_zone``, ``input_delay``) and ``Encoder`` (``counts_per_rev``,
-    ``count_offset``, ``angle_noise``) under their own names; ``seed``, ``speed``, ``queue``;
+    ``count_offset``, ``angle_noise``) under their own names; ``seed``, ``speed``, ``realtime``, ``queue``;
     and every :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
 
     Examples
@@ -657,16 +731,69 @@ def parse_fake_url(url: str) -> FakeDevice:
                       rng=np.random.default_rng(values.get("seed", 0)))
 
 
+def fake_url_realtime(url: str) -> bool:
+    """Whether ``fake://...`` asks for the wall clock (``realtime=1``) rather than lock-step."""
+    query = dict(urllib.parse.parse_qsl(urllib.parse.urlsplit(url).query, keep_blank_values=True))
+    if "realtime" not in query:
+        return False
+    try:
+        return bool(next(k for k in _DEVICE_KNOBS if k.name == "realtime").parse(query["realtime"]))
+    except ValueError as exc:
+        raise ParameterError(f"fake:// url key {exc}") from None
+
+
+class FakeLockstepPort(LockstepPort):
+    """The fake device in lock-step with the host (:class:`hardware.lockstep.LockstepPort`).
+
+    The device runs in this process, in simulated time, only inside :meth:`read` (and
+    :meth:`wait`): no thread, no pty, and every run of the same URL gives the same bytes.
+
+    Parameters
+    ----------
+    device : FakeDevice
+        A device not yet started; started here with :meth:`FakeDevice.start_lockstep`.
+    name : str
+        The port's name (its URL).
+    timeout : float or None
+        Read timeout in simulated seconds.
+    """
+
+    def __init__(self, device: FakeDevice, name: str, timeout: float | None):
+        super().__init__(name, timeout, device.speed)
+        self.fake_device = device.start_lockstep()
+
+    def _exchange(self, until: float, stop_on_frame: bool) -> float:
+        import serial
+
+        device = self.fake_device
+        if device.link_down:
+            raise serial.SerialException(f"the device on {self.name} closed the link")
+        out = device.advance(until, self._take_written(), stop_on_frame=stop_on_frame)
+        self._rx += out
+        if device.link_down and not out:
+            raise serial.SerialException(f"the device on {self.name} closed the link")
+        return device.sim_time
+
+
 @contextlib.contextmanager
 def open_fake(url: str, baudrate: int, timeout: float) -> Iterator:
-    """Start the fake device described by ``url`` and yield an open ``serial.Serial`` on its pty.
+    """Start the fake device described by ``url`` and yield an open port to it.
 
-    The port has an extra attribute ``fake_device`` (the running :class:`FakeDevice`).
-    ``baudrate`` is set on the pty but, as with USB serial, does not limit its speed.
+    In lock-step (the default) the port is a :class:`FakeLockstepPort`; with ``realtime=1`` a
+    ``serial.Serial`` on the threaded device's pty (``baudrate`` is set on the pty but, as
+    with USB serial, does not limit its speed).  The port has an extra attribute
+    ``fake_device`` (the running :class:`FakeDevice`).
     """
     import serial
 
     device = parse_fake_url(url)
+    if not fake_url_realtime(url):
+        port = FakeLockstepPort(device, url, timeout)
+        try:
+            yield port
+        finally:
+            port.close()
+        return
     with device:
         port = serial.Serial(device.port_name, baudrate=baudrate, timeout=timeout)
         port.fake_device = device

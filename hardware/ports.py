@@ -1,7 +1,9 @@
 """Opening a port by name: device paths, pyserial URLs, and motorid's own schemes.
 
 ``fake://?a=25&b=3`` starts the emulated Arduino (:mod:`hardware.fake_device`);
-``avr-sim://...`` runs the real firmware in an AVR simulator (``hardware/sim``).
+``avr-sim://...`` runs the real firmware in an AVR simulator (``hardware/sim``).  Both run in
+simulated time, in lock-step with the host (:mod:`hardware.lockstep`: the port has a ``clock()``),
+unless the URL says ``realtime=1``.
 Anything else (``/dev/ttyACM0``, ``COM3``, ``loop://``, ``socket://host:port``,
 ``rfc2217://...``) goes to :func:`serial.serial_for_url`.
 """

@@ -19,6 +19,10 @@ waveform live on the device (``hardware/PROTOCOL.md``).  Every loss is visible:
   (:class:`RigDisconnectedError`), a NAK (:class:`DeviceRefusedError`) or a
   device fault (:class:`DeviceFaultError`) raise with the samples received so far
   attached as ``exc.recording``;
+- on a port that keeps simulated time (``fake://`` and ``avr-sim://`` by default, whose
+  ports have a ``clock()``: :mod:`hardware.lockstep`), every timeout, the HEARTBEATs and the
+  deadline count the device's simulated seconds and the HEARTBEATs are sent from the reading
+  loop, so a run's recording does not depend on the machine's load;
 - whenever a run is left early (an error, Ctrl-C, or SIGTERM raised as an exception),
   STOP is sent and END awaited for :data:`STOP_TIMEOUT` s, so the recording attached to
   the exception (``exc.recording``, also on a ``KeyboardInterrupt``) holds the samples
@@ -34,6 +38,7 @@ import contextlib
 import dataclasses
 import threading
 import time
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -43,10 +48,13 @@ from motorsim.control import ClosedLoopExperiment
 from motorsim.recording import Recording
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
+from motorsim.text import printable
 
 from . import protocol as P
 from .errors import DeviceFaultError, DeviceRefusedError, RigCheckError, RigDisconnectedError, RigError, RigTimeoutError
 from .ports import open_port
+
+_FAULT_NAMES = ", ".join(f"{c.value} {c.name}" for c in P.FaultCode)
 
 __all__ = ["SerialRig", "RecordedSample", "HELLO_INTERVAL", "STOP_TIMEOUT", "run_margin"]
 
@@ -101,7 +109,9 @@ class SerialRig:
     timeout : float
         Seconds without a new sample during a run (silence, or frames that do not advance
         ``seq``) before :class:`RigTimeoutError`; a run also ends in that error once it takes
-        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).
+        its duration plus :func:`run_margin` (10 % + 2 s + ``timeout``).  On a port that keeps
+        simulated time (``fake://``, ``avr-sim://``; :mod:`hardware.lockstep`) these seconds,
+        ``hello_timeout``'s, ``command_timeout``'s and the HEARTBEATs' are the device's simulated ones.
     hello_timeout : float
         Seconds to wait for HELLO_ACK (an Uno spends 1-2 s in its bootloader after the port opens).
     command_timeout : float
@@ -154,6 +164,8 @@ class SerialRig:
         self._boot: P.Boot | None = None
         self._backlog: list = []
         self._write_lock = threading.Lock()
+        self._now: Callable[[], float] = time.monotonic
+        self._simulated = False
         self.device: P.HelloAck | None = None
 
     # -------------------------------------------------------------- connection
@@ -183,6 +195,9 @@ class SerialRig:
                 self._port = stack.enter_context(open_port(self.port, self.baudrate, _READ_TIMEOUT))
             else:
                 self._port = self.port
+            clock = getattr(self._port, "clock", None)
+            self._simulated = callable(clock)
+            self._now = clock if callable(clock) else time.monotonic
             self._stack = stack
             self._handshake()
         except BaseException:
@@ -191,8 +206,14 @@ class SerialRig:
             stack.close()
             raise
 
+    @property
+    def simulated_time(self) -> bool:
+        """Whether the open port keeps the device's simulated time (every timeout then counts it)."""
+        return self._simulated
+
     def close(self) -> None:
         """Close the port (if this rig opened it)."""
+        self._now, self._simulated = time.monotonic, False
         stack, self._stack, self._port = self._stack, None, None
         if stack is not None:
             stack.close()
@@ -230,10 +251,10 @@ class SerialRig:
         return [msg for _, msg in frames]
 
     def _handshake(self) -> None:
-        start = time.monotonic()
+        start = self._now()
         next_hello, sent = start, 0
         while True:
-            now = time.monotonic()
+            now = self._now()
             if now >= next_hello:
                 self._write(P.Hello(P.PROTOCOL_VERSION))
                 sent += 1
@@ -248,8 +269,8 @@ class SerialRig:
                     return
                 if isinstance(msg, P.Nak) and msg.refused_type == P.MsgType.HELLO and msg.reason == P.NakReason.BUSY:
                     self._write(P.Stop())   # a run left over from an earlier session: stop it, then retry
-                    next_hello = time.monotonic()
-            if time.monotonic() - start > self.hello_timeout:
+                    next_hello = self._now()
+            if self._now() - start > self.hello_timeout:
                 raise RigTimeoutError(
                     f"the device on {self.port_name} never answered HELLO ({sent} sent over "
                     f"{self.hello_timeout:g} s): check the port, the baud rate ({self.baudrate}) and that "
@@ -277,8 +298,8 @@ class SerialRig:
         run_frames: list = []
         for attempt in range(3):
             frame_seq = self._write(msg)
-            deadline = time.monotonic() + self.command_timeout
-            while time.monotonic() < deadline:
+            deadline = self._now() + self.command_timeout
+            while self._now() < deadline:
                 replies = self._read()
                 for i, reply in enumerate(replies):
                     if isinstance(reply, P.Ack) and reply.acked_frame_seq == frame_seq and reply.acked_type == msg_type:
@@ -309,17 +330,24 @@ class SerialRig:
         sample (silence, or frames that do not advance ``seq``: a device repeating itself),
         and the run's deadline, its duration plus :func:`run_margin`.
         """
-        start = last_progress = loop_end = time.monotonic()
+        start = last_progress = loop_end = self._now()
         duration = run.experiment.duration
         margin = run_margin(duration, self.timeout)
         deadline = start + duration + margin
         frames = 0
+        # In simulated time the heartbeats go from here, at the device's own instants.
+        beat = self.watchdog_ms / 4000 if self.watchdog_ms and self.simulated_time else 0.0
+        next_beat = start + beat
         while run.end is None:
+            if beat and self._now() >= next_beat:
+                self._write(P.Heartbeat())
+                next_beat = self._now() + beat
             msgs = self._read()
-            now = time.monotonic()
+            now = self._now()
             # An iteration far longer than a read timeout means this process was not running
             # (or a callback was slow): that is not the device's silence, nor its slowness.
-            if now - loop_end > 0.25:
+            # (In simulated time a slow host stops the device's clock too.)
+            if now - loop_end > 0.25 and not self.simulated_time:
                 last_progress += now - loop_end - _READ_TIMEOUT
                 deadline += now - loop_end - _READ_TIMEOUT
             loop_end = now
@@ -341,7 +369,7 @@ class SerialRig:
             if run.boot is not None:
                 raise DeviceFaultError(f"the device reset during the run (BOOT, reset cause "
                                        f"{run.boot.reset_cause:#04x}) after sample {run.last_index}")
-            loop_end = time.monotonic()
+            loop_end = self._now()
         return run.end
 
     # -------------------------------------------------------------- the run
@@ -399,7 +427,7 @@ class SerialRig:
             run.rx0, run.lost0 = self._reader.rx_errors, self._link_lost
             started = True             # from here on, leaving early sends STOP
             self._command(P.Start())
-            with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms else None):
+            with _Heartbeats(self, self.watchdog_ms / 4000 if self.watchdog_ms and not self.simulated_time else None):
                 end = self._receive_run(run, on_sample)
             ended = True
             if end.reason != P.EndReason.COMPLETE:
@@ -407,6 +435,10 @@ class SerialRig:
             problems = run.check(end)
             if problems:
                 raise RigCheckError("the device's report contradicts what arrived: " + "; ".join(problems))
+            if run.counter_wraps:
+                warnings.warn(f"the device's 32-bit encoder counter wrapped {len(run.counter_wraps)} time(s) "
+                              f"during the run (first at sample {run.counter_wraps[0]}): the counts are unwrapped "
+                              "(metadata counter_wraps)", UserWarning, stacklevel=2)
             return run.recording(self, complete=True)
         except BaseException as exc:   # an error, Ctrl-C, SIGTERM: stop the motor, keep what arrived
             if started and not ended:
@@ -434,8 +466,8 @@ class SerialRig:
                 flush = getattr(self._port, "flush", None)
                 if flush is not None:
                     flush()
-                deadline = time.monotonic() + STOP_TIMEOUT
-                while wait and run.end is None and run.boot is None and time.monotonic() < deadline:
+                deadline = self._now() + STOP_TIMEOUT
+                while wait and run.end is None and run.boot is None and self._now() < deadline:
                     run.accept(self._read(), None)
             except Exception:
                 return
@@ -525,6 +557,8 @@ class _RunState:
         self.rx0, self.lost0 = rig._reader.rx_errors, rig._link_lost
         self.unaccepted: list = []
         self._first_us = self._prev_us = self._unwrapped = 0
+        self._raw_counts = 0
+        self.counter_wraps: list[int] = []      # the samples at which the device's int32 counter wrapped
 
     @property
     def n(self) -> int:
@@ -568,14 +602,15 @@ class _RunState:
                     self.duty_mismatches += 1
                 self.encoder_flags += msg.flags & 1
                 self.late_flags += (msg.flags >> 1) & 1
+                counts = self._unwrap_counts(k, msg.counts)
                 self.last_index = k
                 self.seq.append(k)
                 self.time.append(t)
                 self.duty.append(msg.duty)
-                self.counts.append(msg.counts)
+                self.counts.append(counts)
                 if on_sample is not None:
                     try:
-                        on_sample(RecordedSample(k, t, msg.duty, msg.counts))
+                        on_sample(RecordedSample(k, t, msg.duty, counts))
                     except BaseException:
                         self.unaccepted = msgs[i + 1:]    # still received: recorded when the run is stopped
                         raise
@@ -588,6 +623,29 @@ class _RunState:
                 self.boot = msg
                 return
 
+    def _unwrap_counts(self, k: int, raw: int) -> int:
+        """The count of sample ``k`` on a counter that does not wrap: the device's is an int32, which wraps
+        from 2**31 - 1 to -2**31 on a long run (about 36 hours at 16 667 counts/rev and 1000 rpm, or a
+        device started near its end); a step of more than 2**31 counts between two samples is a wrap."""
+        if not self.counts:
+            self._raw_counts = raw
+            return raw
+        step = (raw - self._raw_counts + 2**31) % 2**32 - 2**31
+        if step != raw - self._raw_counts:
+            self.counter_wraps.append(k)
+        self._raw_counts = raw
+        return self.counts[-1] + step
+
+    def describe_fault(self) -> str:
+        """The FAULT received, by name (a code this version does not know said as such)."""
+        if self.fault is None:
+            return ""
+        try:
+            name = P.FaultCode(self.fault.code).name
+        except ValueError:
+            name = f"code {self.fault.code} (not a fault code this version of motorid knows: {_FAULT_NAMES})"
+        return f"FAULT {name} at sample {self.fault.seq}"
+
     def describe_end(self) -> str:
         out = []
         if self.end is not None:
@@ -596,16 +654,15 @@ class _RunState:
             except ValueError:
                 out.append(f"END reason {self.end.reason}")
         if self.fault is not None:
-            try:
-                name = P.FaultCode(self.fault.code).name
-            except ValueError:
-                name = f"code {self.fault.code}"
-            out.append(f"FAULT {name} at sample {self.fault.seq}")
+            out.append(self.describe_fault())
         return ", ".join(out) + f"; {self.n} samples received"
 
     def check(self, e: P.End) -> list[str]:
         """END ``e`` against what arrived (PROTOCOL.md): the list of contradictions (empty if none)."""
         problems = []
+        if self.fault is not None and self.fault.code not in set(P.FaultCode):
+            problems.append(f"the device reported {self.describe_fault()}; what it means for the samples is "
+                            "unknown (a firmware newer than this host?)")
         if self.duty_mismatches:
             problems.append(f"{self.duty_mismatches} samples carry a duty other than the WAVE's (or the controller's) "
                             f"(first: {self.first_mismatch})")
@@ -647,7 +704,8 @@ class _RunState:
             meta["incomplete_reason"] = " ".join(reason.split())
         if rig.device is not None:
             d = rig.device
-            meta.update(board=d.board or "?", firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
+            meta.update(board=printable(d.board) or "?",
+                        firmware_version=f"{d.firmware_version >> 8}.{d.firmware_version & 0xFF}",
                         f_cpu_hz=str(d.f_cpu_hz), reset_cause=f"{d.reset_cause:#04x}")
         meta.update(samples_expected=str(len(self.expected)), samples_received=str(n),
                     host_rx_errors=str(self.host_rx_errors), host_link_frames_lost=str(self.link_lost),
@@ -661,6 +719,9 @@ class _RunState:
                         device_rx_errors=str(e.rx_errors), device_tick_overruns=str(e.tick_overruns))
         if self.fault is not None:
             meta.update(device_fault_code=str(self.fault.code), device_fault_index=str(self.fault.seq))
+        if self.counter_wraps:
+            meta.update(counter_wraps=str(len(self.counter_wraps)),
+                        counter_wrap_samples=" ".join(map(str, self.counter_wraps[:10])))
         ticks, lost = self.losses(n)
         meta.update(samples_ticked=str(ticks), samples_lost=str(lost),
                     loss_fraction=f"{lost / ticks:.6g}" if ticks else "0")

@@ -14,7 +14,7 @@ _WHERE = {
     "structures": "model_structures", "structure": "model_structures", "ModelStructure": "model_structures",
     "DEFAULT_METHOD": "methods", "available_methods": "methods", "fit": "methods", "method_function": "methods",
     "method_options": "methods", "option_declarations": "methods", "check_options": "methods",
-    "EstimatorOption": "methods",
+    "EstimatorOption": "estimators", "Estimator": "estimators", "estimator": "methods",
     "fit_output_error": "output_error", "fit_instrumental_variables": "instrumental",
     "fit_output_error_friction": "friction", "fit_euler_ls": "regression", "fit_zoh_ls": "regression",
     "CramerRaoBound": "uncertainty", "cramer_rao_bound": "uncertainty",

@@ -132,4 +132,5 @@ def check_input_leads(recordings: Sequence[Recording], names: Sequence[str] | No
                 f"{name}: the output answers its recorded input one sample before it{declared}: with the input "
                 f"one sample earlier the fit's residual is {rms1:.3g} {unit} RMS against {rms0:.3g} {unit} as "
                 "recorded, beyond the noise; the input column is likely logged one sample late (a negative "
-                "input delay, which no model has): shift it one row earlier, or fix the logging")
+                "input delay, which no model has): shift it one row earlier (motorid import or identify "
+                "--input-shift 1), or fix the logging")

@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from motorsim.checks import ParameterError, check_int
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from .data import as_recordings, check_input_delay
@@ -116,9 +117,7 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
                                    "track a sine, multisine or trapezoid")
 
     def solve(a: float) -> np.ndarray:
-        e = math.exp(-a * h)
-        p = -math.expm1(-a * h) / a
-        q = (h - p) / a
+        e, p, q = first_order_coefficients(a, h)
         v = (q * u[:, 0] + (p * p - e * q) * u[:, 1]) / h
         phi = np.column_stack([w_now, v])
         phi_hat = z @ (z_pinv @ phi)
@@ -139,11 +138,9 @@ def fit_reference_iv(recordings: Recording | list[Recording], *, input_delay: in
     a = math.exp(min(roots, key=lambda g: abs(float(solve(math.exp(g))[0]) - math.exp(-math.exp(g) * h))))
     theta = solve(a)
     b = float(theta[1])
-    e = math.exp(-a * h)
-    p = -math.expm1(-a * h) / a
-    q = (h - p) / a
+    e, p, q = first_order_coefficients(a, h)
     resid = w_next - e * w_now - b * (q * u[:, 0] + (p * p - e * q) * u[:, 1]) / h
-    return Estimate(method="iv-reference", a=a, b=b, n_samples=len(w_next), sample_period=h,
+    return Estimate(method="iv-reference", structure="linear", a=a, b=b, n_samples=len(w_next), sample_period=h,
                     residual_rms=float(np.sqrt(np.mean(resid ** 2))),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), extra={"input_delay": delay},
                     input_unit=recs[0].input_unit, input_limit=recs[0].input_limit)

@@ -23,7 +23,8 @@ from motorsim.recording import Recording
 from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
-           "check_speed_agrees", "check_constant_input_runs", "check_output_moves", "check_input_changes",
+           "check_speed_agrees", "check_constant_input_runs", "ConstantInputTurnWarning", "check_output_moves",
+           "check_input_changes", "POOL_PERIOD_RTOL",
            "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
            "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
@@ -34,6 +35,9 @@ _SATURATION_SHARE = 0.5   # warn when the duty sits at its limit for more than t
 
 def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording]:
     """Accept one Recording or a sequence of them; check they share a sample period and input unit.
+
+    Periods that differ by at most :data:`POOL_PERIOD_RTOL` (the tests of one routine logged on one
+    jittered loop) are pooled at their median, and a warning says so.
 
     Parameters
     ----------
@@ -59,13 +63,54 @@ def as_recordings(recordings: Recording | Sequence[Recording]) -> list[Recording
     for i, r in enumerate(recs):
         if not isinstance(r, Recording):
             raise ParameterTypeError(f"recordings[{i}] must be a Recording, got {type(r).__name__}")
-    dts = {r.sample_period for r in recs}
-    if len(dts) > 1:
-        raise ParameterError(f"recordings must share one sample_period to be pooled, got {sorted(dts)}")
+    recs = _common_period(recs)
     units = {r.input_unit for r in recs}
     if len(units) > 1:
         raise ParameterError(f"recordings must share one input_unit to be pooled, got {sorted(units)}")
     return [counts_behind_speed(r) or r for r in recs]
+
+
+#: Largest relative difference of the sample periods of recordings pooled at one period (the tests of one
+#: routine on one loop differ by microseconds: their medians of a jittered clock).
+POOL_PERIOD_RTOL = 0.005
+#: ... or, when every recording's clock jitters, by at most the least of their jitters (half their intervals'
+#: range), up to this share: their medians move within it.
+POOL_PERIOD_JITTER_LIMIT = 0.05
+
+
+def _jitter(rec: Recording) -> float:
+    """Half the range of a non-uniform clock's intervals relative to its period (0 on a uniform clock), at most
+    :data:`POOL_PERIOD_JITTER_LIMIT`: medians of such clocks differ by as much without being other rates."""
+    try:
+        low, high = float(rec.metadata["time_step_min"]), float(rec.metadata["time_step_max"])
+    except (KeyError, ValueError):
+        return 0.0
+    return min(POOL_PERIOD_JITTER_LIMIT, max(0.0, (high - low) / 2 / rec.sample_period))
+
+
+def _common_period(recs: list[Recording]) -> list[Recording]:
+    """``recs`` at one sample period: their own when they share it; when they differ by at most
+    :data:`POOL_PERIOD_RTOL` (or the least jitter of their clocks, :func:`_jitter`), the median of the
+    periods weighted by samples (said by a warning when they differ by more than 1e-6 of it); refused
+    beyond."""
+    dts = sorted({r.sample_period for r in recs})
+    if len(dts) == 1:
+        return recs
+    weights = np.array([len(r) for r in recs], dtype=float)
+    periods = np.array([r.sample_period for r in recs])
+    order = np.argsort(periods)
+    cumulative = np.cumsum(weights[order])
+    common = float(periods[order][np.searchsorted(cumulative, cumulative[-1] / 2)])
+    spread = max(abs(dts[0] / common - 1), abs(dts[-1] / common - 1))
+    if spread > max(POOL_PERIOD_RTOL, min(_jitter(r) for r in recs)):
+        raise ParameterError(f"recordings must share one sample_period (within {100 * POOL_PERIOD_RTOL:g} %, or "
+                             "the jitter of their clocks) to be "
+                             f"pooled, got {[float(f'{d:.6g}') for d in dts]} s: resample them to one rate first")
+    if spread > 1e-6:
+        warnings.warn(f"the recordings' sample periods differ by up to {100 * spread:.2g} % ({dts[0]:.6g} to "
+                      f"{dts[-1]:.6g} s, medians of their clocks): pooled at {common:.6g} s", UserWarning,
+                      stacklevel=4)
+    return [r if r.sample_period == common else dataclasses.replace(r, sample_period=common) for r in recs]
 
 
 #: Largest speed, in encoder counts per sample, of a speed column read as a backward difference of counts:
@@ -119,6 +164,14 @@ def counts_behind_speed(recording: Recording) -> Recording | None:
         return dataclasses.replace(recording, speed=None, counts=counts, counts_per_rev=int(round(per_rev)),
                                    metadata=meta)
     return dataclasses.replace(recording, speed=None, angle=counts * (q * h), metadata=meta)
+
+
+#: The input delay of an estimator that can search for it, when none is given: ``"auto"``, the shortest delay
+#: (0 ... 10 samples, the range widened while the best fit is at its top) within the noise of the best.  Decided
+#: here alone: every such estimator's signature, ``identify.fit`` and ``motorid identify --method`` take it
+#: from here, so the same request gives the same answer in Python and on the command line.  A missed delay
+#: biases a fit by far more than the search costs (a 2-sample delay fitted at 0 reads ``a`` 20 % low).
+DEFAULT_INPUT_DELAY = "auto"
 
 
 def check_input_delay(input_delay: Any) -> int | str:
@@ -332,8 +385,12 @@ def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
         raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
                                    "use a sine, multisine or PRBS")
     if constant:
-        raise NotIdentifiableError(f"input is constant (duty = {duty[0]:g} throughout): it is not persistently "
-                                   "exciting, a and b cannot be separated; use a sine, multisine or PRBS")
+        unit = recordings[0].input_unit
+        raise NotIdentifiableError(f"input is constant ({duty[0]:g} {unit} throughout): it is not persistently "
+                                   "exciting, a and b cannot be separated (a step recorded from its first sample, "
+                                   "such as SysId's dynamic test alone, holds no input before it: pool it with the "
+                                   "routine's other tests, or record from before the step); use a sine, "
+                                   "multisine or PRBS")
     return duty
 
 
@@ -402,10 +459,46 @@ def check_speed_agrees(rec: Recording, name: str = "recording") -> None:
 #: Samples of a run of constant recorded input left out at its start beyond the input delay (the backward
 #: difference's sample, a fast electrical pole's), and the samples at least left after them for a run to be judged.
 RUN_SKIP, RUN_MIN = 3, 8
-#: Share of the speed's range by which the speed must both rise and fall within one such run to contradict it.
-RUN_SHARE = 0.1
+#: Share of the speed's range by which the speed must both rise and fall within a run to be counted as turning,
+#: and the share by which one run alone must turn to be refused (below it, one run is said; a load, a supply that
+#: sags do that too).
+RUN_SHARE, RUN_REFUSE_SHARE = 0.1, 0.25
+#: A run is smoothed by a running mean over this share of its samples before its rises and falls are measured:
+#: noise, the encoder's rounding and ripple faster than that are no turn of the motor's speed.
+RUN_SMOOTHING = 1 / 16
+#: Noise standard deviations (of the smoothed speed) a rise and a fall must both exceed: the extremes of
+#: Gaussian noise over a run of 10^6 independent samples stay within 5 of them either way.
+RUN_NOISE_FACTOR = 10.0
 #: Rows checked (the first of the recording): the check is per run, and a few thousand runs tell.
 RUN_ROWS = 200_000
+
+
+class ConstantInputTurnWarning(UserWarning):
+    """The speed turns by a modest share of its range while the recorded input stays constant."""
+
+
+def _run_noise(w: np.ndarray) -> tuple[float, float]:
+    """The speed noise's standard deviation in a run (second differences, robust) and its rounding step."""
+    d2 = np.diff(w, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6) if len(d2) else 0.0
+    steps = np.abs(np.diff(w))
+    steps = steps[steps > 0]
+    return sigma, float(steps.min()) if len(steps) else 0.0
+
+
+def _turn(w: np.ndarray) -> tuple[float, float, float]:
+    """The rise and fall of a run's speed smoothed over :data:`RUN_SMOOTHING` of it, and the noise they
+    are judged against (:data:`RUN_NOISE_FACTOR` smoothed standard deviations, or two rounding steps)."""
+    width = max(1, int(len(w) * RUN_SMOOTHING))
+    if width > 1:                     # a running mean by cumulative sums: linear in the run, whatever its width
+        total = np.concatenate([[0.0], np.cumsum(w - w[0])])
+        smooth = (total[width:] - total[:-width]) / width + w[0]
+    else:
+        smooth = w
+    rise = float(np.max(smooth - np.minimum.accumulate(smooth)))
+    fall = float(np.max(np.maximum.accumulate(smooth) - smooth))
+    sigma, step = _run_noise(w)
+    return rise, fall, max(RUN_NOISE_FACTOR * sigma / math.sqrt(width), 2 * step)
 
 
 def check_constant_input_runs(rec: Recording, name: str = "recording", input_delay: int = 0) -> None:
@@ -413,10 +506,18 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
 
     Under a constant input the first-order motor (with its friction, bias and dead zone alike) is a
     one-dimensional autonomous system: its speed moves one way, towards one value.  A speed that
-    rises and falls by more than :data:`RUN_SHARE` of its range within one run of constant recorded
-    input (after its first ``input_delay`` + :data:`RUN_SKIP` samples, while it still answers the
-    input before) answers an input the log does not hold: a duty logged flat at +-60 while the
-    motor received +-200, say, which would give a confident, wrong ``b``.
+    rises and falls by more than :data:`RUN_SHARE` of its range within runs of constant recorded
+    input (after their first ``input_delay`` + :data:`RUN_SKIP` samples, while they still answer the
+    input before) answers an input the log does not hold: a duty logged flat at +-60 while the motor
+    received +-200, say, which would give a confident, wrong ``b``.  It is refused when it does so
+    in two runs or more, or by more than :data:`RUN_REFUSE_SHARE` of its range; one run that turns
+    by less (a load, a supply that sags) is said by a :class:`ConstantInputTurnWarning` and the fit
+    goes on.
+
+    What a real step response holds is not counted: the run is smoothed over :data:`RUN_SMOOTHING`
+    of its samples first (noise, the encoder's rounding, commutator ripple), and a rise or fall
+    within :data:`RUN_NOISE_FACTOR` noise standard deviations of the smoothed speed, or two of
+    its rounding steps, is no turn.
 
     Parameters
     ----------
@@ -441,22 +542,32 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
     finite = speed[np.isfinite(speed)]
     if len(finite) < 2:
         return
-    tolerance = RUN_SHARE * float(np.ptp(finite))
+    span = float(np.ptp(finite))
+    floor = 0.0
     if rec.counts is not None and rec.counts_per_rev:     # beyond the encoder's rounding, many times over
-        tolerance = max(tolerance, 10 * 2 * math.pi / rec.counts_per_rev / rec.sample_period)
+        floor = 10 * 2 * math.pi / rec.counts_per_rev / rec.sample_period
+    turns = []
     for start, end in zip(starts[long], ends[long]):
         w = speed[start + skip:end]
         w = w[np.isfinite(w)]
         if len(w) < RUN_MIN:
             continue
-        rise = float(np.max(w - np.minimum.accumulate(w)))
-        fall = float(np.max(np.maximum.accumulate(w) - w))
-        if rise > tolerance and fall > tolerance:
-            raise NotIdentifiableError(
-                f"{name}: while the recorded input stays at {u[start]:g} {rec.input_unit} (seq {int(seq[start])}"
-                f"...{int(seq[end - 1])}) the speed rises by {rise:.3g} and falls by {fall:.3g} rad/s; a motor "
-                "under a constant input moves one way, so the input logged is not the input it received "
-                "(clipped or scaled in the log?): record the input the drive applied")
+        rise, fall, noise = _turn(w)
+        if min(rise, fall) > max(noise, floor, RUN_SHARE * span):
+            turns.append((min(rise, fall), f"{name}: while the recorded input stays at {u[start]:g} {rec.input_unit} "
+                                           f"(seq {int(seq[start])}...{int(seq[end - 1])}) the speed rises by "
+                                           f"{rise:.3g} and falls by {fall:.3g} rad/s"))
+    if not turns:
+        return
+    largest, where = max(turns)
+    if len(turns) > 1 or largest > RUN_REFUSE_SHARE * span:
+        more = f" (and in {len(turns) - 1} more such runs)" if len(turns) > 1 else ""
+        raise NotIdentifiableError(
+            f"{where}{more}; a motor under a constant input moves one way, so the input logged is not the input it "
+            "received (clipped or scaled in the log?): record the input the drive applied")
+    warnings.warn(f"{where}, {100 * largest / span:.0f} % of its range, in this one run; a motor under a constant "
+                  "input moves one way: a load, a supply that sags, a slow ripple? the fit goes on; look at its "
+                  "residuals there", ConstantInputTurnWarning, stacklevel=3)
 
 
 #: The largest input magnitude a fit takes, in the input's unit (and 1 / it the smallest): b and its

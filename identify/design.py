@@ -22,6 +22,7 @@ import numpy as np
 
 from motorsim.checks import ParameterError, check_int, check_real
 from motorsim.excitation import MAX_ODD_LINES, OddMultisine, Sine
+from motorsim.plant import first_order_coefficients
 from motorsim.rig import Experiment
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
@@ -325,8 +326,8 @@ def design_multisine(a: float, b: float, sample_period: float, *, counts_per_rev
     amplitude = _multisine_amplitude(period, max_harmonic, duty_limit)
     ex = OddMultisine(period, max_harmonic, amplitude, 1)
     omega = ex.line_frequencies(dt)
-    e = math.exp(-a * dt)
-    g = np.abs(b * (1 - e) / a / (np.exp(1j * omega * dt) - e))
+    e, p, _ = first_order_coefficients(a, dt)
+    g = np.abs(b * p / (np.exp(1j * omega * dt) - e))
     sigma2 = angle_noise**2 + (2 * math.pi / counts_per_rev) ** 2 / 12
     per_period = period * np.abs(np.exp(1j * omega * dt) - 1) ** 2 * sigma2 / dt**2   # |V| noise power per period
     u_line = amplitude * period / 2

@@ -19,7 +19,15 @@ import numpy as np
 from motorsim.recording import Recording
 
 from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
-from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
+from .data import (
+    DEFAULT_INPUT_DELAY,
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    prepare_segments,
+    residual_unit,
+)
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .model_structures import ModelStructure
@@ -155,7 +163,8 @@ def _start_pole(segs: list[Segment], recs: list[Recording]) -> float:
     return start if start > 0 and math.isfinite(start) else 10.0
 
 
-def fit_output_error_electrical(recordings: Recording | list[Recording], *, input_delay: int | str = 0) -> Estimate:
+def fit_output_error_electrical(recordings: Recording | list[Recording], *,
+                                input_delay: int | str = DEFAULT_INPUT_DELAY) -> Estimate:
     """Output error of ``b / ((s + a)(tau_e s + 1))`` with a bias (module docstring).
 
     Parameters
@@ -163,8 +172,8 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *, inpu
     recordings : Recording or sequence of Recording
         Pooled, as for every estimator.
     input_delay : int or "auto"
-        Whole samples of input delay (default 0); ``"auto"`` picks the shortest within the noise
-        of the best over ``0 ... 10``.
+        Whole samples of input delay, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`):
+        the shortest within the noise of the best over ``0 ... 10``.
 
     Returns
     -------

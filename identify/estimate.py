@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Mapping, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, check_int
-from motorsim.plant import Motor, simulate
+from motorsim.plant import Motor, Stepper
 
 from .model_file import (
     ESTIMATE_FORMAT,
@@ -32,7 +32,7 @@ from .model_file import (
     json_ready,
     read_estimate_document,
 )
-from .model_structures import ModelStructure, structure, structure_of
+from .model_structures import ModelStructure, structure, structure_fitted
 from .selection_report import SelectionReport
 
 if TYPE_CHECKING:
@@ -71,8 +71,9 @@ class Estimate:
         (constant acceleration ``d``) in rad/s^2, ``dead_zone`` in input units (an
         ``"input_delay"`` key given here is moved to :attr:`input_delay`).
     structure : str
-        Name of the model structure (:func:`identify.structures`); found from ``method`` and
-        ``param_names`` when not given.
+        Name of the model structure (:func:`identify.structures`); every estimator names it.  When
+        not given (an estimate made by hand), the registered structure whose parameters are exactly
+        ``param_names`` (``a``, ``b``: the linear motor); refused when none is.
     input_delay : int
         Whole samples between a duty being commanded and reaching the motor, >= 0.
     residual_unit : str
@@ -156,7 +157,7 @@ class Estimate:
             object.__setattr__(self, "input_delay", delay)
         object.__setattr__(self, "input_delay", check_int("input_delay", self.input_delay, lo=0))
         object.__setattr__(self, "extra", {k: float(v) for k, v in extra.items()})
-        found = structure(self.structure) if self.structure else structure_of(self.method, tuple(self.param_names))
+        found = structure(self.structure) if self.structure else structure_fitted(self.param_names)
         object.__setattr__(self, "structure", found.name)
         unset = [n for n in self.param_names if n not in ("a", "b", *self.extra)]
         if unset:
@@ -371,9 +372,10 @@ class Estimate:
         """The full identified model as a discrete-time python-control system at :attr:`sample_period`.
 
         States ``angle`` (rad), ``speed`` (rad/s) and, with an input delay of ``d`` samples, the
-        last ``d`` duties (``duty_1`` ... ``duty_d``, most recent first); input ``duty``;
-        outputs ``speed`` and ``angle``.  Each step integrates the interval exactly as
-        :func:`motorsim.plant.simulate` does: the zero-order-hold solution of the linear part,
+        last ``d`` duties (``duty_1`` ... ``duty_d``, most recent first), then, behind an electrical
+        lag, ``current`` (the lagged drive, in input units); input ``duty``; outputs ``speed`` and
+        ``angle``.  Each step is the plant's exact step (:class:`motorsim.plant.Stepper`, as a closed
+        loop on the simulated bench runs it): the zero-order-hold solution of the linear part,
         the dead zone applied to the delayed duty, and with Coulomb friction the event-by-event
         solution (zero crossings, sticking at rest while ``|b v + d| <= c``).  So
         ``control.input_output_response`` reproduces ``simulate`` at the sample instants to
@@ -402,17 +404,17 @@ class Estimate:
         import control
         motor = dataclasses.replace(self.motor(), input_delay=0)
         d, h = self.input_delay, self.sample_period
-        times = np.array([0.0, h])
+        stepper = Stepper(motor, h)
+        lag = motor.electrical_time_constant > 0
 
         def update(t, x, u, params):
             applied = x[2 + d - 1] if d else u[0]
-            traj = simulate(motor, np.array([applied, applied]), times, initial_speed=x[1], initial_angle=x[0])
-            return np.array([traj.angle[1], traj.speed[1], u[0], *x[2:2 + d - 1]] if d else
-                            [traj.angle[1], traj.speed[1]])
+            angle, speed, current = stepper.step(0, (x[0], x[1], x[2 + d] if lag else 0.0), applied)
+            return np.array([angle, speed, *([u[0], *x[2:2 + d - 1]] if d else []), *([current] if lag else [])])
 
         def output(t, x, u, params):
             return np.array([x[1], x[0]])
-        states = ["angle", "speed", *(f"duty_{k}" for k in range(1, d + 1))]
+        states = ["angle", "speed", *(f"duty_{k}" for k in range(1, d + 1)), *(["current"] if lag else [])]
         return control.nlsys(update, output, inputs=["duty"], outputs=["speed", "angle"], states=states,
                              dt=h, name=name)
 

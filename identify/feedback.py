@@ -8,14 +8,28 @@ tests).  :func:`feedback_evidence` says why a recording looks closed loop:
 * the file has a ``reference`` column (what a controller tracked), or
 * its metadata name a ``controller`` (every closed-loop run motorsim records says so), or
 * the duty answers the output: of the duty's innovation (what its own last :data:`INPUT_LAGS`
-  values leave unexplained) at least :data:`FEEDBACK_SHARE` is explained by the output's
-  innovations (what the output's and the duty's past leave) at the same and the last
+  values and the clock leave unexplained) at least :data:`FEEDBACK_SHARE` is explained by the
+  output's innovations (what the output's and the duty's past leave) at the same and the last
   :data:`OUTPUT_LAGS` samples (:func:`feedback_share`).  An open-loop duty is set beforehand, so the
   output's noise and disturbances cannot reach it: on every open-loop run the tests try (sines,
   multisines, chirps, PRBS, steps, the lab's files) the share stays below 5 %; in PI, one-step MPC
-  and PD loops whose derivative differences the counts it is 0.88 and more.  A loop whose duty is
+  and PD loops whose derivative differences the counts it is 0.8 and more.  A loop whose duty is
   smooth (its controller's answer to the output is below the duty's own rounding) is not found
   this way; its file must say so.
+
+  The clock is no loop, though it reaches both signals at once: firmware that computes its waveform
+  from its clock sets a duty taken late further along the waveform while the shaft read at the same
+  instant is further on too, and a sample lost from a file without ``seq`` makes both jump.  Before
+  the test knew, such open-loop runs gave shares up to 0.8.  So the test runs on stretches of
+  regular samples (split where ``seq`` or the time column shows a lost one, :func:`sample_index`),
+  and what the clock's deviations from a regular one (:func:`clock_deviation`) explain of the duty
+  by its own waveform is taken out of its innovation; a controller's answer to the output, the
+  output's timing included, is not.  On 2 928 open-loop runs with jitter up to 0.9 periods and
+  up to 20 % of the samples lost the share stays below 0.14; loops on the same clocks give 0.5 and
+  more (0.33 with a jitter of 0.9 periods).  One ordering it cannot tell from a loop: a sample read
+  after its own duty was set moves the output with that duty's innovation at once, as a controller
+  answering at once moves the duty with the output's (only the motor's sign, which a loop hides,
+  would tell them apart); on a noise-free speed column under a PRBS that reads as a loop.
 
 :func:`fit_closed_loop` then fits ``pem-disturbance`` (:mod:`identify.prediction_error`: a
 prediction-error fit with a torque disturbance entering where the input does) with and without
@@ -52,7 +66,8 @@ from .prediction_error import PredictionErrorFit, estimate_from, solve_predictio
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
-           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS", "OUTPUT_LAGS"]
+           "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS", "OUTPUT_LAGS",
+           "sample_index", "clock_deviation", "LOST_SAMPLE_INTERVAL"]
 
 #: Share of the duty's unexplained variance the output must explain for a recording to count as closed loop.
 FEEDBACK_SHARE = 0.3
@@ -75,56 +90,164 @@ CLOSED_LOOP_ROWS = 6_000
 def feedback_share(recording: Recording) -> float:
     """Share of the duty's innovation that the output's innovations at the same and the last samples explain.
 
-    The duty's innovation is what its own last :data:`INPUT_LAGS` values leave unexplained; the output's
-    (the angle, else the speed) is what its own and the duty's last :data:`INPUT_LAGS` values leave.  In open
-    loop the duty is set beforehand: the output's innovation, noise and disturbance, cannot reach it.  In a
-    closed loop the controller answers the output at once.
+    The duty's innovation is what its own last :data:`INPUT_LAGS` values, and the clock's irregularity as it
+    moves the duty's own waveform, leave unexplained; the output's (the angle, else the speed) is what its own
+    and the duty's last :data:`INPUT_LAGS` values leave.  In open loop the duty is set beforehand: the
+    output's innovation, noise and disturbance, cannot reach it.  In a closed loop the controller answers the
+    output at once.
+
+    The clock says nothing of a loop, yet it reaches both signals at once: a sample taken late finds the shaft
+    further on, and a waveform the firmware computes from its clock further along too, and a sample lost from
+    a file without ``seq`` makes both jump.  So the test runs on stretches of regular samples (split where
+    ``seq`` or the time column shows a lost one, :func:`sample_index`), and the duty's regression holds, besides
+    its own past, the clock's deviations (:func:`clock_deviation`) alone and times the duty's own rates of
+    change: what a waveform of the clock does.  Nothing there reads the output, so a controller's answer to
+    it, the output's timing included, stays in the innovation.  Both regressions hold one law for every
+    stretch (the excitation's, the plant's).
 
     Parameters
     ----------
     recording : Recording
-        One run (its first :data:`TEST_ROWS` rows of gap-free stretches are used).
+        One run (its first :data:`TEST_ROWS` rows of regular stretches are used, found among its first
+        :data:`SCAN_ROWS`).
 
     Returns
     -------
     float
-        The squared canonical correlation, in [0, 1]; nan when the run is too short or either innovation vanishes.
+        The squared canonical correlation, in [0, 1]; nan when the run is too short, or either innovation
+        vanishes (a constant duty: nothing to test).
     """
-    nu: list[np.ndarray] = []
-    eta: list[np.ndarray] = []
-    used = 0
-    for seg in recording.segments():
+    n_all = min(len(recording), SCAN_ROWS)
+    h = recording.sample_period
+    angle = recording.measured_angle(slice(0, n_all))
+    output = angle if angle is not None else (recording.speed[:n_all] if recording.speed is not None else None)
+    if output is None or n_all < MIN_STRETCH:
+        return math.nan
+    time = np.asarray(recording.time[:n_all], dtype=float)
+    index = _sample_index(time, np.asarray(recording.seq[:n_all], dtype=np.int64), h)
+    cuts = np.flatnonzero(np.diff(index) != 1) + 1
+    stretches, used = [], 0
+    for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), n_all]):
         if used >= TEST_ROWS:
             break
-        seg = seg.slice(0, min(len(seg), TEST_ROWS - used))
-        used += len(seg)
-        n = len(seg)
-        if n < max(MIN_SEGMENT_SAMPLES, 6 * INPUT_LAGS):
-            continue
-        u = np.asarray(seg.duty, dtype=float)
-        angle = seg.measured_angle()
-        y = np.asarray(angle if angle is not None else seg.speed, dtype=float)
-        m = n - INPUT_LAGS
-        X = np.empty((m, 2 * INPUT_LAGS + 1))        # row k: u and y at k-L ... k-1, and 1
+        if hi - lo >= max(MIN_SEGMENT_SAMPLES, MIN_STRETCH):
+            hi = min(hi, lo + TEST_ROWS - used)
+            stretches.append((lo, hi))
+            used += hi - lo
+    if not stretches:
+        return math.nan
+    first, last = stretches[0][0], stretches[-1][1]
+    delta = np.zeros(n_all)
+    delta[first:last] = clock_deviation(time[first:last], index[first:last], h)
+    if not np.max(np.abs(delta)) > REGULAR_CLOCK:
+        delta[:] = 0.0                                     # the arithmetic of a regular time column
+    u_all = np.asarray(recording.duty[:n_all], dtype=float)
+    y_all = np.asarray(output, dtype=float)
+    blocks = []
+    for lo, hi in stretches:
+        u, y = u_all[lo:hi], y_all[lo:hi]
+        X = np.empty((hi - lo - INPUT_LAGS, 2 * INPUT_LAGS + 1))   # row k: u and y at k-L ... k-1, and 1
         X[:, :INPUT_LAGS] = sliding_window_view(u[:-1], INPUT_LAGS)
         X[:, INPUT_LAGS:-1] = sliding_window_view(y[:-1], INPUT_LAGS)
         X[:, -1] = 1.0
-        own = np.r_[np.arange(INPUT_LAGS), 2 * INPUT_LAGS]
-        nu_k = _residual(X[:, own], u[INPUT_LAGS:])
-        eta_k = _residual(X, y[INPUT_LAGS:])
-        nu.append(nu_k[OUTPUT_LAGS:])
-        eta.append(sliding_window_view(eta_k, OUTPUT_LAGS + 1)[:, ::-1])
-    if not nu:
+        blocks.append((X, _clock_columns(delta[lo:hi], u), u[INPUT_LAGS:], y[INPUT_LAGS:]))
+    X = np.vstack([blk[0] for blk in blocks])
+    clock = np.vstack([blk[1] for blk in blocks])
+    clock = clock[:, np.any(clock != 0, axis=0)]           # a regular clock explains nothing: no columns
+    if len(X) < 4 * (X.shape[1] + clock.shape[1]):
         return math.nan
-    v = np.concatenate(nu)
-    E = np.vstack(eta)
+    own = np.r_[np.arange(INPUT_LAGS), 2 * INPUT_LAGS]
+    duty = np.concatenate([blk[2] for blk in blocks])
+    nu_all = _residual(np.hstack([X[:, own], clock]), duty)
+    eta_all = _residual(X, np.concatenate([blk[3] for blk in blocks]))
+    bounds = np.cumsum([0, *(len(blk[0]) for blk in blocks)])
+    v = np.concatenate([nu_all[lo + OUTPUT_LAGS:hi] for lo, hi in zip(bounds[:-1], bounds[1:])])
+    E = np.vstack([sliding_window_view(eta_all[lo:hi], OUTPUT_LAGS + 1)[:, ::-1]
+                   for lo, hi in zip(bounds[:-1], bounds[1:])])
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(E))):
         return math.nan
     vv = float(v @ v)
-    if not vv > 0 or not np.all(np.linalg.norm(E, axis=0) > 0):
-        return math.nan
+    if not vv / len(v) > SILENT_DUTY**2 * float(duty @ duty) / len(duty) or not np.all(np.linalg.norm(E, axis=0) > 0):
+        return math.nan                  # a duty its own past sets to the arithmetic's rounding: nothing to test
     explained = v - _residual(E, v)
     return float(min(max(float(explained @ explained) / vv, 0.0), 1.0))
+
+
+#: An interval this many sample periods long or longer holds a lost sample, whatever ``seq`` says.
+LOST_SAMPLE_INTERVAL = 1.5
+#: Fewest rows of a regular stretch the test uses.
+MIN_STRETCH = 2 * INPUT_LAGS
+#: Rows of a recording among which the test looks for its :data:`TEST_ROWS` (lost samples leave stretches
+#: too short to use).
+SCAN_ROWS = 16 * TEST_ROWS
+#: Samples the duty's rates of change are taken over (the clock's deviations at both ends taken into account) ...
+RATE_SPAN = 2
+#: ... and how many such rates, ending at the last samples, the clock's deviations multiply: the rate and its
+#: change, which carry a smooth waveform's rate one sample on.
+RATES = 2
+#: Deviations from a regular clock all below this many sample periods are the arithmetic of the time column
+#: (``k * h`` in floating point), not a clock's: they are taken as none.
+REGULAR_CLOCK = 1e-6
+#: A duty's innovation this small against the duty (root mean squares) is the arithmetic's rounding.
+SILENT_DUTY = 1e-9
+
+
+def sample_index(recording: Recording) -> np.ndarray:
+    """Each row's sample number, from 0: ``seq``, with a sample the time column shows lost counted as lost too.
+
+    A step of ``seq`` counts as it says; an interval of :data:`LOST_SAMPLE_INTERVAL` sample periods or
+    longer counts as the whole periods it holds, when that is more (a file without ``seq`` that lost samples)
+    -- unless some interval is as much shorter than a period (``2 - LOST_SAMPLE_INTERVAL`` periods or less):
+    a clock that irregular stretches an interval that far by itself, and only ``seq`` can tell.
+
+    Examples
+    --------
+    >>> rec = Recording(time=[0.0, 0.01, 0.03, 0.04], duty=[0, 0, 0, 0], sample_period=0.01, counts=[0, 0, 0, 0],
+    ...                 counts_per_rev=100)
+    >>> sample_index(rec).tolist()
+    [0, 1, 3, 4]
+    """
+    return _sample_index(np.asarray(recording.time, dtype=float), np.asarray(recording.seq, dtype=np.int64),
+                         recording.sample_period)
+
+
+def _sample_index(time: np.ndarray, seq: np.ndarray, sample_period: float) -> np.ndarray:
+    """:func:`sample_index` of the columns ``time`` and ``seq``."""
+    if len(seq) < 2:
+        return seq - seq[:1]
+    periods = np.diff(time) / sample_period
+    if periods.min() <= 2 - LOST_SAMPLE_INTERVAL:
+        return seq - seq[0]
+    lost = np.where(periods >= LOST_SAMPLE_INTERVAL, np.rint(periods), 1).astype(np.int64)
+    return np.r_[0, np.cumsum(np.maximum(np.diff(seq), lost))]
+
+
+def clock_deviation(time: np.ndarray, index: np.ndarray, sample_period: float) -> np.ndarray:
+    """How far each sample was taken from a regular clock, in sample periods: the time column less its
+    least-squares line on the sample number (which takes a clock's constant rate error and offset out)."""
+    if len(time) < 2:
+        return np.zeros(len(time))
+    k = index - index.mean()
+    centred = time - time.mean()
+    slope = float(k @ centred) / float(k @ k)
+    return (centred - slope * k) / sample_period
+
+
+def _clock_columns(delta: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """What the clock's irregularity explains of rows ``k >= INPUT_LAGS`` of a stretch's duty, to first order in
+    its deviations ``delta`` (:func:`clock_deviation`, in sample periods), when the duty is a waveform of the
+    clock.
+
+    Firmware that computes its waveform from its clock sets a duty taken ``delta`` late to its value plus
+    ``delta`` times its rate of change; the regression on the last :data:`INPUT_LAGS` duties carries each of
+    their deviations along.  So the columns are ``delta_{k-j}`` (``j = 0 ... INPUT_LAGS``), alone and times the
+    duty's last :data:`RATES` rates of change (each over :data:`RATE_SPAN` intervals, as long as they were).
+    They read the duty and the clock, never the output.
+    """
+    L, q = INPUT_LAGS, RATE_SPAN
+    k = np.arange(L, len(u))
+    rates = [(u[k - i] - u[k - i - q]) / (q + delta[k - i] - delta[k - i - q]) for i in range(1, RATES + 1)]
+    return np.column_stack([delta[k - j] * x for j in range(L + 1) for x in (np.ones(len(k)), *rates)])
 
 
 def _residual(X: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -10,7 +10,10 @@ feedforward law of WPILib's SysId and most robotics courses::
 in the input's unit (duty or volts) per rad/s, per rad/s^2, and for ``kS`` and ``k0`` in the
 input unit itself.  Their standard errors come from the estimate's covariance by the delta
 method (first-order propagation through the ratios), their intervals are normal ones; a
-constant whose parameters have no covariance (friction or bias not fitted) has none.
+constant whose parameters have no covariance (friction or bias not fitted) has none.  Where the
+estimate's own intervals were widened to hold candidates the data cannot rule out (its
+``model_range``), each constant's interval holds every value its ratio takes over the widened
+intervals of its parameters too (``ranges``): a kA interval never excludes what ``b``'s holds.
 """
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ import numpy as np
 
 from motorsim.checks import ParameterError
 
-__all__ = ["FeedforwardConstants", "feedforward_constants"]
+__all__ = ["FeedforwardConstants", "feedforward_constants", "apart"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +41,9 @@ class FeedforwardConstants:
         Standard error of each (nan where the covariance does not cover it).
     input_unit : str
         ``duty`` or ``V``.
+    ranges : dict of str to (float, float)
+        Where the estimate's intervals were widened (its ``model_range``): each constant over the
+        widened intervals of its parameters, joined to its own interval.
     """
 
     ks: float
@@ -46,13 +52,20 @@ class FeedforwardConstants:
     k0: float
     stderr: dict[str, float]
     input_unit: str = "duty"
+    ranges: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def confidence_interval(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
-        """Normal intervals ``(low, high)`` of each constant at ``level`` (nan without a standard error)."""
+        """Normal intervals ``(low, high)`` of each constant at ``level`` (nan without a standard error),
+        joined with its ``ranges`` (the candidates the estimate could not rule out), as the estimate's are."""
         if not 0 < level < 1:
             raise ParameterError(f"level must be in (0, 1), got {level!r}")
         z = NormalDist().inv_cdf(0.5 + level / 2)   # (scipy.stats costs identify's start-up)
-        return {k: (getattr(self, k) - z * s, getattr(self, k) + z * s) for k, s in self.stderr.items()}
+        out = {k: (getattr(self, k) - z * s, getattr(self, k) + z * s) for k, s in self.stderr.items()}
+        for k, (lo, hi) in self.ranges.items():
+            own = out.get(k, (math.nan, math.nan))
+            out[k] = (min(lo, own[0]) if math.isfinite(own[0]) else lo,
+                      max(hi, own[1]) if math.isfinite(own[1]) else hi)
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         """Values, standard errors, 95 % intervals and units, for a model's JSON."""
@@ -69,10 +82,67 @@ class FeedforwardConstants:
 
         def one(name: str, unit: str) -> str:
             lo, hi = ci[name]
-            band = "" if math.isnan(lo) else f" [{lo:.4g}, {hi:.4g}]"
-            return f"{name[0]}{name[1].upper()} {getattr(self, name):.4g}{band} {unit}"
+            value = getattr(self, name)
+            if math.isnan(lo):
+                return f"{name[0]}{name[1].upper()} {value:.4g} {unit}"
+            v, low, high = apart(value, lo, hi)
+            return f"{name[0]}{name[1].upper()} {v} [{low}, {high}] {unit}"
         return "feedforward " + ", ".join([one("ks", u), one("kv", f"{u}/(rad/s)"), one("ka", f"{u}/(rad/s^2)"),
                                            one("k0", u)])
+
+
+def apart(value: float, low: float, high: float, digits: int = 4) -> tuple[str, str, str]:
+    """``value`` and its interval with enough significant digits (``digits`` at least, 10 at most) that the
+    three are told apart where they differ: ``0.12 [0.12, 0.12]`` becomes ``0.12 [0.11995, 0.12005]``.
+
+    Examples
+    --------
+    >>> apart(0.12, 0.11995, 0.12005)
+    ('0.12', '0.11995', '0.12005')
+    """
+    for n in range(digits, 11):
+        v, lo, hi = (f"{x:.{n}g}" for x in (value, low, high))
+        if (v != lo or value == low) and (v != hi or value == high):
+            break
+    return v, lo, hi
+
+
+def _ratio_range(top: tuple[float, float], bottom: tuple[float, float]) -> tuple[float, float]:
+    """Every value ``x / y`` takes for ``x`` in ``top`` and ``y`` in ``bottom`` (all reals when ``bottom`` holds 0)."""
+    if not bottom[0] * bottom[1] > 0:
+        return -math.inf, math.inf
+    corners = [x / y for x in top for y in bottom]
+    return min(corners), max(corners)
+
+
+def _widened(estimate: Any, kv_stderr: float) -> dict[str, tuple[float, float]]:
+    """Each constant over the widened intervals of its parameters, when the estimate has any (``model_range``).
+
+    ``kA = 1/b`` is a function of ``b`` alone: its range is ``b``'s interval mapped.  ``kV = a/b`` of
+    candidates that fit alike moves far less than ``a`` and ``b`` do (their static gain is what the data
+    hold), so where the selection kept its candidates, ``kV``'s range is theirs (those within the noise),
+    each with the chosen fit's relative width of ``kV`` (``kv_stderr``); else every ratio over both
+    intervals.  ``kS``, ``k0``: the friction's and bias's intervals over ``b``'s."""
+    if not getattr(estimate, "model_range", None):
+        return {}
+    ci = estimate.confidence_interval(0.95)
+    if "a" not in ci or "b" not in ci:
+        return {}
+    b = ci["b"]
+    out = {"kv": _ratio_range(ci["a"], b), "ka": _ratio_range((1.0, 1.0), b)}
+    selection = getattr(estimate, "selection", None)
+    alike = [c for c in getattr(selection, "candidates", ()) if c.within_noise and c.b != 0]
+    if alike and "b" in estimate.model_range and math.isfinite(b[0]) and b[0] * b[1] > 0:
+        kv = float(estimate.a) / float(estimate.b)
+        width = 1.96 * kv_stderr / abs(kv) if math.isfinite(kv_stderr) and kv else 0.0
+        values = [kv] + [c.a / c.b for c in alike]
+        out["kv"] = (min(v - abs(v) * width for v in values), max(v + abs(v) * width for v in values))
+    if "friction" in ci:
+        out["ks"] = _ratio_range(ci["friction"], b)
+    if "bias" in ci:
+        low, high = _ratio_range(ci["bias"], b)
+        out["k0"] = (-high, -low)
+    return out
 
 
 def feedforward_constants(estimate: Any) -> FeedforwardConstants:
@@ -100,6 +170,9 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
     if b == 0:
         raise ParameterError("b must be nonzero for feedforward constants, got 0.0")
     extra = dict(getattr(estimate, "extra", {}) or {})
+    for key in ("friction", "bias"):          # a design model (PlantModel, Motor) holds them as attributes
+        if key not in extra and isinstance(getattr(estimate, key, None), (int, float)):
+            extra[key] = getattr(estimate, key)
     c, d = float(extra.get("friction", 0.0)), float(extra.get("bias", 0.0))
     names = tuple(getattr(estimate, "param_names", ("a", "b")))
     cov = getattr(estimate, "covariance", None)
@@ -117,4 +190,5 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
         var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
         stderr[k] = scale * math.sqrt(var) if var >= 0 else math.nan
     return FeedforwardConstants(ks=c / b, kv=a / b, ka=1 / b, k0=-d / b, stderr=stderr,
-                                input_unit=str(getattr(estimate, "input_unit", "duty")))
+                                input_unit=str(getattr(estimate, "input_unit", "duty")),
+                                ranges=_widened(estimate, stderr["kv"]))

@@ -392,6 +392,30 @@ MIN_SEGMENTS_PER_LINE = 3.0
 LEAKAGE_FRACTION = 0.3
 
 
+def _jackknife_variance(Uf: np.ndarray, Yf: np.ndarray, n_eff: float) -> np.ndarray:
+    """The variance of ``sum conj(U) Y / sum |U|^2`` over segments by the jackknife (each segment left out in turn),
+    scaled from the segments to their effective number ``n_eff`` (overlapping segments are not independent).
+
+    Unlike the coherence's formula it sees what varies from segment to segment however it arises: a
+    transient that leaks into a segment from the input before it, an encoder's rounding that follows the
+    input, a load that comes and goes; an estimate whose coherence is near 1 is no longer taken on trust."""
+    n_seg = Uf.shape[0]
+    if n_seg < 3:
+        return np.zeros(Uf.shape[1])
+    cross = np.conj(Uf) * Yf
+    power = np.abs(Uf) ** 2
+    left_cross = cross.sum(axis=0) - cross
+    left_power = power.sum(axis=0) - power
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = left_cross / left_power
+        spread = np.sum(np.abs(g - g.mean(axis=0)) ** 2, axis=0) * (n_seg - 1) / n_seg
+    return np.where(np.isfinite(spread), spread * n_seg / n_eff, np.inf)
+
+
+#: Correlation of the squared spectra of two Hann-windowed segments that overlap by half (Welch 1967, table 1).
+HANN_OVERLAP_CORRELATION = 0.167
+
+
 def _welch(rec: Recording, segment: int | None) -> _Lines:
     from scipy import signal
     _require_contiguous(rec, "a broadband (welch) estimate")
@@ -426,10 +450,14 @@ def _welch(rec: Recording, segment: int | None) -> _Lines:
     g = np.where(ok, suy / np.where(ok, suu, 1.0), 0.0)
     coherence = np.where(ok, np.abs(suy) ** 2 / np.where(ok, suu * syy, 1.0), 0.0)
     coherence = np.clip(coherence, 0.0, 1.0)
-    # Bendat & Piersol eq. 9.90 with the effective number of averages of half-overlapped Hann segments
-    n_eff = max(n_seg * 1.89 - 0.89, 2.0) if n_seg > 1 else 1.0   # Welch (1967): ~1.9 per segment at 50 %
+    # Bendat & Piersol eq. 9.90 with the effective number of averages of half-overlapped Hann segments: Welch
+    # (1967) gives the variance of their mean as (1 + 2 rho^2 (1 - 1/K)) / K of one segment's, rho = 0.167 the
+    # overlap correlation of a Hann window at 50 %: 0.95 of an average per segment, not 1.9 (which counted each
+    # overlapped segment twice and halved the variance)
+    n_eff = n_seg / (1.0 + 2.0 * HANN_OVERLAP_CORRELATION ** 2 * (1.0 - 1.0 / n_seg))
     with np.errstate(divide="ignore", invalid="ignore"):
         variance = np.where(coherence > 0, (1.0 - coherence) / coherence * np.abs(g) ** 2 / (n_eff - 1.0), np.inf)
+        variance = np.maximum(variance, _jackknife_variance(Uf[:, lines], Yf[:, lines], n_eff))
     omega = 2.0 * math.pi * np.arange(segment // 2 + 1)[lines] / (segment * rec.sample_period)
     resolution = 2.0 * math.pi / (segment * rec.sample_period)
     # A line whose input power comes from a few segments only (a step, the step of a sine-plus-step, a

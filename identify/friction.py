@@ -54,10 +54,12 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, check_bool
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from .comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from .data import (
+    DEFAULT_INPUT_DELAY,
     Segment,
     as_recordings,
     check_excitation,
@@ -218,7 +220,8 @@ class FrictionProblem:
         return lower
 
 
-def fit_output_error_friction(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+def fit_output_error_friction(recordings: Recording | list[Recording], *,
+                              input_delay: int | str = DEFAULT_INPUT_DELAY,
                               fix_bias: bool = False, dead_zone: bool = True,
                               static_friction: bool = False) -> Estimate:
     """Fit ``a``, ``b``, Coulomb friction ``c``, bias ``d`` and a duty dead zone by output error.
@@ -228,7 +231,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     recordings : Recording or sequence of Recording
         Pooled, as for ``oe``.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"``: chosen by this friction model's own fits in
+        Input delay in samples, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`): chosen by
+        this friction model's own fits in
         ``0 ... 10``, the shortest delay within the noise of the best, see
         :func:`identify.selection.select_model`).
     fix_bias : bool
@@ -283,7 +287,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *, input_
     placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
     cov, cov_method = _covariance(recs, problem, res, s2, placed)
     extra = {"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay}
-    est = Estimate(method="oe-friction", a=a, b=b, n_samples=problem.n_rows, sample_period=recs[0].sample_period,
+    est = Estimate(method="oe-friction", structure="dead-zone" if dead_zone else "friction", a=a, b=b,
+                   n_samples=problem.n_rows, sample_period=recs[0].sample_period,
                    residual_rms=math.sqrt(sum_squares(res.fun) / problem.n_rows),
                    fit_percent=segment_fit_percent(segments, placed),
                    covariance=cov, param_names=names, covariance_method=cov_method, extra=extra,
@@ -607,7 +612,7 @@ def _regression_start(problem: FrictionProblem) -> np.ndarray | None:
         if not (0.0 < e < 1.0) or gain == 0.0:
             return None
         a = -math.log(e) / h
-        p = -math.expm1(-a * h) / a
+        p = first_order_coefficients(a, h)[1]
         if dead_zone:
             zone = max(0.0, -float(beta[1 + n_u]) / gain)
     rest = 1 + n_u + dead_zone

@@ -8,7 +8,7 @@ simply read off the state at its start, so one pass gives the speed, the angle, 
 and the derivatives with respect to :data:`~identify.friction_response.FRICTION_PARAMETERS`
 together, by the same formulas (the moving step and its derivatives, the event step
 differentiated through the event time by complex step, a stuck interval carrying nothing).
-Compiled by numba (the optional extra ``fast``) that pass costs about as much as one of the
+Compiled by numba (a dependency where it has wheels) that pass costs about as much as one of the
 vectorised scans; in Python it would be far slower than the vectorised path, so without
 numba (or with ``MOTORID_NUMBA=0``) :func:`compiled_response` returns None and the caller
 keeps the vectorised path.  Both give the same numbers to rounding (tests compare them).

@@ -30,7 +30,7 @@ term; at an event the step is differentiated *through the event time* ``t_z``
 Trapp 1998, which has no cancellation), and a stuck interval has zero derivatives.
 Being linear, the corrections at the events form one lower-bidiagonal system (one
 LAPACK call instead of a loop), and a second scan spreads them.
-With numba installed (the extra ``fast``), on at least
+With numba (a dependency where it has wheels), on at least
 :data:`~identify.friction_kernel.KERNEL_MIN_ROWS` samples or once the process has loaded it
 (:func:`~identify.friction_kernel.kernel_for`), the same response, modes and sensitivities come
 from one compiled pass over the samples instead (:mod:`identify.friction_kernel`: no fixed-point

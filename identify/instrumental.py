@@ -29,10 +29,11 @@ import math
 import numpy as np
 
 from motorsim.checks import check_int
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 from motorsim.recursion import first_order_filter
 
-from .data import as_recordings, check_excitation, check_input_delay, prepare_segments
+from .data import DEFAULT_INPUT_DELAY, as_recordings, check_excitation, check_input_delay, prepare_segments
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .output_error import select_delay
@@ -89,7 +90,7 @@ def _model_average_speed_rows(a: float, b: float, u: np.ndarray, t: np.ndarray) 
     p, q = h * p1, h * h * p2
     v = np.asarray(u[:-2], dtype=float)
     w = np.zeros(len(v))                             # w_0 = 0, w_{k+1} = e w_k + p u_k
-    first_order_filter(math.exp(-a * h), p * v[:-1], out=w[1:])
+    first_order_filter(first_order_coefficients(a, h)[0], p * v[:-1], out=w[1:])
     w *= p
     w += q * v
     w *= b
@@ -202,7 +203,8 @@ class _IvRegression:
         return self.solve(a_new, x_inst, xm, last)
 
 
-def fit_instrumental_variables(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+def fit_instrumental_variables(recordings: Recording | list[Recording], *,
+                               input_delay: int | str = DEFAULT_INPUT_DELAY,
                                iterations: int = 3) -> Estimate:
     """Refined-IV estimate of ``a``, ``b`` from averaged (differenced) speed.
 
@@ -211,7 +213,8 @@ def fit_instrumental_variables(recordings: Recording | list[Recording], *, input
     recordings : Recording or sequence of Recording
         Pooled over gap-free segments.
     input_delay : int or "auto"
-        Input delay in samples (``"auto"`` chooses it by output error).
+        Input delay in samples, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`), chosen by
+        output error.
     iterations : int
         IV passes after the ``zoh-ls`` start, >= 1 (default 3).
 
@@ -262,7 +265,7 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
     cov_theta = s2 * Minv @ sol.instrument_gram() @ Minv.T
     jac = np.array([[-1.0 / (e * h), 0.0], [0.0, 1.0]])
     cov = jac @ cov_theta @ jac.T
-    return Estimate(method="iv", a=a, b=b, n_samples=len(y), sample_period=h,
+    return Estimate(method="iv", structure="linear", a=a, b=b, n_samples=len(y), sample_period=h,
                     residual_rms=math.sqrt(rss / len(y)),
                     fit_percent=fit_percent(a, b, recs, input_delay=delay), covariance=cov,
                     extra={"input_delay": delay}, input_unit=recs[0].input_unit, input_limit=recs[0].input_limit,
@@ -271,7 +274,5 @@ def _estimate(regression: _IvRegression, sol: _IvSolution, a: float, b: float, r
 
 def _filter_coefficients(a: float, h: float) -> tuple[float, float]:
     """``(q / h, (p^2 - e q) / h)``: the filtered input per unit ``b`` is ``c1 u_k + c0 u_{k-1}``."""
-    e = math.exp(-a * h)
-    p = -math.expm1(-a * h) / a
-    q = (h - p) / a
+    e, p, q = first_order_coefficients(a, h)
     return q / h, (p * p - e * q) / h

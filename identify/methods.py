@@ -1,133 +1,46 @@
 """The estimators by name: ``fit(recordings, method=...)``, ``available_methods()``, ``method_function(name)``.
 
-Add an estimator by adding one line to ``_METHODS``; the CLI and the sweeps
-pick it up by name.  Every estimate's ``method`` is one of these names, and
-``fit(recordings, estimate.method, **options)`` reproduces it with the options
-it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration).
+Every estimator is an object of :mod:`identify.estimators` (its name, function, declared options,
+candidate fit and what it is made for); add one there and to :data:`ESTIMATORS`, and a structure it
+fits names it as its ``estimator``.  The CLI and the sweeps pick it up by name.  Every estimate's
+``method`` is one of these names, and ``fit(recordings, estimate.method, **options)`` reproduces it
+with the options it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration).
 
-The registry names each estimator as ``"module:function"`` of this package rather than
-holding the function, so that listing the names imports no estimator.  Every command's
-``--help`` lists the methods (``--method`` choices), and the estimator modules import
-scipy.optimize, scipy.linalg and scipy.sparse at the top: with the functions registered,
-``motorid --help`` took 588 ms, 0.43 x ``import control`` measured in the same
-``motorid bench startup`` run (goal 0.25 x), against 262 ms, 0.14 x, with the names.
-A test resolves every entry, so a misspelt one fails there rather than at a user's fit.
+An estimator names its function as ``"module:function"`` of this package rather than holding
+it, so that listing the names imports no estimator.  Every command's ``--help`` lists the
+methods (``--method`` choices), and the estimator modules import scipy.optimize, scipy.linalg
+and scipy.sparse at the top: with the functions registered, ``motorid --help`` took 588 ms,
+0.43 x ``import control`` measured in the same ``motorid bench startup`` run (goal 0.25 x),
+against 262 ms, 0.14 x, with the names.  A test resolves every entry, so a misspelt one fails
+there rather than at a user's fit.
 
-Each estimator's keyword options are declared here too (``_OPTIONS``: name, kind, default and
-a one-line help per option, :class:`EstimatorOption`), without importing it: :func:`fit` and
-``motorid identify`` check what they are given against the declaration and name the method,
-the option and the ones it takes; a test checks every declaration against its function.
+Each estimator's keyword options are declared with it (name, kind, default and a one-line help
+per option, :class:`EstimatorOption`), without importing it: :func:`fit` and ``motorid
+identify`` check what they are given against the declaration and name the method, the option
+and the ones it takes; a test checks every declaration against its function.  The input delay's
+default is :data:`identify.data.DEFAULT_INPUT_DELAY` for every estimator that can search it.
 """
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Callable, Mapping
 
 from motorsim.checks import ParameterError, ParameterTypeError
-from motorsim.lazy import load
 from motorsim.recording import Recording
 
 from .estimate import Estimate
+from .estimators import DEFAULT, REGISTERED_ESTIMATORS, Estimator, EstimatorOption
 from .model_structures import ModelStructure
 
 __all__ = ["fit", "available_methods", "method_function", "method_options", "option_declarations", "check_options",
-           "EstimatorOption", "candidate_function", "DEFAULT_METHOD"]
+           "EstimatorOption", "Estimator", "estimator", "candidate_function", "DEFAULT_METHOD", "ESTIMATORS"]
 
-#: name -> "module:function" of this package (its module imported when first used), or the function itself
-_METHODS: dict[str, str | Callable[..., Estimate]] = {
-    "euler-ls": "regression:fit_euler_ls",
-    "zoh-ls": "regression:fit_zoh_ls",
-    "oe": "output_error:fit_output_error",
-    "iv": "instrumental:fit_instrumental_variables",
-    "oe-friction": "friction:fit_output_error_friction",
-    "iv-reference": "closed_loop:fit_reference_iv",
-    "oe-electrical": "electrical:fit_output_error_electrical",
-    "pem-disturbance": "prediction_error:fit_prediction_error",
-}
+#: Every estimator by name (:mod:`identify.estimators`: each one's function, options and what it is made for).
+ESTIMATORS: dict[str, Estimator] = {e.name: e for e in REGISTERED_ESTIMATORS}
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
 #: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
-DEFAULT_METHOD = "auto"
-_DEFAULT_ENTRY = "selection:fit_selected"
+DEFAULT_METHOD = DEFAULT.name
 
-
-@dataclasses.dataclass(frozen=True)
-class EstimatorOption:
-    """One keyword option an estimator takes: ``identify.fit(recordings, method, NAME=value)``.
-
-    Attributes
-    ----------
-    name : str
-        The keyword.
-    kind : str
-        What it takes, in words (``"int or 'auto'"``, ``"bool"``, ...); the estimator checks the value.
-    default : object
-        Its value when not given.
-    help : str
-        One line: what it does.
-    """
-
-    name: str
-    kind: str
-    default: Any
-    help: str
-
-
-def _input_delay(default: int | str = 0, kind: str = "int or 'auto'") -> EstimatorOption:
-    return EstimatorOption("input_delay", kind, default, "whole samples between a duty commanded and its reaching "
-                           "the motor" + (", or 'auto': the shortest within the noise of the best" if "auto" in kind
-                                          else ""))
-
-
-_FIX_BIAS = EstimatorOption("fix_bias", "bool", False, "hold the bias (constant acceleration d) at 0")
-
-#: method -> the keyword options it takes, in its signature's order (a test checks each against its function)
-_OPTIONS: dict[str, tuple[EstimatorOption, ...]] = {
-    DEFAULT_METHOD: (
-        _input_delay("auto"),
-        EstimatorOption("structures", "sequence of str or None", None,
-                        "the registered structures to choose among (identify.structures(); default all)"),
-        EstimatorOption("fix_bias", "bool", False, "hold the bias at 0 in the friction structures")),
-    "euler-ls": (),
-    "zoh-ls": (),
-    "oe": (
-        _input_delay(),
-        EstimatorOption("fit_bias", "bool", False, "also fit a constant acceleration d (the bias structure)"),
-        EstimatorOption("jac", "'analytic', '2-point' or '3-point'", "analytic",
-                        "the Jacobian: analytic sensitivities or finite differences"),
-        EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
-                        "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
-    "iv": (
-        _input_delay(),
-        EstimatorOption("iterations", "int >= 1", 3, "instrumental-variable passes after the zoh-ls start")),
-    "oe-friction": (
-        _input_delay(),
-        _FIX_BIAS,
-        EstimatorOption("dead_zone", "bool", True, "also fit a dead zone of the input"),
-        EstimatorOption("static_friction", "bool", False,
-                        "also fit a static friction above the friction (stiction; needs dead_zone false)")),
-    "iv-reference": (_input_delay(0, "int"),),
-    "oe-electrical": (_input_delay(),),
-    "pem-disturbance": (
-        _input_delay(0, "int"),
-        EstimatorOption("friction", "bool", True, "also fit Coulomb friction c"),
-        EstimatorOption("disturbance_pole", "float in [0, 1] or None", None,
-                        "hold the torque disturbance's pole per sample (1: a random walk) instead of fitting it")),
-}
-
-
-#: method -> "module:function" fitting one structure as a candidate of the default's selection, called as
-#: ``function(recordings, segments, input_delay, structure, refine=..., fix_bias=...) -> CandidateFit``
-_CANDIDATES = {
-    "oe": "output_error:structure_candidate",
-    "oe-friction": "friction:structure_candidate",
-    "oe-electrical": "electrical:structure_candidate",
-}
-
-#: methods made for closed-loop recordings (``iv-reference`` needs their reference column)
-_CLOSED_LOOP_ONLY = frozenset({"iv-reference", "pem-disturbance"})
-#: methods of structures beyond the first-order motor's family (a second pole)
-_BEYOND_FIRST_ORDER = frozenset({"oe-electrical"})
 
 def available_methods(*, open_loop: bool = False, first_order: bool = False) -> list[str]:
     """The estimators :func:`fit` can be told to use (besides the default, ``"auto"``).
@@ -141,8 +54,25 @@ def available_methods(*, open_loop: bool = False, first_order: bool = False) -> 
         Leave out the estimators of structures beyond the first-order motor (``oe-electrical``):
         with ``open_loop``, what "all methods" means for the article's experiment (the demo, the sweeps).
     """
-    return [m for m in _METHODS if not (open_loop and m in _CLOSED_LOOP_ONLY)
-            and not (first_order and m in _BEYOND_FIRST_ORDER)]
+    return [name for name, e in ESTIMATORS.items() if not (open_loop and e.closed_loop_only)
+            and not (first_order and e.beyond_first_order)]
+
+
+def estimator(method: str | Estimator) -> Estimator:
+    """The estimator called ``method`` (``"auto"``, the default, included; an estimator is returned as it is).
+
+    Parameters
+    ----------
+    method : str or Estimator
+        ``"auto"`` or one of :func:`available_methods`.
+    """
+    if isinstance(method, Estimator):
+        return method
+    if method == DEFAULT_METHOD:
+        return DEFAULT
+    if method not in ESTIMATORS:
+        raise ParameterError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
+    return ESTIMATORS[method]
 
 
 def method_function(method: str) -> Callable[..., Estimate]:
@@ -153,12 +83,7 @@ def method_function(method: str) -> Callable[..., Estimate]:
     method : str
         One of :func:`available_methods`.
     """
-    if method != DEFAULT_METHOD and method not in _METHODS:
-        raise ParameterError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
-    entry = _DEFAULT_ENTRY if method == DEFAULT_METHOD else _METHODS[method]
-    if callable(entry):
-        return entry
-    return load(f".{entry}", __package__)
+    return estimator(method).function()
 
 
 def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
@@ -167,12 +92,12 @@ def candidate_function(structure: ModelStructure) -> Callable[..., Any]:
     Parameters
     ----------
     structure : ModelStructure
-        A registered structure; its ``method`` names the estimator.
+        A registered structure; its ``estimator`` fits it.
     """
-    if structure.method not in _CANDIDATES:
-        raise ParameterError(f"structure {structure.name!r} has no candidate fit: its method must be one of "
-                             f"{list(_CANDIDATES)}, got {structure.method!r}")
-    return load(f".{_CANDIDATES[structure.method]}", __package__)
+    if not structure.estimator.candidate:
+        raise ParameterError(f"structure {structure.name!r} has no candidate fit: its estimator must be one of "
+                             f"{[e.name for e in ESTIMATORS.values() if e.candidate]}, got {structure.method!r}")
+    return structure.estimator.candidate_function()
 
 
 def option_declarations(method: str) -> tuple[EstimatorOption, ...]:
@@ -187,13 +112,9 @@ def option_declarations(method: str) -> tuple[EstimatorOption, ...]:
     --------
     >>> from identify import option_declarations
     >>> [(o.name, o.default) for o in option_declarations("oe-friction")]
-    [('input_delay', 0), ('fix_bias', False), ('dead_zone', True), ('static_friction', False)]
+    [('input_delay', 'auto'), ('fix_bias', False), ('dead_zone', True), ('static_friction', False)]
     """
-    if method != DEFAULT_METHOD and method not in _METHODS:
-        raise ParameterError(f"method must be one of {[DEFAULT_METHOD, *available_methods()]}, got {method!r}")
-    if method not in _OPTIONS:
-        raise ParameterError(f"method {method!r} declares no options: add its line to identify.methods._OPTIONS")
-    return _OPTIONS[method]
+    return estimator(method).options
 
 
 def method_options(method: str) -> tuple[str, ...]:
@@ -247,10 +168,15 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
 
         - ``auto``: ``input_delay`` (``"auto"`` or samples), ``structures`` (subset of
           ``("linear", "bias", "friction", "dead-zone")``), ``fix_bias``.
-        - ``oe``: ``input_delay`` (default 0, or ``"auto"``), ``fit_bias``, ``jac``, ``covariance``.
-        - ``oe-friction``: ``input_delay`` (default 0, or ``"auto"``), ``fix_bias``, ``dead_zone``,
-          ``static_friction``.
-        - ``iv``: ``input_delay`` (default 0, or ``"auto"``).
+        - ``oe``: ``input_delay`` (``"auto"``, the default, or samples), ``fit_bias``, ``jac``,
+          ``covariance``.
+        - ``oe-friction``: ``input_delay`` (``"auto"``, the default, or samples), ``fix_bias``,
+          ``dead_zone``, ``static_friction``.
+        - ``iv``, ``oe-electrical``: ``input_delay`` (``"auto"``, the default, or samples).
+        - ``iv-reference``, ``pem-disturbance``: ``input_delay`` (samples, default 0), and their own.
+
+        Every estimator that can search for the input delay does so unless told one
+        (:data:`identify.data.DEFAULT_INPUT_DELAY`), as ``motorid identify --method`` does.
         - ``euler-ls``, ``zoh-ls``: none.
 
         :func:`option_declarations` lists them for a method (kind, default, help); an option the

@@ -29,6 +29,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
+from motorsim.text import control_characters, printable
 from motorsim.units import SPEED_UNITS
 
 __all__ = ["ESTIMATE_FORMAT", "READABLE_FORMATS", "MAX_ESTIMATE_BYTES", "estimate_document",
@@ -140,6 +141,11 @@ def _bounded_int(text: str) -> int | float:
 def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     doc: dict[str, Any] = {}
     for key, value in pairs:
+        for text in (key, value, *(value if isinstance(value, list) else ())):
+            if isinstance(text, str) and control_characters(text):
+                raise ParameterError(f"an estimate's text must be printable: field {key!r} holds "
+                                     f"{control_characters(text)} (a control character, line break or lone "
+                                     f"surrogate), in '{printable(text)[:80]}'")
         if key in doc:
             raise ParameterError(f"an estimate must name each field once, got {key!r} twice")
         doc[key] = value

@@ -37,6 +37,7 @@ from motorsim.recording import Recording
 
 from .comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from .data import (
+    DEFAULT_INPUT_DELAY,
     MIN_SEGMENT_SAMPLES,
     Segment,
     as_recordings,
@@ -224,13 +225,13 @@ class OutputErrorProblem:
                                 sensitivities=jacobian)
             if seg.kind == "angle":
                 err = seg.output - resp.angle
-                s0 = resp.angle_sensitivity[:, 2]
+                s0 = resp.angle_initial_speed
                 # project out the offset (centre), then solve for the initial speed
                 err = err - err.mean()
                 s0 = s0 - s0.mean()
             else:
                 err = seg.output - resp.speed
-                s0 = resp.speed_sensitivity[:, 2]
+                s0 = resp.speed_initial_speed
             ss = sum_squares(s0)
             w = dot(s0, err) / ss if ss > 0 else 0.0
             w0[i] = w
@@ -485,7 +486,7 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
                     fit_percent=fit_percent, covariance=cov,
                     param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
                     residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit,
+                    input_limit=recs[0].input_limit, structure="bias" if problem.with_bias else "linear",
                     covariance_method=cov_method, speed_residuals=_speed_residuals(recs, problem.segments, models))
 
 
@@ -539,7 +540,7 @@ def _segment_output(a: float, b: float, bias: float, seg: Segment, initial_speed
     return resp.angle if seg.kind == "angle" else resp.speed
 
 
-def fit_output_error(recordings: Recording | list[Recording], *, input_delay: int | str = 0,
+def fit_output_error(recordings: Recording | list[Recording], *, input_delay: int | str = DEFAULT_INPUT_DELAY,
                      fit_bias: bool = False, jac: str = "analytic", covariance: str = "auto") -> Estimate:
     """Output-error fit of ``a``, ``b`` on the encoder angle (the default method, ``oe``).
 
@@ -548,9 +549,9 @@ def fit_output_error(recordings: Recording | list[Recording], *, input_delay: in
     recordings : Recording or sequence of Recording
         Pooled: one ``(a, b)``, an initial speed and encoder offset per gap-free segment.
     input_delay : int or "auto"
-        Input delay in whole samples (default 0); ``"auto"`` picks it in
-        ``0 ... MAX_AUTO_DELAY``: the shortest delay whose fit is within the noise of the best
-        (:func:`identify.selection.select_model`).
+        Input delay in whole samples, or ``"auto"`` (default,
+        :data:`identify.data.DEFAULT_INPUT_DELAY`): the shortest delay in ``0 ... MAX_AUTO_DELAY``
+        whose fit is within the noise of the best (:func:`identify.selection.select_model`).
     fit_bias : bool
         Also fit a constant acceleration ``bias`` (the model's ``d``):
         ``d omega/dt = -a omega + b u + d``.  For a motor that never stops (a driver

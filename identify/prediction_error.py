@@ -30,8 +30,8 @@ it starts), with ``Q = 0`` there is none (the fit is then an output-error fit wi
 settles on the measured trajectory).  Without
 friction (``friction=False``) ``c = 0``.
 
-The filter's pass over the samples is compiled by numba when it is installed (the optional
-extra ``fast``); without it the same function runs in Python, slower, with the same numbers.
+The filter's pass over the samples is compiled by numba (a dependency where it has wheels); without
+it, or with ``MOTORID_NUMBA=0``, the same function runs in Python, slower, with the same numbers.
 """
 from __future__ import annotations
 
@@ -44,6 +44,7 @@ import numpy as np
 
 from motorsim.checks import ParameterError, check_real
 from motorsim.compiled import numba_jit
+from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
@@ -182,6 +183,9 @@ def compiled_filter_pass() -> Callable[..., float] | None:
 #: criterion has a local minimum at a white disturbance that a start near it falls into).
 START_POLES = (0.0, 0.9, 0.99, 0.999)
 START_LOG_RATIOS = tuple(float(v) for v in range(-10, 45, 5))
+#: The largest log-ratio (and log-scale) the innovations take: a Levenberg-Marquardt step far beyond any start
+#: (a jittered clock's misfit) would overflow a float's exponent; held there, its criterion is simply worse.
+LOG_RATIO_LIMIT = 700.0
 
 
 class _Problem:
@@ -228,16 +232,14 @@ class _Problem:
         out = np.empty(self.n_rows)
         row = 0
         h = self.h
-        e = math.exp(-a * h)
-        p = -math.expm1(-a * h) / a
-        q = (h - p) / a
+        e, p, q = first_order_coefficients(a, h)
         log_det = 0.0
         for seg, w0 in zip(self.segments, self.w0):
             n = len(seg.time)
             log_det += self.kernel(seg.drive, seg.output, seg.kind == "speed", e, p, q, a, h, b, c, bias, phi,
-                                   math.exp(lr), float(w0), out[row:row + n])
+                                   math.exp(min(lr, LOG_RATIO_LIMIT)), float(w0), out[row:row + n])
             row += n
-        return out * math.exp(0.5 * log_det / max(self.n_rows, 1))
+        return out * math.exp(min(0.5 * log_det / max(self.n_rows, 1), LOG_RATIO_LIMIT))
 
 
 @dataclasses.dataclass

@@ -114,7 +114,7 @@ def _finish(method, a, b, jac, cov_x, rms, n, recs) -> Estimate:
                     sample_period=recs[0].sample_period, residual_rms=rms,
                     fit_percent=fit_percent(float(a), float(b), recs) if a > 0 else math.nan,
                     covariance=cov, input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit, covariance_method="regression")
+                    input_limit=recs[0].input_limit, covariance_method="regression", structure="linear")
 
 
 def fit_euler_ls(recordings) -> Estimate:

@@ -3,7 +3,10 @@
 A row no motor can produce (:meth:`motorsim.recording.Recording.implausible_samples`) or an
 isolated residual outlier after the fit (:func:`identify.outliers.residual_outliers`) is a
 corrupted sample: with ``outliers="refuse"`` (the default of :func:`identify.fit`) the fit is
-refused with :class:`CorruptedSamplesError`, naming the recording and the rows' ``seq``; with
+refused with :class:`CorruptedSamplesError`, naming the recording and the rows' ``seq`` -- except
+outliers among the first :data:`RUN_START_ROWS` samples of a run (a logger's or a speed filter's
+start-up, which real recordings have): those are left out as gaps, reported, and said by a
+:class:`RunStartWarning`; with
 ``outliers="drop"`` such rows are dropped as gaps, the fit is repeated, and every dropped row is
 reported (:class:`DroppedSamples`); ``outliers="keep"`` fits the data as they are.  In every
 case a run whose speed column contradicts its counts or angle (:func:`identify.data.check_speed_agrees`)
@@ -14,7 +17,10 @@ its recorded input stays constant, at the fitted delay (:func:`identify.data.che
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, Callable, Sequence
+
+import numpy as np
 
 from motorsim.checks import ParameterError
 from motorsim.recording import Recording
@@ -30,10 +36,23 @@ from .data import (
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
 
-__all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "with_encoder", "OUTLIER_RULES"]
+__all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "with_encoder", "OUTLIER_RULES", "RUN_START_ROWS",
+           "RunStartWarning"]
 
 #: What :func:`screened_fit` does with corrupted samples.
 OUTLIER_RULES = ("refuse", "drop", "keep")
+#: Rows at the start of a run (a recording's or a segment's after a gap) whose outliers are a start-up, not corruption.
+RUN_START_ROWS = 5
+
+
+class RunStartWarning(UserWarning):
+    """A run's first samples stand out from the fit; they were left out of it (``outliers="refuse"``)."""
+
+
+def _at_run_start(rec: Recording, row: int) -> bool:
+    """Whether ``row`` is among the first :data:`RUN_START_ROWS` of its run (no gap in ``seq`` before it there)."""
+    first = max(0, row - RUN_START_ROWS)
+    return row < RUN_START_ROWS or bool(np.any(np.diff(rec.seq[first:row + 1]) != 1))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +76,22 @@ def with_encoder(estimate: Estimate, recordings: Sequence[Recording]) -> Estimat
     if len(found) != 1 or any(r.counts is None for r in recordings) or None in found:
         return estimate
     return dataclasses.replace(estimate, counts_per_rev=found.pop())
+
+
+def _refuse_inner_outliers(found: list[list[int]], recs: Sequence[Recording], reason: str) -> str:
+    """Refuse the outliers inside runs (:class:`CorruptedSamplesError`); those at a run's start are said (a
+    :class:`RunStartWarning`) and left to be dropped: returns the reason they are dropped for."""
+    inner = [[k for k in rows if not _at_run_start(recs[i], k)] for i, rows in enumerate(found)]
+    if any(inner):
+        i = next(k for k, rows in enumerate(inner) if rows)
+        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in inner[i]), reason, recs[i].name(i))
+    for i, rows in enumerate(found):
+        if rows:
+            seqs = ", ".join(str(int(recs[i].seq[k])) for k in rows)
+            warnings.warn(f"{recs[i].name(i)}: the first samples of a run (seq {seqs}) stand out from the fit "
+                          "(a logger's or a speed filter's start-up?): left out of it as gaps",
+                          RunStartWarning, stacklevel=3)
+    return f"{reason}, at the start of a run: a logger's start-up?"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,8 +194,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     found = _confirmed(found, recs, estimator, options)
     reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
     if outliers == "refuse":
-        i = next(k for k, rows in enumerate(found) if rows)
-        raise CorruptedSamplesError(i, tuple(int(recs[i].seq[k]) for k in found[i]), reason, recs[i].name(i))
+        reason = _refuse_inner_outliers(found, recs, reason)
     for i, rows in enumerate(found):
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))

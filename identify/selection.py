@@ -57,7 +57,9 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
+from .consistency import PartCheck, consistency, widened_range
 from .data import (
+    DEFAULT_INPUT_DELAY,
     Segment,
     as_recordings,
     check_excitation,
@@ -145,7 +147,7 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
 
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
-                 input_delay: int | str = "auto", max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
+                 input_delay: int | str = DEFAULT_INPUT_DELAY, max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
                  level: float = LEVEL, screen: bool = True, widening: bool = False) -> Selection:
     """Fit the candidate models and choose the simplest one within the noise of the best.
 
@@ -414,7 +416,7 @@ def _fit_nonlinear(recs: list[Recording], segments: dict[int, list[Segment]], de
     return out
 
 
-def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: int | str = "auto",
+def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: int | str = DEFAULT_INPUT_DELAY,
                  structures: Sequence[str] | None = None, fix_bias: bool = False) -> Estimate:
     """The default estimator: delay and structure chosen by evidence, fitted on all rows.
 
@@ -511,6 +513,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         est, doubt = averaged
         selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
             f"; {selection.doubt}" if selection.doubt else ""))
+    est, selection = _unsure_intervals(est, selection)
     se = est.stderr()
     if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
         # a choice whose own fit cannot say how well it knows a and b is no clear choice
@@ -529,8 +532,72 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
         selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
             f"; {selection.doubt}" if selection.doubt else ""))
-    return dataclasses.replace(est, selection=SelectionReport.from_selection(selection), notes=tuple(
+    est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
+    report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
+    return dataclasses.replace(est, selection=report, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
+
+
+def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
+                 open_loop: bool) -> tuple[Estimate, Selection, tuple[PartCheck, ...]]:
+    """The chosen answer against the data's own parts (:mod:`identify.consistency`): where parts disagree the
+    intervals widen to hold each part's, and where a part's ``a`` or ``b`` is materially off the answer is not
+    clear, the doubt saying which part differs and what it suggests.  Where the residuals are correlated at the
+    blocks' scale and the blocks' jackknife knows ``a`` or ``b`` less well than the chosen fit's own covariance,
+    the interval widens to the jackknife's.  Not made on a recording made in a loop (its output-error residual
+    holds the fed-back noise, which the input answers)."""
+    if not open_loop:
+        return est, selection, ()
+    found = consistency(est, recs)
+    parts = found.checks
+    differ = [c for c in parts if not c.agree]
+    ci = est.confidence_interval(0.95)
+    ranges = {"a": ci["a"], "b": ci["b"]}
+    se = est.stderr()
+    wider = {n: x for n, x in found.block_stderr.items() if not x <= se[n]}
+    for name, x in wider.items():
+        value, half = float(est.value(name)), 1.959963984540054 * x
+        ranges[name] = (min(ranges[name][0], value - half), max(ranges[name][1], value + half))
+    if not (differ or wider):
+        return est, selection, parts
+    est = dataclasses.replace(est, model_range=widened_range(ranges, differ))
+    material = [c for c in differ if c.material]
+    if material:
+        first = min(material, key=lambda c: c.p_value)
+        others = f" (and {len(material) - 1} more split{'s' if len(material) > 2 else ''}: see the part checks)" \
+            if len(material) > 1 else ""
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the model's a and b differ between parts of the recording, {first.split} (p = {first.p_value:.2g}): "
+            f"{first.hint}{others}; no single a and b fits it all, so this is not a clear choice; the intervals "
+            "hold every part's" + (f"; {selection.doubt}" if selection.doubt else "")))
+    return est, selection, parts
+
+
+def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
+    """An answer whose intervals say nothing is no clear choice: a zero standard error from data with a residual
+    (a degenerate covariance: the interval made infinite) or the chosen fit's own 95 % interval wider than the
+    value itself (a ramp, a few steps: the run does not determine it)."""
+    se = est.stderr()
+    exact = [n for n in ("a", "b") if se[n] == 0 and est.residual_rms > 0]
+    if exact:
+        # a covariance that knows a parameter exactly from data with a residual is degenerate: it is no interval
+        ranges = est.model_range or {n: est.confidence_interval(0.95)[n] for n in ("a", "b")}
+        est = dataclasses.replace(est, model_range={**ranges, **{n: (-math.inf, math.inf) for n in exact}})
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the chosen fit's covariance is degenerate (a zero standard error for {' and '.join(exact)} from data "
+            "with a residual), so it gives no interval; " + (selection.doubt or "a richer input (several "
+                                                             "frequencies, a step) would pin them down")))
+    # the chosen fit's own interval (not the range of candidates the data cannot rule out, which may be a richer
+    # structure's wide one around a well-determined answer)
+    wide = [n for n in ("a", "b") if math.isfinite(se[n]) and 1.959963984540054 * se[n] > abs(est.value(n))]
+    if wide and not exact:
+        # an interval wider than the value itself (a ramp, a few steps): the run does not determine it
+        ci = est.confidence_interval(0.95)
+        said = ", ".join(f"{n} in [{ci[n][0]:.4g}, {ci[n][1]:.4g}]" for n in wide)
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the run does not determine {' and '.join(wide)} ({said}, 95 %): this is not a clear choice; "
+            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
+    return est, selection
 
 
 #: The doubt of a closed-loop recording the default fits as any other (no disturbance found to feed back).

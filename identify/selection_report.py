@@ -21,7 +21,7 @@ from motorsim.checks import ParameterError, ParameterTypeError
 if TYPE_CHECKING:
     from .comparison import Candidate, Selection
 
-__all__ = ["CandidateReport", "SelectionReport"]
+__all__ = ["CandidateReport", "SelectionReport", "PartCheck"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +109,10 @@ class SelectionReport:
         Level of the test that calls a candidate worse than the best.
     criterion : str
         The rule of the choice, in words.
+    checks : tuple of PartCheck
+        The chosen model's ``a`` and ``b`` on parts of the recording (early and late, forward and reverse, low
+        and high drive, slow and fast: :mod:`identify.consistency`); a material disagreement makes the choice
+        unclear.
 
     Examples
     --------
@@ -130,6 +134,7 @@ class SelectionReport:
     candidates: tuple[CandidateReport, ...]
     level: float
     criterion: str = "simplest candidate within the noise of the best (batch-means test)"
+    checks: tuple[PartCheck, ...] = ()
 
     @classmethod
     def from_selection(cls, selection: Selection) -> SelectionReport:
@@ -148,7 +153,8 @@ class SelectionReport:
                 "best": self.best.to_dict(),
                 "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
                 "clear": self.clear, "doubt": self.doubt, "notes": list(self.notes),
-                "candidates": [c.to_dict() for c in self.candidates]}
+                "candidates": [c.to_dict() for c in self.candidates],
+                **({"checks": [c.to_dict() for c in self.checks]} if self.checks else {})}
 
     @classmethod
     def from_dict(cls, d: Any) -> SelectionReport:
@@ -169,7 +175,99 @@ class SelectionReport:
                    clear=f.flag("clear"), doubt=f.text("doubt"), notes=tuple(f.texts("notes")),
                    candidates=tuple(CandidateReport.from_dict(c, f"selection.candidates[{i}]")
                                     for i, c in enumerate(raw)),
-                   level=f.real("level"), criterion=f.text("criterion"))
+                   level=f.real("level"), criterion=f.text("criterion"),
+                   checks=tuple(PartCheck.from_dict(c, f"selection.checks[{i}]")
+                                for i, c in enumerate(f.get("checks", list, []))))
+
+
+@dataclasses.dataclass(frozen=True)
+class PartCheck:
+    """One split of the rows into two parts, and whether the chosen model's ``a`` and ``b`` agree on them.
+
+    Attributes
+    ----------
+    split : str
+        Its name (a key of :data:`identify.consistency.SPLITS`).
+    parts : tuple of str
+        The two parts' names.
+    a, b : tuple of float
+        ``a`` (1/s) and ``b`` on each part (one Gauss--Newton step of per-part parameters from the full fit).
+    a_interval, b_interval : tuple of (float, float)
+        Their 95 % intervals, part by part.
+    p_value : float
+        Of the test that the parts share ``a``, ``b`` and the constant acceleration.
+    agree : bool
+        ``p_value`` at or above the level.
+    material : bool
+        A part's ``a`` or ``b`` differs from the full fit's by more than :data:`~identify.comparison.MATERIAL`
+        (relative): disagreement that makes the choice unclear.
+    hint : str
+        What the difference suggests, in words ("" when the parts agree).
+    """
+
+    split: str
+    parts: tuple[str, str]
+    a: tuple[float, float]
+    b: tuple[float, float]
+    a_interval: tuple[tuple[float, float], tuple[float, float]]
+    b_interval: tuple[tuple[float, float], tuple[float, float]]
+    p_value: float
+    agree: bool
+    material: bool
+    hint: str = ""
+
+    def describe(self) -> str:
+        """One line: the split, each part's ``a`` and ``b``, the p-value and the verdict."""
+        (p, q) = self.parts
+        verdict = "agree" if self.agree else "DIFFER" + (f": {self.hint}" if self.hint else "")
+        return (f"{self.split}: a {_g(self.a[0])} {p}, {_g(self.a[1])} {q}; b {_g(self.b[0])} {p}, "
+                f"{_g(self.b[1])} {q} (p = {self.p_value:.2g}) {verdict}")
+
+    def to_dict(self) -> dict:
+        """The check's object in ``selection.checks`` of the estimate's JSON document."""
+        return {"split": self.split, "parts": list(self.parts), "a": list(self.a), "b": list(self.b),
+                "a_interval": [list(x) for x in self.a_interval], "b_interval": [list(x) for x in self.b_interval],
+                "p_value": self.p_value, "agree": self.agree, "material": self.material, "hint": self.hint}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "selection.checks") -> PartCheck:
+        """The check of a document's object (``where`` names it in errors)."""
+        f = _Checked(d, where)
+
+        def pair(name: str) -> tuple[float, float]:
+            values = f.get(name, list)
+            if len(values) != 2 or not all(v is None or isinstance(v, (int, float)) and not isinstance(v, bool)
+                                           for v in values):
+                raise _bad(where, name, "a list of two numbers", values)
+            return tuple(math.nan if v is None else float(v) for v in values)  # type: ignore[return-value]
+
+        def intervals(name: str) -> tuple[tuple[float, float], tuple[float, float]]:
+            values = f.get(name, list)
+            if len(values) != 2:
+                raise _bad(where, name, "a list of two intervals", values)
+            out = []
+            for v in values:
+                if not (isinstance(v, list) and len(v) == 2 and all(
+                        x is None or isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+                    raise _bad(where, name, "a list of two intervals", values)
+                out.append(tuple(math.nan if x is None else float(x) for x in v))
+            return out[0], out[1]  # type: ignore[return-value]
+
+        parts = f.texts("parts")
+        if len(parts) != 2:
+            raise _bad(where, "parts", "a list of two names", parts)
+        return cls(split=f.text("split"), parts=(parts[0], parts[1]), a=pair("a"), b=pair("b"),
+                   a_interval=intervals("a_interval"), b_interval=intervals("b_interval"),
+                   p_value=f.real("p_value"), agree=f.flag("agree"), material=f.flag("material"),
+                   hint=f.text("hint", ""))
+
+
+def _bad(where: str, name: str, rule: str, value: Any) -> Exception:
+    return ParameterError(f"estimate field '{where}.{name}' must be {rule}, got {value!r:.80}")
+
+
+def _g(x: float) -> str:
+    return f"{x:.4g}"
 
 
 class _Checked:

@@ -111,7 +111,7 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
             resp = zoh_response(a, 1.0, seg.drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
             angle = seg.kind == "angle"
             g = resp.angle if angle else resp.speed
-            s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+            s0 = resp.angle_initial_speed if angle else resp.speed_initial_speed
             g_left, y_left = project_out_initial_state(s0, angle, g, np.asarray(seg.output, dtype=float))
             gy += float(g_left @ y_left)
             gg += float(g_left @ g_left)

@@ -28,8 +28,9 @@ class CommandError(Exception):
 
 
 def print_to_stderr(*parts: Any, end: str = "\n") -> None:
-    """Print to standard error and flush (progress lines, warnings)."""
-    print(*parts, end=end, file=sys.stderr, flush=True)
+    """Print to standard error and flush (progress lines, warnings): control characters escaped, newlines kept."""
+    from motorsim.text import printable
+    print(printable(" ".join(map(str, parts)), newlines=True), end=end, file=sys.stderr, flush=True)
 
 
 def _flag_type(k: Knob) -> Callable[[str], Any]:

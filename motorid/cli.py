@@ -168,7 +168,16 @@ def _quiet_broken_pipe() -> int:
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning as the command line shows it: ``motorid: warning: ...`` on stderr."""
     from motorid.arguments import print_to_stderr
-    print_to_stderr(f"motorid: warning: {message}")
+    print_to_stderr(f"motorid: warning: {' '.join(str(message).split())}")
+
+
+def _traceback_flag(argv: Sequence[str]) -> tuple[list[str], bool]:
+    """``argv`` without ``--traceback`` and whether it was there: the flag works wherever it is put (the
+    error's hint says 're-run with --traceback', and users add it at the end), not only before the command."""
+    argv = list(argv)
+    end = argv.index("--") if "--" in argv else len(argv)
+    found = "--traceback" in argv[:end]
+    return [a for a in argv[:end] if a != "--traceback"] + argv[end:], found
 
 
 def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -> int:
@@ -177,9 +186,12 @@ def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -
 
     from motorid.outputs import check_outputs, has_outputs, input_paths
     from motorsim.files import deferred_outputs
+    argv, traceback_anywhere = _traceback_flag(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.traceback = args.traceback or traceback_anywhere
     checkpoint()                  # an interrupt the imports swallowed is raised here, before the command runs
     try:
+        _check_numbers(args)
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning    # one line, not the source line that warned
             check_outputs(args)
@@ -196,6 +208,23 @@ def _parse_and_run(argv: Sequence[str] | None, checkpoint: Callable[[], None]) -
         return _report_error(exc, args.traceback)
 
 
+#: The largest magnitude of any number flag: past it no quantity of a motor, a run or a design makes sense, and
+#: the arithmetic that follows (squares, products, counts) leaves a float's range or rounds to nothing.
+FLAG_MAGNITUDE = 1e15
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Refuse a number flag that is not finite or past :data:`FLAG_MAGNITUDE` (each command bounds its own
+    flags more narrowly where it knows better); ``--max-memory`` is bytes, and exempt."""
+    import math
+
+    from motorid.arguments import CommandError
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not (math.isfinite(value) and abs(value) <= FLAG_MAGNITUDE):
+            raise CommandError(f"--{name.replace('_', '-')} must be a finite number within +-{FLAG_MAGNITUDE:g}, "
+                               f"got {value!r}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``motorid`` console script (see the module docstring for the exit statuses).
 
@@ -206,7 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:
         from motorid.interrupts import signals_as_interrupts
-        with signals_as_interrupts() as checkpoint:
+        from motorid.terminal import printable_output
+        with signals_as_interrupts() as checkpoint, printable_output():
             return _parse_and_run(argv, checkpoint)
     except KeyboardInterrupt as exc:
         from motorid.interrupts import describe_interrupt, exit_status
@@ -218,7 +248,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _say(line: str) -> None:
     try:
-        print(line, file=sys.stderr, flush=True)
+        from motorsim.text import printable
+        print(printable(line), file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
 

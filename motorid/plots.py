@@ -333,19 +333,39 @@ def plot_until(result, path=None, *, title: str = "") -> Figure:
     bottom.grid(alpha=0.3)
     return _finish(fig, path)
 
+#: An interval longer than this many median intervals is a gap a line is not drawn across (a pause between tests).
+GAP_FACTOR = 1.5
+
+
+def broken_at_gaps(t: np.ndarray, *series: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``t`` and ``series`` with a nan row inserted in every gap (an interval over :data:`GAP_FACTOR` median
+    intervals), so that a line plot draws the runs apart instead of a straight line across the pause."""
+    t = np.asarray(t, dtype=float)
+    steps = np.diff(t)
+    if len(steps) == 0:
+        return (t, *(np.asarray(y, dtype=float) for y in series))
+    gaps = np.flatnonzero(steps > GAP_FACTOR * np.median(steps)) + 1
+    return (np.insert(t, gaps, np.nan), *(np.insert(np.asarray(y, dtype=float), gaps, np.nan) for y in series))
+
 
 def plot_validation(report, estimate, path=None, *, title: str = "", frequency_response=None) -> Figure:
     """Validation figure: measured vs model speed, their difference against time, the residual
     autocorrelation and the residual-input cross-correlation, each correlation with its 95 % band,
-    and, given ``frequency_response``, a Bode panel of the data with the model (:func:`bode_axes`).
+    given ``frequency_response``, a Bode panel of the data with the model (:func:`bode_axes`), and, for
+    the default's estimate, its part checks: ``a`` and ``b`` on each part of the recording (:func:`_part_axes`).
 
     ``report`` is an ``identify.validation.ValidationReport`` of ``estimate``;
     ``frequency_response`` an ``identify.frequency_estimate.FrequencyResponse`` of the same
     recording.  The PNG is written to ``path`` when given; the figure is returned.
     """
     bode = frequency_response is not None
-    fig = _figure(9, 11.4 if bode else 8.4)
-    grid = fig.add_gridspec(4 if bode else 3, 2, height_ratios=(1.2, 0.8, 1, 1.1) if bode else (1.2, 0.8, 1))
+    checks = tuple(getattr(getattr(estimate, "selection", None), "checks", ()) or ())
+    heights = [1.2, 0.8, 1.0] + ([1.1] if bode else []) + ([0.9] if checks else [])
+    fig = _figure(9, 8.4 + (3.0 if bode else 0.0) + (2.4 if checks else 0.0))
+    grid = fig.add_gridspec(len(heights), 2, height_ratios=heights)
+    if checks:
+        _part_axes(fig.add_subplot(grid[len(heights) - 1, 0]), fig.add_subplot(grid[len(heights) - 1, 1]),
+                   estimate, checks)
     if bode:
         gain_ax, phase_ax = fig.add_subplot(grid[3, 0]), fig.add_subplot(grid[3, 1])
         bode_axes(gain_ax, phase_ax, frequency_response, [frequency_response.model_of(estimate)])
@@ -356,14 +376,15 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
     unit = getattr(estimate, "speed_unit", "rad/s")        # the unit the data came in; the fit is in rad/s
     per = 1.0 / SPEED_UNITS[unit]
     ax = fig.add_subplot(grid[0, :])
-    ax.plot(report.time, per * report.measured_speed, color="0.3", lw=0.8, label="measured ω")
-    ax.plot(report.time, per * report.simulated_speed, color="tab:orange", lw=0.8, ls="--",
+    t, measured, simulated = broken_at_gaps(report.time, report.measured_speed, report.simulated_speed)
+    ax.plot(t, per * measured, color="0.3", lw=0.8, label="measured ω")
+    ax.plot(t, per * simulated, color="tab:orange", lw=0.8, ls="--",
             label=f"{estimate.method}: a={estimate.a:.4g} 1/s, b={estimate.b:.4g} (rad/s²)/{estimate.input_unit}, "
                   f"fit {report.fit_percent:.1f} %")
     ax.set_ylabel(f"ω [{unit}]")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7, frameon=False)
     res = fig.add_subplot(grid[1, :], sharex=ax)
-    res.plot(report.time, per * (report.measured_speed - report.simulated_speed), color="tab:purple", lw=0.7)
+    res.plot(t, per * (measured - simulated), color="tab:purple", lw=0.7)
     res.axhline(0, color="0.5", lw=0.6)
     res.set_xlabel("time [s]")
     res.set_ylabel(f"measured − model\nω [{unit}]")
@@ -383,6 +404,31 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
     fig.legend(*ac.get_legend_handles_labels(), loc="outside lower center", fontsize=7, frameon=False)
     fig.suptitle(title or "validation")
     return _finish(fig, path)
+
+
+def _part_axes(a_ax, b_ax, estimate, checks) -> None:
+    """The part checks (``identify.consistency``): each split's two parts' ``a`` and ``b`` with their 95 %
+    intervals, against the answer's interval; a split whose parts differ is drawn in red."""
+    ci = estimate.confidence_interval(0.95)
+    for ax, name, unit in ((a_ax, "a", "1/s"), (b_ax, "b", f"(rad/s²)/{estimate.input_unit}")):
+        ax.axhspan(*ci[name], color="tab:orange", alpha=0.2, lw=0, label="the answer's 95 % interval")
+        ax.axhline(estimate.value(name), color="tab:orange", lw=0.8)
+        ticks, labels = [], []
+        for i, check in enumerate(checks):
+            values = check.a if name == "a" else check.b
+            intervals = check.a_interval if name == "a" else check.b_interval
+            colour = "tab:green" if check.agree else "tab:red"
+            for j in (0, 1):
+                x = 3 * i + j
+                low, high = intervals[j]
+                ax.errorbar([x], [values[j]], yerr=[[values[j] - low], [high - values[j]]], fmt="o", ms=3,
+                            color=colour, capsize=2, lw=0.9)
+                ticks.append(x)
+                labels.append(check.parts[j])
+        ax.set_xticks(ticks, labels, rotation=40, ha="right", fontsize=6)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_title(f"{name} on parts of the recording (red: the parts differ)", fontsize=9)
+        ax.grid(alpha=0.3, axis="y")
 
 
 _MODEL_COLOURS = ("tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")

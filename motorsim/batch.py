@@ -12,12 +12,16 @@ run per repetition when the setting allows it:
   own generator, so a row equals ``SimRig(...).run(...)`` with the same generator;
 * speed is the backward difference of the counts (``motorsim.recording``'s alignment).
 
-Only linear settings are batchable (:func:`is_batchable`): no Coulomb friction, no bias, no
-timing jitter and no dropped samples (dead zone and input delay are static maps of the known
-duty, so they are).  The estimators that fit these rows at once are :mod:`identify.batch`'s.
+Only what the engine runs exactly is batchable (:func:`is_batchable`): the first-order motor
+``b/(s + a)`` with a dead zone and an input delay (static maps of the known duty), uniform and
+complete samples.  Anything else the plant carries (Coulomb or static friction, a bias, an
+electrical lag, or a part added later) is refused, never dropped: the sweep then runs the setting
+one repetition at a time through the exact simulator.  The estimators that fit these rows at
+once are :mod:`identify.batch`'s.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -25,12 +29,25 @@ import numpy as np
 from .checks import ParameterError, ParameterTypeError
 from .plant import Motor, delayed_duty, zoh_matrices
 
-__all__ = ["is_batchable", "simulate_batch", "encoder_counts_batch", "speed_batch"]
+__all__ = ["is_batchable", "unbatchable_parts", "BATCHED_PARTS", "simulate_batch", "encoder_counts_batch",
+           "speed_batch"]
+
+
+#: The parts of a :class:`~motorsim.plant.Motor` the batch engine runs exactly; every other field must be at
+#: its neutral default, so a part the engine does not know (one added to ``Motor`` later too) is refused.
+BATCHED_PARTS = frozenset({"a", "b", "dead_zone", "input_delay"})
+
+
+def unbatchable_parts(motor: Motor) -> list[str]:
+    """The fields of ``motor`` the batch engine cannot run (set away from their neutral default), in field order."""
+    return [f.name for f in dataclasses.fields(motor)
+            if f.name not in BATCHED_PARTS and getattr(motor, f.name) != f.default]
 
 
 def is_batchable(motor: Motor, *, jitter: float = 0.0, drop_rate: float = 0.0) -> bool:
-    """True when a setting can go through the batch engine (linear plant, uniform, complete samples)."""
-    return motor.breakaway == 0 and motor.bias == 0 and jitter == 0 and drop_rate == 0
+    """True when a setting can go through the batch engine exactly: a first-order plant (a dead zone and an
+    input delay allowed, nothing else, :func:`unbatchable_parts`), uniform and complete samples."""
+    return not unbatchable_parts(motor) and jitter == 0 and drop_rate == 0
 
 
 def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
@@ -40,7 +57,7 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
     Parameters
     ----------
     motor : Motor
-        A linear plant (``friction == 0`` and ``bias == 0``); dead zone and delay are applied.
+        A first-order plant (:func:`is_batchable`); dead zone and delay are applied.
     duty : ndarray, shape (n_samples,) or (repetitions, n_samples)
         Duty of each run; ``duty[..., k]`` is held from sample k to k+1.
     sample_period : float
@@ -62,8 +79,11 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
     """
     if not isinstance(motor, Motor):
         raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
-    if not is_batchable(motor):
-        raise ParameterError(f"motor must be linear (friction == 0 and bias == 0) for the batch engine, got {motor!r}")
+    parts = unbatchable_parts(motor)
+    if parts:
+        raise ParameterError(f"motor must be the first-order motor (with at most a dead zone and an input delay) for "
+                             f"the batch engine, got {', '.join(f'{p} = {getattr(motor, p)!r}' for p in parts)}: "
+                             "simulate it run by run (motorsim.simulate)")
     u = np.asarray(duty, dtype=float)
     if u.ndim not in (1, 2) or u.shape[-1] < 2:
         raise ParameterError(f"duty must have shape (n_samples,) or (repetitions, n_samples) with n_samples >= 2, "

@@ -27,7 +27,7 @@ from .robot_logs import is_robot_log, read_log_table
 from .units import DEFAULT_UNITS, UNITS
 
 __all__ = ["ColumnSpec", "Table", "read_table", "import_recording", "ImportFormatError", "UNIT_SUFFIXES",
-           "UNIT_REQUIRED", "unit_in_name"]
+           "UNIT_NAMES", "UNIT_REQUIRED", "unit_in_name", "shift_input", "SECONDS_BEYOND_DOUBT", "MAX_INPUT_SHIFT"]
 
 class ImportFormatError(RecordingFormatError):
     """A foreign file, column or unit that cannot become a recording (the message names which and why)."""
@@ -97,6 +97,18 @@ UNIT_SUFFIXES: dict[str, dict[str, str]] = {
 }
 
 
+#: a column named by its unit alone (``rpm``, ``ms``, ``pwm``): the names no other quantity or unit shares (not
+#: ``s`` or ``v``, which a column of speed or velocity may be called)
+UNIT_NAMES: dict[str, dict[str, str]] = {
+    "time": {"ms": "ms", "msec": "ms", "millis": "ms", "us": "us", "usec": "us", "micros": "us", "µs": "us",
+             "μs": "us", "sec": "s", "seconds": "s"},
+    "input": {"volts": "V", "pct": "%", "percent": "%"},
+    "speed": {"rpm": "rpm", "rps": "rev/s", "dps": "deg/s"},
+    "angle": {},
+    "counts": {},
+}
+
+
 def unit_in_name(quantity: str, column: str) -> str | None:
     """The unit a column's name ends with (``time_ms`` -> ``ms``), or None.
 
@@ -104,8 +116,12 @@ def unit_in_name(quantity: str, column: str) -> str | None:
     --------
     >>> unit_in_name("speed", "w_degs"), unit_in_name("input", "u_pct"), unit_in_name("time", "t")
     ('deg/s', '%', None)
+    >>> unit_in_name("speed", "rpm"), unit_in_name("time", "millis"), unit_in_name("speed", "v")
+    ('rpm', 'ms', None)
     """
     words = [w for w in re.split(r"[_\-\s\[\]()./]+", column.lower()) if w]
+    if len(words) == 1:
+        return UNIT_NAMES.get(quantity, {}).get(words[0])
     if len(words) < 2:
         return None
     suffixes = UNIT_SUFFIXES.get(quantity, {})
@@ -202,12 +218,18 @@ def _read_bytes(path: str) -> bytes:
         raise ImportFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
+#: The error values of Excel, LibreOffice and Google Sheets (#N/A, #VALUE!, #DIV/0!, #NAME? ...).
+_SPREADSHEET_ERROR = re.compile(r"#(?:N/A|NA|[A-Z][A-Z0-9_/]*[!?]|GETTING_DATA)(?:[\s,;\t]|$)")
+
+
 def _read_text(path: str) -> Table:
     try:
         text = _read_bytes(path).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and s.lstrip()[0] not in "#%"]
+    # a line starting with # or % is a comment, unless it starts with a spreadsheet's error value (#N/A): a row
+    rows = [(i + 1, s) for i, s in enumerate(text.splitlines())
+            if s.strip() and (s.lstrip()[0] not in "#%" or _SPREADSHEET_ERROR.match(s.lstrip()))]
     if not rows:
         raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
     first = rows[0][1]
@@ -228,96 +250,26 @@ def _read_text(path: str) -> Table:
         for c, cell in enumerate(cells):
             x = _number(cell)
             if x is None or not math.isfinite(x):
-                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}")
+                said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
+                    if _SPREADSHEET_ERROR.match(cell) else ""
+                _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:
         raise ImportFormatError(f"{path}: a header but no data rows")
     return Table(path, names, tuple(values.T.copy()), np.array([line for line, _ in rows]), has_header)
 
 
-#: Seconds the reader of a MATLAB file may take in its own process before the file is refused.
-MAT_READ_SECONDS = 120.0
-
-
 def _read_mat(path: str) -> Table:
+    """A MATLAB file's variables as a table (:mod:`motorsim.mat_files`: only this file read, memory bounded,
+    in a process of its own)."""
+    from .mat_files import MatFileRefused, read_mat_variables
     raw = _read_bytes(path)
     if not raw:
         raise ImportFormatError(f"{path}: an empty file (0 bytes), not a MATLAB .mat file")
-    kind, payload = _loadmat_isolated(raw)
-    if kind == "v7.3":
-        return _read_mat_hdf5(path)
-    if kind == "error":
-        raise ImportFormatError(f"{path}: a damaged or truncated MATLAB .mat file scipy cannot read ({payload})")
-    if kind == "crashed":
-        raise ImportFormatError(f"{path}: a damaged MATLAB .mat file: scipy's reader crashed on it ({payload}); "
-                                "save it again from MATLAB, or export the columns as CSV")
-    return _table_from_variables(path, payload)
-
-
-def _loadmat_isolated(raw: bytes) -> tuple[str, Any]:
-    """``scipy.io.loadmat`` of ``raw`` in a child process: ``("ok", variables)``, ``("v7.3", None)``,
-    ``("error", text)`` or ``("crashed", text)``.
-
-    scipy's compiled reader can crash the interpreter on a damaged file (a single changed byte gives a
-    bus error in scipy 1.17), which no ``except`` can catch; in its own process the crash only ends
-    that process, and the file is refused in one line.  On POSIX the child is forked (nothing to
-    import again, a few ms); the child is given :data:`MAT_READ_SECONDS`.
-    """
-    import multiprocessing
-
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    ctx = multiprocessing.get_context(method)
-    receive, send = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_loadmat_child, args=(raw, send), daemon=True)  # type: ignore[attr-defined]
-    child.start()
-    send.close()
     try:
-        message = receive.recv() if receive.poll(MAT_READ_SECONDS) else None
-    except EOFError:                    # the child ended without a word: it crashed
-        message = None
-    finally:
-        receive.close()
-    child.join(1.0)
-    if child.is_alive():
-        child.kill()
-        child.join()
-        return "crashed", f"no answer in {MAT_READ_SECONDS:g} s"
-    if message is None:
-        code = child.exitcode
-        return "crashed", f"signal {-code}" if code is not None and code < 0 else f"exit status {code}"
-    return message
-
-
-def _loadmat_child(raw: bytes, send: Any) -> None:
-    """The child of :func:`_loadmat_isolated`: sends the numeric variables (the others by name only).
-    A crash says nothing here (no fault handler's dump): the parent says it in one line."""
-    import faulthandler
-    import io as bytes_io
-
-    from scipy import io
-    faulthandler.disable()
-    try:
-        data = io.loadmat(bytes_io.BytesIO(raw), squeeze_me=False)
-    except NotImplementedError:     # MATLAB v7.3: HDF5
-        send.send(("v7.3", None))
-        return
-    except Exception as exc:   # noqa: BLE001 -- scipy's reader raises a zoo on a damaged file (MatReadError,
-        # OSError "could not read bytes", IndexError, UnboundLocalError, MemoryError for a huge declared size...)
-        send.send(("error", f"{type(exc).__name__}: {exc}"))
-        return
-    send.send(("ok", {k: v if isinstance(v, np.ndarray) and v.dtype.kind in "biuf" else None
-                      for k, v in data.items() if not k.startswith("__")}))
-
-
-def _read_mat_hdf5(path: str) -> Table:
-    try:
-        import h5py  # optional: MATLAB v7.3 files only
-    except ImportError:
-        raise ImportFormatError(f"{path}: a MATLAB v7.3 (HDF5) file: reading it needs h5py (pip install h5py), "
-                                "or save it from MATLAB with save(FILE, '-v7')") from None
-    with h5py.File(path, "r") as f:
-        # MATLAB writes column-major arrays: h5py sees them transposed
-        variables = {k: np.asarray(f[k]).T for k in f.keys() if isinstance(f[k], h5py.Dataset)}
+        variables = read_mat_variables(raw)
+    except MatFileRefused as exc:
+        raise ImportFormatError(f"{path}: {exc}") from None
     return _table_from_variables(path, variables)
 
 
@@ -371,7 +323,8 @@ def read_table(path: str | os.PathLike) -> Table:
 
 def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: str | ColumnSpec,
                      speed: str | ColumnSpec | None = None, angle: str | ColumnSpec | None = None,
-                     counts: str | ColumnSpec | None = None, counts_per_rev: int | None = None) -> Recording:
+                     counts: str | ColumnSpec | None = None, counts_per_rev: int | None = None,
+                     input_shift: int = 0) -> Recording:
     """Read a foreign file and map its columns to a :class:`Recording`.
 
     Parameters
@@ -384,6 +337,13 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         The measured quantity (at least one), in the same form.
     counts_per_rev : int, optional
         Encoder resolution in counts/rev, for counts (or an angle in ``counts``).
+    input_shift : int
+        Move the input this many rows earlier (:func:`shift_input`): a log whose command is written
+        just after the state it answers needs 1.
+
+    A time column whose unit nothing states is read in s only where its intervals leave no doubt
+    (a median below :data:`SECONDS_BEYOND_DOUBT`, said by a warning); otherwise it is refused as
+    an unlabelled speed is.  Every problem of the columns is named in one message.
 
     Returns
     -------
@@ -416,6 +376,47 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
     else:
         table = read_table(path)
     problems += _shared_columns(table, specs)
+    cols, defaulted, notes = _columns_read(table, specs, problems)
+    if "time" in defaulted:
+        _time_unit_inferred(specs["time"], cols["time"], problems, notes)
+    if not problems:
+        problems += _counts_problems(table, specs, cols, counts_per_rev)
+    if "time" in cols and specs["time"].unit is not None:
+        problems += _time_problems(table, specs["time"], cols["time"])
+    if problems:
+        _refuse(path, problems)
+    for note in notes:                 # said once the file is accepted
+        warnings.warn(note, UserWarning, stacklevel=2)
+    rec = _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+    return shift_input(rec, input_shift)
+
+
+#: The median interval (in the column's own numbers) below which a time column without a unit is read in s with
+#: no doubt: 0.05 s is a 20 Hz log, 0.05 ms a 20 kHz one no logger of a motor writes, 0.05 us none at all.
+SECONDS_BEYOND_DOUBT = 0.05
+#: Below this median interval a time column without a unit is in doubt too (100 kHz as seconds).
+_SECONDS_FLOOR = 1e-5
+
+
+def _median_interval(t: np.ndarray) -> float:
+    steps = np.diff(t[np.isfinite(t)])
+    return float(np.median(steps)) if len(steps) else math.nan
+
+
+def _time_unit_doubt(spec: ColumnSpec, t: np.ndarray) -> str | None:
+    """The problem of a time column with no unit whose intervals leave its unit in doubt, or None."""
+    step = _median_interval(t)
+    if not math.isfinite(step) or step <= 0 or _SECONDS_FLOOR <= step <= SECONDS_BEYOND_DOUBT:
+        return None                   # too short or not increasing: said where the time is checked
+    return (f"the time column {spec.column!r} has no unit and the file does not state one; its median interval "
+            f"{step:.6g} leaves it in doubt ({step:.6g} s, or ms, or us?): give --time {spec.column}:UNIT with "
+            "UNIT one of s, ms, us")
+
+
+def _columns_read(table: Table, specs: dict[str, ColumnSpec], problems: list[str]
+                  ) -> tuple[dict[str, np.ndarray], set[str], list[str]]:
+    """Each named column, its unit resolved into ``specs``: the columns, the quantities left to their default
+    unit, and the notes to say once the file is accepted; every problem appended to ``problems``."""
     cols = {}
     defaulted = set()
     notes: list[str] = []
@@ -435,15 +436,55 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         elif source == "header" and (quantity in UNIT_REQUIRED or resolved.unit != DEFAULT_UNITS[quantity]):
             notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
                          "states")
-    if not problems:
-        problems += _counts_problems(table, specs, cols, counts_per_rev)
-    if "time" in cols and specs["time"].unit is not None:
-        problems += _time_problems(table, specs["time"], cols["time"])
-    if problems:
-        _refuse(path, problems)
-    for note in notes:                 # said once the file is accepted
-        warnings.warn(note, UserWarning, stacklevel=2)
-    return _recording(path, specs, cols, counts_per_rev, angle_stated="angle" not in defaulted)
+    return cols, defaulted, notes
+
+
+def _time_unit_inferred(spec: ColumnSpec, t: np.ndarray, problems: list[str], notes: list[str]) -> None:
+    """A time column read in s by default: a problem when its intervals leave that in doubt, else a note."""
+    doubt = _time_unit_doubt(spec, t)
+    if doubt:
+        problems.append(doubt)
+    else:
+        notes.append(f"the time column {spec.column!r} has no unit: read in s, as its intervals (median "
+                     f"{_median_interval(t):.6g}) leave no doubt; give --time {spec.column}:UNIT if they are not "
+                     "seconds")
+
+
+def shift_input(rec: Recording, rows: int) -> Recording:
+    """``rec`` with its input moved ``rows`` samples earlier (later when negative): a log whose command is written
+    just after the state it answers.  Each sample takes the input logged ``rows`` samples after it (by ``seq``);
+    samples with none logged there are dropped (they become gaps), and the metadata say ``input_shift_rows``.
+
+    Examples
+    --------
+    >>> rec = Recording(time=np.arange(5) * 0.01, duty=[0, 0, 5, 5, 5], sample_period=0.01, speed=[0, 0, 0, 1, 2])
+    >>> shifted = shift_input(rec, 1)
+    >>> shifted.duty.tolist(), shifted.seq.tolist(), shifted.metadata["input_shift_rows"]
+    ([0.0, 5.0, 5.0, 5.0], [0, 1, 2, 3], '1')
+    """
+    if isinstance(rows, bool) or not isinstance(rows, (int, np.integer)) or not -MAX_INPUT_SHIFT <= rows <= \
+            MAX_INPUT_SHIFT:
+        raise ParameterError(f"input shift must be a whole number of rows in -{MAX_INPUT_SHIFT}...{MAX_INPUT_SHIFT}, "
+                             f"got {rows!r}")
+    if rows == 0:
+        return rec
+    k = np.searchsorted(rec.seq, rec.seq + rows)
+    k = np.minimum(k, len(rec) - 1)
+    have = rec.seq[k] == rec.seq + rows
+    if have.sum() < 2:
+        raise ParameterError(f"input shift of {rows} rows leaves fewer than 2 samples of the {len(rec)}")
+    kept = np.flatnonzero(have)
+
+    def cut(x):
+        return None if x is None else x[kept]
+    return dataclasses.replace(rec, time=rec.time[kept], duty=rec.duty[k[kept]], counts=cut(rec.counts),
+                               angle=cut(rec.angle), speed=cut(rec.speed), seq=rec.seq[kept],
+                               reference=cut(rec.reference),
+                               metadata={**rec.metadata, "input_shift_rows": str(int(rows))})
+
+
+#: The largest input shift, in rows.
+MAX_INPUT_SHIFT = 10_000
 
 
 def _shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> list[str]:
@@ -465,9 +506,15 @@ def _shared_columns(table: Table, specs: Mapping[str, ColumnSpec]) -> list[str]:
 
 
 def _read_log(path: str, base: str | None) -> Table:
-    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages."""
+    """A robot log (:mod:`motorsim.robot_logs`) as a table whose rows are ``base``'s messages (the log's
+    longest entry's when it has no ``base``: every column named wrong is then said at once)."""
     try:
-        names, columns, units = read_log_table(path, base)
+        try:
+            names, columns, units = read_log_table(path, base)
+        except RecordingFormatError as exc:
+            if base is None or f"no column named {base!r}" not in str(exc):
+                raise
+            names, columns, units = read_log_table(path, None)
     except RecordingFormatError as exc:
         raise ImportFormatError(str(exc)) from None
     return Table(path, names, columns, np.zeros(len(columns[0]), dtype=int), True, units)

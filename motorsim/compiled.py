@@ -4,11 +4,11 @@ Coulomb friction makes each interval's solution depend on the sign of the speed
 (sticking at rest, a zero crossing inside the interval, a break-away at the static
 level), so the exact simulation
 has no vectorised form: :func:`friction_run` walks the samples.  With numba
-(``pip install motorid[fast]``) the loop is compiled to machine code once a process
+(a dependency of motorid wherever it has wheels) the loop is compiled to machine code once a process
 has spent about as long in the Python loop as numba takes to import and compile
 (:data:`COMPILE_AFTER`; the kernel is cached on disk for later processes); without
-numba, or with ``MOTORID_NUMBA=0`` in the environment, the Python loop runs
-throughout.  Both give the same numbers to rounding (the tests run both).
+numba (it cannot be imported), or with ``MOTORID_NUMBA=0`` in the environment, the Python loop
+runs throughout.  Both give the same numbers to rounding (the tests run both).
 """
 from __future__ import annotations
 

@@ -10,7 +10,8 @@ Every file motorid writes goes through here:
   the old file survives any failure (a full disk, a read-only place, Ctrl-C);
 - a target that exists but is not a regular file (a folder, a device node such as
   ``/dev/null``, a FIFO, a socket) is refused: ``os.replace`` would put a regular file in
-  its place;
+  its place; so is a read-only file (no write permission for its owner, or for this user),
+  which ``os.replace`` would replace as it replaces any other;
 - files are created with mode ``0o666`` less the user's umask, as any program's files are;
 - every failure is an :class:`OutputFileError` (an ``OSError``) whose message names the
   file, the reason, and what became of the old file.
@@ -123,6 +124,10 @@ def _refuse_non_regular(path: Path) -> bool:
     if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
         raise OutputFileError(f"cannot write {path}: it is not a regular file (a device, FIFO or socket), "
                               f"and it is never replaced")
+    if stat.S_ISREG(mode) and (not mode & stat.S_IWUSR or not os.access(path, os.W_OK)):
+        # os.replace needs only the folder's permission: a read-only file would be replaced without a word
+        raise OutputFileError(f"cannot write {path}: it is read-only (mode {stat.S_IMODE(mode):04o}) and a "
+                              "read-only file is never replaced; make it writable (chmod u+w) or give another name")
     return True
 
 
@@ -462,7 +467,11 @@ def check_output_file(path: str | os.PathLike, *, overwrite: bool = True, flag: 
     if not folder.is_dir():
         what = "is not a folder" if folder.exists() else "does not exist"
         raise OutputFileError(f"{flag} {path}: the folder {folder} {what}")
-    if _refuse_non_regular(path) and not overwrite:
+    try:
+        existed = _refuse_non_regular(path)
+    except OutputFileError as exc:
+        raise OutputFileError(f"{flag} {exc.message.removeprefix('cannot write ')}") from None
+    if existed and not overwrite:
         raise OutputFileError(f"{flag} {path} exists; pass --overwrite to replace it, or choose another name")
     try:
         tmp, f = _temporary_beside(path)

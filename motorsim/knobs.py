@@ -28,7 +28,10 @@ from typing import Any
 
 from .checks import ParameterError, ParameterTypeError
 
-__all__ = ["Knob", "knob", "knobs_of"]
+__all__ = ["Knob", "knob", "knobs_of", "KNOB_MAGNITUDE"]
+
+#: The largest magnitude of a number knob given as text (a flag, a URL key): a recording's own bound.
+KNOB_MAGNITUDE = 1e12
 
 _UNIT = "motorid.unit"
 _HELP = "motorid.help"
@@ -92,6 +95,8 @@ class Knob:
                 value = float(text)
                 if not value.is_integer():
                     raise ParameterError(text)
+                if abs(value) > 2**63:          # 1e308 is an integer to float(), and no count of anything
+                    raise ParameterError(f"{self.name} must be an integer within +-2**63, got {text!r}")
                 return int(value)
             value = float(text)
         except ValueError:
@@ -99,6 +104,9 @@ class Knob:
             raise ParameterError(f"{self.name} must be {kind}, got {text!r}") from None
         if not math.isfinite(value):
             raise ParameterError(f"{self.name} must be a finite number, got {text!r}")
+        if abs(value) > KNOB_MAGNITUDE:
+            raise ParameterError(f"{self.name} must be within +-{KNOB_MAGNITUDE:g} (no bench comes near it; beyond, "
+                                 f"the simulation's numbers leave what a float or a count holds), got {text!r}")
         return value
 
     def describe(self) -> str:

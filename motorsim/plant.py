@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL", "ZOH_BLOCK",
-           "lag_coefficients", "lag_response", "LagResponse"]
+           "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,6 +351,86 @@ def lag_coefficients(a: float, c: float, h) -> tuple:
     deriv = (h * np.exp(-m * h) * m + np.expm1(-m * h)) / (m * m)          # F'(m)
     s = np.where(small, -deriv, (f_c - p) / np.where(small, 1.0, a - c))
     return e_a, e_c, p, r, q, s
+
+
+def first_order_coefficients(a: float, h: float) -> tuple[float, float, float]:
+    """The first-order motor's exact step over ``h`` s with its drive held, per unit drive: ``(e, p, r)``.
+
+    ``speed' = e speed + p f`` and ``angle' = angle + p speed + r f`` for a held acceleration
+    ``f = b v + d``, with ``e = exp(-a h)``, ``p = (1 - e)/a`` (by ``expm1``: exact for small
+    ``a h``) and ``r = (h - p)/a``.  The one place these scalars are written: the estimators that
+    need the step's coefficients (``iv``'s filter, ``iv-reference``, the prediction-error filter,
+    the friction fit's start) take them from here, :func:`zoh_matrices` is their array form with
+    ``b`` in, and :class:`Stepper` runs the state one sample at a time.
+
+    Examples
+    --------
+    >>> [round(x, 6) for x in first_order_coefficients(25.0, 0.01)]
+    [0.778801, 0.008848, 4.6e-05]
+    """
+    e = math.exp(-a * h)
+    p = -math.expm1(-a * h) / a
+    return e, p, (h - p) / a
+
+
+class Stepper:
+    """The plant's state advanced one sample interval at a time, each interval exact (zero-order hold).
+
+    What every per-sample loop runs (a closed loop on :class:`~motorsim.rig.SimRig`, the emulated
+    device of ``fake://``, :meth:`identify.Estimate.io_system`), so none of them restates the
+    plant: the first-order motor by :func:`zoh_matrices`, behind an electrical lag by
+    :func:`lag_coefficients`, with Coulomb or static friction by :func:`simulate` over the
+    interval (its exact event step).  The state is ``(angle, speed, current)``: the current (the
+    lagged drive, in input units) is 0 without an electrical lag.  The input delay is the
+    caller's (its delay line): ``duty`` is what reaches the motor now; the dead zone is applied here.
+
+    Parameters
+    ----------
+    motor : Motor
+        The plant.
+    intervals : array_like
+        The sample intervals in s (one per step ``k``); a scalar for a uniform clock (``k`` then 0).
+    """
+
+    def __init__(self, motor: Motor, intervals) -> None:
+        if not isinstance(motor, Motor):
+            raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
+        h = np.atleast_1d(np.asarray(intervals, dtype=float))
+        self.motor = motor
+        self._h = h.tolist()
+        if motor.electrical_time_constant > 0:
+            self._kind = "lag"
+            self._coefficients = list(zip(*(np.broadcast_to(x, h.shape).tolist()
+                                            for x in lag_coefficients(motor.a, 1.0 / motor.electrical_time_constant,
+                                                                      h))))
+        elif motor.breakaway == 0:
+            self._kind = "linear"
+            self._coefficients = list(zip(*(x.tolist() for x in zoh_matrices(motor.a, motor.b, h))))
+        else:
+            self._kind = "friction"
+            self._bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
+
+    def step(self, k: int, state: tuple[float, float, float], duty: float,
+             torque: float = 0.0) -> tuple[float, float, float]:
+        """The state after interval ``k`` with ``duty`` held (and an added acceleration ``torque``, rad/s^2)."""
+        m = self.motor
+        angle, speed, current = state
+        v = float(duty)
+        if m.dead_zone and v:  # Motor.drive, on one sample
+            v = 0.0 if abs(v) <= m.dead_zone else v - math.copysign(m.dead_zone, v)
+        if self._kind == "lag":
+            e_a, e_c, p, r, q, s = self._coefficients[k]
+            force, lag = m.b * v + m.bias + torque, m.b * (current - v)
+            return (angle + p * speed + r * force + s * lag, e_a * speed + p * force + q * lag,
+                    e_c * current + (1.0 - e_c) * v)
+        if torque:
+            v += torque / m.b
+        if self._kind == "linear":
+            e, g, p, q = self._coefficients[k]
+            v += m.bias / m.b
+            return angle + p * speed + q * v, e * speed + g * v, 0.0
+        traj = simulate(self._bare, [v, v], [0.0, self._h[k]], initial_speed=speed, initial_angle=angle)
+        return float(traj.angle[1]), float(traj.speed[1]), 0.0
 
 
 @dataclasses.dataclass(frozen=True)

@@ -133,9 +133,8 @@ def _split_head(data: bytes) -> tuple[list[str], int] | None:
         return None
 
 
-#: Bytes the fast reader parses per block (bounds its working memory).  pyarrow parses a block in
-#: chunks of about 1 MB on its thread pool; larger blocks were no faster on two cores (measured with
-#: ``motorid bench parse``) and left more memory in the threads' allocator arenas.
+#: Bytes the fast reader parses per block (bounds its working memory).  pyarrow parses a block
+#: on the calling thread (:data:`_THREADS`); larger blocks were no faster (measured with ``motorid bench parse``).
 _FAST_BLOCK_BYTES = 1 << 21
 
 
@@ -166,12 +165,18 @@ def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
         yield view[:kept]
 
 
+#: Whether pyarrow parses a block's chunks on its thread pool.  No: on 10^6 rows (``motorid bench selection``)
+#: the threads took as much CPU time as one thread (0.149 s against 0.142 s, the least of five), left 14 MB more
+#: peak memory in their allocator arenas (169 MB against 155 MB), and on a machine whose cores are busy the
+#: wall-clock time was the same.
+_THREADS = False
+
+
 def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
     """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
 
     Blocks of whole lines are parsed one at a time and copied into arrays of ``max_rows``
-    (the number of lines), so the working memory is the columns plus one block; pyarrow parses
-    the chunks of a block in parallel and keeps their order.  pyarrow parses floats correctly
+    (the number of lines), so the working memory is the columns plus one block.  pyarrow parses floats correctly
     rounded: a file written by :func:`write_recording` reads back bit for bit.  None also when
     pyarrow is not installed.
     """
@@ -180,7 +185,7 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int
         import pyarrow.csv
     except ImportError:
         return None
-    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=True)
+    read_options = pyarrow.csv.ReadOptions(column_names=header, use_threads=_THREADS)
     convert_options = pyarrow.csv.ConvertOptions(
         column_types={h: pyarrow.int64() if h in INTEGER_COLUMNS else pyarrow.float64() for h in header},
         null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)

@@ -156,7 +156,20 @@ FIXED_UNITS = {"time_unit": ("s", "time_s"), "angle_unit": ("rad", "angle_rad")}
 
 
 def _refuse_unit_metadata(metadata: Mapping[str, str]) -> None:
-    """Refuse ``time_unit: ms`` and the like: the columns are in SI units, and reading them otherwise is silent."""
+    """Refuse ``time_unit: ms`` and the like: the columns are in SI units, and reading them otherwise is silent.
+    An ``input_limit`` or ``duty_limit`` that is no magnitude (``nan``, ``-1``) is refused too: taken as unknown,
+    it silently turned off the checks of a run at its limit."""
+    for key in ("input_limit", "duty_limit"):
+        text = metadata.get(key)
+        if text is None or str(text).strip().lower() in ("", "none", "null"):
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and 0 < value <= MAX_MAGNITUDE):
+            raise ParameterError(f"metadata {key} must be a number > 0 (the largest input magnitude the drive "
+                                 f"accepts) or none, got {text!r}")
     for key, (unit, column) in FIXED_UNITS.items():
         given = metadata.get(key)
         if given is not None and given.strip() != unit:

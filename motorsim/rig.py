@@ -20,7 +20,7 @@ from .control import ClosedLoopExperiment
 from .excitation import DUTY_LIMIT, Excitation
 from .fixed_point import ControlLoop
 from .knobs import Knob, knob, knobs_of
-from .plant import Motor, lag_coefficients, simulate, zoh_matrices
+from .plant import Motor, Stepper, simulate
 from .recording import Recording
 from .recursion import first_order_filter
 from .sensors import Encoder
@@ -154,9 +154,6 @@ class SimRig:
         object.__setattr__(self, "disturbance", check_real("disturbance", self.disturbance, nonnegative=True))
         object.__setattr__(self, "disturbance_time", check_real("disturbance_time", self.disturbance_time,
                                                                 positive=True))
-        if self.disturbance > 0 and self.motor.electrical_time_constant > 0:
-            raise ParameterError(f"disturbance must be 0 with an electrical lag (its per-sample loop takes none), "
-                                 f"got {self.disturbance!r}")
         needs_rng = jitter > 0 or drop > 0 or self.encoder.angle_noise > 0 or self.disturbance > 0
         if needs_rng and not isinstance(self.rng, np.random.Generator):
             raise ParameterTypeError(f"rng must be a numpy.random.Generator when noise, jitter, drops or a "
@@ -253,69 +250,28 @@ class _Replay:
 def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray,
                  noise: np.ndarray, initial_speed: float, disturbance: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Duty, counts and true speed of a closed-loop run (the plant's intervals are exact ZOH).
+    """Duty, counts and true speed of a closed-loop run, each interval exact (:class:`~motorsim.plant.Stepper`).
 
-    ``disturbance`` (rad/s^2, one value per sample interval) adds to the motor's bias.
+    ``disturbance`` (rad/s^2, one value per sample interval) adds to the motor's bias.  Behind an
+    electrical lag the current starts at 0 (as :func:`~motorsim.plant.simulate`'s with no duty before).
     """
     n = len(time)
-    h = np.diff(time)
     duty = np.zeros(n, dtype=np.int64)
     counts = np.zeros(n, dtype=np.int64)
     speed = np.zeros(n)
     scale, offset = encoder.counts_per_rev / (2.0 * math.pi), encoder.count_offset
-    if motor.electrical_time_constant > 0:
-        return _closed_loop_lag(motor, encoder, loop, time, noise, initial_speed)
     pending = [0] * motor.input_delay
-    e, g, p, q = (x.tolist() for x in zoh_matrices(motor.a, motor.b, h))
-    bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
-    linear, dead_zone = motor.breakaway == 0, motor.dead_zone
-    w, th = float(initial_speed), 0.0
+    stepper = Stepper(motor, np.diff(time))
+    state = (0.0, float(initial_speed), 0.0)
     for k in range(n):
+        th, w, _ = state
         counts[k] = c = math.floor((th + noise[k]) * scale) + offset
         speed[k] = w
         duty[k] = u = loop.step(k, c)
         if k == n - 1:
             break
         pending.append(u)
-        v = float(pending.pop(0))
-        if dead_zone and v:  # Motor.drive, on one sample
-            v = 0.0 if abs(v) <= dead_zone else v - math.copysign(dead_zone, v)
-        if disturbance is not None:
-            v += disturbance[k] / motor.b
-        if linear:
-            v += motor.bias / motor.b
-            w, th = e[k] * w + g[k] * v, th + p[k] * w + q[k] * v
-        else:
-            traj = simulate(bare, [v, v], [0.0, h[k]], initial_speed=w, initial_angle=th)
-            w, th = float(traj.speed[1]), float(traj.angle[1])
-    return duty, counts, speed
-
-
-def _closed_loop_lag(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray, noise: np.ndarray,
-                     initial_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_closed_loop` for a motor behind an electrical lag: each interval exact by the simulator's
-    :func:`~motorsim.plant.lag_coefficients`, the current starting at 0 (as :func:`~motorsim.plant.simulate`'s)."""
-    n = len(time)
-    duty = np.zeros(n, dtype=np.int64)
-    counts = np.zeros(n, dtype=np.int64)
-    speed = np.zeros(n)
-    scale, offset = encoder.counts_per_rev / (2.0 * math.pi), encoder.count_offset
-    pending = [0] * motor.input_delay
-    coefficients = zip(*(np.broadcast_to(x, (n - 1,)).tolist() for x in
-                         lag_coefficients(motor.a, 1.0 / motor.electrical_time_constant, np.diff(time))))
-    a_b, d = motor.b, motor.bias
-    w, th, i = float(initial_speed), 0.0, 0.0
-    for k in range(n):
-        counts[k] = math.floor((th + noise[k]) * scale) + offset
-        speed[k] = w
-        duty[k] = u = loop.step(k, int(counts[k]))
-        if k == n - 1:
-            break
-        pending.append(u)
-        v = float(motor.drive(np.array([pending.pop(0)]))[0])
-        e_a, e_c, p, r, q, s = next(coefficients)
-        force, lag = a_b * v + d, a_b * (i - v)
-        w, th, i = e_a * w + p * force + q * lag, th + p * w + r * force + s * lag, e_c * i + (1.0 - e_c) * v
+        state = stepper.step(k, state, pending.pop(0), 0.0 if disturbance is None else float(disturbance[k]))
     return duty, counts, speed
 
 

@@ -31,7 +31,11 @@ import numpy as np
 
 from .recording import RecordingFormatError
 
-__all__ = ["is_robot_log", "read_log_table", "WPILIB_UNITS", "ROS_EXTRA", "WPILIB_EXTRA"]
+__all__ = ["is_robot_log", "read_log_table", "check_wpilog_records", "WPILIB_UNITS", "ROS_EXTRA", "WPILIB_EXTRA",
+           "MAX_LOG_BYTES"]
+
+#: The largest robot log file read, in bytes: its records, held as numbers, take some five times its size.
+MAX_LOG_BYTES = 256 << 20
 
 #: What ``pip install`` needs for each kind of log (the optional extras of pyproject.toml).
 ROS_EXTRA = "rosbags>=0.10,<0.12"
@@ -77,13 +81,114 @@ def read_log_table(path: str | os.PathLike, base: str | None) -> tuple[tuple[str
         The reader is not installed, the file cannot be read, or ``base`` is not one of its columns.
     """
     path = os.fspath(path)
+    _check_inputs(path)
     if Path(path).suffix.lower() == ".wpilog":
+        check_wpilog_records(path)
         series, units, keep = _wpilog_series(path)
     else:
         series, units, keep = _ros_series(path), {}, None
         units = {name: unit for name in series for suffix, unit in (("/position", "rad"), ("/velocity", "rad/s"))
                  if name.endswith(suffix) and name.count("/") >= 2}
     return _table(path, series, units, base, keep)
+
+
+def _check_inputs(path: str) -> None:
+    """A log's files are regular files of at most :data:`MAX_LOG_BYTES` (a FIFO would block its reader, a
+    device never end, a sparse file of gigabytes take minutes): refused before any reader opens them."""
+    from .files import InputFileError, open_input
+    p = Path(path)
+    files = [p] if not p.is_dir() else [q for q in sorted(p.iterdir()) if not q.is_dir()]
+    for name in files:
+        try:
+            open_input(name, what="log", max_bytes=MAX_LOG_BYTES).close()
+        except InputFileError as exc:
+            raise RecordingFormatError(str(exc).removeprefix("log ")) from None
+
+
+#: Payload bytes of a value of each number type.
+_WPILOG_SIZES = {"double": 8, "float": 4, "int64": 8}
+
+
+def check_wpilog_records(path: str) -> None:
+    """Walk a ``.wpilog``'s records and refuse one that is malformed, before the reader sees them.
+
+    The record layout is WPILib's data log format (version 1.0): a header byte giving the lengths
+    of the entry id, payload size and timestamp, then those fields and the payload; entry 0 holds
+    the control records (start, finish, set metadata).  A record whose declared length runs past
+    the end of the file ends the log there (a log cut off while written): said as a warning, the
+    records before it kept.  Anything else malformed -- a control record of the wrong length, a
+    number whose payload is not the size of its type, a name that is not UTF-8 -- is refused,
+    naming the byte.
+
+    Raises
+    ------
+    RecordingFormatError
+        Naming the file, the byte offset and the rule.
+    """
+    import warnings
+
+    from .files import read_input_bytes
+    data = read_input_bytes(path, what="log", max_bytes=MAX_LOG_BYTES)
+    if len(data) < 12 or data[:6] != b"WPILOG":
+        return                                   # not a data log: the reader says so
+    pos = 12 + int.from_bytes(data[8:12], "little")
+    end = len(data)
+    types: dict[int, tuple[str, str]] = {}
+
+    def fail(at: int, rule: str) -> None:
+        raise RecordingFormatError(f"{path}: byte {at}: {rule}; a damaged log")
+    while pos < end:
+        head = data[pos]
+        n_entry, n_size, n_time = (head & 3) + 1, ((head >> 2) & 3) + 1, ((head >> 4) & 7) + 1
+        body = pos + 1 + n_entry + n_size + n_time
+        size = int.from_bytes(data[pos + 1 + n_entry:pos + 1 + n_entry + n_size], "little") if body <= end else 0
+        if body > end or body + size > end:
+            warnings.warn(f"the log ends inside a record (byte {pos} declares {size} bytes of payload, "
+                          f"{max(end - body, 0)} are left): cut off while it was written? The {end - pos} bytes "
+                          "from there are left out", UserWarning, stacklevel=3)
+            return
+        entry = int.from_bytes(data[pos + 1:pos + 1 + n_entry], "little")
+        payload = data[body:body + size]
+        if entry == 0:
+            _check_control(payload, pos, types, fail)
+        elif entry in types:
+            name, kind = types[entry]
+            need = _WPILOG_SIZES.get(kind)
+            if need is not None and size != need:
+                fail(pos, f"the record of {name!r} ({kind}) holds {size} bytes, a {kind} holds {need}")
+            if kind == "string":
+                try:
+                    payload.decode("utf-8")
+                except UnicodeDecodeError:
+                    fail(pos, f"the record of {name!r} (string) is not UTF-8 text")
+        pos = body + size
+
+
+def _check_control(payload: bytes, pos: int, types: dict[int, tuple[str, str]], fail: Any) -> None:
+    """A control record: start (entry, name, type, metadata), finish (entry) or set metadata (entry, metadata)."""
+    if not payload:
+        fail(pos, "a control record with no payload (a file of zeros: sparse or preallocated?)")
+    kind = payload[0]
+    if kind == 1 and len(payload) == 5 or kind == 2 and len(payload) >= 9 and \
+            9 + int.from_bytes(payload[5:9], "little") == len(payload):
+        return
+    if kind != 0:
+        fail(pos, f"a control record of kind {kind} and {len(payload)} bytes (start 0, finish 1, set metadata 2)")
+    fields, at = [], 5
+    for _ in range(3):
+        if at + 4 > len(payload):
+            fail(pos, "a start record shorter than its fields")
+        n = int.from_bytes(payload[at:at + 4], "little")
+        if at + 4 + n > len(payload):
+            fail(pos, f"a start record whose field of {n} bytes runs past its end")
+        try:
+            fields.append(payload[at + 4:at + 4 + n].decode("utf-8"))
+        except UnicodeDecodeError:
+            fail(pos, "a start record whose name, type or metadata is not UTF-8 text")
+        at += 4 + n
+    if at != len(payload):
+        fail(pos, f"a start record of {len(payload)} bytes whose fields take {at}")
+    types[int.from_bytes(payload[1:5], "little")] = (fields[0], fields[1])
 
 
 def _table(path: str, series: Mapping[str, tuple[np.ndarray, np.ndarray]], units: Mapping[str, str],

@@ -11,8 +11,11 @@ import math
 
 import numpy as np
 
-from .checks import ParameterTypeError, check_int, check_real
+from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .knobs import knob
+
+#: The largest count magnitude an encoder gives: integers past it are not exact in a float.
+MAX_EXACT_COUNT = 2**53
 
 __all__ = ["Encoder", "counts_to_angle", "backward_difference", "DEFAULT_COUNTS_PER_REV"]
 
@@ -53,7 +56,14 @@ class Encoder:
             if not isinstance(rng, np.random.Generator):
                 raise ParameterTypeError(f"rng must be a numpy.random.Generator when angle_noise > 0, got {rng!r}")
             angle = angle + rng.normal(0.0, self.angle_noise, angle.shape)
-        return np.floor(angle * (self.counts_per_rev / (2.0 * math.pi))).astype(np.int64) + self.count_offset
+        scaled = np.floor(angle * (self.counts_per_rev / (2.0 * math.pi)))
+        if scaled.size and not float(np.max(np.abs(scaled))) + abs(self.count_offset) <= MAX_EXACT_COUNT:
+            k = int(np.argmax(~np.isfinite(scaled) | (np.abs(scaled) + abs(self.count_offset) > MAX_EXACT_COUNT)))
+            raise ParameterError(f"the encoder's counts must stay within +-2**53 (beyond, a count is not exact, and "
+                                 f"past 2**63 it wraps), got an angle of {float(angle.flat[k]):.6g} rad with "
+                                 f"count_offset {self.count_offset}: the motion asked for (initial speed, bias, "
+                                 "angle noise) is beyond any encoder")
+        return scaled.astype(np.int64) + self.count_offset
 
 
 def counts_to_angle(counts, counts_per_rev: int) -> np.ndarray:

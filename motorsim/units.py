@@ -20,7 +20,8 @@ Timing rule: the sample period is the median interval of the time column.  When 
 interval is a whole number of sample periods (within 1 %), longer intervals are dropped
 samples (gaps in ``seq``); otherwise the clock is non-uniform: the time column is kept as it
 is (``time_s``) and the metadata say ``time_uniform: false`` with the range of the intervals
-(:meth:`Recording.from_columns` also warns).
+(:meth:`Recording.from_columns` also warns); on such a clock an interval longer than
+:data:`PAUSE_FACTOR` periods is a pause between runs (a gap in ``seq``; ``time_pauses`` counts them).
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ from numpy.typing import ArrayLike
 from .checks import ParameterError, ParameterTypeError
 
 __all__ = ["TIME_UNITS", "INPUT_UNITS", "ANGLE_UNITS", "SPEED_UNITS", "ANGLE_RATE_UNITS", "UNITS", "DEFAULT_UNITS",
-           "UNIFORM_TOLERANCE", "columns_in_si", "timing_note", "speed_in"]
+           "UNIFORM_TOLERANCE", "PAUSE_FACTOR", "columns_in_si", "timing_note", "speed_in"]
 
 #: Seconds per unit of the time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6}
@@ -54,6 +55,9 @@ UNITS: dict[str, tuple[str, ...]] = {"time": tuple(TIME_UNITS), "input": INPUT_U
 DEFAULT_UNITS = {"time": "s", "input": "duty", "angle": "rad", "counts": "counts", "speed": "rad/s"}
 #: Largest departure of an interval from a whole number of sample periods on a uniform clock.
 UNIFORM_TOLERANCE = 0.01
+#: On a non-uniform clock, an interval longer than this many sample periods is a pause (the robot disabled between
+#: two tests, a logger stopped): a gap in ``seq``, where the runs either side are cut apart, not one long sample.
+PAUSE_FACTOR = 4.0
 
 
 def _as_float(name: str, value: ArrayLike) -> np.ndarray:
@@ -82,8 +86,13 @@ def _timing(time_s: np.ndarray) -> tuple[float, np.ndarray, dict[str, str]]:
     if np.max(np.abs(ratio - whole)) <= UNIFORM_TOLERANCE:
         seq = np.concatenate([[0], np.cumsum(whole.astype(np.int64))])
         return period, seq, {}
-    meta = {"time_uniform": "false", "time_step_min": f"{steps.min():.9g}", "time_step_max": f"{steps.max():.9g}"}
-    return period, np.arange(len(time_s), dtype=np.int64), meta
+    pause = ratio > PAUSE_FACTOR
+    kept = steps[~pause]
+    meta = {"time_uniform": "false", "time_step_min": f"{kept.min():.9g}", "time_step_max": f"{kept.max():.9g}"}
+    if pause.any():
+        meta["time_pauses"] = str(int(pause.sum()))
+    seq = np.concatenate([[0], np.cumsum(np.where(pause, np.round(ratio), 1).astype(np.int64))])
+    return period, seq, meta
 
 
 def columns_in_si(time: ArrayLike, duty: ArrayLike, *, speed: ArrayLike | None = None,
@@ -158,9 +167,12 @@ def timing_note(metadata: Mapping[str, str], sample_period: float) -> str:
     """What a user should know about the clock of :func:`columns_in_si`'s result ('' when uniform)."""
     if metadata.get("time_uniform") != "false":
         return ""
+    pauses = metadata.get("time_pauses")
+    cut = (f"; {pauses} pause(s) longer than {PAUSE_FACTOR:g} periods cut it into runs fitted apart"
+           if pauses else "")
     return (f"the time column is not uniform (intervals from {metadata['time_step_min']} to "
             f"{metadata['time_step_max']} s, median {sample_period!r} s): kept as time_s, sample_period is the "
-            "median")
+            f"median{cut}")
 
 
 def speed_in(value: float, unit: str) -> float:

@@ -18,6 +18,7 @@ import numpy as np
 from .checks import ParameterError, ParameterTypeError
 from .files import OutputFileError, check_output_file, open_exclusive, write_atomically
 from .recording import FORMAT_HEADER, INTEGER_COLUMNS, Recording
+from .text import printable
 
 __all__ = ["write_recording", "RecordingWriter"]
 
@@ -31,9 +32,10 @@ def _metadata_lines(rec: Recording) -> list[str]:
             meta[k] = v
     lines = [FORMAT_HEADER]
     for k, v in meta.items():
-        if "\n" in k or "\n" in v or ":" in k:
-            raise ParameterError(f"metadata key {k!r} / value {v!r} must be single-line, and keys must not contain ':'")
-        lines.append(f"# {k}: {v}")
+        if ":" in k or not k.strip():
+            raise ParameterError(f"metadata key {printable(k)!r} must be a name without ':'")
+        # a line break, carriage return or NUL (a device's board name) would cut the line: written escaped
+        lines.append(f"# {printable(k)}: {printable(v)}")
     return lines
 
 

@@ -49,6 +49,7 @@ from motorsim.knobs import knobs_of
 from motorsim.plant import Motor
 from motorsim.rig import Experiment, SimRig, bench_knobs
 from motorsim.sensors import Encoder
+from motorsim.text import control_characters, printable
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -336,6 +337,16 @@ def _setting(values: Mapping) -> Setting:
         raise ScenarioError(f"{exc} (in the setting {where})") from None
 
 
+def _check_printable(data: Mapping, source: str) -> None:
+    """A scenario's name is printed in tables and progress lines: one line of printable text (its description
+    may run over lines)."""
+    for key in ("name", "description"):
+        text = data.get(key)
+        if isinstance(text, str) and control_characters(text if key == "name" else text.replace("\n", " ")):
+            raise ScenarioError(f"{source}: {key} must be printable text, got '{printable(text)[:80]}' (it holds "
+                                f"{control_characters(text)}: a control character, line break or lone surrogate)")
+
+
 def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario:
     """Build and validate a :class:`Scenario` from parsed TOML (see the module docstring)."""
     def fail(msg):
@@ -372,6 +383,7 @@ def scenario_from_dict(data: Mapping, *, source: str = "<scenario>") -> Scenario
         seed = _check_count("seed", data.get("seed", 0), lo=0)
     except ScenarioError as exc:
         fail(str(exc))
+    _check_printable(data, source)
     scenario = Scenario(name=str(data.get("name", Path(source).stem)), description=str(data.get("description", "")),
                         base=base, grid=tuple(grid), methods=tuple(methods), repetitions=reps, seed=seed)
     try:
@@ -404,6 +416,10 @@ def builtin_scenarios() -> dict[str, str]:
     return out
 
 
+#: The largest scenario file read, in bytes (the built-in ones are under 2 kB).
+MAX_SCENARIO_BYTES = 1 << 20
+
+
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
     """A built-in scenario by name (``article``, ...) or a TOML file by path."""
     text = str(name_or_path)
@@ -411,12 +427,15 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
     if not text.endswith(".toml") and builtin.is_file():
         source, raw = f"builtin:{text}", builtin.read_text(encoding="utf-8")
     else:
+        from motorsim.files import InputFileError, read_input_bytes
         path = Path(text)
-        if not path.is_file():
+        if not path.exists():
             raise ScenarioError(f"scenario must be a built-in name {sorted(builtin_scenarios())} or an existing "
                                 f".toml file, got {text!r}")
-        try:
-            source, raw = str(path), path.read_text(encoding="utf-8")
+        try:       # a regular file of a scenario's size: a FIFO is never waited on, a device never read
+            source, raw = str(path), read_input_bytes(path, what="scenario", max_bytes=MAX_SCENARIO_BYTES).decode()
+        except InputFileError as exc:
+            raise ScenarioError(str(exc)) from None
         except UnicodeDecodeError as exc:
             raise ScenarioError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:

@@ -8,7 +8,7 @@ batched implementation (``identify.BATCHED_METHODS``, and ``oe``) use it; any ot
 name from ``identify.available_methods()`` is fitted with ``identify.fit`` on
 recordings of the same counts.  Where the setting has an input delay, every
 method that takes ``input_delay`` is fitted with ``input_delay="auto"`` (one
-recording at a time).  A fit that raises is a counted failure with its reason,
+recording at a time); where it has none, at ``input_delay=0``.  A fit that raises is a counted failure with its reason,
 never a crash of the sweep.
 
 :func:`run_scenario` (also :func:`scenarios.run_sweep`) spreads the grid points over a
@@ -48,7 +48,7 @@ from identify import (
     fit_output_error_batch,
     output_error_batchable,
 )
-from motorsim.batch import encoder_counts_batch, is_batchable, simulate_batch, speed_batch
+from motorsim.batch import encoder_counts_batch, is_batchable, simulate_batch, speed_batch, unbatchable_parts
 from motorsim.checks import ParameterError, ParameterTypeError, check_int
 from motorsim.files import atomic_writer, make_output_dir, write_atomically
 from motorsim.recording import Recording
@@ -182,7 +182,9 @@ class PointResult:
 
 def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
     motor = setting.motor()
-    if not (motor.is_linear and motor.input_delay == 0 and setting.jitter == 0 and setting.drop_rate == 0
+    # the bound of the first-order motor: for that plant alone (an electrical lag is linear but not it)
+    if not (motor.is_linear and not unbatchable_parts(motor) and motor.input_delay == 0 and setting.jitter == 0
+            and setting.drop_rate == 0
             and not setting.record_speed):
         return None
     bound = cramer_rao_bound(setting.a, setting.b, duty, setting.sample_period,
@@ -192,9 +194,10 @@ def _crb(setting: Setting, duty: np.ndarray) -> dict | None:
 
 
 def _fit_or_reason(recording: Recording, method: str, auto_delay: bool = False) -> tuple[float, float, str]:
-    """Fit; where the setting has an input delay, methods that take ``input_delay`` choose it ("auto")."""
+    """Fit; where the setting has an input delay, methods that take ``input_delay`` choose it ("auto"), where it
+    has none they are fitted at 0 (as the batch engine fits every row)."""
     from identify import method_options
-    options = {"input_delay": "auto"} if auto_delay and "input_delay" in method_options(method) else {}
+    options = {"input_delay": "auto" if auto_delay else 0} if "input_delay" in method_options(method) else {}
     try:
         est = fit(recording, method=method, outliers="keep", **options)
     except Exception as exc:  # a failed fit is an outcome of the sweep, whatever the estimator raised

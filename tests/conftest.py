@@ -1,6 +1,8 @@
 """Markers set in one place (``slow`` and ``firmware``, by test id), and the ``motorid`` parsers.
 
-``make test-fast`` runs ``pytest -m "not slow and not firmware"``.  A test is ``slow`` when it
+``make test-fast`` runs ``pytest -m "not slow and not firmware"``.  Tests marked ``realtime``
+run an emulated rig against the wall clock, which a loaded machine can fail by design: they
+are skipped unless pytest is given ``--realtime`` (``make test-realtime``).  A test is ``slow`` when it
 takes over about 1.5 s on its own (``pytest --durations=40``); it is listed in :data:`SLOW`
 with what makes it slow.  Tests that start the AVR emulator are ``firmware``, listed in
 :data:`FIRMWARE`.  A test may also carry the marker itself (a module ``pytestmark``); the
@@ -82,8 +84,14 @@ def _check_entries(entries: dict[str, str], marker: str) -> None:
                                     "update the list after renaming or moving a test")
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--realtime", action="store_true", default=False,
+                     help="also run the tests marked realtime (emulated rigs on the wall clock; "
+                          "they need an idle machine)")
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Add the ``slow`` and ``firmware`` markers to the tests listed above."""
+    """Add the ``slow`` and ``firmware`` markers to the tests listed above; skip ``realtime`` without ``--realtime``."""
     _check_entries(SLOW, "slow")
     _check_entries(FIRMWARE, "firmware")
     for item in items:
@@ -93,6 +101,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if test_id in FIRMWARE or path in FIRMWARE:
             item.add_marker(pytest.mark.firmware)
+        if item.get_closest_marker("realtime") and not config.getoption("--realtime"):
+            item.add_marker(pytest.mark.skip(reason="runs against the wall clock: pytest --realtime "
+                                                    "(make test-realtime) on an idle machine"))
 
 
 class _ParserFound(BaseException):   # not an Exception: main() turns those into exit statuses
@@ -169,7 +180,7 @@ def kernel_path(request, monkeypatch):
     from motorsim import compiled
     if request.param == "numba":
         if compiled.compiled_kernel() is None:
-            pytest.skip("numba is not installed (the optional 'fast' extra)")
+            pytest.skip("numba is not installed or MOTORID_NUMBA=0")
         monkeypatch.setattr(compiled, "COMPILE_AFTER", 0)
     else:
         monkeypatch.setattr(compiled, "COMPILE_AFTER", 10 ** 18)

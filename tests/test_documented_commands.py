@@ -52,6 +52,7 @@ NOT_RUN = {
     "make venv": "creates .venv and installs motorid into it (every make target does)",
     "make firmware": "installs the AVR toolchain with apt-get and builds the firmware (make test does)",
     "make avr-sim": "installs simavr with apt-get and builds the harness (make test does)",
+    "make bench-check": "a new virtual environment and the speed gate, minutes of timings on the machine's load",
     # benchmarks whose output a page shows ({motorid-output} :any-status:): make docs runs them in CI;
     # their goals depend on the machine's load, and they start processes or run in real time
     "motorid bench --check": "the speed gate: every goal's benchmark at full size, minutes of timings on the "
@@ -97,6 +98,7 @@ def documented_commands() -> list[tuple[str, str]]:
     for doc in DOCS:
         for number, line in _blocks(doc.read_text(encoding="utf-8")):
             line = line[2:] if line.startswith("$ ") else line
+            line = line.removeprefix(".venv/bin/")          # the README's tour, runnable as pasted in a clone
             if not line.startswith(("motorid ", "make ")):
                 continue
             code = re.split(r"\s+#\s", line, maxsplit=1)[0]

@@ -46,11 +46,15 @@ class DeviceLink:
     Parameters
     ----------
     port : serial.Serial
-        An open port (``timeout`` short, e.g. 0.02 s: reads poll).
+        An open port (``timeout`` short, e.g. 0.02 s: reads poll).  When it keeps simulated time
+        (a ``clock()``, :mod:`hardware.lockstep`), every timeout and heartbeat here counts the
+        device's simulated seconds; else wall-clock seconds.
     """
 
     def __init__(self, port: serial.Serial):
         self.port = port
+        clock = getattr(port, "clock", None)
+        self.clock = clock if callable(clock) else time.monotonic
         self.reader = P.FrameReader()
         self.frame_seq = 0
         self.received: list = []   # (frame_seq, message) in arrival order
@@ -73,16 +77,16 @@ class DeviceLink:
         return new
 
     def wait_for(self, kind, timeout: float = 3.0, heartbeat: float | None = None):
-        """The first new message of type ``kind`` within ``timeout`` s of wall time, else None.
+        """The first new message of type ``kind`` within ``timeout`` s (the port's time), else None.
 
         Sends a HEARTBEAT every ``heartbeat`` s meanwhile (None: none).
         """
-        deadline = time.monotonic() + timeout
+        deadline = self.clock() + timeout
         last_beat = 0.0
-        while time.monotonic() < deadline:
-            if heartbeat and time.monotonic() - last_beat > heartbeat:
+        while self.clock() < deadline:
+            if heartbeat and self.clock() - last_beat > heartbeat:
                 self.send(P.Heartbeat())
-                last_beat = time.monotonic()
+                last_beat = self.clock()
             for _, msg in self.poll():
                 if isinstance(msg, kind):
                     return msg
@@ -94,9 +98,9 @@ class DeviceLink:
         Every HELLO sent is answered: the answers to the extra ones are awaited (0.5 s at most)
         and consumed here, so that none is mistaken later for the answer to something else.
         """
-        deadline = time.monotonic() + timeout
+        deadline = self.clock() + timeout
         sent = 0
-        while time.monotonic() < deadline:
+        while self.clock() < deadline:
             self.send(P.Hello())
             sent += 1
             ack = self.wait_for(P.HelloAck, timeout=0.2)
@@ -109,8 +113,8 @@ class DeviceLink:
     def command(self, msg, timeout: float = 2.0):
         """Send ``msg`` and return its ACK or NAK (within ``timeout`` s, else TimeoutError)."""
         frame_seq = self.send(msg)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        deadline = self.clock() + timeout
+        while self.clock() < deadline:
             for _, reply in self.poll():
                 if isinstance(reply, (P.Ack, P.Nak)) and reply[1] == frame_seq:
                     return reply
@@ -129,7 +133,7 @@ class DeviceLink:
         setup : sequence of messages
             Sent (and acknowledged) after the WAVE: CONTROL and REFERENCE for a closed loop.
         timeout : float
-            Wall-clock seconds to wait for END.
+            Seconds (the port's time) to wait for END.
         heartbeat : float or None
             Seconds between HEARTBEATs (None sends none, to test the device's watchdog).
         on_sample : callable, optional
@@ -140,13 +144,13 @@ class DeviceLink:
             reply = self.command(msg)
             if not isinstance(reply, P.Ack):
                 raise RuntimeError(f"{msg!r} refused: {reply!r}")
-        deadline = time.monotonic() + timeout
-        last_beat = time.monotonic()
+        deadline = self.clock() + timeout
+        last_beat = self.clock()
         end = None
-        while end is None and time.monotonic() < deadline:
-            if heartbeat and time.monotonic() - last_beat > heartbeat:
+        while end is None and self.clock() < deadline:
+            if heartbeat and self.clock() - last_beat > heartbeat:
                 self.send(P.Heartbeat())
-                last_beat = time.monotonic()
+                last_beat = self.clock()
             for _, msg in self.poll():
                 if isinstance(msg, P.End):
                     end = msg

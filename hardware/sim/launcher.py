@@ -2,8 +2,14 @@
 
 ``avr-sim://?a=25&b=3`` is a port URL (``hardware/ports.py``): :func:`open_avr_sim` builds the
 firmware and the harness when needed (``make firmware avr-sim``), starts
-``hardware/sim/build/motorid-avr-sim`` with the motor from the URL, opens the harness's
-pseudo-terminal with pyserial and, on exit, closes it and stops the harness.
+``hardware/sim/build/motorid-avr-sim`` with the motor from the URL and, on exit, stops it.
+
+By default the emulated AVR runs in lock-step with the host (:mod:`hardware.lockstep`): its
+cycles advance only as the host reads, over a socket to the harness, so a run gives the same
+recording on an idle and on a loaded machine, and a slow machine only makes it take longer.
+``realtime=1`` runs it against the wall clock instead, on a pseudo-terminal opened with
+pyserial, as a board on a USB port: what that proves (the host keeping up with the firmware's
+real deadlines) depends on the machine, and a loaded one can fail it.
 
 URL query keys (all optional; :func:`url_keys`):
 
@@ -17,14 +23,20 @@ URL query keys (all optional; :func:`url_keys`):
 ``driver``
     ``dir-pwm`` (default) or ``in1-in2``: the H-bridge wiring (the firmware is built to match).
 ``speed``
-    Largest ratio of emulated to wall-clock time (default 1.0; 0 runs free).  The host's
-    heartbeats follow the wall clock and the firmware's host-silence watchdog counts emulated
-    time, so capping emulation at real time keeps the watchdog honest.
+    Largest ratio of emulated to wall-clock time (default 1.0, a board's pace; 0 runs free, as
+    fast as the machine goes).  In lock-step the host paces itself; with ``realtime=1`` the
+    harness does, and there the host's heartbeats follow the wall clock while the firmware's
+    host-silence watchdog counts emulated time, so capping emulation at real time keeps the
+    watchdog honest.
+``realtime``
+    ``1`` (or ``true``): the emulated AVR on the wall clock, on a pseudo-terminal (default
+    ``0``: in lock-step with the host, in simulated time).
 ``substep_cycles``
     CPU cycles per motor integration step (default 16, i.e. 1 us).
 ``boot_delay``
-    The AVR starts when the host opens the pty (an Uno resets when its port is opened), this
-    many seconds later (default 0.05), so the host's open cannot flush the BOOT frame.
+    With ``realtime=1``, the AVR starts when the host opens the pty (an Uno resets when its port
+    is opened), this many seconds later (default 0.05), so the host's open cannot flush the BOOT
+    frame.  In lock-step the AVR starts at the port's first read, and this key is not used.
 
 The firmware's baud rate and H-bridge type are fixed when it is compiled: a ``baudrate`` other
 than 250000 or ``driver=in1-in2`` use a firmware built with ``-DBAUD_RATE=...`` /
@@ -35,10 +47,13 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import math
 import os
 import select
 import shutil
 import signal
+import socket
+import struct
 import subprocess
 import sys
 import time
@@ -53,8 +68,10 @@ from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.rig import bench_knobs
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
 
+from ..lockstep import LockstepPort
+
 __all__ = ["open_avr_sim", "die_with_parent", "url_keys", "missing_tools", "ARDUINO_CORE", "AvrSimulation",
-           "HarnessOptions", "parse_avr_sim_url", "build",
+           "AvrLockstepPort", "HarnessOptions", "parse_avr_sim_url", "build", "F_CPU_HZ",
            "firmware_elf", "SUPPORTED_BAUDRATES", "DEFAULT_BAUDRATE", "REPO_ROOT"]
 
 #: The repository root (the harness and firmware are built from the source tree).
@@ -71,6 +88,10 @@ _HARNESS_SOURCES = [REPO_ROOT / "hardware" / "sim" / "motorid_avr_sim.c"]
 _STARTUP_TIMEOUT = 10.0
 _STOP_TIMEOUT = 5.0
 _PR_SET_PDEATHSIG = 1       # <linux/prctl.h>
+#: The emulated ATmega328P's clock (an Uno's).
+F_CPU_HZ = 16_000_000
+#: Bytes of host input one lock-step grant carries at most (the harness's UART queue holds 4096).
+_GRANT_BYTES = 1024
 #: H-bridge wiring -> the firmware's DRIVER_TYPE.
 _DRIVERS = {"dir-pwm": "DRIVER_DIR_PWM", "in1-in2": "DRIVER_IN1_IN2"}
 
@@ -93,6 +114,9 @@ class HarnessOptions:
         H-bridge wiring; the firmware is built to match.
     speed : float
         Largest ratio of emulated to wall-clock time (0 runs free).
+    realtime : bool
+        Run against the wall clock on a pseudo-terminal (default False: in lock-step with the
+        host, in simulated time).
     substep_cycles : int
         CPU cycles per motor integration step (16 = 1 us).
     boot_delay : float
@@ -107,6 +131,8 @@ class HarnessOptions:
     encoder_rate: float = knob(0.0, unit="counts/s", help="turn the encoder at this rate whatever the duty")
     driver: str = "dir-pwm"
     speed: float = knob(1.0, unit="", help="largest ratio of emulated to wall-clock time (0 runs free)")
+    realtime: bool = knob(False, unit="", help="on the wall clock, on a pseudo-terminal (default: in lock-step "
+                                               "with the host, in simulated time)")
     substep_cycles: int = knob(16, unit="cycles", help="CPU cycles per motor integration step")
     boot_delay: float = knob(0.05, unit="s", help="time between opening the pty and the AVR starting")
 
@@ -120,10 +146,12 @@ class HarnessOptions:
         if not 0 <= self.boot_delay <= 10:
             raise ParameterError(f"boot_delay must be in 0...10 s, got {self.boot_delay!r}")
         check_choice("driver", self.driver, _DRIVERS)
+        if not isinstance(self.realtime, bool):
+            raise ParameterTypeError(f"realtime must be a bool, got {self.realtime!r}")
         object.__setattr__(self, "substep_cycles", check_int("substep_cycles", self.substep_cycles, 1, 16000))
 
     def argv(self) -> list[str]:
-        """Command-line options for ``motorid-avr-sim``."""
+        """Command-line options for ``motorid-avr-sim`` (in real time; lock-step adds ``--lockstep-fd``)."""
         return ["--a", repr(float(self.a)), "--b", repr(float(self.b)),
                 "--friction", repr(float(self.friction)),
                 "--counts-per-rev", str(int(self.counts_per_rev)),
@@ -314,7 +342,9 @@ def die_with_parent(parent_pid: int) -> None:
 class AvrSimulation:
     """The harness process running the firmware, with its pseudo-terminal.
 
-    Use as a context manager; :attr:`port_path` is the pty, :attr:`stats` (after exit) holds
+    Use as a context manager.  With ``options.realtime``, :attr:`port_path` is the pty; else
+    :attr:`lockstep_socket` is the host's end of the lock-step exchange (:class:`AvrLockstepPort`
+    speaks it).  :attr:`stats` (after exit) holds
     the harness's last words: ``emulated_s``, ``wall_s``, ``ratio``, ``counts`` (what the
     encoder pins showed, 4x), ``edges``, ``resets``, ``speed_rad_s``, ``unwatched_drive_changes`` (drive
     changes no register write announced, so applied from the middle of their microsecond).
@@ -333,22 +363,41 @@ class AvrSimulation:
         self.options = options or HarnessOptions()
         self.baudrate = _check_baudrate(baudrate)
         self.port_path: str | None = None
+        self.lockstep_socket: socket.socket | None = None
         self.stats: Mapping[str, float] = {}
         self._process: subprocess.Popen | None = None
 
     def start(self) -> str:
-        """Build if needed, start the harness and return its pty path."""
+        """Build if needed, start the harness; returns its pty path (real time) or ``"lockstep"``."""
         elf, harness = build(self.baudrate, self.options.driver)
-        process = subprocess.Popen([str(harness), str(elf), *self.options.argv()],
-                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                   stderr=subprocess.PIPE, text=True,
-                                   preexec_fn=functools.partial(die_with_parent, os.getpid()))
+        argv = [str(harness), str(elf), *self.options.argv()]
+        pass_fds: tuple[int, ...] = ()
+        theirs = None
+        if not self.options.realtime:
+            self.lockstep_socket, theirs = socket.socketpair()
+            argv += ["--lockstep-fd", str(theirs.fileno())]
+            pass_fds = (theirs.fileno(),)
+        try:
+            process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, text=True, pass_fds=pass_fds,
+                                       preexec_fn=functools.partial(die_with_parent, os.getpid()))
+        except BaseException:
+            self._close_socket()
+            raise
+        finally:
+            if theirs is not None:
+                theirs.close()
         self._process = process
         try:
             return self._read_pty_path(process)
         except BaseException:      # including Ctrl-C or SIGTERM while it starts: never leave it running
             self.stop()
             raise
+
+    def _close_socket(self) -> None:
+        sock, self.lockstep_socket = self.lockstep_socket, None
+        if sock is not None:
+            sock.close()
 
     def _read_pty_path(self, process: subprocess.Popen) -> str:
         stdout, stderr = process.stdout, process.stderr
@@ -363,11 +412,13 @@ class AvrSimulation:
                 if line.startswith(b"PTY "):
                     self.port_path = line[4:].strip().decode()
                     return self.port_path
+                if line.strip() == b"LOCKSTEP":
+                    return "lockstep"
             remaining = deadline - time.monotonic()
             ready, _, _ = select.select([fd], [], [], max(remaining, 0))
             if not ready:
                 self.stop()
-                raise TimeoutError(f"motorid-avr-sim printed no PTY line within {_STARTUP_TIMEOUT} s")
+                raise TimeoutError(f"motorid-avr-sim printed no PTY or LOCKSTEP line within {_STARTUP_TIMEOUT} s")
             chunk = os.read(fd, 4096)
             if not chunk:
                 err = stderr.read()
@@ -388,6 +439,7 @@ class AvrSimulation:
     def stop(self) -> Mapping[str, float]:
         """Stop the harness (SIGTERM, then SIGKILL) and return its final statistics."""
         proc, self._process = self._process, None
+        self._close_socket()       # in lock-step the harness ends when its host's socket closes
         if proc is None:
             return self.stats
         if proc.poll() is None:
@@ -429,15 +481,20 @@ def open_avr_sim(url: str, baudrate: int = DEFAULT_BAUDRATE, timeout: float = 1.
 
     Yields
     ------
-    serial.Serial
-        The open port. Its attribute ``avr_simulation`` is the :class:`AvrSimulation`, whose
-        ``stats`` are filled in when the context exits.
+    AvrLockstepPort or serial.Serial
+        The open port: in lock-step (the default) an :class:`AvrLockstepPort`, with ``realtime=1``
+        a ``serial.Serial`` on the harness's pty.  Its attribute ``avr_simulation`` is the
+        :class:`AvrSimulation`, whose ``stats`` are filled in when the context exits.
     """
     options = parse_avr_sim_url(url)
     sim = AvrSimulation(options, baudrate)
     path = sim.start()
+    port: Any
     try:
-        port = serial.Serial(path, baudrate, timeout=timeout)
+        if options.realtime:
+            port = serial.Serial(path, baudrate, timeout=timeout)
+        else:
+            port = AvrLockstepPort(sim, url, timeout, options.speed)
     except BaseException:
         sim.stop()
         raise
@@ -447,3 +504,85 @@ def open_avr_sim(url: str, baudrate: int = DEFAULT_BAUDRATE, timeout: float = 1.
     finally:
         port.close()
         sim.stop()
+
+
+class AvrLockstepPort(LockstepPort):
+    """The emulated AVR in lock-step with the host (:class:`hardware.lockstep.LockstepPort`).
+
+    Speaks the harness's lock-step exchange (``hardware/sim/motorid_avr_sim.c``) over
+    :attr:`AvrSimulation.lockstep_socket`: each grant carries what the host wrote and the CPU
+    cycle to run to; each answer the cycle reached and what the UART sent.
+
+    Parameters
+    ----------
+    simulation : AvrSimulation
+        A started harness in lock-step mode.
+    name : str
+        The port's name (its URL).
+    timeout : float or None
+        Read timeout in emulated seconds.
+    speed : float
+        Largest ratio of emulated to wall-clock time (0: as fast as the machine goes).
+    """
+
+    def __init__(self, simulation: AvrSimulation, name: str, timeout: float | None, speed: float):
+        if simulation.lockstep_socket is None:
+            raise ParameterError("simulation must be a started AvrSimulation in lock-step mode (realtime off)")
+        super().__init__(name, timeout, speed)
+        self.avr_simulation = simulation
+        self._socket = simulation.lockstep_socket
+        self._cycle = 0
+        self._inbox = bytearray()           # the harness's answers, as received
+        self._next_id = 0
+        self._awaiting: int | None = None   # the grant whose answer has not been read
+
+    def _exchange(self, until: float, stop_on_frame: bool) -> float:
+        if self._awaiting is not None:        # an exchange cut short (Ctrl-C, SIGTERM): finish it first
+            self._grant(self._cycle, b"", False)
+        target = max(self._cycle, math.ceil(until * F_CPU_HZ - 1e-6))
+        data = self._take_written()
+        while len(data) > _GRANT_BYTES:       # a long write goes in pieces, at this same cycle
+            self._grant(self._cycle, data[:_GRANT_BYTES], False)
+            data = data[_GRANT_BYTES:]
+        self._grant(target, data, stop_on_frame)
+        now = self._cycle / F_CPU_HZ
+        return max(now, until) if self._cycle >= target else now
+
+    def _grant(self, until_cycle: int, data: bytes, stop_on_frame: bool) -> None:
+        """One exchange: the grant sent, the answers read up to its own (an interrupted one's first)."""
+        grant = self._next_id
+        self._next_id = (grant + 1) & 0xFFFFFFFF
+        self._awaiting = grant
+        try:
+            self._socket.sendall(struct.pack("<QIII", until_cycle, int(stop_on_frame), grant, len(data)) + data)
+            while True:
+                cycle, state, answered = self._answer()
+                self._cycle = cycle
+                if state in _CPU_ENDED:
+                    raise serial.SerialException(f"the emulated AVR behind {self.name} stopped "
+                                                 f"({_CPU_ENDED[state]}) at cycle {cycle}")
+                if answered == grant:
+                    break
+        except OSError as exc:
+            raise serial.SerialException(f"the emulator behind {self.name} failed: {exc}") from None
+        self._awaiting = None
+
+    def _answer(self) -> tuple[int, int, int]:
+        """One answer from the harness: its UART bytes appended to what the host reads; (cycle, state, id)."""
+        self._fill(20)
+        cycle, state, answered, n = struct.unpack_from("<QIII", self._inbox)
+        self._fill(20 + n)
+        self._rx += self._inbox[20:20 + n]
+        del self._inbox[:20 + n]
+        return cycle, state, answered
+
+    def _fill(self, n: int) -> None:
+        while len(self._inbox) < n:
+            chunk = self._socket.recv(1 << 16)
+            if not chunk:
+                raise serial.SerialException(f"the emulator behind {self.name} exited")
+            self._inbox += chunk
+
+
+#: simavr's cpu states that end an emulation (``sim_avr.h``: cpu_Done 6, cpu_Crashed 7).
+_CPU_ENDED = {6: "done", 7: "crashed"}

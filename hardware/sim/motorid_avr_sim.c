@@ -4,13 +4,27 @@
  *
  *   motorid-avr-sim FIRMWARE.elf [--a 25] [--b 3] [--friction 0] [--counts-per-rev 16667]
  *                   [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2]
- *                   [--speed 1.0] [--substep-cycles 16] [--boot-delay 0.05]
+ *                   [--speed 1.0] [--substep-cycles 16] [--boot-delay 0.05] [--lockstep-fd FD]
  *
- * Prints "PTY <path>" on stdout once the pseudo-terminal exists, starts the AVR when the host
- * opens it (after --boot-delay s, as an Uno resets when its port is opened), runs until SIGTERM or
+ * Two clocks.  In real time (the default) it prints "PTY <path>" on stdout once the
+ * pseudo-terminal exists, starts the AVR when the host opens it (after --boot-delay s, as an Uno
+ * resets when its port is opened) and runs against the wall clock (--speed below).  With
+ * --lockstep-fd FD (a connected stream socket it inherits) it prints "LOCKSTEP" and the emulated
+ * time moves only when the host grants it (the lock-step exchange below), so what the firmware
+ * sees does not depend on how fast either process runs.  Either way it runs until SIGTERM or
  * SIGINT, or until the process that started it is gone (its parent pid changes: a parent killed
- * by SIGKILL cannot stop it), and prints one "STATS ..." line on stdout when it stops. SIGUSR1
- * hangs the firmware (an endless loop with interrupts on) to test the AVR watchdog.
+ * by SIGKILL cannot stop it; in lock-step also when the host closes its socket), and prints one
+ * "STATS ..." line on stdout when it stops. SIGUSR1 hangs the firmware (an endless loop with
+ * interrupts on) to test the AVR watchdog.
+ *
+ * The lock-step exchange (little-endian): the host sends a grant, `until_cycle u64,
+ * stop_on_frame u32, id u32, n u32` and n bytes for the UART; the harness queues the bytes as input (fed
+ * to the UART as its XON/XOFF allows, so they arrive at the cycle the grant starts), runs the AVR
+ * until its cycle count reaches until_cycle (to the end of the instruction or sleep that crosses
+ * it), or, with stop_on_frame, until the AVR has sent a frame delimiter (0x00), or until 60 kB of
+ * output wait, and answers `cycle u64, state u32 (simavr's cpu state), id u32 (the grant's), n u32`
+ * and the n bytes the AVR sent meanwhile.  A grant below the current cycle only delivers its bytes.  The host's bytes
+ * thus reach the firmware at an emulated instant fixed by the exchange, never by the wall clock.
  *
  * The motor  d omega/dt = -a omega + b u - c sign(omega)  is integrated exactly (zero-order
  * hold) over sub-steps of --substep-cycles CPU cycles (default 16 = 1 us). The drive u is read
@@ -31,7 +45,7 @@
  * --encoder-rate R ignores the motor and turns the encoder at exactly R counts/s (4x counts):
  * that is how the firmware's encoder ceiling is measured.
  *
- * Time: simavr runs free, faster than real time on a desktop. The host times its HEARTBEATs on
+ * Time in real-time mode: simavr runs free, faster than real time on a desktop. The host times its HEARTBEATs on
  * the wall clock while the firmware's host-silence watchdog counts emulated time, so an
  * emulation running more than 4x faster than the wall clock would starve the watchdog. --speed
  * caps emulated time at that multiple of the wall clock (default 1.0: emulated time never runs
@@ -61,6 +75,8 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
+#include <stdint.h>
+#include <sys/socket.h>
 #include <termios.h>
 
 #include <simavr/avr_ioport.h>
@@ -378,6 +394,7 @@ typedef struct bridge {
     int xoff;
     avr_irq_t *uart_input;
     uint64_t overflows;
+    int frame_ended;            /* the AVR sent a 0x00 (lock-step: the end of a frame) */
 } bridge_t;
 
 static size_t bridge_pending(const bridge_t *b) { return (b->out_write - b->out_read) & (OUT_RING - 1); }
@@ -392,6 +409,7 @@ static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param) {
     if (bridge_pending(b) == OUT_RING - 1) { b->overflows++; return; }
     b->out[b->out_write] = (uint8_t)value;
     b->out_write = (b->out_write + 1) & (OUT_RING - 1);
+    if ((uint8_t)value == 0) b->frame_ended = 1;
 }
 
 static void on_uart_xon(struct avr_irq_t *irq, uint32_t value, void *param) {
@@ -407,6 +425,18 @@ static void on_uart_xoff(struct avr_irq_t *irq, uint32_t value, void *param) {
     b->xoff = 1;
 }
 
+/* The AVR's UART0 wired to the bridge's queues (both modes). */
+static void bridge_wire_uart(bridge_t *b, avr_t *avr) {
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);   /* binary; never usleep */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    b->uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_output, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_uart_xon, b);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_uart_xoff, b);
+}
+
 static int bridge_open(bridge_t *b, avr_t *avr) {
     memset(b, 0, sizeof(*b));
     b->xoff = 1;   /* until the UART says XON: bytes sent before the receiver is on are lost */
@@ -418,14 +448,7 @@ static int bridge_open(bridge_t *b, avr_t *avr) {
     close(b->slave);   /* so that the master sees POLLHUP until the host opens the port */
     b->slave = -1;
     fcntl(b->master, F_SETFL, fcntl(b->master, F_GETFL) | O_NONBLOCK);
-    uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
-    flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);   /* binary; never usleep */
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
-    b->uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_output, b);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_uart_xon, b);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_uart_xoff, b);
+    bridge_wire_uart(b, avr);
     return 0;
 }
 
@@ -462,7 +485,7 @@ static void usage(const char *argv0) {
     fprintf(stderr,
             "usage: %s FIRMWARE.elf [--a A] [--b B] [--friction C] [--counts-per-rev N]\n"
             "          [--encoder-rate COUNTS_PER_S] [--driver dir-pwm|in1-in2] [--speed X]\n"
-            "          [--substep-cycles N] [--boot-delay S]\n",
+            "          [--substep-cycles N] [--boot-delay S] [--lockstep-fd FD]\n",
             argv0);
 }
 
@@ -482,6 +505,7 @@ typedef struct options {
     const char *firmware;
     double speed_cap;     /* largest emulated / wall time ratio, 0 = free */
     double boot_delay;    /* s between the host opening the pty and the AVR starting */
+    int lockstep_fd;      /* the host's socket in lock-step mode, -1 in real time */
 } options_t;
 
 /* Reads the command line into s and o; returns 0, or the exit status after a message. */
@@ -491,7 +515,7 @@ static int parse_options(int argc, char **argv, harness_t *s, options_t *o) {
         {"friction", required_argument, 0, 'f'},   {"counts-per-rev", required_argument, 0, 'n'},
         {"encoder-rate", required_argument, 0, 'r'}, {"driver", required_argument, 0, 'd'},
         {"speed", required_argument, 0, 's'},      {"substep-cycles", required_argument, 0, 'c'},
-        {"boot-delay", required_argument, 0, 'w'},
+        {"boot-delay", required_argument, 0, 'w'}, {"lockstep-fd", required_argument, 0, 'l'},
         {0, 0, 0, 0}};
     int opt;
     while ((opt = getopt_long(argc, argv, "", options, NULL)) != -1) {
@@ -504,6 +528,7 @@ static int parse_options(int argc, char **argv, harness_t *s, options_t *o) {
             case 's': o->speed_cap = parse_number("speed", optarg); break;
             case 'c': s->substep = (uint32_t)parse_number("substep-cycles", optarg); break;
             case 'w': o->boot_delay = parse_number("boot-delay", optarg); break;
+            case 'l': o->lockstep_fd = (int)parse_number("lockstep-fd", optarg); break;
             case 'd':
                 if (!strcmp(optarg, "dir-pwm")) s->driver = DRIVER_DIR_PWM;
                 else if (!strcmp(optarg, "in1-in2")) s->driver = DRIVER_IN1_IN2;
@@ -534,6 +559,10 @@ static int check_options(const harness_t *s, const options_t *o) {
     }
     if (o->boot_delay < 0 || o->boot_delay > 10) {
         fprintf(stderr, "motorid-avr-sim: --boot-delay must be 0...10 s, got %g\n", o->boot_delay); return 2;
+    }
+    if (o->lockstep_fd != -1 && (o->lockstep_fd < 0 || fcntl(o->lockstep_fd, F_GETFD) < 0)) {
+        fprintf(stderr, "motorid-avr-sim: --lockstep-fd must be an open descriptor, got %d\n", o->lockstep_fd);
+        return 2;
     }
     if (o->speed_cap < 0) {
         fprintf(stderr, "motorid-avr-sim: --speed must be >= 0, got %g\n", o->speed_cap); return 2;
@@ -570,6 +599,14 @@ static int start_avr(harness_t *s, const char *firmware) {
     return 0;
 }
 
+/* The motor timer again after an AVR reset cleared simavr's cycle timers. */
+static void keep_motor_timer(harness_t *s) {
+    if (!avr_cycle_timer_status(s->avr, motor_step, s)) {
+        s->resets++;
+        avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
+    }
+}
+
 /* Every 4096 avr_run() calls: host flow control, the motor timer after a reset, the speed cap. */
 static void housekeeping(harness_t *s, bridge_t *pty, double speed_cap, double wall0, avr_cycle_count_t cycle0) {
     /* Flow control towards the host: while more than 4 kB of the AVR's output wait for a
@@ -583,10 +620,7 @@ static void housekeeping(harness_t *s, bridge_t *pty, double speed_cap, double w
         bridge_poll(pty);
     }
     should_stop();                                          /* the parent may be gone */
-    if (!avr_cycle_timer_status(s->avr, motor_step, s)) {   /* cleared by an AVR reset */
-        s->resets++;
-        avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
-    }
+    keep_motor_timer(s);                                    /* cleared by an AVR reset */
     if (speed_cap > 0) {
         double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
         double ahead = emulated / speed_cap - (wall_seconds() - wall0);
@@ -595,6 +629,17 @@ static void housekeeping(harness_t *s, bridge_t *pty, double speed_cap, double w
             nanosleep(&ts, NULL);
         }
     }
+}
+
+static void print_stats(harness_t *s, double wall0, avr_cycle_count_t cycle0, int state) {
+    double wall = wall_seconds() - wall0;
+    double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
+    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
+           "stack_bytes=%d flow_pauses=%llu unwatched_drive_changes=%llu state=%d\n",
+           emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s->emitted,
+           (unsigned long long)s->edges, (unsigned long long)s->resets, s->speed, 0x8FF - s->min_sp,
+           (unsigned long long)s->flow_pauses, (unsigned long long)s->unwatched_changes, state);
+    fflush(stdout);
 }
 
 /* Runs the AVR until a signal stops it or it crashes; prints the STATS line; returns the state. */
@@ -615,14 +660,109 @@ static int run_emulation(harness_t *s, bridge_t *pty, double speed_cap) {
         n = 0;
         housekeeping(s, pty, speed_cap, wall0, cycle0);
     }
-    double wall = wall_seconds() - wall0;
-    double emulated = (s->avr->cycle - cycle0) / (double)s->avr->frequency;
-    printf("STATS emulated_s=%.6f wall_s=%.6f ratio=%.3f counts=%lld edges=%llu resets=%llu speed_rad_s=%.6f "
-           "stack_bytes=%d flow_pauses=%llu unwatched_drive_changes=%llu state=%d\n",
-           emulated, wall, wall > 0 ? emulated / wall : 0.0, (long long)s->emitted,
-           (unsigned long long)s->edges, (unsigned long long)s->resets, s->speed, 0x8FF - s->min_sp,
-           (unsigned long long)s->flow_pauses, (unsigned long long)s->unwatched_changes, state);
-    fflush(stdout);
+    print_stats(s, wall0, cycle0, state);
+    return state;
+}
+
+/* Reads exactly n bytes from the host's socket, polling so that a stop or the parent's death is
+   seen; 0, or -1 when the host has closed it (or a stop was asked for). */
+static int read_exactly(int fd, void *buffer, size_t n) {
+    uint8_t *p = buffer;
+    while (n > 0) {
+        if (should_stop()) return -1;
+        struct pollfd pfd = {fd, POLLIN, 0};
+        if (poll(&pfd, 1, 100) <= 0) continue;
+        ssize_t got = read(fd, p, n);
+        if (got == 0) return -1;
+        if (got < 0) { if (errno == EINTR || errno == EAGAIN) continue; return -1; }
+        p += got;
+        n -= (size_t)got;
+    }
+    return 0;
+}
+
+static int write_exactly(int fd, const void *buffer, size_t n) {
+    const uint8_t *p = buffer;
+    while (n > 0) {
+        ssize_t done = write(fd, p, n);
+        if (done < 0) { if (errno == EINTR || errno == EAGAIN) continue; return -1; }
+        p += done;
+        n -= (size_t)done;
+    }
+    return 0;
+}
+
+static uint64_t get_u64(const uint8_t *p) {
+    uint64_t v = 0;
+    for (int i = 7; i >= 0; i--) v = (v << 8) | p[i];
+    return v;
+}
+
+static uint32_t get_u32(const uint8_t *p) { return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24; }
+
+static void put_u64(uint8_t *p, uint64_t v) { for (int i = 0; i < 8; i++) { p[i] = (uint8_t)v; v >>= 8; } }
+
+static void put_u32(uint8_t *p, uint32_t v) { for (int i = 0; i < 4; i++) { p[i] = (uint8_t)v; v >>= 8; } }
+
+#define LOCKSTEP_OUT_LIMIT (OUT_RING - 4096)   /* a grant stops early with this much output waiting */
+
+/* Lock-step: emulated time moves only as the host grants it (the exchange is described at the
+   top); returns the CPU state when the host goes away or a stop is asked for. */
+static int run_lockstep(harness_t *s, bridge_t *b, int fd) {
+    avr_cycle_timer_register(s->avr, s->substep, motor_step, s);
+    double wall0 = wall_seconds();
+    avr_cycle_count_t cycle0 = s->avr->cycle;
+    int state = cpu_Running;
+    static uint8_t reply[20 + OUT_RING];
+    while (!should_stop()) {
+        uint8_t header[20];
+        if (read_exactly(fd, header, sizeof(header)) != 0) break;
+        avr_cycle_count_t until = get_u64(header);
+        int stop_on_frame = get_u32(header + 8) != 0;
+        uint32_t id = get_u32(header + 12);
+        uint32_t n = get_u32(header + 16);
+        if (b->in_pos > 0) {                      /* keep what the UART has not taken, at the front */
+            memmove(b->in, b->in + b->in_pos, b->in_len - b->in_pos);
+            b->in_len -= b->in_pos;
+            b->in_pos = 0;
+        }
+        if (n > sizeof(b->in) - b->in_len) {
+            fprintf(stderr, "motorid-avr-sim: the host sent %u bytes, more than the %zu the UART's queue has left\n",
+                    n, sizeof(b->in) - b->in_len);
+            break;
+        }
+        if (n && read_exactly(fd, b->in + b->in_len, n) != 0) break;
+        b->in_len += n;
+        bridge_feed(b);
+        b->frame_ended = 0;
+        uint32_t steps = 0;
+        while (!stop_requested && state != cpu_Done && state != cpu_Crashed && s->avr->cycle < until
+               && !(stop_on_frame && b->frame_ended) && bridge_pending(b) < LOCKSTEP_OUT_LIMIT) {
+            state = avr_run(s->avr);
+            if (hang_requested && s->avr->sreg[S_I]) {
+                hang_requested = 0;
+                hang_firmware(s->avr);
+            }
+            if (++steps >= 4096) {
+                steps = 0;
+                keep_motor_timer(s);
+                if (should_stop()) break;
+            }
+        }
+        keep_motor_timer(s);
+        size_t out = 0;
+        while (bridge_pending(b)) {
+            reply[20 + out++] = b->out[b->out_read];
+            b->out_read = (b->out_read + 1) & (OUT_RING - 1);
+        }
+        put_u64(reply, s->avr->cycle);
+        put_u32(reply + 8, (uint32_t)state);
+        put_u32(reply + 12, id);
+        put_u32(reply + 16, (uint32_t)out);
+        if (write_exactly(fd, reply, 20 + out) != 0) break;
+        if (state == cpu_Done || state == cpu_Crashed) break;
+    }
+    print_stats(s, wall0, cycle0, state);
     return state;
 }
 
@@ -635,24 +775,34 @@ int main(int argc, char **argv) {
     s.counts_per_rev = 16667.0;
     s.substep = 16;
     s.min_sp = 0x8FF;
-    options_t o = {NULL, 1.0, 0.05};
+    options_t o = {NULL, 1.0, 0.05, -1};
     int status = parse_options(argc, argv, &s, &o);
     if (!status) status = check_options(&s, &o);
     if (!status) status = start_avr(&s, o.firmware);
     if (status) return status;
 
     static bridge_t pty;   /* static: 70 kB */
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGHUP, on_signal);
+    signal(SIGUSR1, on_hang);
+    signal(SIGPIPE, SIG_IGN);
+    if (o.lockstep_fd >= 0) {
+        memset(&pty, 0, sizeof(pty));
+        pty.master = pty.slave = -1;
+        pty.xoff = 1;
+        bridge_wire_uart(&pty, s.avr);
+        printf("LOCKSTEP\n");
+        fflush(stdout);
+        int state = run_lockstep(&s, &pty, o.lockstep_fd);
+        _exit(state == cpu_Crashed ? 1 : 0);
+    }
     if (bridge_open(&pty, s.avr) != 0) {
         fprintf(stderr, "motorid-avr-sim: cannot open a pseudo-terminal: %s\n", strerror(errno));
         return 1;
     }
     printf("PTY %s\n", pty.slave_name);
     fflush(stdout);
-
-    signal(SIGTERM, on_signal);
-    signal(SIGINT, on_signal);
-    signal(SIGHUP, on_signal);
-    signal(SIGUSR1, on_hang);
 
     /* A real Uno boots when the host opens the port (DTR reset) and then sits ~1 s in its
        bootloader; the emulated one starts when the host opens the pty, after --boot-delay

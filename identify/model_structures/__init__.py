@@ -11,7 +11,7 @@ tests (``docs/develop.md`` walks through an example).
 """
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 from motorsim.checks import ParameterError
 
@@ -19,7 +19,8 @@ from .base import ModelStructure, Parameter
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
 
-__all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of"]
+__all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of",
+           "structure_fitted"]
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
@@ -55,11 +56,31 @@ def structure(name: str | ModelStructure) -> ModelStructure:
     return found[name]
 
 
-def structure_of(method: str, param_names: tuple[str, ...]) -> ModelStructure:
-    """The structure an estimate of ``method`` with fitted ``param_names`` belongs to.
+def structure_fitted(param_names: Sequence[str]) -> ModelStructure:
+    """The registered structure whose parameters are exactly ``param_names`` (in any order).
 
-    Estimates read from files of the first format, and estimators that do not say, are placed
-    by what they fitted: a dead zone or friction (``oe-friction``), a bias, else the linear motor.
+    What an :class:`identify.Estimate` made without naming its structure belongs to (every
+    estimator names it; this is for estimates a user makes by hand).
+
+    Raises
+    ------
+    ParameterError
+        No registered structure fits exactly these parameters: name the structure.
+    """
+    names = set(param_names)
+    found = [s for s in REGISTERED if set(s.param_names) == names]
+    if not found:
+        known = ", ".join(f"{s.name} {list(s.param_names)}" for s in REGISTERED)
+        raise ParameterError(f"structure must be given for the parameters {list(param_names)}: no registered "
+                             f"structure fits exactly them ({known})")
+    return found[0]
+
+
+def structure_of(method: str, param_names: tuple[str, ...]) -> ModelStructure:
+    """The structure an estimate of ``method`` with fitted ``param_names`` belongs to, in a file of the
+    first format (which did not record it).
+
+    Placed by what was fitted: a dead zone or friction (``oe-friction``), a bias, else the linear motor.
     """
     if method == "oe-friction":
         return structure("dead-zone" if "dead_zone" in param_names else

@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, check_real
-from motorsim.plant import Motor, Trajectory, simulate
+from motorsim.plant import Motor, Stepper, Trajectory, first_order_coefficients, simulate
+
+from ..estimators import OE, Estimator
 
 if TYPE_CHECKING:
     import control
@@ -86,10 +88,11 @@ class ModelStructure:
     fixed : mapping of str to float
         Parameters of the wider family this structure holds at a value (``friction = 0`` for a
         linear one); :meth:`values` fills them in.
-    method : str
-        The estimator that fits it (``identify.fit(rec, method, **options)``).
+    estimator : identify.estimators.Estimator
+        The estimator that fits it, as an object (:attr:`method` is its name:
+        ``identify.fit(rec, method, **options)``).
     options : mapping
-        The options that make ``method`` fit exactly this structure.
+        The options that make its estimator fit exactly this structure.
     linear : bool
         Whether the model is linear in the input (a bias counts as linear: an affine input);
         the default screens the nonlinear ones.
@@ -105,11 +108,16 @@ class ModelStructure:
     description: str = ""
     parameters: tuple[Parameter, ...] = ()
     fixed: Mapping[str, float] = {}
-    method: str = ""
+    estimator: Estimator = OE
     options: Mapping[str, Any] = {}
     linear: bool = True
     in_default: bool = True
     rank: int = 0
+
+    @property
+    def method(self) -> str:
+        """The name of the estimator that fits it (``identify.fit(rec, method, **options)``)."""
+        return self.estimator.name
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -156,6 +164,22 @@ class ModelStructure:
         v = self.values(values)
         return Motor(v["a"], v["b"], friction=v.get("friction", 0.0), bias=v.get("bias", 0.0),
                      dead_zone=v.get("dead_zone", 0.0), input_delay=input_delay)
+
+    def state_space(self, values: Mapping[str, float]) -> control.StateSpace:
+        """Its continuous system, the linear part with these values: states ``angle``, ``speed`` (and the
+        structure's own, e.g. the lag's ``current``), input ``duty``, outputs ``angle`` and ``speed``
+        (:meth:`motorsim.plant.Motor.state_space`; delay and nonlinear parts omitted)."""
+        return self.plant(values).state_space()
+
+    def discretise(self, values: Mapping[str, float], sample_period: float) -> control.StateSpace:
+        """Its exact discretisation over a held sample (zero-order hold) at ``sample_period`` s, the linear
+        part (:meth:`motorsim.plant.Motor.discretise`)."""
+        return self.plant(values).discretise(sample_period)
+
+    def stepper(self, values: Mapping[str, float], intervals) -> Stepper:
+        """One exact step of its state per sample interval, every part included (:class:`motorsim.plant.Stepper`:
+        what a per-sample loop runs; the input delay is the caller's delay line)."""
+        return Stepper(self.plant(values), intervals)
 
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
@@ -227,8 +251,8 @@ class ModelStructure:
                                                                                                 list[float]]:
         """Numerator and denominator in ``z`` of the exact zero-order-hold model (no delay)."""
         v = self.values(values)
-        a, b, h = v["a"], v["b"], sample_period
-        return [-b / a * math.expm1(-a * h)], [1.0, -math.exp(-a * h)]
+        e, p, _ = first_order_coefficients(v["a"], sample_period)
+        return [v["b"] * p], [1.0, -e]
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}: {', '.join(self.param_names)}>"

@@ -19,6 +19,7 @@ import numpy as np
 
 from motorsim.plant import Motor
 
+from ..estimators import OE, OE_FRICTION
 from .base import ModelStructure, Parameter
 
 if TYPE_CHECKING:
@@ -62,7 +63,7 @@ class FirstOrder(ModelStructure):
     description = "linear (oe)"
     parameters: tuple[Parameter, ...] = (POLE, GAIN)
     fixed: Mapping[str, float] = {"friction": 0.0, "bias": 0.0, "dead_zone": 0.0}
-    method = "oe"
+    estimator = OE
     options: Mapping[str, object] = {}
 
     def segment_output(self, values: Mapping[str, float], segment: Segment) -> np.ndarray:
@@ -76,7 +77,7 @@ class FirstOrder(ModelStructure):
                             bias=float(values.get("bias", 0.0)), uniform=segment.uniform, sensitivities=False)
         angle = segment.kind == "angle"
         # the initial speed (and angle offset) by least squares: the measured output less what is left
-        s0 = (resp.angle_sensitivity if angle else resp.speed_sensitivity)[:, 2]
+        s0 = resp.angle_initial_speed if angle else resp.speed_initial_speed
         left, = project_out_initial_state(s0, angle, segment.output - (resp.angle if angle else resp.speed))
         return segment.output - left
 
@@ -115,7 +116,7 @@ class CoulombFriction(FirstOrder):
     description = "Coulomb friction c and bias d (oe-friction)"
     parameters: tuple[Parameter, ...] = (POLE, GAIN, FRICTION, BIAS)
     fixed: Mapping[str, float] = {"dead_zone": 0.0}
-    method = "oe-friction"
+    estimator = OE_FRICTION
     options: Mapping[str, object] = {"dead_zone": False}
     linear = False
 

@@ -17,6 +17,7 @@ import numpy as np
 from motorsim.checks import ParameterError, check_real
 from motorsim.plant import Motor, lag_coefficients, lag_response
 
+from ..estimators import OE_ELECTRICAL
 from .base import ModelStructure, Parameter
 from .first_order import BIAS, GAIN, POLE
 
@@ -36,7 +37,7 @@ class SecondOrder(ModelStructure):
     description = "an electrical pole 1/tau_e behind the motor's, and a bias d (oe-electrical)"
     parameters: tuple[Parameter, ...] = (POLE, GAIN, _TAU, BIAS)
     fixed: Mapping[str, float] = {"friction": 0.0, "dead_zone": 0.0}
-    method = "oe-electrical"
+    estimator = OE_ELECTRICAL
     options: Mapping[str, object] = {}
     rank = 1
     formula = "b/((s + a)(tau_e s + 1))"

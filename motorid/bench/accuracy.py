@@ -185,7 +185,9 @@ def _rel(est, a, b) -> tuple[float, float]:
 
 
 def _fit_or_nan(method, rec, a, b, **kw):
-    from identify import NotIdentifiableError, fit
+    from identify import NotIdentifiableError, fit, method_options
+    if "input_delay" in method_options(method):
+        kw.setdefault("input_delay", 0)                   # these runs have none: the fit at the known delay
     try:
         return _rel(fit(rec, method=method, outliers="keep", **kw), a, b)
     except NotIdentifiableError:
@@ -317,7 +319,7 @@ def _section_friction(args, rng) -> bool:
                                         dead_zone=dz)
             for j, (a_, b_, c_, dz_, label, duty) in enumerate(sub):
                 rec = make_recording(angles[:, j], duty, t, dt, cpr)
-                fr = fit(rec, method="oe-friction", outliers="keep")
+                fr = fit(rec, method="oe-friction", outliers="keep", input_delay=0)
                 fa, fb = _rel(fr, a_, b_)
                 oa, ob = _fit_or_nan("oe", rec, a_, b_)
                 bad = not (abs(fa) <= 0.02 and abs(fb) <= 0.02)
@@ -343,7 +345,7 @@ def _section_monte_carlo(args) -> bool:
         rng = np.random.default_rng(child)
         try:
             fitted = fit(make_recording(angle, duty, t, dt, cpr, rng=rng, angle_noise=noise), method="oe",
-                         outliers="keep")
+                         outliers="keep", input_delay=0)
             rows.append((fitted.a, fitted.b, fitted.stderr()["a"], fitted.stderr()["b"]))
         except NotIdentifiableError:
             pass
@@ -387,7 +389,7 @@ def coverage_run(regime, duty: np.ndarray, dt: float, rng) -> tuple[bool, bool, 
 
     Randomness: the encoder's phase (a uniform offset within one count), the angle noise and the
     sample instants' jitter (the recording keeps the nominal clock, as the firmware does)."""
-    from identify import NotIdentifiableError, fit
+    from identify import NotIdentifiableError, fit, method_options
     label, method, cpr, noise, jitter, friction, delay = regime
     a, b, n = 25.0, 3.0, len(duty)
     nominal = np.arange(n) * dt
@@ -407,7 +409,7 @@ def coverage_run(regime, duty: np.ndarray, dt: float, rng) -> tuple[bool, bool, 
         angle = _NOISE_FREE_ANGLES[key]
     angle = angle + rng.uniform(0.0, 2 * math.pi / cpr)
     rec = make_recording(angle, duty, nominal, dt, cpr, rng=rng, angle_noise=noise)
-    options: dict = {"input_delay": delay} if delay else {}
+    options: dict = {"input_delay": delay} if delay or "input_delay" in method_options(method) else {}
     if method == "oe-friction":
         options["dead_zone"] = False
     try:
@@ -600,14 +602,14 @@ def _time_fits(rec: Recording, repeats: int) -> str:
     from identify import fit_zoh_ls
     from identify.instrumental import fit_instrumental_variables
     from identify.output_error import fit_output_error
-    t_an = median_time(lambda: fit_output_error(rec), repeats)
-    t_fd = median_time(lambda: fit_output_error(rec, jac="2-point"), repeats)
+    t_an = median_time(lambda: fit_output_error(rec, input_delay=0), repeats)
+    t_fd = median_time(lambda: fit_output_error(rec, jac="2-point", input_delay=0), repeats)
     t_ls = median_time(lambda: fit_zoh_ls(rec), repeats)
-    t_iv = median_time(lambda: fit_instrumental_variables(rec), repeats)
+    t_iv = median_time(lambda: fit_instrumental_variables(rec, input_delay=0), repeats)
     if rec.has_gaps:
         plain = "(b) n/a: one gap-free run only"
     else:
-        ours = fit_output_error(rec)
+        ours = fit_output_error(rec, input_delay=0)
         naive = naive_output_error(rec)
         agree = max(abs(naive[0] / ours.a - 1), abs(naive[1] / ours.b - 1))
         t_nv = median_time(lambda: naive_output_error(rec), repeats)
@@ -644,10 +646,11 @@ def _time_friction(args) -> None:
     for zone in (0.0, 10.0):
         rec = make_recording(rk4_friction_angle(a, b, c, 0.0, duty[:, None], t, dead_zone=zone)[:, 0],
                              duty, t, dt, cpr)
-        t_oe, t_fr = _interleaved_medians([functools.partial(fit, rec, method="oe"),
-                                           functools.partial(fit, rec, method="oe-friction", dead_zone=zone > 0)],
+        t_oe, t_fr = _interleaved_medians([functools.partial(fit, rec, method="oe", input_delay=0),
+                                           functools.partial(fit, rec, method="oe-friction", dead_zone=zone > 0,
+                                                             input_delay=0)],
                                           args.repeats)
-        fr = fit(rec, method="oe-friction", outliers="keep", dead_zone=zone > 0)
+        fr = fit(rec, method="oe-friction", outliers="keep", dead_zone=zone > 0, input_delay=0)
         fa, fb = _rel(fr, a, b)
         print(f"  dead zone {zone:4g}: oe {t_oe * 1e3:6.1f} ms, oe-friction {t_fr * 1e3:6.1f} ms, "
               f"ratio {t_fr / t_oe:5.2f} x; oe-friction error a {_pct(fa)} b {_pct(fb)} %, "

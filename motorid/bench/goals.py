@@ -3,9 +3,11 @@
 Each goal is declared once, as a :class:`Goal` next to the benchmark that measures it (its
 module's ``GOALS``); the benchmark prints every figure with its goal, and its ``goal_figures()``
 returns ``(goal, figure)`` pairs for the gate.  Figures are ratios against a baseline measured
-in the same run (a slower machine slows both) or, where the goal is a wall-clock budget on a
-user's file, seconds.  ``motorid bench --check`` runs every benchmark of :data:`GATED`, prints
-each figure with its goal and exits with status 1 when one is missed: run it before a change
+in the same run (a slower machine slows both) or, where the goal is a budget on a user's file,
+seconds; both in CPU time where the work is single-threaded (:mod:`motorid.bench.timing`), and
+each over a small family of recordings, the worst kept.  ``motorid bench --check`` runs every
+benchmark of :data:`GATED`, prints each figure with its goal and exits with status 1 when one is
+missed (an open goal, :attr:`Goal.held`, only beyond the figure it holds): run it before a change
 lands (``docs/develop.md``).  It is not part of ``make test``: timings are noisy, and the tests
 never assert wall-clock times; the gate's logic is tested with made-up figures.
 """
@@ -35,34 +37,49 @@ class Goal:
         Unit of the figure (``x`` for a ratio, ``s``).
     at_most : bool
         True: the figure must be at most ``limit`` (a time); False: at least (a speed-up).
+    held : float, optional
+        For a goal not reached yet: the figure the code keeps meanwhile (what it measures now, with
+        the margin of a busy machine).  Its line still says MISSED, but the gate fails only beyond
+        ``held``, so a change that makes it worse is still caught.  None (default): the gate fails
+        whenever the goal is missed.
     """
 
     name: str
     limit: float
     unit: str = "x"
     at_most: bool = True
+    held: float | None = None
 
     def met(self, figure: float) -> bool:
         """Whether ``figure`` keeps the goal (a figure that is not a number never does)."""
+        return self._within(figure, self.limit)
+
+    def fails(self, figure: float) -> bool:
+        """Whether ``figure`` fails the gate: the goal missed, and for an open goal its ``held`` figure too."""
+        return not self.met(figure) and (self.held is None or not self._within(figure, self.held))
+
+    def _within(self, figure: float, limit: float) -> bool:
         if not math.isfinite(figure):
             return False
-        return figure <= self.limit if self.at_most else figure >= self.limit
+        return figure <= limit if self.at_most else figure >= limit
 
     def line(self, figure: float) -> str:
-        """``name  figure unit  goal <= limit unit: met`` (or ``MISSED``)."""
+        """``name  figure unit  goal <= limit unit: met`` (or ``MISSED``, with the figure an open goal holds)."""
         sign = "<=" if self.at_most else ">="
-        return (f"{self.name:72s} {figure:8.3g} {self.unit:1s}   goal {sign} {self.limit:g} {self.unit}: "
-                f"{'met' if self.met(figure) else 'MISSED'}")
+        status = "met" if self.met(figure) else "MISSED"
+        if self.held is not None and not self.met(figure):
+            status += f" (open; the gate fails {'above' if self.at_most else 'below'} {self.held:g} {self.unit})"
+        return f"{self.name:72s} {figure:8.3g} {self.unit:1s}   goal {sign} {self.limit:g} {self.unit}: {status}"
 
 
 def report(figures: Iterable[tuple[Goal, float]], stream: TextIO | None = None) -> int:
-    """Print each figure with its goal; 1 when a goal is missed, else 0."""
+    """Print each figure with its goal; 1 when one fails the gate (:meth:`Goal.fails`), else 0."""
     out = sys.stdout if stream is None else stream
-    missed = 0
+    failed = 0
     for goal, figure in figures:
         print(goal.line(figure), file=out)
-        missed += not goal.met(figure)
-    return 1 if missed else 0
+        failed += goal.fails(figure)
+    return 1 if failed else 0
 
 
 #: The benchmarks the gate runs: name -> the module whose ``goal_figures()`` measures its goals.
@@ -94,13 +111,14 @@ def run_check(names: Sequence[str] = (), stream: TextIO | None = None,
     Returns
     -------
     int
-        1 when a goal is missed (or a benchmark gives no figure for a goal it declares), else 0.
+        1 when a goal is missed (an open goal: beyond its ``held`` figure), or a benchmark gives no figure for a
+        goal it declares; else 0.
     """
     out = sys.stdout if stream is None else stream
     unknown = [n for n in names if n not in GATED]
     if unknown:
         raise ValueError(f"names must be among {list(GATED)}, got {unknown}")
-    status = 0
+    status = opened = 0
     for name in names or list(GATED):
         module = GATED[name]
         print(f"[{name}]", file=out, flush=True)
@@ -109,6 +127,10 @@ def run_check(names: Sequence[str] = (), stream: TextIO | None = None,
         measured = {goal for goal, _ in figures}
         figures += [(goal, math.nan) for goal in declared if goal not in measured]
         status |= report(figures, out)
+        opened += sum(not goal.met(figure) and not goal.fails(figure) for goal, figure in figures)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
-    print(f"{'all goals met' if status == 0 else 'a goal was MISSED'} (load average {load:.1f})", file=out)
+    summary = "a goal was MISSED" if status else "every goal held" if opened else "all goals met"
+    if opened and not status:
+        summary += f", {opened} of them open (MISSED, within the figure held)"
+    print(f"{summary} (load average {load:.1f})", file=out)
     return status

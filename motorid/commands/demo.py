@@ -192,8 +192,11 @@ def run_closed_loop_part(args: argparse.Namespace, rig: Rig, rows: Sequence[Demo
     from motorid.ranges import check_reference_times
     from motorsim.control import PlantModel, parse_reference
     first = {r.method: r.estimate for r in rows if r.input_name == "eta_1" and r.estimate is not None}
-    truth = PlantModel(args.a, args.b, args.sample_period, args.counts_per_rev, friction=args.friction,
-                       bias=args.bias, input_delay=args.input_delay)
+    from motorsim.rig import SimRig
+    # the simulated rig's own plant, every part of it (a dead zone, static friction, an electrical lag too)
+    truth = (PlantModel.from_source(rig.motor, args.sample_period, args.counts_per_rev) if isinstance(rig, SimRig)
+             else PlantModel(args.a, args.b, args.sample_period, args.counts_per_rev, friction=args.friction,
+                             bias=args.bias, input_delay=args.input_delay))
     designs = [("truth", truth)] + [(m, first[m]) for m in ("euler-ls", "oe") if m in first]
     reference = check_reference_times(parse_reference(args.reference), args.sample_period)
     closed = compare_designs(rig, designs, "mpc", reference, args.duration, args.sample_period, args.counts_per_rev,

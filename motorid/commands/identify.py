@@ -48,8 +48,8 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
                              "bias, Coulomb friction, dead zone - chosen by evidence, as identify.fit does; "
                              "name a method to force it)")
     parser.add_argument("--input-delay", type=_input_delay, default=None, metavar="auto|N",
-                        help="input delay in samples, or 'auto' to estimate it (oe, iv, oe-friction; default auto "
-                             "for them: one fit per candidate delay 0-10)")
+                        help="input delay in samples, or 'auto' to estimate it (default auto for every method that "
+                             "can: one fit per candidate delay 0-10, as identify.fit does)")
     parser.add_argument("--fix-bias", action="store_true",
                         help="hold the constant acceleration (bias, rad/s^2) at 0 (auto: no bias candidate; "
                              "oe-friction)")
@@ -85,23 +85,27 @@ def _reader(args: argparse.Namespace) -> Callable[[str, bool], Recording] | None
 
 def estimator_options(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword options the flags give the estimator; a flag the method does not take is an error."""
-    from identify import option_declarations
-    declared = {o.name: o for o in option_declarations(args.method)}
-    accepted = tuple(declared)
+    from identify import method_options
+    accepted = method_options(args.method)
     options = {}
     for flag, (name, unset) in _OPTION_FLAGS.items():
         value = getattr(args, name)
-        if value is unset and name == "input_delay" and name in accepted and "auto" in declared[name].kind:
-            # the default where the method can search it: a missed delay biases a fit by far more than it costs
-            # (a method whose delay is a fixed number, iv-reference or pem-disturbance, keeps its own default)
-            value = "auto"
-        if value is unset:
+        if value is unset:           # the method's own default (the input delay's: identify.data.DEFAULT_INPUT_DELAY)
             continue
         if name not in accepted:
             takes = f"its options are {', '.join(accepted)}" if accepted else "it takes no options"
             raise CommandError(f"{flag} is not supported by method {args.method!r}: {takes}")
         options[name] = value
     return options
+
+
+def _input_delay_option(args: argparse.Namespace) -> Any:
+    """The input delay the estimator was run with: the flag's, else the method's declared default (None: none)."""
+    from identify import option_declarations
+    given = estimator_options(args)
+    if "input_delay" in given:
+        return given["input_delay"]
+    return next((o.default for o in option_declarations(args.method) if o.name == "input_delay"), None)
 
 
 def run_identify(args: argparse.Namespace) -> int:
@@ -132,7 +136,7 @@ def run_identify(args: argparse.Namespace) -> int:
         from identify.selection import residual_checks
         checks = residual_checks(est, recs[0])
         say(format_selection(est.selection, checks))
-    elif estimator_options(args).get("input_delay") == "auto":
+    elif _input_delay_option(args) == "auto":
         say(f"delay       {est.input_delay} samples, the shortest within the noise of the best "
             "fit over 0-10 (--input-delay N fixes it)")
     out = est.to_dict()
@@ -204,7 +208,9 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
              + ("a clear choice" if selection.clear else "NOT a clear choice (see the note)")]
     other = selection.runner_up
     if other:
-        if other.within_noise:
+        if other.within_noise and selection.clear:      # the intervals hold it: no contradiction of "clear"
+            words = "fits as well, its a and b within the chosen one's intervals: either gives the same answer"
+        elif other.within_noise:
             words = "the data cannot tell it from the chosen one"
         else:
             words = f"fits worse by {other.statistic:.3g} noise units (the test's threshold is about 11)"
@@ -219,13 +225,15 @@ def format_selection(selection: SelectionReport, checks: dict[str, float]) -> st
         verdict(checks["whiteness_p"], "white", "NOT white"),
         verdict(checks["input_p"], "independent of the input", "CORRELATED with the input"),
         verdict(checks["sign_p"], "independent of sign(speed)", "CORRELATED with sign(speed): friction?")]))
+    for check in selection.checks:
+        lines.append(f"  parts     {check.describe()}")
     return "\n".join(lines)
 
 
 def format_estimate(est) -> str:
     """Human-readable summary of an Estimate (value, standard error, 95 % interval) and its kS, kV, kA;
     for data in another speed unit (rpm, ...), the speed figures in that unit too."""
-    from identify.feedforward import feedforward_constants
+    from identify.feedforward import apart, feedforward_constants
     text = f"{est}\n{feedforward_constants(est).describe()}"
     figures = in_speed_unit(est)
     if figures is None:
@@ -241,7 +249,7 @@ def format_estimate(est) -> str:
                      f"{est.input_limit:g} {u} (b/a x limit, linear model)")
     ff = figures["feedforward"]
     lines.append("SysId      " + ", ".join(
-        f"{k} {ff[k]:.4g} [{ff[k + '_ci95'][0]:.4g}, {ff[k + '_ci95'][1]:.4g}] {ff[k + '_unit']}"
+        "{} {} [{}, {}] {}".format(k, *apart(ff[k], *ff[k + "_ci95"]), ff[k + "_unit"])
         if math.isfinite(ff[k + "_ci95"][0]) else f"{k} {ff[k]:.4g} {ff[k + '_unit']}" for k in ("kS", "kV", "kA"))
         + f" (u = kS sign(v) + kV v + kA dv/dt, v in {unit})")
     return "\n".join([text, *lines])

@@ -47,6 +47,9 @@ def add_column_arguments(parser: argparse.ArgumentParser, required: bool) -> Non
     group.add_argument("--counts", metavar="COL", help="encoder counts column (needs --counts-per-rev)")
     group.add_argument("--counts-per-rev", dest="import_counts_per_rev", type=int, metavar="N",
                        help="encoder resolution of --counts (or --angle COL:counts), counts/rev")
+    group.add_argument("--input-shift", dest="input_shift", type=int, default=0, metavar="ROWS",
+                       help="move the input column ROWS rows earlier: a log that writes each command just after "
+                            "the state it answers needs 1 (default 0)")
     group.add_argument("--input-limit", dest="input_limit", type=float, metavar="LIMIT",
                        help="largest input magnitude the drive accepts, in the input's unit (e.g. 12 for "
                             "u:V, 100 for u:%%); kept as the metadata input_limit, carried into the model "
@@ -61,8 +64,9 @@ def column_flags_given(args: argparse.Namespace) -> bool:
     """
     if any(getattr(args, q, None) is not None for q in _QUANTITIES):
         return True
-    for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit")):
-        if getattr(args, name, None) is not None:
+    for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit"),
+                       ("--input-shift", "input_shift")):
+        if getattr(args, name, None) not in (None, 0):
             raise CommandError(f"{flag} describes a foreign file's columns (with --time, --input, ...); a format-v1 "
                                f"recording states its own in its header, got {flag} {getattr(args, name)!r} alone")
     return False
@@ -77,15 +81,33 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
         rec = import_recording(path, time=args.time, input=args.input, speed=args.speed, angle=args.angle,
-                               counts=args.counts, counts_per_rev=args.import_counts_per_rev)
+                               counts=args.counts, counts_per_rev=args.import_counts_per_rev,
+                               input_shift=getattr(args, "input_shift", 0))
     for w in caught:
         print_to_stderr(f"motorid: note: {path}: {w.message}")
+    _say_gaps(path, rec)
     limit = getattr(args, "input_limit", None)
     if limit is not None:
         if not (math.isfinite(limit) and limit > 0):
             raise CommandError(f"--input-limit must be a number > 0 {rec.input_unit}, got {limit!r}")
         rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_limit": f"{limit:g}"})
     return rec
+
+
+def _say_gaps(path: str, rec: Recording) -> None:
+    """Say where the time column jumps over whole sample periods: each gap splits the run into segments fitted
+    apart (an hour's pause is a pause between runs, not 360 000 samples lost)."""
+    import numpy as np
+    steps = np.diff(np.asarray(rec.seq, dtype=np.int64)) - 1
+    gaps = np.flatnonzero(steps > 0)
+    if not len(gaps):
+        return
+    k = int(gaps[np.argmax(steps[gaps])])
+    longest = int(steps[k]) * rec.sample_period
+    print_to_stderr(f"motorid: note: {path}: the time column has {len(gaps)} gap(s), {int(steps[gaps].sum())} sample "
+                    f"periods of {rec.sample_period:g} s with no row, the longest {longest:.6g} s after t = "
+                    f"{float(rec.time[k]):.6g} s: read as {len(gaps) + 1} segments fitted apart (a pause or rows "
+                    "lost, never samples made up)")
 
 
 def _is_motorid_recording(path: str) -> bool:

@@ -54,7 +54,8 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                    help="device stops the motor after this much host silence, in ms (default 500; 0 off)")
     g.add_argument("--timeout", type=float, default=1.0, metavar="S",
                    help="give up after this long without a new sample during a run, silent or not (default 1 s); "
-                        "a run also gives up after its duration + 10 %% + 2 s + this timeout")
+                        "a run also gives up after its duration + 10 %% + 2 s + this timeout (on fake:// and "
+                        "avr-sim://, in the device's simulated seconds)")
     parser.set_defaults(counts_per_rev=None)   # default: what the device reports, else 16667
     add_experiment_arguments(parser)
     from motorid.commands.control import add_controller_arguments, add_model_arguments

@@ -42,6 +42,15 @@ class PlantModel:
         :attr:`motorsim.plant.Motor.electrical_time_constant`).  The designs use the first-order
         part (:meth:`speed_coefficients`, :meth:`first_order`); the margins, the stability
         verdict and the predicted closed loop use the full plant (:meth:`speed_transfer_function`).
+    dead_zone : float, optional
+        Duty magnitude the driver does not deliver, >= 0 (default 0), as
+        :attr:`motorsim.plant.Motor.dead_zone`.  Kept with the model (its :meth:`motor`, its metadata,
+        what ``motorid control design`` prints); the designs, like the prediction, are made on the
+        linear part and do not compensate it.
+    static_friction : float, optional
+        Static friction ``c_s`` in rad/s^2, 0 (none) or >= ``friction``, as
+        :attr:`motorsim.plant.Motor.static_friction`: kept with the model like the dead zone; the
+        feedforward terms compensate the sliding level, ``friction``.
 
     Notes
     -----
@@ -69,11 +78,12 @@ class PlantModel:
     bias: float = 0.0
     input_delay: int = 0
     electrical_time_constant: float = 0.0
+    dead_zone: float = 0.0
+    static_friction: float = 0.0
 
     def __post_init__(self):
-        motor = Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay,
-                      electrical_time_constant=self.electrical_time_constant)
-        for name in ("a", "b", "friction", "bias", "input_delay", "electrical_time_constant"):
+        motor = Motor(self.a, self.b, **{name: getattr(self, name) for name in _PLANT_PARTS})
+        for name in ("a", "b", *_PLANT_PARTS):
             object.__setattr__(self, name, getattr(motor, name))
         if self.input_delay > 50:
             raise ParameterError(f"input_delay must be <= 50 samples for a controller, got {self.input_delay!r}")
@@ -89,8 +99,10 @@ class PlantModel:
         ----------
         source : Estimate, Motor or PlantModel
             Anything with ``a`` and ``b``; an estimate's model structure gives ``friction``,
-            ``bias``, ``input_delay`` and ``electrical_time_constant`` (its plant,
-            ``Estimate.motor()``), a Motor's fields give them directly.
+            ``bias``, ``input_delay``, ``electrical_time_constant``, ``dead_zone`` and
+            ``static_friction`` (its plant, ``Estimate.motor()``), a Motor's fields give them
+            directly.  Every part of that plant is kept: ``model.motor()`` is the source's plant
+            (its delay counted at ``sample_period``), never a simpler one.
         sample_period : float, optional
             Controller sample period in s (default: the source's, if it has one).  A source
             with a sample period of its own has its input delay counted again at this one (the
@@ -109,10 +121,11 @@ class PlantModel:
                                      f"got {type(source).__name__}")
         extra = dict(getattr(source, "extra", {}) or {})
         plant = source.motor() if callable(getattr(source, "motor", None)) else source   # the structure's plant
-        for name in ("friction", "bias", "input_delay", "electrical_time_constant"):
+        for name in _PLANT_PARTS:          # the plant's value first (a stiction fit's level below friction is none)
             for holder in (plant, source):
                 if hasattr(holder, name) and not isinstance(holder, type):
-                    extra.setdefault(name, getattr(holder, name))
+                    extra[name] = getattr(holder, name)
+                    break
         own_period = getattr(source, "sample_period", None)
         sample_period = sample_period if sample_period is not None else own_period
         if sample_period is None:
@@ -122,9 +135,8 @@ class PlantModel:
         delay = int(extra.get("input_delay", 0))
         if own_period is not None:        # the source's delay is a time: counted again at this sample period
             delay = delay_at(delay, own_period, check_real("sample_period", sample_period, positive=True))
-        return cls(float(source.a), float(source.b), sample_period, counts_per_rev,
-                   friction=float(extra.get("friction", 0.0)), bias=float(extra.get("bias", 0.0)),
-                   input_delay=delay, electrical_time_constant=float(extra.get("electrical_time_constant", 0.0)))
+        parts = {name: float(extra.get(name, 0.0)) for name in _PLANT_PARTS if name != "input_delay"}
+        return cls(float(source.a), float(source.b), sample_period, counts_per_rev, input_delay=delay, **parts)
 
     @property
     def speed_scale(self) -> float:
@@ -141,9 +153,8 @@ class PlantModel:
         return dataclasses.replace(self, electrical_time_constant=0.0) if self.electrical_time_constant else self
 
     def motor(self) -> Motor:
-        """The plant as the simulator's :class:`~motorsim.plant.Motor` (electrical time constant included)."""
-        return Motor(self.a, self.b, friction=self.friction, bias=self.bias, input_delay=self.input_delay,
-                     electrical_time_constant=self.electrical_time_constant)
+        """The plant as the simulator's :class:`~motorsim.plant.Motor`, every part included."""
+        return Motor(self.a, self.b, **{name: getattr(self, name) for name in _PLANT_PARTS})
 
     def speed_coefficients(self) -> tuple[float, float, float, float]:
         """``(e, g, beta1, beta2)`` of the exact first-order model (:mod:`motorsim.control`), in counts per
@@ -177,6 +188,14 @@ class PlantModel:
         return num * (self.speed_scale / h), den
 
     def metadata(self) -> dict[str, str]:
-        """The model as recording metadata ``model_NAME`` (the electrical time constant only when nonzero)."""
+        """The model as recording metadata ``model_NAME`` (the electrical time constant, dead zone and static
+        friction only when nonzero)."""
         return {f"model_{f.name}": repr(getattr(self, f.name)) for f in dataclasses.fields(self)
-                if f.name != "electrical_time_constant" or self.electrical_time_constant}
+                if f.name not in _SAID_WHEN_SET or getattr(self, f.name)}
+
+
+#: The plant's parts besides ``a`` and ``b``: every field of :class:`~motorsim.plant.Motor` a model carries
+#: (a test checks it is all of them, so a part the simulator gains cannot be dropped here).
+_PLANT_PARTS = ("friction", "bias", "input_delay", "electrical_time_constant", "dead_zone", "static_friction")
+#: Parts written to metadata only when set (older recordings' metadata stays as it was).
+_SAID_WHEN_SET = frozenset({"electrical_time_constant", "dead_zone", "static_friction"})

@@ -44,12 +44,12 @@ IDS = ["mpc", "pi", "pi-ff", "position", "feedforward", "lqr", "lqr-position", "
 
 @pytest.fixture(scope="module")
 def runs():
-    """Each controller for 1.5 s on the emulated firmware (one harness; 1.5 s of wall time each)."""
+    """Each controller for 1.5 s on the emulated firmware (one harness, in lock-step, as fast as it goes)."""
     missing = missing_tools()
     if missing:
         pytest.skip(f"the AVR toolchain is missing: {', '.join(missing)} (make firmware-deps installs it)")
     build()
-    url = "avr-sim://?" + urlencode({"a": 25.0, "b": 3.0, "counts_per_rev": 16667})
+    url = "avr-sim://?" + urlencode({"a": 25.0, "b": 3.0, "counts_per_rev": 16667, "speed": 0})
     out = []
     with open_avr_sim(url, 250000, 0.02) as port, SerialRig(port, 250000, counts_per_rev=16667,
                                                             watchdog_ms=200) as rig:

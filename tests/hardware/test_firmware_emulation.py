@@ -3,15 +3,15 @@
 Each test starts the harness (``hardware/sim/motorid_avr_sim.c``) with a motor, opens its
 pseudo-terminal and talks protocol v2 to the real firmware: through the real ``SerialRig``
 where a host would, frame by frame (``DeviceLink``) where the test needs exact bytes.
-Emulated time is capped at wall time, so every run costs its duration in wall time: the
-runs are short (0.5-3 s).
+The emulated AVR runs in lock-step with the host (``hardware/lockstep.py``), as fast as the
+machine goes (``speed=0``): every timeout and heartbeat of the host counts emulated seconds,
+so a loaded machine makes the tests slower, never different.
 """
 from __future__ import annotations
 
 import contextlib
 import math
 import threading
-import time
 from urllib.parse import urlencode
 
 import numpy as np
@@ -33,7 +33,7 @@ SINE = Experiment(Sine(20.0, 100), sample_period=0.002, duration=3.0)
 
 
 def _open(baudrate: int = 250000, **query):
-    query = {"a": A, "b": B, "counts_per_rev": COUNTS_PER_REV, **query}
+    query = {"a": A, "b": B, "counts_per_rev": COUNTS_PER_REV, "speed": 0, **query}
     return open_avr_sim("avr-sim://?" + urlencode(query), baudrate, 0.02)
 
 
@@ -157,10 +157,9 @@ STEADY_SPEED = B / A * 150                 # rad/s under duty 150
 
 
 def _settle_then_stop(port) -> float:
-    # Emulation runs at 0.5-1x wall time on a loaded machine (never faster: it is capped), so
-    # 1 s of wall time is >= 0.2 s emulated, 5 time constants (1/a = 40 ms): duty 0 leaves
-    # < 1 % of the speed; a duty still applied would leave all of it.
-    time.sleep(1.0)
+    # 0.3 s of emulated time, 7.5 time constants (1/a = 40 ms): duty 0 leaves < 0.1 % of the
+    # speed; a duty still applied would leave all of it.
+    port.wait(0.3)
     port.close()
     return port.avr_simulation.stop()["speed_rad_s"]
 

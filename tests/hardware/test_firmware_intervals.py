@@ -36,7 +36,7 @@ IDS = ["5 ms sine", "1 ms sine", "2 ms sine a 40 b 5", "1 ms multisine"]
 
 @pytest.mark.parametrize("period, a, b, excitation", CASES, ids=IDS)
 def test_the_default_intervals_hold_the_motor_the_harness_was_built_with(built, period, a, b, excitation):
-    url = "avr-sim://?" + urlencode({"a": a, "b": b, "counts_per_rev": COUNTS_PER_REV})
+    url = "avr-sim://?" + urlencode({"a": a, "b": b, "counts_per_rev": COUNTS_PER_REV, "speed": 0})
     with open_avr_sim(url, 250000, 0.02) as port:
         with SerialRig(port, 250000, counts_per_rev=COUNTS_PER_REV, watchdog_ms=200) as rig:
             recording = rig.run(Experiment(excitation, sample_period=period, duration=3.0))

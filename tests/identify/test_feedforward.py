@@ -1,4 +1,5 @@
 """kS, kV, kA from an estimate: the defining relation to a, b, friction and bias, and the delta-method errors."""
+import dataclasses
 import json
 
 import numpy as np
@@ -42,3 +43,32 @@ def test_constants_without_fitted_friction_have_no_interval_and_reach_the_json()
     assert doc["feedforward"]["ka"]["unit"] == "duty/(rad/s^2)"
     assert Estimate.from_json(est.to_json()).a == 25.0
     assert "feedforward kS 0 duty, kV 8.333 [" in ff.describe()
+
+
+def test_the_constants_intervals_widen_with_a_and_b_where_the_selection_widened_them():
+    # before: kA [0.014972, 0.014994] missed the true 0.015 while b's widened interval held 1/0.015
+    est = Estimate(method="oe", a=8.0, b=66.9, n_samples=4000, sample_period=0.005, residual_rms=0.05,
+                   fit_percent=99.9, covariance=np.diag([1e-6, 1e-4]), input_unit="V",
+                   model_range={"a": (7.9, 8.1), "b": (66.0, 67.0)})
+    ff = feedforward_constants(est)
+    ci = ff.confidence_interval(0.95)
+    b_low, b_high = est.confidence_interval(0.95)["b"]
+    assert ci["ka"][0] <= 1 / b_high and ci["ka"][1] >= 1 / b_low        # kA = 1/b over b's interval, exactly
+    assert ci["ka"][0] <= 0.015 <= ci["ka"][1]
+    a_low, a_high = est.confidence_interval(0.95)["a"]
+    assert ci["kv"][0] <= a_low / b_high and ci["kv"][1] >= a_high / b_low
+    # no widening: the delta method's interval as before
+    plain = feedforward_constants(dataclasses.replace(est, model_range={}))
+    assert plain.ranges == {} and plain.confidence_interval()["ka"][1] < 1 / 66.7
+
+
+def test_the_printed_constants_have_digits_enough_to_tell_the_interval_from_the_value():
+    from identify.feedforward import apart
+    assert apart(0.12, 0.11999, 0.12001) == ("0.12", "0.11999", "0.12001")
+    assert apart(0.3549, 0.2792, 0.4322) == ("0.3549", "0.2792", "0.4322")     # four digits where they suffice
+    est = Estimate(method="oe", a=8.0, b=66.6667, n_samples=4000, sample_period=0.005, residual_rms=0.05,
+                   fit_percent=99.9, covariance=np.diag([1e-6, 1e-6]), input_unit="V")
+    line = feedforward_constants(est).describe()
+    kv = line.split("kV ")[1].split(" V/")[0]
+    value, low, high = kv.replace("[", "").replace("]", "").replace(",", "").split()
+    assert low != value != high                                               # not 'kV 0.12 [0.12, 0.12]'

@@ -147,7 +147,7 @@ def _count_runs(monkeypatch):
 
 def test_a_good_start_makes_one_run_on_all_rows(monkeypatch):
     runs = _count_runs(monkeypatch)
-    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False, input_delay=0)
     assert est.a == pytest.approx(25.0, rel=CLOSE)
     assert runs == [1200]          # the regression's start only: no restarts from the linear fit
 
@@ -158,7 +158,7 @@ def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
     # a start far from the linear fit's pole (a 50 times too large) is not trusted
     good = friction._regression_start
     monkeypatch.setattr(friction, "_regression_start", lambda problem: good(problem) * np.r_[50.0, np.ones(4)])
-    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False)
+    est = fit_output_error_friction(_run(Motor(25.0, 3.0, friction=60.0, bias=-20.0)), dead_zone=False, input_delay=0)
     assert len(runs) == 3          # the regression's start and the linear fit's two
     assert est.a == pytest.approx(25.0, rel=CLOSE) and est.extra["friction"] == pytest.approx(60.0, rel=CLOSE)
 
@@ -221,7 +221,7 @@ def test_neighbouring_delays_share_their_start():
 
 
 def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
-    # without numba (the optional extra 'fast') the vectorised response is used: the same fit to rounding
+    # without numba (MOTORID_NUMBA=0, or where it cannot install) the vectorised response: the same fit to rounding
     from identify import friction_response as response_module
     rec = _run(Motor(25.0, 3.0, friction=40.0, dead_zone=12.0), freq=25.0)
     fast = fit_output_error_friction(rec)

@@ -14,7 +14,7 @@ def response_path(request, monkeypatch):
     """Every test runs on the vectorised path (numpy) and on the compiled one-pass kernel (numba)."""
     if request.param == "compiled":
         if compiled_response() is None:
-            pytest.skip("numba is not installed (the optional 'fast' extra)")
+            pytest.skip("numba is not installed or MOTORID_NUMBA=0")
         monkeypatch.setattr(response_module, "kernel_for", lambda rows: compiled_response())
     else:
         monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
@@ -77,7 +77,7 @@ def test_warm_started_modes_give_the_same_response():
 @pytest.mark.parametrize("params", CASES, ids=["friction", "all", "slow"])
 def test_the_two_paths_agree_to_rounding(params, jitter, monkeypatch):
     if compiled_response() is None:
-        pytest.skip("numba is not installed (the optional 'fast' extra)")
+        pytest.skip("numba is not installed or MOTORID_NUMBA=0")
     u, t = _inputs(jitter)
     monkeypatch.setattr(response_module, "kernel_for", lambda rows: compiled_response())
     fast = friction_response(*params, u, t, 0.3)
@@ -97,7 +97,7 @@ def test_the_two_paths_agree_to_rounding(params, jitter, monkeypatch):
 def test_short_runs_take_the_kernel_only_once_it_is_loaded(monkeypatch):
     from identify import friction_kernel
     if compiled_response() is None:
-        pytest.skip("numba is not installed (the optional 'fast' extra)")
+        pytest.skip("numba is not installed or MOTORID_NUMBA=0")
     monkeypatch.undo()                               # the real kernel_for, not the fixture's
     assert friction_kernel.kernel_for(friction_kernel.KERNEL_MIN_ROWS - 1) is compiled_response()   # loaded above
     monkeypatch.setattr(friction_kernel, "compiled_response", _unloaded(friction_kernel.compiled_response))

@@ -59,4 +59,7 @@ def test_residual_only_evaluation_gives_the_same_output():
     full = zoh_response(25.0, 3.0, u, t, 2.0)
     lean = zoh_response(25.0, 3.0, u, t, 2.0, sensitivities=False)
     np.testing.assert_array_equal(lean.angle, full.angle)
-    np.testing.assert_array_equal(lean.angle_sensitivity[:, 2], full.angle_sensitivity[:, 2])
+    np.testing.assert_array_equal(lean.angle_initial_speed, full.angle_sensitivity[:, 2])
+    np.testing.assert_array_equal(lean.speed_initial_speed, full.speed_sensitivity[:, 2])
+    np.testing.assert_array_equal(full.speed_initial_speed, full.speed_sensitivity[:, 2])
+    assert lean.angle_sensitivity.shape == (len(t), 1)        # the columns not computed are not stored

@@ -79,3 +79,24 @@ def test_motorid_bench_check_exits_nonzero_on_a_missed_goal(monkeypatch, capsys)
 def test_unknown_names_are_refused():
     with pytest.raises(ValueError, match="names must be among"):
         run_check(["parse"], stream=io.StringIO(), measure=lambda module: [])
+
+
+OPEN = Goal("a goal not reached yet", 3.0, held=8.0)
+
+
+@pytest.mark.parametrize(("figure", "met", "fails"), [(2.5, True, False), (5.0, False, False), (8.5, False, True),
+                                                      (math.nan, False, True)], ids=["met", "open", "worse", "nan"])
+def test_an_open_goal_says_missed_but_fails_the_gate_only_beyond_what_it_holds(figure, met, fails):
+    assert OPEN.met(figure) is met and OPEN.fails(figure) is fails
+    line = OPEN.line(figure)
+    assert line.endswith("met") if met else ("MISSED (open; the gate fails above 8 x)" in line)
+    assert report([(OPEN, figure)], io.StringIO()) == int(fails)
+    assert AT_MOST.fails(figure) is not AT_MOST.met(figure)         # a goal without `held`: missed is failed
+
+
+def test_the_gate_says_how_many_goals_are_open():
+    out = io.StringIO()
+    def measure(module):
+        return [(OPEN, 5.0)] + [(goal, goal.limit) for goal in importlib.import_module(module).GOALS]
+    assert run_check(["frequency"], stream=out, measure=measure) == 0
+    assert "every goal held, 1 of them open" in out.getvalue()

@@ -86,3 +86,28 @@ def test_a_method_whose_delay_is_a_number_runs_without_the_delay_flag(tmp_path, 
     assert main(["identify", str(path), "--method", method, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["method"] == method and out["input_delay"] == 0
+
+
+def test_a_clear_choice_is_not_followed_by_a_runner_up_the_data_cannot_tell_from_it(tmp_path, capsys):
+    # before: 'a clear choice' above 'runner-up bias, input delay 0: the data cannot tell it from the chosen one'
+    path = tmp_path / "run.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--sample-period", "0.005", "--duration", "10",
+                 "--sine", "10,200,0", "--out", str(path)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(path)]) == 0
+    out = capsys.readouterr().out
+    model = next(line for line in out.splitlines() if line.startswith("model"))
+    runner = next(line for line in out.splitlines() if line.startswith("  runner-up"))
+    assert model.endswith("a clear choice")
+    assert "fits as well, its a and b within the chosen one's intervals" in runner
+    assert "cannot tell" not in out
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_the_traceback_flag_works_where_the_hint_says_to_add_it(tmp_path, capsys, where):
+    # 're-run with --traceback': added at the end of the command, the flag was refused as unrecognised
+    missing = str(tmp_path / "missing.csv")
+    argv = ["--traceback", "identify", missing] if where == "before" else ["identify", missing, "--traceback"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "unrecognized arguments" not in err

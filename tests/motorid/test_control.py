@@ -360,3 +360,20 @@ def test_a_reference_in_the_wrong_kind_of_unit_is_refused(capsys):
     assert main(["control", "design", "--a", "25", "--b", "3", "--controller", "pi", "--reference",
                  "step:90deg"]) == 2
     assert "'90deg' is a position, but this controller tracks a speed" in capsys.readouterr().err
+
+
+def test_a_model_in_percent_designs_within_its_full_scale_by_default(tmp_path, capsys):
+    # before: no limit was assumed for %, the default reference sine:10,10 rad/s and a note; a slow motor's design
+    # then asked for 115 % of the duty. A percentage's limit is its full scale: the reference is a third of the top
+    # speed b/a x 100 %, and the design stays within it.
+    from identify import Estimate
+    est = Estimate(method="oe", a=2.0, b=0.05, n_samples=2000, sample_period=0.005, residual_rms=0.01,
+                   fit_percent=99.0, covariance=np.diag([1e-4, 1e-8]), input_unit="%")
+    model = tmp_path / "pct.json"
+    model.write_text(est.to_json())
+    assert main(["control", "design", "--model", str(model), "--controller", "pi"]) == 0
+    captured = capsys.readouterr()
+    assert "input limit +-100 %" in captured.out
+    largest = float(captured.out.split("largest input ")[1].split(" %")[0])
+    assert 0 < largest <= 100
+    assert "more than the input limit" not in captured.err and "no input limit known" not in captured.err

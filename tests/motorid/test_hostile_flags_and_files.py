@@ -198,7 +198,7 @@ def test_an_angle_stated_in_radians_that_reads_as_degrees_is_fitted_with_a_note(
 def test_an_angle_in_radians_is_neither_refused_nor_doubted(tmp_path, capsys, encoder_run):
     import math
     path = _lab_file(tmp_path, encoder_run, 2 * math.pi)
-    assert main(["identify", str(path), "--time", "t", "--input", "u:duty", "--angle", "theta", "--json"]) == 0
+    assert main(["identify", str(path), "--time", "t:s", "--input", "u:duty", "--angle", "theta", "--json"]) == 0
     captured = capsys.readouterr()
     assert "angle" not in captured.err
     import json

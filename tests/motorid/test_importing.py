@@ -99,14 +99,15 @@ def test_a_column_named_with_a_unit_but_given_without_one_is_read_in_it_and_said
     assert rec.speed[1] == pytest.approx(100 * 2 * math.pi / 60, rel=1e-12)
 
 
-def test_an_rpm_column_given_without_a_unit_is_refused_not_read_as_rad_s(tmp_path, capsys):
+def test_a_column_named_rpm_is_read_in_rpm_and_said(tmp_path, capsys):
+    # a column named by its unit alone says it: 'rpm' was refused as unitless before
     src = tmp_path / "lab.csv"
     src.write_text("t_ms,pwm_pct,rpm\n0,10,0\n10,10,100\n20,20,200\n")
     assert main(["import", str(src), "--time", "t_ms:ms", "--input", "pwm_pct:%", "--speed", "rpm",
-                 "--out", str(tmp_path / "rec.csv")]) == 2
-    err = capsys.readouterr().err
-    assert "the speed column 'rpm' has no unit" in err and "rad/s, deg/s, rpm, rev/s" in err
-    assert not (tmp_path / "rec.csv").exists()
+                 "--out", str(tmp_path / "rec.csv")]) == 0
+    assert "the speed column 'rpm' is read in rpm, the unit its header states" in capsys.readouterr().err
+    rec = read_recording(tmp_path / "rec.csv")
+    assert rec.speed_unit == "rpm" and rec.speed[1] == pytest.approx(100 * 2 * math.pi / 60, rel=1e-12)
 
 
 def test_the_unit_named_columns_import_with_their_units(tmp_path):

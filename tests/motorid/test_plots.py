@@ -171,3 +171,22 @@ def test_closed_loop_figure_shows_each_design_tracking_error():
         np.testing.assert_array_equal(line.get_ydata(), row.recording.measured_speed() - row.recording.reference)
     assert error_axes[0].get_ylim() == error_axes[1].get_ylim()   # one shared scale
     assert fig.axes[-1].get_ylabel() == "input [duty]"
+
+
+def test_the_report_draws_tests_apart_not_a_line_across_the_pause_between_them():
+    import warnings
+
+    from tests.real_like import sysid_tests
+    (_, t1, u1, w1), (_, t2, u2, w2), *_ = sysid_tests(seed=1)
+    from motorsim import Recording
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)          # the non-uniform clock, said
+        rec = Recording.from_columns(time=np.r_[t1, t2], duty=np.r_[u1, u2], speed=np.r_[w1, w2], input_unit="V")
+        est = fit(rec, method="oe", input_delay=0)
+        report = validate(est, rec)
+    fig = plots.plot_validation(report, est)
+    speed = fig.axes[0]
+    x = speed.get_lines()[0].get_xdata()
+    gap = np.flatnonzero(np.isnan(x))
+    assert len(gap) == 1                                      # one break, in the pause (3 s), and only there
+    assert x[gap[0] - 1] == pytest.approx(t1[-1]) and x[gap[0] + 1] == pytest.approx(t2[0])

@@ -110,14 +110,14 @@ def test_file_refusals_name_file_line_column_and_rule(tmp_path, text, kwargs, ma
     path = tmp_path / "raw.csv"
     path.write_text(text)
     with pytest.raises(ImportFormatError, match=match):
-        import_recording(path, **{"time": "t", "input": "u:duty", "speed": "y:rad/s", **kwargs})
+        import_recording(path, **{"time": "t:s", "input": "u:duty", "speed": "y:rad/s", **kwargs})
 
 
 def test_matlab_v5_vectors_and_matrix(tmp_path):
     from scipy import io
     t = np.arange(4) * 0.01
     io.savemat(tmp_path / "run.mat", {"t": t[:, None], "u": np.ones(4), "y": np.arange(4.0)})
-    rec = import_recording(tmp_path / "run.mat", time="t", input="u:V", speed="y:rev/s")
+    rec = import_recording(tmp_path / "run.mat", time="t:s", input="u:V", speed="y:rev/s")
     np.testing.assert_allclose(rec.speed, np.arange(4.0) * 2 * math.pi, rtol=1e-15)
     io.savemat(tmp_path / "matrix.mat", {"data": np.column_stack([t * 1000, np.ones(4), np.arange(4.0)])})
     rec = import_recording(tmp_path / "matrix.mat", time="0:ms", input="1:V", speed="2:deg/s")
@@ -148,7 +148,7 @@ def test_matlab_v73_with_h5py(tmp_path):
         f["y"] = np.arange(3.0)[None, :]
     with open(path, "r+b") as fh:
         fh.write(b"MATLAB 7.3 MAT-file".ljust(124) + b"\x00\x02IM")
-    rec = import_recording(path, time="t", input="u:duty", speed="y:rad/s")
+    rec = import_recording(path, time="t:s", input="u:duty", speed="y:rad/s")
     assert rec.sample_period == 0.1 and rec.speed.tolist() == [0.0, 1.0, 2.0]
 
 
@@ -186,14 +186,15 @@ def test_a_speed_or_input_column_without_a_unit_is_refused_with_the_units(tmp_pa
 
 def test_every_column_problem_is_said_in_one_message(tmp_path):
     path = tmp_path / "lab.csv"
-    path.write_text("t_ms,pwm,rpm\n0,10,0\n1,10,1\n2,10,2\n")
+    path.write_text("t,pwm,rpm\n0,10,0\n1,10,1\n2,10,2\n")
     with pytest.raises(ImportFormatError) as info:
-        import_recording(path, time="t_ms:ms", input="pwm", speed="speed", angle="theta:furlong")
+        import_recording(path, time="t", input="pwm", speed="speed", angle="theta:furlong")
     text = str(info.value)
-    assert text.startswith(f"{path}: 3 problems with the columns: (1) ")
+    assert text.startswith(f"{path}: 4 problems with the columns: (1) ")
     assert "the unit of the angle column must be one of" in text            # (1) a unit that is none
     assert "the input column 'pwm' has no unit" in text                     # (2) nothing states it
     assert "no column named 'speed' for the speed" in text                  # (3) a name not in the file
+    assert "the time column 't' has no unit" in text and "in doubt" in text  # (4) intervals of 1: s, ms, us?
 
 
 def test_a_speed_in_rpm_is_kept_as_the_recordings_speed_unit(tmp_path):
@@ -236,17 +237,16 @@ def test_a_mat_file_that_crashes_scipys_reader_is_refused_not_fatal(tmp_path):
 
 
 def test_a_mat_files_reader_error_and_hdf5_come_back_from_the_child(tmp_path, monkeypatch):
-    from motorsim import columns
     truncated = tmp_path / "cut.mat"
     good = _crashing_mat_bytes()[:177] + b"\x00" * 3
     truncated.write_bytes(good)
     with pytest.raises(ImportFormatError, match="damaged or truncated MATLAB .mat file scipy cannot read"):
         read_table(truncated)
-    kinds = []
-    monkeypatch.setattr(columns, "_read_mat_hdf5", lambda path: kinds.append(path) or "hdf5")
+    pytest.importorskip("h5py")
     v73 = tmp_path / "v73.mat"
     v73.write_bytes(b"MATLAB 7.3 MAT-file".ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM" + b"\x00" * 512)
-    assert read_table(v73) == "hdf5" and kinds == [str(v73)]
+    with pytest.raises(ImportFormatError, match=r"v73.mat: a damaged MATLAB v7.3 \(HDF5\) file h5py cannot read"):
+        read_table(v73)
 
 
 @pytest.mark.parametrize("fault, said", [("crash", r"crashed on it \(signal 11\)"),
@@ -260,7 +260,7 @@ def test_a_reader_that_dies_or_hangs_in_its_child_is_refused(tmp_path, monkeypat
 
     from scipy import io
 
-    from motorsim import columns
+    from motorsim import mat_files
     if "fork" not in __import__("multiprocessing").get_all_start_methods():
         pytest.skip("needs fork to hand the child a replaced reader")
 
@@ -269,7 +269,7 @@ def test_a_reader_that_dies_or_hangs_in_its_child_is_refused(tmp_path, monkeypat
             os.kill(os.getpid(), signal.SIGSEGV)
         time.sleep(60)
     monkeypatch.setattr(io, "loadmat", broken)
-    monkeypatch.setattr(columns, "MAT_READ_SECONDS", 0.5)
+    monkeypatch.setattr(mat_files, "MAT_READ_SECONDS", 0.5)
     path = tmp_path / "run.mat"
     path.write_bytes(_crashing_mat_bytes())
     with pytest.raises(ImportFormatError, match=said):

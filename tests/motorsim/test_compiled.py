@@ -1,6 +1,11 @@
 """The friction loop: the numba kernel and the Python loop give the same trajectory, and
 simulate switches to the kernel only after enough Python intervals."""
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from motorsim import Motor, compiled, simulate
 from motorsim.compiled import friction_run_python
@@ -39,3 +44,55 @@ def test_the_kernel_is_used_only_after_enough_python_intervals(monkeypatch):
     assert calls == []                                     # 999 + 999 intervals in Python
     simulate(motor, np.full(1000, 100.0), t)
     assert calls == [999]
+
+
+def test_no_compiled_loop_without_numba_or_with_the_switch_off(monkeypatch):
+    # numba is a dependency only where it has wheels: an import failure and MOTORID_NUMBA=0 both mean
+    # "run the Python paths", never an error
+    monkeypatch.setenv("MOTORID_NUMBA", "0")
+    assert compiled.numba_jit() is None
+    monkeypatch.delenv("MOTORID_NUMBA")
+    monkeypatch.setitem(sys.modules, "numba", None)        # `import numba` raises ImportError
+    assert compiled.numba_jit() is None
+
+
+def test_the_install_requires_numba_where_it_has_wheels():
+    # the speed goals hold in the install a user makes: `pip install motorid` brings numba on CPython
+    from importlib.metadata import requires
+    numba = [r for r in requires("motorid") or () if r.startswith("numba") and "extra ==" not in r]
+    assert len(numba) == 1 and "platform_python_implementation == \"CPython\"" in numba[0], numba
+
+
+FALLBACK_FIT = """
+import sys
+sys.modules["numba"] = None                                 # as where numba cannot install
+import numpy as np
+from identify import fit
+from motorsim import Encoder, Experiment, Motor, Multisine, SimRig
+from motorsim.compiled import numba_jit
+assert numba_jit() is None
+rig = SimRig(Motor(25.0, 3.0, friction=40.0), Encoder(2000), rng=np.random.default_rng(3))
+rec = rig.run(Experiment(Multisine((5.0, 17.0, 41.0), (80, 60, 50), (0, 1, 2)), 0.002, 4.0))
+est = fit(rec)
+print(repr(est.a), repr(est.b), est.selection.chosen.label)
+"""
+
+
+@pytest.mark.slow
+def test_a_process_without_numba_gives_the_same_default_fit():
+    # the whole default (friction simulation, friction fits, their responses) on the pure paths, in a process
+    # where numba cannot be imported, against this process's compiled paths: the same candidate and the same
+    # a, b to 1e-7 (the two responses agree to ~1e-13; the fits' conditioning amplifies that far below 1e-7)
+    import numpy as np
+
+    from identify import fit
+    from motorsim import Encoder, Experiment, Multisine, SimRig
+    proc = subprocess.run([sys.executable, "-c", FALLBACK_FIT], capture_output=True, text=True, timeout=600,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 0, proc.stderr
+    a, b, label = proc.stdout.split(maxsplit=2)
+    rig = SimRig(Motor(25.0, 3.0, friction=40.0), Encoder(2000), rng=np.random.default_rng(3))
+    rec = rig.run(Experiment(Multisine((5.0, 17.0, 41.0), (80, 60, 50), (0, 1, 2)), 0.002, 4.0))
+    est = fit(rec)
+    assert label.strip() == est.selection.chosen.label
+    assert float(a) == pytest.approx(est.a, rel=1e-7) and float(b) == pytest.approx(est.b, rel=1e-7)

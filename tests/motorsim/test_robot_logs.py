@@ -88,7 +88,8 @@ def test_a_wpilog_entry_without_a_unit_is_refused_like_a_csv_column(tmp_path):
     with pytest.raises(ImportFormatError, match=r"2 problems with the columns: \(1\) the input column "
                                                 r"'voltage-drive' has no unit .*\(2\) the speed column"):
         import_recording(path, time="time_s", input="voltage-drive", speed="velocity-drive")
-    with pytest.raises(ImportFormatError, match=r"no column named 'velocity-left' \(columns: .*velocity-drive"):
+    with pytest.raises(ImportFormatError,
+                       match=r"no column named 'velocity-left' for the speed \(columns: .*velocity-drive"):
         import_recording(path, time="time_s", input="voltage-drive:V", speed="velocity-left:rev/s")
 
 
