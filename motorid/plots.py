@@ -333,6 +333,7 @@ def plot_until(result, path=None, *, title: str = "") -> Figure:
     bottom.grid(alpha=0.3)
     return _finish(fig, path)
 
+
 #: An interval longer than this many median intervals is a gap a line is not drawn across (a pause between tests).
 GAP_FACTOR = 1.5
 
