@@ -36,7 +36,7 @@ direction only), or where the drive takes one magnitude (a binary PRBS has no lo
 level of each test is :data:`PART_LEVEL` divided by the number of splits made (Bonferroni): on a right model
 the whole check finds a difference in about one run in a hundred, and then only widens the intervals to hold
 each part's.  The answer becomes unclear only where a part's ``a`` or ``b`` is off the full fit's by more than
-:data:`~identify.comparison.MATERIAL` *and* beyond the split's level on its own, which on a right model's
+:data:`~identify.comparison.MATERIAL` *and* outside its own 95 % interval, which on a right model's
 precise fit (a 1 % shift many standard errors wide) chance almost never gives.
 """
 from __future__ import annotations
@@ -396,7 +396,7 @@ def _check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray,
     maps = {"a": (np.eye(len(beta))[0], np.eye(len(beta))[0] + np.eye(len(beta))[ia]),
             "b": (np.eye(len(beta))[1], np.eye(len(beta))[1] + np.eye(len(beta))[ib])}
     z = float(-special.ndtri(0.025))
-    z_part = float(-special.ndtri(level / 2))
+    z_part = z          # a shift beyond its own 95 % interval (the split's difference is already beyond the level)
     values, intervals, off = {}, {}, False
     for key, full in (("a", a0), ("b", b0)):
         rest, part = maps[key]
@@ -406,7 +406,7 @@ def _check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray,
             var = max(float(vec @ cov @ vec) if np.all(np.isfinite(cov)) else math.inf, float(vec @ classical @ vec))
             se = math.sqrt(var) if var >= 0 else 0.0
             # materially off: a part's shift from the full fit, or the parts' difference, is over MATERIAL of the
-            # value and beyond the split's level on its own
+            # value and outside its own 95 % interval
             off |= abs(shift) > MATERIAL * abs(full) and abs(shift) > z_part * se
             pair.append((full + shift, (full + shift - z * se, full + shift + z * se)))
         values[key], intervals[key] = pair[:2], pair[:2]
