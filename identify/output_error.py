@@ -521,7 +521,7 @@ def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: li
         def refit(new: list[Segment]) -> np.ndarray | None:
             try:
                 out = _solve(OutputErrorProblem(new, problem.with_bias), np.array(res.x, dtype=float), "analytic")
-            except (ValueError, np.linalg.LinAlgError):
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):   # a refit that overflows failed too
                 return None
             return out.x if out.status > 0 else None
         cov = encoder_bootstrap_covariance(segs, placed, steps, float(res.fun @ res.fun) / problem.n_rows, refit,

@@ -22,7 +22,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["plot_run", "plot_overlay", "plot_validation", "plot_sweep_frequency", "plot_sweep_heatmap",
-           "plot_design", "plot_prediction", "plot_tracking", "plot_bode", "bode_axes", "axis_label", "LivePlot"]
+           "plot_design", "plot_prediction", "plot_tracking", "plot_bode", "bode_axes", "axis_label", "LivePlot",
+           "plot_until"]
 
 #: Dots per inch of the PNGs.
 DPI = 110
@@ -300,6 +301,36 @@ def plot_design(frequencies, stderr_a, stderr_b, path=None, *, marks: Sequence[t
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     ax.set_title(title or "Cramér–Rao standard error against frequency")
+    return _finish(fig, path)
+
+
+def plot_until(result, path=None, *, title: str = "") -> Figure:
+    """An ``--until`` run: each round's 95 % intervals of a and b (in % of the value) against motor time,
+    the target, and the duty of every run one after the other.
+
+    ``result`` is an :class:`identify.adaptive.UntilResult`.  The PNG is written to ``path`` when
+    given; the figure is returned.
+    """
+    fig = _figure(7, 5)
+    top, bottom = fig.subplots(2, 1, height_ratios=(3, 2))
+    for name, color in (("a", "tab:blue"), ("b", "tab:red")):
+        pts = [(r.motor_time, r.reach[name]) for r in result.rounds if math.isfinite(r.reach.get(name, math.inf))]
+        if pts:
+            t, reach = zip(*pts)
+            top.semilogy(t, reach, "o-", color=color, label=f"{name}: 95 % interval, ± % of value")
+    top.axhline(result.target, color="0.3", ls="--", lw=0.8, label=f"target ±{result.target:g} %")
+    top.set_xlabel("motor time [s]")
+    top.set_ylabel("interval [± %]")
+    top.grid(alpha=0.3, which="both")
+    top.legend(fontsize=8)
+    verdict = "target reached" if result.reached else f"stopped: {result.stop}"
+    top.set_title(title or f"identify until ±{result.target:g} %: {verdict} after {result.motor_time:.3g} s")
+    rec = result.recording
+    k = (rec.seq - rec.seq[0]) * rec.sample_period
+    bottom.plot(k, rec.duty, lw=0.6, color="0.2")
+    bottom.set_xlabel("time, runs one after the other [s]")
+    bottom.set_ylabel("duty")
+    bottom.grid(alpha=0.3)
     return _finish(fig, path)
 
 

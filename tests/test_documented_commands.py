@@ -36,6 +36,8 @@ SCALED = {
     # fake:// key speed: device time per wall-clock time, 0 = as fast as the host reads (README)
     "motorid live --port 'fake://?a=25&b=3' --duration 10 --json":
         "motorid live --port 'fake://?a=25&b=3&speed=0' --duration 10 --json",
+    "motorid live --port 'fake://?a=2&b=0.3' --until 1":
+        "motorid live --port 'fake://?a=2&b=0.3&speed=0' --until 1",
     # --samples and --repeats: the benchmark's own flags (motorid bench simulate --help)
     "motorid bench simulate": "motorid bench simulate --samples 2000 --repeats 1",
 }

@@ -13,6 +13,7 @@
 ``frequency`` :mod:`~motorid.bench.frequency`: the frequency response against scipy.signal csd/welch
 ``selection`` :mod:`~motorid.bench.selection`: the default (model chosen) against one ``oe`` fit and a CSV read
 ``coverage``  :mod:`~motorid.bench.coverage`: how often the default's intervals hold plants known exactly
+``until``     :mod:`~motorid.bench.until`: motor time to a target precision, adaptive against fixed experiments
 ============= ================================================================
 
 Benchmarks print their figures and ratios against a baseline measured in the
@@ -98,6 +99,11 @@ def _coverage(argv: Sequence[str]) -> int:
     return bench_coverage(argv)
 
 
+def _until(argv: Sequence[str]) -> int:
+    from motorid.bench.until import bench_until
+    return bench_until(argv)
+
+
 BENCHMARKS: dict[str, Benchmark] = {
     "simulate": Benchmark(_simulate, "motorsim.simulate against control.forced_response of the same ZOH model"),
     "sweep": Benchmark(_sweep, "the sweeps' batch engine against a per-run control.forced_response + lstsq loop"),
@@ -120,6 +126,10 @@ BENCHMARKS: dict[str, Benchmark] = {
                                        "position-loop recording, and on 10^6 rows against pandas.read_csv"),
     "coverage": Benchmark(_coverage, "the default's 95 per cent intervals on plants known exactly (electrical lags, "
                                      "long delays, differenced speeds, friction, a position loop with a fed-back "
-                                     "torque): coverage over 100 seeds"),
+                                     "torque): coverage over 100 seeds; --until: the adaptive runs' "
+                                     "coverage under their stopping rule"),
+    "until": Benchmark(_until, "motor time until the 95 per cent intervals of a and b are within 1 per cent: "
+                               "motorid live --until's adaptive run against the best fixed sine, the article's "
+                               "four sines and a PRBS, on 100 seeded rigs; its coverage"),
 }
 

@@ -199,12 +199,19 @@ def _progress(name: str, done: int, total: int) -> None:
 def bench_coverage(argv: Sequence[str]) -> int:
     """Run the benchmark (module docstring); 0 when every goal holds."""
     from scenarios.executors import points_executor, results_in_order
+    if "--until" in argv:       # the adaptive runs' coverage under their stopping rule
+        from motorid.bench.until import bench_until_coverage
+        return bench_until_coverage([a for a in argv if a != "--until"])
     p = argparse.ArgumentParser(prog="motorid bench coverage", description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=integer(), default=100, help="recordings per class (default 100)")
     p.add_argument("--only", choices=list(CLASSES), action="append",
                    help="this class only (repeat for several; default every class)")
     p.add_argument("--workers", type=integer(), default=None, metavar="N",
                    help="worker processes (default: every core available)")
+    p.add_argument("--until", action="store_true",
+                   help="instead: motorid live --until's adaptive runs to ±1 %% on --seeds rigs (a 2...150 1/s, "
+                        "friction, delay, lag) and how often their 95 %% intervals hold the built a and b "
+                        "(motorid bench until; --target PCT)")
     args = p.parse_args(list(argv))
     names = [n for n in CLASSES if not args.only or n in args.only]
     jobs = [(name, seed) for name in names for seed in range(args.seeds)]

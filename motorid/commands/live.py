@@ -78,6 +78,8 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                         help="show duty and speed live with the running estimate (matplotlib window; "
                              "without a display, FILE.csv.live.png is updated instead)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
+    from motorid.commands.live_until import add_until_arguments
+    add_until_arguments(parser)
 
 
 def _estimate_note(running) -> str:
@@ -156,6 +158,10 @@ def run_live(args: argparse.Namespace) -> int:
     from motorid.commands.control import refuse_controller_flags
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")
+    from motorid.commands.live_until import check_until_flags, run_live_until
+    check_until_flags(args)                             # before the port opens
+    if args.until is not None:
+        return run_live_until(args, default_out_path)
     refuse_controller_flags(args, model_flags=True)     # before the port opens
     named = args.out is not None
     if not named:

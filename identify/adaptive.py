@@ -1,0 +1,781 @@
+"""Identify until confident: an experiment that designs its next block from what it has learned.
+
+:func:`run_until` drives any rig (anything with ``run(experiment) -> Recording``: the simulated
+bench, the emulated or the real Arduino) in rounds:
+
+1. **Opening.**  Without a guess, ranging runs from rest: a slow half-sine of duty (up from 0 to
+   an amplitude and back) doubling its amplitude until the shaft clearly turns, or until the next
+   doubling would leave the speed or travel budget.  The duty where the counts first move is the
+   break-away duty; the default estimator on the ranging runs gives a first rough ``a`` and ``b``.
+   With a guess (``guess=(a, b)``) the opening is one short sine designed for it.
+2. **Rounds.**  The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
+   intervals of ``a`` and ``b`` lie within ``+-target`` % of their values and the structure is a
+   clear choice, stop.  Otherwise choose the next block: the sine (frequency, the largest amplitude
+   the duty limit and the budgets allow) whose predicted intervals reach the target soonest,
+   judged over the plausible ``a`` of the interval so far; the block lasts as long as the
+   prediction says it takes (at most three times the motor time so far, and the budget left).
+   While the choice of structure is not clear, every other block is an odd multisine over
+   ``a/10 ... 10 a`` (:func:`~identify.design.design_multisine`): the evidence that separates the
+   candidates.
+3. **Stopping early**, saying why: the time budget is spent (and which parameter is short by how
+   much), the model fails (the estimator refuses the data, or its intervals are not finite), or a
+   part the target needs cannot be excited within the limits (the motor does not turn at the duty
+   limit; the budgets leave no amplitude above the break-away duty).
+
+The prediction is the Fisher information of the linear first-order model at the current
+estimate (angle sensitivities of each run, its initial speed and encoder offset profiled out),
+summed over runs; its scale (the noise, any widening) is calibrated by the fit's own intervals:
+``h_next = h_now sqrt(diag((I_past + I_block)^-1) / diag(I_past^-1))``.
+
+Every run is kept in one :class:`~motorsim.recording.Recording` (:attr:`UntilResult.recording`):
+the runs follow each other with a gap of ``seq`` between them, so each is its own segment (its
+own initial state) for every estimator, and ``identify.fit(result.recording)`` reproduces the
+final estimate.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from motorsim.checks import ParameterError, ParameterTypeError, check_int, check_real
+from motorsim.excitation import Excitation, Sine
+from motorsim.recording import Recording
+from motorsim.rig import Experiment
+
+from .errors import NotIdentifiableError
+from .estimate import Estimate
+from .sensitivity import zoh_response
+
+__all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
+           "STOP_REASONS", "check_target"]
+
+#: Default motor-time budget in s.
+DEFAULT_MAX_TIME = 60.0
+#: Why a run stops: the target met, or the reason it cannot be.
+STOP_REASONS = ("target", "budget", "model", "limits", "rounds")
+#: Samples of ``seq`` left out between runs in the joined recording (each run its own segment).
+RUN_GAP = 1
+_LEVEL = 0.95
+_Z = statistics.NormalDist().inv_cdf(0.5 + _LEVEL / 2)
+_MAX_ROUNDS = 40
+_GROWTH = 3.0          # a block lasts at most this many times the motor time so far
+_MARGIN = 1.08         # blocks run this much longer than predicted: one more round costs more
+_AIM = 0.8             # blocks are designed to bring the intervals to this share of the target: the
+                       # prediction is the linear model's, and friction or a lag take some of the information
+_PARAMS = ("a", "b")
+
+
+@dataclasses.dataclass(frozen=True)
+class UntilRound:
+    """One round: the run made and the estimate on every run so far.
+
+    Attributes
+    ----------
+    index : int
+        1, 2, ...
+    phase : str
+        ``"ranging"``, ``"opening"`` (a sine for the user's guess) or ``"design"``.
+    excitation : str
+        The run's excitation (``Excitation.describe()``).
+    duration : float
+        Motor time of this run in s.
+    motor_time : float
+        Motor time of every run so far in s.
+    why : str
+        Why this excitation was chosen.
+    estimate : Estimate or None
+        The default estimator on every run so far (None when it refused the data).
+    intervals : dict
+        95 % interval ``(low, high)`` of ``a`` and ``b`` (empty without an estimate).
+    reach : dict
+        Largest relative distance of each interval's ends from its value, in % (``inf`` when unknown).
+    clear : bool or None
+        Whether the default called its structure a clear choice.
+    predicted : dict
+        The reach this round's design predicted for ``a`` and ``b``, in % (empty for the opening).
+    """
+
+    index: int
+    phase: str
+    excitation: str
+    duration: float
+    motor_time: float
+    why: str
+    estimate: Estimate | None
+    intervals: Mapping[str, tuple[float, float]]
+    reach: Mapping[str, float]
+    clear: bool | None
+    predicted: Mapping[str, float]
+
+    def to_dict(self) -> dict:
+        """JSON-ready fields (the estimate's values, not the whole estimate)."""
+        est = self.estimate
+        return {"round": self.index, "phase": self.phase, "excitation": self.excitation,
+                "duration_s": self.duration, "motor_time_s": self.motor_time, "why": self.why,
+                "a": None if est is None else est.a, "b": None if est is None else est.b,
+                "structure": None if est is None else est.structure,
+                "input_delay": None if est is None else est.input_delay,
+                "intervals": {k: list(v) for k, v in self.intervals.items()},
+                "reach_pct": {k: _finite_or_none(v) for k, v in self.reach.items()},
+                "predicted_reach_pct": {k: _finite_or_none(v) for k, v in self.predicted.items()},
+                "clear": self.clear}
+
+    def line(self, target: float) -> str:
+        """One progress line: excitation, motor time, the intervals against the target."""
+        head = f"round {self.index:2d} {self.phase:<8s} {self.excitation:<30s} {self.duration:7.3g} s " \
+               f"(total {self.motor_time:.4g} s)"
+        if self.estimate is None:
+            return f"{head}: no estimate yet ({self.why})"
+        parts = [f"{k} = {self.estimate.value(k):.5g} ±{_pct(self.reach[k])}" for k in _PARAMS]
+        clear = "clear" if self.clear else "not clear"
+        return f"{head}: {', '.join(parts)} (target ±{target:g} %; {self.estimate.structure}, {clear})"
+
+
+@dataclasses.dataclass(frozen=True)
+class UntilResult:
+    """What :func:`run_until` found.
+
+    Attributes
+    ----------
+    reached : bool
+        Both intervals within the target and the structure a clear choice.
+    stop : str
+        One of :data:`STOP_REASONS`: ``"target"``, ``"budget"`` (time budget spent),
+        ``"model"`` (the estimator refused the data or gave no finite interval), ``"limits"``
+        (a part the target needs cannot be excited within the limits), ``"rounds"``.
+    reason : str
+        The stop in words: which parameter is short, by how much, and why.
+    estimate : Estimate or None
+        The final estimate on every run (None when the estimator refused them all).
+    recording : Recording
+        Every run, one after the other (:func:`join_runs`).
+    rounds : tuple of UntilRound
+    target : float
+        The target in %.
+    motor_time : float
+        Motor time of every run in s.
+    breakaway : float or None
+        Duty where the shaft first turned in the ranging runs (None with a guess).
+    fitted_recording : Recording
+        The runs the estimate is made on, joined: ``identify.fit(result.fitted_recording)``
+        reproduces :attr:`estimate`.
+    fitted_from : int
+        Index of the first run the estimates use: the ranging half-sines (slow ramps from rest, where
+        the encoder's rounding is most of the signal) find the break-away duty and the amplitude, and
+        are left out of the fits once another run follows them.
+    """
+
+    reached: bool
+    stop: str
+    reason: str
+    estimate: Estimate | None
+    recording: Recording
+    rounds: tuple[UntilRound, ...]
+    target: float
+    motor_time: float
+    breakaway: float | None
+    fitted_from: int = 0
+    fitted_recording: Recording | None = None
+
+    @property
+    def clear(self) -> bool:
+        """Whether the final structure is a clear choice."""
+        return bool(self.rounds and self.rounds[-1].clear)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary with every round."""
+        return {"reached": self.reached, "stop": self.stop, "reason": self.reason, "target_pct": self.target,
+                "motor_time_s": self.motor_time, "breakaway_duty": self.breakaway, "clear": self.clear,
+                "fitted_from_run": self.fitted_from + 1,
+                "rounds": [r.to_dict() for r in self.rounds]}
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _pct(x: float) -> str:
+    return f"{x:.3g} %" if math.isfinite(x) else "? %"
+
+
+def check_target(target: Any) -> float:
+    """The target in %: a real number in (0, 100)."""
+    value = check_real("target", target, positive=True)
+    if not value < 100:
+        raise ParameterError(f"target must be a percentage in (0, 100), got {target!r}")
+    return value
+
+
+def _reach(est: Estimate, level: float = _LEVEL) -> tuple[dict, dict]:
+    """Intervals of a and b and the largest relative distance of their ends from the values (%)."""
+    ci = est.confidence_interval(level)
+    out, reach = {}, {}
+    for k in _PARAMS:
+        lo, hi = ci[k]
+        v = float(est.value(k))
+        out[k] = (float(lo), float(hi))
+        r = 100 * max(v - lo, hi - v) / abs(v) if v != 0 else math.inf
+        reach[k] = r if math.isfinite(r) else math.inf
+    return out, reach
+
+
+# --------------------------------------------------------------------------------------------- information
+
+def information(a: float, b: float, duty: np.ndarray, sample_period: float, input_delay: int = 0) -> np.ndarray:
+    """Fisher information of ``(a, b)`` from one run's encoder angle, per unit angle-noise variance.
+
+    The run's initial speed and encoder offset are profiled out (the Schur complement of the
+    full information); ``duty[k]`` is held over sample ``k`` after ``input_delay`` samples of 0.
+
+    Returns
+    -------
+    ndarray, shape (2, 2)
+    """
+    u = np.asarray(duty, dtype=float)
+    if input_delay:
+        u = np.concatenate([np.zeros(input_delay), u[:len(u) - input_delay]])
+    t = np.arange(len(u)) * sample_period
+    resp = zoh_response(a, b, u, t, 0.0, uniform=True)
+    S = resp.angle_sensitivity
+    J = np.column_stack([S[:, 0], S[:, 1], S[:, 2], np.ones(len(u))])
+    full = J.T @ J
+    A, B, C = full[:2, :2], full[:2, 2:], full[2:, 2:]
+    try:
+        return A - B @ np.linalg.solve(C, B.T)
+    except np.linalg.LinAlgError:
+        return A
+
+
+def _variances(info: np.ndarray) -> np.ndarray:
+    try:
+        return np.diag(np.linalg.inv(info))
+    except np.linalg.LinAlgError:
+        return np.full(2, math.inf)
+
+
+# --------------------------------------------------------------------------------------------- joining
+
+_SUMMED = ("samples_expected", "samples_received", "samples_lost", "samples_ticked", "host_link_frames_lost",
+           "device_samples_dropped", "host_rx_errors")
+
+
+def join_runs(runs: Sequence[Recording], descriptions: Sequence[str] | None = None) -> Recording:
+    """The runs as one recording: each after the previous with a gap of ``seq``, so each is its own segment.
+
+    ``time_s`` runs on: a run's first sample is ``(RUN_GAP + 1)`` sample periods after the previous
+    run's last, as its ``seq`` is.  The first run's metadata is kept; the loss counters a serial
+    rig records are summed, ``excitation`` names every run's, ``duration`` is the motor time.
+    """
+    if not runs:
+        raise ParameterError("runs must hold at least one Recording, got none")
+    dt = runs[0].sample_period
+    times, duties, counts, seqs, speeds = [], [], [], [], []
+    next_seq = 0
+    for r in runs:
+        if r.sample_period != dt:
+            raise ParameterError(f"runs must share one sample_period, got {dt!r} and {r.sample_period!r}")
+        seq = r.seq - r.seq[0] + next_seq
+        seqs.append(seq)
+        times.append(r.time - r.time[0] + next_seq * dt)
+        duties.append(r.duty)
+        if r.counts is None:
+            raise ParameterError("runs must record encoder counts")
+        counts.append(r.counts)
+        speeds.append(r.speed)
+        next_seq = int(seq[-1]) + 1 + RUN_GAP
+    meta = dict(runs[0].metadata)
+    for key in _SUMMED:
+        if all(key in r.metadata for r in runs):
+            meta[key] = str(sum(int(r.metadata[key]) for r in runs))
+    if "samples_lost" in meta and "samples_ticked" in meta:
+        meta["loss_fraction"] = repr(int(meta["samples_lost"]) / max(int(meta["samples_ticked"]), 1))
+    if descriptions is None:
+        descriptions = [r.metadata.get("excitation", "?") for r in runs]
+    meta["excitation"] = " ; ".join(descriptions)
+    meta["runs"] = str(len(runs))
+    meta["duration"] = repr(sum(float(r.metadata.get("duration", len(r) * dt)) for r in runs))
+    speed = None if any(x is None for x in speeds) else np.concatenate([x for x in speeds if x is not None])
+    return Recording(time=np.concatenate(times), duty=np.concatenate(duties), sample_period=dt,
+                     counts=np.concatenate(counts), speed=speed, seq=np.concatenate(seqs),
+                     counts_per_rev=runs[0].counts_per_rev, metadata=meta)
+
+
+# --------------------------------------------------------------------------------------------- the loop
+
+@dataclasses.dataclass
+class _State:
+    runs: list
+    descriptions: list
+    rounds: list
+    motor_time: float = 0.0
+    halfsines: int = 0
+
+    @property
+    def fitted_from(self) -> int:
+        """The first run the fits use: after the ranging half-sines once another run follows them."""
+        return self.halfsines if len(self.runs) > self.halfsines else 0
+
+    @property
+    def fitted(self) -> list:
+        return self.runs[self.fitted_from:]
+
+
+def _fit(recording: Recording, fit_options: Mapping[str, Any]) -> tuple[Estimate | None, str]:
+    from . import fit
+    try:
+        return fit(recording, outliers="keep", **fit_options), ""
+    except (NotIdentifiableError, ParameterError) as exc:
+        return None, str(exc)
+    except (ArithmeticError, np.linalg.LinAlgError) as exc:      # a numerical failure on data this poor
+        return None, f"the fit failed ({type(exc).__name__}: {exc})"
+
+
+def _breakaway(run: Recording, delay: int) -> float | None:
+    """Duty at which the counts first move clearly from where they started (None if never).
+
+    "Clearly": a running median of five counts more than three counts, and more than six times
+    the counts' own noise (from the differences of the first 20 samples, at rest), from the start.
+    """
+    c = np.asarray(run.counts, dtype=float)
+    if len(c) < 10:
+        return None
+    d = np.diff(c[:20])
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2)
+    smooth = np.array([np.median(c[max(0, k - 2):k + 3]) for k in range(len(c))])
+    moved = np.flatnonzero(np.abs(smooth - np.median(c[:5])) > max(3.0, 6 * noise))
+    if len(moved) == 0:
+        return None
+    k = max(int(moved[0]) - 1 - delay, 0)
+    return float(np.abs(run.duty[:k + 1]).max())
+
+
+def _peak_speed(run: Recording) -> float:
+    """Largest differenced speed of a run in rad/s."""
+    angle = 2 * math.pi * np.asarray(run.counts, float) / (run.counts_per_rev or 1)
+    if len(angle) < 2:
+        return 0.0
+    return float(np.max(np.abs(np.diff(angle))) / run.sample_period)
+
+
+def _travel(run: Recording) -> float:
+    angle = 2 * math.pi * np.asarray(run.counts, float) / (run.counts_per_rev or 1)
+    return float(angle.max() - angle.min())
+
+
+def run_until(rig: Any, target: float, *, sample_period: float = 0.005, duty_limit: int = 255,
+              max_time: float = DEFAULT_MAX_TIME, max_speed: float | None = None, max_travel: float | None = None,
+              guess: tuple[float, float] | None = None, fit_options: Mapping[str, Any] | None = None,
+              input_delay: int = 0, max_rounds: int = _MAX_ROUNDS,
+              on_round: Callable[[UntilRound], None] | None = None,
+              run: Callable[[Any, Experiment], Recording] | None = None) -> UntilResult:
+    """Run experiments on ``rig`` until the 95 % intervals of ``a`` and ``b`` are within ``+-target`` %.
+
+    Parameters
+    ----------
+    rig : Rig
+        Anything with ``run(experiment) -> Recording`` (``SimRig``, ``hardware.SerialRig`` opened).
+    target : float
+        Half-width of both intervals in % of their values, in (0, 100).
+    sample_period : float
+        s, > 0.
+    duty_limit : int
+        Largest duty magnitude, 1...255.
+    max_time : float
+        Motor-time budget in s, > 0 (every run counts, the ranging too).
+    max_speed : float, optional
+        Largest shaft speed the runs may ask for, rad/s (> 0): the amplitude of every block
+        keeps the model's steady speed within it.
+    max_travel : float, optional
+        Largest swing of the shaft angle in rad (> 0): sines are kept within it (the ranging too).
+    guess : (a, b), optional
+        A first ``a`` (1/s, > 0) and ``b`` (nonzero) replacing the ranging.
+    fit_options : mapping, optional
+        Options of ``identify.fit`` on every round (``{"input_delay": 1}`` for a rig whose delay is known).
+    input_delay : int
+        The rig's known input delay in samples, for the ranging's break-away duty (the fits find their own).
+    max_rounds : int
+        Rounds after which the run stops however far it got.
+    on_round : callable, optional
+        Called with each :class:`UntilRound` as it is made.
+    run : callable, optional
+        ``run(rig, experiment) -> Recording`` (default ``rig.run(experiment)``): a command passes
+        one that shows the samples as they arrive.
+
+    Returns
+    -------
+    UntilResult
+
+    Examples
+    --------
+    >>> from identify.adaptive import run_until
+    >>> from motorsim import Encoder, Motor, SimRig
+    >>> import numpy as np
+    >>> rig = SimRig(Motor(25.0, 3.0), Encoder(1000, angle_noise=2e-3), rng=np.random.default_rng(1))
+    >>> result = run_until(rig, 1.0)
+    >>> result.reached, result.stop, all(r <= 1.0 for r in result.rounds[-1].reach.values())
+    (True, 'target', True)
+    """
+    target = check_target(target)
+    sample_period = check_real("sample_period", sample_period, positive=True)
+    duty_limit = check_int("duty_limit", duty_limit, 1, 255)
+    max_time = check_real("max_time", max_time, positive=True)
+    if not math.isfinite(max_time):
+        raise ParameterError(f"max_time must be a finite number of seconds, got {max_time!r}")
+    if max_speed is not None:
+        max_speed = check_real("max_speed", max_speed, positive=True)
+    if max_travel is not None:
+        max_travel = check_real("max_travel", max_travel, positive=True)
+    if guess is not None:
+        if not isinstance(guess, (tuple, list)) or len(guess) != 2:
+            raise ParameterTypeError(f"guess must be a pair (a, b), got {guess!r}")
+        ga = check_real("guess a", guess[0], positive=True)
+        gb = check_real("guess b", guess[1])
+        if gb == 0:
+            raise ParameterError(f"guess b must be nonzero, got {guess[1]!r}")
+        guess = (ga, gb)
+    input_delay = check_int("input_delay", input_delay, 0, 1000)
+    max_rounds = check_int("max_rounds", max_rounds, 1, 10_000)
+    loop = _Loop(rig, target, sample_period, duty_limit, max_time, max_speed, max_travel, guess,
+                 dict(fit_options or {}), input_delay, max_rounds, on_round,
+                 run if run is not None else (lambda r, e: r.run(e)))
+    return loop.opening() or loop.rounds()
+
+
+@dataclasses.dataclass
+class _Loop:
+    """The state and the steps of :func:`run_until` (arguments already checked)."""
+
+    rig: Any
+    target: float
+    sample_period: float
+    duty_limit: int
+    max_time: float
+    max_speed: float | None
+    max_travel: float | None
+    guess: tuple[float, float] | None
+    fit_options: dict
+    input_delay: int
+    max_rounds: int
+    on_round: Callable[[UntilRound], None] | None
+    runner: Callable[[Any, Experiment], Recording]
+    state: _State = dataclasses.field(default_factory=lambda: _State([], [], []))
+    breakaway: float | None = None
+
+    @property
+    def min_block(self) -> float:
+        return max(0.25, 40 * self.sample_period)
+
+    def do(self, phase: str, excitation: Excitation, duration: float, why: str, predicted: Mapping[str, float],
+           halfsine: bool = False) -> UntilRound:
+        """Run one block, fit the runs so far, record and report the round."""
+        state, dt = self.state, self.sample_period
+        n = max(int(round(duration / dt)), 20)
+        rec = self.runner(self.rig, Experiment(excitation, dt, n * dt, self.duty_limit))
+        state.runs.append(rec)
+        state.descriptions.append(excitation.describe())
+        state.halfsines += bool(halfsine)
+        state.motor_time += n * dt
+        first = state.fitted_from
+        est, problem = _fit(join_runs(state.runs[first:], state.descriptions[first:]), self.fit_options)
+        intervals: dict[str, tuple[float, float]] = {}
+        if est is None:
+            reach, clear = {k: math.inf for k in _PARAMS}, None
+            why = f"{why}; the estimator refused the runs so far: {problem}" if problem else why
+        else:
+            intervals, reach = _reach(est)
+            clear = bool(est.selection.clear) if est.selection is not None else True
+        rnd = UntilRound(len(state.rounds) + 1, phase, excitation.describe(), n * dt, state.motor_time, why, est,
+                         intervals, reach, clear, dict(predicted))
+        state.rounds.append(rnd)
+        if self.on_round is not None:
+            self.on_round(rnd)
+        return rnd
+
+    def finish(self, stop: str, reason: str) -> UntilResult:
+        state = self.state
+        est = next((r.estimate for r in reversed(state.rounds) if r.estimate is not None), None)
+        recording = join_runs(state.runs, state.descriptions) if state.runs else None
+        fitted = join_runs(state.fitted, state.descriptions[state.fitted_from:]) if state.runs else None
+        return UntilResult(stop == "target", stop, reason, est, recording, tuple(state.rounds),  # type: ignore
+                           self.target, state.motor_time, self.breakaway, state.fitted_from, fitted)
+
+    def opening(self) -> UntilResult | None:
+        """The ranging (or the guess's sine); a result when it already has to stop."""
+        if self.guess is not None:
+            ga, gb = self.guess
+            f = min(max(ga, 2 * 2 * math.pi / 1.0), 0.8 * math.pi / self.sample_period)
+            amp = _amplitude(ga, gb, f, self.duty_limit, self.max_speed, self.max_travel)
+            length = max(self.min_block, min(2.0, 6 * 2 * math.pi / f))
+            self.do("opening", Sine(f, amp), length, f"opening: a sine at the guess's corner a = {ga:.4g} 1/s", {})
+            return None
+        amplitude = max(8, self.duty_limit // 8)
+        while True:
+            length = max(self.min_block, 0.5)
+            if self.state.motor_time + length > self.max_time:
+                return self.finish("budget", f"the time budget of {self.max_time:g} s was spent on ranging: the "
+                                             f"shaft did not turn clearly up to duty {amplitude}")
+            ex = Sine(math.pi / length, amplitude)            # half a sine: up from 0 and back
+            self.do("ranging", ex, length, f"ranging: half a sine up to duty {amplitude}", {}, halfsine=True)
+            if self._ranged(self.state.runs[-1], amplitude) or amplitude >= self.duty_limit:
+                break
+            amplitude = min(2 * amplitude, self.duty_limit)
+        if self.breakaway is None:
+            return self.finish("limits", f"the shaft did not turn at any duty up to {amplitude} (duty limit "
+                                         f"{self.duty_limit}): a and b cannot be excited; check the motor's supply "
+                                         f"and wiring, or raise the duty limit")
+        last = self.state.rounds[-1]
+        if last.estimate is None or max(last.reach.values()) > 50:
+            self._broadband(last, amplitude)
+        return None
+
+    def _ranged(self, run: Recording, amplitude: int) -> bool:
+        """Note the break-away duty; whether the shaft turned clearly or the budgets say stop doubling."""
+        ba = _breakaway(run, self.input_delay)
+        if ba is not None and self.breakaway is None:
+            self.breakaway = ba
+        counts = np.asarray(run.counts)
+        moved = abs(int(counts.max()) - int(counts.min()))
+        turned = moved > 20 and ba is not None and ba < 0.85 * amplitude
+        over = (self.max_speed is not None and _peak_speed(run) > 0.5 * self.max_speed) or \
+               (self.max_travel is not None and _travel(run) > 0.5 * self.max_travel)
+        return turned or over
+
+    def _broadband(self, last: UntilRound, amplitude: int) -> None:
+        """A slow half-sine shows b/a; a PRBS at the amplitude the budgets allow shows a."""
+        from motorsim.excitation import PRBS
+        level = float(self.duty_limit - 2)
+        if last.estimate is not None and last.estimate.a > 0:
+            gain = abs(last.estimate.b / last.estimate.a)
+            if self.max_speed is not None:
+                level = min(level, self.max_speed / gain)
+            if self.max_travel is not None:      # a bit of 10 ms moves the shaft at most gain * level * 0.01
+                level = min(level, self.max_travel / (20 * gain * 0.01))
+        floor = amplitude if self.breakaway is None else self.breakaway + 1
+        level = min(int(max(floor, min(level, self.duty_limit))), self.duty_limit)
+        length = max(self.min_block, 0.5)
+        if self.state.motor_time + length <= self.max_time:
+            self.do("ranging", PRBS(level, -level, 7, max(1, int(round(0.01 / self.sample_period))), 1), length,
+                    f"ranging: a PRBS of duty ±{level} for a first a (a slow half-sine shows b/a only)", {})
+
+    def rounds(self) -> UntilResult:
+        """Fit, check, design, run: until the target or a reason to stop."""
+        since_multisine = 0
+        while True:
+            stop = self._stop()
+            if isinstance(stop, UntilResult):
+                return stop
+            a0, b0 = stop
+            last = self.state.rounds[-1]
+            left = self.max_time - self.state.motor_time
+            if last.clear is False and since_multisine >= 1 and last.estimate is not None:
+                since_multisine = 0
+                block = _multisine_block(a0, b0, self.sample_period, self.duty_limit,
+                                         min(left, max(2.0, self.state.motor_time)), self.max_speed)
+                if block is not None:
+                    self.do("design", block[0], block[1], "the structure is not a clear choice: a multisine over "
+                                                          "a/10 ... 10 a for the evidence between the candidates", {})
+                    continue
+            since_multisine += 1
+            design = _design_block(self.state, last, a0, b0, self.target, self.sample_period, self.duty_limit, left,
+                                   self.max_speed, self.max_travel, self.min_block, self.fit_options, self.breakaway)
+            if isinstance(design, str):
+                return self.finish("limits", design)
+            ex, length, predicted, why = design
+            self.do("design", ex, length, why, predicted)
+
+    def _stop(self) -> UntilResult | tuple[float, float]:
+        """The result when the loop stops here, else the ``(a, b)`` to design the next block for."""
+        state, target = self.state, self.target
+        last = state.rounds[-1]
+        est = last.estimate
+        if est is not None and all(last.reach[k] <= target for k in _PARAMS) and last.clear:
+            return self.finish("target", f"both 95 % intervals within ±{target:g} % after {state.motor_time:.4g} s "
+                                         f"of motor time (a ±{_pct(last.reach['a'])}, b ±{_pct(last.reach['b'])}); "
+                                         f"the structure '{est.structure}' is a clear choice")
+        if len(state.rounds) >= self.max_rounds:
+            return self.finish("rounds", _short(last, target, f"stopped after {self.max_rounds} rounds"))
+        if self.max_time - state.motor_time < self.min_block:
+            return self.finish("budget", _short(last, target, f"the time budget of {self.max_time:g} s is spent"))
+        if est is None:
+            if len(state.rounds) >= 3 and all(r.estimate is None for r in state.rounds[-3:]):
+                return self.finish("model", f"the estimator refused the runs three rounds running: {last.why}")
+            return self.guess if self.guess is not None else (10.0, 1.0)
+        a0, b0 = float(est.a), float(est.b)
+        if not (math.isfinite(a0) and math.isfinite(b0)) or a0 <= 0 or b0 == 0:
+            return self.finish("model", f"the fitted model has a = {a0:.4g} 1/s, b = {b0:.4g}: not a stable "
+                                        f"first-order motor to design for")
+        speed = None if self.breakaway is None else self.breakaway * abs(b0) / a0
+        if speed is not None and self.max_speed is not None and speed > self.max_speed:
+            return self.finish("limits", f"the break-away duty {self.breakaway:g} already drives the shaft at about "
+                                         f"{speed:.3g} rad/s, above the speed budget {self.max_speed:g} rad/s: no "
+                                         f"amplitude above break-away stays within it")
+        return a0, b0
+
+
+def _short(last: UntilRound, target: float, head: str) -> str:
+    """Which parameter is short of the target and by how much, and whether the model is clear."""
+    if last.estimate is None:
+        return f"{head}; the estimator refused the runs ({last.why})"
+    short = [f"{k} ±{_pct(last.reach[k])} (target ±{target:g} %)" for k in _PARAMS if last.reach[k] > target]
+    parts = [head]
+    if short:
+        parts.append("short: " + ", ".join(short))
+    if not last.clear:
+        parts.append(f"the structure '{last.estimate.structure}' is not a clear choice (a candidate the data cannot "
+                     f"rule out remains)")
+    return "; ".join(parts)
+
+
+def _amplitude(a: float, b: float, frequency: float, duty_limit: int, max_speed: float | None,
+               max_travel: float | None) -> int:
+    """The largest sine amplitude within the duty limit whose steady speed and swing keep the budgets."""
+    amp = float(duty_limit - 2 if duty_limit > 10 else duty_limit)     # the integer sine stays off the clamp
+    gain = abs(b) / math.hypot(a, frequency)          # rad/s per duty at this frequency
+    if max_speed is not None:
+        amp = min(amp, max_speed / gain)
+    if max_travel is not None:
+        # the swing 2 A gain / w, and the drift of the start from rest (at most as much again)
+        amp = min(amp, max_travel * frequency / (4 * gain))
+    return int(max(1, min(duty_limit, math.floor(amp))))
+
+
+def _design_block(state: _State, last: UntilRound, a: float, b: float, target: float, dt: float,
+                  duty_limit: int, left: float, max_speed: float | None, max_travel: float | None,
+                  min_block: float, fit_options: Mapping[str, Any], breakaway: float | None
+                  ) -> tuple[Excitation, float, dict, str] | str:
+    """The next sine and its length, or why none within the limits can help.
+
+    The reach of each interval after a block is predicted as its reach now times
+    ``sqrt(var(I_past + I_block) / var(I_past))`` at each plausible ``a`` (the interval's ends
+    while it is wide, ``b`` moved with it so that ``b/a`` stays); the sine chosen reaches the target
+    soonest at the worst of them.
+    """
+    est = last.estimate
+    delay = int(est.input_delay) if est is not None else int(fit_options.get("input_delay", 0) or 0)
+    # the chosen fit's own standard errors (not widened by candidates it cannot rule out): the noise's scale
+    own = est.stderr() if est is not None else {}
+    reach_now = np.array([100 * _Z * own.get(k, math.nan) / abs(v) for k, v in zip(_PARAMS, (a, b))])
+    if not np.all(np.isfinite(reach_now)):
+        # no interval yet: the encoder's rounding, ten times over, as the noise
+        cpr = state.runs[-1].counts_per_rev or 16667
+        sigma2 = 10 * (2 * math.pi / cpr) ** 2 / 12
+        info = sum((information(a, b, r.duty, dt, delay) for r in state.fitted), np.zeros((2, 2)))
+        var = _variances(info)
+        reach_now = np.where(np.isfinite(var) & (var >= 0),
+                             100 * _Z * np.sqrt(sigma2 * np.abs(var)) / np.abs([a, b]), 1e3)
+    a_set = [a]
+    if est is not None and last.intervals:
+        lo, hi = last.intervals["a"]
+        if math.isfinite(lo) and math.isfinite(hi) and (hi > 1.2 * a or lo < a / 1.2):
+            a_set = [max(lo, a / 4), a, min(hi, 4 * a)]
+    else:
+        a_set = [a / 4, a, 4 * a]
+    a_set = sorted({x for x in a_set if x > 0})
+    pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay) for r in state.fitted), np.zeros((2, 2)))
+             for aa in a_set]
+    hi_f = 0.8 * math.pi / dt
+    best = None
+    for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28):
+        amp = _amplitude(a, b, f, duty_limit, max_speed, max_travel)
+        if breakaway is not None and amp <= breakaway:
+            continue
+        unit = max(min_block, 2 * 2 * math.pi / f, 1.0 / a)     # two periods, the transient
+        if unit > left:
+            continue
+        n = max(int(round(unit / dt)), 20)
+        ex = _two_tone(float(f"{f:.4g}"), amp, hi_f)
+        duty = ex.duty(n, dt, duty_limit)
+        worst_time, worst_reach = 0.0, np.zeros(2)
+        for aa, past in zip(a_set, pasts):
+            blk = information(aa, b * aa / a, duty, dt, delay)
+            sec, reach = _time_to_target(past, blk, unit, reach_now, _AIM * target, left)
+            sec = max(sec, unit)
+            worst_time, worst_reach = max(worst_time, sec), np.maximum(worst_reach, reach)
+        key = (worst_time, float(np.max(worst_reach)))
+        if best is None or key < best[0]:
+            best = (key, ex, amp, unit, worst_reach)
+    if best is None:
+        return (f"no sine within the limits drives the shaft above its break-away duty {breakaway:g}: "
+                f"the speed or travel budget leaves amplitudes of at most "
+                f"{_amplitude(a, b, hi_f, duty_limit, max_speed, max_travel)}; raise the speed or travel budget")
+    (sec, _), ex, amp, unit, reach = best
+    cap = max(_GROWTH * state.motor_time, unit)
+    length = max(min(sec * _MARGIN, cap, left), unit)
+    what = _what(ex)
+    if math.isfinite(sec) and sec * _MARGIN <= length + 1e-9:
+        why = f"{what}: predicted to reach ±{target:g} % in {sec:.3g} s"
+    elif math.isfinite(sec):
+        why = f"{what}: predicted to reach ±{target:g} % in {sec:.3g} s (this block {length:.3g} s, at most " \
+              f"{_GROWTH:g} times the motor time so far)"
+    else:
+        why = f"{what}: the fastest toward ±{target:g} %, not reached in the {left:.3g} s left"
+    if not math.isfinite(sec) or length < sec * _MARGIN:
+        # the reach predicted after the block actually run
+        duty = ex.duty(max(int(round(unit / dt)), 20), dt, duty_limit)
+        reach = np.max([_time_to_target(p, information(aa, b * aa / a, duty, dt, delay), unit, reach_now, target,
+                                        length, fixed=True)[1] for aa, p in zip(a_set, pasts)], axis=0)
+    return ex, length, {k: float(r) for k, r in zip(_PARAMS, reach)}, why
+
+
+def _two_tone(frequency: float, amplitude: int, highest: float) -> Excitation:
+    """The block's excitation: the line ``frequency`` and, below ``highest``, its third harmonic.
+
+    One sine fits a first-order model exactly whatever the plant behind it (a lag, friction or a
+    delay move its gain and phase at that one frequency only), so the default could not tell them
+    apart; a second line at three times the frequency (a third of the amplitude) gives it the
+    evidence, for some of the information about ``a`` and ``b``.
+    """
+    from motorsim.excitation import Multisine
+    third = float(f"{3 * frequency:.4g}")
+    if third >= highest or amplitude < 6:
+        return Sine(frequency, amplitude)
+    hi = int(round(amplitude * 2 / 3))
+    return Multisine((frequency, third), (hi, amplitude - hi), (0.0, 0.0))
+
+
+def _what(ex: Excitation) -> str:
+    freqs: tuple = getattr(ex, "frequencies", ())
+    amps: tuple = getattr(ex, "amplitudes", ())
+    if len(freqs) == 1:
+        return f"sine at {freqs[0]:.4g} rad/s, duty {amps[0]}"
+    return "lines at " + ", ".join(f"{f:.4g}" for f in freqs) + " rad/s, duty " + "+".join(str(x) for x in amps)
+
+
+def _time_to_target(past: np.ndarray, blk: np.ndarray, unit: float, reach_now: np.ndarray, target: float,
+                    left: float, fixed: bool = False) -> tuple[float, np.ndarray]:
+    """Seconds of a block (information ``blk`` per ``unit`` s, growing in proportion) until both reaches
+    are within ``target`` %, and the reaches then (``inf`` s and the reaches after ``left`` s when it is
+    not enough; with ``fixed``, the reaches after ``left`` s)."""
+    var_past = _variances(past)
+
+    def reach(seconds: float) -> np.ndarray:
+        ratio = _variances(past + blk * (seconds / unit)) / np.where(var_past > 0, var_past, 1)
+        return reach_now * np.sqrt(np.clip(np.where(np.isfinite(ratio), ratio, 1.0), 0.0, 1.0))
+
+    if fixed:
+        return left, reach(left)
+    if np.any(reach(left) > target):
+        return math.inf, reach(left)
+    lo, hi = 0.0, left
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        if np.all(reach(mid) <= target):
+            hi = mid
+        else:
+            lo = mid
+    return hi, reach(hi)
+
+
+def _multisine_block(a: float, b: float, dt: float, duty_limit: int, length: float,
+                     max_speed: float | None) -> tuple[Excitation, float] | None:
+    """An odd multisine over ``a/10 ... 10 a`` for about ``length`` s, or None when none fits."""
+    from .design import design_multisine
+    try:
+        d = design_multisine(a, b, dt, duration=max(length, 0.5), duty_limit=duty_limit)
+    except ParameterError:
+        return None
+    return d.excitation, d.duration

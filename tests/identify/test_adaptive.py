@@ -1,0 +1,133 @@
+"""``identify.adaptive``: the rounds of ``live --until`` on the simulated bench, with fixed seeds."""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from identify import fit
+from identify.adaptive import information, join_runs, run_until
+from identify.uncertainty import cramer_rao_bound
+from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+from motorsim.checks import ParameterError
+
+
+def _rig(a=25.0, b=3.0, seed=1, noise=1e-2, **motor):
+    return SimRig(Motor(a, b, **motor), Encoder(1000, angle_noise=noise), rng=np.random.default_rng(seed))
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+def test_information_is_the_inverse_of_the_cramer_rao_bound():
+    # the bound's own code path (identify.uncertainty) with pure angle noise sigma: cov = sigma^2 I^-1
+    duty = Sine(17.0, 150).duty(400, 0.005)
+    sigma = 3e-3
+    crb = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=None, angle_noise=sigma)
+    cov = sigma**2 * np.linalg.inv(information(25.0, 3.0, duty, 0.005))
+    np.testing.assert_allclose(cov, crb.covariance, rtol=1e-9)
+
+
+def test_information_of_a_delayed_run_is_that_of_the_shifted_duty():
+    duty = Sine(9.0, 120).duty(300, 0.005)
+    shifted = np.concatenate([np.zeros(2), duty[:-2]])
+    np.testing.assert_allclose(information(10.0, 1.0, duty, 0.005, input_delay=2),
+                               information(10.0, 1.0, shifted, 0.005), rtol=1e-12)
+
+
+def test_joined_runs_fit_as_the_runs_pooled():
+    rig = _rig(seed=3)
+    runs = [rig.run(Experiment(Sine(f, 200), 0.005, 1.0)) for f in (8.0, 30.0)]
+    joined = join_runs(runs)
+    assert len(joined) == sum(len(r) for r in runs)
+    assert len(joined.segments()) == 2                       # each run its own segment
+    np.testing.assert_allclose(np.diff(joined.time)[np.diff(joined.seq) == 1], 0.005, rtol=1e-9)
+    one, pooled = fit(joined), fit(runs)
+    # the same rows, the same segments: the same numbers to rounding
+    assert one.a == pytest.approx(pooled.a, rel=1e-9) and one.b == pytest.approx(pooled.b, rel=1e-9)
+
+
+def test_run_until_stops_within_target_and_its_intervals_hold_the_motor():
+    rounds = []
+    result = run_until(_rig(25.0, 3.0, seed=2), 1.0, on_round=rounds.append)
+    assert result.reached and result.stop == "target" and result.clear
+    last = result.rounds[-1]
+    assert rounds == list(result.rounds)
+    assert last.reach["a"] <= 1.0 and last.reach["b"] <= 1.0
+    ci = result.estimate.confidence_interval(0.95)
+    assert ci["a"][0] <= 25.0 <= ci["a"][1] and ci["b"][0] <= 3.0 <= ci["b"][1]
+    # the opening ranged from rest; every run is in the one recording, motor time adds up
+    assert result.rounds[0].phase == "ranging" and result.breakaway is not None
+    assert len(result.recording.segments()) == len(result.rounds)
+    assert result.motor_time == pytest.approx(sum(r.duration for r in result.rounds), rel=1e-12)
+    assert result.recording.metadata["runs"] == str(len(result.rounds))
+    # the runs fitted (the ranging half-sines left out once others follow) reproduce the final estimate
+    assert result.fitted_from >= 1
+    assert len(result.fitted_recording.segments()) == len(result.rounds) - result.fitted_from
+    again = fit(result.fitted_recording, outliers="keep")
+    assert again.a == pytest.approx(result.estimate.a, rel=1e-9)
+
+
+@pytest.mark.parametrize("a, b", [(2.0, 0.3), (150.0, 20.0)])
+def test_run_until_reaches_slow_and_fast_motors(a, b):
+    result = run_until(_rig(a, b, seed=4), 1.0)
+    assert result.reached
+    ci = result.estimate.confidence_interval(0.95)
+    assert ci["a"][0] <= a <= ci["a"][1] and ci["b"][0] <= b <= ci["b"][1]
+
+
+def test_a_guess_replaces_the_ranging():
+    result = run_until(_rig(seed=5), 1.0, guess=(25.0, 3.0))
+    assert result.rounds[0].phase == "opening" and result.breakaway is None
+    assert result.reached
+
+
+def test_a_target_beyond_the_budget_stops_at_it_naming_what_is_short():
+    result = run_until(_rig(seed=6, noise=5e-2), 0.01, max_time=3.0)
+    assert not result.reached and result.stop == "budget"
+    assert "time budget of 3 s is spent" in result.reason and "short: a ±" in result.reason
+    assert result.motor_time <= 3.0 + 1e-9
+
+
+def test_a_motor_that_never_turns_stops_at_the_limits():
+    # a dead zone wider than the duty limit: nothing reaches the shaft
+    result = run_until(_rig(seed=7, dead_zone=300.0), 1.0, max_time=10.0)
+    assert result.stop == "limits" and not result.reached
+    assert "did not turn at any duty up to 255" in result.reason
+
+
+def test_the_speed_budget_bounds_the_amplitude_of_every_block():
+    # 1000 counts without noise: the differenced speed is the shaft's to 1.26 rad/s (one count per 5 ms)
+    def peak(max_speed):
+        result = run_until(SimRig(Motor(25.0, 3.0), Encoder(1000)), 0.2, max_speed=max_speed, max_time=5.0)
+        assert result.reached and len(result.rounds) >= 3          # the ranging, a PRBS, a designed block
+        return np.nanmax(np.abs(result.recording.measured_speed()))
+    # measured: 7.5 rad/s within a budget of 10 rad/s, 18.8 rad/s without one
+    assert peak(10.0) <= 10.0 + 1.26
+    assert peak(None) > 15.0
+
+
+@pytest.mark.parametrize("target", [0, -1, 100, math.nan, math.inf, "1"])
+def test_a_bad_target_is_refused_naming_it(target):
+    with pytest.raises((ParameterError, TypeError), match="target"):
+        run_until(_rig(), target)
+
+
+@pytest.mark.parametrize("name, value", [("max_time", 0.0), ("max_time", math.inf), ("max_speed", -1.0),
+                                         ("max_travel", 0.0), ("duty_limit", 0)])
+def test_a_bad_budget_is_refused_naming_it(name, value):
+    with pytest.raises(ParameterError, match=name):
+        run_until(_rig(), 1.0, **{name: value})
+
+
+def test_a_bad_guess_is_refused_naming_it():
+    with pytest.raises(ParameterError, match="guess a"):
+        run_until(_rig(), 1.0, guess=(-1.0, 3.0))
+    with pytest.raises(ParameterError, match="guess b"):
+        run_until(_rig(), 1.0, guess=(25.0, 0.0))
