@@ -275,16 +275,11 @@ def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray)
         out = first_order_filter(e, forcing)
         s0 = np.power(e, np.arange(n, dtype=float))                        # the free response to a unit speed
         if angle:
-            steps = np.empty(n)
-            for j in range(k):
-                col = out[:, j]
-                steps[0] = 0.0
-                np.multiply(col[:-1], c1, out=steps[1:])
-                steps[1:] += c2 * x[:-1, j]
-                np.cumsum(steps, out=col)
-            steps[0] = 0.0
-            np.multiply(s0[:-1], c1, out=steps[1:])
-            s0 = np.cumsum(steps)
+            steps = np.zeros((n, k), order="F")
+            np.multiply(out[:-1], c1, out=steps[1:])
+            steps[1:] += c2 * x[:-1]
+            out = np.cumsum(steps, axis=0, out=steps)
+            s0 = np.concatenate([[0.0], np.cumsum(c1 * s0[:-1])])
     else:
         s0 = getattr(zoh_response(a, 0.0, np.zeros(n), t, 1.0, uniform=uniform, sensitivities=False),
                      "angle" if angle else "speed")
@@ -297,9 +292,7 @@ def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray)
         out -= out.mean(axis=0)
     ss = float(np.einsum("i,i->", s0, s0))
     if ss > 0:
-        coef = np.einsum("i,ij->j", s0, out) / ss
-        for j in range(k):
-            out[:, j] -= coef[j] * s0
+        out -= np.multiply.outer(s0, np.einsum("i,ij->j", s0, out) / ss)
     return out
 
 
