@@ -26,7 +26,7 @@ __all__ = ["FILE_OUTPUTS", "FOLDER_OUTPUTS", "FOLDER_FILES", "INPUT_ATTRIBUTES",
 FILE_OUTPUTS: dict[str, dict[str, tuple[str, ...] | None]] = {
     "simulate": {"out": None},
     "import": {"out": None},
-    "live": {"out": None},
+    "live": {"out": None, "save": None},
     "identify": {"save": None, "report": FIGURE_SUFFIXES},
     "frequency": {"plot": FIGURE_SUFFIXES},
     "control": {"plot": FIGURE_SUFFIXES},
