@@ -216,17 +216,10 @@ def _open_rig_and_writer(args: argparse.Namespace, experiment, named: bool = Tru
     ``--out`` that cannot be written stops here; a default name (not ``named``) that another
     run took meanwhile is moved on to the next free one.  Returns ``(rig, experiment, writer)``.
     """
-    from hardware.errors import RigError
     from hardware.protocol import DEVICE_INPUT_DELAY
-    from hardware.serial_rig import SerialRig
+    from motorid.commands.live_until import open_rig
     from motorsim.writing import RecordingWriter
-
-    rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
-                    watchdog_ms=args.watchdog_ms, timeout=args.timeout)
-    try:
-        rig.open()
-    except RigError as exc:
-        raise CommandError(str(exc)) from None
+    rig = open_rig(args)
     args.counts_per_rev = rig.counts_per_rev
     try:
         if args.controller:

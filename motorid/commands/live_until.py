@@ -101,6 +101,20 @@ def _guess(args: argparse.Namespace) -> tuple[float, float] | None:
     return None
 
 
+def open_rig(args: argparse.Namespace):
+    """The rig of ``live``'s flags (``--port``, ``--baud``, ...), opened; a port that cannot be opened is one
+    line (:class:`CommandError`).  ``live`` with and without ``--until`` opens it here."""
+    from hardware.errors import RigError
+    from hardware.serial_rig import SerialRig
+    rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
+                    watchdog_ms=args.watchdog_ms, timeout=args.timeout)
+    try:
+        rig.open()
+    except RigError as exc:
+        raise CommandError(str(exc)) from None
+    return rig
+
+
 def run_live_until(args: argparse.Namespace, default_out_path: Callable[[], str]) -> int:
     """The ``--until`` loop on the opened rig; 0 when the target is reached, 3 when it stopped short.
 
@@ -108,7 +122,6 @@ def run_live_until(args: argparse.Namespace, default_out_path: Callable[[], str]
     """
     from hardware.errors import RigError
     from hardware.protocol import DEVICE_INPUT_DELAY
-    from hardware.serial_rig import SerialRig
     from identify.adaptive import DEFAULT_MAX_TIME, run_until
     from motorid.progress import ProgressBar
     from motorsim.files import check_output_path
@@ -122,12 +135,7 @@ def run_live_until(args: argparse.Namespace, default_out_path: Callable[[], str]
         check_output_path(args.save, flag="--save", inputs=[args.out])
     if args.plot:
         check_output_path(f"{args.out}.until.png", flag="--plot (its figure FILE.csv.until.png)")
-    rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
-                    watchdog_ms=args.watchdog_ms, timeout=args.timeout)
-    try:
-        rig.open()
-    except RigError as exc:
-        raise CommandError(str(exc)) from None
+    rig = open_rig(args)
     if not named:
         print_to_stderr(f"recording to {args.out}")
     runs: list = []
