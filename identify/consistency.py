@@ -260,15 +260,20 @@ def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray)
 
     On a uniform clock by one pass of :func:`motorsim.recursion.first_order_filter` over every column (the exact
     ZOH step, as :func:`identify.sensitivity.zoh_response` takes it), else column by column through it."""
+    from motorsim.plant import first_order_coefficients
     from motorsim.recursion import first_order_filter
 
     from .sensitivity import zoh_response
     n, k = x.shape
     if uniform and n > 1:
         h = float(t[1] - t[0])
-        e = math.exp(-a * h)
-        c1 = -math.expm1(-a * h) / a if a * h > 1e-8 else h           # speed gain of a held unit input
-        c2 = (h - c1) / a if a * h > 1e-4 else h * h / 2 - a * h ** 3 / 6   # its angle over the interval
+        if a * h > 1e-4:
+            # the step's speed gain of a held unit input and its angle over the interval
+            e, c1, c2 = first_order_coefficients(a, h)
+        else:                       # their series, where (h - c1)/a cancels (and a may be 0)
+            e = math.exp(-a * h)
+            c1 = -math.expm1(-a * h) / a if a * h > 1e-8 else h
+            c2 = h * h / 2 - a * h ** 3 / 6
         # column-major: every pass below runs along contiguous columns
         forcing = np.zeros((n, k), order="F")
         np.multiply(x[:-1], c1, out=forcing[1:])
