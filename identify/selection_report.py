@@ -219,6 +219,9 @@ class PartCheck:
     def describe(self) -> str:
         """One line: the split, each part's ``a`` and ``b``, the p-value and the verdict."""
         (p, q) = self.parts
+        if not math.isfinite(self.p_value):
+            # no covariance: a part's information sits in one block of rows (a single step), so no test
+            return f"{self.split}: not testable on this run (a part's information sits in one stretch of rows)"
         verdict = "agree" if self.agree else "DIFFER" + (f": {self.hint}" if self.hint else "")
         return (f"{self.split}: a {_g(self.a[0])} {p}, {_g(self.a[1])} {q}; b {_g(self.b[0])} {p}, "
                 f"{_g(self.b[1])} {q} (p = {self.p_value:.2g}) {verdict}")

@@ -197,3 +197,11 @@ def test_the_checks_responses_are_the_exact_zoh_responses_projected(kind, unifor
         ref = getattr(zoh_response(25.0, 1.0, x[:, j], t, 0.0, sensitivities=False), kind)
         ref = project_out_initial_state(s0, kind == "angle", ref)[0]
         assert np.max(np.abs(got[:, j] - ref)) <= 1e-9 * np.max(np.abs(ref))
+
+
+def test_a_split_that_cannot_be_tested_says_so_instead_of_showing_its_values():
+    check = PartCheck("early / late", ("early", "late"), (-181.3, 26.6), (-58.8, 120.2),
+                      ((-math.inf, math.inf), (-math.inf, math.inf)), ((-math.inf, math.inf), (-math.inf, math.inf)),
+                      math.nan, True, False)
+    text = check.describe()
+    assert "not testable" in text and "-181" not in text
