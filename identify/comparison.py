@@ -83,6 +83,8 @@ STOP_FACTOR = 100.0
 #: The candidate structures of the default, simplest first: the registered ones
 #: (:func:`identify.structures`) it considers.
 STRUCTURES: Mapping[str, ModelStructure] = structures(in_default=True)
+#: Every registered structure: a candidate may be one the default fits only on evidence (a gain per direction).
+_REGISTERED: Mapping[str, ModelStructure] = structures()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,18 +127,19 @@ class Candidate:
     @property
     def n_params(self) -> int:
         """Shared parameters, a nonzero delay counted as one more."""
-        return STRUCTURES[self.structure].n_params + (self.input_delay > 0)
+        return _REGISTERED[self.structure].n_params + (self.input_delay > 0)
 
     @property
     def method(self) -> str:
         """The estimator that fits this candidate."""
-        return self.fitted_by or STRUCTURES[self.structure].method
+        return self.fitted_by or _REGISTERED[self.structure].method
 
     def options(self) -> dict[str, Any]:
-        """``fit(recordings, method, **options)`` reproduces the candidate on all rows."""
+        """``fit(recordings, method, **options)`` reproduces the candidate on all rows (a structure the default
+        fits only on evidence, outside :data:`STRUCTURES`, too)."""
         if self.fitted_by:
             return {"input_delay": self.input_delay, **dict(self.fit_options)}
-        return {"input_delay": self.input_delay, **STRUCTURES[self.structure].options}
+        return {"input_delay": self.input_delay, **_REGISTERED[self.structure].options}
 
     @property
     def label(self) -> str:

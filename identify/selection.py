@@ -36,6 +36,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from .asymmetry import direction_dependent
 from .comparison import (
     CLOSE,
     LEVEL,
@@ -532,10 +533,13 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
         selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
             f"; {selection.doubt}" if selection.doubt else ""))
+    before = (est, selection)
     est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
+    # a gain per direction where the forward / reverse parts differ (nothing is fitted where they agree)
+    est, selection, parts = direction_dependent(recs, before, (est, selection, parts), _check_parts)
     report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
     return dataclasses.replace(est, selection=report, notes=tuple(
-        ([selection.doubt] if selection.doubt else []) + notes))
+        ([selection.doubt] if selection.doubt else []) + list(selection.notes)))
 
 
 def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,

@@ -15,6 +15,7 @@ from typing import Mapping, Sequence
 
 from motorsim.checks import ParameterError
 
+from .asymmetric import AsymmetricGain
 from .base import ModelStructure, Parameter
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
@@ -24,7 +25,7 @@ __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
-                                          SecondOrder())
+                                          SecondOrder(), AsymmetricGain())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -39,7 +40,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     --------
     >>> import identify
     >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order']
+    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """
