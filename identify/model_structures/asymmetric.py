@@ -32,6 +32,8 @@ from .base import Parameter
 from .first_order import BIAS, POLE, FirstOrder
 
 if TYPE_CHECKING:
+    import control
+
     from ..data import Segment
 
 __all__ = ["AsymmetricGain", "GAIN_MEAN", "GAIN_FORWARD", "GAIN_REVERSE", "directional_drive"]
@@ -58,6 +60,7 @@ class AsymmetricGain(FirstOrder):
     estimator = OE_ASYMMETRIC
     options: Mapping[str, object] = {}
     in_default = False
+    simulated = False
     formula = "b/(s + a), b the mean of b_forward and b_reverse"
 
     @property
@@ -99,6 +102,17 @@ class AsymmetricGain(FirstOrder):
             f"{v['b_forward']:.6g} and b_reverse {v['b_reverse']:.6g}: the simulator and the controllers take one "
             f"gain, so give one on purpose (e.g. --a {v['a']:.6g} --b {min(v['b_forward'], v['b_reverse']):.6g}, "
             "the lower one: the loop is then no faster than designed in either direction)")
+
+    def state_space(self, values: Mapping[str, float]) -> control.StateSpace:
+        """The linear part, ``b/(s + a)`` with ``b`` the mean gain (module docstring), as the simulator's first-order
+        motor's continuous system (bias omitted, as every structure's nonlinear or constant parts are)."""
+        v = self.values(values)
+        return Motor(v["a"], v["b"]).state_space()
+
+    def discretise(self, values: Mapping[str, float], sample_period: float) -> control.StateSpace:
+        """The linear part's exact discretisation over a held sample (:meth:`state_space`)."""
+        v = self.values(values)
+        return Motor(v["a"], v["b"]).discretise(sample_period)
 
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:

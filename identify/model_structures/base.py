@@ -98,6 +98,10 @@ class ModelStructure:
         the default screens the nonlinear ones.
     in_default : bool
         Whether the default estimator (``identify.fit`` with no method) considers it.
+    simulated : bool
+        Whether the simulator's :class:`~motorsim.plant.Motor` carries it: :meth:`plant`, :meth:`stepper`, the
+        controllers' model and :meth:`identify.Estimate.io_system` (a structure it does not carry, a gain per
+        direction, refuses them by name; its :meth:`response` and :meth:`segment_output` are its own).
     rank : int
         0 for the first-order motor's family; a structure of a higher rank (a second pole) is
         chosen by the default only where no candidate of a lower rank is within the noise of the
@@ -112,6 +116,7 @@ class ModelStructure:
     options: Mapping[str, Any] = {}
     linear: bool = True
     in_default: bool = True
+    simulated: bool = True
     rank: int = 0
 
     @property
