@@ -69,21 +69,34 @@ STEP_TOL = 1e-12
 @dataclasses.dataclass
 class _Evaluation:
     residual: np.ndarray          # measured less model, every segment's rows
-    jacobian: np.ndarray | None   # d model / d (a, b_forward, b_reverse, bias), initial state projected out
+    jacobian: np.ndarray | None   # d model / d theta, initial state projected out
     rss: float
 
 
-def _evaluate(segments: Sequence[Segment], theta: np.ndarray, jacobian: bool = True) -> _Evaluation:
-    """The residual (and the model's Jacobian) at ``theta = (a, b_forward, b_reverse, bias)``, each segment's
-    initial speed and, on an angle, its offset at their least-squares values."""
-    a, bf, br, d = (float(x) for x in theta)
+#: A drive map: ``(duty, gain parameters) -> (acceleration it gives, its derivative by each gain parameter)``.
+DriveMap = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, list[np.ndarray]]]
+
+
+def directional(u: np.ndarray, gains: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The gain per direction's drive map: ``b_forward u+ + b_reverse u-`` and its derivatives ``u+``, ``u-``."""
+    up, un = np.maximum(u, 0.0), np.minimum(u, 0.0)
+    return gains[0] * up + gains[1] * un, [up, un]
+
+
+def evaluate(segments: Sequence[Segment], theta: np.ndarray, drive_map: DriveMap = directional,
+             jacobian: bool = True) -> _Evaluation:
+    """The residual (and the model's Jacobian) of ``d omega/dt = -a omega + g(u) + d`` at ``theta = (a, gain
+    parameters..., d)``, ``g`` the ``drive_map``'s, each segment's initial speed and, on an angle, its offset at
+    their least-squares values (exact: the linear motor of gain 1 driven by ``g(u)``, its analytic sensitivity to
+    ``a``, the responses to ``g``'s derivatives)."""
+    a, d = float(theta[0]), float(theta[-1])
+    gains = np.asarray(theta[1:-1], dtype=float)
     residuals, columns = [], []
     for seg in segments:
         u = np.asarray(seg.drive, dtype=float)
-        up, un = np.maximum(u, 0.0), np.minimum(u, 0.0)
+        drive, derivatives = drive_map(u, gains)
         angle = seg.kind == "angle"
-        full = zoh_response(a, 1.0, bf * up + br * un, seg.time, 0.0, bias=d, uniform=seg.uniform,
-                            sensitivities=jacobian)
+        full = zoh_response(a, 1.0, drive, seg.time, 0.0, bias=d, uniform=seg.uniform, sensitivities=jacobian)
         out = full.angle if angle else full.speed
         s0 = full.angle_initial_speed if angle else full.speed_initial_speed
         err = seg.output - out
@@ -96,10 +109,10 @@ def _evaluate(segments: Sequence[Segment], theta: np.ndarray, jacobian: bool = T
         if not jacobian:
             continue
         sens = full.angle_sensitivity if angle else full.speed_sensitivity
-        halves = [getattr(zoh_response(a, 1.0, x, seg.time, 0.0, uniform=seg.uniform, sensitivities=False),
-                          "angle" if angle else "speed") for x in (up, un)]
+        parts = [getattr(zoh_response(a, 1.0, x, seg.time, 0.0, uniform=seg.uniform, sensitivities=False),
+                         "angle" if angle else "speed") for x in derivatives]
         g = np.column_stack([sens[:, 0] + w * (full.angle_initial_speed_a if angle else full.speed_initial_speed_a),
-                             halves[0], halves[1], sens[:, 3]])
+                             *parts, sens[:, 3]])
         if angle:
             g = g - g.mean(axis=0)
         if ss > 0:
@@ -109,10 +122,12 @@ def _evaluate(segments: Sequence[Segment], theta: np.ndarray, jacobian: bool = T
     return _Evaluation(r, np.vstack(columns) if jacobian else None, sum_squares(r))
 
 
-def _solve(segments: Sequence[Segment], theta0: np.ndarray) -> tuple[np.ndarray, _Evaluation]:
-    """Gauss--Newton from ``theta0`` with step halving; the converged parameters and their evaluation."""
+def solve(segments: Sequence[Segment], theta0: np.ndarray, drive_map: DriveMap = directional,
+          valid: Callable[[np.ndarray], bool] = lambda theta: bool(theta[0] > 0)) -> tuple[np.ndarray, _Evaluation]:
+    """Gauss--Newton on :func:`evaluate` from ``theta0`` with step halving, within ``valid``; the converged
+    parameters and their evaluation."""
     theta = np.array(theta0, dtype=float)
-    here = _evaluate(segments, theta)
+    here = evaluate(segments, theta, drive_map)
     for _ in range(MAX_ITERATIONS):
         assert here.jacobian is not None
         scale = np.linalg.norm(here.jacobian, axis=0)
@@ -120,9 +135,9 @@ def _solve(segments: Sequence[Segment], theta0: np.ndarray) -> tuple[np.ndarray,
         step = np.linalg.lstsq(here.jacobian / scale, here.residual, rcond=None)[0] / scale
         for _ in range(30):
             trial = theta + step
-            if trial[0] > 0:
+            if valid(trial):
                 with np.errstate(over="ignore", invalid="ignore"):
-                    there = _evaluate(segments, trial)
+                    there = evaluate(segments, trial, drive_map)
                 if math.isfinite(there.rss) and there.rss <= here.rss * (1 + 1e-12):
                     break
             step = step / 2
@@ -141,28 +156,42 @@ def _start(recs: list[Recording], delay: int) -> np.ndarray:
     return np.array([est.a, est.b, est.b, est.extra.get("bias", 0.0)])
 
 
-def _fit(recs: list[Recording], delay: int, start: np.ndarray, covariance: str = "auto") -> Estimate:
-    """The fit at ``delay`` from ``start`` (``(a, b_forward, b_reverse, bias)``) as an :class:`Estimate`."""
+@dataclasses.dataclass
+class MappedFit:
+    """A fit of :func:`evaluate`'s model: its parameters, covariance (and how it was made) and what an
+    :class:`Estimate` needs."""
+
+    theta: np.ndarray
+    covariance: np.ndarray
+    covariance_method: str
+    n_samples: int
+    rss: float
+    fit_percent: float
+    residual_unit: str
+
+
+def fit_mapped(recs: list[Recording], delay: int, start: np.ndarray, drive_map: DriveMap, what: str,
+               valid: Callable[[np.ndarray], bool] = lambda theta: bool(theta[0] > 0),
+               covariance: str = "auto") -> MappedFit:
+    """:func:`solve` on the recordings' segments at ``delay`` from ``start``, with its covariance: the linearised
+    encoder bootstrap where the residuals are mostly an encoder's rounding, else Gauss--Newton or Newey--West
+    (module docstring); ``what`` names the structure in messages."""
     from .encoder_bootstrap import linearised_encoder_bootstrap_covariance
     from .friction import ROUNDING_DOMINATED
     from .uncertainty import covariance_from_jacobian, robust_covariance
     from .validation import segment_fit_percent
+    p = len(start)
     segments = prepare_segments(recs, delay)
     n = sum(len(s.time) for s in segments)
     nuisance = sum(2 if s.kind == "angle" else 1 for s in segments)
-    if not segments or n - nuisance <= len(FITTED) + 1:
-        raise NotIdentifiableError(f"recording is too short for {len(FITTED)} parameters (a, b_forward, b_reverse, "
-                                   f"bias) and the initial state of {len(segments)} segments; record longer")
-    for seg_drive in ([s.drive for s in segments],):
-        drive = np.concatenate(seg_drive)
-        if not (np.any(drive > 0) and np.any(drive < 0)):
-            raise NotIdentifiableError("a gain per direction needs a drive of both signs, got one sign only: run the "
-                                       "motor both ways (a sine or a multisine about zero)")
-    theta, found = _solve(segments, start)
-    if not (np.all(np.isfinite(theta)) and theta[0] > 0):
-        raise NotIdentifiableError(f"the fit with a gain per direction landed on a = {theta[0]:.6g} 1/s: no stable "
-                                   "model of this structure fits; check that the motor moved both ways")
-    dof = max(n - nuisance - len(FITTED), 1)
+    if not segments or n - nuisance <= p + 1:
+        raise NotIdentifiableError(f"recording is too short for {what}: {p} parameters and the initial state of "
+                                   f"{len(segments)} segments; record longer")
+    theta, found = solve(segments, start, drive_map, valid)
+    if not (np.all(np.isfinite(theta)) and valid(theta)):
+        raise NotIdentifiableError(f"the fit of {what} landed on a = {theta[0]:.6g} 1/s: no stable model of this "
+                                   "structure fits; check that the motor moved")
+    dof = max(n - nuisance - p, 1)
     s2 = found.rss / dof
     J = found.jacobian
     assert J is not None
@@ -175,23 +204,33 @@ def _fit(recs: list[Recording], delay: int, start: np.ndarray, covariance: str =
     variance = found.rss / n
     encoders = all(s.kind == "angle" and st for s, st in zip(segments, steps))
     if covariance == "gauss-newton":
-        cov4, how = covariance_from_jacobian(J, s2, len(FITTED)), "gauss-newton"
+        cov, how = covariance_from_jacobian(J, s2, p), "gauss-newton"
     elif encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
         # mostly the encoder's rounding, which stays put while the shaft is slow: its spread over the phases
-        cov4 = linearised_encoder_bootstrap_covariance(segments, models, steps, variance, -J, len(FITTED))
+        cov = linearised_encoder_bootstrap_covariance(segments, models, steps, variance, -J, p)
         how = "linearised-encoder-bootstrap"
     else:
-        cov4, how = robust_covariance(J, found.residual, s2, len(FITTED))
+        cov, how = robust_covariance(J, found.residual, s2, p)
+    return MappedFit(theta, cov, how, n, found.rss, segment_fit_percent(segments, models), residual_unit(segments))
+
+
+def _fit(recs: list[Recording], delay: int, start: np.ndarray, covariance: str = "auto") -> Estimate:
+    """The fit at ``delay`` from ``start`` (``(a, b_forward, b_reverse, bias)``) as an :class:`Estimate`."""
+    drive = np.concatenate([s.drive for s in prepare_segments(recs, delay)] or [np.zeros(0)])
+    if not (np.any(drive > 0) and np.any(drive < 0)):
+        raise NotIdentifiableError("a gain per direction needs a drive of both signs, got one sign only: run the "
+                                   "motor both ways (a sine or a multisine about zero)")
+    found = fit_mapped(recs, delay, start, directional, "a gain per direction", covariance=covariance)
     # (a, b, b_forward, b_reverse, bias) from (a, b_forward, b_reverse, bias): b is their mean
     T = np.array([[1, 0, 0, 0], [0, 0.5, 0.5, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
-    cov = T @ cov4 @ T.T
-    a, bf, br, d = (float(x) for x in theta)
-    return Estimate(method="oe-asymmetric", a=a, b=0.5 * (bf + br), n_samples=n, sample_period=recs[0].sample_period,
-                    residual_rms=math.sqrt(found.rss / n), fit_percent=segment_fit_percent(segments, models),
-                    covariance=cov, param_names=("a", "b", "b_forward", "b_reverse", "bias"),
+    a, bf, br, d = (float(x) for x in found.theta)
+    return Estimate(method="oe-asymmetric", a=a, b=0.5 * (bf + br), n_samples=found.n_samples,
+                    sample_period=recs[0].sample_period, residual_rms=math.sqrt(found.rss / found.n_samples),
+                    fit_percent=found.fit_percent, covariance=T @ found.covariance @ T.T,
+                    param_names=("a", "b", "b_forward", "b_reverse", "bias"),
                     extra={"b_forward": bf, "b_reverse": br, "bias": d, "input_delay": delay},
-                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit, structure=STRUCTURE, covariance_method=how)
+                    residual_unit=found.residual_unit, input_unit=recs[0].input_unit,
+                    input_limit=recs[0].input_limit, structure=STRUCTURE, covariance_method=found.covariance_method)
 
 
 def fit_output_error_asymmetric(recordings: Recording | Sequence[Recording], *,
