@@ -10,32 +10,22 @@ the linearised encoder bootstrap's where the residuals are mostly an encoder's r
 :func:`identify.encoder_bootstrap.linearised_encoder_bootstrap_covariance`), else Gauss--Newton's, or Newey--West's
 where the residuals are not white (:func:`identify.uncertainty.robust_covariance`).
 
-The default (:func:`identify.fit`) fits it only where its answer's forward / reverse part check
-(:mod:`identify.consistency`) finds the parts' gains materially different: :func:`direction_dependent`.  It is
-chosen only where
-
-* the choice was clear but for the part checks (no other doubt to hide),
-* the gains differ materially (by more than :data:`~identify.comparison.MATERIAL` of their mean),
-* it fits better than the chosen model beyond the noise (the selection's own batch-means test,
-  :func:`identify.comparison.statistic`, at :data:`~identify.comparison.LEVEL`), and
-* its own part checks find no material difference and its intervals are finite and narrower than the values;
-
-it is then called a clear choice, its ``b`` (the mean gain) with an interval over both directions' own, and the
-intervals of ``a`` and ``b`` wide enough to hold ``a``, ``b_forward`` and ``b_reverse`` together (:data:`JOINT_Z`).
-Otherwise the answer stays the one the part checks left (not clear), and a note says what the gain per direction gave.
+The Gauss--Newton and its covariance (:func:`evaluate`, :func:`solve`, :func:`fit_mapped`) take any map of the
+drive, ``d omega/dt = -a omega + g(u) + d`` with ``g`` and its derivatives given: a gain per direction is one
+(:func:`directional`), a driver's limit another (:mod:`identify.drive_limit`).  The default fits these structures
+only where its part checks ask for them (:mod:`identify.evidence`).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from motorsim.checks import check_choice
 from motorsim.recording import Recording
 
-from .comparison import LEVEL, MATERIAL, Candidate, parameters_threshold, statistic
 from .data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -50,17 +40,13 @@ from .estimate import Estimate
 from .sensitivity import zoh_response
 from .sums import sum_squares
 
-__all__ = ["fit_output_error_asymmetric", "direction_dependent", "STRUCTURE", "FITTED"]
+__all__ = ["fit_output_error_asymmetric", "evaluate", "solve", "fit_mapped", "directional", "MappedFit", "STRUCTURE",
+           "FITTED"]
 
 #: The structure's name.
 STRUCTURE = "asymmetric-gain"
 #: The parameters the fit estimates (``b``, their mean, is derived).
 FITTED = ("a", "b_forward", "b_reverse", "bias")
-#: Normal quantile of the chosen answer's ``a`` and ``b`` intervals: ``1 - 0.05/3`` each, so that they hold ``a``,
-#: ``b_forward`` and ``b_reverse`` together in 95 % of runs (Bonferroni; ``b``'s interval is judged on both gains).
-#: At 95 % each, 2 of 6 clear answers on the forward-gain-11 %-above-reverse plant of ``motorid bench coverage``
-#: missed one of the three by a hair (z = 2.0).
-JOINT_Z = 2.3939797998185104
 #: Gauss--Newton iterations at most, and the relative step below which it has converged.
 MAX_ITERATIONS = 60
 STEP_TOL = 1e-12
@@ -291,127 +277,3 @@ def fit_output_error_asymmetric(recordings: Recording | Sequence[Recording], *,
     return _fit(recs, delay, _start(recs, delay), covariance)
 
 
-#: How the doubt of a choice among candidates the data cannot tell apart begins (:func:`identify.selection._widen`).
-CANDIDATES_DOUBT = "the data cannot tell "
-
-
-def _refit(recs: list[Recording], candidate: Candidate) -> Estimate:
-    """``candidate`` fitted on all rows by its own method."""
-    import warnings
-
-    from .methods import method_function
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return method_function(candidate.method)(recs, **candidate.options())
-
-
-def _residuals(est: Estimate, segments: Sequence[Segment]) -> np.ndarray:
-    """``est``'s residual (measured less model) on ``segments``, its structure's own output."""
-    shape = est.model_structure()
-    values = est.values()
-    return np.concatenate([seg.output - shape.segment_output(values, seg) for seg in segments])
-
-
-Answer = tuple[Estimate, Any, tuple]
-
-
-def direction_dependent(recs: list[Recording], before: tuple[Estimate, Any], after: Answer,
-                        check_parts: Callable[..., Answer]) -> Answer:
-    """The default's answer with a gain per direction where the evidence asks for it (module docstring).
-
-    Parameters
-    ----------
-    recs : list of Recording
-        The recordings, as the default has them.
-    before : (Estimate, Selection)
-        The chosen answer before its part checks.
-    after : (Estimate, Selection, tuple of PartCheck)
-        The answer after them (returned unchanged unless the forward / reverse check found the parts' gains
-        materially different).
-    check_parts : callable
-        The default's part checks, ``check_parts(recs, estimate, selection, open_loop=True)``.
-    """
-    est0, selection0 = before
-    est, selection, parts = after
-    split = next((c for c in parts if c.split == "forward / reverse" and c.material), None)
-    rivals = [c for c in selection0.candidates if c.within_noise and c is not selection0.chosen]
-    # only the part checks' doubt, or that and candidates the misfit left within its noise, which the gain per
-    # direction must then beat too: any other doubt (a delay at the top of the range, a loop, ...) stands
-    settled = selection0.clear or selection0.doubt.startswith(CANDIDATES_DOUBT)
-    if split is None or not settled or est0.structure == STRUCTURE:
-        return after
-    delays = sorted({est0.input_delay} | {c.input_delay for c in rivals})
-    start = np.array([est0.a, est0.b, est0.b, float(est0.extra.get("bias", 0.0))])
-    fits: list[Estimate] = []
-    try:
-        for d in delays:
-            fits.append(_fit(recs, d, start))
-        # the rivals' best, on all rows, where the choice was in doubt
-        best = selection0.best
-        others = [est0] + ([_refit(recs, best)] if not selection0.clear and best is not selection0.chosen else [])
-    except (NotIdentifiableError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return _noted(after, f"a gain per direction ({STRUCTURE}) could not be fitted: {exc}")
-    skip = max(delays)
-    rows = {d: prepare_segments(recs, d, skip=skip) for d in {*delays, *(e.input_delay for e in others)}}
-    residuals = [_residuals(e, rows[e.input_delay]) for e in fits]
-    i = int(np.argmin([sum_squares(r) for r in residuals]))
-    alt, r1 = fits[i], residuals[i]
-    s1 = sum_squares(r1)
-    bf, br = alt.extra["b_forward"], alt.extra["b_reverse"]
-    said = (f"a gain per direction ({STRUCTURE}, delay {alt.input_delay}) gives b forward {bf:.4g}, reverse "
-            f"{br:.4g}, a = {alt.a:.4g}")
-    if not abs(bf - br) > MATERIAL * abs(alt.b):
-        return _noted(after, f"{said}: the gains differ by less than {100 * MATERIAL:g} %, so it is not chosen")
-    for other, r in zip(fits, residuals):       # its fits at the other delays: within the noise and different?
-        if other is not alt and statistic(r - r1, sum_squares(r) - s1, r1) <= parameters_threshold(1, LEVEL) and (
-                abs(other.a - alt.a) > MATERIAL * abs(alt.a) or abs(other.b - alt.b) > MATERIAL * abs(alt.b)):
-            return _noted(after, f"{said}, but cannot tell delay {other.input_delay} from it (a = {other.a:.4g}), so "
-                                 "it is not chosen")
-    t, limit = math.inf, 0.0
-    for other in others:        # it must fit better than the chosen (and the rivals' best) beyond the noise
-        r0 = _residuals(other, rows[other.input_delay])
-        k = max(len(FITTED) - len(other.param_names), 1)
-        here, bound = statistic(r0 - r1, sum_squares(r0) - s1, r1), parameters_threshold(k, LEVEL)
-        if not here > bound:
-            return _noted(after, f"{said}, but fits no better than {other.structure} (delay {other.input_delay}) "
-                                 f"beyond the noise (T = {here:.3g}, threshold {bound:.3g}), so it is not chosen")
-        if here / bound < t / max(limit, 1e-300):
-            t, limit = here, bound
-    se = alt.stderr()
-    unsure = [n for n in ("a", "b_forward", "b_reverse") if not (math.isfinite(se[n]) and
-                                                                  1.959963984540054 * se[n] < abs(alt.value(n)))]
-    if unsure:
-        return _noted(after, f"{said}, but the run does not determine {', '.join(unsure)}, so it is not chosen")
-    old = selection0.chosen
-    chosen = Candidate(STRUCTURE, alt.input_delay, alt.a, alt.b, s1, 0.0, True)
-    runner = dataclasses.replace(old, statistic=t, within_noise=False)
-    candidates = tuple(runner if c is old else c for c in selection0.candidates) + (chosen,)
-    note = (f"{said}: the {old.label} model's forward and reverse parts differ ({split.hint}, p = "
-            f"{split.p_value:.2g}), and the gain per direction fits better beyond the noise (T = {t:.3g}, "
-            f"threshold {limit:.3g})" + (f", than {', '.join(c.label for c in rivals[:4])} too" if rivals and
-                                         not selection0.clear else ""))
-    trial = dataclasses.replace(selection0, candidates=candidates, chosen=chosen, best=chosen, runner_up=runner,
-                                notes=(*selection0.notes, note), clear=True, doubt="")
-    new_est, new_sel, new_parts = check_parts(recs, alt, trial, open_loop=True)
-    if not new_sel.clear:
-        return _noted(after, f"{said}, but its own parts differ too ({new_sel.doubt}), so it is not chosen")
-    # the answer's a and b intervals hold a, b_forward and b_reverse together: each at 1 - 0.05/3 (Bonferroni)
-    ci, se = new_est.confidence_interval(0.95), new_est.stderr()
-    z = JOINT_Z
-    gains = [(new_est.value(n), se[n]) for n in ("b_forward", "b_reverse")]
-    ranges = {"a": (min(ci["a"][0], new_est.a - z * se["a"]), max(ci["a"][1], new_est.a + z * se["a"])),
-              "b": (min([ci["b"][0]] + [x - z * e for x, e in gains]),
-                    max([ci["b"][1]] + [x + z * e for x, e in gains]))}
-    return (dataclasses.replace(new_est, model_range=ranges),
-            dataclasses.replace(new_sel, notes=(*new_sel.notes, _B_NOTE)), new_parts)
-
-
-#: The note of an answer with a gain per direction: what its ``b`` is, and its interval.
-_B_NOTE = ("the gain differs by direction: b is the mean of b_forward and b_reverse (the gain a symmetric input "
-           "sees), its interval holds both; a controller must be given one direction's gain on purpose")
-
-
-def _noted(after: Answer, line: str) -> Answer:
-    """``after`` with ``line`` among its selection's notes."""
-    est, selection, parts = after
-    return est, dataclasses.replace(selection, notes=(*selection.notes, line)), parts

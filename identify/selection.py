@@ -36,7 +36,6 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-from .asymmetry import direction_dependent
 from .comparison import (
     CLOSE,
     LEVEL,
@@ -72,6 +71,7 @@ from .data import (
 )
 from .errors import NotIdentifiableError
 from .estimate import Estimate
+from .evidence import on_evidence
 from .feedback import ClosedLoopFit, feedback_evidence, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
 from .selection_report import SelectionReport
@@ -535,8 +535,8 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
             f"; {selection.doubt}" if selection.doubt else ""))
     before = (est, selection)
     est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
-    # a gain per direction where the forward / reverse parts differ (nothing is fitted where they agree)
-    est, selection, parts = direction_dependent(recs, before, (est, selection, parts), _check_parts)
+    # a structure a split's differing parts point to (nothing is fitted where they agree)
+    est, selection, parts = on_evidence(recs, before, (est, selection, parts), _check_parts)
     report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
     return dataclasses.replace(est, selection=report, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + list(selection.notes)))
