@@ -207,6 +207,7 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
     start = 0
     tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
     zone = float(values.get("dead_zone", 0.0) or 0.0)
+    limit = float(values.get("drive_limit", 0.0) or 0.0)      # a driver's clip (the drive-limit structure)
     for seg, model, place in _windows(pairs, total):
         n = len(seg.time)
         t = seg.time
@@ -217,6 +218,8 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
         v = np.asarray(seg.drive, dtype=float)
         if zone > 0:
             v = np.sign(v) * np.maximum(np.abs(v) - zone, 0.0)
+        if limit > 0:
+            v = np.clip(v, -limit, limit)
         if tau > 0:
             v = _lagged(v, t, tau)
         residual.append(seg.output - model)

@@ -17,6 +17,7 @@ from motorsim.checks import ParameterError
 
 from .asymmetric import AsymmetricGain
 from .base import ModelStructure, Parameter
+from .drive_limit import DriveLimit
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
 
@@ -25,7 +26,7 @@ __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
-                                          SecondOrder(), AsymmetricGain())
+                                          SecondOrder(), AsymmetricGain(), DriveLimit())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -40,7 +41,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     --------
     >>> import identify
     >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain']
+    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain', 'drive-limit']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """

@@ -1,10 +1,10 @@
-"""A gain per direction of the drive: the ``asymmetric-gain`` structure, ``oe-asymmetric`` and the default's use of it."""
+"""A gain per direction of the drive: the ``asymmetric-gain`` structure, ``oe-asymmetric``, the default's use of it."""
 import numpy as np
 import pytest
 
 import identify
 from identify import Estimate, fit
-from motorid.bench.misfits import A, B_FORWARD, B_REVERSE, asymmetric_gain
+from motorid.bench.misfits import B_FORWARD, B_REVERSE, A, asymmetric_gain
 from motorsim import Experiment, Motor, Multisine, Recording, SimRig
 from motorsim.checks import ParameterError
 

@@ -18,8 +18,8 @@ from motorsim.checks import ParameterError
 from motorsim.control import PlantModel
 
 #: A value of every parameter of the registered structures: each part set well away from its neutral value.
-VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "bias": 4.0, "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0,
-          "electrical_time_constant": 0.004}
+VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "drive_limit": 150.0, "bias": 4.0,
+          "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0, "electrical_time_constant": 0.004}
 DT, DELAY = 0.002, 2
 #: Noise-free comparisons of the same model computed two ways: 1e-9 relative (observed ~1e-13).
 RTOL = 1e-9
@@ -74,12 +74,13 @@ def test_the_batch_engine_runs_a_structure_exactly_or_refuses_it(s, alone):
 
 @pytest.mark.parametrize("s", [s for s in STRUCTURES if not s.simulated], ids=lambda s: s.name)
 def test_a_structure_the_simulator_cannot_run_is_refused_by_every_fast_path_by_name(s):
-    # a gain per direction has no single-gain plant: the batch engine, the controller's model, the per-sample
-    # step and the python-control system refuse it, naming both gains, rather than drop one
+    # a gain per direction has no single-gain plant, a drive limit no plant without one: the batch engine, the
+    # controller's model, the per-sample step and the python-control system refuse them, naming both gains or the
+    # limit, rather than drop a part
     est = _estimate(s)
     for run in (lambda: s.plant(_values(s), DELAY), lambda: s.stepper(_values(s), np.full(3, DT)), est.motor,
                 est.io_system, lambda: PlantModel.from_source(est, counts_per_rev=4096)):
-        with pytest.raises(ParameterError, match="one gain.*b_forward 3.3 and b_reverse 2.7"):
+        with pytest.raises(ParameterError, match="one gain.*b_forward 3.3 and b_reverse 2.7|no drive limit.*150"):
             run()
 
 

@@ -31,6 +31,7 @@ ACCEPTED = {
     "iv-reference": ("input_delay",),
     "oe-electrical": ("input_delay",),
     "oe-asymmetric": ("input_delay", "covariance"),
+    "oe-drive-limit": ("input_delay", "covariance"),
     "pem-disturbance": ("input_delay", "friction", "disturbance_pole"),
 }
 
