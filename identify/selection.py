@@ -535,8 +535,10 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
             f"; {selection.doubt}" if selection.doubt else ""))
     before = (est, selection)
     est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
-    # a structure a split's differing parts point to (nothing is fitted where they agree)
-    est, selection, parts = on_evidence(recs, before, (est, selection, parts), _check_parts)
+    # a structure a split's differing parts point to (nothing is fitted where they agree), when every structure is
+    # asked for
+    if structures is None:
+        est, selection, parts = on_evidence(recs, before, (est, selection, parts), _check_parts)
     report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
     return dataclasses.replace(est, selection=report, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + list(selection.notes)))
