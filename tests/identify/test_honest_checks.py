@@ -106,7 +106,7 @@ def test_a_linear_motor_under_a_prbs_keeps_its_clear_answer():
     assert est.selection.clear and _covers(est, (25.0, 25.0), (3.0, 3.0))
 
 
-@pytest.mark.parametrize("seed", [14])
+@pytest.mark.parametrize("seed", [14, 29])   # gravity under a multisine; a slow motor warming 3 % under steps
 def test_the_random_rigs_past_the_structures_are_never_clear_and_wrong(seed):
     rec, (a_range, b_range) = misfits.random_rig(seed)
     est = _fit(rec)
