@@ -266,7 +266,8 @@ def _limit_answer(est: Estimate) -> tuple[Estimate, str]:
 
 
 DRIVE_LIMIT = Rule(
-    "drive-limit", lambda c: c.split in ("low / high drive", "slow / fast") and c.b[1] < c.b[0], _limit_fit, 4,
+    "drive-limit", lambda c: c.split in ("low / high drive", "slow / fast", "gain by duty") and c.b[1] < c.b[0],
+    _limit_fit, 4,
     lambda e: f"a limit of {e.extra['drive_limit']:.4g} {e.input_unit}, a = {e.a:.4g}, b = {e.b:.4g}",
     _limit_immaterial, _limit_answer)
 
