@@ -95,6 +95,8 @@ SCREEN_SHARE = 0.02
 SIGN_LEVEL = 0.001
 #: How the note of a screen that left friction out begins.
 SCREENED_OUT = "friction and dead zone not fitted"
+#: How the note begins where a fit on the screen's rows overruled it (:func:`_screen_refuted`).
+REFUTED = "friction and dead zone fitted although the score test found no sign of them"
 #: Share of the non-zero input samples at one magnitude from which the input counts as one amplitude (a
 #: binary PRBS, a square wave): a dead zone is then a gain change the data cannot see.
 SINGLE_AMPLITUDE_SHARE = 0.95
@@ -278,8 +280,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
                          "residual)")
             nonlinear = []
         elif moved:
-            notes.append(f"friction and dead zone fitted although the score test found no sign of them (p = {p:.2g}): "
-                         f"fitted on its rows, {moved}")
+            notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
@@ -541,6 +542,14 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
                  and STRUCTURES[c.structure].rank == 0), default=math.nan)
     within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
+    if any(n.startswith(REFUTED) for n in selection.notes) and not STRUCTURES[chosen.structure].linear:
+        # the score test found no sign of friction and a fit of it moved a and b: the data back the linear model
+        # by the one and the friction by the other, so the linear model's answer stays one they cannot rule out
+        linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank
+                  == 0 and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
+        best = min(linear, key=lambda c: c.residual_sum, default=None)
+        if best is not None and best not in within:
+            within.append(best)
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
     notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
@@ -550,6 +559,15 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
+    if refuted and not STRUCTURES[chosen.structure].linear and selection.clear:
+        # the score test finds no friction and a fit of it on the first rows moves a and b: which structure the
+        # answer rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the evidence for friction is split: {refuted[0].split(': ', 1)[0].replace(REFUTED, 'the score test')}"
+            f" finds none, while {refuted[0].split('fitted on its rows, ', 1)[-1]} on the first rows; the answer rests "
+            "on a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
+            "amplitudes would settle it"))
     averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
     if averaged is not None:
         est, doubt = averaged
