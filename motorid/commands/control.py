@@ -430,9 +430,6 @@ def run_control(args: argparse.Namespace) -> int:
         print_to_stderr(f"motorid: warning: the design needs an input of up to {largest:.4g} {unit}, more than the "
                         f"input limit +-{limit:g} {unit}: the drive clips it and the prediction no longer holds; "
                         "slow the reference or the controller, or raise --input-limit if the drive allows it")
-    elif limit is None:
-        print_to_stderr(f"motorid: note: no input limit known for a model in {unit}: give --input-limit to check "
-                        "the design against the drive")
     _print_robustness(args, controller, covariance, reference, robustness)
     if args.plot:
         from motorid import plots
@@ -492,7 +489,8 @@ def _reference_text(args: argparse.Namespace, reference: Reference, controller: 
 
 def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
     """The design model's input unit and limit: ``--input-limit``, else the model file's, else 255 for duty and
-    100 for %."""
+    100 for %; refused for another unit (volts) without one: its limit is the drive's supply, which only the user
+    knows, and a design is made within it."""
     unit, limit = "duty", None
     if getattr(args, "model", None):
         estimate = load_model_file(args.model)
@@ -505,6 +503,10 @@ def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
         limit = float(DUTY_LIMIT)
     if limit is None and unit == "%":
         limit = PERCENT_LIMIT          # a percentage's own full scale: no drive gives more than all of it
+    if limit is None:                  # volts: the supply's, which only the user knows
+        raise CommandError(f"--input-limit must be given for a model in {unit} that states no input limit (the "
+                           f"drive's supply, e.g. --input-limit 12 for a 12 V supply): a design is made and checked "
+                           "within it; or give --input-limit to import or identify so the model carries it")
     return unit, limit
 
 

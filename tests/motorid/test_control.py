@@ -377,3 +377,22 @@ def test_a_model_in_percent_designs_within_its_full_scale_by_default(tmp_path, c
     largest = float(captured.out.split("largest input ")[1].split(" %")[0])
     assert 0 < largest <= 100
     assert "more than the input limit" not in captured.err and "no input limit known" not in captured.err
+
+
+def test_a_volt_model_without_a_limit_is_refused_naming_the_flag(tmp_path, capsys):
+    # before: designed with a note only ('no input limit known for a model in V'), its reference sine:10,10
+    # chosen blind; a volt model's limit is the drive's supply, which only the user knows
+    from identify import Estimate
+    est = Estimate(method="oe", a=12.0, b=200.0, n_samples=2000, sample_period=0.001, residual_rms=0.1,
+                   fit_percent=99.0, covariance=np.diag([1e-4, 1e-2]), input_unit="V")
+    model = tmp_path / "volts.json"
+    model.write_text(est.to_json())
+    argv = ["control", "design", "--model", str(model), "--controller", "pi"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("motorid: error: --input-limit must be given for a model in V") and err.count("\n") == 1
+    assert main([*argv, "--input-limit", "12"]) == 0
+    captured = capsys.readouterr()
+    largest = float(captured.out.split("largest input ")[1].split(" V")[0])
+    assert "input limit +-12 V" in captured.out and 0 < largest <= 12
+    assert "more than the input limit" not in captured.err
