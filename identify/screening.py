@@ -95,7 +95,7 @@ def _one_level_options(recs: Sequence[Recording], estimator: Callable[..., Estim
     interval for either, and its arbitrary split of the two is no answer.
     """
     level = one_input_level(recs)
-    if level is None:
+    if level is None or sum(len(r) for r in recs) < 10:     # too short a run is said so by the estimator
         return options
     check_input_changes(recs)             # a level the motor had settled at is refused (no transient)
     warnings.warn(f"input is constant ({level:g} {recs[0].input_unit} throughout): a and b rest on the speed's "

@@ -1,0 +1,84 @@
+"""Files as other tools write them: a European spreadsheet's export, a "Unicode text" export, a LabVIEW
+measurement file, an Arduino serial monitor's log; each read to the recording the plain CSV gives.
+
+Before, each was refused with a misleading line: ``column 't' must hold a finite number, got '0,005000'``,
+``not a UTF-8 text file (invalid start byte at byte 0)``, ``column 'LabVIEW Measurement' must hold a finite
+number, got 'Writer_Version'``, ``column '12:00:00.000 -> 0' must hold a finite number``, ``line 2: 3 cells
+where the header has 1``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from motorid.cli import main
+from motorsim import Motor
+from motorsim.columns import import_recording
+from motorsim.plant import simulate
+
+_T = np.arange(400) * 0.005
+_U = np.repeat(np.random.default_rng(0).integers(-200, 200, 8), 50).astype(float)
+_W = simulate(Motor(25.0, 3.0), _U, _T).speed
+_ROWS = list(zip(_T, _U, _W))
+
+
+def _plain(tmp_path):
+    path = tmp_path / "plain.csv"
+    path.write_text("t,u,w\n" + "".join(f"{a:.6f},{b:g},{c:.6f}\n" for a, b, c in _ROWS))
+    return import_recording(path, time="t:s", input="u:duty", speed="w:rad/s")
+
+
+def _excel_european(path):
+    text = "\ufefft;u;w\r\n" + "".join(f"{a:.6f};{b:g};{c:.6f}\r\n".replace(".", ",") for a, b, c in _ROWS)
+    path.write_text(text, encoding="utf-8", newline="")
+
+
+def _unicode_text(path):
+    path.write_bytes(("\ufefft\tu\tw\r\n" + "".join(f"{a:.6f}\t{b:g}\t{c:.6f}\r\n" for a, b, c in _ROWS))
+                     .encode("utf-16-le"))
+
+
+def _labview(path):
+    header = ("LabVIEW Measurement\t\nWriter_Version\t2\nReader_Version\t2\nSeparator\tTab\nDecimal_Separator\t.\n"
+              "***End_of_Header***\t\n\nChannels\t2\t\nSamples\t400\t400\t\nX_Dimension\tTime\tTime\t\n"
+              "Delta_X\t0.005\t0.005\t\n***End_of_Header***\t\t\t\nt\tu\tw\tComment\n")
+    path.write_text(header + "".join(f"{a:.6f}\t{b:g}\t{c:.6f}\n" for a, b, c in _ROWS))
+
+
+def _serial_monitor(path):
+    path.write_text("".join(f"10:15:{a % 60:06.3f} -> {a:.6f},{b:g},{c:.6f}\n" for a, b, c in _ROWS))
+
+
+def _with_preamble(path):
+    path.write_text("Starting...\nMotor test v1\n" + "".join(f"{a:.6f},{b:g},{c:.6f}\n" for a, b, c in _ROWS))
+
+
+@pytest.mark.parametrize("write, names", [(_excel_european, ("t", "u", "w")), (_unicode_text, ("t", "u", "w")),
+                                          (_labview, ("t", "u", "w")), (_serial_monitor, ("0", "1", "2")),
+                                          (_with_preamble, ("0", "1", "2"))],
+                         ids=["excel-semicolon-decimal-comma", "utf16-unicode-text", "labview-lvm",
+                              "arduino-serial-monitor", "preamble-lines"])
+def test_a_file_as_its_tool_writes_it_reads_as_the_plain_csv(tmp_path, write, names):
+    path = tmp_path / "file.txt"
+    write(path)
+    rec = import_recording(path, time=f"{names[0]}:s", input=f"{names[1]}:duty", speed=f"{names[2]}:rad/s")
+    plain = _plain(tmp_path)
+    np.testing.assert_array_equal(rec.time, plain.time)
+    np.testing.assert_array_equal(rec.duty, plain.duty)
+    np.testing.assert_array_equal(rec.speed, plain.speed)
+
+
+def test_a_comma_inside_a_european_number_row_is_not_taken_for_thousands(tmp_path, capsys):
+    # '1.234,5' (a thousands point) is no number motorid guesses at: refused naming the cell
+    path = tmp_path / "thousands.csv"
+    path.write_text("t;u;w\n0,000;1.234,5;0,1\n0,005;1.234,5;0,2\n")
+    assert main(["identify", str(path), "--time", "t:s", "--input", "u:duty", "--speed", "w:rad/s"]) == 2
+    err = capsys.readouterr().err
+    assert "column 'u' must hold a finite number, got '1.234,5'" in err and err.count("\n") == 1
+
+
+def test_two_rows_are_too_short_not_a_constant_input(tmp_path, capsys):
+    path = tmp_path / "two.csv"
+    path.write_text("t,u,w\n0,100,0\n0.005,100,1.5\n")
+    assert main(["identify", str(path), "--time", "t:s", "--input", "u:duty", "--speed", "w:rad/s"]) == 2
+    assert "recording is too short: 2 samples" in capsys.readouterr().err
