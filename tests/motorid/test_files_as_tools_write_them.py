@@ -82,3 +82,21 @@ def test_two_rows_are_too_short_not_a_constant_input(tmp_path, capsys):
     path.write_text("t,u,w\n0,100,0\n0.005,100,1.5\n")
     assert main(["identify", str(path), "--time", "t:s", "--input", "u:duty", "--speed", "w:rad/s"]) == 2
     assert "recording is too short: 2 samples" in capsys.readouterr().err
+
+
+def test_a_ros2_bag_identifies_and_saves_its_model(tmp_path, capsys):
+    # before: the fit printed, then 'motorid: error: run: Is a directory' (the model's data_files hashed the bag
+    # folder as a file) and no model was saved
+    from tests.motorsim.test_robot_logs import _write_bag
+    bag = tmp_path / "run"
+    _write_bag(bag)
+    model = tmp_path / "model.json"
+    assert main(["identify", str(bag), "--time", "time_s", "--input", "/motor_cmd:V", "--speed",
+                 "/joint_states/wheel/velocity", "--save", str(model)]) == 0, capsys.readouterr().err
+    import json
+    files = json.loads(model.read_text())["data_files"]
+    assert [f["path"] for f in files] == [str(bag)] and len(files[0]["sha256"]) == 64
+    before = files[0]["sha256"]
+    (bag / "metadata.yaml").write_text((bag / "metadata.yaml").read_text() + "\n")
+    from identify.model_file import file_sha256
+    assert file_sha256(bag) != before           # the digest covers the bag's files
