@@ -192,7 +192,8 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
             continue
         g = np.array([grad.get(p, 0.0) for p in names])
         scale = float(np.max(np.abs(g)))     # scaled first: a / b**2 squared overflows long before the result does
-        var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
+        with np.errstate(invalid="ignore", over="ignore"):   # a covariance the data left undetermined holds nan
+            var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
         stderr[k] = scale * math.sqrt(var) if var >= 0 else math.nan
     return FeedforwardConstants(ks=c / b, kv=a / b, ka=1 / b, k0=-d / b, stderr=stderr,
                                 input_unit=str(getattr(estimate, "input_unit", "duty")),
