@@ -100,3 +100,22 @@ def test_a_ros2_bag_identifies_and_saves_its_model(tmp_path, capsys):
     (bag / "metadata.yaml").write_text((bag / "metadata.yaml").read_text() + "\n")
     from identify.model_file import file_sha256
     assert file_sha256(bag) != before           # the digest covers the bag's files
+
+
+@pytest.mark.parametrize("share", [0.5, 0.31])
+def test_a_wpilog_cut_while_written_is_answered_from_its_whole_records(tmp_path, capsys, share):
+    # before: the reader took the cut record's bytes for one more value at the last one's time:
+    # 'element 2156, column 'time_s' (time): time must be strictly increasing, got 14.775814 after 14.775814'
+    pytest.importorskip("wpiutil", reason="robotpy-wpiutil (the wpilib extra) is not installed")
+    from tests.real_like import FLY_A, write_sysid_wpilog
+    whole = write_sysid_wpilog(tmp_path / "whole.wpilog").read_bytes()
+    path = tmp_path / "cut.wpilog"
+    path.write_bytes(whole[:int(len(whole) * share) + 3])
+    status = main(["identify", str(path), "--time", "time_s", "--input", "voltage-drive", "--speed",
+                   "velocity-drive", "--json"])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    assert "the log ends inside a record" in captured.err
+    import json
+    doc = json.loads(captured.out)
+    assert doc["a_ci95"][0] <= FLY_A <= doc["a_ci95"][1]
