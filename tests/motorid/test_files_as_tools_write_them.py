@@ -119,3 +119,33 @@ def test_a_wpilog_cut_while_written_is_answered_from_its_whole_records(tmp_path,
     import json
     doc = json.loads(captured.out)
     assert doc["a_ci95"][0] <= FLY_A <= doc["a_ci95"][1]
+
+
+def test_a_sysid_wpilog_is_answered_by_the_command_with_no_flags(tmp_path, capsys):
+    # before: 'line 1: contains a NUL byte (at byte 6): binary data or a corrupted file, not a recording: ... is
+    # not a motorid recording'; SysId's entries say which is the voltage and which the velocity, with units
+    pytest.importorskip("wpiutil", reason="robotpy-wpiutil (the wpilib extra) is not installed")
+    import json
+    import warnings
+
+    from tests.real_like import write_sysid_wpilog
+    path = write_sysid_wpilog(tmp_path / "sysid.wpilog")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        assert main(["identify", str(path), "--json"]) == 0
+        plain = capsys.readouterr()
+        assert main(["identify", str(path), "--time", "time_s", "--input", "voltage-drive", "--speed",
+                     "velocity-drive", "--json"]) == 0
+    flagged = json.loads(capsys.readouterr().out)
+    assert "read as SysId's log of motor 'drive'" in plain.err
+    assert json.loads(plain.out)["a"] == flagged["a"] and json.loads(plain.out)["b"] == flagged["b"]
+
+
+def test_a_ros2_bag_with_no_flags_is_refused_naming_its_columns(tmp_path, capsys):
+    from tests.motorsim.test_robot_logs import _write_bag
+    bag = tmp_path / "run"
+    _write_bag(bag)
+    assert main(["identify", str(bag)]) == 2
+    err = capsys.readouterr().err
+    assert "is a robot log, not a motorid recording: name its columns with --time time_s" in err
+    assert "/joint_states/wheel/velocity" in err and "/motor_cmd" in err and err.count("\n") == 1
