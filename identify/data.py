@@ -24,7 +24,7 @@ from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
            "check_speed_agrees", "check_constant_input_runs", "ConstantInputTurnWarning", "check_output_moves",
-           "check_input_changes", "ConstantInputWarning", "one_input_level", "POOL_PERIOD_RTOL",
+           "check_input_changes", "check_length", "ConstantInputWarning", "one_input_level", "POOL_PERIOD_RTOL",
            "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
            "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
@@ -438,6 +438,14 @@ def _has_transient(rec: Recording) -> bool:
     return False
 
 
+def check_length(recordings: Sequence[Recording], n_params: int = 2) -> None:
+    """Refuse recordings with fewer than ``3 n_params + 4`` samples in all: too short for any fit."""
+    total = sum(len(r) for r in recordings)
+    if total < 3 * n_params + 4:
+        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
+                                   f"record at least {3 * n_params + 4} (a few time constants) samples")
+
+
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
     """Raise :class:`NotIdentifiableError` (or warn) when the data cannot determine the parameters.
 
@@ -451,10 +459,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     n_params : int
         Parameters the estimator fits (sets the shortest acceptable record).
     """
-    total = sum(len(r) for r in recordings)
-    if total < 3 * n_params + 4:
-        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
-                                   f"record at least {3 * n_params + 4} (a few time constants) samples")
+    check_length(recordings, n_params)
     duty = check_input_changes(recordings)
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):

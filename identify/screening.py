@@ -32,6 +32,7 @@ from .data import (
     as_recordings,
     check_constant_input_runs,
     check_input_changes,
+    check_length,
     check_output_moves,
     check_speed_agrees,
     one_input_level,
@@ -95,7 +96,7 @@ def _one_level_options(recs: Sequence[Recording], estimator: Callable[..., Estim
     interval for either, and its arbitrary split of the two is no answer.
     """
     level = one_input_level(recs)
-    if level is None or sum(len(r) for r in recs) < 10:     # too short a run is said so by the estimator
+    if level is None:
         return options
     check_input_changes(recs)             # a level the motor had settled at is refused (no transient)
     warnings.warn(f"input is constant ({level:g} {recs[0].input_unit} throughout): a and b rest on the speed's "
@@ -219,6 +220,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
     options = dict(options or {})
     recs = as_recordings(recordings)
+    check_length(recs)               # a run of one or two rows is said to be too short, before what else it lacks
     for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check
         try:
             check_output_moves(rec, rec.name(i))  # a stuck encoder...

@@ -291,6 +291,10 @@ def _read_text(path: str) -> Table:
             if x is None or not math.isfinite(x):
                 said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
                     if _SPREADSHEET_ERROR.match(cell) else ""
+                if not cell:
+                    said = (" (an empty cell: columns logged at different times, as a plotting tool exports "
+                            "topics? export each value held until the next, or fill the cells where the file was "
+                            "made)")
                 _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:

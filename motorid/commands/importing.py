@@ -117,7 +117,7 @@ def _is_motorid_recording(path: str) -> bool:
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
             return True
-        with open(path, encoding="utf-8", errors="replace") as fh:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:     # a BOM is the reader's to say
             return fh.readline().strip().startswith(FORMAT_HEADER)
     except OSError:
         return True                   # the reader says what is wrong with the path

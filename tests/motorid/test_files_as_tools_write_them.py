@@ -149,3 +149,47 @@ def test_a_ros2_bag_with_no_flags_is_refused_naming_its_columns(tmp_path, capsys
     err = capsys.readouterr().err
     assert "is a robot log, not a motorid recording: name its columns with --time time_s" in err
     assert "/joint_states/wheel/velocity" in err and "/motor_cmd" in err and err.count("\n") == 1
+
+
+def _v1(tmp_path, capsys, edit) -> str:
+    good = tmp_path / "good.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "1", "--out", str(good)]) == 0
+    path = tmp_path / "edited.csv"
+    path.write_text(edit(good.read_text()), encoding="utf-8")
+    capsys.readouterr()
+    assert main(["identify", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_a_recording_stating_an_impossible_encoder_is_refused(tmp_path, capsys):
+    # before: counts_per_rev 99999999999999999999 was read, every speed 1e-16 of the truth: b = 5.0e-16, 'a clear
+    # choice', exit 0
+    err = _v1(tmp_path, capsys, lambda s: s.replace("counts_per_rev: 16667", "counts_per_rev: 99999999999999999999"))
+    assert "counts_per_rev must be in 1...4294967296, got 99999999999999999999" in err
+
+
+@pytest.mark.parametrize("rows", [1, 2])
+def test_a_recording_of_one_or_two_rows_is_too_short(tmp_path, capsys, rows):
+    # before: 'input is zero throughout' (1 row), 'the encoder count never changes (stuck at 0)' (2 rows)
+    def cut(text):
+        head, body = text.split("seq,time_s,duty,counts\n")
+        return head + "seq,time_s,duty,counts\n" + "".join(body.splitlines(keepends=True)[:rows])
+    assert f"recording is too short: {rows} samples" in _v1(tmp_path, capsys, cut)
+
+
+def test_a_recording_saved_with_a_bom_is_told_so_not_called_a_foreign_file(tmp_path, capsys):
+    err = _v1(tmp_path, capsys, lambda s: "\ufeff" + s)
+    assert "byte-order mark (BOM)" in err and "is not a motorid recording" not in err
+
+
+def test_an_empty_cell_says_what_left_it_empty(tmp_path, capsys):
+    # a plotting tool's export of topics logged at different times leaves cells empty: refused naming the cell
+    # and what to do, not guessed at
+    path = tmp_path / "topics.csv"
+    path.write_text("__time,/cmd,/speed\n" + "".join(f"{1.7e9 + a:.6f},{b:g},\n{1.7e9 + a + 0.001:.6f},,{c:.6f}\n"
+                                                    for a, b, c in _ROWS))
+    assert main(["identify", str(path), "--time", "__time:s", "--input", "/cmd:duty", "--speed", "/speed:rad/s"]) == 2
+    err = capsys.readouterr().err
+    assert "column '/speed' must hold a finite number, got '' (an empty cell: columns logged at different times" in err
