@@ -396,3 +396,21 @@ def test_a_volt_model_without_a_limit_is_refused_naming_the_flag(tmp_path, capsy
     largest = float(captured.out.split("largest input ")[1].split(" V")[0])
     assert "input limit +-12 V" in captured.out and 0 < largest <= 12
     assert "more than the input limit" not in captured.err
+
+
+@pytest.mark.parametrize("argv, unit, limit", [
+    (["--a", "2", "--b", "0.05", "--controller", "position"], "duty", 255.0),
+    (["--a", "2", "--b", "0.05", "--controller", "lqr-position"], "duty", 255.0)])
+def test_a_default_design_is_slowed_until_it_stays_within_the_input_limit(capsys, argv, unit, limit):
+    # before: a slow motor's position loop by default asked for 16 220 duty (lqr-position 313 % of a % model's
+    # scale) with a warning only; the knob left to its default is stepped until the prediction fits the limit
+    assert main(["control", "design", *argv]) == 0
+    captured = capsys.readouterr()
+    largest = float(captured.out.split("largest input ")[1].split(f" {unit}")[0])
+    assert 0 < largest <= limit
+    assert "slowed until the design stays within it" in captured.err
+    assert "more than the input limit" not in captured.err
+    knob = "--time-constant" if "position" == argv[-1] else "--duty-weight"
+    default = {"--time-constant": "0.05", "--duty-weight": "1e-06"}[knob]
+    assert main(["control", "design", *argv, knob, default]) == 0          # a knob given is kept, and warned of
+    assert "more than the input limit" in capsys.readouterr().err
