@@ -255,4 +255,5 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))
             recs[i] = recs[i].drop_rows(rows)
-    return ScreenedFit(_one_level_answer(with_encoder(estimator(recs, **options), recs), recs), tuple(recs), tuple(dropped))
+    est = _one_level_answer(with_encoder(estimator(recs, **options), recs), recs)
+    return ScreenedFit(est, tuple(recs), tuple(dropped))
