@@ -448,7 +448,8 @@ def _jackknife_variance(Uf: np.ndarray, Yf: np.ndarray, n_eff: float) -> np.ndar
 LEAKAGE_SHARE = 1.0
 
 
-def _leakage_variance(u: np.ndarray, y: np.ndarray, segment: int, spectra) -> np.ndarray:
+def _leakage_variance(u: np.ndarray, y: np.ndarray, segment: int, spectra,
+                      whole: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """The squared leakage of the Welch estimate at each bin of a ``segment``-sample segment, estimated from the data.
 
     A finite window smooths the response over its bandwidth, weighted by the input's spectrum, and
@@ -457,7 +458,8 @@ def _leakage_variance(u: np.ndarray, y: np.ndarray, segment: int, spectra) -> np
     bound at 19 % of a random-step run's lines at 5e-4 rad/s of noise, 40 % of a robot log's).  The
     estimate from half-length segments carries the same error, larger; their difference, interpolated
     to this segment's bins, less the two estimates' own noise variance, measures it (Richardson's
-    extrapolation): :data:`LEAKAGE_SHARE` of it."""
+    extrapolation): :data:`LEAKAGE_SHARE` of it.  ``whole``: the whole segments' estimate and its noise
+    variance (:func:`_h1`)."""
     half = segment // 2
     n = len(u)
     if half < 8 or (n - half) // (half // 2) + 1 < 3:
@@ -469,7 +471,7 @@ def _leakage_variance(u: np.ndarray, y: np.ndarray, segment: int, spectra) -> np
     Uh, Yh = spectra(u, idx, window), spectra(y, idx, window)
     k = np.arange(segment // 2 + 1)
     at = 2 * np.arange(half // 2 + 1)
-    (gh, vh), (g, v) = _h1(Uh, Yh), _h1(spectra(u), spectra(y))
+    (gh, vh), (g, v) = _h1(Uh, Yh), whole
     fine = np.interp(k, at, gh.real) + 1j * np.interp(k, at, gh.imag)
     with np.errstate(invalid="ignore"):
         # the two estimates' own noise taken out of their difference: what is left is the window's
@@ -519,7 +521,7 @@ def _welch(rec: Recording, segment: int | None) -> _Lines:
         return np.fft.rfft(seg * window, axis=1)
 
     Uf, Yf = spectra(u), spectra(y)
-    leakage = _leakage_variance(u, y, segment, spectra)
+    leakage = _leakage_variance(u, y, segment, spectra, _h1(Uf, Yf))
     suu = np.mean(np.abs(Uf) ** 2, axis=0)
     syy = np.mean(np.abs(Yf) ** 2, axis=0)
     suy = np.mean(np.conj(Uf) * Yf, axis=0)
