@@ -103,8 +103,9 @@ def _one_level_options(recs: Sequence[Recording], estimator: Callable[..., Estim
                   "transient alone, and a friction or a bias cannot be told from b at one input level (SysId's "
                   "dynamic test alone); pool it with the routine's other tests, or record steps to several levels",
                   ConstantInputWarning, stacklevel=4)
-    from .selection import fit_selected
-    if estimator is fit_selected and "structures" not in options:
+    default = getattr(estimator, "__module__", "") == "identify.selection" and \
+        getattr(estimator, "__name__", "") == "fit_selected"          # by name: selection imports this module's callers
+    if default and "structures" not in options:
         return {**options, "structures": ONE_LEVEL_STRUCTURES}
     return options
 
