@@ -542,14 +542,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
                  and STRUCTURES[c.structure].rank == 0), default=math.nan)
     within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
-    if any(n.startswith(REFUTED) for n in selection.notes) and not STRUCTURES[chosen.structure].linear:
-        # the score test found no sign of friction and a fit of it moved a and b: the data back the linear model
-        # by the one and the friction by the other, so the linear model's answer stays one they cannot rule out
-        linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank
-                  == 0 and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
-        best = min(linear, key=lambda c: c.residual_sum, default=None)
-        if best is not None and best not in within:
-            within.append(best)
+    within += _linear_kept(selection, within)
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
     notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
@@ -559,15 +552,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
-    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
-    if refuted and not STRUCTURES[chosen.structure].linear and selection.clear:
-        # the score test finds no friction and a fit of it on the first rows moves a and b: which structure the
-        # answer rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the evidence for friction is split: {refuted[0].split(': ', 1)[0].replace(REFUTED, 'the score test')}"
-            f" finds none, while {refuted[0].split('fitted on its rows, ', 1)[-1]} on the first rows; the answer rests "
-            "on a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
-            "amplitudes would settle it"))
+    selection = _split_evidence(selection)
     averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
     if averaged is not None:
         est, doubt = averaged
@@ -754,6 +739,32 @@ def _own_sign_p(est: Estimate, recs: list[Recording]) -> float:
     """The chosen fit's sign test on the first recording, from its kept residuals where it has them."""
     kept = est.speed_residuals[0] if est.speed_residuals else None
     return sign_correlation_p(est, recs[0], kept)
+
+
+def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidate]:
+    """Where a fit overruled the screen (:data:`REFUTED`) and a nonlinear structure was chosen, the best linear
+    candidate (when not already ``within``): the score test found no friction and a fit of it moved ``a`` and ``b``,
+    so the data back the linear model by the one and friction by the other, and neither answer is ruled out."""
+    if not any(n.startswith(REFUTED) for n in selection.notes) or STRUCTURES[selection.chosen.structure].linear:
+        return []
+    linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank == 0
+              and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
+    best = min(linear, key=lambda c: c.residual_sum, default=None)
+    return [best] if best is not None and best not in within else []
+
+
+def _split_evidence(selection: Selection) -> Selection:
+    """Not clear where a fit overruled the screen and a nonlinear structure was chosen: which structure the answer
+    rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)."""
+    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
+    if not refuted or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
+        return selection
+    test = refuted[0].split(": ", 1)[0].replace(REFUTED, "the score test")
+    moved = refuted[0].split("fitted on its rows, ", 1)[-1]
+    return dataclasses.replace(selection, clear=False, doubt=(
+        f"the evidence for friction is split: {test} finds none, while {moved} on the first rows; the answer rests on "
+        "a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
+        "amplitudes would settle it"))
 
 
 def _refit_chosen(recs: list[Recording], selection: Selection, fix_bias: bool) -> tuple[Estimate, Selection]:
