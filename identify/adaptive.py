@@ -371,7 +371,8 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
     ``a / (1 + a tau)``: 1.2 % at ``a`` = 20 1/s and ``tau`` = 0.6 ms, 13 % at 150 1/s and 1 ms, far
     more than the intervals a run to +-1 % gives.  ``oe-electrical`` (``b / ((s + a)(tau s + 1))``)
     at the chosen delay is fitted, and taken when its ``tau`` is more than :data:`_LAG_Z` standard
-    errors above 0: its ``a`` and ``b`` hold whether the rig has a lag or a fractional dead time.
+    errors above 0 (and off the search's lower bound): its ``a`` and ``b`` hold whether the rig has a lag or
+    a fractional dead time.
     """
     from . import fit
     if est.structure not in _LAGLESS:
@@ -382,7 +383,9 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
         return None
     tau = float(lagged.value("electrical_time_constant"))
     se = float(lagged.stderr().get("electrical_time_constant", math.nan))
-    if not (math.isfinite(tau) and math.isfinite(se) and se > 0 and tau > _LAG_Z * se):
+    from .electrical import TAU_BOUNDS_SAMPLES
+    floor = 2 * TAU_BOUNDS_SAMPLES[0] * recording.sample_period      # a fit at its search's bound found no lag
+    if not (math.isfinite(tau) and math.isfinite(se) and se > 0 and tau > max(_LAG_Z * se, floor)):
         return None
     if not all(math.isfinite(float(x)) for x in (lagged.a, lagged.b)) or lagged.a <= 0:
         return None
