@@ -651,6 +651,22 @@ def _one_magnitude_bias(recs: list[Recording], est: Estimate, selection: Selecti
     return est, selection
 
 
+def _slower_than_run(est: Estimate) -> str:
+    """The model's time constant (``1/a``, or the electrical one) that is longer than the whole run, in words
+    ("" where none is): over less than one time constant a fit sees a ramp, not the pole."""
+    span = est.n_samples * est.sample_period
+    values = est.values()
+    slow = []
+    if math.isfinite(est.a) and span > 0 and abs(est.a) * span < 1:
+        slow.append(f"1/a = {1 / abs(est.a):.3g} s" if est.a else "1/a unbounded")
+    tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
+    if span > 0 and tau > span:
+        slow.append(f"the electrical time constant {tau:.3g} s")
+    if not slow:
+        return ""
+    return f"{' and '.join(slow)} {'is' if len(slow) == 1 else 'are'} longer than the run ({span:.3g} s)"
+
+
 def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
     """An answer whose intervals say nothing is no clear choice: a zero standard error from data with a residual
     (a degenerate covariance: the interval made infinite) or the chosen fit's own 95 % interval wider than the
@@ -668,6 +684,11 @@ def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Se
     # the chosen fit's own interval (not the range of candidates the data cannot rule out, which may be a richer
     # structure's wide one around a well-determined answer)
     wide = [n for n in ("a", "b") if math.isfinite(se[n]) and 1.959963984540054 * se[n] > abs(est.value(n))]
+    slow = _slower_than_run(est)
+    if slow and not (exact or wide):
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"{slow}: the run does not determine the pole, so this is not a clear choice; "
+            + (selection.doubt or "a run several time constants long would")))
     if wide and not exact:
         # an interval wider than the value itself (a ramp, a few steps): the run does not determine it
         ci = est.confidence_interval(0.95)
