@@ -488,7 +488,10 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
                    input_limit=recs[0].input_limit, structure="bias" if problem.with_bias else "linear",
                    covariance_method=cov_method, speed_residuals=_speed_residuals(recs, problem.segments, models))
-    keep_models(est, recs, problem.segments, models)     # the part checks ask for this model on every row
+    if solution.separable is not None:
+        # the part checks ask for this model on every row; the separable fit's is the measured output less its
+        # least-squares residual, as theirs (the other path's angle has no offset fitted)
+        keep_models(est, recs, problem.segments, models)
     return est
 
 

@@ -219,9 +219,9 @@ def keep_models(estimate: Estimate, recordings: Sequence[Recording], segments: S
     checks of :mod:`identify.consistency` ask :func:`_models` for the chosen fit's model on every row).
 
     ``segments`` are :func:`identify.data.prepare_segments` of ``recordings`` at the estimate's input delay
-    (each naming its recording by index) and ``models`` the estimate's output on each, its initial state by
-    least squares as :func:`_segment_model` finds it: the same numbers to rounding.  Only the last fit's
-    models are kept (those of a 10^6-row recording are 8 MB); they are made read-only.
+    (each naming its recording by index) and ``models`` the estimate's output on each, its initial state (and
+    an angle's offset) by least squares as :func:`_segment_model` finds it: the same numbers to rounding.  Only the
+    last fit's models are kept (those of a 10^6-row recording are 8 MB); they are made read-only.
     """
     _kept_models.clear()
     key = _model_key(estimate, estimate.input_delay)

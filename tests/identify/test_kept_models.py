@@ -51,6 +51,15 @@ def test_other_values_another_recording_or_a_later_fit_simulate_again():
     assert rec not in validation._kept_models and other in validation._kept_models
 
 
+def test_a_fit_whose_model_is_not_the_checks_one_keeps_none():
+    # with a bias the fit solves the initial states with everything else (no separable solution): its angle
+    # carries no fitted offset, so it is not the model the checks compute
+    rec = _recording(4)
+    validation._kept_models.clear()
+    est = fit(rec, "oe", fit_bias=True)
+    assert est.structure == "bias" and not validation._kept_models
+
+
 def test_a_kept_model_goes_with_its_recording():
     rec = _recording(2)
     fit(rec, "oe")
