@@ -59,9 +59,9 @@ from .validation import segment_fit_percent, segment_speeds
 from .variable_projection import (
     SeparableSolution,
     is_separable,
-    separable_jacobian,
     regression_start,
     separable_candidate,
+    separable_jacobian,
     solve_separable,
     static_gain_ceiling,
 )
