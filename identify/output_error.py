@@ -61,7 +61,6 @@ from .variable_projection import (
     is_separable,
     regression_start,
     separable_candidate,
-    separable_jacobian,
     solve_separable,
     static_gain_ceiling,
 )
@@ -312,16 +311,6 @@ class OutputErrorSolution:
             return self.separable.covariance(noise_variance)
         return covariance_from_jacobian(self.problem.jacobian(self.result.x), noise_variance, self.problem.n_global)
 
-    def jacobian(self) -> np.ndarray:
-        """The residuals' Jacobian over the shared parameters, each segment's initial state projected out: from
-        the separable fit's columns where it solved the fit (:func:`identify.variable_projection.separable_jacobian`,
-        two recursion passes per segment), else from the model's sensitivities (the same to about 1e-12)."""
-        if self.separable is not None:
-            found = separable_jacobian(self.problem.segments, float(self.result.x[0]))
-            if found is not None:
-                return found
-        return self.problem.jacobian(self.result.x)
-
     def model_outputs(self) -> list[np.ndarray]:
         """The fitted model's output (angle or speed, as each segment) on every segment."""
         a, b, bias = self.problem.unpack(self.result.x)
@@ -541,7 +530,7 @@ def _covariance(recs: list[Recording], solution: OutputErrorSolution, models: li
     if method == "gauss-newton":
         return solution.covariance(s2), "gauss-newton"
     # the Jacobian (a pass with sensitivities) only when the residuals are not white
-    return robust_covariance(solution.jacobian, res.fun, s2, problem.n_global,
+    return robust_covariance(lambda: problem.jacobian(res.x), res.fun, s2, problem.n_global,
                              gauss_newton=lambda: solution.covariance(s2))
 
 

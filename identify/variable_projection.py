@@ -36,7 +36,7 @@ from .sensitivity import phi_functions
 from .sums import dot
 
 __all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
-           "regression_start", "static_gain_ceiling", "separable_jacobian"]
+           "regression_start", "static_gain_ceiling"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -345,42 +345,6 @@ def _normal_matrix(point: _Point) -> np.ndarray:
     aa = point.gg - 2 * c * point.gb + c * c * point.bb
     ab = (point.gb - c * point.bb) / a
     return np.array([[aa, ab], [ab, point.bb / a ** 2]])
-
-
-def separable_jacobian(segments: list[Segment], a: float) -> np.ndarray | None:
-    """The residuals' Jacobian over ``(a, b)`` at ``a`` (``b`` and each segment's initial speed and offset
-    at their least squares), each segment's initial speed and offset projected out: shape (n_rows, 2).
-
-    What :meth:`identify.output_error.OutputErrorProblem.jacobian` gives, from the columns of one evaluation
-    (two passes of the recursion per segment) instead of the model's sensitivities: the projected
-    ``d model/da = g - (beta/a) B*`` and ``d model/db = B*/a`` of :func:`_normal_matrix`, each less its part
-    along ``D`` (the offset is out already: every column is centred), with the residual's sign.  None where
-    the evaluation fails (``b`` not identifiable at ``a``).
-    """
-    segs = [_Segment(seg) for seg in segments]
-    point = _evaluate(segs, a, direction=False)
-    beta = point.beta
-    if not (math.isfinite(beta) and np.all(np.isfinite(point.gammas))):
-        return None
-    out = np.empty((sum(s.n for s in segs), 2))
-    row = 0
-    for s, gamma in zip(segs, point.gammas):
-        s.g = np.empty(s.n)                          # s.r (the same buffer until now) holds the residuals
-        first_order_filter(math.exp(-a * s.h), s.f_col, out=s.g_col)
-        g = _direction(s, beta, float(gamma))
-        support = len(s.d_col)
-        for column, x in ((0, g), (1, s.b_col)):
-            along = _dot_d(s, x) / s.d_norm2         # x (centred) along D - mean D
-            target = out[row:row + s.n, column]
-            np.copyto(target, x)
-            target[:support] -= along * s.d_col
-            target += along * s.d_mean
-        da, db = out[row:row + s.n, 0], out[row:row + s.n, 1]
-        da -= (beta / a) * db                        # d model/da = g - (beta/a) B*
-        db /= -a                                     # d r/db = -B*/a
-        da *= -1.0
-        row += s.n
-    return out
 
 
 def static_gain_ceiling(segments: list[Segment]) -> float:

@@ -10,7 +10,6 @@ from identify.start import initial_guess
 from identify.uncertainty import covariance_from_jacobian
 from identify.variable_projection import (
     is_separable,
-    separable_jacobian,
     separable_residual_sum,
     solve_separable,
     static_gain_ceiling,
@@ -62,23 +61,6 @@ def test_separable_fit_equals_levenberg_marquardt(kind):
     np.testing.assert_allclose(sol.initial_speeds, problem.initial_speeds(res.x), rtol=1e-7, atol=1e-9)
     cov = covariance_from_jacobian(problem.jacobian(res.x), 1.0, 2)
     np.testing.assert_allclose(sol.covariance(1.0), cov, rtol=1e-7)
-
-
-@pytest.mark.parametrize("kind", ["one", "dropped", "pooled"])
-def test_separable_jacobian_is_the_problems_at_the_same_point(kind):
-    # the same projected columns formed two ways (one evaluation's columns against the model's sensitivities):
-    # sums of the same terms in another order, 1e-13 of each column's largest value measured, 1e-10 allowed
-    recs = as_recordings(_recordings(kind))
-    segments = prepare_segments(recs, 0)
-    a0, _ = initial_guess(recs, segments)
-    sol = solve_separable(segments, a0)
-    x = np.array([sol.a, sol.b])
-    want = OutputErrorProblem(segments, with_bias=False).jacobian(x)
-    got = separable_jacobian(segments, sol.a)
-    assert got.shape == want.shape
-    for column in range(2):
-        scale = np.max(np.abs(want[:, column]))
-        np.testing.assert_allclose(got[:, column], want[:, column], rtol=0, atol=1e-10 * scale)
 
 
 def test_bias_speed_and_jittered_data_are_not_separable():
