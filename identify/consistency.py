@@ -25,15 +25,26 @@ step's ``a``, ``b`` on each side, with their intervals from the same covariance.
 
 The parts (:data:`SPLITS`):
 
-* ``early / late``: the first and the second half of the rows (a drift, a load switched on);
+* ``early / late``: ``a`` and ``b`` along the run, a linear trend from its start to its end (a motor warming,
+  a setting drifting: a trend finds a steady drift at p = 1e-42 where a step between the halves found it at 3e-4),
+  and the constant acceleration (and friction) between the first and the second half (a load switched on); its
+  parts ``a`` and ``b`` at the start and at the end of the run;
 * ``forward / reverse``: ``ω > 0`` against ``ω < 0`` for ``a`` and ``d``, ``v > 0`` against ``v < 0`` for
   ``b`` (an asymmetric driver or gearbox);
 * ``low / high drive``: ``|v|`` at or below its median against above (a duty clipped, a current limit);
 * ``slow / fast``: ``|ω|`` at or below its median against above (friction or drag that varies with speed).
 
+Two checks are no split: the same step with columns beside the model's own instead of per-part ones,
+
+* ``gain by duty``: ``v |v| / V`` and ``v^3 / V^2`` (a gain that curves with the duty: a supply that sags, a
+  current limit, a driver's curved map), its parts the gain at a small duty and at the full one;
+* ``angle torque``: ``θ`` (a spring, a cable, gravity near its balance) and, over :data:`MIN_TURN_RANGE`,
+  ``sin θ`` and ``cos θ`` (gravity on an arm, an unbalanced load), which act alike in every part and so pass
+  every split; its parts the model as fitted and with the torque.
+
 A split is left out where either part holds less than :data:`MIN_PART_SHARE` of the rows (a run in one
 direction only), or where the drive takes one magnitude (a binary PRBS has no low and high drive).  The
-level of each test is :data:`PART_LEVEL` divided by the number of splits made (Bonferroni): on a right model
+level of each test is :data:`PART_LEVEL` divided by the number of checks made (Bonferroni): on a right model
 the whole check finds a difference in about one run in a hundred, and then only widens the intervals to hold
 each part's.  The answer becomes unclear only where a part's ``a`` or ``b`` is off the full fit's by more than
 :data:`~identify.comparison.MATERIAL` *and* outside its own 95 % interval, which on a right model's
@@ -59,11 +70,19 @@ __all__ = ["PartCheck", "part_checks", "Consistency", "consistency", "COLOURED",
 
 #: The splits, in the order they are made and reported: name and the two parts' names.
 SPLITS: dict[str, tuple[str, str]] = {
-    "early / late": ("early", "late"),
+    "early / late": ("start", "end"),
     "forward / reverse": ("forward", "reverse"),
     "low / high drive": ("low drive", "high drive"),
     "slow / fast": ("slow", "fast"),
+    "gain by duty": ("small duty", "full duty"),
+    "angle torque": ("as fitted", "with an angle torque"),
 }
+#: The check that is no split: the gain as a curve of the duty (:func:`_curve_check`).
+CURVE = "gain by duty"
+#: The check that is no split: the chosen model with a torque of the angle beside it (:func:`_angle_check`).
+ANGLE = "angle torque"
+#: The split along the run: ``a`` and ``b`` take a linear trend over it, the constant a step at its middle.
+DRIFT = "early / late"
 #: The splits whose parts may also differ in a constant acceleration: a load switched on, a torque or friction on
 #: one side.  By drive and by speed a constant that differs is friction or a dead zone, the structures' own.
 CONSTANT_PARTS = ("early / late", "forward / reverse")
@@ -145,6 +164,14 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
         parted = _parted_inputs(rows, name, masks)
         where[name] = list(range(len(inputs), len(inputs) + len(parted)))
         inputs += parted
+    curve = _curve_inputs(rows)
+    if curve:
+        where[CURVE] = list(range(len(inputs), len(inputs) + len(curve)))
+        inputs += curve
+    turning = _angle_inputs(rows)
+    if turning:
+        where[ANGLE] = list(range(len(inputs), len(inputs) + len(turning)))
+        inputs += turning
     moments = _moments(_columns(rows, inputs), rows.residual)
     base = list(range(len(own)))
     _, jack, _, classical, _ = _fit_on(moments, base)
@@ -152,11 +179,116 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
     for i, name in enumerate(("a", "b")):
         if math.isfinite(jack[i, i]) and jack[i, i] > COLOURED ** 2 * classical[i, i]:
             block[name] = math.sqrt(jack[i, i])
-    if not splits:
+    made = len(splits) + bool(curve) + bool(turning)
+    if not made:
         return Consistency((), block)
-    each = level / len(splits)
-    return Consistency(tuple(_check(estimate, _fit_on(moments, base + where[name]), len(own), name, each)
-                             for name in splits), block)
+    each = level / made
+    checks = [_check(estimate, _fit_on(moments, base + where[name]), len(own), name, each) for name in splits]
+    if curve:
+        checks.append(_curve_check(estimate, _fit_on(moments, base + where[CURVE]), len(own), each))
+    if turning:
+        checks.append(_angle_check(estimate, _fit_on(moments, base), _fit_on(moments, base + where[ANGLE]),
+                                   len(own), each))
+    return Consistency(tuple(checks), block)
+
+
+#: Least range of the angle, rad, over which a torque of ``sin θ`` and ``cos θ`` is tested beside one of ``θ``: over
+#: less they are a line and a constant (the spring's column and the constant acceleration).
+MIN_TURN_RANGE = 1.0
+
+
+def _angle_inputs(rows: _Rows) -> list[np.ndarray]:
+    """The accelerations of a torque of the angle ``θ`` (module docstring): ``θ`` itself (a spring, a cable, gravity
+    near its balance), and over :data:`MIN_TURN_RANGE` ``sin θ`` and ``cos θ`` too (gravity on an arm, whatever its
+    zero; a load unbalanced once a turn); none where the angle does not move."""
+    theta = rows.angle
+    if not (len(theta) and np.all(np.isfinite(theta))) or float(np.ptp(theta)) == 0:
+        return []
+    out = [-(theta - float(np.mean(theta)))]
+    if float(np.ptp(theta)) >= MIN_TURN_RANGE:
+        out += [-np.sin(theta), -np.cos(theta)]
+    return out
+
+
+def _curve_inputs(rows: _Rows) -> list[np.ndarray]:
+    """The drive's curve (module docstring): ``v |v| / V`` and ``v^3 / V^2`` (``V`` its largest magnitude), a gain
+    that changes smoothly with the duty (a supply that sags, a current limit, a driver's curved map); none where
+    the drive takes fewer than three magnitudes (no curve to see)."""
+    v = rows.drive
+    moving = np.abs(v[v != 0])
+    if len(moving) == 0 or len(np.unique(moving)) < 3:
+        return []
+    top = float(moving.max())
+    return [v * np.abs(v) / top, v ** 3 / top ** 2]
+
+
+def _curve_check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray, int], p_own: int,
+                 level: float) -> PartCheck:
+    """The gain as a curve of the duty beside the chosen model (:func:`_curve_inputs`): the curve's test, and
+    the gain at a small duty (the slope at zero) against the gain at the full duty (the torque there over the duty),
+    with ``a`` alongside.  Material where either gain is over :data:`~identify.comparison.MATERIAL` off the model's
+    ``b`` and outside its own 95 % interval."""
+    from scipy import special
+    z = float(-special.ndtri(0.025))
+    beta, cov, m, classical, _ = fitted
+    p = max(_joint_p(beta[p_own:], cov[p_own:, p_own:], m), _joint_p(beta[p_own:], classical[p_own:, p_own:], 0))
+    agree = not (math.isfinite(p) and p < level)
+    k = len(beta)
+    unit = np.eye(k)
+    maps = {"a": (unit[0], unit[0]), "b": (unit[1], unit[1] + unit[p_own] + unit[p_own + 1])}
+    values: dict[str, tuple[float, float]] = {}
+    intervals: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
+    off = False
+    for key, full in (("a", float(estimate.a)), ("b", float(estimate.b))):
+        pair, span = [], []
+        for vec in maps[key]:
+            shift = float(vec @ beta)
+            var = max(float(vec @ cov @ vec) if np.all(np.isfinite(cov)) else math.inf, float(vec @ classical @ vec))
+            se = math.sqrt(max(var, 0.0))
+            off |= abs(shift) > MATERIAL * abs(full) and abs(shift) > z * se
+            pair.append(full + shift)
+            span.append((full + shift - z * se, full + shift + z * se))
+        values[key], intervals[key] = (pair[0], pair[1]), (span[0], span[1])
+    hint = ""
+    if not agree:
+        small, large = values["b"]
+        hint = (f"the gain is {'lower' if large < small else 'higher'} at full duty than at a small one (b {_g(small)} "
+                f"at a small duty, {_g(large)} at the full duty): "
+                + ("a supply that sags, a current limit or a driver that clips?" if large < small
+                   else "a driver whose gain rises with the duty, or a dead zone the model misses?"))
+    return PartCheck(CURVE, SPLITS[CURVE], values["a"], values["b"], intervals["a"], intervals["b"], p, agree,
+                     bool(off and not agree), hint)
+
+
+def _angle_check(estimate: Any, alone: tuple[np.ndarray, np.ndarray, int, np.ndarray, int],
+                 fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray, int], p_own: int, level: float) -> PartCheck:
+    """The model as fitted against the model with a torque of the angle beside it (:func:`_angle_inputs`): the
+    torque's test, and ``a`` and ``b`` with it.  Material where the torque is found and moves ``a`` or ``b`` by
+    over :data:`~identify.comparison.MATERIAL` and outside its own 95 % interval."""
+    from scipy import special
+    z = float(-special.ndtri(0.025))
+    beta, cov, m, classical, _ = fitted
+    p = max(_joint_p(beta[p_own:], cov[p_own:, p_own:], m), _joint_p(beta[p_own:], classical[p_own:, p_own:], 0))
+    agree = not (math.isfinite(p) and p < level)
+    pairs, intervals, off = {}, {}, False
+    for i, key, full in ((0, "a", float(estimate.a)), (1, "b", float(estimate.b))):
+        values = []
+        for (bt, cv, _, cl, _) in (alone, fitted):
+            var = max(float(cv[i, i]) if math.isfinite(cv[i, i]) else math.inf, float(cl[i, i]))
+            se = math.sqrt(max(var, 0.0))
+            values.append((full + float(bt[i]), (full + float(bt[i]) - z * se, full + float(bt[i]) + z * se), se))
+        shift = values[1][0] - values[0][0]
+        off |= abs(shift) > MATERIAL * abs(full) and abs(shift) > z * values[1][2]
+        pairs[key] = (values[0][0], values[1][0])
+        intervals[key] = (values[0][1], values[1][1])
+    hint = ""
+    if not agree:
+        moved = " and ".join(f"{k} to {_g(pairs[k][1])}" for k in ("a", "b")
+                             if abs(pairs[k][1] - pairs[k][0]) > MATERIAL * abs(pairs[k][0]))
+        hint = ("a torque that depends on the angle (gravity on an arm, a spring, a cable, an unbalanced load)"
+                + (f" moves {moved}" if moved else "") + "?")
+    return PartCheck(ANGLE, SPLITS[ANGLE], pairs["a"], pairs["b"], intervals["a"], intervals["b"], p, agree,
+                     bool(off and not agree), hint)
 
 
 def _exact_checks(estimate: Any, rows: _Rows) -> list[PartCheck]:
@@ -181,6 +313,7 @@ class _Rows:
     drive: np.ndarray             # the drive the gain multiplies, over each interval
     order: np.ndarray             # the row's place in the run, 0 ... 1
     respond: list[Callable[..., np.ndarray]]   # per segment: x (its rows) -> projected response
+    angle: np.ndarray             # measured angle (integrated from a speed column), rad
     bounds: list[tuple[int, int]]  # per segment: its rows
     friction: bool
     output_rms: float             # of the measured output less each segment's first value
@@ -202,7 +335,7 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
     if not pairs:
         return None
     total = sum(len(seg.time) for seg, _ in pairs)
-    residual, speed, drive, order, bounds, outputs = [], [], [], [], [], []
+    residual, speed, drive, order, bounds, outputs, angles = [], [], [], [], [], [], []
     respond: list[Callable[..., np.ndarray]] = []
     start = 0
     tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
@@ -220,6 +353,10 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
         if tau > 0:
             v = _lagged(v, t, tau)
         residual.append(seg.output - model)
+        if angle:
+            angles.append(np.asarray(seg.output, dtype=float))
+        else:
+            angles.append(np.concatenate([[0.0], np.cumsum(0.5 * (seg.output[1:] + seg.output[:-1]) * np.diff(t))]))
         outputs.append(seg.output - seg.output[0])
         speed.append(np.append(w, 0.0))
         drive.append(np.append(v[:-1], 0.0))
@@ -228,7 +365,7 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
         bounds.append((start, start + n))
         start += n
     return _Rows(np.concatenate(residual), np.concatenate(speed), np.concatenate(drive), np.concatenate(order),
-                 respond, bounds, float(values.get("friction", 0.0) or 0.0) > 0,
+                 respond, np.concatenate(angles), bounds, float(values.get("friction", 0.0) or 0.0) > 0,
                  float(np.sqrt(np.mean(np.concatenate(outputs) ** 2))))
 
 
@@ -370,6 +507,9 @@ def _parted_inputs(rows: _Rows, name: str, masks: tuple[np.ndarray, np.ndarray, 
     """The inputs of a split's part columns: ``a``, ``b``, the constant (and friction) on part ``S`` only."""
     w, v = rows.speed, rows.drive
     s_a, s_b, s_d = masks
+    if name == DRIFT:
+        along = rows.order - 0.5                     # the run from -1/2 to 1/2: a and b's trend over it
+        s_a = s_b = along
     parted = [-w * s_a, v * s_b]
     if name in CONSTANT_PARTS:
         parted.append(np.ones(len(w)) * s_d)
@@ -391,8 +531,12 @@ def _check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray,
     # the complement of S takes the base values (the full fit's plus the step's), S those plus its shifts:
     # the shifts of a and b from the full fit, each part's, as one linear map of the step
     ia, ib = p_own, p_own + 1
-    maps = {"a": (np.eye(len(beta))[0], np.eye(len(beta))[0] + np.eye(len(beta))[ia]),
-            "b": (np.eye(len(beta))[1], np.eye(len(beta))[1] + np.eye(len(beta))[ib])}
+    unit = np.eye(len(beta))
+    if name == DRIFT:          # the trend's values at the run's start and end
+        maps = {"a": (unit[0] - 0.5 * unit[ia], unit[0] + 0.5 * unit[ia]),
+                "b": (unit[1] - 0.5 * unit[ib], unit[1] + 0.5 * unit[ib])}
+    else:
+        maps = {"a": (unit[0], unit[0] + unit[ia]), "b": (unit[1], unit[1] + unit[ib])}
     z = float(-special.ndtri(0.025))
     z_part = z          # a shift beyond its own 95 % interval (the split's difference is already beyond the level)
     values, intervals, off = {}, {}, False

@@ -80,6 +80,8 @@ __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_
 
 #: Rows of the score test that screens friction and a dead zone (the first of every segment).
 SCREEN_SAMPLES = 2000
+#: Rows (the first of every segment) of the fit that checks a screen that left friction and a dead zone out.
+REFUTE_SAMPLES = 1000
 #: Level of the score test that decides whether friction and a dead zone are fitted at all.
 SCREEN_LEVEL = 0.05
 #: Share of the linear model's residual sum of squares that friction and a dead zone, linearised,
@@ -144,6 +146,39 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
     step = G @ np.linalg.lstsq(G, r, rcond=None)[0]
     share = float(step @ step) / rss
     return block_mean_p(block_sums(G * r[:, None])), share
+
+
+def _linear_on(segs: list[Segment], base: Candidate, bias: float) -> tuple[float, float]:
+    """The linear model's ``a`` and ``b`` (with its constant acceleration) on ``segs``: one Gauss--Newton step
+    from ``base``'s fit on more rows (nan where its residuals cannot be formed)."""
+    from .output_error import OutputErrorProblem
+    x = np.array([base.a, base.b, bias])
+    with np.errstate(over="ignore", invalid="ignore"):
+        r, J, _ = OutputErrorProblem(segs, with_bias=True).evaluate(x, jacobian=True)
+    if J is None or not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        return math.nan, math.nan
+    step = x - np.linalg.lstsq(J, r, rcond=None)[0]
+    return float(step[0]), float(step[1])
+
+
+def _screen_refuted(recs: list[Recording], segs: list[Segment], base: Candidate, bias: float,
+                    nonlinear: list[str], fix_bias: bool) -> str:
+    """What a fit of the most general nonlinear structure on the screen's own rows says against the screen:
+    "" where it leaves ``a`` and ``b`` within :data:`MATERIAL` of the linear model's, else the shift in words.
+
+    The score test is linear in friction at zero friction; a motor that sticks at its reversals, or a single
+    sine whose fundamental hides friction in ``a``, can pass it while a fit finds friction that moves ``a``.
+    No screen overrules a fit: this one costs a fit on :data:`REFUTE_SAMPLES` rows."""
+    general = max(nonlinear, key=list(STRUCTURES).index)
+    rows = first_rows(segs, REFUTE_SAMPLES)
+    c = friction_candidate(recs, rows, base.input_delay, general, fix_bias).candidate
+    own = _linear_on(rows, base, bias)
+    if not all(math.isfinite(v) and v != 0 for v in (c.a, c.b, *own)):
+        return ""
+    da, db = c.a / own[0] - 1, c.b / own[1] - 1
+    if abs(da) <= MATERIAL and abs(db) <= MATERIAL:
+        return ""
+    return f"the {general} model moves a by {100 * da:+.2g} % and b by {100 * db:+.2g} %"
 
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
@@ -233,11 +268,18 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
             p, share = 0.0, 1.0
         else:
             p, share = _screen_nonlinear(segments[base.candidate.input_delay], base.candidate, base.bias)
-        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE:
+        moved = ""
+        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and base is not None:
+            moved = _screen_refuted(recs, segments[base.candidate.input_delay], base.candidate, base.bias,
+                                    nonlinear, fix_bias)
+        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and not moved:
             notes.append(f"{SCREENED_OUT}: the linear model's residuals show no sign of "
                          f"them (score test p = {p:.2g}; their directions explain {100 * share:.2g} % of the "
                          "residual)")
             nonlinear = []
+        elif moved:
+            notes.append(f"friction and dead zone fitted although the score test found no sign of them (p = {p:.2g}): "
+                         f"fitted on its rows, {moved}")
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
@@ -472,7 +514,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
             few_note = (f"{', '.join(higher)} not fitted: the encoder sweeps only {swept:.0f} counts, whose rounding "
                         f"{'they' if len(higher) > 1 else 'it'} would fit as well as any motor")
     selection, edge = _select_widening(recs, structures, input_delay, fix_bias)
-    est = _chosen_fit(recs, selection.chosen, fix_bias)
+    est, selection = _refit_chosen(recs, selection, fix_bias)
     checks: dict[str, float] = {}
     if any(n.startswith(SCREENED_OUT + ":") for n in selection.notes) and STRUCTURES[est.structure].linear:
         # no screen overrules a fit: friction left out by the screen is fitted after all when the chosen
@@ -484,7 +526,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
             selection = dataclasses.replace(selection, notes=(*selection.notes, (
                 f"friction and dead zone fitted after all: the screen found no sign of them, but the {label} "
                 f"model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g})")))
-            est = _chosen_fit(recs, selection.chosen, fix_bias)
+            est, selection = _refit_chosen(recs, selection, fix_bias)
             checks = {"sign_p": _own_sign_p(est, recs)} if STRUCTURES[est.structure].linear else {}
     if few_note:
         selection = dataclasses.replace(selection, notes=(*selection.notes, few_note))
@@ -533,6 +575,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
             f"; {selection.doubt}" if selection.doubt else ""))
     est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
+    est, selection = _one_magnitude_bias(recs, est, selection)
     report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
     return dataclasses.replace(est, selection=report, notes=tuple(
         ([selection.doubt] if selection.doubt else []) + notes))
@@ -571,6 +614,38 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
             f"{first.hint}{others}; no single a and b fits it all, so this is not a clear choice; the intervals "
             "hold every part's" + (f"; {selection.doubt}" if selection.doubt else "")))
     return est, selection, parts
+
+
+def _one_magnitude_bias(recs: list[Recording], est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
+    """``b``'s interval where the input takes one magnitude ``U`` both ways (a binary PRBS, a square wave) and the
+    chosen model has a constant acceleration ``d``: there ``b u + d`` is exactly a gain of ``b + d/U`` forward and
+    ``b - d/U`` in reverse, so the data cannot tell a constant torque from forward and reverse gains that differ.
+    The interval holds both gains; the answer is not clear where they differ from ``b`` by over
+    :data:`MATERIAL`."""
+    values = est.values()
+    d = float(values.get("bias", 0.0) or 0.0)
+    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
+    moving = moving[moving != 0]
+    if d == 0 or not math.isfinite(d) or not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
+        return est, selection
+    top = float(np.max(np.abs(moving)))
+    if float(np.mean(np.abs(moving) == top)) < SINGLE_AMPLITUDE_SHARE:
+        return est, selection
+    b, shift = float(est.b), abs(d) / top
+    own = est.confidence_interval(0.95)["b"]
+    ranges = dict(est.model_range) if est.model_range else {n: est.confidence_interval(0.95)[n] for n in ("a", "b")}
+    lo, hi = ranges["b"]
+    # each gain as well known as b itself
+    ranges["b"] = (min(lo, own[0] - shift), max(hi, own[1] + shift))
+    est = dataclasses.replace(est, model_range=ranges)
+    if shift > MATERIAL * abs(b):
+        forward, reverse = b + math.copysign(shift, d), b - math.copysign(shift, d)
+        selection = dataclasses.replace(selection, clear=False, doubt=(
+            f"the input takes one magnitude, |u| = {top:g}, both ways, so the constant acceleration d = {d:.4g} is "
+            f"also a forward gain {forward:.4g} and a reverse one {reverse:.4g}: "
+            "the data cannot tell them apart, so b's interval holds both and this is not a clear choice; runs at two "
+            "or more amplitudes would separate them" + (f"; {selection.doubt}" if selection.doubt else "")))
+    return est, selection
 
 
 def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Selection]:
@@ -661,6 +736,28 @@ def _own_sign_p(est: Estimate, recs: list[Recording]) -> float:
     """The chosen fit's sign test on the first recording, from its kept residuals where it has them."""
     kept = est.speed_residuals[0] if est.speed_residuals else None
     return sign_correlation_p(est, recs[0], kept)
+
+
+def _refit_chosen(recs: list[Recording], selection: Selection, fix_bias: bool) -> tuple[Estimate, Selection]:
+    """The chosen candidate fitted on all rows; where that fit fails (it was chosen on the comparison's rows),
+    the next candidate that fits, tried in order of their residual sums, with the choice no longer clear."""
+    try:
+        return _chosen_fit(recs, selection.chosen, fix_bias), selection
+    except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        failure = exc
+    others = sorted((c for c in selection.candidates if c is not selection.chosen and math.isfinite(c.residual_sum)),
+                    key=lambda c: (not c.within_noise, c.residual_sum))
+    for other in others:
+        try:
+            est = _chosen_fit(recs, other, fix_bias)
+        except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError):
+            continue
+        doubt = (f"the {selection.chosen.label} model, chosen on the comparison's rows, could not be fitted on all "
+                 f"rows ({str(failure).split(';')[0]}); the {other.label} model is given instead, so this is not "
+                 "a clear choice")
+        return est, dataclasses.replace(selection, chosen=other, clear=False,
+                                        doubt=doubt + (f"; {selection.doubt}" if selection.doubt else ""))
+    raise failure
 
 
 def _chosen_fit(recs: list[Recording], chosen: Candidate, fix_bias: bool) -> Estimate:

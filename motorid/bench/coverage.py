@@ -34,7 +34,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from motorid.bench.flags import integer
-from motorid.bench.misfits import MISFITS
+from motorid.bench.misfits import MISFITS, random_rig
 from motorid.bench.misfits import TRUTH as MISFIT_TRUTH
 
 __all__ = ["bench_coverage", "CLASSES", "TRUTH", "COVERAGE_GOAL", "A", "B", "Outcome", "coverage_run"]
@@ -119,7 +119,8 @@ def _speed_loop(seed: int):
 
 
 #: class name -> recording maker ``(seed) -> Recording`` (the truth is a = A, b = B unless :data:`TRUTH` says
-#: otherwise).  A new class is one line here.
+#: otherwise), or ``(seed) -> (Recording, truth)`` where each seed's plant has its own (``random_rig``).  A new
+#: class is one line here.
 CLASSES: dict[str, Callable[[int], object]] = {
     "electrical lag 2 ms at 1 ms": functools.partial(_lag, 0.002),
     "electrical lag 4 ms at 1 ms": functools.partial(_lag, 0.004),
@@ -138,6 +139,7 @@ CLASSES: dict[str, Callable[[int], object]] = {
     "PD position loop, friction, torque": _position_loop,
     "PI speed loop, friction, torque": _speed_loop,
     **{f"past: {name}": maker for name, maker in MISFITS.items()},
+    "past: random rigs": random_rig,
 }
 #: class name -> the range of ``a`` and of ``b`` an interval must hold (classes not listed: ``A`` and ``B``).
 TRUTH = {f"past: {name}": truth for name, truth in MISFIT_TRUTH.items()}
@@ -157,14 +159,15 @@ def coverage_run(name: str, seed: int) -> Outcome:
     import warnings
 
     from identify import fit
-    rec = CLASSES[name](seed)
+    made = CLASSES[name](seed)
+    rec, truth = made if isinstance(made, tuple) else (made, TRUTH.get(name, ((A, A), (B, B))))
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         est = fit(rec)
     seconds = time.perf_counter() - start
     ci = est.confidence_interval(0.95)
-    (a_low, a_high), (b_low, b_high) = TRUTH.get(name, ((A, A), (B, B)))
+    (a_low, a_high), (b_low, b_high) = truth
     covered = bool(ci["a"][0] <= a_low and a_high <= ci["a"][1] and ci["b"][0] <= b_low and b_high <= ci["b"][1])
     close = bool(_off(est.a, a_low, a_high) <= 0.01 and _off(est.b, b_low, b_high) <= 0.01)
     return Outcome(covered, close, bool(est.selection and est.selection.clear), seconds)

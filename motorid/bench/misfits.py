@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Callable
+from typing import Callable, NamedTuple, Tuple
 
 import numpy as np
 
-__all__ = ["MISFITS", "TRUTH", "SUBSTEPS", "A", "B"]
+__all__ = ["MISFITS", "TRUTH", "SUBSTEPS", "A", "B", "random_rig", "RANDOM_KINDS"]
 
 #: The motor's own ``a`` (1/s) and ``b`` ((rad/s^2)/duty).
 A, B = 25.0, 3.0
@@ -72,14 +72,14 @@ def _steps_duty(time: np.ndarray, seed: int, hold: float = 0.25) -> np.ndarray:
     return levels[(time / hold).astype(int)].astype(np.int64)
 
 
-def _record(time, duty, theta, seed: int, counts_per_rev: int, angle_noise: float = 1e-4):
+def _record(time, duty, theta, seed: int, counts_per_rev: int, angle_noise: float = 1e-4, metadata=None):
     """Encoder counts of ``theta`` (Gaussian angle noise, floored), as the bench's recordings hold them."""
     from motorsim import Recording
     rng = np.random.default_rng(seed)
     noisy = theta + rng.normal(0.0, angle_noise, len(theta))
     counts = np.floor(noisy * counts_per_rev / (2 * np.pi)).astype(np.int64)
     return Recording(time=time, duty=duty, sample_period=float(time[1] - time[0]), counts=counts,
-                     counts_per_rev=counts_per_rev)
+                     counts_per_rev=counts_per_rev, metadata=metadata or {})
 
 
 def _run(accel: Accel, duty_of: Callable, seed: int, h: float, duration: float, counts_per_rev: int):
@@ -246,3 +246,160 @@ TRUTH: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
     "forward gain 11 % above reverse": ((A, A), (B_REVERSE, B_FORWARD)),
     "motor warming over the run": ((A * (1 - WARMING), A), (B * (1 - WARMING), B)),
 }
+
+
+def _random_duty(kind: str, time: np.ndarray, rng: np.random.Generator, amp: float) -> np.ndarray:
+    """An integer duty of amplitude ``amp``: one sine of the article's 10-40 rad/s, a multisine, random steps, a
+    binary PRBS or a chirp."""
+    if kind == "sine":
+        return np.round(amp * np.sin(rng.choice([10.0, 20.0, 30.0, 40.0]) * time + rng.uniform(0, 2 * np.pi))).astype(
+            np.int64)
+    if kind == "multisine":
+        freqs, phases = rng.uniform(0.5, 80, 4), rng.uniform(0, 2 * np.pi, 4)
+        x = sum(np.sin(f * time + p) for f, p in zip(freqs, phases))
+        return np.round(amp * x / np.max(np.abs(x))).astype(np.int64)
+    if kind in ("steps", "prbs"):
+        hold = rng.uniform(0.1, 0.6) if kind == "steps" else rng.uniform(0.02, 0.2)
+        n = int(time[-1] / hold) + 2
+        levels = rng.integers(-int(amp), int(amp) + 1, n) if kind == "steps" else amp * rng.choice([-1, 1], n)
+        return np.round(levels[(time / hold).astype(int)]).astype(np.int64)
+    top = rng.uniform(30, 150)                # a chirp from 0.5 rad/s up
+    return np.round(amp * np.sin(0.5 * time + (top - 0.5) * time ** 2 / (2 * time[-1]))).astype(np.int64)
+
+
+class _Drawn(NamedTuple):
+    """What :func:`random_rig` drew before the thing past the structures: the motor, the run and its input."""
+
+    rng: np.random.Generator
+    a: float
+    b: float
+    amp: float
+    duration: float
+    binary: bool
+
+    @property
+    def top_speed(self) -> float:
+        return self.b * self.amp / self.a
+
+    @property
+    def level(self) -> float:
+        """The magnitude of a binary input's duty (the amplitude rounded to a whole duty)."""
+        return float(round(self.amp))
+
+
+Misfit = Tuple[Accel, Tuple[float, float], Tuple[float, float]]
+
+
+def _current_limit(d: _Drawn) -> Misfit:
+    share, limit = d.rng.uniform(0.5, 0.95), d.rng.uniform(0.3, 0.8) * d.b * d.amp
+    return (lambda t, th, w, u: min(max(d.b * u - share * d.a * w, -limit), limit) - (1 - share) * d.a * w,
+            (d.a, d.a), (d.b, d.b))
+
+
+def _load_switched_on(d: _Drawn) -> Misfit:
+    on, load = d.rng.uniform(0.3, 0.7) * d.duration, d.rng.uniform(0.1, 0.4) * d.b * d.amp
+    return lambda t, th, w, u: -d.a * w + d.b * u - (load if t >= on else 0.0), (d.a, d.a), (d.b, d.b)
+
+
+def _clipped_duty(d: _Drawn) -> Misfit:
+    clip = d.rng.uniform(0.6, 0.9) * d.amp
+    gain = d.b * min(clip, d.level) / d.level if d.binary else d.b   # one magnitude: one gain, the clipped one
+    return lambda t, th, w, u: -d.a * w + d.b * min(max(u, -clip), clip), (d.a, d.a), (gain, gain)
+
+
+def _stribeck(d: _Drawn) -> Misfit:
+    sliding = d.rng.uniform(0.05, 0.2) * d.b * d.amp
+    rest, knee = sliding * d.rng.uniform(1.5, 3), d.rng.uniform(0.02, 0.2) * d.top_speed
+    smooth = 0.002 * d.top_speed + 1e-3
+
+    def accel(t, th, w, u):
+        return -d.a * w + d.b * u - (sliding + (rest - sliding) * math.exp(-(w / knee) ** 2)) * math.tanh(w / smooth)
+    return accel, (d.a, d.a), (d.b, d.b)
+
+
+def _asymmetric(d: _Drawn) -> Misfit:
+    ratio = d.rng.uniform(1.05, 1.25)
+    forward, reverse = d.b * math.sqrt(ratio), d.b / math.sqrt(ratio)
+    return lambda t, th, w, u: -d.a * w + (forward if u > 0 else reverse) * u, (d.a, d.a), (reverse, forward)
+
+
+def _warming(d: _Drawn) -> Misfit:
+    drift = d.rng.uniform(0.03, 0.10)
+    return (lambda t, th, w, u: (1 - drift * t / d.duration) * (-d.a * w + d.b * u),
+            (d.a * (1 - drift), d.a), (d.b * (1 - drift), d.b))
+
+
+def _cogging(d: _Drawn) -> Misfit:
+    torque, cycles = d.rng.uniform(0.05, 0.3) * d.b * d.amp, int(d.rng.integers(4, 24))
+    return lambda t, th, w, u: -d.a * w + d.b * u - torque * math.sin(cycles * th), (d.a, d.a), (d.b, d.b)
+
+
+def _gravity(d: _Drawn) -> Misfit:
+    weight = d.rng.uniform(0.1, 0.5) * d.b * d.amp
+    return lambda t, th, w, u: -d.a * w + d.b * u - weight * math.sin(th), (d.a, d.a), (d.b, d.b)
+
+
+def _drag(d: _Drawn) -> Misfit:
+    drag = d.rng.uniform(0.2, 1.0) * d.a / d.top_speed
+    # a: the drag's slope over the speeds the drive could reach
+    return (lambda t, th, w, u: -d.a * w - drag * w * abs(w) + d.b * u,
+            (d.a, d.a + 2 * drag * d.top_speed), (d.b, d.b))
+
+
+def _sagging(d: _Drawn) -> Misfit:
+    sag = d.rng.uniform(0.1, 0.4)
+    return (lambda t, th, w, u: -d.a * w + d.b * u / (1 + sag * abs(u) / d.amp),
+            (d.a, d.a), ((d.b / (1 + sag * d.level / d.amp),) * 2 if d.binary else (d.b / (1 + sag), d.b)))
+
+
+def _curved(d: _Drawn) -> Misfit:
+    power = d.rng.uniform(0.7, 1.4)
+    ends = (d.b, d.b * 0.25 ** (power - 1))           # the gain torque / duty from a quarter of the amplitude up
+    return (lambda t, th, w, u: -d.a * w + d.b * d.amp * math.copysign((abs(u) / d.amp) ** power, u),
+            (d.a, d.a), (d.b * (d.level / d.amp) ** (power - 1),) * 2 if d.binary else (min(ends), max(ends)))
+
+
+def _linear(d: _Drawn) -> Misfit:
+    return lambda t, th, w, u: -d.a * w + d.b * u, (d.a, d.a), (d.b, d.b)
+
+
+#: What :func:`random_rig` adds to the motor, one per seed: its name and its maker from the drawn motor.
+RANDOM_KINDS: dict[str, Callable[[_Drawn], Misfit]] = {
+    "current limit": _current_limit, "load switched on": _load_switched_on, "clipped duty": _clipped_duty,
+    "Stribeck friction": _stribeck, "asymmetric gain": _asymmetric, "warming": _warming, "cogging": _cogging,
+    "gravity": _gravity, "quadratic drag": _drag, "sagging supply": _sagging, "curved driver": _curved,
+    "backlash": _linear,            # the play is the encoder's, on the output: the motor is linear
+}
+
+
+def random_rig(seed: int):
+    """A bench drawn from ``seed``, one step past every registered structure, and the ``a`` and ``b`` it has.
+
+    ``a`` from 3 to 120 1/s, ``b / a`` from 0.05 to 0.5 per duty, 1-10 ms, 4-12 s, 360-16667 counts, an input
+    of one kind (:func:`_random_duty`) and amplitude 120-220, and one of :data:`RANDOM_KINDS` at a drawn
+    severity.  Returns ``(recording, ((a_low, a_high), (b_low, b_high)))``: the plant's ``a`` and ``b``, a range
+    where they drift or depend on the direction, the duty or the speed (over the run's own inputs: a binary
+    input's one magnitude has one gain).  The recording's ``metadata["plant"]`` names the kind and the input.
+    """
+    rng = np.random.default_rng(seed)
+    a = float(np.exp(rng.uniform(np.log(3), np.log(120))))
+    b = float(a * np.exp(rng.uniform(np.log(0.05), np.log(0.5))))
+    h = float(rng.choice([0.001, 0.002, 0.005, 0.01]))
+    duration = float(rng.uniform(4, 12))
+    cpr = int(rng.choice([360, 1000, 2048, 4096, 16667]))
+    shape = str(rng.choice(["sine", "multisine", "steps", "prbs", "chirp"]))
+    amp = float(rng.uniform(120, 220))
+    time = np.arange(int(duration / h)) * h
+    duty = _random_duty(shape, time, rng, amp)
+    kind = list(RANDOM_KINDS)[int(rng.integers(len(RANDOM_KINDS)))]
+    accel, a_range, b_range = RANDOM_KINDS[kind](_Drawn(rng, a, b, amp, duration, shape == "prbs"))
+    theta, _ = _integrate(accel, duty, h)
+    if kind == "backlash":
+        play = rng.uniform(0.005, 0.05)
+        out, y = np.empty_like(theta), 0.0
+        for k, x in enumerate(theta):
+            y = min(max(y, x - play / 2), x + play / 2)
+            out[k] = y
+        theta = out
+    return (_record(time, duty, theta, seed, cpr, metadata={"plant": f"{kind}, input {shape}"}),
+            (a_range, b_range))

@@ -59,7 +59,10 @@ def test_one_sine_on_a_hobby_encoder_is_right_or_honestly_doubtful(counts, omega
         if c.within_noise:
             assert ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1]
     if not est.selection.clear:
-        assert "a second frequency" in est.selection.doubt and est.selection.doubt in est.notes
+        # one sine cannot pin a down where the counts are few, nor tell friction from damping (its fundamental is
+        # in phase with the speed): the doubt says which, and what would separate it
+        assert ("a second frequency" in est.selection.doubt or "several amplitudes" in est.selection.doubt)
+        assert est.selection.doubt in est.notes
 
 
 @pytest.mark.parametrize("delay", [1, 2, 3, 4])
@@ -340,10 +343,24 @@ def test_no_screen_overrules_a_fit_friction_left_out_is_fitted_when_the_residual
     import identify.selection as selection
     monkeypatch.setattr(selection, "SCREEN_LEVEL", 0.0)
     monkeypatch.setattr(selection, "SCREEN_SHARE", 2.0)
+    monkeypatch.setattr(selection, "_screen_refuted", lambda *args: "")     # and the fit that checks it blind too
     rig = SimRig(Motor(A, B, friction=100.0), Encoder(angle_noise=1e-4), rng=np.random.default_rng(4))
     est = fit(rig.run(Experiment(Sine(10.0, 200), DT, 10.0)))
     assert est.selection.chosen.structure in ("friction", "dead-zone")
     assert any("fitted after all" in n for n in est.notes)
+    ci = est.confidence_interval(0.95)
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
+
+
+def test_a_screen_that_leaves_friction_out_is_checked_by_a_fit_on_its_rows(monkeypatch):
+    # the screen made blind: a fit of friction on its first rows moves a far beyond 1 %, so friction is fitted
+    import identify.selection as selection
+    monkeypatch.setattr(selection, "SCREEN_LEVEL", 0.0)
+    monkeypatch.setattr(selection, "SCREEN_SHARE", 2.0)
+    rig = SimRig(Motor(A, B, friction=100.0), Encoder(angle_noise=1e-4), rng=np.random.default_rng(4))
+    est = fit(rig.run(Experiment(Sine(10.0, 200), DT, 10.0)))
+    assert est.selection.chosen.structure in ("friction", "dead-zone")
+    assert any("fitted although the score test found no sign" in n for n in est.notes)
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
 
