@@ -95,6 +95,8 @@ SCREEN_SHARE = 0.02
 SIGN_LEVEL = 0.001
 #: How the note of a screen that left friction out begins.
 SCREENED_OUT = "friction and dead zone not fitted"
+#: How the note begins where a fit on the screen's rows overruled it (:func:`_screen_refuted`).
+REFUTED = "friction and dead zone fitted although the score test found no sign of them"
 #: Share of the non-zero input samples at one magnitude from which the input counts as one amplitude (a
 #: binary PRBS, a square wave): a dead zone is then a gain change the data cannot see.
 SINGLE_AMPLITUDE_SHARE = 0.95
@@ -278,8 +280,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
                          "residual)")
             nonlinear = []
         elif moved:
-            notes.append(f"friction and dead zone fitted although the score test found no sign of them (p = {p:.2g}): "
-                         f"fitted on its rows, {moved}")
+            notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
@@ -541,6 +542,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
                  and STRUCTURES[c.structure].rank == 0), default=math.nan)
     within = [c for c in selection.candidates if c is not chosen and math.isfinite(c.a) and (
         c.within_noise or (few and c.residual_sum <= (1 + CLOSE) * least))]
+    within += _linear_kept(selection, within)
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
     notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
@@ -550,6 +552,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
+    selection = _split_evidence(selection)
     averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
     if averaged is not None:
         est, doubt = averaged
@@ -736,6 +739,32 @@ def _own_sign_p(est: Estimate, recs: list[Recording]) -> float:
     """The chosen fit's sign test on the first recording, from its kept residuals where it has them."""
     kept = est.speed_residuals[0] if est.speed_residuals else None
     return sign_correlation_p(est, recs[0], kept)
+
+
+def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidate]:
+    """Where a fit overruled the screen (:data:`REFUTED`) and a nonlinear structure was chosen, the best linear
+    candidate (when not already ``within``): the score test found no friction and a fit of it moved ``a`` and ``b``,
+    so the data back the linear model by the one and friction by the other, and neither answer is ruled out."""
+    if not any(n.startswith(REFUTED) for n in selection.notes) or STRUCTURES[selection.chosen.structure].linear:
+        return []
+    linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank == 0
+              and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
+    best = min(linear, key=lambda c: c.residual_sum, default=None)
+    return [best] if best is not None and best not in within else []
+
+
+def _split_evidence(selection: Selection) -> Selection:
+    """Not clear where a fit overruled the screen and a nonlinear structure was chosen: which structure the answer
+    rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)."""
+    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
+    if not refuted or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
+        return selection
+    test = refuted[0].split(": ", 1)[0].replace(REFUTED, "the score test")
+    moved = refuted[0].split("fitted on its rows, ", 1)[-1]
+    return dataclasses.replace(selection, clear=False, doubt=(
+        f"the evidence for friction is split: {test} finds none, while {moved} on the first rows; the answer rests on "
+        "a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
+        "amplitudes would settle it"))
 
 
 def _refit_chosen(recs: list[Recording], selection: Selection, fix_bias: bool) -> tuple[Estimate, Selection]:
