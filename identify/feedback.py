@@ -139,7 +139,8 @@ def feedback_share(recording: Recording) -> float:
     first, last = stretches[0][0], stretches[-1][1]
     delta = np.zeros(n_all)
     delta[first:last] = clock_deviation(time[first:last], index[first:last], h)
-    if not np.max(np.abs(delta)) > REGULAR_CLOCK:
+    regular = not np.max(np.abs(delta)) > REGULAR_CLOCK
+    if regular:
         delta[:] = 0.0                                     # the arithmetic of a regular time column
     u_all = np.asarray(recording.duty[:n_all], dtype=float)
     y_all = np.asarray(output, dtype=float)
@@ -150,10 +151,12 @@ def feedback_share(recording: Recording) -> float:
         X[:, :INPUT_LAGS] = sliding_window_view(u[:-1], INPUT_LAGS)
         X[:, INPUT_LAGS:-1] = sliding_window_view(y[:-1], INPUT_LAGS)
         X[:, -1] = 1.0
-        blocks.append((X, _clock_columns(delta[lo:hi], u), u[INPUT_LAGS:], y[INPUT_LAGS:]))
-    X = np.vstack([blk[0] for blk in blocks])
-    clock = np.vstack([blk[1] for blk in blocks])
-    clock = clock[:, np.any(clock != 0, axis=0)]           # a regular clock explains nothing: no columns
+        # a regular clock explains nothing: no columns (all its columns would be zeros, dropped below)
+        clock = np.empty((len(X), 0)) if regular else _clock_columns(delta[lo:hi], u)
+        blocks.append((X, clock, u[INPUT_LAGS:], y[INPUT_LAGS:]))
+    X = blocks[0][0] if len(blocks) == 1 else np.vstack([blk[0] for blk in blocks])
+    clock = blocks[0][1] if len(blocks) == 1 else np.vstack([blk[1] for blk in blocks])
+    clock = clock[:, np.any(clock != 0, axis=0)]           # columns of zeros explain nothing
     if len(X) < 4 * (X.shape[1] + clock.shape[1]):
         return math.nan
     own = np.r_[np.arange(INPUT_LAGS), 2 * INPUT_LAGS]

@@ -1,16 +1,30 @@
-"""``first_order_filter`` against ``scipy.signal.lfilter`` and the plain loop.
+"""``first_order_filter`` against ``scipy.signal.lfilter`` and the plain loop, by each of its paths: the
+numpy scan and ``lfilter`` (no numba loaded), and the loop compiled by numba.
 
 Tolerance 1e-13 of the largest value: both are sums of the same terms in a different
 order; the scan's error grows with its few levels of blocks (measured below 1e-15), far
-below what any estimate reads.
+below what any estimate reads.  The compiled loop is ``lfilter``'s order exactly: equal bit for bit.
 """
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from motorsim.recursion import BLOCK, SHORT_RECORD, first_order_filter
+from motorsim import recursion
+from motorsim.recursion import BLOCK, SHORT_RECORD, compiled_recursion, first_order_filter
 
 TOL = 1e-13
+
+
+@pytest.fixture(autouse=True, params=["numpy", "numba"])
+def path(request, monkeypatch):
+    """Every test by the numpy scan / ``lfilter`` and by the compiled loop."""
+    if request.param == "numba":
+        if compiled_recursion() is None:
+            pytest.skip("numba is not installed or MOTORID_NUMBA=0")
+        monkeypatch.setattr(recursion, "_compiled_loop", compiled_recursion)
+    else:
+        monkeypatch.setattr(recursion, "_compiled_loop", lambda: None)
+    return request.param
 
 
 def _loop(e, x, initial):
@@ -85,3 +99,50 @@ def test_out_receives_the_result_contiguous_or_not(n):
     wide = np.full((n, 3), np.nan)                       # a column of a wider array: strided
     first_order_filter(0.95, x[:, 0], 0.5, out=wide[:, 1])
     assert _close(wide[:, 1], want[:, 0]) < TOL and np.all(np.isnan(wide[:, [0, 2]]))
+
+
+@pytest.mark.parametrize("n", [1, 7, 3000, SHORT_RECORD + 7])
+@pytest.mark.parametrize("columns", [1, 3])
+def test_the_compiled_loop_is_lfilter_bit_for_bit(path, n, columns):
+    if path != "numba":
+        pytest.skip("the compiled loop's own test")
+    rng = np.random.default_rng(n)
+    x = rng.standard_normal((n, columns))
+    initial = rng.standard_normal(columns)
+    want, _ = lfilter([1.0], [1.0, -0.987], x, axis=0, zi=(0.987 * initial)[None, :])
+    assert np.array_equal(first_order_filter(0.987, x, initial), want)
+    assert np.array_equal(first_order_filter(0.987, x[::-1], initial),          # a strided forcing
+                          lfilter([1.0], [1.0, -0.987], x[::-1], axis=0, zi=(0.987 * initial)[None, :])[0])
+
+
+def test_the_loop_compiles_once_numba_is_loaded_or_the_scans_have_cost_enough(path, monkeypatch):
+    if path != "numpy":
+        pytest.skip("the switch's own test")
+    monkeypatch.undo()                                   # the real switch
+    import sys
+    compiled = compiled_recursion()
+    monkeypatch.setitem(recursion.usage, "values", 0)
+    monkeypatch.setattr(recursion.compiled_recursion, "cache_info", lambda: type("Info", (), {"currsize": 0})())
+    if "numba" in sys.modules:
+        monkeypatch.delitem(sys.modules, "numba")
+    assert recursion._compiled_loop() is None           # a short command never imports numba for the recursion
+    first_order_filter(0.5, np.ones((1000, 2)))
+    assert recursion.usage["values"] == 2000             # the scan counts what it filtered
+    monkeypatch.setitem(recursion.usage, "values", recursion.COMPILE_AFTER)
+    assert recursion._compiled_loop() is compiled        # enough scans: the loop (None without numba)
+
+
+def test_motorid_numba_0_keeps_the_numpy_paths(path, monkeypatch):
+    if path != "numpy":
+        pytest.skip("the switch's own test")
+    monkeypatch.undo()
+    monkeypatch.setenv("MOTORID_NUMBA", "0")
+    compiled_recursion.cache_clear()
+    try:
+        assert compiled_recursion() is None
+        monkeypatch.setitem(recursion.usage, "values", recursion.COMPILE_AFTER)
+        assert recursion._compiled_loop() is None
+        x = np.random.default_rng(0).standard_normal(500)
+        assert _close(first_order_filter(0.9, x), lfilter([1.0], [1.0, -0.9], x)) < TOL
+    finally:
+        compiled_recursion.cache_clear()
