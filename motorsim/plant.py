@@ -33,7 +33,8 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL", "ZOH_BLOCK",
-           "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper"]
+           "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper",
+           "speed_coefficients"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,6 +149,34 @@ class Motor:
         if self.dead_zone == 0:
             return u
         return np.where(np.abs(u) <= self.dead_zone, 0.0, u - np.sign(u) * self.dead_zone)
+
+    def speed_coefficients(self, sample_period: float, scale: float = 1.0) -> tuple[float, float, float, float]:
+        """``(e, g, beta1, beta2)`` of the first-order part's averaged speed over ``sample_period``
+        (:func:`speed_coefficients`), times ``scale`` (counts per sample per rad/s for a controller)."""
+        return speed_coefficients(self.a, self.b, sample_period, scale)
+
+    def speed_polynomials(self, sample_period: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator in ``z`` from the drive to the averaged speed
+        ``y_k = (angle_k - angle_{k-1}) / h``, every linear part included, without the factor ``1/z`` of the
+        difference and without the input delay: ``y(z)/v(z) = num(z) / (z den(z))``, in rad/s times ``scale``.
+
+        First order: ``num = (beta1, beta2)``, ``den = (1, -e)`` (:func:`speed_coefficients`).  Behind an
+        electrical lag, with the state ``[omega, i]`` and the coefficients ``e_a, e_c, p, r, q, s`` of
+        :func:`lag_coefficients` over one sample, ``omega' = e_a omega + b q i + b (p - q) v``,
+        ``i' = e_c i + (1 - e_c) v`` and ``angle' - angle = p omega + b s i + b (r - s) v``, so
+        ``num(z) = (scale / h) (p ((z - e_c) b (p - q) + b q (1 - e_c)) + b s (1 - e_c)(z - e_a)
+        + b (r - s)(z - e_a)(z - e_c))`` over ``den = (z - e_a)(z - e_c)``: both poles exact.
+        """
+        h = check_real("sample_period", sample_period, positive=True)
+        if not self.electrical_time_constant:
+            e, _, b1, b2 = self.speed_coefficients(h, scale)
+            return np.array([b1, b2]), np.array([1.0, -e])
+        b = self.b
+        e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(self.a, 1.0 / self.electrical_time_constant, h))
+        den = np.asarray(np.polymul([1.0, -e_a], [1.0, -e_c]))
+        num = np.polyadd(np.polyadd(p * b * np.array([p - q, -e_c * (p - q) + q * (1.0 - e_c)]),
+                                    b * s * (1.0 - e_c) * np.array([1.0, -e_a])), b * (r - s) * den)
+        return num * (scale / h), den
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,6 +380,26 @@ def lag_coefficients(a: float, c: float, h) -> tuple:
     deriv = (h * np.exp(-m * h) * m + np.expm1(-m * h)) / (m * m)          # F'(m)
     s = np.where(small, -deriv, (f_c - p) / np.where(small, 1.0, a - c))
     return e_a, e_c, p, r, q, s
+
+
+def speed_coefficients(a: float, b: float, h: float, scale: float = 1.0) -> tuple[float, float, float, float]:
+    """The first-order motor's averaged speed ``y_k = (angle_k - angle_{k-1}) / h`` over a held sample ``h``:
+    ``(e, g, beta1, beta2)`` with ``y_{k+1} = e y_k + beta1 v_k + beta2 v_{k-1}`` and ``g = beta1 + beta2``
+    the sampled speed's gain, each times ``scale``.
+
+    From :func:`zoh_matrices` (``speed' = e speed + g v``, ``angle' = angle + p speed + q v``):
+    ``beta1 = q / h``, ``beta2 = (p g - e q) / h``.  The one place this model is written: the
+    controllers' (:meth:`motorsim.control.PlantModel.speed_coefficients`, ``scale`` their counts per
+    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.recursive`) take it from here.
+
+    Examples
+    --------
+    >>> e, g, b1, b2 = speed_coefficients(25.0, 3.0, 0.01)
+    >>> round(b1 + b2 - g, 15)
+    0.0
+    """
+    e, g, p, q = (float(x) for x in zoh_matrices(a, b, h))
+    return e, g * scale, q / h * scale, (p * g - e * q) / h * scale
 
 
 def first_order_coefficients(a: float, h: float) -> tuple[float, float, float]:

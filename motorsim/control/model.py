@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..checks import ParameterError, ParameterTypeError, check_int, check_real
-from ..plant import Motor, delay_at, lag_coefficients, zoh_matrices
+from ..plant import Motor, delay_at
 
 if TYPE_CHECKING:
     import control
@@ -54,14 +54,8 @@ class PlantModel:
 
     Notes
     -----
-    With ``tau_e > 0`` the measured speed obeys, with the state ``[omega, i]`` (``i`` the lagged
-    drive) and the coefficients ``e_a, e_c, p, r, q, s`` of :func:`~motorsim.plant.lag_coefficients`
-    over one sample (the simulator's own),
-    ``omega' = e_a omega + b q i + b (p - q) v``, ``i' = e_c i + (1 - e_c) v`` and
-    ``angle' - angle = p omega + b s i + b (r - s) v``, so the duty to the differenced counts is
-    ``y(z) / u(z) = (S / h) n(z) / (z^(D+1) (z - e_a)(z - e_c))`` with
-    ``n(z) = p ((z - e_c) b (p - q) + b q (1 - e_c)) + b s (1 - e_c)(z - e_a) + b (r - s)(z - e_a)(z - e_c)``
-    and ``S`` the :attr:`speed_scale`; at ``tau_e = 0`` it is the first-order model of :mod:`motorsim.control`.
+    The measured speed's exact model (first-order part, full plant) is the plant's own,
+    :meth:`motorsim.plant.Motor.speed_polynomials`, in counts per sample (:attr:`speed_scale`).
 
     Examples
     --------
@@ -159,9 +153,7 @@ class PlantModel:
     def speed_coefficients(self) -> tuple[float, float, float, float]:
         """``(e, g, beta1, beta2)`` of the exact first-order model (:mod:`motorsim.control`), in counts per
         sample per duty: the first-order part's when the model has an electrical time constant."""
-        e, g, p, q = (float(x) for x in zoh_matrices(self.a, self.b, self.sample_period))
-        h, s = self.sample_period, self.speed_scale
-        return e, g * s, q / h * s, (p * g - e * q) / h * s
+        return self.motor().speed_coefficients(self.sample_period, self.speed_scale)
 
     def drive_offset(self, sign: int) -> float:
         """``(bias - friction sign) / b`` in duty: what the drive adds when the speed has ``sign``."""
@@ -172,20 +164,8 @@ class PlantModel:
         electrical time constant the full plant's (class Notes), both poles exact."""
         import control
         delay = np.r_[1.0, np.zeros(self.input_delay + 1)]
-        if self.electrical_time_constant:
-            num, den = self._lag_speed_polynomials()
-            return control.tf(num, np.polymul(delay, den), self.sample_period)
-        e, _, b1, b2 = self.speed_coefficients()
-        return control.tf([b1, b2], np.polymul(delay, [1.0, -e]), self.sample_period)
-
-    def _lag_speed_polynomials(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(S / h) n(z)`` and ``(z - e_a)(z - e_c)`` of the class Notes (no delay)."""
-        h, b = self.sample_period, self.b
-        e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(self.a, 1.0 / self.electrical_time_constant, h))
-        den = np.asarray(np.polymul([1.0, -e_a], [1.0, -e_c]))
-        num = np.polyadd(np.polyadd(p * b * np.array([p - q, -e_c * (p - q) + q * (1.0 - e_c)]),
-                                    b * s * (1.0 - e_c) * np.array([1.0, -e_a])), b * (r - s) * den)
-        return num * (self.speed_scale / h), den
+        num, den = self.motor().speed_polynomials(self.sample_period, self.speed_scale)
+        return control.tf(num, np.polymul(delay, den), self.sample_period)
 
     def metadata(self) -> dict[str, str]:
         """The model as recording metadata ``model_NAME`` (the electrical time constant, dead zone and static
