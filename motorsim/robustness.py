@@ -229,8 +229,8 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     drawn = rng.multivariate_normal(mean, cov, size=n_draws)
     keep = (drawn[:, 0] > 0) & (drawn[:, 1] != 0) & (drawn[:, 2] >= 0 if len(cov) == 3 else True)
     tau = model.electrical_time_constant
-    out = tuple(dataclasses.replace(model, a=float(row[0]), b=float(row[1]),
-                                    electrical_time_constant=float(row[2]) if len(row) == 3 else tau)
+    out = tuple(model.with_values(a=float(row[0]), b=float(row[1]),
+                                  electrical_time_constant=float(row[2]) if len(row) == 3 else tau)
                 for row in drawn[keep])
     other = int(np.sum(np.sign(drawn[keep, 1]) != np.sign(model.b)))
     return ModelDraws(out, n_rejected=int(n_draws - keep.sum()), n_other_sign=other)

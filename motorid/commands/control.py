@@ -148,7 +148,7 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
         print_to_stderr(f"note: the device applies each duty {rig_input_delay} sample(s) after computing it; "
                         f"the controller is designed with input delay {rig_input_delay} (the model had "
                         f"{model.input_delay})")
-        model = dataclasses.replace(model, input_delay=rig_input_delay)
+        model = model.with_values(input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
     speed_unit = load_model_file(args.model).speed_unit if args.model else "rad/s"
     reference = reference_from_args(args, controller, speed_unit, float(args.duty_limit))
