@@ -194,8 +194,8 @@ class ModelDraws(Sequence[PlantModel]):
         return self.models[index]
 
 
-def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator
-                ) -> ModelDraws:
+def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator, *,
+                names: Sequence[str] | None = None) -> ModelDraws:
     """Plants with ``(a, b)`` (and the electrical time constant) drawn from a normal distribution around
     ``model``'s, drawn once.
 
@@ -213,6 +213,11 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
         counted (``n_other_sign``).
     rng : numpy.random.Generator
         The source of randomness.
+    names : sequence of str, optional
+        The plant's values ``covariance`` is over, in its order (``Estimate.param_names``: any structure's,
+        ``a`` and ``b`` first); each draw is the plant with them replaced, a draw the plant refuses (a value
+        outside its bounds) left out and counted.  Default: ``(a, b)`` or ``(a, b, electrical_time_constant)``
+        by the covariance's shape, as above.
 
     Examples
     --------
@@ -221,6 +226,8 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     >>> len(draws) + draws.n_rejected, 0.05 < draws.n_other_sign / len(draws) < 0.1   # P(b > 0) = 6.7 %
     (1000, True)
     """
+    if names is not None:
+        return _draw_named(model, covariance, n_draws, rng, tuple(names))
     cov = _checked_covariance(model, covariance)
     n_draws = check_int("n_draws", n_draws, 1, 10**6)
     if not isinstance(rng, np.random.Generator):
@@ -234,6 +241,34 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
                 for row in drawn[keep])
     other = int(np.sum(np.sign(drawn[keep, 1]) != np.sign(model.b)))
     return ModelDraws(out, n_rejected=int(n_draws - keep.sum()), n_other_sign=other)
+
+
+def _draw_named(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator,
+                names: tuple[str, ...]) -> ModelDraws:
+    """:func:`draw_models` over the plant's values ``names``."""
+    values = model.plant.values()
+    unknown = [n for n in names if n not in values]
+    if unknown or names[:2] != ("a", "b"):
+        raise ParameterError(f"names must start with 'a', 'b' and name the plant's values {list(values)}, "
+                             f"got {list(names)}")
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape != (len(names), len(names)) or not np.all(np.isfinite(cov)):
+        raise ParameterError(f"covariance must be a finite {len(names)} x {len(names)} array over {list(names)}, "
+                             f"got shape {cov.shape}")
+    n_draws = check_int("n_draws", n_draws, 1, 10**6)
+    if not isinstance(rng, np.random.Generator):
+        raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
+    drawn = rng.multivariate_normal([values[n] for n in names], cov, size=n_draws)
+    out = []
+    for row in drawn:
+        if not row[0] > 0:
+            continue
+        try:
+            out.append(model.with_values(**{n: float(x) for n, x in zip(names, row)}))
+        except ParameterError:
+            continue
+    other = sum(1 for m in out if np.sign(m.b) != np.sign(model.b))
+    return ModelDraws(tuple(out), n_rejected=n_draws - len(out), n_other_sign=other)
 
 
 def _checked_covariance(model: PlantModel, covariance: np.ndarray) -> np.ndarray:
