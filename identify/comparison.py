@@ -83,6 +83,8 @@ STOP_FACTOR = 100.0
 #: The candidate structures of the default, simplest first: the registered ones
 #: (:func:`identify.structures`) it considers.
 STRUCTURES: Mapping[str, ModelStructure] = structures(in_default=True)
+#: Every registered structure: a candidate of any of them is scored (an estimator's delay scan, ``choose_delay``).
+_REGISTERED: Mapping[str, ModelStructure] = structures()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,18 +127,18 @@ class Candidate:
     @property
     def n_params(self) -> int:
         """Shared parameters, a nonzero delay counted as one more."""
-        return STRUCTURES[self.structure].n_params + (self.input_delay > 0)
+        return _REGISTERED[self.structure].n_params + (self.input_delay > 0)
 
     @property
     def method(self) -> str:
         """The estimator that fits this candidate."""
-        return self.fitted_by or STRUCTURES[self.structure].method
+        return self.fitted_by or _REGISTERED[self.structure].method
 
     def options(self) -> dict[str, Any]:
         """``fit(recordings, method, **options)`` reproduces the candidate on all rows."""
         if self.fitted_by:
             return {"input_delay": self.input_delay, **dict(self.fit_options)}
-        return {"input_delay": self.input_delay, **STRUCTURES[self.structure].options}
+        return {"input_delay": self.input_delay, **_REGISTERED[self.structure].options}
 
     @property
     def label(self) -> str:
@@ -488,21 +490,21 @@ def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int 
     if best is None:
         reasons = "; ".join(sorted({f.candidate.note for f in fitted if f.candidate.note}))
         raise NotIdentifiableError(f"no candidate model could be fitted: {reasons}")
-    family = best_fit([f for f in fitted if STRUCTURES[f.candidate.structure].rank == 0]) or best
+    family = best_fit([f for f in fitted if _REGISTERED[f.candidate.structure].rank == 0]) or best
     scored = _scored(fitted, family, level, recs, segments)
-    order = list(STRUCTURES)
+    order = list(_REGISTERED)
 
     def simplicity(c: Candidate) -> tuple:
-        return (STRUCTURES[c.structure].rank, c.n_params, c.input_delay, order.index(c.structure))
+        return (_REGISTERED[c.structure].rank, c.n_params, c.input_delay, order.index(c.structure))
     if family is not best:
         overall = _scored(fitted, best, level, recs, segments)
         if overall[fitted.index(family)].within_noise:        # the family holds: higher ranks only widen
-            scored = [o if STRUCTURES[c.structure].rank else c for c, o in zip(scored, overall)]
+            scored = [o if _REGISTERED[c.structure].rank else c for c, o in zip(scored, overall)]
         else:
             scored = overall
     best_c = scored[fitted.index(best)]
     within = [c for c in scored if c.within_noise]
-    first = [c for c in within if STRUCTURES[c.structure].rank == 0]
+    first = [c for c in within if _REGISTERED[c.structure].rank == 0]
     chosen = min(first or within, key=simplicity)
     others = [c for c in within if c is not chosen]
     runner_up = min(others, key=simplicity) if others else min(
