@@ -32,6 +32,7 @@ import numpy as np
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import Controller, DesignLimitWarning, PlantModel, Reference, design_controller
 from .margins import Margins, discrete_margins
+from .plant import Motor
 
 __all__ = ["Margins", "Robustness", "ModelDraws", "loop_margins", "analyse_robustness", "robust_design",
            "draw_models", "BADLY_DAMPED", "ROBUST_KNOB"]
@@ -217,7 +218,9 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
         The plant's values ``covariance`` is over, in its order (``Estimate.param_names``: any structure's,
         ``a`` and ``b`` first); each draw is the plant with them replaced, a draw the plant refuses (a value
         outside its bounds) left out and counted.  Default: ``(a, b)`` or ``(a, b, electrical_time_constant)``
-        by the covariance's shape, as above.
+        by the covariance's shape, as above, for a :class:`~motorsim.plant.Motor`; for a plant of another
+        structure its values in the order :meth:`~motorsim.plant.Plant.values` lists them (the estimate's
+        parameters), as many as the covariance has rows.
 
     Examples
     --------
@@ -226,6 +229,8 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     >>> len(draws) + draws.n_rejected, 0.05 < draws.n_other_sign / len(draws) < 0.1   # P(b > 0) = 6.7 %
     (1000, True)
     """
+    if names is None and not isinstance(model.plant, Motor):    # another structure: over its values, in order
+        names = tuple(model.plant.values())[:len(np.atleast_2d(np.asarray(covariance, dtype=float)))]
     if names is not None:
         return _draw_named(model, covariance, n_draws, rng, tuple(names))
     cov = _checked_covariance(model, covariance)

@@ -35,6 +35,7 @@ from motorsim.control import (
     tracking_error,
 )
 from motorsim.excitation import DUTY_LIMIT
+from motorsim.plant import Motor
 from motorsim.recording import Recording
 from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -516,12 +517,18 @@ def _loop_poles(controller: Controller) -> np.ndarray:
 
 def _model_covariance(args: argparse.Namespace) -> np.ndarray | None:
     """The covariance of ``(a, b)`` of the ``--model`` file, of ``(a, b, electrical_time_constant)`` when the model
-    has one with a finite variance (the robustness draws it too); None without a covariance."""
+    has one with a finite variance (the robustness draws it too), of every value of a structure beyond the
+    first-order family's (:meth:`motorsim.plant.Plant.values`); None without a covariance."""
     if not getattr(args, "model", None):
         return None
     est = load_model_file(args.model)
     if est.covariance is None or not np.all(np.isfinite(est.covariance[:2, :2])):
         return None
+    names = list(est.param_names or ())
+    if not isinstance(est.motor(), Motor) and list(est.motor().values()) == names[:len(est.motor().values())]:
+        full = np.asarray(est.covariance, dtype=float)[:len(est.motor().values()), :len(est.motor().values())]
+        if np.all(np.isfinite(full)):         # a structure beyond the first-order family: all its values drawn
+            return full
     rows = [0, 1]
     names = list(est.param_names or ())
     if est.extra.get("electrical_time_constant", 0.0) > 0 and "electrical_time_constant" in names:
