@@ -156,7 +156,7 @@ def test_a_structures_step_is_its_simulation(s, alone):
     t = np.arange(n) * DT
     duty = Sine(13.0, 140).duty(n, DT).astype(float)
     ref = s.response(v, duty, t, initial_speed=2.0)
-    stepper, state, speed = s.stepper(v, np.diff(t)), (0.0, 2.0, 0.0), [2.0]
+    stepper, state, speed = s.stepper(v, np.diff(t)), s.plant(v).initial_state(0.0, 2.0), [2.0]
     for k in range(n - 1):
         state = stepper.step(k, state, duty[k])
         speed.append(state[1])
