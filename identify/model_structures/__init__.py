@@ -18,13 +18,14 @@ from motorsim.checks import ParameterError
 from .base import ModelStructure, Parameter
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
+from .two_mass import TwoMass, TwoMassLoad
 
 __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of",
            "structure_fitted"]
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
-                                          SecondOrder())
+                                          SecondOrder(), TwoMass(), TwoMassLoad())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -39,7 +40,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     --------
     >>> import identify
     >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order']
+    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'two-mass', 'two-mass-load']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """

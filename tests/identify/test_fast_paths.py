@@ -19,7 +19,7 @@ from motorsim.control import PlantModel
 
 #: A value of every parameter of the registered structures: each part set well away from its neutral value.
 VALUES = {"a": 25.0, "b": 3.0, "bias": 4.0, "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0,
-          "electrical_time_constant": 0.004}
+          "electrical_time_constant": 0.004, "inertia_ratio": 1.5, "shaft_frequency": 150.0, "shaft_damping": 0.1}
 DT, DELAY = 0.002, 2
 #: Noise-free comparisons of the same model computed two ways: 1e-9 relative (observed ~1e-13).
 RTOL = 1e-9
