@@ -365,6 +365,12 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
                              "the model's a is not known well enough for a robustness analysis")
     other = sum(np.sign(m.b) != np.sign(model.b) for m in draws)
     tau_drawn = any(m.electrical_time_constant != model.electrical_time_constant for m in draws)
+    if isinstance(model.plant, Motor):
+        drawn_names, refused = ("a, b, tau_e", "a <= 0 or tau_e < 0") if tau_drawn else ("a, b", "a <= 0")
+    else:                       # another structure: the values that differ among the draws
+        point = model.plant.values()
+        drawn_names = ", ".join(n for n in point if any(m.plant.values()[n] != point[n] for m in draws)) or "none"
+        refused = "a <= 0 or a value outside its bounds"
     h = model.sample_period
     n = int(round(duration / h))
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
@@ -392,9 +398,9 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         worst_delay_margin=float(min(g.delay_margin for g in margins)),
         percentile=percentile, unstable=unstable / len(draws), badly_damped=damped / len(draws),
         n_draws=len(draws), n_rejected=n_rejected, other_sign=other / len(draws),
-        method=f"Monte Carlo: {len(draws)} plants ({'a, b, tau_e' if tau_drawn else 'a, b'}) drawn from a normal "
+        method=f"Monte Carlo: {len(draws)} plants ({drawn_names}) drawn from a normal "
                "distribution with the model's covariance (seeded)"
-               + (f", {n_rejected} more with {'a <= 0 or tau_e < 0' if tau_drawn else 'a <= 0'} left out"
+               + (f", {n_rejected} more with {refused} left out"
                   if n_rejected else "")
                + (f", electrical time constant {model.electrical_time_constant:g} s kept in every plant"
                   if model.electrical_time_constant and not tau_drawn else "")

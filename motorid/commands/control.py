@@ -404,6 +404,8 @@ def run_control(args: argparse.Namespace) -> int:
           + (f"electrical time constant {model.electrical_time_constant:g} s, " if model.electrical_time_constant
              else "")
           + (f"static friction {model.static_friction:g} rad/s^2, " if model.static_friction else "")
+          + "".join(f"{name} {value:g}, " for name, value in model.plant.values().items()    # another structure's
+                    if not isinstance(model.plant, Motor) and name not in ("a", "b"))
           + (f"dead zone {model.dead_zone:g} {unit} (not compensated: the design and its prediction are on the "
              "linear part), " if model.dead_zone else "") + f"dt = {model.sample_period:g} s, "
           f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
