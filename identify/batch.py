@@ -179,10 +179,14 @@ def fit_batch(methods: Sequence[str], speed: np.ndarray, duty: np.ndarray,
 
 def output_error_batchable(recording: Recording) -> bool:
     """Whether ``oe`` takes its separable path on ``recording`` (the duty excites, one uniform segment):
-    then :func:`fit_output_error_batch` fits every repetition that shares its duty and clock."""
-    from .data import as_recordings, check_excitation, prepare_segments
+    then :func:`fit_output_error_batch` fits every repetition that shares its duty and clock.  A duty of one
+    constant level (a step from rest, which the fit answers from its transient alone) takes the path of one
+    run at a time, where its screening says so."""
+    from .data import as_recordings, check_excitation, one_input_level, prepare_segments
     from .variable_projection import is_separable
     recs = as_recordings(recording)
+    if one_input_level(recs) is not None:
+        return False
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

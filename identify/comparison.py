@@ -83,7 +83,7 @@ STOP_FACTOR = 100.0
 #: The candidate structures of the default, simplest first: the registered ones
 #: (:func:`identify.structures`) it considers.
 STRUCTURES: Mapping[str, ModelStructure] = structures(in_default=True)
-#: Every registered structure: a candidate of any of them is scored (an estimator's delay scan, ``choose_delay``).
+#: Every registered structure: a candidate may be one the default fits only on evidence (a gain per direction).
 _REGISTERED: Mapping[str, ModelStructure] = structures()
 
 
@@ -135,7 +135,8 @@ class Candidate:
         return self.fitted_by or _REGISTERED[self.structure].method
 
     def options(self) -> dict[str, Any]:
-        """``fit(recordings, method, **options)`` reproduces the candidate on all rows."""
+        """``fit(recordings, method, **options)`` reproduces the candidate on all rows (a structure the default
+        fits only on evidence, outside :data:`STRUCTURES`, too)."""
         if self.fitted_by:
             return {"input_delay": self.input_delay, **dict(self.fit_options)}
         return {"input_delay": self.input_delay, **_REGISTERED[self.structure].options}

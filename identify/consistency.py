@@ -25,7 +25,10 @@ step's ``a``, ``b`` on each side, with their intervals from the same covariance.
 
 The parts (:data:`SPLITS`):
 
-* ``early / late``: the first and the second half of the rows (a drift, a load switched on);
+* ``early / late``: ``a`` and ``b`` along the run, a linear trend from its start to its end (a motor warming,
+  a setting drifting: a trend finds a steady drift at p = 1e-42 where a step between the halves found it at 3e-4),
+  and the constant acceleration (and friction) between the first and the second half (a load switched on); its
+  parts ``a`` and ``b`` at the start and at the end of the run;
 * ``forward / reverse``: ``ω > 0`` against ``ω < 0`` for ``a`` and ``d``, ``v > 0`` against ``v < 0`` for
   ``b`` (an asymmetric driver or gearbox);
 * ``low / high drive``: ``|v|`` at or below its median against above (a duty clipped, a current limit);
@@ -67,7 +70,7 @@ __all__ = ["PartCheck", "part_checks", "Consistency", "consistency", "COLOURED",
 
 #: The splits, in the order they are made and reported: name and the two parts' names.
 SPLITS: dict[str, tuple[str, str]] = {
-    "early / late": ("early", "late"),
+    "early / late": ("start", "end"),
     "forward / reverse": ("forward", "reverse"),
     "low / high drive": ("low drive", "high drive"),
     "slow / fast": ("slow", "fast"),
@@ -78,6 +81,8 @@ SPLITS: dict[str, tuple[str, str]] = {
 CURVE = "gain by duty"
 #: The check that is no split: the chosen model with a torque of the angle beside it (:func:`_angle_check`).
 ANGLE = "angle torque"
+#: The split along the run: ``a`` and ``b`` take a linear trend over it, the constant a step at its middle.
+DRIFT = "early / late"
 #: The splits whose parts may also differ in a constant acceleration: a load switched on, a torque or friction on
 #: one side.  By drive and by speed a constant that differs is friction or a dead zone, the structures' own.
 CONSTANT_PARTS = ("early / late", "forward / reverse")
@@ -335,6 +340,7 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
     start = 0
     tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
     zone = float(values.get("dead_zone", 0.0) or 0.0)
+    limit = float(values.get("drive_limit", 0.0) or 0.0)      # a driver's clip (the drive-limit structure)
     for seg, model, place in _windows(pairs, total):
         n = len(seg.time)
         t = seg.time
@@ -345,6 +351,8 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
         v = np.asarray(seg.drive, dtype=float)
         if zone > 0:
             v = np.sign(v) * np.maximum(np.abs(v) - zone, 0.0)
+        if limit > 0:
+            v = np.clip(v, -limit, limit)
         if tau > 0:
             v = _lagged(v, t, tau)
         residual.append(seg.output - model)
@@ -502,6 +510,9 @@ def _parted_inputs(rows: _Rows, name: str, masks: tuple[np.ndarray, np.ndarray, 
     """The inputs of a split's part columns: ``a``, ``b``, the constant (and friction) on part ``S`` only."""
     w, v = rows.speed, rows.drive
     s_a, s_b, s_d = masks
+    if name == DRIFT:
+        along = rows.order - 0.5                     # the run from -1/2 to 1/2: a and b's trend over it
+        s_a = s_b = along
     parted = [-w * s_a, v * s_b]
     if name in CONSTANT_PARTS:
         parted.append(np.ones(len(w)) * s_d)
@@ -523,8 +534,12 @@ def _check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray,
     # the complement of S takes the base values (the full fit's plus the step's), S those plus its shifts:
     # the shifts of a and b from the full fit, each part's, as one linear map of the step
     ia, ib = p_own, p_own + 1
-    maps = {"a": (np.eye(len(beta))[0], np.eye(len(beta))[0] + np.eye(len(beta))[ia]),
-            "b": (np.eye(len(beta))[1], np.eye(len(beta))[1] + np.eye(len(beta))[ib])}
+    unit = np.eye(len(beta))
+    if name == DRIFT:          # the trend's values at the run's start and end
+        maps = {"a": (unit[0] - 0.5 * unit[ia], unit[0] + 0.5 * unit[ia]),
+                "b": (unit[1] - 0.5 * unit[ib], unit[1] + 0.5 * unit[ib])}
+    else:
+        maps = {"a": (unit[0], unit[0] + unit[ia]), "b": (unit[1], unit[1] + unit[ib])}
     z = float(-special.ndtri(0.025))
     z_part = z          # a shift beyond its own 95 % interval (the split's difference is already beyond the level)
     values, intervals, off = {}, {}, False

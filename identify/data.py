@@ -24,7 +24,7 @@ from .errors import NotIdentifiableError
 
 __all__ = ["as_recordings", "counts_behind_speed", "MAX_COUNTS_PER_SAMPLE", "check_input_delay", "check_excitation",
            "check_speed_agrees", "check_constant_input_runs", "ConstantInputTurnWarning", "check_output_moves",
-           "check_input_changes", "POOL_PERIOD_RTOL",
+           "check_input_changes", "check_length", "ConstantInputWarning", "one_input_level", "POOL_PERIOD_RTOL",
            "prepare_segments", "first_rows", "delayed_segments", "Segment", "MIN_SEGMENT_SAMPLES", "residual_unit",
            "saturation_note", "CLOSED_LOOP_SATURATED_SHARE", "declared_input_delay"]
 
@@ -386,12 +386,64 @@ def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
                                    "use a sine, multisine or PRBS")
     if constant:
         unit = recordings[0].input_unit
-        raise NotIdentifiableError(f"input is constant ({duty[0]:g} {unit} throughout): it is not persistently "
-                                   "exciting, a and b cannot be separated (a step recorded from its first sample, "
-                                   "such as SysId's dynamic test alone, holds no input before it: pool it with the "
-                                   "routine's other tests, or record from before the step); use a sine, "
-                                   "multisine or PRBS")
+        if any(_has_transient(r) for r in recordings):      # a step from rest: said once, by the screening
+            return duty
+        raise NotIdentifiableError(f"input is constant ({duty[0]:g} {unit} throughout) and the speed holds no "
+                                   "transient: it is not persistently exciting, a and b cannot be separated "
+                                   "(a step recorded after the motor settled; pool it with the routine's other "
+                                   "tests, or record from before the step); use a sine, multisine or PRBS")
     return duty
+
+
+class ConstantInputWarning(UserWarning):
+    """The input is constant throughout; a and b come from the speed's transient (a step from rest) alone."""
+
+
+#: Rows of a run of constant input whose speed is judged for a transient (its first ones: a step's transient).
+TRANSIENT_ROWS = 20_000
+
+
+def one_input_level(recordings: Sequence[Recording]) -> float | None:
+    """The input level every recording holds throughout (SysId's dynamic test alone), or None."""
+    if not recordings or not all(len(r) for r in recordings):
+        return None
+    levels = {float(v) for r in recordings for v in (r.duty.min(), r.duty.max())}
+    return levels.pop() if len(levels) == 1 else None
+
+
+def _has_transient(rec: Recording) -> bool:
+    """Whether ``rec``'s speed moves one way, beyond its noise and rounding, in a gap-free run.
+
+    Under one constant input a motor's speed that moves from where it started towards where the
+    input drives it (a step from rest, SysId's dynamic test) separates ``a`` (the transient's rate)
+    from ``b`` (where it goes); a speed already settled holds only their ratio.  The run is judged as
+    :func:`check_constant_input_runs` judges a turn: smoothed, its rise or fall beyond
+    :data:`RUN_NOISE_FACTOR` noise deviations or two rounding steps, and beyond a quarter of the
+    speed's largest magnitude (the transient, not a drift of a settled speed).
+    """
+    n = min(len(rec), TRANSIENT_ROWS)
+    if n < RUN_SKIP + RUN_MIN:
+        return False
+    speed = rec.measured_speed()[:n]
+    seq = rec.seq[:n]
+    cuts = np.flatnonzero(np.diff(seq) != 1) + 1
+    for w in np.split(speed, cuts):
+        w = w[RUN_SKIP:]
+        w = w[np.isfinite(w)]
+        if len(w) < RUN_MIN:
+            continue
+        rise, fall, noise = _turn(w)
+        if max(rise, fall) > max(noise, 0.25 * float(np.max(np.abs(w)))):
+            return True
+    return False
+
+
+def check_length(recordings: Sequence[Recording], n_params: int = 2) -> None:
+    """Refuse recordings with fewer than ``3 n_params + 4`` samples in all: too short for any fit."""
+    total = sum(len(r) for r in recordings)
+    if total < 3 * n_params + 4:
+        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
+                                   f"record at least {3 * n_params + 4} (a few time constants) samples")
 
 
 def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None:
@@ -407,10 +459,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
     n_params : int
         Parameters the estimator fits (sets the shortest acceptable record).
     """
-    total = sum(len(r) for r in recordings)
-    if total < 3 * n_params + 4:
-        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
-                                   f"record at least {3 * n_params + 4} (a few time constants) samples")
+    check_length(recordings, n_params)
     duty = check_input_changes(recordings)
     _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
     for i, r in enumerate(recordings):

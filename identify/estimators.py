@@ -22,7 +22,8 @@ from motorsim.lazy import load
 from .data import DEFAULT_INPUT_DELAY
 
 __all__ = ["Estimator", "EstimatorOption", "DEFAULT", "EULER_LS", "ZOH_LS", "OE", "IV", "OE_FRICTION",
-           "IV_REFERENCE", "OE_ELECTRICAL", "PEM_DISTURBANCE", "REGISTERED_ESTIMATORS", "linear_estimator"]
+           "IV_REFERENCE", "OE_ELECTRICAL", "OE_ASYMMETRIC", "OE_DRIVE_LIMIT", "PEM_DISTURBANCE",
+           "REGISTERED_ESTIMATORS", "linear_estimator"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +67,7 @@ class Estimator:
     closed_loop_only : bool
         Made for closed-loop recordings (``iv-reference`` needs their reference column).
     beyond_first_order : bool
-        Fits a structure beyond the first-order motor's family (a second pole).
+        Fits a structure beyond the first-order motor's family (a second pole, a gain per direction, a drive limit).
     """
 
     name: str
@@ -135,6 +136,16 @@ IV_REFERENCE = Estimator("iv-reference", "closed_loop:fit_reference_iv", (_input
                          closed_loop_only=True)
 OE_ELECTRICAL = Estimator("oe-electrical", "electrical:fit_output_error_electrical", (_input_delay(),),
                           candidate="electrical:structure_candidate", beyond_first_order=True)
+OE_ASYMMETRIC = Estimator("oe-asymmetric", "asymmetry:fit_output_error_asymmetric", (
+    _input_delay(),
+    EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
+                    "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
+    beyond_first_order=True)
+OE_DRIVE_LIMIT = Estimator("oe-drive-limit", "drive_limit:fit_output_error_drive_limit", (
+    _input_delay(),
+    EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
+                    "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
+    beyond_first_order=True)
 PEM_DISTURBANCE = Estimator("pem-disturbance", "prediction_error:fit_prediction_error", (
     _input_delay(0, "int"),
     EstimatorOption("friction", "bool", True, "also fit Coulomb friction c"),
@@ -155,4 +166,4 @@ def linear_estimator(name: str, structure: str) -> Estimator:
 
 #: Every estimator a user can name, in the order ``available_methods()`` lists them.
 REGISTERED_ESTIMATORS: tuple[Estimator, ...] = (EULER_LS, ZOH_LS, OE, IV, OE_FRICTION, IV_REFERENCE, OE_ELECTRICAL,
-                                                PEM_DISTURBANCE)
+                                                OE_ASYMMETRIC, OE_DRIVE_LIMIT, PEM_DISTURBANCE)

@@ -122,7 +122,9 @@ def _widened(estimate: Any, kv_stderr: float) -> dict[str, tuple[float, float]]:
     candidates that fit alike moves far less than ``a`` and ``b`` do (their static gain is what the data
     hold), so where the selection kept its candidates, ``kV``'s range is theirs (those within the noise),
     each with the chosen fit's relative width of ``kV`` (``kv_stderr``); else every ratio over both
-    intervals.  ``kS``, ``k0``: the friction's and bias's intervals over ``b``'s."""
+    intervals.  ``kS``, ``k0``: the friction's and bias's intervals over ``b``'s; where ``b``'s interval is
+    open (one input level: a friction the data cannot tell from ``b``) and no friction was fitted, ``kS``
+    holds every value of its sign."""
     if not getattr(estimate, "model_range", None):
         return {}
     ci = estimate.confidence_interval(0.95)
@@ -132,13 +134,16 @@ def _widened(estimate: Any, kv_stderr: float) -> dict[str, tuple[float, float]]:
     out = {"kv": _ratio_range(ci["a"], b), "ka": _ratio_range((1.0, 1.0), b)}
     selection = getattr(estimate, "selection", None)
     alike = [c for c in getattr(selection, "candidates", ()) if c.within_noise and c.b != 0]
-    if alike and "b" in estimate.model_range and math.isfinite(b[0]) and b[0] * b[1] > 0:
+    bounded = math.isfinite(b[0]) and math.isfinite(b[1])
+    if alike and "b" in estimate.model_range and bounded and b[0] * b[1] > 0:
         kv = float(estimate.a) / float(estimate.b)
         width = 1.96 * kv_stderr / abs(kv) if math.isfinite(kv_stderr) and kv else 0.0
         values = [kv] + [c.a / c.b for c in alike]
         out["kv"] = (min(v - abs(v) * width for v in values), max(v + abs(v) * width for v in values))
     if "friction" in ci:
         out["ks"] = _ratio_range(ci["friction"], b)
+    elif not bounded:     # b open (one input level): a friction the data cannot tell from b, of any size
+        out["ks"] = (0.0, math.inf) if estimate.b > 0 else (-math.inf, 0.0)
     if "bias" in ci:
         low, high = _ratio_range(ci["bias"], b)
         out["k0"] = (-high, -low)
@@ -187,7 +192,8 @@ def feedforward_constants(estimate: Any) -> FeedforwardConstants:
             continue
         g = np.array([grad.get(p, 0.0) for p in names])
         scale = float(np.max(np.abs(g)))     # scaled first: a / b**2 squared overflows long before the result does
-        var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
+        with np.errstate(invalid="ignore", over="ignore"):   # a covariance the data left undetermined holds nan
+            var = float((g / scale) @ np.asarray(cov, dtype=float) @ (g / scale)) if scale > 0 else 0.0
         stderr[k] = scale * math.sqrt(var) if var >= 0 else math.nan
     return FeedforwardConstants(ks=c / b, kv=a / b, ka=1 / b, k0=-d / b, stderr=stderr,
                                 input_unit=str(getattr(estimate, "input_unit", "duty")),

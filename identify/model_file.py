@@ -304,8 +304,17 @@ def _kind_name(kind: type | tuple[type, ...]) -> str:
 
 
 def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 hex digest of a file's bytes (the ``data_files`` of an estimate)."""
+    """SHA-256 hex digest of a file's bytes (the ``data_files`` of an estimate); of a folder (a ROS 2 bag),
+    of its regular files' names (relative, sorted) and bytes in turn."""
     digest = hashlib.sha256()
+    if os.path.isdir(path):
+        root = os.fspath(path)
+        found = sorted(os.path.relpath(os.path.join(d, f), root) for d, _, files in os.walk(root) for f in files)
+        for name in found:
+            full = os.path.join(root, name)
+            if os.path.isfile(full) and not os.path.islink(full):
+                digest.update(name.encode("utf-8", "surrogateescape") + b"\0" + file_sha256(full).encode() + b"\0")
+        return digest.hexdigest()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)

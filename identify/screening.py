@@ -17,6 +17,7 @@ its recorded input stays constant, at the fitted delay (:func:`identify.data.che
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import Any, Callable, Sequence
 
@@ -27,11 +28,14 @@ from motorsim.recording import Recording
 
 from .causality import check_input_leads
 from .data import (
+    ConstantInputWarning,
     as_recordings,
     check_constant_input_runs,
     check_input_changes,
+    check_length,
     check_output_moves,
     check_speed_agrees,
+    one_input_level,
 )
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
@@ -76,6 +80,57 @@ def with_encoder(estimate: Estimate, recordings: Sequence[Recording]) -> Estimat
     if len(found) != 1 or any(r.counts is None for r in recordings) or None in found:
         return estimate
     return dataclasses.replace(estimate, counts_per_rev=found.pop())
+
+
+#: The structures the default chooses among on recordings of one constant input level (:func:`_one_level_options`).
+ONE_LEVEL_STRUCTURES = ("linear",)
+
+
+def _one_level_options(recs: Sequence[Recording], estimator: Callable[..., Estimate],
+                       options: dict[str, Any]) -> dict[str, Any]:
+    """The default's options for recordings of one constant input level (said here, once): the structures
+    whose ``b`` such data fix (:data:`ONE_LEVEL_STRUCTURES`).
+
+    At one level ``u`` a bias ``d`` (or a friction, on a speed that never reverses) and ``b`` act as one
+    constant, ``b u + d``: a structure fitting both (the second-order one always fits a bias) has no
+    interval for either, and its arbitrary split of the two is no answer.
+    """
+    level = one_input_level(recs)
+    if level is None:
+        return options
+    check_input_changes(recs)             # a level the motor had settled at is refused (no transient)
+    warnings.warn(f"input is constant ({level:g} {recs[0].input_unit} throughout): a and b rest on the speed's "
+                  "transient alone, and a friction or a bias cannot be told from b at one input level (SysId's "
+                  "dynamic test alone); pool it with the routine's other tests, or record steps to several levels",
+                  ConstantInputWarning, stacklevel=4)
+    default = getattr(estimator, "__module__", "") == "identify.selection" and \
+        getattr(estimator, "__name__", "") == "fit_selected"          # by name: selection imports this module's callers
+    if default and "structures" not in options:
+        return {**options, "structures": ONE_LEVEL_STRUCTURES}
+    return options
+
+
+def _one_level_answer(estimate: Estimate, recordings: Sequence[Recording]) -> Estimate:
+    """The default's ``estimate`` honest about ``b`` when every recording holds one constant input level.
+
+    At one input level ``u`` the data fix the transient's rate ``a`` and where the speed settles,
+    ``(b u - c) / a``, but not ``b`` apart from a friction ``c`` (or a bias): a Coulomb friction,
+    which opposes the motion, makes the motor's ``b`` larger in magnitude than the linear fit's.
+    The interval of ``b`` is widened to unbounded on that side (its :attr:`Estimate.model_range`),
+    the choice is not clear and a note says why.  Estimates of a named method (no selection), and
+    recordings with more than one level, are returned as they are.
+    """
+    level = one_input_level(recordings)
+    if estimate.selection is None or level is None:
+        return estimate
+    low, high = estimate.confidence_interval()["b"]
+    span = (min(low, estimate.b), math.inf) if estimate.b >= 0 else (-math.inf, max(high, estimate.b))
+    note = (f"one input level ({level:g} {estimate.input_unit}) throughout: the data fix a and b u - c = "
+            f"{estimate.b * level:.4g} rad/s^2, not b apart from a friction or bias c; b's interval is open on the "
+            "side a friction would move it; pool the routine's other tests (a ramp, steps to other levels) for b")
+    selection = dataclasses.replace(estimate.selection, clear=False, doubt=estimate.selection.doubt or note)
+    return dataclasses.replace(estimate, model_range={**estimate.model_range, "b": span}, selection=selection,
+                               notes=(*estimate.notes, note))
 
 
 def _refuse_inner_outliers(found: list[list[int]], recs: Sequence[Recording], reason: str) -> str:
@@ -166,6 +221,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
     options = dict(options or {})
     recs = as_recordings(recordings)
+    check_length(recs)               # a run of one or two rows is said to be too short, before what else it lacks
     for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check
         try:
             check_output_moves(rec, rec.name(i))  # a stuck encoder...
@@ -174,8 +230,9 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
             raise
         check_speed_agrees(rec, rec.name(i))      # a speed column in another unit than its counts
     check_input_leads(recs)      # an input logged late: a negative delay no model has
+    options = _one_level_options(recs, estimator, options)
     if outliers == "keep":
-        return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), ())
+        return ScreenedFit(_one_level_answer(with_encoder(estimator(recs, **options), recs), recs), tuple(recs), ())
     dropped: list[DroppedSamples] = []
     for i, rec in enumerate(recs):
         bad = [] if samples_checked else rec.implausible_samples()
@@ -190,7 +247,7 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         check_constant_input_runs(rec, rec.name(i), est.input_delay)
     found = _fit_outliers(est, recs, fitted=True)
     if not any(found):
-        return ScreenedFit(with_encoder(est, recs), tuple(recs), tuple(dropped))
+        return ScreenedFit(_one_level_answer(with_encoder(est, recs), recs), tuple(recs), tuple(dropped))
     found = _confirmed(found, recs, estimator, options)
     reason = f"isolated residual outliers after the {name} fit" if name else "isolated residual outliers after the fit"
     if outliers == "refuse":
@@ -199,4 +256,5 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
         if rows:
             dropped.append(DroppedSamples(i, tuple(int(recs[i].seq[k]) for k in rows), reason))
             recs[i] = recs[i].drop_rows(rows)
-    return ScreenedFit(with_encoder(estimator(recs, **options), recs), tuple(recs), tuple(dropped))
+    est = _one_level_answer(with_encoder(estimator(recs, **options), recs), recs)
+    return ScreenedFit(est, tuple(recs), tuple(dropped))

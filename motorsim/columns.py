@@ -222,18 +222,54 @@ def _read_bytes(path: str) -> bytes:
 _SPREADSHEET_ERROR = re.compile(r"#(?:N/A|NA|[A-Z][A-Z0-9_/]*[!?]|GETTING_DATA)(?:[\s,;\t]|$)")
 
 
-def _read_text(path: str) -> Table:
+#: The timestamp the Arduino IDE's serial monitor puts before each line it shows (``12:00:01.005 -> ``).
+_SERIAL_MONITOR_STAMP = re.compile(r"^\d{1,2}:\d{2}:\d{2}\.\d{3} -> ")
+#: A number written with a decimal comma (a spreadsheet's export in a European locale: ``0,005``).
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+#: Rows at the start of a file a separator is taken from: the one most of them hold.
+_SNIFF_ROWS = 50
+
+
+def _decode(path: str, data: bytes) -> str:
+    """UTF-8 (a BOM allowed), or UTF-16 where its BOM says so (a spreadsheet's "Unicode text" export)."""
     try:
-        text = _read_bytes(path).decode("utf-8-sig")
+        if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            return data.decode("utf-16")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ImportFormatError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+
+
+def _as_written(lines: list[str]) -> list[str]:
+    """The table in lines as other tools write it: a LabVIEW measurement file (``.lvm``) from its last header
+    block's channel names on, an Arduino serial monitor's timestamps taken off each line."""
+    if lines and lines[0].startswith("LabVIEW Measurement"):
+        ends = [i for i, line in enumerate(lines) if line.strip().startswith("***End_of_Header***")]
+        if ends:
+            lines = [""] * (ends[-1] + 1) + lines[ends[-1] + 1:]      # line numbers kept
+    first = next((line for line in lines if line.strip()), "")
+    if _SERIAL_MONITOR_STAMP.match(first):
+        lines = [_SERIAL_MONITOR_STAMP.sub("", line) for line in lines]
+    return lines
+
+
+def _read_text(path: str) -> Table:
+    text = _decode(path, _read_bytes(path))
+    lines = _as_written(text.splitlines())
     # a line starting with # or % is a comment, unless it starts with a spreadsheet's error value (#N/A): a row
-    rows = [(i + 1, s) for i, s in enumerate(text.splitlines())
+    rows = [(i + 1, s) for i, s in enumerate(lines)
             if s.strip() and (s.lstrip()[0] not in "#%" or _SPREADSHEET_ERROR.match(s.lstrip()))]
     if not rows:
         raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
+    counts = {s: sum(s in line for _, line in rows[:_SNIFF_ROWS]) for s in _SEPARATORS}
+    sep = max(_SEPARATORS, key=lambda s: counts[s]) if max(counts.values()) > 0 else None
+    if sep is not None and counts[sep] > len(rows[:_SNIFF_ROWS]) // 2:
+        while rows and sep not in rows[0][1]:     # a preamble ('Starting...') before the table: no row of it
+            rows = rows[1:]
+    if not rows:
+        raise ImportFormatError(f"{path}: no data rows (blank lines and lines starting with # or % are skipped)")
     first = rows[0][1]
-    sep = next((s for s in _SEPARATORS if s in first), None)
+    sep = sep if sep is not None and sep in first else next((s for s in _SEPARATORS if s in first), None)
     head = _split(first, sep)
     has_header = any(_number(c) is None for c in head)
     names = tuple(head) if has_header else tuple(str(i) for i in range(len(head)))
@@ -241,6 +277,9 @@ def _read_text(path: str) -> Table:
         rows = rows[1:]
     if len(set(names)) != len(names):
         _fail(path, rows[0][0] - 1 if rows else 1, f"the header repeats a column name ({', '.join(names)})")
+    if has_header and rows and names and names[-1] == "Comment" and len(_split(rows[0][1], sep)) == len(names) - 1:
+        names = names[:-1]                        # LabVIEW's comment column, empty on every row
+    decimal_comma = sep in (";", "\t") and bool(rows) and any(_DECIMAL_COMMA.match(c) for c in _split(rows[0][1], sep))
     values = np.empty((len(rows), len(names)))
     for r, (line, s) in enumerate(rows):
         cells = _split(s, sep)
@@ -248,10 +287,14 @@ def _read_text(path: str) -> Table:
             _fail(path, line, f"{len(cells)} cells where the {'header' if has_header else 'first row'} has "
                               f"{len(names)}")
         for c, cell in enumerate(cells):
-            x = _number(cell)
+            x = _number(cell.replace(",", ".") if decimal_comma else cell)
             if x is None or not math.isfinite(x):
                 said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
                     if _SPREADSHEET_ERROR.match(cell) else ""
+                if not cell:
+                    said = (" (an empty cell: columns logged at different times, as a plotting tool exports "
+                            "topics? export each value held until the next, or fill the cells where the file was "
+                            "made)")
                 _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:

@@ -123,6 +123,10 @@ def _integer_array(name: str, value: ArrayLike | None, n: int) -> np.ndarray | N
 #: The largest magnitude of an angle (rad), speed (rad/s), duty or reference a recording may hold:
 #: beyond it no motor is measured, and the fits' squares overflow.
 MAX_MAGNITUDE = 1e12
+#: The largest encoder resolution a recording may state, counts per revolution (2**32: a 32-bit absolute
+#: encoder's; a high-resolution incremental one gives 2**24-2**27): beyond it a count is a fraction of a
+#: nanoradian, and a counts_per_rev of 1e20 made every speed and b 1e-16 of the truth without a word.
+MAX_COUNTS_PER_REV = 2 ** 32
 #: Beyond this magnitude a float64 no longer holds every integer count: :meth:`Recording.measured_angle`
 #: then measures the counts from their median, exactly, before converting them.
 MAX_EXACT_COUNT = 2 ** 53
@@ -279,7 +283,8 @@ class Recording:
         if counts is not None:
             if counts_per_rev is None:
                 raise ParameterError("counts_per_rev must be a positive integer when counts are given, got None")
-            counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
+            counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, MAX_COUNTS_PER_REV,
+                                       allow_integral_float=False)
         object.__setattr__(self, "counts_per_rev", counts_per_rev)
         for name in ("time", "duty", "angle", "speed", "reference"):
             _check_finite(name, columns[name])

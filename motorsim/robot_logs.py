@@ -83,8 +83,8 @@ def read_log_table(path: str | os.PathLike, base: str | None) -> tuple[tuple[str
     path = os.fspath(path)
     _check_inputs(path)
     if Path(path).suffix.lower() == ".wpilog":
-        check_wpilog_records(path)
-        series, units, keep = _wpilog_series(path)
+        whole = check_wpilog_records(path)
+        series, units, keep = _wpilog_series(path, whole)
     else:
         series, units, keep = _ros_series(path), {}, None
         units = {name: unit for name in series for suffix, unit in (("/position", "rad"), ("/velocity", "rad/s"))
@@ -109,7 +109,7 @@ def _check_inputs(path: str) -> None:
 _WPILOG_SIZES = {"double": 8, "float": 4, "int64": 8}
 
 
-def check_wpilog_records(path: str) -> None:
+def check_wpilog_records(path: str) -> int | None:
     """Walk a ``.wpilog``'s records and refuse one that is malformed, before the reader sees them.
 
     The record layout is WPILib's data log format (version 1.0): a header byte giving the lengths
@@ -119,6 +119,12 @@ def check_wpilog_records(path: str) -> None:
     records before it kept.  Anything else malformed -- a control record of the wrong length, a
     number whose payload is not the size of its type, a name that is not UTF-8 -- is refused,
     naming the byte.
+
+    Returns
+    -------
+    int or None
+        The bytes of whole records when the log ends inside one (the reader is given only those: given the
+        rest it read the cut record's bytes as one more value); None when every record is whole.
 
     Raises
     ------
@@ -130,7 +136,7 @@ def check_wpilog_records(path: str) -> None:
     from .files import read_input_bytes
     data = read_input_bytes(path, what="log", max_bytes=MAX_LOG_BYTES)
     if len(data) < 12 or data[:6] != b"WPILOG":
-        return                                   # not a data log: the reader says so
+        return None                              # not a data log: the reader says so
     pos = 12 + int.from_bytes(data[8:12], "little")
     end = len(data)
     types: dict[int, tuple[str, str]] = {}
@@ -146,7 +152,7 @@ def check_wpilog_records(path: str) -> None:
             warnings.warn(f"the log ends inside a record (byte {pos} declares {size} bytes of payload, "
                           f"{max(end - body, 0)} are left): cut off while it was written? The {end - pos} bytes "
                           "from there are left out", UserWarning, stacklevel=3)
-            return
+            return pos
         entry = int.from_bytes(data[pos + 1:pos + 1 + n_entry], "little")
         payload = data[body:body + size]
         if entry == 0:
@@ -162,6 +168,7 @@ def check_wpilog_records(path: str) -> None:
                 except UnicodeDecodeError:
                     fail(pos, f"the record of {name!r} (string) is not UTF-8 text")
         pos = body + size
+    return None
 
 
 def _check_control(payload: bytes, pos: int, types: dict[int, tuple[str, str]], fail: Any) -> None:
@@ -218,13 +225,19 @@ def _table(path: str, series: Mapping[str, tuple[np.ndarray, np.ndarray]], units
     return names, cols, {"time_s": "s", **units}
 
 
-def _wpilog_series(path: str) -> tuple[dict, dict, tuple[np.ndarray, np.ndarray] | None]:
-    """``{name: (times in s, values)}``, the units the entries' metadata state, the SysId test marks."""
+def _wpilog_series(path: str, whole: int | None = None) -> tuple[dict, dict, tuple[np.ndarray, np.ndarray] | None]:
+    """``{name: (times in s, values)}``, the units the entries' metadata state, the SysId test marks; ``whole``:
+    read only the first ``whole`` bytes (the log's whole records, :func:`check_wpilog_records`)."""
     try:
         from wpiutil.log import DataLogReader
     except ImportError:
         raise _missing(path, "a WPILib data log", WPILIB_EXTRA, "wpilib") from None
-    reader = DataLogReader(path)
+    if whole is None:
+        reader = DataLogReader(path)
+    else:
+        from .files import read_input_bytes
+        kept = read_input_bytes(path, what="log", max_bytes=MAX_LOG_BYTES)[:whole]
+        reader = DataLogReader(kept, path)
     if not reader.isValid():
         raise RecordingFormatError(f"{path}: not a WPILib data log (no valid WPILOG header)")
     entries: dict[int, tuple[str, str, str]] = {}

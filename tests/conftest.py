@@ -31,6 +31,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: test id -> why it is slow (seconds measured alone on a 2-core machine)
 SLOW = {
+    "tests/identify/test_drive_limit.py::test_the_default_leaves_the_clipped_driver_unclear_and_the_rule_would_make_it_clear":
+        "2.3 s: a 2000-sample plant integrated by RK4 in Python, the default and the drive limit's fits",
+    "tests/identify/test_asymmetric_gain.py::test_the_default_chooses_it_on_a_driver_stronger_forward":
+        "2.5 s: two 4000-sample plants integrated by RK4 in Python, each fitted by the default twice over",
     "tests/identify/test_selection.py::test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_far_beyond_the_best":
         "5 s: two selections on a 3000-sample delayed run, the second scanning every delay",
     "tests/identify/test_selection.py::test_a_choice_at_the_top_of_the_range_leaves_the_higher_ranks_to_the_wider_one":

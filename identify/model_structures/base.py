@@ -102,6 +102,10 @@ class ModelStructure:
         the default screens the nonlinear ones.
     in_default : bool
         Whether the default estimator (``identify.fit`` with no method) considers it.
+    simulated : bool
+        Whether the simulator's :class:`~motorsim.plant.Motor` carries it: :meth:`plant`, :meth:`stepper`, the
+        controllers' model and :meth:`identify.Estimate.io_system` (a structure it does not carry, a gain per
+        direction, refuses them by name; its :meth:`response` and :meth:`segment_output` are its own).
     rank : int
         0 for the first-order motor's family; a structure of a higher rank (a second pole) is
         chosen by the default only where no candidate of a lower rank is within the noise of the
@@ -116,6 +120,7 @@ class ModelStructure:
     options: Mapping[str, Any] = {}
     linear: bool = True
     in_default: bool = True
+    simulated: bool = True
     rank: int = 0
 
     @property
@@ -221,7 +226,7 @@ class ModelStructure:
     def linear_part(self, values: Mapping[str, float]) -> tuple[list[float], list[float]]:
         """Numerator and denominator of the linear part in ``s``, from the input to the speed (a linear plant's
         from its continuous system)."""
-        plant = self.plant(values)
+        plant = self.plant(values) if self.simulated else None
         if isinstance(plant, LinearPlant):
             import control
             tf = control.ss2tf(plant.state_space()[1, 0])
@@ -272,7 +277,7 @@ class ModelStructure:
         :func:`identify.frequency_estimate.zoh_speed_response`.
         """
         from ..zoh_response import zoh_speed_response
-        plant = self.plant(values)
+        plant = self.plant(values) if self.simulated else None
         if isinstance(plant, LinearPlant):
             return plant.frequency_response(sample_period, omega, output=output, input_delay=input_delay)
         # the values as given, not checked against the bounds: a poor fit's model is still drawn
@@ -282,7 +287,7 @@ class ModelStructure:
     def discrete_linear_part(self, values: Mapping[str, float], sample_period: float) -> tuple[list[float],
                                                                                                 list[float]]:
         """Numerator and denominator in ``z`` of the exact zero-order-hold model (no delay)."""
-        plant = self.plant(values)
+        plant = self.plant(values) if self.simulated else None
         if isinstance(plant, LinearPlant):
             from scipy.signal import ss2tf
             s = plant.sampled(sample_period)

@@ -281,6 +281,11 @@ class _Drawn(NamedTuple):
     def top_speed(self) -> float:
         return self.b * self.amp / self.a
 
+    @property
+    def level(self) -> float:
+        """The magnitude of a binary input's duty (the amplitude rounded to a whole duty)."""
+        return float(round(self.amp))
+
 
 Misfit = Tuple[Accel, Tuple[float, float], Tuple[float, float]]
 
@@ -298,7 +303,7 @@ def _load_switched_on(d: _Drawn) -> Misfit:
 
 def _clipped_duty(d: _Drawn) -> Misfit:
     clip = d.rng.uniform(0.6, 0.9) * d.amp
-    gain = d.b * clip / d.amp if d.binary else d.b            # one magnitude: one gain, the clipped one
+    gain = d.b * min(clip, d.level) / d.level if d.binary else d.b   # one magnitude: one gain, the clipped one
     return lambda t, th, w, u: -d.a * w + d.b * min(max(u, -clip), clip), (d.a, d.a), (gain, gain)
 
 
@@ -344,14 +349,14 @@ def _drag(d: _Drawn) -> Misfit:
 def _sagging(d: _Drawn) -> Misfit:
     sag = d.rng.uniform(0.1, 0.4)
     return (lambda t, th, w, u: -d.a * w + d.b * u / (1 + sag * abs(u) / d.amp),
-            (d.a, d.a), (d.b / (1 + sag), d.b / (1 + sag) if d.binary else d.b))
+            (d.a, d.a), ((d.b / (1 + sag * d.level / d.amp),) * 2 if d.binary else (d.b / (1 + sag), d.b)))
 
 
 def _curved(d: _Drawn) -> Misfit:
     power = d.rng.uniform(0.7, 1.4)
     ends = (d.b, d.b * 0.25 ** (power - 1))           # the gain torque / duty from a quarter of the amplitude up
     return (lambda t, th, w, u: -d.a * w + d.b * d.amp * math.copysign((abs(u) / d.amp) ** power, u),
-            (d.a, d.a), (d.b, d.b) if d.binary else (min(ends), max(ends)))
+            (d.a, d.a), (d.b * (d.level / d.amp) ** (power - 1),) * 2 if d.binary else (min(ends), max(ends)))
 
 
 def _linear(d: _Drawn) -> Misfit:

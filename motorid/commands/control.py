@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import math
 import re
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
@@ -398,6 +399,8 @@ def run_control(args: argparse.Namespace) -> int:
     if args.robust:
         controller, robustness = _robust_controller(args, controller, covariance, reference)
     prediction = controller.predict(reference, args.duration)
+    if not args.robust:
+        controller, prediction = _within_limit(args, controller, prediction, reference, limit, unit)
     print(f"model: a = {model.a:g} 1/s, b = {model.b:g} (rad/s^2)/{unit}, friction = {model.friction:g}, "
           f"bias = {model.bias:g} rad/s^2, input delay {model.input_delay} "
           f"({model.input_delay * model.sample_period:.6g} s), "
@@ -433,15 +436,56 @@ def run_control(args: argparse.Namespace) -> int:
         print_to_stderr(f"motorid: warning: the design needs an input of up to {largest:.4g} {unit}, more than the "
                         f"input limit +-{limit:g} {unit}: the drive clips it and the prediction no longer holds; "
                         "slow the reference or the controller, or raise --input-limit if the drive allows it")
-    elif limit is None:
-        print_to_stderr(f"motorid: note: no input limit known for a model in {unit}: give --input-limit to check "
-                        "the design against the drive")
     _print_robustness(args, controller, covariance, reference, robustness)
     if args.plot:
         from motorid import plots
         plots.plot_prediction(prediction, args.plot, title=f"{controller.kind}: predicted")
         print(f"figure: {args.plot}")
     return 0
+
+
+#: The knob each controller is slowed by to keep its design within the input limit, and the factor of each step.
+SLOWING_KNOBS = {"mpc": ("duty_weight", 4.0), "lqr": ("duty_weight", 4.0), "lqr-integral": ("duty_weight", 4.0),
+                 "lqr-position": ("duty_weight", 4.0), "pi": ("time_constant", 1.5),
+                 "position": ("time_constant", 1.5)}
+#: Steps tried before the default design is left as it is (and warned of): 4**20 of the weight, 1.5**20 of the time.
+SLOWING_STEPS = 20
+
+
+def _within_limit(args: argparse.Namespace, controller: Controller, prediction: Prediction, reference: Reference,
+                  limit: float | None, unit: str) -> tuple[Controller, Prediction]:
+    """The design slowed until its predicted input stays within ``limit``, where its knob was left to the default.
+
+    A design by default is one motorid chose: one that asks the drive for more than it gives (a slow motor's
+    position loop asked for 16 220 duty) is no design.  Its knob (:data:`SLOWING_KNOBS`) is stepped, at most
+    :data:`SLOWING_STEPS` times, until the prediction's largest input is within the limit, and the value chosen
+    is said; where no step gets there (a reference beyond what the motor can follow) the design is kept and
+    the warning after it says so.  A knob given on the command line is the user's: kept as given."""
+    knob = SLOWING_KNOBS.get(controller.kind)
+    largest = float(np.abs(prediction.duty).max())
+    if limit is None or knob is None or largest <= limit or getattr(args, knob[0], None) is not None:
+        return controller, prediction
+    name, factor = knob
+    settings = controller.settings()
+    value = float(settings[name])
+    for _ in range(SLOWING_STEPS):
+        value *= factor
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                slower = design_controller(controller.kind, controller.model, **{**settings, name: value})
+                predicted = slower.predict(reference, args.duration)
+        except ValueError:                # past what the design can keep (a phase margin): no slower design
+            break
+        if caught:                        # a slower design its own checks doubt is no better one
+            break
+        if float(np.abs(predicted.duty).max()) <= limit:
+            print_to_stderr(f"motorid: note: --{name.replace('_', '-')} {value:.3g} (the default "
+                            f"{settings[name]:g} asked for an input of {largest:.4g} {unit}, beyond the input limit "
+                            f"+-{limit:g} {unit}: slowed until the design stays within it; give "
+                            f"--{name.replace('_', '-')} to choose)")
+            return slower, predicted
+    return controller, prediction
 
 
 def _sensor(args: argparse.Namespace, estimate: Any) -> str:
@@ -495,7 +539,8 @@ def _reference_text(args: argparse.Namespace, reference: Reference, controller: 
 
 def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
     """The design model's input unit and limit: ``--input-limit``, else the model file's, else 255 for duty and
-    100 for %."""
+    100 for %; refused for another unit (volts) without one: its limit is the drive's supply, which only the user
+    knows, and a design is made within it."""
     unit, limit = "duty", None
     if getattr(args, "model", None):
         estimate = load_model_file(args.model)
@@ -508,6 +553,10 @@ def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
         limit = float(DUTY_LIMIT)
     if limit is None and unit == "%":
         limit = PERCENT_LIMIT          # a percentage's own full scale: no drive gives more than all of it
+    if limit is None:                  # volts: the supply's, which only the user knows
+        raise CommandError(f"--input-limit must be given for a model in {unit} that states no input limit (the "
+                           f"drive's supply, e.g. --input-limit 12 for a 12 V supply): a design is made and checked "
+                           "within it; or give --input-limit to import or identify so the model carries it")
     return unit, limit
 
 

@@ -117,14 +117,41 @@ def _is_motorid_recording(path: str) -> bool:
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
             return True
-        with open(path, encoding="utf-8", errors="replace") as fh:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:     # a BOM is the reader's to say
             return fh.readline().strip().startswith(FORMAT_HEADER)
     except OSError:
         return True                   # the reader says what is wrong with the path
 
 
+def _sysid_log(path: str) -> Recording:
+    """A robot log given with no column flags: SysId's own (one motor's ``voltage-M`` and ``velocity-M`` entries,
+    their units stated) read so and said; any other refused naming its columns and the flags to give."""
+    from motorsim.robot_logs import read_log_table
+    try:
+        names, _, units = read_log_table(path, None)
+    except RecordingFormatError as exc:
+        raise CommandError(str(exc)) from None
+    motors = {n.removeprefix("voltage-") for n in names if n.startswith("voltage-")}
+    pairs = [m for m in sorted(motors) if f"velocity-{m}" in names and f"voltage-{m}" in units
+             and f"velocity-{m}" in units]
+    if len(pairs) != 1:
+        shown = ", ".join(n for n in names if n != "time_s")
+        raise CommandError(f"{path} is a robot log, not a motorid recording: name its columns with --time time_s "
+                           f"--input NAME[:UNIT] and --speed or --angle NAME[:UNIT] (its columns: {shown})")
+    motor = pairs[0]
+    print_to_stderr(f"motorid: note: {path}: read as SysId's log of motor {motor!r}: --time time_s --input "
+                    f"voltage-{motor} --speed velocity-{motor} (give the flags to choose others)")
+    flags = argparse.Namespace(time="time_s", input=f"voltage-{motor}", speed=f"velocity-{motor}", angle=None,
+                               counts=None, import_counts_per_rev=None, input_shift=0, input_limit=None)
+    return import_from_args(path, flags)
+
+
 def read_motorid_recording(path: str, check_samples: bool = True) -> Recording:
-    """A recording (format v1); a file that is not one is refused naming the column flags and ``motorid import``."""
+    """A recording (format v1); a file that is not one is refused naming the column flags and ``motorid import``;
+    a robot log is read as SysId's where it is one (:func:`_sysid_log`)."""
+    from motorsim.robot_logs import is_robot_log
+    if is_robot_log(path):
+        return _sysid_log(path)
     try:
         return read_recording(path, check_samples=check_samples)
     except RecordingFormatError as exc:

@@ -229,6 +229,9 @@ def _report(args: argparse.Namespace, result, say) -> int:
     say(f"until       {verdict}: {result.reason}")
     say(f"            {structure}; motor time {result.motor_time:.4g} s in {len(result.rounds)} rounds"
         + (f"; break-away duty {result.breakaway:g}" if result.breakaway is not None else ""))
+    if est is not None:
+        say("            the 95 % intervals (and the standard errors, the saved covariance) hold a and b at once: "
+            "each at 97.5 %, as the stop needs both")
     if args.plot:
         from motorid.plots import plot_until
         plot_until(result, f"{args.out}.until.png")

@@ -18,8 +18,9 @@ from motorsim.checks import ParameterError
 from motorsim.control import PlantModel
 
 #: A value of every parameter of the registered structures: each part set well away from its neutral value.
-VALUES = {"a": 25.0, "b": 3.0, "bias": 4.0, "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0,
-          "electrical_time_constant": 0.004, "inertia_ratio": 1.5, "shaft_frequency": 150.0, "shaft_damping": 0.1}
+VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "drive_limit": 150.0, "bias": 4.0,
+          "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0, "electrical_time_constant": 0.004,
+          "inertia_ratio": 1.5, "shaft_frequency": 150.0, "shaft_damping": 0.1}
 DT, DELAY = 0.002, 2
 #: Noise-free comparisons of the same model computed two ways: 1e-9 relative (observed ~1e-13).
 RTOL = 1e-9
@@ -50,8 +51,9 @@ def _estimate(s, delay=DELAY):
 
 STRUCTURES = list(identify.structures().values())
 IDS = [s.name for s in STRUCTURES]
-#: Each structure with every part set, and with each of its parts beyond a and b alone.
-PARTS = [(s, alone) for s in STRUCTURES for alone in (None, *s.param_names[2:])]
+#: Each structure the simulator carries with every part set, and with each of its parts beyond a and b alone (one
+#: it does not carry, a gain per direction, refuses every fast path: ``test_a_structure_the_simulator_cannot_...``).
+PARTS = [(s, alone) for s in STRUCTURES if s.simulated for alone in (None, *s.param_names[2:])]
 PART_IDS = [f"{s.name}-{alone or 'all'}" for s, alone in PARTS]
 
 
@@ -71,13 +73,25 @@ def test_the_batch_engine_runs_a_structure_exactly_or_refuses_it(s, alone):
         np.testing.assert_allclose(speed[r], ref.speed, rtol=0, atol=RTOL * np.max(np.abs(ref.speed)))
 
 
+@pytest.mark.parametrize("s", [s for s in STRUCTURES if not s.simulated], ids=lambda s: s.name)
+def test_a_structure_the_simulator_cannot_run_is_refused_by_every_fast_path_by_name(s):
+    # a gain per direction has no single-gain plant, a drive limit no plant without one: the batch engine, the
+    # controller's model, the per-sample step and the python-control system refuse them, naming both gains or the
+    # limit, rather than drop a part
+    est = _estimate(s)
+    for run in (lambda: s.plant(_values(s), DELAY), lambda: s.stepper(_values(s), np.full(3, DT)), est.motor,
+                est.io_system, lambda: PlantModel.from_source(est, counts_per_rev=4096)):
+        with pytest.raises(ParameterError, match="one gain.*b_forward 3.3 and b_reverse 2.7|no drive limit.*150"):
+            run()
+
+
 def test_only_the_first_order_motor_is_batchable_among_the_registered_structures():
     # the engine's own claim, measured on the registry: what it runs is the linear structure
     batchable = [f"{s.name}-{alone or 'all'}" for s, alone in PARTS if is_batchable(s.plant(_values(s, alone), DELAY))]
     assert batchable == ["linear-all", "dead-zone-dead_zone"]
 
 
-@pytest.mark.parametrize("s", STRUCTURES, ids=IDS)
+@pytest.mark.parametrize("s", [s for s in STRUCTURES if s.simulated], ids=lambda s: s.name)
 def test_a_controller_model_keeps_every_part_of_the_estimate_it_is_designed_from(s):
     # A dead zone or a static friction was dropped here while Estimate.motor() kept it.
     est = _estimate(s)

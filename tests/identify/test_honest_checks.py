@@ -106,7 +106,7 @@ def test_a_linear_motor_under_a_prbs_keeps_its_clear_answer():
     assert est.selection.clear and _covers(est, (25.0, 25.0), (3.0, 3.0))
 
 
-@pytest.mark.parametrize("seed", [14])
+@pytest.mark.parametrize("seed", [14, 29])   # gravity under a multisine; a slow motor warming 3 % under steps
 def test_the_random_rigs_past_the_structures_are_never_clear_and_wrong(seed):
     rec, (a_range, b_range) = misfits.random_rig(seed)
     est = _fit(rec)
@@ -139,3 +139,14 @@ def test_when_no_candidate_can_be_fitted_on_all_rows_the_first_failure_is_raised
     monkeypatch.setattr(selection_module, "_chosen_fit", failing)
     with pytest.raises(NotIdentifiableError, match="cannot be fitted"):
         _fit(rec)
+
+
+def test_a_pole_slower_than_the_whole_run_is_not_a_clear_choice():
+    # a load switched on halfway through a multisine: the second-order fit ran off to a = 2.5e-5 1/s and an
+    # electrical time constant of hours, its own standard error 1e-5, and was called clear (b = -43141 for 3)
+    est = _fit(misfits.MISFITS["load switched on halfway"](4))
+    if est.selection.clear:
+        assert _covers(est, (25.0, 25.0), (3.0, 3.0))
+    span = est.n_samples * est.sample_period
+    if est.a * span < 1:
+        assert not est.selection.clear and "longer than the run" in est.selection.doubt

@@ -30,6 +30,8 @@ ACCEPTED = {
     "oe-friction": ("input_delay", "fix_bias", "dead_zone", "static_friction"),
     "iv-reference": ("input_delay",),
     "oe-electrical": ("input_delay",),
+    "oe-asymmetric": ("input_delay", "covariance"),
+    "oe-drive-limit": ("input_delay", "covariance"),
     "pem-disturbance": ("input_delay", "friction", "disturbance_pole"),
 }
 

@@ -175,3 +175,60 @@ def test_a_jittered_sysid_wpilog_is_answered_by_the_default(tmp_path, capsys):
     assert abs(doc["a"] - FLY_A) <= 3 * doc["a_stderr"] and abs(doc["b"] - FLY_B) <= 3 * doc["b_stderr"]
     assert "3 pause(s)" in captured.err
     assert math.isfinite(doc["b"])
+
+
+# --- one SysId test alone -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("test", [0, 1, 2, 3], ids=["quasistatic-forward", "quasistatic-reverse", "dynamic-forward",
+                                                    "dynamic-reverse"])
+def test_one_sysid_test_alone_is_answered_not_clear_and_covering(seed, test):
+    # before: a dynamic test alone was refused ('input is constant (7 V throughout): ... not persistently
+    # exciting'); the transient from rest fixes a, and b only up to a friction the one level cannot show
+    _, t, u, w = sysid_tests(seed=seed)[test]
+    with pytest.warns(UserWarning, match="not uniform"):
+        rec = Recording.from_columns(time=t, duty=u, speed=w, input_unit="V")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        est = fit(rec)
+    ci = est.confidence_interval()
+    assert not est.selection.clear
+    assert ci["a"][0] <= FLY_A <= ci["a"][1] and ci["b"][0] <= FLY_B <= ci["b"][1]
+
+
+def _dynamic_test(friction: float, seed: int = 1, level: float = 7.0) -> Recording:
+    rng = np.random.default_rng(seed)
+    t = np.arange(500) * 0.005
+    u = np.full(500, level)
+    speed = simulate(Motor(FLY_A, FLY_B, friction=friction), u, t).speed + rng.normal(0, 0.05, 500)
+    return Recording(time=t, duty=u, sample_period=0.005, speed=speed, metadata={"input_unit": "V"})
+
+
+@pytest.mark.parametrize("friction", [0.0, 20.0, 60.0])
+def test_a_dynamic_test_alone_leaves_b_open_on_the_side_friction_moves_it(friction):
+    # one level u fixes b u - c, not b: with kS = 0.3 and 0.9 V of friction the linear fit's b is 4 % and 13 %
+    # low, so b's interval is open upwards and kS, kV hold what a friction would make them
+    from identify.data import ConstantInputWarning
+    from identify.feedforward import feedforward_constants
+    with pytest.warns(ConstantInputWarning, match=r"input is constant \(7 V throughout\)"):
+        est = fit(_dynamic_test(friction))
+    ci = est.confidence_interval()
+    assert est.structure == "linear" and not est.selection.clear
+    assert ci["b"][1] == math.inf and ci["b"][0] <= FLY_B
+    assert ci["a"][0] <= FLY_A <= ci["a"][1]
+    assert any("one input level (7 V)" in n for n in est.notes)
+    ff = feedforward_constants(est).confidence_interval()
+    assert ff["kv"][0] <= FLY_A / FLY_B <= ff["kv"][1]
+    assert ff["ka"][0] <= 1 / FLY_B <= ff["ka"][1]
+    assert ff["ks"][0] <= friction / FLY_B <= ff["ks"][1]
+
+
+def test_a_constant_input_the_motor_had_settled_at_is_still_refused():
+    # no transient: the speed holds only b u / a, and a, b cannot be separated
+    rec = _dynamic_test(0.0)
+    settled = Recording(time=rec.time, duty=rec.duty, sample_period=0.005,
+                        speed=FLY_B / FLY_A * 7.0 + np.random.default_rng(0).normal(0, 0.05, 500),
+                        metadata={"input_unit": "V"})
+    with pytest.raises(NotIdentifiableError, match=r"input is constant \(7 V throughout\) and the speed holds no "
+                                                   "transient"):
+        fit(settled)

@@ -377,3 +377,40 @@ def test_a_model_in_percent_designs_within_its_full_scale_by_default(tmp_path, c
     largest = float(captured.out.split("largest input ")[1].split(" %")[0])
     assert 0 < largest <= 100
     assert "more than the input limit" not in captured.err and "no input limit known" not in captured.err
+
+
+def test_a_volt_model_without_a_limit_is_refused_naming_the_flag(tmp_path, capsys):
+    # before: designed with a note only ('no input limit known for a model in V'), its reference sine:10,10
+    # chosen blind; a volt model's limit is the drive's supply, which only the user knows
+    from identify import Estimate
+    est = Estimate(method="oe", a=12.0, b=200.0, n_samples=2000, sample_period=0.001, residual_rms=0.1,
+                   fit_percent=99.0, covariance=np.diag([1e-4, 1e-2]), input_unit="V")
+    model = tmp_path / "volts.json"
+    model.write_text(est.to_json())
+    argv = ["control", "design", "--model", str(model), "--controller", "pi"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("motorid: error: --input-limit must be given for a model in V") and err.count("\n") == 1
+    assert main([*argv, "--input-limit", "12"]) == 0
+    captured = capsys.readouterr()
+    largest = float(captured.out.split("largest input ")[1].split(" V")[0])
+    assert "input limit +-12 V" in captured.out and 0 < largest <= 12
+    assert "more than the input limit" not in captured.err
+
+
+@pytest.mark.parametrize("argv, unit, limit", [
+    (["--a", "2", "--b", "0.05", "--controller", "position"], "duty", 255.0),
+    (["--a", "2", "--b", "0.05", "--controller", "lqr-position"], "duty", 255.0)])
+def test_a_default_design_is_slowed_until_it_stays_within_the_input_limit(capsys, argv, unit, limit):
+    # before: a slow motor's position loop by default asked for 16 220 duty (lqr-position 313 % of a % model's
+    # scale) with a warning only; the knob left to its default is stepped until the prediction fits the limit
+    assert main(["control", "design", *argv]) == 0
+    captured = capsys.readouterr()
+    largest = float(captured.out.split("largest input ")[1].split(f" {unit}")[0])
+    assert 0 < largest <= limit
+    assert "slowed until the design stays within it" in captured.err
+    assert "more than the input limit" not in captured.err
+    knob = "--time-constant" if "position" == argv[-1] else "--duty-weight"
+    default = {"--time-constant": "0.05", "--duty-weight": "1e-06"}[knob]
+    assert main(["control", "design", *argv, knob, default]) == 0          # a knob given is kept, and warned of
+    assert "more than the input limit" in capsys.readouterr().err
