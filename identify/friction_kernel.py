@@ -16,6 +16,7 @@ keeps the vectorised path.  Both give the same numbers to rounding (tests compar
 from __future__ import annotations
 
 import cmath
+import contextlib
 import functools
 import math
 from typing import Callable
@@ -198,10 +199,28 @@ def compiled_response() -> Callable[..., None] | None:
     return compiled(response_pass, tuple(helpers))
 
 
+#: Set (by :func:`without_loading`) while friction responses must not be the reason numba is imported.
+_NO_LOADING = False
+
+
+@contextlib.contextmanager
+def without_loading():
+    """Within it, :func:`kernel_for` gives the compiled pass only where the process has loaded it already: a short
+    fit that a linear recording also makes (the default's check of its screen) does not import numba and its
+    compiler, about 130 MB, for a few milliseconds of Python loop."""
+    global _NO_LOADING
+    before, _NO_LOADING = _NO_LOADING, True
+    try:
+        yield
+    finally:
+        _NO_LOADING = before
+
+
 def kernel_for(rows: int) -> Callable[..., None] | None:
     """The compiled pass for a run of ``rows`` samples, or None: without numba, with ``MOTORID_NUMBA=0``, or
-    for a run shorter than :data:`KERNEL_MIN_ROWS` before the process has loaded the kernel (it does not pay
-    for importing numba; once loaded, short runs such as the model output's initial-speed windows take it)."""
-    if rows < KERNEL_MIN_ROWS and not compiled_response.cache_info().currsize:
+    for a run shorter than :data:`KERNEL_MIN_ROWS` (or any run within :func:`without_loading`) before the process
+    has loaded the kernel (it does not pay for importing numba; once loaded, short runs such as the model output's
+    initial-speed windows take it)."""
+    if (rows < KERNEL_MIN_ROWS or _NO_LOADING) and not compiled_response.cache_info().currsize:
         return None
     return compiled_response()

@@ -55,7 +55,7 @@ from .sensitivity import phi_functions, zoh_response
 from .start import grid_guess, initial_guess
 from .sums import dot, sum_squares
 from .uncertainty import covariance_from_jacobian, robust_covariance
-from .validation import segment_fit_percent, segment_speeds
+from .validation import keep_models, segment_fit_percent, segment_speeds
 from .variable_projection import (
     SeparableSolution,
     is_separable,
@@ -481,13 +481,18 @@ def _estimate(recs: list[Recording], solution: OutputErrorSolution, input_delay:
         fit_percent = solution.separable.speed_fit_percent(problem.segments)
     else:
         fit_percent = segment_fit_percent(problem.segments, models)
-    return Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
-                    sample_period=recs[0].sample_period, residual_rms=math.sqrt(rss / problem.n_rows),
-                    fit_percent=fit_percent, covariance=cov,
-                    param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
-                    residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
-                    input_limit=recs[0].input_limit, structure="bias" if problem.with_bias else "linear",
-                    covariance_method=cov_method, speed_residuals=_speed_residuals(recs, problem.segments, models))
+    est = Estimate(method="oe", a=float(a), b=float(b), n_samples=problem.n_rows,
+                   sample_period=recs[0].sample_period, residual_rms=math.sqrt(rss / problem.n_rows),
+                   fit_percent=fit_percent, covariance=cov,
+                   param_names=("a", "b", "bias") if problem.with_bias else ("a", "b"), extra=extra,
+                   residual_unit=residual_unit(problem.segments), input_unit=recs[0].input_unit,
+                   input_limit=recs[0].input_limit, structure="bias" if problem.with_bias else "linear",
+                   covariance_method=cov_method, speed_residuals=_speed_residuals(recs, problem.segments, models))
+    if solution.separable is not None:
+        # the part checks ask for this model on every row; the separable fit's is the measured output less its
+        # least-squares residual, as theirs (the other path's angle has no offset fitted)
+        keep_models(est, recs, problem.segments, models)
+    return est
 
 
 def _speed_residuals(recs: list[Recording], segments: list[Segment], models: list[np.ndarray],

@@ -39,6 +39,7 @@ from .data import (
 )
 from .errors import CorruptedSamplesError, NotIdentifiableError
 from .estimate import Estimate
+from .sums import single_threaded_blas
 
 __all__ = ["DroppedSamples", "ScreenedFit", "screened_fit", "with_encoder", "OUTLIER_RULES", "RUN_START_ROWS",
            "RunStartWarning"]
@@ -219,7 +220,13 @@ def screened_fit(recordings: Recording | Sequence[Recording], estimator: Callabl
     """
     if outliers not in OUTLIER_RULES:
         raise ParameterError(f"outliers must be one of {list(OUTLIER_RULES)}, got {outliers!r}")
-    options = dict(options or {})
+    with single_threaded_blas():    # passes over the rows, each too short for BLAS threads to pay
+        return _screened_fit(recordings, estimator, dict(options or {}), outliers, samples_checked, name)
+
+
+def _screened_fit(recordings: Recording | Sequence[Recording], estimator: Callable[..., Estimate],
+                  options: dict[str, Any], outliers: str, samples_checked: bool, name: str) -> ScreenedFit:
+    """:func:`screened_fit` once its rule is checked."""
     recs = as_recordings(recordings)
     check_length(recs)               # a run of one or two rows is said to be too short, before what else it lacks
     for i, rec in enumerate(recs):   # every method's refusals, not only those of the methods that check

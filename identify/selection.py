@@ -174,7 +174,9 @@ def _screen_refuted(recs: list[Recording], segs: list[Segment], base: Candidate,
     No screen overrules a fit: this one costs a fit on :data:`REFUTE_SAMPLES` rows."""
     general = max(nonlinear, key=list(STRUCTURES).index)
     rows = first_rows(segs, REFUTE_SAMPLES)
-    c = friction_candidate(recs, rows, base.input_delay, general, fix_bias).candidate
+    from .friction_kernel import without_loading
+    with without_loading():             # a linear recording's check: no numba imported for it
+        c = friction_candidate(recs, rows, base.input_delay, general, fix_bias).candidate
     own = _linear_on(rows, base, bias)
     if not all(math.isfinite(v) and v != 0 for v in (c.a, c.b, *own)):
         return ""

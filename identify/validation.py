@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from typing import Sequence
 
 import numpy as np
@@ -190,11 +191,47 @@ def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.
     (:func:`identify.data.counts_behind_speed`).
 
     The estimate's input delay is a time: counted at the recording's sample period (refused
-    when it is not a whole number of its samples, :func:`motorsim.plant.delay_at`).
+    when it is not a whole number of its samples, :func:`motorsim.plant.delay_at`).  The model a
+    fit kept on this very recording with these very values (:func:`keep_models`) is not simulated again.
     """
     delay = delay_at(estimate.input_delay, estimate.sample_period, recording.sample_period)
-    return [(seg, _segment_model(estimate, seg))
-            for seg in prepare_segments([counts_behind_speed(recording) or recording], delay)]
+    source = counts_behind_speed(recording) or recording
+    kept = _kept_models.get(source)
+    if kept is not None and kept[0] == _model_key(estimate, delay):
+        return list(kept[1])
+    return [(seg, _segment_model(estimate, seg)) for seg in prepare_segments([source], delay)]
+
+
+#: The model of the last fit that kept one (:func:`keep_models`), by recording: ``(key, [(segment, model), ...])``.
+#: Weak keys: an entry goes with its recording.
+_kept_models: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _model_key(estimate: Estimate, delay: int) -> tuple:
+    """What a segment's model is a function of besides the recording: the structure, its values, the delay."""
+    values = tuple(sorted((k, float(v)) for k, v in estimate.values().items()))
+    return estimate.structure, values, int(delay)
+
+
+def keep_models(estimate: Estimate, recordings: Sequence[Recording], segments: Sequence[Segment],
+                models: Sequence[np.ndarray]) -> None:
+    """Keep a fit's model on its segments, for the checks that follow it on the same recordings (the part
+    checks of :mod:`identify.consistency` ask :func:`_models` for the chosen fit's model on every row).
+
+    ``segments`` are :func:`identify.data.prepare_segments` of ``recordings`` at the estimate's input delay
+    (each naming its recording by index) and ``models`` the estimate's output on each, its initial state (and
+    an angle's offset) by least squares as :func:`_segment_model` finds it: the same numbers to rounding.  Only the
+    last fit's models are kept (those of a 10^6-row recording are 8 MB); they are made read-only.
+    """
+    _kept_models.clear()
+    key = _model_key(estimate, estimate.input_delay)
+    for i, rec in enumerate(recordings):
+        pairs = []
+        for seg, model in zip(segments, models):
+            if seg.recording == i:
+                model.setflags(write=False)
+                pairs.append((dataclasses.replace(seg, recording=0), model))
+        _kept_models[rec] = (key, tuple(pairs))
 
 
 def _speeds(n: int, models: list[tuple[Segment, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

@@ -434,13 +434,19 @@ class Recording:
         """Speed in rad/s: the ``speed`` column, else the backward difference of the angle.
 
         The difference is ``nan`` at the first sample and wherever ``seq`` has a gap
-        before the sample (its interval is longer than one sample).
+        before the sample (its interval is longer than one sample).  Differenced once (the
+        recording never changes) and kept with it, since the screens, the plausibility rules
+        and the outlier check all ask for it; each call returns its own copy.
         """
         if self.speed is not None:
             return self.speed
-        speed = backward_difference(self.measured_angle(), self.time)
-        speed[1:][np.diff(self.seq) != 1] = np.nan
-        return speed
+        speed = self.__dict__.get("_measured_speed")
+        if speed is None:
+            speed = backward_difference(self.measured_angle(), self.time)
+            speed[1:][np.diff(self.seq) != 1] = np.nan
+            speed.setflags(write=False)
+            object.__setattr__(self, "_measured_speed", speed)
+        return speed.copy()
 
     def segments(self) -> list["Recording"]:
         """Split at gaps in ``seq`` into gap-free recordings (one if there is no gap)."""

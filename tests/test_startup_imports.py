@@ -43,3 +43,16 @@ def test_no_heavy_import(case):
                           env={"PYTHONPATH": str(ROOT), "PATH": ""})
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "", f"{case} imported {proc.stdout.strip()}"
+
+
+def test_the_default_on_a_linear_multisine_does_not_import_numba():
+    # numba and its compiler hold about 130 MB: a linear recording's fit (the default's check of its friction
+    # screen included) runs friction's few Python passes rather than import them (identify FILE's memory goal)
+    code = ("import warnings\nwarnings.simplefilter('ignore')\n"
+            "from motorid.bench.selection import _multisine\nfrom identify import fit\n"
+            "est = fit(_multisine(10000))\nassert abs(est.a / 25 - 1) < 1e-3, est.a\n"
+            "import sys\nprint('numba' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                          env={"PYTHONPATH": str(ROOT), "PATH": ""})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "False"

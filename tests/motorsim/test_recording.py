@@ -1,4 +1,5 @@
 """Recording format v1: round trip, metadata rules, and every bad-file case."""
+import dataclasses
 import os
 
 import numpy as np
@@ -53,6 +54,18 @@ def test_gaps_split_segments_and_break_differences():
     rec = Recording(time=[0, 1, 2, 4, 5], duty=[0] * 5, sample_period=1.0, angle=[0, 1, 3, 7, 8], seq=[0, 1, 2, 4, 5])
     assert [s.seq.tolist() for s in rec.segments()] == [[0, 1, 2], [4, 5]]
     np.testing.assert_array_equal(rec.measured_speed(), [np.nan, 1, 2, np.nan, 1])
+
+
+def test_the_differenced_speed_is_kept_and_every_caller_gets_its_own_copy():
+    rec = Recording(time=[0, 1, 2, 4, 5], duty=[0] * 5, sample_period=1.0, angle=[0, 1, 3, 7, 8], seq=[0, 1, 2, 4, 5])
+    first = rec.measured_speed()
+    first[1:3] = 99.0                     # a caller's own array: changing it changes nothing kept
+    second = rec.measured_speed()
+    np.testing.assert_array_equal(second, [np.nan, 1, 2, np.nan, 1])
+    assert second is not first and second.flags.writeable
+    # a recording made from it (another angle) differences its own
+    other = dataclasses.replace(rec, angle=np.array([0, 2, 6, 14, 16.0]))
+    np.testing.assert_array_equal(other.measured_speed(), [np.nan, 2, 4, np.nan, 2])
 
 
 BAD = {
