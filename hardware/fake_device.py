@@ -63,7 +63,7 @@ import numpy as np
 from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
-from motorsim.plant import Motor, Stepper
+from motorsim.plant import Motor, Plant, Stepper
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
@@ -167,10 +167,10 @@ class FakeDevice:
         The last END sent (or that would have been sent).
     """
 
-    def __init__(self, motor: Motor, encoder: Encoder | None = None, faults: FaultPlan | None = None, *,
+    def __init__(self, motor: Plant, encoder: Encoder | None = None, faults: FaultPlan | None = None, *,
                  speed: float = 1.0, queue_size: int = 16, rng: np.random.Generator | None = None):
-        if not isinstance(motor, Motor):
-            raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
+        if not isinstance(motor, Plant):
+            raise ParameterTypeError(f"motor must be a plant (a Motor), got {type(motor).__name__}")
         self.motor = motor
         self.encoder = encoder if encoder is not None else Encoder()
         if not isinstance(self.encoder, Encoder):
@@ -183,8 +183,9 @@ class FakeDevice:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         if not isinstance(self.rng, np.random.Generator):
             raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {self.rng!r}")
-        self._motor0 = dataclasses.replace(motor, input_delay=0)
+        self._motor0 = motor.replace(input_delay=0)
         self._stepper: Stepper | None = None          # the plant's exact step over the last interval length
+        self._stepper_h = 0.0
         self.duty = 0
         self.stops_received = 0
         self.runs_started = 0
@@ -313,7 +314,7 @@ class FakeDevice:
         self._link_down = False
         self._silent = False
         self._angle, self._speed_rad_s = 0.0, 0.0
-        self._current = 0.0           # the drive behind an electrical lag (motor.electrical_time_constant)
+        self._state = self.motor.initial_state()   # angle, speed and the plant's own (a lag's current)
         self._idle_since = self._now()
         self._last_rx = self._now()
         self._booted = False
@@ -473,10 +474,10 @@ class FakeDevice:
 
     def _advance_motor(self, duty: float, h: float) -> None:
         """Hold ``duty`` for ``h`` s: the plant's exact step (:class:`motorsim.plant.Stepper`)."""
-        if self._stepper is None or self._stepper._h[0] != h:
-            self._stepper = Stepper(self._motor0, h)
-        self._angle, self._speed_rad_s, self._current = self._stepper.step(
-            0, (self._angle, self._speed_rad_s, self._current), duty)
+        if self._stepper is None or self._stepper_h != h:
+            self._stepper, self._stepper_h = self._motor0.stepper(h), h
+        self._state = self._stepper.step(0, (self._angle, self._speed_rad_s, *self._state[2:]), duty)
+        self._angle, self._speed_rad_s = self._state[0], self._state[1]
 
     def _ticks(self, now: float) -> None:
         cfg = self._run_config

@@ -491,21 +491,21 @@ def choose(fitted: list[CandidateFit], level: float, notes: list[str], top: int 
     if best is None:
         reasons = "; ".join(sorted({f.candidate.note for f in fitted if f.candidate.note}))
         raise NotIdentifiableError(f"no candidate model could be fitted: {reasons}")
-    family = best_fit([f for f in fitted if STRUCTURES[f.candidate.structure].rank == 0]) or best
+    family = best_fit([f for f in fitted if _REGISTERED[f.candidate.structure].rank == 0]) or best
     scored = _scored(fitted, family, level, recs, segments)
-    order = list(STRUCTURES)
+    order = list(_REGISTERED)
 
     def simplicity(c: Candidate) -> tuple:
-        return (STRUCTURES[c.structure].rank, c.n_params, c.input_delay, order.index(c.structure))
+        return (_REGISTERED[c.structure].rank, c.n_params, c.input_delay, order.index(c.structure))
     if family is not best:
         overall = _scored(fitted, best, level, recs, segments)
         if overall[fitted.index(family)].within_noise:        # the family holds: higher ranks only widen
-            scored = [o if STRUCTURES[c.structure].rank else c for c, o in zip(scored, overall)]
+            scored = [o if _REGISTERED[c.structure].rank else c for c, o in zip(scored, overall)]
         else:
             scored = overall
     best_c = scored[fitted.index(best)]
     within = [c for c in scored if c.within_noise]
-    first = [c for c in within if STRUCTURES[c.structure].rank == 0]
+    first = [c for c in within if _REGISTERED[c.structure].rank == 0]
     chosen = min(first or within, key=simplicity)
     others = [c for c in within if c is not chosen]
     runner_up = min(others, key=simplicity) if others else min(

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Mapping, Sequence
 import numpy as np
 
 from motorsim.checks import ParameterError, check_int
-from motorsim.plant import Motor, Stepper
+from motorsim.plant import Plant
 
 from .model_file import (
     ESTIMATE_FORMAT,
@@ -364,8 +364,9 @@ class Estimate:
         return self.model_structure().transfer_function(self.values(), self.sample_period, self.input_delay,
                                                         form, delay=delay, pade_order=pade_order)
 
-    def motor(self) -> Motor:
-        """The identified model as a :class:`motorsim.plant.Motor` (friction, bias, dead zone, delay)."""
+    def motor(self) -> Plant:
+        """The identified model as the simulator's plant: its structure's (:class:`motorsim.plant.Motor` for the
+        first-order family: friction, bias, dead zone, delay; :class:`motorsim.plant.Plant` in general)."""
         return self.model_structure().plant(self.values(), self.input_delay)
 
     def io_system(self, name: str = "motor") -> control.NonlinearIOSystem:
@@ -402,19 +403,21 @@ class Estimate:
         [0.0, 2.654, 4.722, 6.332, 7.585]
         """
         import control
-        motor = dataclasses.replace(self.motor(), input_delay=0)
+        motor = self.motor().replace(input_delay=0)
         d, h = self.input_delay, self.sample_period
-        stepper = Stepper(motor, h)
-        lag = motor.electrical_time_constant > 0
+        stepper = motor.stepper(h)
+        own = motor.state_names()[2:]            # the plant's own states (a lag's current), after the delay line
+        n = len(own)
 
         def update(t, x, u, params):
             applied = x[2 + d - 1] if d else u[0]
-            angle, speed, current = stepper.step(0, (x[0], x[1], x[2 + d] if lag else 0.0), applied)
-            return np.array([angle, speed, *([u[0], *x[2:2 + d - 1]] if d else []), *([current] if lag else [])])
+            state = (x[0], x[1], *x[2 + d:2 + d + n]) if n else motor.initial_state(x[0], x[1])
+            new = stepper.step(0, state, applied)
+            return np.array([new[0], new[1], *([u[0], *x[2:2 + d - 1]] if d else []), *new[2:2 + n]])
 
         def output(t, x, u, params):
             return np.array([x[1], x[0]])
-        states = ["angle", "speed", *(f"duty_{k}" for k in range(1, d + 1)), *(["current"] if lag else [])]
+        states = ["angle", "speed", *(f"duty_{k}" for k in range(1, d + 1)), *own]
         return control.nlsys(update, output, inputs=["duty"], outputs=["speed", "angle"], states=states,
                              dt=h, name=name)
 

@@ -23,7 +23,7 @@ from .data import DEFAULT_INPUT_DELAY
 
 __all__ = ["Estimator", "EstimatorOption", "DEFAULT", "EULER_LS", "ZOH_LS", "OE", "IV", "OE_FRICTION",
            "IV_REFERENCE", "OE_ELECTRICAL", "OE_ASYMMETRIC", "OE_DRIVE_LIMIT", "PEM_DISTURBANCE",
-           "REGISTERED_ESTIMATORS"]
+           "REGISTERED_ESTIMATORS", "linear_estimator"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,6 +152,17 @@ PEM_DISTURBANCE = Estimator("pem-disturbance", "prediction_error:fit_prediction_
     EstimatorOption("disturbance_pole", "float in [0, 1] or None", None,
                     "hold the torque disturbance's pole per sample (1: a random walk) instead of fitting it")),
     closed_loop_only=True)
+
+def linear_estimator(name: str, structure: str) -> Estimator:
+    """The estimator ``name`` fitting the registered linear ``structure`` by output error
+    (:func:`identify.structure_fit.fit_linear_structure`): what a new linear structure names as its
+    ``estimator``; it is listed by name from the structure registry (:data:`identify.methods.ESTIMATORS`)."""
+    def fit(recordings: Any, *, input_delay: int | str = DEFAULT_INPUT_DELAY) -> Any:
+        return load(".structure_fit:fit_linear_structure", __package__)(recordings, structure=structure,
+                                                                        input_delay=input_delay)
+    fit.__name__ = fit.__qualname__ = f"fit_{structure.replace('-', '_')}"
+    return Estimator(name, fit, (_input_delay(),), beyond_first_order=True)
+
 
 #: Every estimator a user can name, in the order ``available_methods()`` lists them.
 REGISTERED_ESTIMATORS: tuple[Estimator, ...] = (EULER_LS, ZOH_LS, OE, IV, OE_FRICTION, IV_REFERENCE, OE_ELECTRICAL,

@@ -2,7 +2,9 @@
 
 Every estimator is an object of :mod:`identify.estimators` (its name, function, declared options,
 candidate fit and what it is made for); add one there and to :data:`ESTIMATORS`, and a structure it
-fits names it as its ``estimator``.  The CLI and the sweeps pick it up by name.  Every estimate's
+fits names it as its ``estimator``.  A structure's own estimator is listed from the structure
+registry (:data:`identify.model_structures.REGISTERED`): a new structure adds no line here.
+The CLI and the sweeps pick it up by name.  Every estimate's
 ``method`` is one of these names, and ``fit(recordings, estimate.method, **options)`` reproduces it
 with the options it was made with (e.g. ``fit_bias=True`` for ``oe`` with a constant acceleration).
 
@@ -29,13 +31,18 @@ from motorsim.recording import Recording
 
 from .estimate import Estimate
 from .estimators import DEFAULT, REGISTERED_ESTIMATORS, Estimator, EstimatorOption
-from .model_structures import ModelStructure
+from .model_structures import REGISTERED, ModelStructure
 
 __all__ = ["fit", "available_methods", "method_function", "method_options", "option_declarations", "check_options",
            "EstimatorOption", "Estimator", "estimator", "candidate_function", "DEFAULT_METHOD", "ESTIMATORS"]
 
-#: Every estimator by name (:mod:`identify.estimators`: each one's function, options and what it is made for).
+#: Every estimator by name (:mod:`identify.estimators`: each one's function, options and what it is made for),
+#: then the estimator each registered structure names, by object: a structure's own estimator (a new
+#: structure's, :func:`identify.structure_fit.linear_estimator`) is listed from the structure registry.
 ESTIMATORS: dict[str, Estimator] = {e.name: e for e in REGISTERED_ESTIMATORS}
+for _s in REGISTERED:
+    if ESTIMATORS.setdefault(_s.estimator.name, _s.estimator) is not _s.estimator:
+        raise RuntimeError(f"structure {_s.name!r} names an estimator {_s.estimator.name!r} that is another's")
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
 #: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.

@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from motorsim.checks import ParameterError, check_int, check_real
-from motorsim.plant import zoh_matrices
+from motorsim.plant import speed_coefficients
 
 __all__ = ["RecursiveLeastSquares", "RunningEstimator", "RunningEstimate", "RUNNING_MODELS"]
 
@@ -214,8 +214,8 @@ class RunningEstimator:
         return RunningEstimate(self.model, float(a), float(a * theta[1] / (1.0 - e)), n)
 
     def _beta(self, a: float, b: float) -> np.ndarray:
-        e, g, p, q = (float(x) for x in zoh_matrices(a, b, self._h))
-        return np.array([e, q / self._h, (p * g - q * e) / self._h])
+        e, _, beta1, beta2 = speed_coefficients(a, b, self._h)
+        return np.array([e, beta1, beta2])
 
     def _estimate_zoh_avg(self) -> RunningEstimate:
         n = self._n

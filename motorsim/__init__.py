@@ -11,7 +11,7 @@ from .excitation import (
     Step,
     parse_excitation,
 )
-from .plant import Motor, Trajectory, simulate
+from .plant import Motor, Plant, Trajectory, simulate
 from .reading import read_recording
 from .recording import Recording, RecordingFormatError
 from .rig import Experiment, Rig, SimRig
@@ -20,7 +20,7 @@ from .writing import RecordingWriter, write_recording
 
 __all__ = [
     "DUTY_LIMIT", "PRBS", "Chirp", "Constant", "Excitation", "Multisine", "OddMultisine", "Sine", "Step",
-    "parse_excitation", "Motor", "Trajectory", "simulate", "Recording", "RecordingFormatError",
+    "parse_excitation", "Motor", "Plant", "Trajectory", "simulate", "Recording", "RecordingFormatError",
     "read_recording", "write_recording", "RecordingWriter", "Experiment", "Rig", "SimRig", "DEFAULT_COUNTS_PER_REV",
     "Encoder", "backward_difference", "counts_to_angle",
 ]

@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError
-from .plant import Motor, delayed_duty, zoh_matrices
+from .plant import Motor, Plant, delayed_duty, zoh_matrices
 
 __all__ = ["is_batchable", "unbatchable_parts", "BATCHED_PARTS", "simulate_batch", "encoder_counts_batch",
            "speed_batch"]
@@ -38,13 +38,15 @@ __all__ = ["is_batchable", "unbatchable_parts", "BATCHED_PARTS", "simulate_batch
 BATCHED_PARTS = frozenset({"a", "b", "dead_zone", "input_delay"})
 
 
-def unbatchable_parts(motor: Motor) -> list[str]:
-    """The fields of ``motor`` the batch engine cannot run (set away from their neutral default), in field order."""
-    return [f.name for f in dataclasses.fields(motor)
-            if f.name not in BATCHED_PARTS and getattr(motor, f.name) != f.default]
+def unbatchable_parts(motor: Plant) -> list[str]:
+    """The fields of ``motor`` the batch engine cannot run (set away from their neutral default), in field order;
+    a plant of another structure than the first-order motor's is refused whole (its type's name first)."""
+    other = [] if isinstance(motor, Motor) else [type(motor).__name__]
+    return other + [f.name for f in dataclasses.fields(motor)  # type: ignore[arg-type]
+                    if f.name not in BATCHED_PARTS and getattr(motor, f.name) != f.default]
 
 
-def is_batchable(motor: Motor, *, jitter: float = 0.0, drop_rate: float = 0.0) -> bool:
+def is_batchable(motor: Plant, *, jitter: float = 0.0, drop_rate: float = 0.0) -> bool:
     """True when a setting can go through the batch engine exactly: a first-order plant (a dead zone and an
     input delay allowed, nothing else, :func:`unbatchable_parts`), uniform and complete samples."""
     return not unbatchable_parts(motor) and jitter == 0 and drop_rate == 0
@@ -77,13 +79,14 @@ def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
     the entries of the ZOH-discretised state-space model; the angle recursion sums in
     closed form to ``angle[k] = (speed[0] - speed[k])/a + (b dt/a) sum_{j<k} v[j]``.
     """
-    if not isinstance(motor, Motor):
-        raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
+    if not isinstance(motor, Plant):
+        raise ParameterTypeError(f"motor must be a plant (a Motor), got {type(motor).__name__}")
     parts = unbatchable_parts(motor)
     if parts:
+        said = ', '.join(f'{p} = {getattr(motor, p)!r}' if hasattr(motor, p) else f'a {p} plant' for p in parts)
         raise ParameterError(f"motor must be the first-order motor (with at most a dead zone and an input delay) for "
-                             f"the batch engine, got {', '.join(f'{p} = {getattr(motor, p)!r}' for p in parts)}: "
-                             "simulate it run by run (motorsim.simulate)")
+                             f"the batch engine, got {said}: simulate it run by run (motorsim.simulate)")
+    assert isinstance(motor, Motor)             # unbatchable_parts refuses every other plant
     u = np.asarray(duty, dtype=float)
     if u.ndim not in (1, 2) or u.shape[-1] < 2:
         raise ParameterError(f"duty must have shape (n_samples,) or (repetitions, n_samples) with n_samples >= 2, "

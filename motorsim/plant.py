@@ -32,12 +32,88 @@ from .recursion import first_order_filter
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL", "ZOH_BLOCK",
-           "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper"]
+__all__ = ["Plant", "Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL",
+           "ZOH_BLOCK", "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper",
+           "speed_coefficients"]
+
+
+class Plant:
+    """The one plant type: a model structure's dynamics, with its values and an input delay.
+
+    Everything that simulates, steps, samples or designs takes a plant and asks it: the simulator
+    (:func:`simulate`), the closed loops of :class:`~motorsim.rig.SimRig` and ``fake://`` (its
+    :meth:`stepper`), the batch sweeps (:func:`motorsim.batch.unbatchable_parts`: what the batch engine cannot
+    run is refused by name), control design (:class:`motorsim.control.PlantModel` is a plant sampled for a
+    controller), the robustness draws (:meth:`replace` with drawn values) and the running estimate
+    (:func:`speed_coefficients`).  No caller restates a step.
+
+    :class:`Motor` is the first-order motor's family (friction, bias, dead zone, stiction, an
+    electrical lag).  A structure with other dynamics subclasses :class:`LinearPlant` (a linear
+    structure: its continuous system is all it writes) or this class, as a frozen dataclass whose
+    fields are its values and ``input_delay``; its model structure in ``identify`` returns it.
+
+    The measured outputs are the angle and the speed: a state (:meth:`initial_state`,
+    :meth:`stepper`) starts with them, the plant's own states after.
+    """
+
+    input_delay: int = 0
+
+    def values(self) -> dict[str, float]:
+        """Every value of the plant by name, the input delay apart: ``a`` and ``b`` first, the first-order
+        part's pole (1/s) and gain ((rad/s^2) per input unit), which every structure has."""
+        raise NotImplementedError
+
+    def replace(self, **changes) -> "Plant":
+        """This plant with some values (or its ``input_delay``) changed, checked as any new plant."""
+        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+
+    def first_order(self) -> "Motor":
+        """The first-order motor a design is made on (its ``a``, ``b``, friction and bias; every other part
+        left to the full plant, which judges the design)."""
+        raise NotImplementedError
+
+    @property
+    def is_linear(self) -> bool:
+        """Whether the plant is linear in its input (a delay keeps it linear)."""
+        return True
+
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the state: ``angle``, ``speed``, then the plant's own."""
+        return ("angle", "speed")
+
+    def initial_state(self, angle: float = 0.0, speed: float = 0.0) -> tuple[float, ...]:
+        """A state with this angle and speed, at rest otherwise (the plant's own states 0)."""
+        return (float(angle), float(speed)) + (0.0,) * (len(self.state_names()) - 2)
+
+    def state_space(self) -> control.StateSpace:
+        """The continuous system of the linear part: input ``duty``, outputs ``angle`` and ``speed``."""
+        raise NotImplementedError
+
+    def discretise(self, sample_period: float) -> control.StateSpace:
+        """The exact ZOH model at ``sample_period`` s, via ``control.sample_system``."""
+        import control
+        sample_period = check_real("sample_period", sample_period, positive=True)
+        return control.sample_system(self.state_space(), sample_period, method="zoh")
+
+    def stepper(self, intervals) -> "Stepper":
+        """The plant's state advanced one sample interval at a time, each exact (see :class:`Stepper`)."""
+        raise NotImplementedError
+
+    def run(self, duty: np.ndarray, time: np.ndarray, intervals: np.ndarray, *, initial_speed: float,
+            initial_angle: float, duty_before: float) -> Trajectory:
+        """The exact run under ``duty`` (already delayed; ``duty[k]`` held over ``intervals[k]``) from the
+        state at ``time[0]``, ``duty_before`` what was held before it: :func:`simulate`'s work on checked,
+        non-empty arrays."""
+        raise NotImplementedError
+
+    def speed_polynomials(self, sample_period: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator in ``z`` from the drive to the averaged speed
+        ``y_k = (angle_k - angle_{k-1}) / h``: ``y(z)/v(z) = num(z) / (z den(z))``, no input delay."""
+        raise NotImplementedError
 
 
 @dataclasses.dataclass(frozen=True)
-class Motor:
+class Motor(Plant):
     """A PWM-driven DC motor, ``d omega/dt + a omega = b u`` (plus optional non-idealities).
 
     Parameters
@@ -149,6 +225,86 @@ class Motor:
             return u
         return np.where(np.abs(u) <= self.dead_zone, 0.0, u - np.sign(u) * self.dead_zone)
 
+    def values(self) -> dict[str, float]:
+        """``a``, ``b`` and every part (the input delay apart), zero ones included."""
+        return {name: float(getattr(self, name)) for name in _MOTOR_VALUES}
+
+    def first_order(self) -> "Motor":
+        """This motor without its electrical lag: the first-order part a design is made on."""
+        return dataclasses.replace(self, electrical_time_constant=0.0) if self.electrical_time_constant else self
+
+    def state_names(self) -> tuple[str, ...]:
+        """``angle``, ``speed`` and, behind an electrical lag, ``current`` (the lagged drive, input units)."""
+        return ("angle", "speed", "current") if self.electrical_time_constant else ("angle", "speed")
+
+    def initial_state(self, angle: float = 0.0, speed: float = 0.0) -> tuple[float, ...]:
+        """``(angle, speed, current)``, the current 0 (what :class:`Stepper` takes, with or without a lag)."""
+        return (float(angle), float(speed), 0.0)
+
+    def stepper(self, intervals) -> "Stepper":
+        """One exact step per sample interval (:class:`Stepper`)."""
+        return Stepper(self, intervals)
+
+    def run(self, duty: np.ndarray, time: np.ndarray, intervals: np.ndarray, *, initial_speed: float,
+            initial_angle: float, duty_before: float) -> Trajectory:
+        """The exact run: behind the lag by :func:`lag_response`, linear by the ZOH recursion, with friction by
+        its exact event step (compiled, :mod:`motorsim.compiled`)."""
+        t, h = time, intervals
+        v = self.drive(duty)[:-1]
+        n = len(t)
+        angle = np.empty(n)
+        speed = np.empty(n)
+        angle[0], speed[0] = initial_angle, initial_speed
+        if self.electrical_time_constant > 0:
+            before = float(self.drive(np.array([duty_before]))[0])
+            run = lag_response(self.a, self.b, 1.0 / self.electrical_time_constant, self.bias, np.append(v, 0.0), t,
+                               initial_speed=initial_speed, initial_current=before)
+            return Trajectory(t, run.angle + initial_angle, run.speed)
+        if self.breakaway == 0:
+            drive = v + self.bias / self.b if self.bias else v
+            if _nearly_uniform_zoh(self.a, self.b, h, drive, speed, angle):
+                return Trajectory(t, angle, speed)
+            e, g, p, q = zoh_matrices(self.a, self.b, h)
+            _linear_recursion(e, g * drive, speed, initial_speed)
+            angle[1:] = initial_angle + np.cumsum(p * speed[:-1] + q * drive)
+            return Trajectory(t, angle, speed)
+        from .compiled import friction_run
+        friction_run(float(self.a), self.b * np.asarray(v, dtype=float) + self.bias, float(self.friction), h,
+                     speed, angle, float(self.breakaway))
+        return Trajectory(t, angle, speed)
+
+    def speed_coefficients(self, sample_period: float, scale: float = 1.0) -> tuple[float, float, float, float]:
+        """``(e, g, beta1, beta2)`` of the first-order part's averaged speed over ``sample_period``
+        (:func:`speed_coefficients`), times ``scale`` (counts per sample per rad/s for a controller)."""
+        return speed_coefficients(self.a, self.b, sample_period, scale)
+
+    def speed_polynomials(self, sample_period: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator in ``z`` from the drive to the averaged speed
+        ``y_k = (angle_k - angle_{k-1}) / h``, every linear part included, without the factor ``1/z`` of the
+        difference and without the input delay: ``y(z)/v(z) = num(z) / (z den(z))``, in rad/s times ``scale``.
+
+        First order: ``num = (beta1, beta2)``, ``den = (1, -e)`` (:func:`speed_coefficients`).  Behind an
+        electrical lag, with the state ``[omega, i]`` and the coefficients ``e_a, e_c, p, r, q, s`` of
+        :func:`lag_coefficients` over one sample, ``omega' = e_a omega + b q i + b (p - q) v``,
+        ``i' = e_c i + (1 - e_c) v`` and ``angle' - angle = p omega + b s i + b (r - s) v``, so
+        ``num(z) = (scale / h) (p ((z - e_c) b (p - q) + b q (1 - e_c)) + b s (1 - e_c)(z - e_a)
+        + b (r - s)(z - e_a)(z - e_c))`` over ``den = (z - e_a)(z - e_c)``: both poles exact.
+        """
+        h = check_real("sample_period", sample_period, positive=True)
+        if not self.electrical_time_constant:
+            e, _, b1, b2 = self.speed_coefficients(h, scale)
+            return np.array([b1, b2]), np.array([1.0, -e])
+        b = self.b
+        e_a, e_c, p, r, q, s = (float(x) for x in lag_coefficients(self.a, 1.0 / self.electrical_time_constant, h))
+        den = np.asarray(np.polymul([1.0, -e_a], [1.0, -e_c]))
+        num = np.polyadd(np.polyadd(p * b * np.array([p - q, -e_c * (p - q) + q * (1.0 - e_c)]),
+                                    b * s * (1.0 - e_c) * np.array([1.0, -e_a])), b * (r - s) * den)
+        return num * (scale / h), den
+
+
+#: :class:`Motor`'s values besides the input delay, in the order of its fields.
+_MOTOR_VALUES = ("a", "b", "friction", "bias", "dead_zone", "electrical_time_constant", "static_friction")
+
 
 @dataclasses.dataclass(frozen=True)
 class Trajectory:
@@ -250,7 +406,7 @@ def _all_finite(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)))
 
 
-def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_angle: float = 0.0,
+def simulate(motor: Plant, duty, time, *, initial_speed: float = 0.0, initial_angle: float = 0.0,
              duty_before: float = 0.0) -> Trajectory:
     """Simulate the motor exactly under zero-order-hold duty.
 
@@ -280,8 +436,8 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     >>> simulate(Motor(25.0, 3.0), np.full(5, 100), t).speed.round(3).tolist()
     [0.0, 2.654, 4.722, 6.332, 7.585]
     """
-    if not isinstance(motor, Motor):
-        raise ParameterTypeError(f"motor must be a Motor, got {type(motor).__name__}")
+    if not isinstance(motor, Plant):
+        raise ParameterTypeError(f"motor must be a plant (a Motor), got {type(motor).__name__}")
     u = real_array("duty", duty)
     t = real_array("time", time)
     if u.ndim != 1 or t.shape != u.shape:
@@ -291,29 +447,11 @@ def simulate(motor: Motor, duty, time, *, initial_speed: float = 0.0, initial_an
     h = np.diff(t)
     if len(h) and not float(h.min()) > 0:
         raise ParameterError("time must be strictly increasing")
-    v = motor.drive(delayed_duty(u, motor.input_delay, duty_before))[:-1] if len(u) else u
     n = len(t)
-    angle = np.empty(n)
-    speed = np.empty(n)
     if n == 0:
-        return Trajectory(t, angle, speed)
-    angle[0], speed[0] = initial_angle, initial_speed
-    if motor.electrical_time_constant > 0:
-        run = lag_response(motor.a, motor.b, 1.0 / motor.electrical_time_constant, motor.bias, np.append(v, 0.0), t,
-                           initial_speed=initial_speed, initial_current=float(motor.drive(np.array([duty_before]))[0]))
-        return Trajectory(t, run.angle + initial_angle, run.speed)
-    if motor.breakaway == 0:
-        drive = v + motor.bias / motor.b if motor.bias else v
-        if _nearly_uniform_zoh(motor.a, motor.b, h, drive, speed, angle):
-            return Trajectory(t, angle, speed)
-        e, g, p, q = zoh_matrices(motor.a, motor.b, h)
-        _linear_recursion(e, g * drive, speed, initial_speed)
-        angle[1:] = initial_angle + np.cumsum(p * speed[:-1] + q * drive)
-        return Trajectory(t, angle, speed)
-    from .compiled import friction_run
-    friction_run(float(motor.a), motor.b * np.asarray(v, dtype=float) + motor.bias, float(motor.friction), h,
-                 speed, angle, float(motor.breakaway))
-    return Trajectory(t, angle, speed)
+        return Trajectory(t, np.empty(0), np.empty(0))
+    return motor.run(delayed_duty(u, motor.input_delay, duty_before), t, h, initial_speed=initial_speed,
+                     initial_angle=initial_angle, duty_before=duty_before)
 
 
 def lag_coefficients(a: float, c: float, h) -> tuple:
@@ -351,6 +489,26 @@ def lag_coefficients(a: float, c: float, h) -> tuple:
     deriv = (h * np.exp(-m * h) * m + np.expm1(-m * h)) / (m * m)          # F'(m)
     s = np.where(small, -deriv, (f_c - p) / np.where(small, 1.0, a - c))
     return e_a, e_c, p, r, q, s
+
+
+def speed_coefficients(a: float, b: float, h: float, scale: float = 1.0) -> tuple[float, float, float, float]:
+    """The first-order motor's averaged speed ``y_k = (angle_k - angle_{k-1}) / h`` over a held sample ``h``:
+    ``(e, g, beta1, beta2)`` with ``y_{k+1} = e y_k + beta1 v_k + beta2 v_{k-1}`` and ``g = beta1 + beta2``
+    the sampled speed's gain, each times ``scale``.
+
+    From :func:`zoh_matrices` (``speed' = e speed + g v``, ``angle' = angle + p speed + q v``):
+    ``beta1 = q / h``, ``beta2 = (p g - e q) / h``.  The one place this model is written: the
+    controllers' (:meth:`motorsim.control.PlantModel.speed_coefficients`, ``scale`` their counts per
+    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.recursive`) take it from here.
+
+    Examples
+    --------
+    >>> e, g, b1, b2 = speed_coefficients(25.0, 3.0, 0.01)
+    >>> round(b1 + b2 - g, 15)
+    0.0
+    """
+    e, g, p, q = (float(x) for x in zoh_matrices(a, b, h))
+    return e, g * scale, q / h * scale, (p * g - e * q) / h * scale
 
 
 def first_order_coefficients(a: float, h: float) -> tuple[float, float, float]:
@@ -410,8 +568,7 @@ class Stepper:
             self._kind = "friction"
             self._bare = dataclasses.replace(motor, dead_zone=0.0, input_delay=0)
 
-    def step(self, k: int, state: tuple[float, float, float], duty: float,
-             torque: float = 0.0) -> tuple[float, float, float]:
+    def step(self, k: int, state: tuple[float, ...], duty: float, torque: float = 0.0) -> tuple[float, ...]:
         """The state after interval ``k`` with ``duty`` held (and an added acceleration ``torque``, rad/s^2)."""
         m = self.motor
         angle, speed, current = state

@@ -20,7 +20,7 @@ from .control import ClosedLoopExperiment
 from .excitation import DUTY_LIMIT, Excitation
 from .fixed_point import ControlLoop
 from .knobs import Knob, knob, knobs_of
-from .plant import Motor, Stepper, simulate
+from .plant import Motor, Plant, simulate
 from .recording import Recording
 from .recursion import first_order_filter
 from .sensors import Encoder
@@ -97,8 +97,9 @@ class SimRig:
 
     Parameters
     ----------
-    motor : Motor
-        The plant (with any friction, dead zone, bias, input delay).
+    motor : Plant
+        The plant: a :class:`~motorsim.plant.Motor` (with any friction, dead zone, bias, input delay,
+        electrical lag) or any structure's plant (:class:`~motorsim.plant.Plant`).
     encoder : Encoder
         Counts per revolution, offset and angle noise (default: the article's 16667-count encoder).
     jitter : float
@@ -125,7 +126,7 @@ class SimRig:
         Source of noise, jitter, drops and disturbance; required when any of them is nonzero.
     """
 
-    motor: Motor
+    motor: Plant
     encoder: Encoder = dataclasses.field(default_factory=Encoder)
     jitter: float = knob(0.0, unit="sample periods", help="timing jitter, 0 <= jitter < 1", recorded=True)
     drop_rate: float = knob(0.0, unit="", help="probability that a sample is lost, 0 <= drop_rate < 1",
@@ -138,8 +139,8 @@ class SimRig:
     rng: np.random.Generator | None = None
 
     def __post_init__(self):
-        if not isinstance(self.motor, Motor):
-            raise ParameterTypeError(f"motor must be a Motor, got {type(self.motor).__name__}")
+        if not isinstance(self.motor, Plant):
+            raise ParameterTypeError(f"motor must be a plant (a Motor), got {type(self.motor).__name__}")
         if not isinstance(self.encoder, Encoder):
             raise ParameterTypeError(f"encoder must be an Encoder, got {type(self.encoder).__name__}")
         jitter = check_real("jitter", self.jitter, nonnegative=True)
@@ -247,7 +248,7 @@ class _Replay:
         return int(self.duty[k])
 
 
-def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray,
+def _closed_loop(motor: Plant, encoder: Encoder, loop: ControlLoop | _Replay, time: np.ndarray,
                  noise: np.ndarray, initial_speed: float, disturbance: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Duty, counts and true speed of a closed-loop run, each interval exact (:class:`~motorsim.plant.Stepper`).
@@ -261,10 +262,10 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, ti
     speed = np.zeros(n)
     scale, offset = encoder.counts_per_rev / (2.0 * math.pi), encoder.count_offset
     pending = [0] * motor.input_delay
-    stepper = Stepper(motor, np.diff(time))
-    state = (0.0, float(initial_speed), 0.0)
+    stepper = motor.stepper(np.diff(time))
+    state = motor.initial_state(0.0, initial_speed)
     for k in range(n):
-        th, w, _ = state
+        th, w = state[0], state[1]
         counts[k] = c = math.floor((th + noise[k]) * scale) + offset
         speed[k] = w
         duty[k] = u = loop.step(k, c)
@@ -275,7 +276,7 @@ def _closed_loop(motor: Motor, encoder: Encoder, loop: ControlLoop | _Replay, ti
     return duty, counts, speed
 
 
-def motor_metadata(motor: Motor) -> dict[str, str]:
+def motor_metadata(motor: Plant) -> dict[str, str]:
     """The motor's knobs as recording metadata ``true_NAME``: the required ones (``a``, ``b``)
     always, the others when nonzero.
 
@@ -285,6 +286,9 @@ def motor_metadata(motor: Motor) -> dict[str, str]:
     {'true_a': '25.0', 'true_b': '3.0', 'true_bias': '0.5'}
     """
     out = {}
+    if not isinstance(motor, Motor):        # another structure's plant: its values, a and b always
+        values = {**motor.values(), "input_delay": motor.input_delay}
+        return {f"true_{name}": repr(value) for name, value in values.items() if name in ("a", "b") or value}
     for k in knobs_of(Motor):
         value = getattr(motor, k.name)
         if k.required or value:

@@ -32,6 +32,7 @@ import numpy as np
 from .checks import ParameterError, ParameterTypeError, check_int, check_real
 from .control import Controller, DesignLimitWarning, PlantModel, Reference, design_controller
 from .margins import Margins, discrete_margins
+from .plant import Motor
 
 __all__ = ["Margins", "Robustness", "ModelDraws", "loop_margins", "analyse_robustness", "robust_design",
            "draw_models", "BADLY_DAMPED", "ROBUST_KNOB"]
@@ -194,8 +195,8 @@ class ModelDraws(Sequence[PlantModel]):
         return self.models[index]
 
 
-def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator
-                ) -> ModelDraws:
+def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator, *,
+                names: Sequence[str] | None = None) -> ModelDraws:
     """Plants with ``(a, b)`` (and the electrical time constant) drawn from a normal distribution around
     ``model``'s, drawn once.
 
@@ -213,6 +214,13 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
         counted (``n_other_sign``).
     rng : numpy.random.Generator
         The source of randomness.
+    names : sequence of str, optional
+        The plant's values ``covariance`` is over, in its order (``Estimate.param_names``: any structure's,
+        ``a`` and ``b`` first); each draw is the plant with them replaced, a draw the plant refuses (a value
+        outside its bounds) left out and counted.  Default: ``(a, b)`` or ``(a, b, electrical_time_constant)``
+        by the covariance's shape, as above, for a :class:`~motorsim.plant.Motor`; for a plant of another
+        structure its values in the order :meth:`~motorsim.plant.Plant.values` lists them (the estimate's
+        parameters), as many as the covariance has rows.
 
     Examples
     --------
@@ -221,6 +229,10 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     >>> len(draws) + draws.n_rejected, 0.05 < draws.n_other_sign / len(draws) < 0.1   # P(b > 0) = 6.7 %
     (1000, True)
     """
+    if names is None and not isinstance(model.plant, Motor):    # another structure: over its values, in order
+        names = tuple(model.plant.values())[:len(np.atleast_2d(np.asarray(covariance, dtype=float)))]
+    if names is not None:
+        return _draw_named(model, covariance, n_draws, rng, tuple(names))
     cov = _checked_covariance(model, covariance)
     n_draws = check_int("n_draws", n_draws, 1, 10**6)
     if not isinstance(rng, np.random.Generator):
@@ -229,11 +241,39 @@ def draw_models(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np
     drawn = rng.multivariate_normal(mean, cov, size=n_draws)
     keep = (drawn[:, 0] > 0) & (drawn[:, 1] != 0) & (drawn[:, 2] >= 0 if len(cov) == 3 else True)
     tau = model.electrical_time_constant
-    out = tuple(dataclasses.replace(model, a=float(row[0]), b=float(row[1]),
-                                    electrical_time_constant=float(row[2]) if len(row) == 3 else tau)
+    out = tuple(model.with_values(a=float(row[0]), b=float(row[1]),
+                                  electrical_time_constant=float(row[2]) if len(row) == 3 else tau)
                 for row in drawn[keep])
     other = int(np.sum(np.sign(drawn[keep, 1]) != np.sign(model.b)))
     return ModelDraws(out, n_rejected=int(n_draws - keep.sum()), n_other_sign=other)
+
+
+def _draw_named(model: PlantModel, covariance: np.ndarray, n_draws: int, rng: np.random.Generator,
+                names: tuple[str, ...]) -> ModelDraws:
+    """:func:`draw_models` over the plant's values ``names``."""
+    values = model.plant.values()
+    unknown = [n for n in names if n not in values]
+    if unknown or names[:2] != ("a", "b"):
+        raise ParameterError(f"names must start with 'a', 'b' and name the plant's values {list(values)}, "
+                             f"got {list(names)}")
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape != (len(names), len(names)) or not np.all(np.isfinite(cov)):
+        raise ParameterError(f"covariance must be a finite {len(names)} x {len(names)} array over {list(names)}, "
+                             f"got shape {cov.shape}")
+    n_draws = check_int("n_draws", n_draws, 1, 10**6)
+    if not isinstance(rng, np.random.Generator):
+        raise ParameterTypeError(f"rng must be a numpy.random.Generator, got {rng!r}")
+    drawn = rng.multivariate_normal([values[n] for n in names], cov, size=n_draws)
+    out = []
+    for row in drawn:
+        if not row[0] > 0:
+            continue
+        try:
+            out.append(model.with_values(**{n: float(x) for n, x in zip(names, row)}))
+        except ParameterError:
+            continue
+    other = sum(1 for m in out if np.sign(m.b) != np.sign(model.b))
+    return ModelDraws(tuple(out), n_rejected=n_draws - len(out), n_other_sign=other)
 
 
 def _checked_covariance(model: PlantModel, covariance: np.ndarray) -> np.ndarray:
@@ -325,6 +365,12 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
                              "the model's a is not known well enough for a robustness analysis")
     other = sum(np.sign(m.b) != np.sign(model.b) for m in draws)
     tau_drawn = any(m.electrical_time_constant != model.electrical_time_constant for m in draws)
+    if isinstance(model.plant, Motor):
+        drawn_names, refused = ("a, b, tau_e", "a <= 0 or tau_e < 0") if tau_drawn else ("a, b", "a <= 0")
+    else:                       # another structure: the values that differ among the draws
+        point = model.plant.values()
+        drawn_names = ", ".join(n for n in point if any(m.plant.values()[n] != point[n] for m in draws)) or "none"
+        refused = "a <= 0 or a value outside its bounds"
     h = model.sample_period
     n = int(round(duration / h))
     r = reference.samples(n + controller.preview, h, controller.reference_scale).astype(float)
@@ -352,9 +398,9 @@ def analyse_robustness(controller: Controller, covariance: np.ndarray, reference
         worst_delay_margin=float(min(g.delay_margin for g in margins)),
         percentile=percentile, unstable=unstable / len(draws), badly_damped=damped / len(draws),
         n_draws=len(draws), n_rejected=n_rejected, other_sign=other / len(draws),
-        method=f"Monte Carlo: {len(draws)} plants ({'a, b, tau_e' if tau_drawn else 'a, b'}) drawn from a normal "
+        method=f"Monte Carlo: {len(draws)} plants ({drawn_names}) drawn from a normal "
                "distribution with the model's covariance (seeded)"
-               + (f", {n_rejected} more with {'a <= 0 or tau_e < 0' if tau_drawn else 'a <= 0'} left out"
+               + (f", {n_rejected} more with {refused} left out"
                   if n_rejected else "")
                + (f", electrical time constant {model.electrical_time_constant:g} s kept in every plant"
                   if model.electrical_time_constant and not tau_drawn else "")

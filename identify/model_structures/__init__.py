@@ -20,13 +20,14 @@ from .base import ModelStructure, Parameter
 from .drive_limit import DriveLimit
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
+from .two_mass import TwoMass, TwoMassLoad
 
 __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure", "structure_of",
            "structure_fitted"]
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
-                                          SecondOrder(), AsymmetricGain(), DriveLimit())
+                                          SecondOrder(), AsymmetricGain(), DriveLimit(), TwoMass(), TwoMassLoad())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -40,8 +41,9 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     Examples
     --------
     >>> import identify
-    >>> list(identify.structures())
-    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain', 'drive-limit']
+    >>> list(identify.structures())  # doctest: +NORMALIZE_WHITESPACE
+    ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain', 'drive-limit',
+     'two-mass', 'two-mass-load']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """

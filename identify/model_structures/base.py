@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from motorsim.checks import ParameterError, check_real
-from motorsim.plant import Motor, Stepper, Trajectory, first_order_coefficients, simulate
+from motorsim.linear_plant import LinearPlant
+from motorsim.plant import Motor, Plant, Stepper, Trajectory, first_order_coefficients, simulate
 
 from ..estimators import OE, Estimator
 
@@ -50,6 +51,8 @@ class Parameter:
         One line, for listings and help.
     strict : bool
         Whether ``low`` itself is excluded (``a > 0``).
+    starts : tuple of float
+        Start values of an iterative fit (:meth:`ModelStructure.starts`; none: 0).
     """
 
     name: str
@@ -58,6 +61,7 @@ class Parameter:
     high: float = math.inf
     description: str = ""
     strict: bool = False
+    starts: tuple[float, ...] = ()
 
     def check(self, value: Any) -> float:
         """``value`` as a float within the bounds, else a :class:`ParameterError` naming it."""
@@ -164,8 +168,10 @@ class ModelStructure:
             out[name] = float(given.get(name, value))
         return out
 
-    def plant(self, values: Mapping[str, float], input_delay: int = 0) -> Motor:
-        """The simulator's plant with these values (:class:`motorsim.plant.Motor`)."""
+    def plant(self, values: Mapping[str, float], input_delay: int = 0) -> Plant:
+        """The simulator's plant with these values (:class:`motorsim.plant.Motor` for the first-order family; a
+        structure with other dynamics returns its own :class:`motorsim.plant.Plant`, e.g. a
+        :class:`motorsim.linear_plant.LinearPlant`, whose dynamics every method here then asks)."""
         v = self.values(values)
         return Motor(v["a"], v["b"], friction=v.get("friction", 0.0), bias=v.get("bias", 0.0),
                      dead_zone=v.get("dead_zone", 0.0), input_delay=input_delay)
@@ -184,7 +190,7 @@ class ModelStructure:
     def stepper(self, values: Mapping[str, float], intervals) -> Stepper:
         """One exact step of its state per sample interval, every part included (:class:`motorsim.plant.Stepper`:
         what a per-sample loop runs; the input delay is the caller's delay line)."""
-        return Stepper(self.plant(values), intervals)
+        return self.plant(values).stepper(intervals)
 
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
@@ -196,12 +202,35 @@ class ModelStructure:
         """The model's native output (angle or speed) on ``segment``, its initial state from the data.
 
         What validation and the residual checks compare with the measurement (the segment's drive
-        is already delayed).
+        is already delayed).  For a linear plant (:class:`motorsim.linear_plant.LinearPlant`): its forced
+        response plus its free responses, their initial states (and the angle's offset) by exact least
+        squares (the output is linear in them); a structure with other dynamics writes its own.
         """
-        raise NotImplementedError
+        plant = self.plant(values)
+        if not isinstance(plant, LinearPlant):
+            raise NotImplementedError(f"the {self.name} structure must write its segment_output")
+        forced, free = plant.columns(segment.time, segment.drive, segment.kind)
+        coef, *_ = np.linalg.lstsq(free, segment.output - forced, rcond=None)
+        return forced + free @ coef
+
+    def starts(self, recordings, guess: tuple[float, float]) -> list[dict[str, float]]:
+        """Start values of an iterative fit (:mod:`identify.structure_fit`): the first-order motor's ``a`` and
+        ``b`` (``guess``, :func:`identify.start.initial_guess`'s) with each further parameter's
+        :attr:`Parameter.starts` values, every combination."""
+        import itertools
+        a, b = guess
+        further = [p for p in self.parameters if p.name not in ("a", "b")]
+        return [{"a": float(a), "b": float(b), **{p.name: x for p, x in zip(further, combo)}}
+                for combo in itertools.product(*(p.starts or (0.0,) for p in further))]
 
     def linear_part(self, values: Mapping[str, float]) -> tuple[list[float], list[float]]:
-        """Numerator and denominator of the linear part in ``s``, from the input to the speed."""
+        """Numerator and denominator of the linear part in ``s``, from the input to the speed (a linear plant's
+        from its continuous system)."""
+        plant = self.plant(values) if self.simulated else None
+        if isinstance(plant, LinearPlant):
+            import control
+            tf = control.ss2tf(plant.state_space()[1, 0])
+            return [float(x) for x in tf.num[0][0]], [float(x) for x in tf.den[0][0]]
         v = self.values(values)
         return [v["b"]], [1.0, v["a"]]
 
@@ -248,6 +277,9 @@ class ModelStructure:
         :func:`identify.frequency_estimate.zoh_speed_response`.
         """
         from ..zoh_response import zoh_speed_response
+        plant = self.plant(values) if self.simulated else None
+        if isinstance(plant, LinearPlant):
+            return plant.frequency_response(sample_period, omega, output=output, input_delay=input_delay)
         # the values as given, not checked against the bounds: a poor fit's model is still drawn
         return zoh_speed_response(float(values["a"]), float(values["b"]), sample_period, omega, output=output,
                                   input_delay=input_delay)
@@ -255,6 +287,12 @@ class ModelStructure:
     def discrete_linear_part(self, values: Mapping[str, float], sample_period: float) -> tuple[list[float],
                                                                                                 list[float]]:
         """Numerator and denominator in ``z`` of the exact zero-order-hold model (no delay)."""
+        plant = self.plant(values) if self.simulated else None
+        if isinstance(plant, LinearPlant):
+            from scipy.signal import ss2tf
+            s = plant.sampled(sample_period)
+            num, den = ss2tf(s.Ad, s.Bd[:, None], np.eye(len(s.Ad))[:1], [[0.0]])
+            return [float(x) for x in np.trim_zeros(num[0], "f")], [float(x) for x in den]
         v = self.values(values)
         e, p, _ = first_order_coefficients(v["a"], sample_period)
         return [v["b"] * p], [1.0, -e]

@@ -36,6 +36,7 @@ from motorsim.control import (
     tracking_error,
 )
 from motorsim.excitation import DUTY_LIMIT
+from motorsim.plant import Motor
 from motorsim.recording import Recording
 from motorsim.rig import Rig
 from motorsim.sensors import DEFAULT_COUNTS_PER_REV
@@ -149,7 +150,7 @@ def closed_loop_from_args(args: argparse.Namespace, sample_period: float, counts
         print_to_stderr(f"note: the device applies each duty {rig_input_delay} sample(s) after computing it; "
                         f"the controller is designed with input delay {rig_input_delay} (the model had "
                         f"{model.input_delay})")
-        model = dataclasses.replace(model, input_delay=rig_input_delay)
+        model = model.with_values(input_delay=rig_input_delay)
     controller = controller_from_args(args, model)
     speed_unit = load_model_file(args.model).speed_unit if args.model else "rad/s"
     reference = reference_from_args(args, controller, speed_unit, float(args.duty_limit))
@@ -406,6 +407,8 @@ def run_control(args: argparse.Namespace) -> int:
           + (f"electrical time constant {model.electrical_time_constant:g} s, " if model.electrical_time_constant
              else "")
           + (f"static friction {model.static_friction:g} rad/s^2, " if model.static_friction else "")
+          + "".join(f"{name} {value:g}, " for name, value in model.plant.values().items()    # another structure's
+                    if not isinstance(model.plant, Motor) and name not in ("a", "b"))
           + (f"dead zone {model.dead_zone:g} {unit} (not compensated: the design and its prediction are on the "
              "linear part), " if model.dead_zone else "") + f"dt = {model.sample_period:g} s, "
           f"{sensor}" + ("" if limit is None else f", input limit +-{limit:g} {unit}"))
@@ -565,12 +568,18 @@ def _loop_poles(controller: Controller) -> np.ndarray:
 
 def _model_covariance(args: argparse.Namespace) -> np.ndarray | None:
     """The covariance of ``(a, b)`` of the ``--model`` file, of ``(a, b, electrical_time_constant)`` when the model
-    has one with a finite variance (the robustness draws it too); None without a covariance."""
+    has one with a finite variance (the robustness draws it too), of every value of a structure beyond the
+    first-order family's (:meth:`motorsim.plant.Plant.values`); None without a covariance."""
     if not getattr(args, "model", None):
         return None
     est = load_model_file(args.model)
     if est.covariance is None or not np.all(np.isfinite(est.covariance[:2, :2])):
         return None
+    names = list(est.param_names or ())
+    if not isinstance(est.motor(), Motor) and list(est.motor().values()) == names[:len(est.motor().values())]:
+        full = np.asarray(est.covariance, dtype=float)[:len(est.motor().values()), :len(est.motor().values())]
+        if np.all(np.isfinite(full)):         # a structure beyond the first-order family: all its values drawn
+            return full
     rows = [0, 1]
     names = list(est.param_names or ())
     if est.extra.get("electrical_time_constant", 0.0) > 0 and "electrical_time_constant" in names:

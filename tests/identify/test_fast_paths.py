@@ -19,7 +19,8 @@ from motorsim.control import PlantModel
 
 #: A value of every parameter of the registered structures: each part set well away from its neutral value.
 VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "drive_limit": 150.0, "bias": 4.0,
-          "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0, "electrical_time_constant": 0.004}
+          "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0, "electrical_time_constant": 0.004,
+          "inertia_ratio": 1.5, "shaft_frequency": 150.0, "shaft_damping": 0.1}
 DT, DELAY = 0.002, 2
 #: Noise-free comparisons of the same model computed two ways: 1e-9 relative (observed ~1e-13).
 RTOL = 1e-9
@@ -169,7 +170,7 @@ def test_a_structures_step_is_its_simulation(s, alone):
     t = np.arange(n) * DT
     duty = Sine(13.0, 140).duty(n, DT).astype(float)
     ref = s.response(v, duty, t, initial_speed=2.0)
-    stepper, state, speed = s.stepper(v, np.diff(t)), (0.0, 2.0, 0.0), [2.0]
+    stepper, state, speed = s.stepper(v, np.diff(t)), s.plant(v).initial_state(0.0, 2.0), [2.0]
     for k in range(n - 1):
         state = stepper.step(k, state, duty[k])
         speed.append(state[1])
