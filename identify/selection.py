@@ -934,33 +934,14 @@ def _cover_richer(recs: list[Recording], est: Estimate, chosen: Candidate, mater
     ranges = dict(est.model_range)
     for candidate in richer[:RICHER_FITS]:
         try:
-            fitted = _chosen_fit(recs, candidate, fix_bias)
+            own = _chosen_fit(recs, candidate, fix_bias).confidence_interval(0.95)
         except (NotIdentifiableError, ValueError):
             continue
-        if _degenerate(fitted.covariance):
-            continue            # a numerically singular covariance gives no interval, only rounding
-        own = fitted.confidence_interval(0.95)
         for name in ("a", "b"):
             low, high = own[name]
             if math.isfinite(low) and math.isfinite(high):
                 ranges[name] = (min(ranges[name][0], low), max(ranges[name][1], high))
     return dataclasses.replace(est, model_range=ranges)
-
-
-#: Condition number of a covariance beyond which it is singular to double precision: its standard errors are
-#: rounding (0 by one path, 1e8 by another on the same fit), no interval.
-SINGULAR_CONDITION = 1e15
-
-
-def _degenerate(covariance: np.ndarray | None) -> bool:
-    """Whether ``covariance`` is missing, not finite, or singular to double precision (:data:`SINGULAR_CONDITION`,
-    on its correlation matrix, so the parameters' units do not count)."""
-    if covariance is None or not np.all(np.isfinite(covariance)):
-        return True
-    scale = np.sqrt(np.abs(np.diag(covariance)))
-    if np.any(scale == 0):
-        return True
-    return bool(np.linalg.cond(covariance / np.outer(scale, scale)) > SINGULAR_CONDITION)
 
 
 def _counts_swept(recs: list[Recording]) -> float:
