@@ -363,7 +363,7 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
                 previous = first.start
                 tau = 1.0 / first.start[1]
                 fastest = max(fastest, tau)
-                if tau >= MIN_TAU_SAMPLES * h or _lag_moves_a(first, fitted, segments[d], d):
+                if tau >= MIN_TAU_SAMPLES * h:
                     out.append(_candidate(recs, segments[d], d, name, starts=[first.start]))
                     worse = worse + 1 if far_worse(out[-1:], [*fitted, *out], level) else 0
                     if worse == STOP_AFTER and i + 1 < len(scan):
@@ -377,21 +377,6 @@ def _fit_higher(recs: list[Recording], segments: dict[int, list[Segment]], delay
                          f"sample (tau_e {fastest:.2g} s at most): a lag that short is part of a sample's delay "
                          "at this sample period; a faster sample rate would show it")
     return out
-
-
-def _lag_moves_a(first: CandidateFit, fitted: list[CandidateFit], segs: list[Segment], delay: int) -> bool:
-    """Whether a second pole faster than :data:`MIN_TAU_SAMPLES` samples still moves ``a``: its first fit's ``a``
-    against the first-order model's at the same delay on the same rows (one Gauss--Newton step from that model's
-    fit), by over :data:`MATERIAL`.  A lag of a fraction of a sample is held by the first-order model's whole
-    samples of delay only in part: at 5 ms a lag of 1 ms left ``a`` 1-13 % low, called clear."""
-    own = [f.candidate for f in fitted if f.candidate.input_delay == delay
-           and f.candidate.structure in ("bias", "linear") and math.isfinite(f.candidate.a)]
-    if not own or not math.isfinite(first.candidate.a):
-        return False
-    base = min(own, key=lambda c: c.residual_sum)
-    bias = next((f.bias for f in fitted if f.candidate is base), 0.0)
-    a, _ = _linear_on(first_rows(segs, HIGHER_FIRST_ROWS), base, bias)
-    return math.isfinite(a) and a != 0 and abs(first.candidate.a / a - 1) > MATERIAL
 
 
 def _lower_delay(fitted: list[CandidateFit], name: str, lowest: int, delays: list[int]) -> list[int]:
