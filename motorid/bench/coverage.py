@@ -152,6 +152,7 @@ class Outcome(NamedTuple):
     close: bool      #: a and b within 1 % of the truth
     clear: bool      #: the choice was called clear
     seconds: float   #: the fit's time
+    refused: bool = False   #: the default refused the recording (no answer: neither covered nor clear)
 
 
 def coverage_run(name: str, seed: int) -> Outcome:
@@ -162,9 +163,14 @@ def coverage_run(name: str, seed: int) -> Outcome:
     made = CLASSES[name](seed)
     rec, truth = made if isinstance(made, tuple) else (made, TRUTH.get(name, ((A, A), (B, B))))
     start = time.perf_counter()
+    from identify.errors import CorruptedSamplesError, NotIdentifiableError
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = fit(rec)
+        try:
+            est = fit(rec)
+        except (NotIdentifiableError, CorruptedSamplesError):
+            # a refusal is an outcome of the default, counted: no answer, so neither covered nor clear
+            return Outcome(False, False, False, time.perf_counter() - start, refused=True)
     seconds = time.perf_counter() - start
     ci = est.confidence_interval(0.95)
     (a_low, a_high), (b_low, b_high) = truth
@@ -186,8 +192,10 @@ def _row(name: str, outcomes: list[Outcome]) -> tuple[str, bool]:
     clear_share = sum(o.covered for o in clear) / len(clear) if clear else 1.0
     met = (name.startswith("past: ") or covered / n >= COVERAGE_GOAL) and clear_share >= COVERAGE_GOAL
     mean_s = sum(o.seconds for o in outcomes) / n
+    refused = sum(o.refused for o in outcomes)
     return (f"{name:44s} {n:5d} {100 * covered / n:7.0f} % {100 * sum(o.close for o in outcomes) / n:9.0f} % "
-            f"{len(clear):6d} {100 * clear_share:14.0f} % {mean_s:7.1f}   {'met' if met else 'MISSED'}"), met
+            f"{len(clear):6d} {100 * clear_share:14.0f} % {mean_s:7.1f}   {'met' if met else 'MISSED'}"
+            + (f" ({refused} refused)" if refused else "")), met
 
 
 def _progress(name: str, done: int, total: int) -> None:

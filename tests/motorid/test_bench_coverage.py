@@ -57,3 +57,17 @@ def test_an_unknown_class_or_no_seed_is_refused(capsys):
     with pytest.raises(SystemExit):
         bench_coverage(["--seeds", "0"])
     assert "--seeds" in capsys.readouterr().err
+
+
+def test_a_refused_recording_is_counted_not_raised(monkeypatch):
+    import identify
+    from identify.errors import NotIdentifiableError
+    from motorid.bench import coverage
+
+    def refuse(rec, *args, **kwargs):
+        raise NotIdentifiableError("no stable first-order model fits")
+    monkeypatch.setattr(identify, "fit", refuse)
+    outcome = coverage.coverage_run("past: driver clips the duty", 0)
+    assert outcome.refused and not (outcome.covered or outcome.clear)
+    row, met = coverage._row("past: driver clips the duty", [outcome])
+    assert "(1 refused)" in row and met          # no answer is never a clear wrong one
