@@ -21,8 +21,10 @@ whose sequential order keeps what the loop would give.
 
 Once numba is loaded in a process (a friction or prediction-error fit loads it), or once the process
 has sent :data:`COMPILE_AFTER` values through the recursion, the plain loop compiled by numba
-(:func:`compiled_recursion`) runs instead, at any length: 4 to 13 times faster than either, and the
-same numbers as ``lfilter`` bit for bit (the same products and sums in the same order).  A short
+(:func:`compiled_recursion`) runs instead of ``lfilter`` (from :data:`SHORT_RECORD` samples): 4 to 13
+times faster, and the same numbers bit for bit (the same products and sums in the same order).  Shorter
+records keep the scan whatever the process has loaded: its rounding differs from the loop's, and an answer
+must not depend on what ran before it in the process (a sweep's CSV is the same from one worker or two).  A short
 command that never loads numba does not pay its import (about 0.3 s) for it; ``MOTORID_NUMBA=0``
 turns it off, as every compiled loop (:func:`motorsim.compiled.numba_jit`).
 
@@ -130,7 +132,9 @@ def first_order_filter(e: float, x: np.ndarray, initial: float | np.ndarray = 0.
     start = np.zeros(columns.shape[1])
     start += initial                                 # a scalar or one value per column
     y = None
-    loop = _compiled_loop()
+    # only in place of lfilter, whose numbers it repeats bit for bit: the scan's rounding differs, so a record the
+    # scan takes keeps it whatever the process has loaded (the same answers in every process and worker)
+    loop = _compiled_loop() if len(x) >= SHORT_RECORD else None
     if loop is not None:
         y = target if target is not None else np.empty(columns.shape)
         loop(float(e), columns, start, y)

@@ -149,4 +149,6 @@ def test_a_pole_slower_than_the_whole_run_is_not_a_clear_choice():
         assert _covers(est, (25.0, 25.0), (3.0, 3.0))
     span = est.n_samples * est.sample_period
     if est.a * span < 1:
-        assert not est.selection.clear and "longer than the run" in est.selection.doubt
+        # said as the pole slower than the run, or as the interval the run does not determine
+        assert not est.selection.clear
+        assert "longer than the run" in est.selection.doubt or "does not determine" in est.selection.doubt
