@@ -174,7 +174,8 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
         inputs += turning
     moments = _moments(_columns(rows, inputs), rows.residual)
     base = list(range(len(own)))
-    _, jack, _, classical, _ = _fit_on(moments, base)
+    alone = _fit_on(moments, base)
+    _, jack, _, classical, _ = alone
     block = {}
     for i, name in enumerate(("a", "b")):
         if math.isfinite(jack[i, i]) and jack[i, i] > COLOURED ** 2 * classical[i, i]:
@@ -187,7 +188,7 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
     if curve:
         checks.append(_curve_check(estimate, _fit_on(moments, base + where[CURVE]), len(own), each))
     if turning:
-        checks.append(_angle_check(estimate, _fit_on(moments, base), _fit_on(moments, base + where[ANGLE]),
+        checks.append(_angle_check(estimate, alone, _fit_on(moments, base + where[ANGLE]),
                                    len(own), each))
     return Consistency(tuple(checks), block)
 
