@@ -45,7 +45,7 @@ from .estimate import Estimate
 from .selection_report import PartCheck
 from .sums import sum_squares
 
-__all__ = ["on_evidence", "Rule", "RULES", "CANDIDATES_DOUBT", "JOINT_Z", "PAIR_Z"]
+__all__ = ["on_evidence", "Rule", "RULES", "ASYMMETRIC", "DRIVE_LIMIT", "CURRENT_LIMIT", "CANDIDATES_DOUBT", "JOINT_Z", "PAIR_Z"]
 
 Answer = tuple[Estimate, Any, tuple]
 
@@ -271,9 +271,44 @@ DRIVE_LIMIT = Rule(
     lambda e: f"a limit of {e.extra['drive_limit']:.4g} {e.input_unit}, a = {e.a:.4g}, b = {e.b:.4g}",
     _limit_immaterial, _limit_answer)
 
+
+# --- a driver's current limit -----------------------------------------------------------------------------------
+
+def _current_fit(recs: list[Recording], delay: int, est0: Estimate) -> Estimate:
+    from .current_limit import _fit
+    return _fit(recs, delay, *_start(est0))
+
+
+def _current_immaterial(est: Estimate, recs: list[Recording]) -> str:
+    """"" when the limit cuts the largest torque the fitted model asks for by more than :data:`MATERIAL` of it."""
+    from .current_limit import asked_torque
+    top = asked_torque(est, recs)
+    limit = est.extra["current_limit"]
+    return ("" if limit < (1 - MATERIAL) * top else
+            f"the limit cuts the largest torque asked for, {top:.4g} rad/s^2, by less than {100 * MATERIAL:g} %")
+
+
+def _current_answer(est: Estimate) -> tuple[Estimate, str]:
+    """The answer's ``a`` and ``b`` intervals hold both together (each at ``1 - 0.05/2``, :data:`PAIR_Z`)."""
+    ci, se, z = est.confidence_interval(0.95), est.stderr(), PAIR_Z
+    ranges = {n: (min(ci[n][0], est.value(n) - z * se[n]), max(ci[n][1], est.value(n) + z * se[n])) for n in "ab"}
+    return dataclasses.replace(est, model_range=ranges), (
+        f"the driver limits the motor's current: the torque it gives is held within {est.extra['current_limit']:.4g} "
+        f"rad/s^2 (the back-EMF {100 * est.extra['emf_share']:.3g} % of a); a and b are the motor's below the limit, "
+        "which a controller must be given on purpose (its acceleration kept within it)")
+
+
+#: Where the gain is lower at high drive (or the motor slower when fast): the drive's torque is limited.
+CURRENT_LIMIT = Rule(
+    "current-limit", lambda c: c.split in ("low / high drive", "slow / fast", "gain by duty") and c.b[1] < c.b[0],
+    _current_fit, 5,
+    lambda e: (f"a limit of {e.extra['current_limit']:.4g} rad/s^2 (back-EMF {e.extra['emf_share']:.3g} of a), "
+               f"a = {e.a:.4g}, b = {e.b:.4g}"),
+    _current_immaterial, _current_answer)
+
 #: The rules the default applies, in the order tried.  :data:`DRIVE_LIMIT` is not among them: on the clipped-duty
 #: plant of ``motorid bench coverage`` (seeds 0-29) it made 28 answers right and clear that were honestly unclear,
 #: and 2 clear with an interval missing the truth by 2.0-2.5 of its standard errors (``b`` 3.0002 [3.00002, 3.0004]
 #: for 3): honest 95 % intervals, but a doubtful answer made clear and wrong, which the default never does for a
 #: bonus structure.  ``on_evidence(..., rules=(ASYMMETRIC, DRIVE_LIMIT))`` applies it.
-RULES: tuple[Rule, ...] = (ASYMMETRIC,)
+RULES: tuple[Rule, ...] = (ASYMMETRIC, CURRENT_LIMIT)

@@ -17,6 +17,7 @@ from motorsim.checks import ParameterError
 
 from .asymmetric import AsymmetricGain
 from .base import ModelStructure, Parameter
+from .current_limit import CurrentLimit
 from .drive_limit import DriveLimit
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
@@ -27,7 +28,8 @@ __all__ = ["ModelStructure", "Parameter", "REGISTERED", "structures", "structure
 
 #: Every structure motorid knows, simplest first (the default's order of simplicity).
 REGISTERED: tuple[ModelStructure, ...] = (FirstOrder(), FirstOrderBias(), CoulombFriction(), DeadZone(), Stiction(),
-                                          SecondOrder(), AsymmetricGain(), DriveLimit(), TwoMass(), TwoMassLoad())
+                                          SecondOrder(), AsymmetricGain(), DriveLimit(), CurrentLimit(), TwoMass(),
+                                          TwoMassLoad())
 
 
 def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
@@ -43,7 +45,7 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     >>> import identify
     >>> list(identify.structures())  # doctest: +NORMALIZE_WHITESPACE
     ['linear', 'bias', 'friction', 'dead-zone', 'stiction', 'second-order', 'asymmetric-gain', 'drive-limit',
-     'two-mass', 'two-mass-load']
+     'current-limit', 'two-mass', 'two-mass-load']
     >>> identify.structures()["friction"].param_names
     ('a', 'b', 'friction', 'bias')
     """
