@@ -280,8 +280,12 @@ def _current_fit(recs: list[Recording], delay: int, est0: Estimate) -> Estimate:
 
 
 def _current_immaterial(est: Estimate, recs: list[Recording]) -> str:
-    """"" when the limit cuts the largest torque the fitted model asks for by more than :data:`MATERIAL` of it."""
-    from .current_limit import asked_torque
+    """"" when the limit cuts the largest torque the fitted model asks for by more than :data:`MATERIAL` of it and acts
+    through a back-EMF (a share at its bound is a clip of the drive itself, the drive limit's form)."""
+    from .current_limit import MIN_SHARE, asked_torque
+    if est.extra["emf_share"] < 2 * MIN_SHARE:
+        return ("its back-EMF share is at its bound (no back-EMF inside the limit): what is limited is the drive "
+                "itself, a duty clipped, which this structure does not describe")
     top = asked_torque(est, recs)
     limit = est.extra["current_limit"]
     return ("" if limit < (1 - MATERIAL) * top else

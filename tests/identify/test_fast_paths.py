@@ -18,7 +18,8 @@ from motorsim.checks import ParameterError
 from motorsim.control import PlantModel
 
 #: A value of every parameter of the registered structures: each part set well away from its neutral value.
-VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "drive_limit": 150.0, "bias": 4.0,
+VALUES = {"a": 25.0, "b": 3.0, "b_forward": 3.3, "b_reverse": 2.7, "drive_limit": 150.0, "current_limit": 400.0,
+          "emf_share": 0.8, "bias": 4.0,
           "friction": 30.0, "dead_zone": 12.0, "static_friction": 45.0, "electrical_time_constant": 0.004,
           "inertia_ratio": 1.5, "shaft_frequency": 150.0, "shaft_damping": 0.1}
 DT, DELAY = 0.002, 2
@@ -81,7 +82,8 @@ def test_a_structure_the_simulator_cannot_run_is_refused_by_every_fast_path_by_n
     est = _estimate(s)
     for run in (lambda: s.plant(_values(s), DELAY), lambda: s.stepper(_values(s), np.full(3, DT)), est.motor,
                 est.io_system, lambda: PlantModel.from_source(est, counts_per_rev=4096)):
-        with pytest.raises(ParameterError, match="one gain.*b_forward 3.3 and b_reverse 2.7|no drive limit.*150"):
+        with pytest.raises(ParameterError, match="one gain.*b_forward 3.3 and b_reverse 2.7|no drive limit.*150|"
+                                                  "no current limit.*400"):
             run()
 
 

@@ -32,6 +32,7 @@ ACCEPTED = {
     "oe-electrical": ("input_delay",),
     "oe-asymmetric": ("input_delay", "covariance"),
     "oe-drive-limit": ("input_delay", "covariance"),
+    "oe-current-limit": ("input_delay", "covariance"),
     "pem-disturbance": ("input_delay", "friction", "disturbance_pole"),
 }
 

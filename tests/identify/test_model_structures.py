@@ -28,11 +28,11 @@ VALUES = {"linear": {"a": 25.0, "b": 3.0}, "bias": {"a": 25.0, "b": 3.0, "bias":
 def test_the_registry_lists_every_structure_by_name_simplest_first():
     found = identify.structures()
     assert list(found) == ["linear", "bias", "friction", "dead-zone", "stiction", "second-order", "asymmetric-gain",
-                           "drive-limit", "two-mass", "two-mass-load"]
-    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 5, 4, 4, 4, 5, 5]   # a gain per direction: b their mean
-    assert [s.rank for s in found.values()] == [0, 0, 0, 0, 1, 1, 0, 0, 2, 2]
+                           "drive-limit", "current-limit", "two-mass", "two-mass-load"]
+    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 5, 4, 4, 4, 5, 5, 5]   # a gain per direction: b their mean
+    assert [s.rank for s in found.values()] == [0, 0, 0, 0, 1, 1, 0, 0, 0, 2, 2]
     # fitted by the default only on the evidence of its part checks (or by name), not among its candidates
-    assert list(identify.structures(in_default=True)) == list(found)[:-4]
+    assert list(identify.structures(in_default=True)) == list(found)[:-5]
     assert all(isinstance(s, ModelStructure) and s.param_names[:2] == ("a", "b") for s in found.values())
     assert found["dead-zone"].units("V") == {"a": "1/s", "b": "(rad/s^2)/V", "friction": "rad/s^2",
                                              "bias": "rad/s^2", "dead_zone": "V"}
