@@ -187,7 +187,7 @@ def limit_response(a: float, b: float, limit: float, share: float, bias: float, 
     return angle, speed
 
 
-def segment_model(theta: Sequence[float], seg: Segment, w0: float) -> np.ndarray:
+def segment_model(theta: Sequence[float] | np.ndarray, seg: Segment, w0: float) -> np.ndarray:
     """The model's output on ``seg`` from initial speed ``w0``, ``theta = (a, b, L, s, d)`` (an angle from 0: its
     offset is the caller's)."""
     a, b, limit, share, d = (float(x) for x in theta)
@@ -195,7 +195,7 @@ def segment_model(theta: Sequence[float], seg: Segment, w0: float) -> np.ndarray
     return angle if seg.kind == "angle" else speed
 
 
-def initial_speed_fit(theta: Sequence[float], seg: Segment, w0: float | None = None) -> float:
+def initial_speed_fit(theta: Sequence[float] | np.ndarray, seg: Segment, w0: float | None = None) -> float:
     """The initial speed that fits ``seg`` best (a few secant-Newton steps on the least-squares cost)."""
     w = seg.initial_speed_guess() if w0 is None else float(w0)
     angle = seg.kind == "angle"

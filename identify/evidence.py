@@ -45,7 +45,8 @@ from .estimate import Estimate
 from .selection_report import PartCheck
 from .sums import sum_squares
 
-__all__ = ["on_evidence", "Rule", "RULES", "ASYMMETRIC", "DRIVE_LIMIT", "CURRENT_LIMIT", "CANDIDATES_DOUBT", "JOINT_Z", "PAIR_Z"]
+__all__ = ["on_evidence", "Rule", "RULES", "ASYMMETRIC", "DRIVE_LIMIT", "CURRENT_LIMIT", "CANDIDATES_DOUBT", "JOINT_Z",
+           "PAIR_Z"]
 
 Answer = tuple[Estimate, Any, tuple]
 

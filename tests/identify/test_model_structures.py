@@ -29,7 +29,7 @@ def test_the_registry_lists_every_structure_by_name_simplest_first():
     found = identify.structures()
     assert list(found) == ["linear", "bias", "friction", "dead-zone", "stiction", "second-order", "asymmetric-gain",
                            "drive-limit", "current-limit", "two-mass", "two-mass-load"]
-    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 5, 4, 4, 4, 5, 5, 5]   # a gain per direction: b their mean
+    assert [s.n_params for s in found.values()] == [2, 3, 4, 5, 5, 4, 4, 4, 5, 5, 5]  # asymmetric-gain: b their mean
     assert [s.rank for s in found.values()] == [0, 0, 0, 0, 1, 1, 0, 0, 0, 2, 2]
     # fitted by the default only on the evidence of its part checks (or by name), not among its candidates
     assert list(identify.structures(in_default=True)) == list(found)[:-5]
