@@ -1,6 +1,6 @@
 """``oe-asymmetric``: output error of the motor whose gain differs by direction, and the default's use of it.
 
-The structure (:class:`identify.model_structures.asymmetric.AsymmetricGain`) is
+The structure (:class:`identify.model_structures.drive_map.AsymmetricGain`) is
 ``d omega/dt = -a omega + b_forward u+ + b_reverse u- + d``: linear in the two halves of the drive, so its exact
 zero-order-hold response is the linear motor's (:func:`identify.sensitivity.zoh_response`) driven by
 ``b_forward u+ + b_reverse u-``, and its output-error fit is Gauss--Newton on ``(a, b_forward, b_reverse, d)`` with

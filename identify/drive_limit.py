@@ -1,6 +1,6 @@
 """``oe-drive-limit``: output error of the motor behind a driver that clips the duty it is sent.
 
-The structure (:class:`identify.model_structures.drive_limit.DriveLimit`) is
+The structure (:class:`identify.model_structures.drive_map.DriveLimit`) is
 ``d omega/dt = -a omega + b clip(u, -L, L) + d``: the linear motor driven by the clipped duty, so its fit is
 :func:`identify.asymmetry.fit_mapped`'s Gauss--Newton on ``(a, b, L, d)`` with the drive map ``b clip(u, L)``
 (derivatives ``clip(u, L)`` and ``b sign(u)`` where ``|u| > L``).  The cost is not smooth in ``L`` where it crosses a

@@ -15,10 +15,9 @@ from typing import Mapping, Sequence
 
 from motorsim.checks import ParameterError
 
-from .asymmetric import AsymmetricGain
 from .base import ModelStructure, Parameter
 from .current_limit import CurrentLimit
-from .drive_limit import DriveLimit
+from .drive_map import AsymmetricGain, DriveLimit
 from .first_order import CoulombFriction, DeadZone, FirstOrder, FirstOrderBias, Stiction
 from .second_order import SecondOrder
 from .two_mass import TwoMass, TwoMassLoad
