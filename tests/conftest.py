@@ -33,6 +33,10 @@ ROOT = Path(__file__).resolve().parent.parent
 SLOW = {
     "tests/identify/test_drive_limit.py::test_the_default_leaves_the_clipped_driver_unclear_and_the_rule_would_make_it_clear":
         "2.3 s: a 2000-sample plant integrated by RK4 in Python, the default and the drive limit's fits",
+    "tests/identify/test_current_limit.py::test_the_default_chooses_it_where_the_gain_is_lower_at_high_drive":
+        "2.4 s: a 4000-sample plant integrated by RK4 in Python, the default and the current limit's fits",
+    "tests/identify/test_current_limit.py::test_its_fit_of_the_bench_current_limit_holds_the_truth":
+        "1.5 s: a 4000-sample plant integrated by RK4 in Python and the current limit's fit from six starts",
     "tests/identify/test_asymmetric_gain.py::test_the_default_chooses_it_on_a_driver_stronger_forward":
         "2.5 s: two 4000-sample plants integrated by RK4 in Python, each fitted by the default twice over",
     "tests/identify/test_selection.py::test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_far_beyond_the_best":
