@@ -1,13 +1,17 @@
-"""Structures the default fits only where its part checks ask for them: a gain per direction, a driver limit.
+"""Structures the default fits only where its part checks ask for them: a gain per direction, a driver's limits.
 
 The part checks (:mod:`identify.consistency`) say where the chosen model's ``a`` and ``b`` differ between parts of
-the recording, and what that suggests.  Two of those suggestions are small, general structures:
+the recording, and what that suggests.  Three of those suggestions are small, general structures:
 
 * the forward and reverse parts' gains differ (``b forward 3.156, reverse 2.845: an asymmetric driver or
   gearbox?``): ``asymmetric-gain``, a gain per direction of the drive (:mod:`identify.asymmetry`);
 * the gain is lower at high drive (``the driver clips or limits current?``), or at high speed, where a sine's large
   duty is: ``drive-limit``, a driver that delivers at most ``drive_limit`` of the duty it is sent
-  (:mod:`identify.drive_limit`); measured, and not among the default's :data:`RULES` (its comment says why).
+  (:mod:`identify.drive_limit`); measured, and not among the default's :data:`RULES` (its comment says why);
+* the same parts (the gain lower at high drive, or when fast, or curving down with the duty): ``current-limit``, a
+  driver that holds the motor's current, so its torque ``b u - s a omega``, within a limit
+  (:mod:`identify.current_limit`).  A fit whose back-EMF share ``s`` lands on its bound is a limit of the drive
+  itself, not of the current, and is not chosen.
 
 :func:`on_evidence` fits the structure a materially differing split points to, and nothing where the parts agree
 (so it costs nothing there).  The structure is chosen only where
@@ -315,5 +319,8 @@ CURRENT_LIMIT = Rule(
 #: plant of ``motorid bench coverage`` (seeds 0-29) it made 28 answers right and clear that were honestly unclear,
 #: and 2 clear with an interval missing the truth by 2.0-2.5 of its standard errors (``b`` 3.0002 [3.00002, 3.0004]
 #: for 3): honest 95 % intervals, but a doubtful answer made clear and wrong, which the default never does for a
-#: bonus structure.  ``on_evidence(..., rules=(ASYMMETRIC, DRIVE_LIMIT))`` applies it.
+#: bonus structure.  ``on_evidence(..., rules=(ASYMMETRIC, DRIVE_LIMIT))`` applies it.  Those two misses are the
+#: intervals' own 5 %: over seeds 0-29 its fit's (estimate - truth)/stderr has an RMS of 1.09 for ``a``, 0.98 for
+#: ``b`` and 1.05 for the limit, and 2 of 30 runs fall outside the joint interval, as 1.5 would by chance; no
+#: honest 95 % interval makes it never clear and wrong.
 RULES: tuple[Rule, ...] = (ASYMMETRIC, CURRENT_LIMIT)

@@ -93,8 +93,8 @@ class CurrentLimit(FirstOrder):
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
         """The model's angle and speed at ``time`` under ``duty`` (zero-order hold, exact:
-        :func:`identify.current_limit.limit_response`), the duty delayed by ``input_delay`` samples (0 before)."""
-        from ..current_limit import limit_response
+        :func:`identify.limit_response.limit_response`), the duty delayed by ``input_delay`` samples (0 before)."""
+        from ..limit_response import limit_response
         v = self.values(values)
         t = np.asarray(time, dtype=float)
         u = np.asarray(duty, dtype=float)
@@ -107,7 +107,7 @@ class CurrentLimit(FirstOrder):
     def segment_output(self, values: Mapping[str, float], segment: Segment) -> np.ndarray:
         """The model's angle or speed on ``segment``, its initial speed fitted (the model is not linear in it) and,
         on an angle, its offset by least squares."""
-        from ..current_limit import initial_speed_fit, segment_model
+        from ..limit_response import initial_speed_fit, segment_model
         v = self.values(values)
         theta = (v["a"], v["b"], v["current_limit"], v["emf_share"], v["bias"])
         out = segment_model(theta, segment, initial_speed_fit(theta, segment))
