@@ -216,3 +216,18 @@ def test_the_torque_disturbance_fit_is_not_clear_where_its_halves_differ():
     # the halves' a straddle the run's mean (25 x 0.975) and the interval holds both
     ci = est.confidence_interval(0.95)
     assert halves[0] > halves[1] and ci["a"][0] <= halves[1] and halves[0] <= ci["a"][1]
+
+
+def test_a_fit_that_overrules_the_friction_screen_splits_the_evidence():
+    # a slow ramp through friction: the score test finds no friction, a fit of it on the screen's rows moves a and b;
+    # the selection carries both (not as words to parse), and with friction chosen the answer is not clear
+    est = _fit(misfits.MISFITS["slow ramp through friction"](3))
+    from identify.selection import REFUTED
+    noted = [n for n in est.selection.notes if n.startswith(REFUTED)]
+    assert noted, est.selection.notes
+    assert est.selection.chosen.structure == "friction" and not est.selection.clear
+    # the doubt quotes the screen's p-value and the fit's shift as the note does
+    p_text = noted[0].split("(p = ", 1)[1].split(")", 1)[0]
+    moved = noted[0].split("fitted on its rows, ", 1)[1]
+    assert f"the evidence for friction is split: the score test (p = {p_text}) finds none, while {moved}" in \
+        est.selection.doubt
