@@ -850,6 +850,9 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay, lag=True, nuisance=extra) for r in state.fitted),
                  np.zeros((size, size))) for aa in a_set]
     lagged = _has_lag(est)
+    # the share rule where the intervals are the fit's own; while the structure is not clear they are
+    # widened over candidates the prediction (from the fit's own errors) does not see: 0.8 of the target
+    share = bool(last.clear)
     hi_f = 0.8 * math.pi / dt
     best = None
     for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28):
@@ -865,7 +868,8 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
         worst_time, worst_reach = 0.0, np.zeros(2)
         for aa, past in zip(a_set, pasts):
             blk = information(aa, b * aa / a, duty, dt, delay, lag=True, nuisance=extra)
-            sec, reach = _time_to_target(past, blk, unit, reach_now, target, left, lagged, aim=_AIM)
+            sec, reach = _time_to_target(past, blk, unit, reach_now, target if share else _AIM * target, left,
+                                         lagged, aim=_AIM if share else 1.0)
             sec = max(sec, unit)
             worst_time, worst_reach = max(worst_time, sec), np.maximum(worst_reach, reach)
         key = (worst_time, float(np.max(worst_reach)))
@@ -931,9 +935,9 @@ def _time_to_target(past: np.ndarray, blk: np.ndarray, unit: float, reach_now: n
 
     With ``aim`` below 1, a reach must come within ``target (1 - (1 - aim) s)``, ``s`` the share of the
     information the block brings (``1 - (reach after / reach before)^2``), and at most :data:`_AIM_MOST`
-    of it: the runs so far are measured (their reach is the fit's own), the block's share is predicted, so a
-    block that brings almost all the information aims at ``aim`` of the target, one that adds a little to
-    runs already near it close to the target.
+    of it (``aim`` 1: within ``target``): the runs so far are measured (their reach is the fit's own),
+    the block's share is predicted, so a block that brings almost all the information aims at ``aim``
+    of the target, one that adds a little to runs already near it close to the target.
 
     ``past`` and ``blk`` are informations of ``(a, b, tau)`` (:func:`information` with ``lag``); the
     reaches predicted are those with the lag unknown, scaled from ``reach_now``, the fit's own: of a
@@ -950,6 +954,8 @@ def _time_to_target(past: np.ndarray, blk: np.ndarray, unit: float, reach_now: n
     before = reach(0.0)
 
     def within(r: np.ndarray) -> bool:
+        if aim >= 1:
+            return bool(np.all(r <= target))
         share = 1 - np.square(np.where(np.isfinite(before) & (before > 0), r / np.where(before > 0, before, 1), 0.0))
         return bool(np.all(r <= target * np.minimum(_AIM_MOST, 1 - (1 - aim) * np.clip(share, 0.0, 1.0))))
 
