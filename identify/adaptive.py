@@ -990,7 +990,8 @@ def lag_free_reach(runs: Sequence[Recording], est: Estimate, reach: Mapping[str,
     a, b = float(est.a), float(est.b)
     if not (math.isfinite(a) and math.isfinite(b)) or a <= 0:
         return {k: math.inf for k in _PARAMS}
-    info = sum(information(a, b, r.duty, dt, int(est.input_delay), lag=True, nuisance=_nuisance(est)) for r in runs)
+    parts = [information(a, b, r.duty, dt, int(est.input_delay), lag=True, nuisance=_nuisance(est)) for r in runs]
+    info = np.sum(parts, axis=0)
     base, free = _variances(_profiled(info, lag_free=False)), _variances(_profiled(info))
     out = {}
     for i, k in enumerate(_PARAMS):
