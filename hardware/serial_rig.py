@@ -551,6 +551,8 @@ class _RunState:
         self.duty_mismatches = 0
         self.first_mismatch = ""
         self.out_of_order = 0
+        self.clock_back = 0                     # samples whose device time did not advance: kept out
+        self.first_clock_back = ""
         self.encoder_flags = 0
         self.late_flags = 0
         self.last_index = -1
@@ -587,7 +589,16 @@ class _RunState:
                     t = k * self.dt
                     self._t_offset = t
                 else:
-                    self._unwrapped += (msg.time_us - self._prev_us) & 0xFFFFFFFF
+                    # the u32 clock's step as a signed 32-bit number: a wrap (every 71.6 minutes) is a small step
+                    # forward; a step back (or none) is a clock that contradicts the samples' order, not 71 minutes
+                    step = (msg.time_us - self._prev_us + 2**31) % 2**32 - 2**31
+                    if step <= 0:
+                        if not self.clock_back:
+                            self.first_clock_back = (f"sample {k} at {msg.time_us} us after sample {self.last_index} "
+                                                     f"at {self._prev_us} us")
+                        self.clock_back += 1
+                        continue
+                    self._unwrapped += step
                     self._prev_us = msg.time_us
                     t = self._t_offset + self._unwrapped * 1e-6
                 if self.loop is not None:
@@ -668,11 +679,16 @@ class _RunState:
                             f"(first: {self.first_mismatch})")
         if self.out_of_order:
             problems.append(f"{self.out_of_order} samples arrived out of order or beyond n_samples")
+        if self.clock_back:
+            problems.append(f"{self.clock_back} samples carry a device time that does not advance (first: "
+                            f"{self.first_clock_back}), kept out of the recording")
         if self.n > e.samples_sent:
             problems.append(f"received {self.n} samples but the device sent {e.samples_sent}")
-        elif e.samples_sent - self.n > self.link_lost:
-            problems.append(f"the device sent {e.samples_sent} samples, {self.n} arrived, but the link "
-                            f"sequence shows only {self.link_lost} frames lost")
+        elif e.samples_sent - (self.n + self.out_of_order + self.clock_back) > self.link_lost:
+            kept_out = self.out_of_order + self.clock_back
+            problems.append(f"the device sent {e.samples_sent} samples, {self.n} arrived"
+                            + (f" (and {kept_out} kept out above)" if kept_out else "")
+                            + f", but the link sequence shows only {self.link_lost} frames lost")
         ticks = e.samples_sent + e.samples_dropped
         if e.reason == P.EndReason.COMPLETE and ticks != len(self.expected):
             problems.append(f"END says {ticks} ticks (sent {e.samples_sent} + dropped {e.samples_dropped}), "

@@ -97,7 +97,17 @@ def _check_inputs(path: str) -> None:
     device never end, a sparse file of gigabytes take minutes): refused before any reader opens them."""
     from .files import InputFileError, open_input
     p = Path(path)
-    files = [p] if not p.is_dir() else [q for q in sorted(p.iterdir()) if not q.is_dir()]
+    folder = p if p.is_dir() else p.parent if p.suffix.lower() in (".db3", ".mcap") else None
+    files = [p]
+    if folder is not None:      # a bag's reader reads its folder: its metadata and every database file in it
+        files = [q for q in sorted(folder.iterdir()) if not q.is_dir()
+                 and (q.name == "metadata.yaml" or q.suffix.lower() in (".db3", ".mcap"))]
+        inside = folder.resolve()
+        for q in files:
+            if q.is_symlink() and inside not in q.resolve().parents:
+                raise RecordingFormatError(f"{q}: a link to {os.readlink(q)!r}, outside the bag's folder "
+                                           f"{str(folder)!r}; motorid reads only the log it is given: copy the "
+                                           "file into the folder")
     for name in files:
         try:
             open_input(name, what="log", max_bytes=MAX_LOG_BYTES).close()
