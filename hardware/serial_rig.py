@@ -88,6 +88,13 @@ class RecordedSample:
     counts: int
 
 
+#: The fastest line rate taken, in baud: beyond any UART or USB serial bridge (12 Mbaud for the fastest).
+MAX_BAUDRATE = 50_000_000
+#: The longest wait for a device, in s: an hour without a word is a device that is gone, not a slow one (the
+#: motor holds its last duty until the device's watchdog stops it).
+MAX_TIMEOUT = 3600.0
+
+
 class SerialRig:
     """The bench over a serial port, a context manager; implements ``motorsim.rig.Rig``.
 
@@ -136,7 +143,7 @@ class SerialRig:
                 raise ParameterError("port must be a device path or URL, got ''")
         elif not all(hasattr(port, a) for a in ("read", "write")):
             raise ParameterTypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
-        baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
+        baudrate = check_int("baudrate", baudrate, 1, MAX_BAUDRATE, allow_integral_float=False)
         if counts_per_rev is not None:
             counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
@@ -145,7 +152,7 @@ class SerialRig:
             raise ParameterError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
         for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
                             ("command_timeout", command_timeout)):
-            check_real(name, value, positive=True)
+            check_real(name, value, positive=True, below=MAX_TIMEOUT)
         self.port = port
         self.baudrate = baudrate
         self.requested_counts_per_rev = counts_per_rev

@@ -128,3 +128,13 @@ def test_every_file_argument_refuses_a_fifo_or_a_device(rec_path, tmp_path, make
     assert main([a.format(p=path, rec=rec_path, tmp=tmp_path) for a in argv]) == 2
     line = _error(capsys)
     assert str(path) in line and ("FIFO" in line if make == "fifo" else "a device" in line)
+
+
+@pytest.mark.parametrize("flag, value, said", [
+    ("--baud", "9223372036854775808", "--baud must be a line rate in 1...50000000 baud"),     # before: exit 0
+    ("--timeout", "4294967297", "--timeout must be a number of seconds > 0 and < 3600"),     # 136 years' wait
+])
+def test_live_link_flags_are_bounded(tmp_path, flag, value, said, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["live", "--port", "fake://?a=25&b=3", "--duration", "0.2", flag, value, "--out", str(out)]) == 2
+    assert said in _error(capsys) and not out.exists()
