@@ -590,24 +590,9 @@ class _RunState:
                 if k <= self.last_index or k >= n_expected:
                     self.out_of_order += 1
                     continue
-                if not self.seq:
-                    self._first_us = self._prev_us = msg.time_us
-                    self._unwrapped = 0
-                    t = k * self.dt
-                    self._t_offset = t
-                else:
-                    # the u32 clock's step as a signed 32-bit number: a wrap (every 71.6 minutes) is a small step
-                    # forward; a step back (or none) is a clock that contradicts the samples' order, not 71 minutes
-                    step = (msg.time_us - self._prev_us + 2**31) % 2**32 - 2**31
-                    if step <= 0:
-                        if not self.clock_back:
-                            self.first_clock_back = (f"sample {k} at {msg.time_us} us after sample {self.last_index} "
-                                                     f"at {self._prev_us} us")
-                        self.clock_back += 1
-                        continue
-                    self._unwrapped += step
-                    self._prev_us = msg.time_us
-                    t = self._t_offset + self._unwrapped * 1e-6
+                t = self._sample_time(k, msg.time_us)
+                if t is None:
+                    continue
                 if self.loop is not None:
                     if k == self.last_index + 1 and not self.unverified:
                         self.expected[k] = self.loop.step(k, msg.counts)
@@ -640,6 +625,27 @@ class _RunState:
             elif type(msg) is P.Boot:
                 self.boot = msg
                 return
+
+    def _sample_time(self, k: int, time_us: int) -> float | None:
+        """The time in s of sample ``k`` from the device's u32 microseconds, or None when it does not advance.
+
+        The step is read as a signed 32-bit number: a wrap (every 71.6 minutes) is a small step forward; a step
+        back (or none) contradicts the samples' order, and the sample is kept out and counted."""
+        if not self.seq:
+            self._first_us = self._prev_us = time_us
+            self._unwrapped = 0
+            self._t_offset = k * self.dt
+            return self._t_offset
+        step = (time_us - self._prev_us + 2**31) % 2**32 - 2**31
+        if step <= 0:
+            if not self.clock_back:
+                self.first_clock_back = f"sample {k} at {time_us} us after sample {self.last_index} at " \
+                                        f"{self._prev_us} us"
+            self.clock_back += 1
+            return None
+        self._unwrapped += step
+        self._prev_us = time_us
+        return self._t_offset + self._unwrapped * 1e-6
 
     def _unwrap_counts(self, k: int, raw: int) -> int:
         """The count of sample ``k`` on a counter that does not wrap: the device's is an int32, which wraps

@@ -470,7 +470,7 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
         Parameters the estimator fits (sets the shortest acceptable record).
     """
     check_length(recordings, n_params)
-    duty = check_input_changes(recordings)
+    check_input_changes(recordings)
     largest = [float(np.max(np.abs(r.duty))) if len(r) else 0.0 for r in recordings]
     k = int(np.argmax(largest))
     name = recordings[k].name(k if len(recordings) > 1 else None) if largest[k] > INPUT_SCALE_LIMIT else \

@@ -41,6 +41,7 @@ the first sample for a position controller).
 """
 from __future__ import annotations
 
+import builtins
 import dataclasses
 import math
 import os
@@ -460,7 +461,7 @@ class Recording:
         """Rows ``start:stop`` as a new Recording."""
         return self._rows(slice(start, stop))
 
-    def _rows(self, rows: "slice | np.ndarray") -> "Recording":
+    def _rows(self, rows: "builtins.slice | np.ndarray") -> "Recording":
         """The rows ``rows`` of this checked recording, not checked again: every rule of a recording holds on
         its rows (a short run of a jittered clock would fail the time-base rule, which is the whole clock's)."""
         sub = object.__new__(type(self))
