@@ -138,3 +138,75 @@ def test_live_link_flags_are_bounded(tmp_path, flag, value, said, capsys):
     out = tmp_path / "run.csv"
     assert main(["live", "--port", "fake://?a=25&b=3", "--duration", "0.2", flag, value, "--out", str(out)]) == 2
     assert said in _error(capsys) and not out.exists()
+
+
+# --- a locale without UTF-8 ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv", [["identify", "{rec}"], ["frequency", "{rec}"],
+                                  ["import", "{lab}", *_LAB, "--out", "{tmp}/o.csv"]])
+def test_reading_commands_print_plain_ascii_under_the_c_locale(rec_path, lab, tmp_path, argv):
+    import subprocess
+    import sys
+    from pathlib import Path
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONIOENCODING", "PYTHONUTF8", "LANG", "LC_CTYPE")}
+    env.update(LC_ALL="C", PYTHONUTF8="0", PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    done = subprocess.run([sys.executable, "-m", "motorid", *[a.format(rec=rec_path, lab=lab, tmp=tmp_path)
+                                                               for a in argv]],
+                          capture_output=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr.decode("ascii", "replace")
+    assert done.stdout.isascii() and done.stderr.isascii() and b"Error" not in done.stderr
+
+
+# --- a compressed ROS 2 bag: memory bounded by what the bag can honestly hold -------------------------------
+
+def _zstd_bag(path, bomb_mib: int = 0):
+    """A bag of two Float64 topics, each message zstd-compressed (``ros2 bag record --compression-mode message``);
+    with ``bomb_mib``, one message replaced by a zstd stream of that many MiB of zeros (no size in its header)."""
+    pytest.importorskip("rosbags", reason="rosbags (the ros extra) is not installed")
+    import sqlite3
+
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
+    from rosbags.typesys import Stores, get_typestore
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd  # type: ignore[import-not-found,no-redef]
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    f64 = store.types["std_msgs/msg/Float64"]
+    writer = Writer(path, version=9)
+    writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    t = np.arange(400) * 0.005
+    speed = np.cumsum(np.where((t // 0.25) % 2 == 0, 1.0, -1.0)) * 0.01
+    with writer:
+        cmd = writer.add_connection("/cmd", f64.__msgtype__, typestore=store)
+        spd = writer.add_connection("/speed", f64.__msgtype__, typestore=store)
+        for k in range(len(t)):
+            ns = 10**9 + int(round(t[k] * 1e9))
+            writer.write(cmd, ns, store.serialize_cdr(f64(data=100.0 if (t[k] // 0.25) % 2 == 0 else -100.0),
+                                                      f64.__msgtype__))
+            writer.write(spd, ns + 1000, store.serialize_cdr(f64(data=float(speed[k])), f64.__msgtype__))
+    if bomb_mib:
+        packer, zeros, blob = zstd.ZstdCompressor(), bytes(1 << 20), b""
+        blob = b"".join(packer.compress(zeros) for _ in range(bomb_mib)) + packer.flush()
+        db = next(path.glob("*.db3"))
+        with sqlite3.connect(db) as con:
+            con.execute("update messages set data = ? where id = 5", (blob,))
+        con.close()
+    return path
+
+
+def test_a_compressed_bag_that_unpacks_beyond_its_bound_is_refused(tmp_path, monkeypatch, capsys):
+    # before: a 135 kB bag whose one message unpacks to 2.5 GB took 5.2 GB of memory and 31 s, then "CDR
+    # message size mismatch"; here the bound is lowered to 64 MiB so that 300 MiB show it in a test's memory
+    import motorsim.robot_logs as logs
+    monkeypatch.setattr(logs, "BAG_MEMORY_FLOOR", 64 << 20)
+    flags = ["--time", "time_s", "--input", "/cmd:duty", "--speed", "/speed:rad/s"]
+    honest = _zstd_bag(tmp_path / "honest")
+    assert main(["import", str(honest), *flags, "--out", str(tmp_path / "h.csv")]) == 0   # within the bound
+    capsys.readouterr()
+    bomb = _zstd_bag(tmp_path / "bomb", bomb_mib=300)
+    assert main(["import", str(bomb), *flags, "--out", str(tmp_path / "b.csv")]) == 2
+    line = _error(capsys)
+    assert line.startswith(f"motorid: error: {bomb}: reading this bag needs more than the") and \
+        "a decompression bomb or a damaged bag, refused" in line
+    assert not (tmp_path / "b.csv").exists()
