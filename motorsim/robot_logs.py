@@ -23,6 +23,7 @@ WPILib data log (``.wpilog``; optional extra ``wpilib``: ``robotpy-wpiutil``'s `
 """
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -318,6 +319,10 @@ def _ros_series(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
                     add(connection.topic, timestamp * 1e-9, msg.data)
     except (RecordingFormatError, MemoryError):
         raise
+    except OSError as exc:
+        if exc.errno == errno.EFBIG:          # unpacked past the bound of :func:`_ros_child`
+            raise
+        raise RecordingFormatError(f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})") from None
     except Exception as exc:  # noqa: BLE001 -- rosbags raises its own zoo on a damaged or foreign bag
         raise RecordingFormatError(f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})") from None
     return {name: _sorted(times, values) for name, (times, values) in data.items()}
@@ -343,10 +348,20 @@ def _ros_child(path: str, extra: int, send: Any) -> None:
     faulthandler.disable()
     from .mat_files import _limit_address_space
     _limit_address_space(extra)
+    try:                 # a bag compressed by file is unpacked to a temporary file: bounded too (EFBIG, not a kill)
+        import resource
+        import signal
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (extra, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+    except (ImportError, AttributeError, OSError, ValueError):
+        pass
     try:
         send.send(("ok", _ros_series(path)))
     except MemoryError:
         send.send(("memory", ""))
+    except OSError as exc:
+        send.send(("memory", "") if exc.errno == errno.EFBIG else
+                  ("refused", f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})"))
     except RecordingFormatError as exc:
         send.send(("refused", str(exc)))
     except Exception as exc:  # noqa: BLE001 -- said in the parent as the reader's error
@@ -380,7 +395,8 @@ def _bounded_ros_series(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     if kind == "memory":
         raise RecordingFormatError(f"{path}: reading this bag needs more than the {extra} bytes a bag of "
                                    f"{_bag_bytes(path)} bytes may take ({BAG_MEMORY_RATIO} x its size + "
-                                   f"{BAG_MEMORY_FLOOR >> 20} MiB): a decompression bomb or a damaged bag, refused")
+                                   f"{BAG_MEMORY_FLOOR >> 20} MiB, in memory or unpacked to a file): a decompression "
+                                   "bomb or a damaged bag, refused")
     if kind == "refused":
         raise RecordingFormatError(payload)
     return payload

@@ -210,3 +210,32 @@ def test_a_compressed_bag_that_unpacks_beyond_its_bound_is_refused(tmp_path, mon
     assert line.startswith(f"motorid: error: {bomb}: reading this bag needs more than the") and \
         "a decompression bomb or a damaged bag, refused" in line
     assert not (tmp_path / "b.csv").exists()
+
+
+def test_a_bag_compressed_by_file_that_unpacks_beyond_its_bound_is_refused(tmp_path, monkeypatch, capsys):
+    # ros2 bag record --compression-mode file: the reader unpacks the database to a temporary file; before,
+    # a few kB unpacked to as much disk as the stream says (300 MiB here, then "not a readable ROS 2 bag")
+    pytest.importorskip("rosbags", reason="rosbags (the ros extra) is not installed")
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    import motorsim.robot_logs as logs
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd  # type: ignore[import-not-found,no-redef]
+    monkeypatch.setattr(logs, "BAG_MEMORY_FLOOR", 64 << 20)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    f64 = store.types["std_msgs/msg/Float64"]
+    bag = tmp_path / "bomb"
+    writer = Writer(bag, version=9)
+    writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    with writer:
+        conn = writer.add_connection("/speed", f64.__msgtype__, typestore=store)
+        writer.write(conn, 10**9, store.serialize_cdr(f64(data=1.0), f64.__msgtype__))
+    packed = next(bag.glob("*.zstd"))
+    packer, zeros = zstd.ZstdCompressor(), bytes(1 << 20)
+    packed.write_bytes(b"".join(packer.compress(zeros) for _ in range(300)) + packer.flush())
+    assert main(["import", str(bag), "--time", "time_s", "--input", "/speed:duty", "--speed", "/speed:rad/s",
+                 "--out", str(tmp_path / "b.csv")]) == 2
+    assert "a decompression bomb or a damaged bag, refused" in _error(capsys)
