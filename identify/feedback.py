@@ -66,7 +66,8 @@ from .friction import speed_reverses
 from .prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
 from .selection_report import SelectionReport
 
-__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
+__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "fit_changing_torque", "halves_checked",
+           "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
            "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS", "OUTPUT_LAGS",
            "sample_index", "clock_deviation", "LOST_SAMPLE_INTERVAL"]
 
@@ -391,8 +392,10 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
                  "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
                  "feedback adds")
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
-    return ClosedLoopFit(dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
-                                             notes=tuple(([doubt] if doubt else []) + notes)))
+    est = dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
+                              notes=tuple(([doubt] if doubt else []) + notes))
+    # the one check that needs no structure under feedback: the same a and b on each half of the run
+    return ClosedLoopFit(halves_checked(recs, est))
 
 
 #: How :func:`fit_changing_torque`'s note begins.
@@ -411,9 +414,8 @@ def fit_changing_torque(recordings: Sequence[Recording], why: str, *,
     data show no such disturbance (the output-error answer stands).
 
     The disturbance follows any torque that changes over the run, but also part of a gain or a pole that does (a
-    motor warming), which it would then average into one ``a`` and ``b``: the fit is made again on each half of the
-    rows, and where the halves' ``a`` or ``b`` differ (each at :data:`HALVES_LEVEL` / 2) by over
-    :data:`~identify.comparison.MATERIAL`, the answer is not clear and its intervals hold both halves'.
+    motor warming), which it would then average into one ``a`` and ``b``: :func:`fit_closed_loop` checks every
+    answer on the halves of its run (:func:`halves_checked`).
     """
     recs = list(recordings)
     found = fit_closed_loop(recs, why, input_delay=input_delay, opening=OPENING)
@@ -429,15 +431,21 @@ def fit_changing_torque(recordings: Sequence[Recording], why: str, *,
     est = dataclasses.replace(est, notes=renoted(est.notes),
                               selection=dataclasses.replace(est.selection, notes=renoted(est.selection.notes)),
                               speed_residuals=tuple(_innovation_rows(est, rec) for rec in recs))
-    halves = _halves(recs, est)
-    if not halves:
+    return est          # checked on its halves by fit_closed_loop
+
+
+def halves_checked(recs: Sequence[Recording], est: Estimate) -> Estimate:
+    """``est`` (a ``pem-disturbance`` answer) checked against its fits on each half of the rows: where the halves'
+    ``a`` or ``b`` differ (each at :data:`HALVES_LEVEL` / 2) by over :data:`~identify.comparison.MATERIAL`, not
+    clear, its intervals holding both halves' (a gain or a pole that changes over the run, which a disturbance
+    would average); ``est`` itself where they agree or a half cannot be fitted."""
+    halves = _halves(list(recs), est)
+    if not halves or est.selection is None:
         return est
-    parts = [est, *halves]
     apart = []
     for name in ("a", "b"):
         v1, v2 = (float(h.value(name)) for h in halves)
-        se1, se2 = (float(h.stderr()[name]) for h in halves)
-        se = math.hypot(se1, se2)
+        se = math.hypot(*(float(h.stderr()[name]) for h in halves))
         z = abs(v1 - v2) / se if se > 0 else math.inf
         if z > float(-special.ndtri(HALVES_LEVEL / 4)) and abs(v1 - v2) > MATERIAL * abs(float(est.value(name))):
             apart.append(f"{name} {v1:.4g} in the first half, {v2:.4g} in the second")
@@ -446,7 +454,7 @@ def fit_changing_torque(recordings: Sequence[Recording], why: str, *,
     doubt = (f"fitted on each half of the run, the torque-disturbance model gives {'; '.join(apart)}: a gain or a pole "
              "that changes over the run (a motor warming?), which no single a and b describes; this is not a clear "
              "choice, and the intervals hold both halves'")
-    est = _union(est, parts)
+    est = _union(est, [est, *halves])
     assert est.selection is not None
     selection = dataclasses.replace(est.selection, clear=False, doubt=doubt + (
         f"; {est.selection.doubt}" if est.selection.doubt else ""))
