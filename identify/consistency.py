@@ -32,7 +32,10 @@ The parts (:data:`SPLITS`):
 * ``forward / reverse``: ``ω > 0`` against ``ω < 0`` for ``a`` and ``d``, ``v > 0`` against ``v < 0`` for
   ``b`` (an asymmetric driver or gearbox);
 * ``low / high drive``: ``|v|`` at or below its median against above (a duty clipped, a current limit);
-* ``slow / fast``: ``|ω|`` at or below its median against above (friction or drag that varies with speed).
+* ``slow / fast``: ``|ω|`` at or below its median against above (friction or drag that varies with speed);
+* ``short / long interval``, on an uneven clock only (intervals spread over :data:`UNEVEN_CLOCK` of their
+  median): the sample interval at or below its median against above (a column that steps with the row, not
+  with the clock: a per-row sum, a rate over another interval, a log's time that is not the sample's).
 
 Three checks are no split: the same step with columns beside the model's own instead of per-part ones,
 
@@ -80,6 +83,7 @@ SPLITS: dict[str, tuple[str, str]] = {
     "forward / reverse": ("forward", "reverse"),
     "low / high drive": ("low drive", "high drive"),
     "slow / fast": ("slow", "fast"),
+    "short / long interval": ("short intervals", "long intervals"),
     "gain by duty": ("small duty", "full duty"),
     "angle torque": ("as fitted", "with an angle torque"),
     "friction by speed": ("as fitted", "with a friction curve"),
@@ -91,6 +95,12 @@ ANGLE = "angle torque"
 #: The check that is no split: the chosen model with a friction that changes with speed beside it
 #: (:func:`_friction_curve_inputs`).
 SPEED_CURVE = "friction by speed"
+#: The split by the sample interval, made on an uneven clock only: a model of the motor's own time gives the same ``a``
+#: and ``b`` over short and long intervals; a column that steps per row whatever the clock (a per-row sum, a rate
+#: over another interval, a log's time that is not the sample's) does not.
+CLOCK = "short / long interval"
+#: Spread of the sample intervals, relative to their median, from which the clock is uneven enough to split by it.
+UNEVEN_CLOCK = 0.2
 #: The split along the run: ``a`` and ``b`` take a linear trend over it, the constant a step at its middle.
 DRIFT = "early / late"
 #: The splits whose parts may also differ in a constant acceleration: a load switched on, a torque or friction on
@@ -364,6 +374,7 @@ class _Rows:
     bounds: list[tuple[int, int]]  # per segment: its rows
     friction: bool
     output_rms: float             # of the measured output less each segment's first value
+    interval: np.ndarray | None = None   # each row's sample interval, s (last row 0); None on uniform clocks
 
 
 def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
@@ -382,7 +393,7 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
     if not pairs:
         return None
     total = sum(len(seg.time) for seg, _ in pairs)
-    residual, speed, drive, order, bounds, outputs, angles = [], [], [], [], [], [], []
+    residual, speed, drive, order, bounds, outputs, angles, intervals = [], [], [], [], [], [], [], []
     respond: list[Callable[..., np.ndarray]] = []
     start = 0
     tau = float(values.get("electrical_time_constant", 0.0) or 0.0)
@@ -411,12 +422,16 @@ def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
         speed.append(np.append(w, 0.0))
         drive.append(np.append(v[:-1], 0.0))
         order.append((place + np.arange(n)) / max(total - 1, 1))
+        intervals.append(np.append(np.diff(t), 0.0))
         respond.append(functools.partial(_respond, a, t, seg.uniform, angle))
         bounds.append((start, start + n))
         start += n
+    every = np.concatenate(intervals)
+    uneven = every[:-1][every[:-1] > 0]
+    interval = every if len(uneven) and float(np.ptp(uneven)) > UNEVEN_CLOCK * float(np.median(uneven)) else None
     return _Rows(np.concatenate(residual), np.concatenate(speed), np.concatenate(drive), np.concatenate(order),
                  respond, np.concatenate(angles), bounds, float(values.get("friction", 0.0) or 0.0) > 0,
-                 float(np.sqrt(np.mean(np.concatenate(outputs) ** 2))))
+                 float(np.sqrt(np.mean(np.concatenate(outputs) ** 2))), interval)
 
 
 def _windows(pairs: list[tuple[Segment, np.ndarray]], total: int) -> list[tuple[Segment, np.ndarray, int]]:
@@ -535,6 +550,10 @@ def _split_labels(rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, np.nda
     fast = np.abs(w) > np.median(np.abs(w))
     if enough(fast, w * w):
         out["slow / fast"] = (fast, fast, fast)
+    if rows.interval is not None:
+        long = rows.interval > np.median(rows.interval[rows.interval > 0])
+        if enough(long, v * v):
+            out[CLOCK] = (long, long, long)
     return out
 
 
@@ -739,6 +758,9 @@ def _hint(name: str, a: tuple[float, float], b: tuple[float, float], parts: tupl
         which = [f"{n} {'rises' if d > 0 else 'falls'} from {_g(x[0])} to {_g(x[1])}" for n, d, x, big in
                  (("a", da, a, big_a), ("b", db, b, big_b)) if big]
         return f"{' and '.join(which)} over the run: warming, a load or a setting that changed?"
+    if name == CLOCK:
+        return ("the data step with the row, not with the clock (a speed or a time column that is not the sample's: "
+                "a per-row sum, a rate over another interval, a log's own time?)")
     if name == "forward / reverse":
         if big_b:
             return f"b {p} {_g(b[0])}, {q} {_g(b[1])}: an asymmetric driver or gearbox?"
