@@ -182,8 +182,10 @@ def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
 
 
 #: Samples the mode search walks one at a time from a wrong mode before it scans the rest again from there (when
-#: neither the walk nor the scan has come to rest, the two trajectories cannot be joined).
-WALK_LIMIT = 2000
+#: neither the walk nor the scan has come to rest, the two trajectories cannot be joined).  A Python step costs
+#: about a hundredth of a scan of 10^4 samples: on the bench's friction family 256 gave at most 13 scans an
+#: evaluation and the shortest fits (2000: at most 4, but a run that seldom rests walks long; 64: up to 60).
+WALK_LIMIT = 256
 
 
 def _special_intervals(modes: np.ndarray) -> np.ndarray:

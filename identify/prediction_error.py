@@ -33,8 +33,9 @@ friction (``friction=False``) ``c = 0``.
 The fit's Jacobian is analytic (:func:`filter_pass_sensitivities`): the filter's pass differentiated term by
 term, through the gain's Riccati recursion, the log-determinant and friction's event steps, one pass for every
 column instead of one pass per column of a finite difference, and without its error (which moved the standard
-errors by up to 6e-5 of themselves on ``motorid bench selection``'s torque-loop recordings).  The filter's passes are compiled by numba (a dependency where it has wheels); without it, or
-with ``MOTORID_NUMBA=0``, the same functions run in Python, slower, with the same numbers.
+errors by up to 6e-5 of themselves on ``motorid bench selection``'s torque-loop recordings). The filter's passes
+are compiled by numba (a dependency where it has wheels); without it, or with ``MOTORID_NUMBA=0``, the same
+functions run in Python, slower, with the same numbers.
 """
 from __future__ import annotations
 
