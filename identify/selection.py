@@ -72,7 +72,7 @@ from .data import (
 from .errors import NotIdentifiableError
 from .estimate import Estimate
 from .evidence import on_evidence
-from .feedback import ClosedLoopFit, feedback_evidence, fit_closed_loop
+from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
 from .friction import FrictionScan, friction_candidate, segments_reverse
 from .selection_report import SelectionReport
 from .sums import sum_squares
@@ -507,7 +507,76 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     closed = _closed_loop(recs, structures, input_delay, fix_bias)
     if closed.estimate is not None:
         return closed.estimate
-    loop_note = closed.note
+    changing = structures is None and not fix_bias and not closed.note
+    try:
+        est = _fit_open_loop(recs, structures, input_delay, fix_bias, closed.note)
+    except NotIdentifiableError as refusal:
+        # no output-error model could be fitted on all rows: a torque that changes over the run may be why
+        fallback = _changing_torque(recs, f"no output-error model could be fitted ({refusal})",
+                                    input_delay) if changing else None
+        if fallback is None:
+            raise
+        return fallback
+    if changing and _no_answer(est):
+        fallback = _changing_torque(recs, f"the output-error models give no answer ({_no_answer(est)})",
+                                    input_delay)
+        if fallback is not None:
+            return fallback
+    return est
+
+
+def _changing_torque(recs: list[Recording], why: str, input_delay: int | str) -> Estimate | None:
+    """:func:`~identify.feedback.fit_changing_torque`, None where it cannot be made either."""
+    try:
+        est = fit_changing_torque(recs, why, input_delay=input_delay)
+    except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError, ValueError):
+        return None
+    if est is None or est.selection is None:
+        return None
+    ci = est.confidence_interval(0.95)
+    if any(not (math.isfinite(ci[n][0]) and math.isfinite(ci[n][1]) and ci[n][0] < ci[n][1])
+           or ci[n][0] <= 0 <= ci[n][1] for n in ("a", "b")):
+        return None          # no answer either (or one pinned at a bound): the output-error answer stands
+    top = _one_magnitude(recs)
+    if top is None:
+        return est
+    # b u + d(t) at u = +-U is a gain of b + d(t)/U forward and b - d(t)/U in reverse: with one magnitude a torque
+    # that changes cannot be told from gains that differ by direction (_one_magnitude_bias, for a constant d)
+    doubt = (f"the input takes one magnitude, |u| = {top:g}, both ways, so a torque that changes over the run cannot "
+             "be told from forward and reverse gains that differ: this is not a clear choice; runs at two or more "
+             "amplitudes would separate them")
+    selection = dataclasses.replace(est.selection, clear=False, doubt=doubt + (
+        f"; {est.selection.doubt}" if est.selection.doubt else ""))
+    return dataclasses.replace(est, selection=selection, notes=(doubt, *est.notes))
+
+
+def _one_magnitude(recs: list[Recording]) -> float | None:
+    """The input's one magnitude where it takes one both ways (a binary PRBS, a square wave), else None."""
+    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
+    moving = moving[moving != 0]
+    if not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
+        return None
+    top = float(np.max(np.abs(moving)))
+    return top if float(np.mean(np.abs(moving) == top)) >= SINGLE_AMPLITUDE_SHARE else None
+
+
+def _no_answer(est: Estimate) -> str:
+    """Why the default's output-error answer is none (``""`` if it is one): not clear, and the 95 % interval of ``a``
+    or ``b`` unbounded or holding zero (the data do not tell the motor's pole or gain from none)."""
+    if est.selection is None or est.selection.clear:
+        return ""
+    ci = est.confidence_interval(0.95)
+    for name in ("a", "b"):
+        low, high = ci[name]
+        if not (math.isfinite(low) and math.isfinite(high)) or low <= 0 <= high:
+            return f"{name} in [{low:.4g}, {high:.4g}]"
+    return ""
+
+
+def _fit_open_loop(recs: list[Recording], structures: Sequence[str] | None, input_delay: int | str, fix_bias: bool,
+                   loop_note: str) -> Estimate:
+    """:func:`fit_selected` on a recording the closed-loop fit leaves to output error (``loop_note`` says why where
+    it was made in a loop after all)."""
     swept = _counts_swept(recs)
     few_note = ""
     if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a richer structure from their rounding
@@ -635,12 +704,8 @@ def _one_magnitude_bias(recs: list[Recording], est: Estimate, selection: Selecti
     :data:`MATERIAL`."""
     values = est.values()
     d = float(values.get("bias", 0.0) or 0.0)
-    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
-    moving = moving[moving != 0]
-    if d == 0 or not math.isfinite(d) or not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
-        return est, selection
-    top = float(np.max(np.abs(moving)))
-    if float(np.mean(np.abs(moving) == top)) < SINGLE_AMPLITUDE_SHARE:
+    top = _one_magnitude(recs)
+    if d == 0 or not math.isfinite(d) or top is None:
         return est, selection
     b, shift = float(est.b), abs(d) / top
     own = est.confidence_interval(0.95)["b"]
