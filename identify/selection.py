@@ -235,6 +235,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
             raise ParameterError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
     wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
     notes: list[str] = []
+    refuted: tuple[float, str] | None = None       # a fit that overruled the screen: its p and what it moved
     if input_delay == "auto":
         known = declared_input_delay(recs)
         top = max(largest_delay(recs, max_delay), known)
@@ -284,12 +285,14 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
             nonlinear = []
         elif moved:
             notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
+            refuted = (p, moved)
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
     fitted += _fit_higher_ranks(recs, segments, delays, fitted, sticking if nonlinear else [], higher, fix_bias,
                                 level, notes, top if widening and input_delay == "auto" else None)
-    return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+    selection = choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+    return dataclasses.replace(selection, refuted=refuted) if refuted else selection
 
 
 def _fit_higher_ranks(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],
@@ -839,7 +842,7 @@ def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidat
     """Where a fit overruled the screen (:data:`REFUTED`) and a nonlinear structure was chosen, the best linear
     candidate (when not already ``within``): the score test found no friction and a fit of it moved ``a`` and ``b``,
     so the data back the linear model by the one and friction by the other, and neither answer is ruled out."""
-    if not any(n.startswith(REFUTED) for n in selection.notes) or STRUCTURES[selection.chosen.structure].linear:
+    if selection.refuted is None or STRUCTURES[selection.chosen.structure].linear:
         return []
     linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank == 0
               and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
@@ -850,13 +853,12 @@ def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidat
 def _split_evidence(selection: Selection) -> Selection:
     """Not clear where a fit overruled the screen and a nonlinear structure was chosen: which structure the answer
     rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)."""
-    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
-    if not refuted or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
+    if selection.refuted is None or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
         return selection
-    test = refuted[0].split(": ", 1)[0].replace(REFUTED, "the score test")
-    moved = refuted[0].split("fitted on its rows, ", 1)[-1]
+    p, moved = selection.refuted
     return dataclasses.replace(selection, clear=False, doubt=(
-        f"the evidence for friction is split: {test} finds none, while {moved} on the first rows; the answer rests on "
+        f"the evidence for friction is split: the score test (p = {p:.2g}) finds none, while {moved} on the first "
+        "rows; the answer rests on "
         "a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
         "amplitudes would settle it"))
 
