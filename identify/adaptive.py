@@ -84,8 +84,10 @@ SIMULTANEOUS = statistics.NormalDist().inv_cdf(1 - (1 - _LEVEL) / 4) / _Z
 _MAX_ROUNDS = 40
 _GROWTH = 3.0          # a block lasts at most this many times the motor time so far
 _MARGIN = 1.08         # blocks run this much longer than predicted: one more round costs more
-_AIM = 0.8             # blocks are designed to bring the intervals to this share of the target: the
-                       # prediction is the linear model's, and friction or a lag take some of the information
+_AIM = 0.8             # a block bringing all the information is designed to bring the intervals to this
+                       # share of the target (the prediction is the linear model's, and friction or a lag
+                       # take some of the information); one adding a share of it, to 1 - (1 - _AIM) x share
+_AIM_MOST = 0.95       # and at most this share of the target: a prediction a few % short is one more round
 _PARAMS = ("a", "b")
 
 
@@ -251,7 +253,7 @@ def _reach(est: Estimate, level: float = _LEVEL) -> tuple[dict, dict]:
 # --------------------------------------------------------------------------------------------- information
 
 def information(a: float, b: float, duty: np.ndarray, sample_period: float, input_delay: int = 0,
-                lag: bool = False) -> np.ndarray:
+                lag: bool = False, nuisance: Sequence[str] = ()) -> np.ndarray:
     """Fisher information of ``(a, b)`` from one run's encoder angle, per unit angle-noise variance.
 
     The run's initial speed and encoder offset are profiled out (the Schur complement of the
@@ -259,10 +261,16 @@ def information(a: float, b: float, duty: np.ndarray, sample_period: float, inpu
     With ``lag``, the information is of ``(a, b, tau)``: ``tau`` a driver lag ``1/(tau s + 1)`` (or,
     the same to first order, a dead time) in front of the motor, at ``tau = 0``, where the angle's
     sensitivity to it is minus the speed (``d/dtau b/(s (s + a)(tau s + 1)) = -b/(s + a)``).
+    ``nuisance`` names parameters of the model's own (:data:`NUISANCE`), shared by every run, whose
+    rows and columns follow (sum the runs' informations, then profile them out with :func:`_profiled`):
+    ``"bias"`` (a constant acceleration), ``"friction"`` (Coulomb friction, ``-c sign(omega)``, the
+    linear model's speed's sign averaged over each sample), ``"dead_zone"`` (``-b d sign(u)``): friction
+    and a dead zone take the information of slow and small runs most, which a prediction from the linear
+    model alone leaves in.
 
     Returns
     -------
-    ndarray, shape (2, 2), or (3, 3) with ``lag``
+    ndarray, shape (2, 2), or (3, 3) with ``lag``; a row and column more per column of ``nuisance``
     """
     u = np.asarray(duty, dtype=float)
     if input_delay:
@@ -271,21 +279,65 @@ def information(a: float, b: float, duty: np.ndarray, sample_period: float, inpu
     resp = zoh_response(a, b, u, t, 0.0, uniform=True)
     S = resp.angle_sensitivity
     cols = [S[:, 0], S[:, 1]] + ([-resp.speed] if lag else []) + [S[:, 2], np.ones(len(u))]
+    if "bias" in nuisance or "friction" in nuisance:
+        cols.append(S[:, 3])
+    if "friction" in nuisance:
+        cols.append(zoh_response(a, 1.0, -_mean_direction(resp.speed), t, 0.0, uniform=True,
+                                 sensitivities=False).angle)
+    if "dead_zone" in nuisance:
+        cols.append(zoh_response(a, b, -np.sign(u), t, 0.0, uniform=True, sensitivities=False).angle)
+    # the run's own initial speed and encoder offset last, profiled out here; the shared nuisance before them
+    shared = len(cols) - (p := 3 if lag else 2) - 2
+    cols = cols[:p] + cols[p + 2:] + cols[p:p + 2]
     J = np.column_stack(cols)
     full = J.T @ J
-    p = 3 if lag else 2
+    p += shared
     A, B, C = full[:p, :p], full[:p, p:], full[p:, p:]
     try:
-        return A - B @ np.linalg.solve(C, B.T)
+        out = A - B @ np.linalg.solve(C, B.T)
     except np.linalg.LinAlgError:
         return A
+    return out if np.all(np.isfinite(out)) else A
 
 
-def _profiled(info: np.ndarray) -> np.ndarray:
-    """The (2, 2) information of ``(a, b)`` from a (3, 3) one of ``(a, b, tau)``, ``tau`` unknown."""
-    if info.shape == (2, 2) or not info[2, 2] > 0:
-        return info[:2, :2]
-    return info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]
+def _mean_direction(speed: np.ndarray) -> np.ndarray:
+    """The mean of ``sign(omega)`` over each sample interval (the speed taken linear within it): where
+    Coulomb friction acts, held as the drive is."""
+    w0, w1 = speed, np.append(speed[1:], speed[-1])
+    out = np.sign(w0 + w1)
+    cross = (w0 * w1 < 0)
+    phi = np.where(cross, w0 / np.where(cross, w0 - w1, 1.0), 0.0)     # the share of the interval before it
+    out = np.where(cross, np.sign(w0) * phi + np.sign(w1) * (1 - phi), out)
+    return np.where((w0 == 0) & (w1 != 0), np.sign(w1) / 2, np.where((w1 == 0) & (w0 != 0), np.sign(w0) / 2, out))
+
+
+#: Parameters of a structure that :func:`information` profiles out where the estimate has them.
+NUISANCE = ("bias", "friction", "dead_zone")
+
+
+def _nuisance(est: Estimate | None) -> tuple[str, ...]:
+    """The estimate's parameters among :data:`NUISANCE` (static friction counts as friction)."""
+    if est is None:
+        return ()
+    names = set(est.param_names)
+    if "static_friction" in names:
+        names.add("friction")
+    return tuple(k for k in NUISANCE if k in names)
+
+
+def _profiled(info: np.ndarray, lag_free: bool = True) -> np.ndarray:
+    """The (2, 2) information of ``(a, b)`` from one of ``(a, b, tau, shared nuisance...)``: the nuisance
+    unknown, ``tau`` unknown (``lag_free``) or known to be 0."""
+    keep = [0, 1] + [i for i in range(3, len(info))] if not lag_free and len(info) > 2 else list(range(len(info)))
+    m = info[np.ix_(keep, keep)]
+    if len(m) == 2:
+        return m
+    A, B, C = m[:2, :2], m[:2, 2:], m[2:, 2:]
+    try:
+        out = A - B @ np.linalg.solve(C, B.T)
+    except np.linalg.LinAlgError:
+        out = A - B @ np.linalg.pinv(C) @ B.T
+    return out if np.all(np.isfinite(out)) else A
 
 
 def _variances(info: np.ndarray) -> np.ndarray:
@@ -439,6 +491,19 @@ def _breakaway(run: Recording, delay: int) -> float | None:
         return None
     k = max(int(moved[0]) - 1 - delay, 0)
     return float(np.abs(run.duty[:k + 1]).max())
+
+
+def _turned(run: Recording, amplitude: float, breakaway: float | None) -> bool:
+    """Whether a ranging half-sine up to ``amplitude`` turned the shaft clearly: over 20 counts, and the
+    counts moving before 0.85 of the amplitude or a radian of travel.
+
+    A slow motor behind friction is first seen moving well after it breaks away (the angle grows as the
+    square of the time): a radian of travel is a clear turn however late the counts were seen moving.
+    """
+    counts = np.asarray(run.counts)
+    moved = abs(int(counts.max()) - int(counts.min()))
+    travel = 2 * math.pi * moved / (run.counts_per_rev or 1)
+    return moved > 20 and breakaway is not None and (breakaway < 0.85 * amplitude or travel >= 1.0)
 
 
 def _peak_speed(run: Recording) -> float:
@@ -638,9 +703,7 @@ class _Loop:
         ba = _breakaway(run, self.input_delay)
         if ba is not None and self.breakaway is None:
             self.breakaway = ba
-        counts = np.asarray(run.counts)
-        moved = abs(int(counts.max()) - int(counts.min()))
-        turned = moved > 20 and ba is not None and ba < 0.85 * amplitude
+        turned = _turned(run, amplitude, ba)
         over = (self.max_speed is not None and _peak_speed(run) > 0.5 * self.max_speed) or \
                (self.max_travel is not None and _travel(run) > 0.5 * self.max_travel)
         return turned or over
@@ -782,9 +845,14 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     else:
         a_set = [a / 4, a, 4 * a]
     a_set = sorted({x for x in a_set if x > 0})
-    pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay, lag=True) for r in state.fitted), np.zeros((3, 3)))
-             for aa in a_set]
+    extra = _nuisance(est)
+    size = 3 + len(extra) + ("bias" not in extra and "friction" in extra)
+    pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay, lag=True, nuisance=extra) for r in state.fitted),
+                 np.zeros((size, size))) for aa in a_set]
     lagged = _has_lag(est)
+    # the share rule where the intervals are the fit's own; while the structure is not clear they are
+    # widened over candidates the prediction (from the fit's own errors) does not see: 0.8 of the target
+    share = bool(last.clear)
     hi_f = 0.8 * math.pi / dt
     best = None
     for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28):
@@ -799,8 +867,9 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
         duty = ex.duty(n, dt, duty_limit)
         worst_time, worst_reach = 0.0, np.zeros(2)
         for aa, past in zip(a_set, pasts):
-            blk = information(aa, b * aa / a, duty, dt, delay, lag=True)
-            sec, reach = _time_to_target(past, blk, unit, reach_now, _AIM * target, left, lagged)
+            blk = information(aa, b * aa / a, duty, dt, delay, lag=True, nuisance=extra)
+            sec, reach = _time_to_target(past, blk, unit, reach_now, target if share else _AIM * target, left,
+                                         lagged, aim=_AIM if share else 1.0)
             sec = max(sec, unit)
             worst_time, worst_reach = max(worst_time, sec), np.maximum(worst_reach, reach)
         key = (worst_time, float(np.max(worst_reach)))
@@ -824,7 +893,8 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     if not math.isfinite(sec) or length < sec * _MARGIN:
         # the reach predicted after the block actually run
         duty = ex.duty(max(int(round(unit / dt)), 20), dt, duty_limit)
-        reach = np.max([_time_to_target(p, information(aa, b * aa / a, duty, dt, delay, lag=True), unit, reach_now,
+        reach = np.max([_time_to_target(p, information(aa, b * aa / a, duty, dt, delay, lag=True, nuisance=extra), unit,
+                                        reach_now,
                                         target, length, lagged, fixed=True)[1] for aa, p in zip(a_set, pasts)], axis=0)
     return ex, length, {k: float(r) for k, r in zip(_PARAMS, reach)}, why
 
@@ -857,16 +927,23 @@ def _what(ex: Excitation) -> str:
 
 
 def _time_to_target(past: np.ndarray, blk: np.ndarray, unit: float, reach_now: np.ndarray, target: float,
-                    left: float, lagged: bool = True, fixed: bool = False) -> tuple[float, np.ndarray]:
+                    left: float, lagged: bool = True, fixed: bool = False, aim: float = 1.0
+                    ) -> tuple[float, np.ndarray]:
     """Seconds of a block (information ``blk`` per ``unit`` s, growing in proportion) until both reaches
     are within ``target`` %, and the reaches then (``inf`` s and the reaches after ``left`` s when it is
     not enough; with ``fixed``, the reaches after ``left`` s).
+
+    With ``aim`` below 1, a reach must come within ``target (1 - (1 - aim) s)``, ``s`` the share of the
+    information the block brings (``1 - (reach after / reach before)^2``), and at most :data:`_AIM_MOST`
+    of it (``aim`` 1: within ``target``): the runs so far are measured (their reach is the fit's own),
+    the block's share is predicted, so a block that brings almost all the information aims at ``aim``
+    of the target, one that adds a little to runs already near it close to the target.
 
     ``past`` and ``blk`` are informations of ``(a, b, tau)`` (:func:`information` with ``lag``); the
     reaches predicted are those with the lag unknown, scaled from ``reach_now``, the fit's own: of a
     model with a lag (``lagged``) or of one without, whose reach is that of the lag known to be 0.
     """
-    var_now = _variances(_profiled(past) if lagged else past[:2, :2])
+    var_now = _variances(_profiled(past, lag_free=lagged))
 
     def reach(seconds: float) -> np.ndarray:
         ratio = _variances(_profiled(past + blk * (seconds / unit))) / np.where(var_now > 0, var_now, 1)
@@ -874,12 +951,20 @@ def _time_to_target(past: np.ndarray, blk: np.ndarray, unit: float, reach_now: n
 
     if fixed:
         return left, reach(left)
-    if np.any(reach(left) > target):
+    before = reach(0.0)
+
+    def within(r: np.ndarray) -> bool:
+        if aim >= 1:
+            return bool(np.all(r <= target))
+        share = 1 - np.square(np.where(np.isfinite(before) & (before > 0), r / np.where(before > 0, before, 1), 0.0))
+        return bool(np.all(r <= target * np.minimum(_AIM_MOST, 1 - (1 - aim) * np.clip(share, 0.0, 1.0))))
+
+    if not within(reach(left)):
         return math.inf, reach(left)
     lo, hi = 0.0, left
     for _ in range(40):
         mid = (lo + hi) / 2
-        if np.all(reach(mid) <= target):
+        if within(reach(mid)):
             hi = mid
         else:
             lo = mid
@@ -905,8 +990,9 @@ def lag_free_reach(runs: Sequence[Recording], est: Estimate, reach: Mapping[str,
     a, b = float(est.a), float(est.b)
     if not (math.isfinite(a) and math.isfinite(b)) or a <= 0:
         return {k: math.inf for k in _PARAMS}
-    info = sum((information(a, b, r.duty, dt, int(est.input_delay), lag=True) for r in runs), np.zeros((3, 3)))
-    base, free = _variances(info[:2, :2]), _variances(_profiled(info))
+    parts = [information(a, b, r.duty, dt, int(est.input_delay), lag=True, nuisance=_nuisance(est)) for r in runs]
+    info = np.sum(parts, axis=0)
+    base, free = _variances(_profiled(info, lag_free=False)), _variances(_profiled(info))
     out = {}
     for i, k in enumerate(_PARAMS):
         ratio = free[i] / base[i] if base[i] > 0 and math.isfinite(free[i]) else math.inf

@@ -1,10 +1,10 @@
 """The friction response and its sensitivities in one pass over the samples, compiled by numba.
 
 :func:`identify.friction_response.friction_response` finds each interval's mode (moving,
-stuck, a zero crossing) by a fixed-point iteration of vectorised scans; with many events
-(heavy friction, a multisine that stops the shaft often) it takes several passes, each a
-short Python loop over the events.  Walked sample by sample, the mode of every interval is
-simply read off the state at its start, so one pass gives the speed, the angle, the modes
+stuck, a zero crossing) by a vectorised scan and walks the intervals whose mode the scan got
+wrong one at a time in Python; with many events (heavy friction, a multisine that stops the
+shaft often) each scan carries a short Python loop over the events.  Walked sample by sample,
+the mode of every interval is simply read off the state at its start, so one pass gives the speed, the angle, the modes
 and the derivatives with respect to :data:`~identify.friction_response.FRICTION_PARAMETERS`
 together, by the same formulas (the moving step and its derivatives, the event step
 differentiated through the event time by complex step, a stuck interval carrying nothing).
@@ -52,7 +52,7 @@ def _event_value(w: complex, force: complex, c: complex, a: complex, h: float, s
 def event_interval(w: float, force: float, c: float, a: float, h: float, s: float,
                    static: float) -> tuple[float, float]:
     """End speed and angle increment of an event interval in floats (a plain step when it is not one: a mode
-    the fixed-point iteration of :mod:`identify.friction_response` is about to correct); at the zero the shaft
+    the mode search of :mod:`identify.friction_response` is about to correct); at the zero the shaft
     sticks while ``|force| <= static`` (the static friction, ``>= c``)."""
     target = (force - s * c) / a
     ratio = (w - target) / (-target) if target != 0 else 0.0

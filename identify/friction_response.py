@@ -16,12 +16,15 @@ except at the few event and sticking intervals, so the whole run is a first-orde
 linear scan (:func:`motorsim.recursion.first_order_filter` on a uniform clock, a blocked
 closed form on a jittered one), a short Python loop over the *events* only, which replaces the scan's
 step there by the exact nonlinear one, and the scan again with those steps put in
-its forcing.  On a uniform clock ``e, p, q`` are computed once.  The modes are found by a
-fixed-point iteration: simulate with the current modes, read the modes off the
-result, repeat until they agree.  Before the first disagreement the trajectory is
-exact, so each pass fixes at least one more interval; because an event resets the
-speed, a wrong mode does not spread, and with the previous evaluation's modes as the
-start (what a fit does) one or two passes suffice.
+its forcing.  On a uniform clock ``e, p, q`` are computed once.  The modes are found in one
+scan: simulate with guessed modes (the previous evaluation's, what a fit passes, or the
+linear response's), read the modes off the result.  Before the first disagreement the
+trajectory is exact; from there the intervals are stepped one at a time from their exact
+state until that walk and the scan are both at rest at the same sample, after which the
+past no longer matters and the scan is exact again up to its next disagreement.  Only a
+walk that meets no common rest within :data:`WALK_LIMIT` samples scans the rest again.
+(A fixed-point iteration of whole scans, which this replaced, took up to hundreds of scans
+where wrong modes followed one another.)
 
 Sensitivities: between events the derivatives with respect to ``(a, b, c, d, z,
 omega_0)`` obey the same linear recursions (same ``M_k``), differentiated term by
@@ -33,8 +36,8 @@ LAPACK call instead of a loop), and a second scan spreads them.
 With numba (a dependency where it has wheels), on at least
 :data:`~identify.friction_kernel.KERNEL_MIN_ROWS` samples or once the process has loaded it
 (:func:`~identify.friction_kernel.kernel_for`), the same response, modes and sensitivities come
-from one compiled pass over the samples instead (:mod:`identify.friction_kernel`: no fixed-point
-passes, about 45 times faster on a run with many events); the two agree to rounding (a test compares them).
+from one compiled pass over the samples instead (:mod:`identify.friction_kernel`: no walk in
+Python); the two agree to rounding (a test compares them).
 
 This is the exact derivative of the exact model wherever the modes do not change,
 i.e. everywhere except on a set of measure zero — unlike a smoothed friction law,
@@ -72,7 +75,7 @@ class FrictionResponse:
         Per interval: +1 / -1 moving with that sign, 0 stuck, +2 / -2 an event
         from that sign; pass back as ``modes`` to start the next evaluation.
     passes : int
-        Fixed-point passes used.
+        Scans over the samples used (1 but where the mode search scanned again, :data:`WALK_LIMIT`).
     """
 
     angle: np.ndarray
@@ -178,14 +181,103 @@ def _modes_of(iv: _Intervals, w: np.ndarray) -> np.ndarray:
     return (s * np.where(event, 2, 1)).astype(np.int8)
 
 
+#: Samples the mode search walks one at a time from a wrong mode before it scans the rest again from there (when
+#: neither the walk nor the scan has come to rest, the two trajectories cannot be joined).  A Python step costs
+#: about a hundredth of a scan of 10^4 samples: on the bench's friction family 256 gave at most 13 scans an
+#: evaluation and the shortest fits (2000: at most 4, but a run that seldom rests walks long; 64: up to 60).
+WALK_LIMIT = 256
+
+
+def _special_intervals(modes: np.ndarray) -> np.ndarray:
+    """The intervals the scan replaces by an exact step: the events and the first of each stuck stretch."""
+    after_stuck = np.concatenate([[False], modes[:-1] == 0])
+    return np.flatnonzero((np.abs(modes) == 2) | ((modes == 0) & ~after_stuck))
+
+
+def _suffix(iv: _Intervals, start: int) -> _Intervals:
+    """The intervals from ``start`` on (views)."""
+    out = object.__new__(_Intervals)
+    out.__dict__.update(iv.__dict__)
+    for name in ("v", "v_zone", "force", "h", "e", "p", "q", "dp", "dq", "decay", "cum"):
+        setattr(out, name, getattr(iv, name)[start:])
+    return out
+
+
+def _exact_step(iv: _Intervals, k: int, w: float) -> tuple[int, float, float]:
+    """Interval ``k`` from the speed ``w`` at its start, its mode read off ``w`` (as :func:`_modes_of`): the mode,
+    the end speed and the angle increment, by the formulas of :func:`_trajectory`."""
+    force, c = float(iv.force[k]), iv.c
+    e, p, q = float(iv.e[k]), float(iv.p[k]), float(iv.q[k])
+    rest = abs(w) <= iv.rest
+    if rest:
+        s = (1.0 if force > 0 else -1.0) if abs(force) > iv.static else 0.0
+    else:
+        s = 1.0 if w > 0 else -1.0
+    g = force - s * c
+    end = e * w + p * g
+    if not rest and s * end < 0:
+        w_next, d_angle = event_interval(w, force, c, iv.a, float(iv.h[k]), s, iv.static)
+        return int(2 * s), w_next, d_angle
+    if s == 0.0:
+        return 0, 0.0, 0.0
+    return int(s), end, p * w + q * g
+
+
+def _searched(iv: _Intervals, guess: np.ndarray, w_start: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Speed, angle increments and modes of every interval, the modes found in one scan from ``guess``: the
+    scan is exact up to its first interval whose mode its own speed contradicts; from there the intervals are
+    stepped one at a time, each from its exact state, until both that walk and the scan are at rest at the same
+    sample (the past then no longer matters: the scan is exact again from there, up to its next contradiction).
+    Only where the two do not meet within :data:`WALK_LIMIT` samples is the rest scanned again, from the walk's
+    state.  Returns ``(speed, angle increments, modes, scans)``."""
+    m = len(iv.h)
+    speed = np.empty(m + 1)
+    speed[0] = w_start
+    d_angle = np.empty(m)
+    modes = np.empty(m, dtype=np.int8)
+    start, scans = 0, 0
+    while True:
+        sub = iv if start == 0 else _suffix(iv, start)
+        w, dth, _ = _trajectory(sub, guess[start:], float(speed[start]))
+        scans += 1
+        read = _modes_of(sub, w)
+        n = len(read)
+        resting = np.abs(w) <= iv.rest
+        done = 0                    # intervals of this scan settled (relative to start); speed[start + done] is set
+        for k in np.flatnonzero(read != guess[start:]).tolist():
+            if k < done:            # walked over already
+                continue
+            speed[start + done + 1:start + k + 1] = w[done + 1:k + 1]
+            d_angle[start + done:start + k] = dth[done:k]
+            modes[start + done:start + k] = read[done:k]
+            j, wj = k, float(w[k])
+            while True:             # one interval at a time from the exact state
+                modes[start + j], wj, d_angle[start + j] = _exact_step(iv, start + j, wj)
+                j += 1
+                speed[start + j] = wj
+                if j == n or (abs(wj) <= iv.rest and resting[j]) or j - k >= WALK_LIMIT:
+                    break
+            done = j
+            if j == n:
+                return speed, d_angle, modes, scans
+            if not resting[j] or abs(wj) > iv.rest:     # not rejoined: scan the rest again from here
+                break
+        else:                       # the scan is exact from `done` to the end
+            speed[start + done + 1:] = w[done + 1:]
+            d_angle[start + done:] = dth[done:]
+            modes[start + done:] = read[done:]
+            return speed, d_angle, modes, scans
+        start += done
+        guess = np.concatenate([guess[:start], read[done:]])
+
+
 def _trajectory(iv: _Intervals, modes: np.ndarray, w_start: float):
     """Speed and angle for given modes; the event steps exact (module docstring)."""
     s = np.sign(modes).astype(float)
     moving = modes != 0
     g = iv.force - s * iv.c
     f = np.where(moving, iv.p * g, 0.0)
-    after_stuck = np.concatenate([[False], modes[:-1] == 0])
-    special = np.flatnonzero((np.abs(modes) == 2) | ((modes == 0) & ~after_stuck))
+    special = _special_intervals(modes)
     start = np.array([w_start])
     base = first_order_scan(iv.decay, f[:, None], start, iv.uniform)[:, 0]
     decay = _special_decay(iv, special)
@@ -255,7 +347,7 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
     sensitivities : bool
         Also compute the derivatives (default True).
     modes : ndarray, optional
-        Start of the mode iteration (a previous response's ``modes``).
+        The modes the scan starts from (a previous response's ``modes``).
     static_friction : float
         Static friction (stiction) in rad/s^2: the force ``|b v + d|`` the shaft at rest needs to break away,
         and below which a speed reaching zero sticks; the friction level when smaller (default 0: none).
@@ -277,14 +369,8 @@ def friction_response(a: float, b: float, friction: float, bias: float, dead_zon
     if modes is None or len(modes) != len(iv.h):
         lin = first_order_scan(iv.decay, (iv.p * iv.force)[:, None], np.array([initial_speed]), uniform)[:, 0]
         modes = _modes_of(iv, lin)
-    passes = 0
-    while True:     # ends: each pass makes at least one more interval's mode exact (module docstring)
-        passes += 1
-        w, d_angle, special = _trajectory(iv, modes, initial_speed)
-        new = _modes_of(iv, w)
-        if np.array_equal(new, modes) or passes > len(iv.h):
-            break
-        modes = new
+    w, d_angle, modes, passes = _searched(iv, np.asarray(modes, dtype=np.int8), float(initial_speed))
+    special = _special_intervals(modes)
     angle = np.concatenate([[0.0], np.cumsum(d_angle)])
     if not sensitivities:
         return FrictionResponse(angle, w, None, None, modes, passes)

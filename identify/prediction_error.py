@@ -30,8 +30,12 @@ it starts), with ``Q = 0`` there is none (the fit is then an output-error fit wi
 settles on the measured trajectory).  Without
 friction (``friction=False``) ``c = 0``.
 
-The filter's pass over the samples is compiled by numba (a dependency where it has wheels); without
-it, or with ``MOTORID_NUMBA=0``, the same function runs in Python, slower, with the same numbers.
+The fit's Jacobian is analytic (:func:`filter_pass_sensitivities`): the filter's pass differentiated term by
+term, through the gain's Riccati recursion, the log-determinant and friction's event steps, one pass for every
+column instead of one pass per column of a finite difference, and without its error (which moved the standard
+errors by up to 6e-5 of themselves on ``motorid bench selection``'s torque-loop recordings). The filter's passes
+are compiled by numba (a dependency where it has wheels); without it, or with ``MOTORID_NUMBA=0``, the same
+functions run in Python, slower, with the same numbers.
 """
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ from motorsim.recording import Recording
 from .data import Segment, as_recordings, check_excitation, check_input_delay, prepare_segments, residual_unit
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .friction_kernel import event_interval
+from .friction_kernel import _COMPLEX_STEP, _event_value, event_interval
 from .start import initial_guess
 from .sums import sum_squares
 from .uncertainty import robust_covariance
@@ -58,6 +62,7 @@ from .validation import segment_fit_percent
 
 __all__ = ["fit_prediction_error", "solve_prediction_error", "PredictionErrorFit", "innovations", "PARAMETERS",
            "filter_pass", "covariance_step", "compiled_filter_pass",
+           "filter_pass_sensitivities", "compiled_sensitivity_pass",
            "DIFFUSE", "STEADY", "START_POLES", "START_LOG_RATIOS"]
 
 #: The fitted parameters, in order (``friction`` left out when ``friction=False``).
@@ -168,6 +173,231 @@ def covariance_step(p00: float, p01: float, p02: float, p11: float, p12: float, 
     return n00, n01, n02, e * r11 + p * r12, phi * r12, phi * r22 + ratio
 
 
+def _coefficient_derivatives(a: float, h: float, e: float, p: float, q: float) -> tuple[float, float, float]:
+    """``de/da, dp/da, dq/da`` of :func:`motorsim.plant.first_order_coefficients` (a power series for small
+    ``a h``, as :mod:`identify.friction_response` has them)."""
+    x = a * h
+    if abs(x) < 1e-5:
+        return -h * e, h * h * (-0.5 + x / 3.0), h * h * h * (-1.0 / 6.0 + x / 12.0)
+    dp = (h * e - p) / a
+    return -h * e, dp, (-dp - q) / a
+
+
+def _covariance_derivative(dp00: float, dp01: float, dp02: float, dp11: float, dp12: float, dp22: float,
+                           p00: float, p01: float, p02: float, p11: float, p12: float, p22: float,
+                           g0: float, g1: float, g2: float, k0: float, k1: float, k2: float,
+                           dg0: float, dg1: float, dg2: float, dk0: float, dk1: float, dk2: float,
+                           e: float, p: float, q: float, phi: float, de: float, dpp: float, dq: float,
+                           dphi: float, dratio: float, speed_kind: bool) -> tuple[float, float, float, float, float,
+                                                                                   float]:
+    """The derivative of :func:`covariance_step` along one parameter: ``dP`` (six numbers) from the step's
+    inputs and their derivatives (``dpp`` is ``dp/d``, the step's ``p``; ``de``, ``dq``, ``dphi``, ``dratio``
+    those of the others), term by term."""
+    m01 = p01 - g0 * k1
+    m02 = p02 - g0 * k2
+    m11 = p11 - g1 * k1
+    m12 = p12 - g1 * k2
+    m22 = p22 - g2 * k2
+    d00 = dp00 - dg0 * k0 - g0 * dk0
+    d01 = dp01 - dg0 * k1 - g0 * dk1
+    d02 = dp02 - dg0 * k2 - g0 * dk2
+    d11 = dp11 - dg1 * k1 - g1 * dk1
+    d12 = dp12 - dg1 * k2 - g1 * dk2
+    d22 = dp22 - dg2 * k2 - g2 * dk2
+    r01 = m01 + p * m11 + q * m12
+    r02 = m02 + p * m12 + q * m22
+    r11 = e * m11 + p * m12
+    r12 = e * m12 + p * m22
+    r22 = phi * m22
+    s00 = d00 + dpp * m01 + p * d01 + dq * m02 + q * d02
+    s01 = d01 + dpp * m11 + p * d11 + dq * m12 + q * d12
+    s02 = d02 + dpp * m12 + p * d12 + dq * m22 + q * d22
+    s11 = de * m11 + e * d11 + dpp * m12 + p * d12
+    s12 = de * m12 + e * d12 + dpp * m22 + p * d22
+    s22 = dphi * m22 + phi * d22
+    n00, n01, n02 = dp00, dp01, dp02
+    if not speed_kind:
+        n00 = s00 + dpp * r01 + p * s01 + dq * r02 + q * s02
+        n01 = de * r01 + e * s01 + dpp * r02 + p * s02
+        n02 = dphi * r02 + phi * s02
+    return (n00, n01, n02, de * r11 + e * s11 + dpp * r12 + p * s12, dphi * r12 + phi * s12,
+            dphi * r22 + phi * s22 + dratio)
+
+
+def _covariance_derivatives(dcov: np.ndarray, dk: np.ndarray, p00: float, p01: float, p02: float, p11: float,
+                            p12: float, p22: float, g0: float, g1: float, g2: float, k0: float, k1: float, k2: float,
+                            e: float, p: float, q: float, phi: float, de: float, dpp: float, dq: float,
+                            speed_kind: bool) -> None:
+    """:func:`covariance_step`'s derivatives along ``a``, ``phi`` and ``ratio`` (the rows of ``dcov``), in place
+    (``dk``: the gain's derivatives, a column per parameter)."""
+    for i in range(3):
+        j = 0 if i == 0 else 3 + i
+        dg0, dg1, dg2 = (0.0, dcov[i, 3], dcov[i, 4]) if speed_kind else (dcov[i, 0], dcov[i, 1], dcov[i, 2])
+        along_a = 1.0 if i == 0 else 0.0            # e, p, q move with a alone; phi and ratio are their own
+        along_phi = 1.0 if i == 1 else 0.0
+        along_ratio = 1.0 if i == 2 else 0.0
+        dcov[i, 0], dcov[i, 1], dcov[i, 2], dcov[i, 3], dcov[i, 4], dcov[i, 5] = _covariance_derivative(
+            dcov[i, 0], dcov[i, 1], dcov[i, 2], dcov[i, 3], dcov[i, 4], dcov[i, 5],
+            p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, dg0, dg1, dg2, dk[0, j], dk[1, j], dk[2, j],
+            e, p, q, phi, de * along_a, dpp * along_a, dq * along_a, along_phi, along_ratio, speed_kind)
+
+
+def _gain_derivatives(dcov: np.ndarray, dk: np.ndarray, dscale: np.ndarray, dlog_det: np.ndarray, k0: float,
+                      k1: float, k2: float, s_var: float, scale: float, weight: float, speed_kind: bool) -> None:
+    """The gain's, the scale's (``1/sqrt(s_var)``) and the log-determinant's derivatives along ``a``, ``phi`` and
+    ``ratio`` from the covariance's (``dcov``, a row each), in place (``weight``: the log-determinant's count of
+    this variance)."""
+    for i in range(3):
+        j = 0 if i == 0 else 3 + i              # a, phi, ratio
+        dg0, dg1, dg2 = (0.0, dcov[i, 3], dcov[i, 4]) if speed_kind else (dcov[i, 0], dcov[i, 1], dcov[i, 2])
+        ds = dcov[i, 3] if speed_kind else dcov[i, 0]
+        dk[0, j] = (dg0 - k0 * ds) / s_var
+        dk[1, j] = (dg1 - k1 * ds) / s_var
+        dk[2, j] = (dg2 - k2 * ds) / s_var
+        dscale[j] = -0.5 * scale * ds / s_var
+        dlog_det[j] += weight * ds / s_var
+
+
+def _moving_step_sensitivities(sw: np.ndarray, sth: np.ndarray, dforce: np.ndarray, w: float, g: float, s: float,
+                               e: float, p: float, q: float, de: float, dpp: float, dq: float) -> None:
+    """The speed's and the angle's derivatives carried through a moving interval (``g`` the force less friction
+    of sign ``s``), in place."""
+    for j in range(6):
+        dg = dforce[j] - (s if j == 2 else 0.0)
+        sth[j] += p * sw[j] + q * dg
+        sw[j] = e * sw[j] + p * dg
+    sth[0] += dpp * w + dq * g
+    sw[0] += de * w + dpp * g
+
+
+def _event_step_sensitivities(sw: np.ndarray, sth: np.ndarray, dforce: np.ndarray, dw: np.ndarray, dth: np.ndarray,
+                              w: float, force: float, c: float, a: float, h: float, s: float) -> None:
+    """The speed's and the angle's derivatives ``sw``, ``sth`` carried through an event interval (the speed reaches
+    zero inside it), in place: the event step's partials with respect to ``(w, force, c, a)`` by complex step
+    (into ``dw``, ``dth``), ``dforce`` the force's derivatives."""
+    stick = abs(force) <= c
+    for i in range(4):
+        arg = w if i == 0 else force if i == 1 else c if i == 2 else a
+        step = _COMPLEX_STEP * max(abs(arg), 1.0)
+        zw = complex(w, step) if i == 0 else complex(w, 0.0)
+        zf = complex(force, step) if i == 1 else complex(force, 0.0)
+        zc = complex(c, step) if i == 2 else complex(c, 0.0)
+        za = complex(a, step) if i == 3 else complex(a, 0.0)
+        cw, cth = _event_value(zw, zf, zc, za, h, s, stick)
+        dw[i] = cw.imag / step
+        dth[i] = cth.imag / step
+    for j in range(6):
+        f_w = dw[1] * dforce[j] + (dw[3] if j == 0 else dw[2] if j == 2 else 0.0)
+        f_th = dth[1] * dforce[j] + (dth[3] if j == 0 else dth[2] if j == 2 else 0.0)
+        sth[j] += dth[0] * sw[j] + f_th
+        sw[j] = dw[0] * sw[j] + f_w
+
+
+def filter_pass_sensitivities(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: float, q: float, a: float,
+                              h: float, b: float, c: float, bias: float, phi: float, ratio: float, w0: float,
+                              eps: np.ndarray, jac: np.ndarray, dlog_det: np.ndarray) -> float:
+    """:func:`filter_pass` with the derivatives of its innovations (each over its standard deviation) and of its
+    log-determinant with respect to ``(a, b, c, bias, phi, ratio)``, into ``jac`` (shape ``(6, len(u))``) and
+    ``dlog_det`` (6): the same recursion differentiated term by term (the state's, the covariance's and the
+    gain's derivatives carried along; the gain's held with the gain once the covariance has settled; an event
+    interval's step differentiated through the event time by complex step, as the friction response's).  The
+    innovations and the log-determinant are :func:`filter_pass`'s, the same operations in the same order."""
+    n = len(u)
+    de, dpp, dq = _coefficient_derivatives(a, h, e, p, q)
+    th = y[0] if not speed_kind else 0.0
+    w = w0 if not speed_kind else y[0]
+    d = 0.0
+    p00 = 1.0 if not speed_kind else 0.0
+    p01 = p02 = p12 = 0.0
+    p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
+    p22 = DIFFUSE / (h * h) / (h * h)
+    # the derivatives of the covariance along a, phi and ratio (rows), six numbers each; of the state along all six
+    dcov = np.zeros((3, 6))
+    sth = np.zeros(6)
+    sw = np.zeros(6)
+    sd = np.zeros(6)
+    dk = np.zeros((3, 6))           # rows: the gain's three numbers; columns: the six parameters
+    dscale = np.zeros(6)
+    dforce = np.zeros(6)
+    dw = np.zeros(4)
+    dth = np.zeros(4)
+    for j in range(6):
+        dlog_det[j] = 0.0
+    log_det = 0.0
+    settled = steady = False
+    s_var = k0 = k1 = k2 = scale = 1.0
+    g0 = g1 = g2 = 0.0
+    for k in range(n):
+        if not steady:
+            s_var = (p11 if speed_kind else p00) + 1.0
+            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
+            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
+            scale = 1.0 / math.sqrt(s_var)
+            weight = (n - k if settled else 1)
+            log_det += weight * math.log(s_var)
+            _gain_derivatives(dcov, dk, dscale, dlog_det, k0, k1, k2, s_var, scale, weight, speed_kind)
+            steady = settled
+        ek = y[k] - (w if speed_kind else th)
+        eps[k] = ek * scale
+        for j in range(6):
+            dek = -(sw[j] if speed_kind else sth[j])
+            jac[j, k] = dek * scale + ek * dscale[j]
+            sth[j] += dk[0, j] * ek + k0 * dek
+            sw[j] += dk[1, j] * ek + k1 * dek
+            sd[j] += dk[2, j] * ek + k2 * dek
+        th += k0 * ek
+        w += k1 * ek
+        d += k2 * ek
+        force = b * u[k] + bias + d
+        for j in range(6):
+            dforce[j] = sd[j]
+        dforce[1] += u[k]
+        dforce[3] += 1.0
+        s = 0.0
+        event = False
+        if c > 0.0:
+            if w == 0.0:
+                s = (1.0 if force > 0 else -1.0) if abs(force) > c else 0.0
+            else:
+                s = 1.0 if w > 0 else -1.0
+            if s == 0.0:
+                d_angle, w_next = 0.0, 0.0
+            else:
+                end = e * w + p * (force - s * c)
+                if w != 0.0 and s * end < 0.0:
+                    w_next, d_angle = event_interval(w, force, c, a, h, s, c)
+                    event = True
+                else:
+                    w_next, d_angle = end, p * w + q * (force - s * c)
+        else:
+            s = 1.0 if w > 0 else -1.0                  # only c's column uses it (friction left out: not fitted)
+            w_next, d_angle = e * w + p * force, p * w + q * force
+        if c > 0.0 and s == 0.0:                        # stuck: the speed is 0 whatever the parameters
+            for j in range(6):
+                sw[j] = 0.0
+        elif event:
+            _event_step_sensitivities(sw, sth, dforce, dw, dth, w, force, c, a, h, s)
+        else:
+            _moving_step_sensitivities(sw, sth, dforce, w, force - s * c, s, e, p, q, de, dpp, dq)
+        th += d_angle
+        w = w_next
+        for j in range(6):
+            sd[j] = phi * sd[j]
+        sd[4] += d
+        d = phi * d
+        if steady:
+            continue
+        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
+                                                       phi, ratio, speed_kind)
+        _covariance_derivatives(dcov, dk, p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q, phi, de, dpp,
+                                dq, speed_kind)
+        settled = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
+                   and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
+                   and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
+        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
+    return log_det
+
+
 @functools.cache
 def compiled_filter_pass() -> Callable[..., float] | None:
     """:func:`filter_pass` compiled by numba (cached on disk); None without numba or with ``MOTORID_NUMBA=0``."""
@@ -177,6 +407,28 @@ def compiled_filter_pass() -> Callable[..., float] | None:
     import types
     scope = dict(filter_pass.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step))
     return jit(types.FunctionType(filter_pass.__code__, scope, filter_pass.__name__))
+
+
+@functools.cache
+def compiled_sensitivity_pass() -> Callable[..., float] | None:
+    """:func:`filter_pass_sensitivities` compiled by numba (cached on disk); None without numba or with
+    ``MOTORID_NUMBA=0``."""
+    jit = numba_jit()
+    if jit is None:
+        return None
+    import types
+    function = filter_pass_sensitivities
+    event_step = types.FunctionType(_event_step_sensitivities.__code__,
+                                    dict(_event_step_sensitivities.__globals__, _event_value=jit(_event_value)),
+                                    _event_step_sensitivities.__name__)
+    scope = dict(function.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step),
+                 _covariance_derivatives=jit(types.FunctionType(
+                     _covariance_derivatives.__code__,
+                     dict(_covariance_derivatives.__globals__, _covariance_derivative=jit(_covariance_derivative)),
+                     _covariance_derivatives.__name__)),
+                 _gain_derivatives=jit(_gain_derivatives), _moving_step_sensitivities=jit(_moving_step_sensitivities),
+                 _coefficient_derivatives=jit(_coefficient_derivatives), _event_step_sensitivities=jit(event_step))
+    return jit(types.FunctionType(function.__code__, scope, function.__name__))
 
 
 #: Start values of the disturbance's pole per sample and of ``log(Q/R)`` tried before the fit (the
@@ -240,6 +492,52 @@ class _Problem:
                                    math.exp(min(lr, LOG_RATIO_LIMIT)), float(w0), out[row:row + n])
             row += n
         return out * math.exp(min(0.5 * log_det / max(self.n_rows, 1), LOG_RATIO_LIMIT))
+
+    def jacobian(self, x: np.ndarray, factors: np.ndarray | None = None,
+                 keep: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`innovations` at ``x`` and their derivatives with respect to ``x``'s entries, analytic
+        (:func:`filter_pass_sensitivities`): shape ``(n_rows, len(x))``, in Fortran order (what MINPACK takes).
+        ``keep`` (default all) chooses ``x``'s entries and ``factors`` multiplies each kept column (a change of
+        coordinates' ``dx/dz``)."""
+        a, b, c, bias, phi, lr = self.unpack(x)
+        h = self.h
+        kernel = compiled_sensitivity_pass() or filter_pass_sensitivities
+        out = np.empty(self.n_rows)
+        full = np.empty((6, self.n_rows))
+        dlog = np.zeros(6)
+        part = np.empty(6)
+        row = 0
+        e, p, q = first_order_coefficients(a, h)
+        ratio = math.exp(min(lr, LOG_RATIO_LIMIT))
+        log_det = 0.0
+        for seg, w0 in zip(self.segments, self.w0):
+            n = len(seg.time)
+            log_det += kernel(seg.drive, seg.output, seg.kind == "speed", e, p, q, a, h, b, c, bias, phi, ratio,
+                              float(w0), out[row:row + n], full[:, row:row + n], part)
+            dlog += part
+            row += n
+        half = 0.5 / max(self.n_rows, 1)
+        level = half * log_det
+        scale = math.exp(min(level, LOG_RATIO_LIMIT))
+        # x's entries among (a, b, c, bias, phi, ratio); the last is log(ratio): d ratio / d log(ratio) = ratio
+        columns = [0, 1] + ([2] if self.friction else []) + [3]
+        chain = [1.0] * len(columns)
+        if self.disturbance:
+            if self.pole is None:
+                columns.append(4)
+                chain.append(1.0)
+            columns.append(5)
+            chain.append(ratio if lr < LOG_RATIO_LIMIT else 0.0)
+        keep = range(len(columns)) if keep is None else keep
+        jac = np.empty((len(keep), self.n_rows))
+        for i, m in enumerate(keep):       # d r / d theta = (d eps + eps d level) * scale
+            j = columns[m]
+            factor = scale * chain[m] * (1.0 if factors is None else float(factors[i]))
+            np.multiply(full[j], factor, out=jac[i])
+            if level < LOG_RATIO_LIMIT:
+                jac[i] += (factor * half * dlog[j]) * out
+        out *= scale
+        return out, jac.T
 
 
 @dataclasses.dataclass
@@ -441,8 +739,9 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     """Minimise the criterion from ``x0``: the parameters, the residuals and their Jacobian.
 
     Levenberg–Marquardt (MINPACK, through :func:`scipy.optimize.least_squares`) in coordinates that keep
-    ``a > 0``, ``c > 0`` and ``0 < phi < 1`` without bounds (logarithms and a logistic), with a
-    forward-difference Jacobian carried back to the parameters by the chain rule.  With the pole held at 1
+    ``a > 0``, ``c > 0`` and ``0 < phi < 1`` without bounds (logarithms and a logistic), with the analytic
+    Jacobian of :meth:`_Problem.jacobian` (:func:`filter_pass_sensitivities`) carried to those coordinates and back
+    by the chain rule.  With the pole held at 1
     the bias is held at its start: it is then the disturbance's starting level, which the filter's diffuse
     start already takes, so the criterion hardly depends on it and its step would only stall the others'
     (its Jacobian column is returned as zeros).
@@ -468,17 +767,27 @@ def _solve(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
             return np.full(problem.n_rows, 1e6)
         return problem.innovations(x)
 
+    def dx_dz(x: np.ndarray) -> np.ndarray:
+        scale = np.ones(len(x))
+        scale[positive] = x[positive]
+        if pole is not None:
+            scale[pole] = x[pole] * (1.0 - x[pole])
+        return scale
+
+    def jacobian(z: np.ndarray) -> np.ndarray:
+        x = to_x(z)
+        if not (x[0] * problem.h < 2.0 and (not problem.disturbance or abs(x[-1]) < 80.0)):
+            return np.zeros((problem.n_rows, len(free)))
+        return problem.jacobian(x, dx_dz(x)[free], [int(j) for j in free])[1]
+
     z0 = np.array(x0, dtype=float)
     z0[positive] = np.log(np.maximum(x0[positive], 1e-12))
     if pole is not None:
         phi0 = min(max(float(x0[pole]), 1e-6), 1.0 - 1e-6)
         z0[pole] = math.log(phi0 / (1.0 - phi0))
-    res = least_squares(residuals, z0[free], method="lm", x_scale="jac")
+    res = least_squares(residuals, z0[free], jac=jacobian, method="lm", x_scale="jac")
     x = to_x(res.x)
-    scale = np.ones(len(x))                      # dx/dz of each coordinate
-    scale[positive] = x[positive]
-    if pole is not None:
-        scale[pole] = x[pole] * (1.0 - x[pole])
+    scale = dx_dz(x)                             # dx/dz of each coordinate
     jac = np.zeros((len(res.fun), len(x)))
     with np.errstate(divide="ignore", invalid="ignore"):
         jac[:, free] = np.where(scale[free] > 0, res.jac / np.where(scale[free] > 0, scale[free], 1.0), 0.0)

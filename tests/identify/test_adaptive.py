@@ -215,3 +215,69 @@ def test_a_bad_guess_is_refused_naming_it():
         run_until(_rig(), 1.0, guess=(-1.0, 3.0))
     with pytest.raises(ParameterError, match="guess b"):
         run_until(_rig(), 1.0, guess=(25.0, 0.0))
+
+
+def test_a_shared_nuisance_is_profiled_out_over_every_run_at_once():
+    # friction and a bias are the motor's, not a run's: summed over runs and then profiled out, the
+    # information of (a, b) is that of the stacked runs with one friction and bias column and each run's
+    # own initial speed and offset; the columns here are the simulator's own finite differences
+    # (Coulomb friction -c sign(omega), a bias +d), where the friction's sign switches inside a sample
+    # at the exact crossing, which the information takes with the speed linear over that sample:
+    # measured 0.22 % apart (the friction column nearly a square wave beside b's sine), 0.5 % allowed
+    from identify.adaptive import _profiled
+    from identify.sensitivity import zoh_response
+    a, b, dt, eps = 8.0, 1.2, 0.005, 1e-7
+    duties = [Multisine((6.0, 18.0), (150, 75), (0.0, 0.0)).duty(300, dt), Sine(40.0, 200).duty(200, dt)]
+    blocks = []
+    for duty in duties:
+        t = np.arange(len(duty)) * dt
+        base = simulate(Motor(a, b), duty, t).angle
+        bias = (simulate(Motor(a, b, bias=eps), duty, t).angle - base) / eps
+        fric = (simulate(Motor(a, b, friction=eps), duty, t).angle - base) / eps
+        S = zoh_response(a, b, duty, t, 0.0, uniform=True).angle_sensitivity
+        blocks.append((np.column_stack([S[:, 0], S[:, 1], bias, fric]), np.column_stack([S[:, 2], np.ones(len(t))])))
+    n = sum(len(d) for d in duties)
+    J = np.zeros((n, 4 + 2 * len(blocks)))
+    row = 0
+    for i, (shared, own) in enumerate(blocks):
+        J[row:row + len(shared), :4] = shared
+        J[row:row + len(shared), 4 + 2 * i:6 + 2 * i] = own
+        row += len(shared)
+    expected = np.linalg.inv(np.linalg.inv(J.T @ J)[:2, :2])
+    summed = sum(information(a, b, d, dt, lag=True, nuisance=("bias", "friction")) for d in duties)
+    assert summed.shape == (5, 5)
+    np.testing.assert_allclose(_profiled(summed, lag_free=False), expected, rtol=5e-3)
+    # profiled per run instead (a friction for each run) would be less: the shared one is not
+    alone = sum(_profiled(information(a, b, d, dt, lag=True, nuisance=("bias", "friction")), lag_free=False)
+                for d in duties)
+    assert np.linalg.eigvalsh(expected - alone).min() > 0
+    # and the nuisance takes information: without it a and b are known better
+    plain = sum(information(a, b, d, dt) for d in duties)
+    assert np.linalg.eigvalsh(plain - expected).min() > 0
+
+
+def test_a_block_aims_below_the_target_by_the_share_of_the_information_it_brings():
+    # the runs so far are measured, the block predicted: a block bringing nearly all the information
+    # aims at 0.8 of the target, one adding a little to runs just short of it at 0.95
+    from identify.adaptive import _time_to_target
+    dt = 0.005
+    info = information(10.0, 1.0, Multisine((10.0, 30.0), (150, 80), (0.0, 0.0)).duty(200, dt), dt, lag=True)
+    _, near = _time_to_target(info, info, 1.0, np.array([1.02, 0.5]), 1.0, 100.0, lagged=True, aim=0.8)
+    assert near[0] == pytest.approx(0.95, rel=1e-6) and near[1] < 0.95
+    # 20 times the target now: the block brings 99.8 % of the information, its aim 0.8003 of the target
+    _, far = _time_to_target(info, info, 1.0, np.array([20.0, 10.0]), 1.0, 1e5, lagged=True, aim=0.8)
+    assert far[0] == pytest.approx(0.8, rel=1e-3)
+    # without the share rule (aim 1) at the target given
+    assert _time_to_target(info, info, 1.0, np.array([20.0, 10.0]), 0.8, 1e5, lagged=True)[1][0] == \
+        pytest.approx(0.8, rel=1e-6)
+
+
+def test_a_ranging_half_sine_that_moves_the_shaft_a_radian_turned_it_clearly():
+    # a slow motor behind friction (2.64 1/s, friction 36 duty) is first seen moving late in a half-sine:
+    # at duty 124 the counts move clearly only past 0.85 of it (at 117 with this seed), yet the shaft
+    # travels 1.1 rad: no need to double to 248; at 62 it travels 0.26 rad, first seen at the peak
+    from identify.adaptive import _breakaway, _turned
+    rig = _rig(2.644, 0.2654, seed=0, friction=9.42)
+    low, high = (rig.run(Experiment(Sine(math.pi / 0.5, amp), 0.005, 0.5)) for amp in (62, 124))
+    assert _breakaway(high, 0) > 0.85 * 124 and _turned(high, 124, _breakaway(high, 0))
+    assert not _turned(low, 62, _breakaway(low, 0))

@@ -62,7 +62,8 @@ def test_a_right_model_agrees_on_every_part_and_keeps_its_clear_answer():
     rec = rig.run(Experiment(MULTISINE, 0.002, 8.0))
     est = _fit(rec)
     checks = est.selection.checks
-    assert [c.split for c in checks] == list(SPLITS)            # a multisine through zero: every split made
+    # a multisine through zero on a uniform clock: every split made but the one by the sample interval
+    assert [c.split for c in checks] == [s for s in SPLITS if s != "short / long interval"]
     assert all(c.agree and not c.material for c in checks), [c.describe() for c in checks]
     assert est.selection.clear and _covers(est, (A, A), (B, B))
     # each part's a and b within its own interval of the truth (95 %: all eight at a Bonferroni 99.4 %)

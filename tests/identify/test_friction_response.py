@@ -73,6 +73,27 @@ def test_warm_started_modes_give_the_same_response():
     np.testing.assert_allclose(again.angle, cold.angle, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("change", [1.0, 1.01, 1.3])
+@pytest.mark.parametrize("warm", [False, True], ids=["cold", "warm"])
+def test_the_vectorised_path_finds_the_modes_in_one_scan(monkeypatch, change, warm):
+    # a two-sine drive through heavy friction: 33 events and 506 stuck intervals in 3000.  From the linear
+    # response's modes (cold) the fixed-point iteration this replaced took 17 scans; from the modes of a fit's
+    # previous evaluation (warm, b and c 30 % away) 2.  Now the wrong modes are walked one interval at a time
+    # until the walk and the scan are both at rest: one scan warm, two cold (a walk there goes past WALK_LIMIT);
+    # the response is the simulator's (rounding only)
+    monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
+    u, t = _inputs(False)
+    k = np.arange(len(t))
+    u = np.round(70 * np.sin(3.0 * k * 0.005) + 40 * np.sin(17.0 * k * 0.005))
+    b, c = 3.0 * change, 75.0 * change
+    modes = friction_response(25.0, 3.0, 75.0, 0.0, 0.0, u, t).modes if warm else None
+    resp = friction_response(25.0, b, c, 0.0, 0.0, u, t, modes=modes)
+    assert resp.passes == (1 if warm else 2)
+    ref = simulate(Motor(25.0, b, friction=c), u, t)
+    np.testing.assert_allclose(resp.speed, ref.speed, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(resp.angle, ref.angle - ref.angle[0], rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("jitter", [False, True], ids=["uniform", "jitter"])
 @pytest.mark.parametrize("params", CASES, ids=["friction", "all", "slow"])
 def test_the_two_paths_agree_to_rounding(params, jitter, monkeypatch):
