@@ -52,14 +52,14 @@ def is_batchable(motor: Plant, *, jitter: float = 0.0, drop_rate: float = 0.0) -
     return not unbatchable_parts(motor) and jitter == 0 and drop_rate == 0
 
 
-def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
+def simulate_batch(motor: Plant, duty: np.ndarray, sample_period: float, *,
                    initial_speed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH simulation of every row of ``duty`` at once.
 
     Parameters
     ----------
-    motor : Motor
-        A first-order plant (:func:`is_batchable`); dead zone and delay are applied.
+    motor : Plant
+        A first-order plant (:func:`is_batchable`; any other refused by name); dead zone and delay are applied.
     duty : ndarray, shape (n_samples,) or (repetitions, n_samples)
         Duty of each run; ``duty[..., k]`` is held from sample k to k+1.
     sample_period : float

@@ -55,7 +55,7 @@ from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
 from .executors import points_executor, results_in_order
-from .scenario import GridPoint, Scenario, Setting
+from .scenario import PLANT_PARAMETERS, GridPoint, Scenario, Setting
 
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
            "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "runs_batched"]
@@ -66,9 +66,12 @@ def setting_column(knob: str) -> str:
     return f"true_{knob}" if knob in ("a", "b") else knob
 
 
-#: Columns of the tidy CSV, one row per grid point x estimator: every bench knob, then the excitation.
-SETTING_COLUMNS = (*(setting_column(k.name) for k in bench_knobs()), "excitation", "frequency", "amplitude",
-                   "n_samples")
+#: The setting's columns beside the bench knobs: the plant's structure and the structures' further parameters.
+_PLANT_COLUMNS = ("structure", *PLANT_PARAMETERS)
+#: Columns of the tidy CSV, one row per grid point x estimator: every bench knob, the plant's structure and
+#: parameters, then the excitation.
+SETTING_COLUMNS = (*(setting_column(k.name) for k in bench_knobs()), *_PLANT_COLUMNS, "excitation", "frequency",
+                   "amplitude", "n_samples")
 STAT_COLUMNS = ("method", "repetitions", "successes", "failures", "failure_reasons",
                 "mean_a", "bias_a_pct", "std_a", "rmse_a", "crb_a",
                 "mean_b", "bias_b_pct", "std_b", "rmse_b", "crb_b")
@@ -163,7 +166,8 @@ class PointResult:
         """The CSV rows of this point (see :data:`CSV_COLUMNS`)."""
         s = self.point.setting
         base = {"point": self.point.index, **{setting_column(k.name): getattr(s, k.name) for k in bench_knobs()},
-                "excitation": s.excitation, "frequency": s.frequency, "amplitude": s.amplitude,
+                **{name: getattr(s, name) for name in _PLANT_COLUMNS}, "excitation": s.excitation,
+                "frequency": s.frequency, "amplitude": s.amplitude,
                 "n_samples": s.n_samples}
         return [dict(base, **self._statistics(o)) for o in self.outcomes]
 
@@ -493,7 +497,7 @@ def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: 
 
 def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
     """Rows of a sweep CSV with numbers parsed (empty cells become nan, ``True``/``False`` bools)."""
-    text_cols = {"excitation", "method", "failure_reasons"}
+    text_cols = {"excitation", "method", "failure_reasons", "structure"}
     with open(path, encoding="utf-8", newline="") as f:
         return [{k: (v if k in text_cols else _parse_cell(v)) for k, v in raw.items()} for raw in csv.DictReader(f)]
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 from motorsim.checks import ParameterError
+from motorsim.plant import register_structures
 
 from .asymmetric import AsymmetricGain
 from .base import ModelStructure, Parameter
@@ -48,6 +49,9 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     ('a', 'b', 'friction', 'bias')
     """
     return {s.name: s for s in REGISTERED if s.in_default or not in_default}
+
+
+register_structures(structures)     # the bench builds a named structure's plant (fake://) from this registry
 
 
 def structure(name: str | ModelStructure) -> ModelStructure:

@@ -148,7 +148,8 @@ class ModelStructure:
     def values(self, given: Mapping[str, float]) -> dict[str, float]:
         """Every parameter's value: ``given`` checked against the bounds, fixed ones filled in.
 
-        A further parameter (after ``a`` and ``b``) that is not given takes its neutral value, 0.
+        A further parameter (after ``a`` and ``b``) that is not given takes its neutral value, 0, where 0 is
+        within its bounds; one whose bounds exclude 0 (a shaft's frequency) is asked for.
 
         Raises
         ------
@@ -157,7 +158,8 @@ class ModelStructure:
         """
         out: dict[str, float] = {}
         for p in self.parameters:
-            if p.name not in given and p.name not in ("a", "b") and p.check(0.0) == 0.0:
+            if p.name not in given and p.name not in ("a", "b") and p.low <= 0.0 <= p.high and not (
+                    p.strict and p.low == 0.0):
                 out[p.name] = 0.0          # a further parameter not given: its neutral value (absent)
                 continue
             if p.name not in given:
