@@ -17,7 +17,7 @@ bench, the emulated or the real Arduino) in rounds:
    ``a`` of the interval so far; the block lasts as long as the prediction says it takes (at most
    three times the motor time so far, and the budget left).  While the choice of structure is not
    clear, every other block is an odd multisine over ``a/10 ... 10 a``
-   (:func:`~identify.design.design_multisine`): the evidence that separates the candidates.
+   (:func:`~identify.checks.design.design_multisine`): the evidence that separates the candidates.
 3. **Stopping early**, saying why: the time budget is spent (and which parameter is short by how
    much), the model fails (the estimator refuses the data, or its intervals are not finite), or a
    part the target needs cannot be excited within the limits (the motor does not turn at the duty
@@ -65,7 +65,7 @@ from motorsim.rig import Experiment
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .sensitivity import zoh_response
+from .fits.sensitivity import zoh_response
 
 __all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
            "STOP_REASONS", "check_target", "lag_free_reach", "sub_sample_lag", "simultaneous", "SIMULTANEOUS"]
@@ -402,7 +402,7 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
         return None
     tau = float(lagged.value("electrical_time_constant"))
     se = float(lagged.stderr().get("electrical_time_constant", math.nan))
-    from .electrical import TAU_BOUNDS_SAMPLES
+    from .fits.electrical import TAU_BOUNDS_SAMPLES
     floor = 2 * TAU_BOUNDS_SAMPLES[0] * recording.sample_period      # a fit at its search's bound found no lag
     if not (math.isfinite(tau) and math.isfinite(se) and se > 0 and tau > max(_LAG_Z * se, floor)):
         return None
@@ -917,7 +917,7 @@ def lag_free_reach(runs: Sequence[Recording], est: Estimate, reach: Mapping[str,
 def _multisine_block(a: float, b: float, dt: float, duty_limit: int, length: float,
                      max_speed: float | None) -> tuple[Excitation, float] | None:
     """An odd multisine over ``a/10 ... 10 a`` for about ``length`` s, or None when none fits."""
-    from .design import design_multisine
+    from .checks.design import design_multisine
     try:
         d = design_multisine(a, b, dt, duration=max(length, 0.5), duty_limit=duty_limit)
     except ParameterError:

@@ -17,7 +17,7 @@ Only what the engine runs exactly is batchable (:func:`is_batchable`): the first
 complete samples.  Anything else the plant carries (Coulomb or static friction, a bias, an
 electrical lag, or a part added later) is refused, never dropped: the sweep then runs the setting
 one repetition at a time through the exact simulator.  The estimators that fit these rows at
-once are :mod:`identify.batch`'s.
+once are :mod:`identify.fits.batch`'s.
 """
 from __future__ import annotations
 

@@ -500,7 +500,7 @@ def speed_coefficients(a: float, b: float, h: float, scale: float = 1.0) -> tupl
     From :func:`zoh_matrices` (``speed' = e speed + g v``, ``angle' = angle + p speed + q v``):
     ``beta1 = q / h``, ``beta2 = (p g - e q) / h``.  The one place this model is written: the
     controllers' (:meth:`motorsim.control.PlantModel.speed_coefficients`, ``scale`` their counts per
-    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.recursive`) take it from here.
+    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.fits.recursive`) take it from here.
 
     Examples
     --------

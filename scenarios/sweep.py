@@ -1,7 +1,7 @@
 """Scenario sweeps: every grid point x estimator x repetition, in parallel, streamed to a tidy CSV.
 
 :func:`run_point` does one grid point: all its repetitions at once through the
-batch engine (simulated by :mod:`motorsim.batch`, fitted by :mod:`identify.batch`) when the
+batch engine (simulated by :mod:`motorsim.batch`, fitted by :mod:`identify.fits.batch`) when the
 setting is linear and every sample arrives, else one :meth:`SimRig.run <motorsim.rig.SimRig.run>`
 and one :func:`identify.fit` per repetition -- the path users take.  Estimators with a
 batched implementation (``identify.BATCHED_METHODS``, and ``oe``) use it; any other
@@ -148,7 +148,7 @@ class PointResult:
         In the scenario's method order.
     crb : dict of str to float, or None
         Cramér-Rao standard errors of ``a`` and ``b`` (linear settings without jitter or
-        drops, where ``identify.uncertainty.cramer_rao_bound`` applies), else None.
+        drops, where ``identify.checks.uncertainty.cramer_rao_bound`` applies), else None.
     samples_simulated : int
         Samples actually simulated (a noise-free setting is simulated once, its repetitions
         being identical).
@@ -301,7 +301,7 @@ def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
 def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
     """All repetitions through the batch engine, in chunks of about ``_CHUNK_SAMPLES`` samples.
 
-    Batched estimators fit whole chunks (:mod:`identify.batch`), ``oe`` too (rows it cannot fit
+    Batched estimators fit whole chunks (:mod:`identify.fits.batch`), ``oe`` too (rows it cannot fit
     fall back to ``identify.fit``); the others get one Recording per
     repetition built from the same counts.
     """

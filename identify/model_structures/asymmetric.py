@@ -14,7 +14,7 @@ directions' (no single gain is the motor's), and the simulator's plant, which ha
 controller designed from this model must be given one direction's gain, on purpose.
 
 The default (:func:`identify.fit`) fits this structure only where the forward / reverse part check finds the
-chosen model's parts differ (:mod:`identify.asymmetry`), so it costs nothing elsewhere.
+chosen model's parts differ (:mod:`identify.fits.asymmetry`), so it costs nothing elsewhere.
 """
 from __future__ import annotations
 

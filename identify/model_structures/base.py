@@ -216,8 +216,8 @@ class ModelStructure:
         return forced + free @ coef
 
     def starts(self, recordings, guess: tuple[float, float]) -> list[dict[str, float]]:
-        """Start values of an iterative fit (:mod:`identify.structure_fit`): the first-order motor's ``a`` and
-        ``b`` (``guess``, :func:`identify.start.initial_guess`'s) with each further parameter's
+        """Start values of an iterative fit (:mod:`identify.fits.structure_fit`): the first-order motor's ``a`` and
+        ``b`` (``guess``, :func:`identify.fits.start.initial_guess`'s) with each further parameter's
         :attr:`Parameter.starts` values, every combination."""
         import itertools
         a, b = guess
@@ -276,9 +276,9 @@ class ModelStructure:
         ``output`` as :class:`identify.FrequencyResponse`'s: ``"speed"``, the sampled speed;
         ``"angle"``, the mean speed over the interval the input is held; ``input_delay`` whole samples
         (a factor ``z^-input_delay``).  Here ``b/(s + a)``:
-        :func:`identify.frequency_estimate.zoh_speed_response`.
+        :func:`identify.frequency.frequency_estimate.zoh_speed_response`.
         """
-        from ..zoh_response import zoh_speed_response
+        from ..fits.zoh_response import zoh_speed_response
         plant = self.plant(values) if self.simulated else None
         if isinstance(plant, LinearPlant):
             return plant.frequency_response(sample_period, omega, output=output, input_delay=input_delay)

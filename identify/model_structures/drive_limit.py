@@ -7,7 +7,7 @@ limit it is the linear motor with a bias, so its linear part, transfer function 
 name: a controller is designed from ``a`` and ``b`` with the limit given on purpose as its input limit.
 
 The default (:func:`identify.fit`) fits this structure only where the low / high drive part check finds the gain
-lower at high drive (:mod:`identify.evidence`).
+lower at high drive (:mod:`identify.default.evidence`).
 """
 from __future__ import annotations
 

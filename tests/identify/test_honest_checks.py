@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify import selection as selection_module
+from identify.default import selection as selection_module
 from identify.errors import NotIdentifiableError
 from motorid.bench import misfits
 from motorsim import Encoder, Experiment, Motor, Multisine, SimRig

@@ -13,17 +13,23 @@ import math
 import numpy as np
 import pytest
 
-from identify import fit, prediction_error
-from identify.comparison import largest_delay
+from identify import fit
 from identify.data import prepare_segments
-from identify.feedback import (
+from identify.default.comparison import largest_delay
+from identify.default.feedback import (
     CLOSED_LOOP_LARGEST_DELAY,
     CLOSED_LOOP_ROWS,
     FEEDBACK_SHARE,
     feedback_evidence,
     feedback_share,
 )
-from identify.prediction_error import compiled_filter_pass, filter_pass, fit_prediction_error, solve_prediction_error
+from identify.fits import prediction_error
+from identify.fits.prediction_error import (
+    compiled_filter_pass,
+    filter_pass,
+    fit_prediction_error,
+    solve_prediction_error,
+)
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Recording, SimRig, Sine, Step
 from motorsim.checks import ParameterError
 from motorsim.compiled import friction_interval
