@@ -5,7 +5,7 @@ line's ``--help`` do not pay for scipy's optimisers and filters until a fit need
 """
 from __future__ import annotations
 
-from motorsim.lazy import lazy_attributes
+from motorsim.lazy import lazy_attributes, moved_modules
 
 #: public name -> the module of this package that defines it
 _WHERE = {
@@ -39,3 +39,24 @@ __all__ = list(_WHERE)
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, exports={name: f".{module}" for name, module in _WHERE.items()})
+
+#: The modules that moved into a subpackage (the estimators to ``fits``, the default's selection to ``default``, the
+#: uncertainty and checks to ``checks``, the frequency view to ``frequency``), by their earlier names: ``import
+#: identify.selection`` gives ``identify.default.selection`` itself.
+MOVED_MODULES = {
+    "asymmetry": "fits.asymmetry", "batch": "fits.batch", "batch_output_error": "fits.batch_output_error",
+    "closed_loop": "fits.closed_loop", "drive_limit": "fits.drive_limit", "electrical": "fits.electrical",
+    "friction": "fits.friction", "friction_kernel": "fits.friction_kernel",
+    "friction_response": "fits.friction_response", "friction_solver": "fits.friction_solver",
+    "instrumental": "fits.instrumental", "output_error": "fits.output_error",
+    "prediction_error": "fits.prediction_error", "recursive": "fits.recursive", "regression": "fits.regression",
+    "sensitivity": "fits.sensitivity", "start": "fits.start", "stiction": "fits.stiction",
+    "structure_fit": "fits.structure_fit", "variable_projection": "fits.variable_projection",
+    "zoh_response": "fits.zoh_response", "comparison": "default.comparison", "consistency": "default.consistency",
+    "evidence": "default.evidence", "feedback": "default.feedback", "selection": "default.selection",
+    "selection_report": "default.selection_report", "causality": "checks.causality", "design": "checks.design",
+    "encoder_bootstrap": "checks.encoder_bootstrap", "outliers": "checks.outliers", "screening": "checks.screening",
+    "uncertainty": "checks.uncertainty", "validation": "checks.validation", "best_linear": "frequency.best_linear",
+    "frequency_estimate": "frequency.frequency_estimate", "frequency_fit": "frequency.frequency_fit",
+}
+moved_modules(__name__, MOVED_MODULES)
