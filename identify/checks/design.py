@@ -261,6 +261,18 @@ def _multisine_amplitude(period: int, max_harmonic: int, duty_limit: int) -> int
     return amplitude
 
 
+def _multisine_period(lo: float, dt: float, n_samples: int, duration: float) -> int:
+    """The shortest power of two of samples (16 at least) whose fundamental reaches ``lo`` while three periods
+    fit the run; a run too short for three periods is refused."""
+    period = 16
+    while 2 * math.pi / (period * dt) > lo and 2 * period * 3 <= n_samples and period < 65536:
+        period *= 2
+    if 3 * period > n_samples:
+        raise ParameterError(f"duration must hold at least 3 periods of {period} samples "
+                             f"({3 * period * dt:.4g} s), got {duration!r} s")
+    return period
+
+
 def design_multisine(a: float, b: float, sample_period: float, *, counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
                      angle_noise: float = 0.0, duration: float = 10.0, duty_limit: int = 255,
                      band: tuple[float, float] | None = None, precision: float | None = None) -> MultisineDesign:
@@ -313,12 +325,7 @@ def design_multisine(a: float, b: float, sample_period: float, *, counts_per_rev
         raise ParameterError(f"band must run from a lower to a higher frequency below 0.8 of Nyquist "
                              f"({0.8 * nyquist:.4g} rad/s), got {band!r}")
     n_samples = int(duration / dt)
-    period = 16
-    while 2 * math.pi / (period * dt) > lo and 2 * period * 3 <= n_samples and period < 65536:
-        period *= 2
-    if 3 * period > n_samples:
-        raise ParameterError(f"duration must hold at least 3 periods of {period} samples "
-                             f"({3 * period * dt:.4g} s), got {duration!r} s")
+    period = _multisine_period(lo, dt, n_samples, duration)
     w0 = 2 * math.pi / (period * dt)
     max_harmonic = int(hi / w0)
     max_harmonic = min(max_harmonic - (1 - max_harmonic % 2), 2 * MAX_ODD_LINES - 1, period // 2 - 1)

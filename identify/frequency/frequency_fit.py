@@ -114,14 +114,7 @@ def fit_frequency_response(frf: FrequencyResponse, *, input_delay: int = 0,
     if not sol.success:
         raise NotIdentifiableError(f"the frequency-domain fit did not converge: {sol.message}")
     x = [float(v) for v in sol.x]
-    J = sol.jac
-    dof = max(len(sol.fun) - len(names), 1)
-    chi2 = float(sol.fun @ sol.fun) / dof
-    try:
-        cov = np.linalg.inv(J.T @ J) * max(chi2, 1.0)
-    except np.linalg.LinAlgError:
-        raise NotIdentifiableError(f"the frequency response cannot separate {', '.join(names)} (singular "
-                                   "Jacobian); use lines on both sides of each corner frequency") from None
+    chi2, cov = _covariance(sol, names)
     fitted = response(np.array(x))
     spread = np.linalg.norm(frf.response - frf.response.mean())
     fit = 100.0 * (1.0 - np.linalg.norm(frf.response - fitted) / spread) if spread > 0 else float("nan")
@@ -170,3 +163,15 @@ def _fit_with_lag(frf: FrequencyResponse, residuals: Callable[[np.ndarray], np.n
         twin = np.array([1.0 / tau, b / (a * tau), 1.0 / a])
         best = least_squares(residuals, twin, x_scale=np.abs(twin), bounds=(low, high))
     return best
+
+
+def _covariance(sol, names: tuple[str, ...]) -> tuple[float, np.ndarray]:
+    """The weighted residuals' chi-square per degree of freedom and the parameters' covariance (Gauss-Newton,
+    scaled by the chi-square where it exceeds 1)."""
+    dof = max(len(sol.fun) - len(names), 1)
+    chi2 = float(sol.fun @ sol.fun) / dof
+    try:
+        return chi2, np.linalg.inv(sol.jac.T @ sol.jac) * max(chi2, 1.0)
+    except np.linalg.LinAlgError:
+        raise NotIdentifiableError(f"the frequency response cannot separate {', '.join(names)} (singular "
+                                   "Jacobian); use lines on both sides of each corner frequency") from None
