@@ -74,6 +74,22 @@ def _reachable(H: np.ndarray, g: np.ndarray) -> float:
 FINAL_STEP = 0.2
 
 
+def _cut_at_bound(step: np.ndarray, x: np.ndarray, lower: np.ndarray) -> np.ndarray:
+    """``step`` cut at the first lower bound it meets: that parameter lands on it (exactly), held from then on."""
+    crossing = np.flatnonzero((x + step < lower) & (step < 0))
+    if len(crossing):
+        first = crossing[np.argmin((lower[crossing] - x[crossing]) / step[crossing])]
+        step = step * ((lower[first] - x[first]) / step[first])
+        step[first] = lower[first] - x[first]            # exactly on it, not a rounding away
+    return step
+
+
+def _converged(x: np.ndarray, x_new: np.ndarray, norms: np.ndarray, cost: float, cost_new: float) -> bool:
+    """An accepted step lowered the cost by under 1e-10 of it, or moved every scaled parameter by under 1e-10."""
+    small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
+    return cost - cost_new <= 1e-10 * cost or small
+
+
 def levenberg_marquardt(problem: BoundedProblem, x0: np.ndarray, max_iterations: int = 200,
                          final_step: float | None = None, bound: float = math.inf) -> OptimizeResult:
     """Levenberg–Marquardt on the normal equations, parameters at a bound held there (:func:`_bounded_step`).
@@ -120,11 +136,7 @@ def levenberg_marquardt(problem: BoundedProblem, x0: np.ndarray, max_iterations:
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue
-        crossing = np.flatnonzero((x + step < lower) & (step < 0))
-        if len(crossing):       # cut at the first bound it meets: that parameter lands on it, held from then on
-            first = crossing[np.argmin((lower[crossing] - x[crossing]) / step[crossing])]
-            step *= (lower[first] - x[first]) / step[first]
-            step[first] = lower[first] - x[first]            # exactly on it, not a rounding away
+        step = _cut_at_bound(step, x, lower)
         scaled = step * norms
         predicted = -(2.0 * float(g @ scaled) + float(scaled @ H @ scaled))   # Gauss-Newton cost decrease
         if predicted <= max(1e-12 * cost, final_step ** 2 * cost / problem.dof):
@@ -141,8 +153,7 @@ def levenberg_marquardt(problem: BoundedProblem, x0: np.ndarray, max_iterations:
         if np.isfinite(cost_new) and cost_new < cost:
             with np.errstate(over="ignore", invalid="ignore"):
                 r_new, J_new = problem.evaluate(x_new, True)
-            small = bool(np.all(np.abs((x_new - x) * norms) <= 1e-10 * (1.0 + np.abs(x * norms))))
-            done = cost - cost_new <= 1e-10 * cost or small
+            done = _converged(x, x_new, norms, cost, cost_new)
             x, r, J, cost = x_new, r_new, J_new, cost_new
             normal = None
             if not rejected:         # a step taken right after a rejected one keeps its damping (no zigzag)
