@@ -87,6 +87,21 @@ CLOSED_LOOP_LARGEST_DELAY = 15
 CLOSED_LOOP_ROWS = 6_000
 
 
+def _regular_stretches(index: np.ndarray) -> list[tuple[int, int]]:
+    """The stretches ``(lo, hi)`` of consecutive sample indices long enough to test, up to :data:`TEST_ROWS` rows
+    in all (the last one cut there)."""
+    cuts = np.flatnonzero(np.diff(index) != 1) + 1
+    stretches, used = [], 0
+    for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(index)]):
+        if used >= TEST_ROWS:
+            break
+        if hi - lo >= max(MIN_SEGMENT_SAMPLES, MIN_STRETCH):
+            hi = min(hi, lo + TEST_ROWS - used)
+            stretches.append((lo, hi))
+            used += hi - lo
+    return stretches
+
+
 def feedback_share(recording: Recording) -> float:
     """Share of the duty's innovation that the output's innovations at the same and the last samples explain.
 
@@ -125,15 +140,7 @@ def feedback_share(recording: Recording) -> float:
         return math.nan
     time = np.asarray(recording.time[:n_all], dtype=float)
     index = _sample_index(time, np.asarray(recording.seq[:n_all], dtype=np.int64), h)
-    cuts = np.flatnonzero(np.diff(index) != 1) + 1
-    stretches, used = [], 0
-    for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), n_all]):
-        if used >= TEST_ROWS:
-            break
-        if hi - lo >= max(MIN_SEGMENT_SAMPLES, MIN_STRETCH):
-            hi = min(hi, lo + TEST_ROWS - used)
-            stretches.append((lo, hi))
-            used += hi - lo
+    stretches = _regular_stretches(index)
     if not stretches:
         return math.nan
     first, last = stretches[0][0], stretches[-1][1]
@@ -293,6 +300,32 @@ class ClosedLoopFit(NamedTuple):
     note: str = ""
 
 
+def _delays(recs: list[Recording], declared: int, input_delay: int | str) -> tuple[int, int, list[int]]:
+    """The largest delay the data allow, the top of the first range and its delays: ``"auto"`` tries ``declared
+    ... max(declared, CLOSED_LOOP_DELAYS)``; an integer fixes it."""
+    if input_delay == "auto":
+        cap = max(largest_delay(recs, CLOSED_LOOP_LARGEST_DELAY), declared)
+        top = min(max(declared, CLOSED_LOOP_DELAYS), cap)
+        return cap, top, list(range(declared, top + 1))
+    top = check_int("input_delay", input_delay, 0, 10**6)
+    return top, top, [top]
+
+
+def _doubt(est: Estimate, others: list[Estimate], apart: list[str], clear: bool) -> str:
+    """The doubt of the closed-loop answer: the candidates the data cannot tell apart, or innovations not white."""
+    if apart:
+        span_a = [min(e.a for e in [est, *others]), max(e.a for e in [est, *others])]
+        span_b = [min(e.b for e in [est, *others]), max(e.b for e in [est, *others])]
+        return (f"under feedback the answer depends on what the data cannot pin down ({', '.join(apart)}): a in "
+                f"[{span_a[0]:.4g}, {span_a[1]:.4g}] 1/s, b in [{span_b[0]:.4g}, {span_b[1]:.4g}]; the intervals "
+                "cover them all; a run with a richer reference (or open loop) would separate them")
+    if not clear:
+        return ("the closed-loop fit's innovations are not white: its disturbance model is only approximate; the "
+                "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
+                "feedback adds")
+    return ""
+
+
 def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, *, input_delay: int | str = "auto",
                     fix_bias: bool = False) -> ClosedLoopFit:
     """The default on a closed-loop recording: ``pem-disturbance`` candidates, chosen by evidence (module docstring).
@@ -319,13 +352,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     declared = declared_input_delay(recs)
     auto = input_delay == "auto"
-    if auto:
-        cap = max(largest_delay(recs, CLOSED_LOOP_LARGEST_DELAY), declared)
-        top = min(max(declared, CLOSED_LOOP_DELAYS), cap)
-        delays = list(range(declared, top + 1))
-    else:
-        cap = top = check_int("input_delay", input_delay, 0, 10**6)
-        delays = [top]
+    cap, top, delays = _delays(recs, declared, input_delay)
     skip = cap                                     # every candidate on the same rows
     reverses = speed_reverses(recs)
     quiet = _without_disturbance(recs, delays[0], skip, reverses)
@@ -375,17 +402,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     if edge:
         apart.append(f"a delay at the top of the {top + 1} searched")
     clear = est.covariance_method == "gauss-newton" and not apart
-    doubt = ""
-    if apart:
-        span_a = [min(e.a for e in [est, *others]), max(e.a for e in [est, *others])]
-        span_b = [min(e.b for e in [est, *others]), max(e.b for e in [est, *others])]
-        doubt = (f"under feedback the answer depends on what the data cannot pin down ({', '.join(apart)}): a in "
-                 f"[{span_a[0]:.4g}, {span_a[1]:.4g}] 1/s, b in [{span_b[0]:.4g}, {span_b[1]:.4g}]; the intervals "
-                 "cover them all; a run with a richer reference (or open loop) would separate them")
-    elif not clear:
-        doubt = ("the closed-loop fit's innovations are not white: its disturbance model is only approximate; the "
-                 "intervals cover it with the disturbance as a random walk too, but may not cover every bias "
-                 "feedback adds")
+    doubt = _doubt(est, others, apart, clear)
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
     return ClosedLoopFit(dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
                                              notes=tuple(([doubt] if doubt else []) + notes)))
