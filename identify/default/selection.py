@@ -186,6 +186,60 @@ def _screen_refuted(recs: list[Recording], segs: list[Segment], base: Candidate,
     return f"the {general} model moves a by {100 * da:+.2g} % and b by {100 * db:+.2g} %"
 
 
+def _checked_arguments(structures: Sequence[str] | None, input_delay: int | str, max_delay: int, fix_bias: bool,
+                       level: float) -> tuple[int | str, int, bool, float, tuple[str, ...]]:
+    """:func:`select_model`'s arguments checked, and the structures it fits (the bias left out where it is held)."""
+    from motorsim.checks import ParameterError, check_bool, check_int, check_real
+
+    input_delay = check_input_delay(input_delay)
+    max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
+    fix_bias = check_bool("fix_bias", fix_bias)
+    level = check_real("level", level)
+    if not 0 < level < 0.5:
+        raise ParameterError(f"level must be in (0, 0.5), got {level!r}")
+    wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
+    for s in wanted:
+        if s not in STRUCTURES:
+            raise ParameterError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
+    wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
+    return input_delay, max_delay, fix_bias, level, wanted
+
+
+def _delays(recs: list[Recording], input_delay: int | str, max_delay: int, notes: list[str]) -> tuple[int, list[int]]:
+    """The largest delay tried and the delays: ``"auto"`` from the one the recording declares (a note says so) to
+    what the data allow; an integer alone."""
+    if input_delay != "auto":
+        return int(input_delay), [int(input_delay)]
+    known = declared_input_delay(recs)
+    top = max(largest_delay(recs, max_delay), known)
+    if known:
+        notes.append(f"delays below {known} sample(s) not tried: the recording says its device applies each "
+                     f"duty {known} sample(s) late (input_delay_samples)")
+    return top, list(range(known, top + 1))
+
+
+def _screened_out(recs: list[Recording], segments: dict, base: CandidateFit | None, nonlinear: list[str],
+                  fix_bias: bool, screen: bool, notes: list[str]) -> bool:
+    """Whether the score test leaves friction and the dead zone out (the linear model's residuals show no sign of
+    them, and a friction fit on the best linear candidate's rows does not refute it); the note says either way."""
+    if base is None:
+        p, share = 0.0, 1.0
+    else:
+        p, share = _screen_nonlinear(segments[base.candidate.input_delay], base.candidate, base.bias)
+    moved = ""
+    if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and base is not None:
+        moved = _screen_refuted(recs, segments[base.candidate.input_delay], base.candidate, base.bias,
+                                nonlinear, fix_bias)
+    if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and not moved:
+        notes.append(f"{SCREENED_OUT}: the linear model's residuals show no sign of "
+                     f"them (score test p = {p:.2g}; their directions explain {100 * share:.2g} % of the "
+                     "residual)")
+        return True
+    if moved:
+        notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
+    return False
+
+
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
                  input_delay: int | str = DEFAULT_INPUT_DELAY, max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
                  level: float = LEVEL, screen: bool = True, widening: bool = False) -> Selection:
@@ -220,31 +274,11 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     -------
     Selection
     """
-    from motorsim.checks import ParameterError, check_bool, check_int, check_real
-
     recs = as_recordings(recordings)
-    input_delay = check_input_delay(input_delay)
-    max_delay = check_int("max_delay", max_delay, lo=0, allow_integral_float=False)
-    fix_bias = check_bool("fix_bias", fix_bias)
-    level = check_real("level", level)
-    if not 0 < level < 0.5:
-        raise ParameterError(f"level must be in (0, 0.5), got {level!r}")
-    wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
-    for s in wanted:
-        if s not in STRUCTURES:
-            raise ParameterError(f"structures must be among {list(STRUCTURES)}, got {s!r}")
-    wanted = tuple(s for s in wanted if not (fix_bias and s == "bias"))     # the bias held at 0 everywhere
+    input_delay, max_delay, fix_bias, level, wanted = _checked_arguments(structures, input_delay, max_delay,
+                                                                         fix_bias, level)
     notes: list[str] = []
-    if input_delay == "auto":
-        known = declared_input_delay(recs)
-        top = max(largest_delay(recs, max_delay), known)
-        delays = list(range(known, top + 1))
-        if known:
-            notes.append(f"delays below {known} sample(s) not tried: the recording says its device applies each "
-                         f"duty {known} sample(s) late (input_delay_samples)")
-    else:
-        top = int(input_delay)
-        delays = [top]
+    top, delays = _delays(recs, input_delay, max_delay, notes)
     segments = delayed_segments(recs, delays, top, SELECTION_ROWS)
     delays = [d for d in delays if segments[d]]
     if not delays:
@@ -267,23 +301,9 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     def refit(f: CandidateFit) -> CandidateFit:
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
-    if nonlinear and linear:
-        base = _refined_best(fitted, refit)
-        if base is None:
-            p, share = 0.0, 1.0
-        else:
-            p, share = _screen_nonlinear(segments[base.candidate.input_delay], base.candidate, base.bias)
-        moved = ""
-        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and base is not None:
-            moved = _screen_refuted(recs, segments[base.candidate.input_delay], base.candidate, base.bias,
-                                    nonlinear, fix_bias)
-        if screen and p >= SCREEN_LEVEL and share < SCREEN_SHARE and not moved:
-            notes.append(f"{SCREENED_OUT}: the linear model's residuals show no sign of "
-                         f"them (score test p = {p:.2g}; their directions explain {100 * share:.2g} % of the "
-                         "residual)")
-            nonlinear = []
-        elif moved:
-            notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
+    if nonlinear and linear and _screened_out(recs, segments, _refined_best(fitted, refit), nonlinear, fix_bias,
+                                              screen, notes):
+        nonlinear = []
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
@@ -509,20 +529,56 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         return closed.estimate
     loop_note = closed.note
     swept = _counts_swept(recs)
-    few_note = ""
-    if swept < MIN_COUNTS_SWEPT:     # a handful of counts: no test tells a richer structure from their rounding
-        wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
-        higher = [s for s in wanted if s in STRUCTURES and STRUCTURES[s].rank > 0]
-        if higher:
-            structures = [s for s in wanted if s not in higher]
-            few_note = (f"{', '.join(higher)} not fitted: the encoder sweeps only {swept:.0f} counts, whose rounding "
-                        f"{'they' if len(higher) > 1 else 'it'} would fit as well as any motor")
+    structures, few_note = _few_counts(structures, swept)
     selection, edge = _select_widening(recs, structures, input_delay, fix_bias)
     est, selection = _refit_chosen(recs, selection, fix_bias)
+    est, selection, edge, checks = _friction_after_all(recs, est, selection, edge, structures, input_delay, fix_bias)
+    if few_note:
+        selection = dataclasses.replace(selection, notes=(*selection.notes, few_note))
+    chosen = selection.chosen
+    notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
+    est, selection = _within_noise(recs, est, selection, swept, fix_bias)
+    selection = _split_evidence(selection)
+    averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
+    if averaged is not None:
+        est, doubt = averaged
+        selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
+            f"; {selection.doubt}" if selection.doubt else ""))
+    est, selection = _unsure_intervals(est, selection)
+    selection = _doubts(est, selection, edge, notes, checks, loop_note)
+    before = (est, selection)
+    est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
+    # a structure a split's differing parts point to (nothing is fitted where they agree), when every structure is
+    # asked for
+    if structures is None:
+        est, selection, parts = on_evidence(recs, before, (est, selection, parts), _check_parts)
+    est, selection = _one_magnitude_bias(recs, est, selection)
+    report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
+    return dataclasses.replace(est, selection=report, notes=tuple(
+        ([selection.doubt] if selection.doubt else []) + list(selection.notes)))
+
+
+def _few_counts(structures: Sequence[str] | None, swept: float) -> tuple[Sequence[str] | None, str]:
+    """On a handful of encoder counts no test tells a richer structure from their rounding: the structures of a
+    higher rank left out, and the note saying so."""
+    if swept >= MIN_COUNTS_SWEPT:
+        return structures, ""
+    wanted = tuple(structures) if structures is not None else tuple(STRUCTURES)
+    higher = [s for s in wanted if s in STRUCTURES and STRUCTURES[s].rank > 0]
+    if not higher:
+        return structures, ""
+    return [s for s in wanted if s not in higher], (
+        f"{', '.join(higher)} not fitted: the encoder sweeps only {swept:.0f} counts, whose rounding "
+        f"{'they' if len(higher) > 1 else 'it'} would fit as well as any motor")
+
+
+def _friction_after_all(recs: list[Recording], est: Estimate, selection: Selection, edge: str,
+                        structures: Sequence[str] | None, input_delay: int | str, fix_bias: bool
+                        ) -> tuple[Estimate, Selection, str, dict[str, float]]:
+    """No screen overrules a fit: friction left out by the screen is fitted after all when the chosen model's own
+    residuals correlate with the sign of its speed.  Also the correlation's p-value (``checks``)."""
     checks: dict[str, float] = {}
     if any(n.startswith(SCREENED_OUT + ":") for n in selection.notes) and STRUCTURES[est.structure].linear:
-        # no screen overrules a fit: friction left out by the screen is fitted after all when the chosen
-        # model's own residuals correlate with the sign of its speed
         checks = {"sign_p": _own_sign_p(est, recs)}
         if checks["sign_p"] < SIGN_LEVEL:
             label = selection.chosen.label
@@ -532,8 +588,13 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
                 f"model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g})")))
             est, selection = _refit_chosen(recs, selection, fix_bias)
             checks = {"sign_p": _own_sign_p(est, recs)} if STRUCTURES[est.structure].linear else {}
-    if few_note:
-        selection = dataclasses.replace(selection, notes=(*selection.notes, few_note))
+    return est, selection, edge, checks
+
+
+def _within_noise(recs: list[Recording], est: Estimate, selection: Selection, swept: float, fix_bias: bool
+                  ) -> tuple[Estimate, Selection]:
+    """The intervals widened over the candidates the data cannot rule out that fall outside them (and over the
+    encoder's resolution on a handful of counts); not clear where those differ materially."""
     chosen = selection.chosen
     # on a handful of encoder counts the residual is the rounding of those counts, not noise: the
     # test's variance means little there, so every candidate whose residual sum is as small (within
@@ -548,20 +609,19 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     within += _linear_kept(selection, within)
     ci = est.confidence_interval(0.95)
     material = [c for c in within if not (ci["a"][0] <= c.a <= ci["a"][1] and ci["b"][0] <= c.b <= ci["b"][1])]
-    notes = list(selection.notes) + _data_notes(recs, est, swept) + ([loop_note] if loop_note else [])
     if material or resolution:
         est, doubt = _widen(est, chosen, material, resolution)
         est = _cover_richer(recs, est, chosen, material, fix_bias)
         if material and any(abs(c.a - est.a) > MATERIAL * abs(est.a) or abs(c.b - est.b) > MATERIAL * abs(est.b)
                for c in material):
             selection = dataclasses.replace(selection, clear=False, doubt=doubt)
-    selection = _split_evidence(selection)
-    averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
-    if averaged is not None:
-        est, doubt = averaged
-        selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
-            f"; {selection.doubt}" if selection.doubt else ""))
-    est, selection = _unsure_intervals(est, selection)
+    return est, selection
+
+
+def _doubts(est: Estimate, selection: Selection, edge: str, notes: list[str], checks: dict[str, float],
+            loop_note: str) -> Selection:
+    """The selection with its notes and the doubts that make a choice not clear: no finite interval, a delay at
+    the edge, residuals that correlate with the sign of the speed, a feedback loop."""
     se = est.stderr()
     if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
         # a choice whose own fit cannot say how well it knows a and b is no clear choice
@@ -580,16 +640,7 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
         # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
         selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
             f"; {selection.doubt}" if selection.doubt else ""))
-    before = (est, selection)
-    est, selection, parts = _check_parts(recs, est, selection, open_loop=not loop_note)
-    # a structure a split's differing parts point to (nothing is fitted where they agree), when every structure is
-    # asked for
-    if structures is None:
-        est, selection, parts = on_evidence(recs, before, (est, selection, parts), _check_parts)
-    est, selection = _one_magnitude_bias(recs, est, selection)
-    report = dataclasses.replace(SelectionReport.from_selection(selection), checks=parts)
-    return dataclasses.replace(est, selection=report, notes=tuple(
-        ([selection.doubt] if selection.doubt else []) + list(selection.notes)))
+    return selection
 
 
 def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
