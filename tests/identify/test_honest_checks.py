@@ -38,10 +38,10 @@ def _check(est, split):
     return found[0]
 
 
-def test_a_right_model_passes_the_gain_curve_and_angle_checks():
+def test_a_right_model_passes_the_gain_curve_angle_and_friction_curve_checks():
     rig = SimRig(Motor(25.0, 3.0), Encoder(2000, angle_noise=1e-4), rng=np.random.default_rng(7))
     est = _fit(rig.run(Experiment(MULTISINE, 0.002, 8.0)))
-    for split in ("gain by duty", "angle torque"):
+    for split in ("gain by duty", "angle torque", "friction by speed"):
         check = _check(est, split)
         assert check.agree and not check.material, check.describe()
     assert est.selection.clear and _covers(est, (25.0, 25.0), (3.0, 3.0))
@@ -78,6 +78,37 @@ def test_a_torque_of_the_angle_is_found_by_the_angle_check():
     check = _check(est, "angle torque")
     assert not check.agree and check.material and "angle" in check.hint
     assert not est.selection.clear and _covers(est, a_range, b_range)
+
+
+def test_coulomb_friction_fitted_by_its_own_structure_passes_the_friction_curve_check():
+    rig = SimRig(Motor(25.0, 3.0, friction=60.0), Encoder(2000, angle_noise=1e-4), rng=np.random.default_rng(4))
+    est = _fit(rig.run(Experiment(MULTISINE, 0.002, 8.0)))
+    check = _check(est, "friction by speed")
+    assert check.agree and not check.material, check.describe()
+    se = est.stderr()
+    # clear, and within 3 standard errors (a fixed seed; the 95 % interval itself misses in one run of twenty)
+    assert est.selection.clear and abs(est.a - 25.0) < 3 * se["a"] and abs(est.b - 3.0) < 3 * se["b"]
+
+
+def test_friction_that_weakens_from_rest_is_found_by_the_friction_curve_check():
+    # Stribeck's friction (100 rad/s^2 at rest, 40 sliding, knee 3 rad/s) under a multisine: the knee sits far
+    # below the median speed, where the slow / fast split cuts
+    est = _fit(misfits.stribeck(0))
+    check = _check(est, "friction by speed")
+    assert not check.agree and check.material and "Stribeck" in check.hint
+    assert not est.selection.clear
+
+
+def test_a_refuted_model_whose_parts_move_a_or_b_materially_is_not_clear_even_within_its_own_interval():
+    # cogging under a chirp at one sample per time constant (a h = 1): the gain-by-duty check finds the model
+    # refuted (p ~ 5e-6) and its parts move b by over 20 %, inside that fit's wide interval; a's interval
+    # [122, 331] misses the motor's 102, so "clear" would be wrong
+    rec, (a_range, b_range) = misfits.random_rig(10)
+    assert rec.metadata["plant"].startswith("cogging")
+    est = _fit(rec)
+    check = _check(est, "gain by duty")
+    assert not check.agree and check.material
+    assert not est.selection.clear
 
 
 def _asymmetric_prbs():
