@@ -91,3 +91,16 @@ def test_a_sweep_over_the_shaft_frequency_runs_the_two_mass_plant():
         assert np.array_equal(ours.counts, theirs.counts)
         row = run_point(point, ["oe"], 1, 0).rows()[0]
         assert row["structure"] == "two-mass" and row["shaft_frequency"] == setting.shaft_frequency
+
+
+def test_motorid_live_runs_a_structure_named_on_the_url_in_a_fresh_process(tmp_path):
+    # the bench learns the structures from identify when it is imported: a fresh process, as a user runs it
+    import subprocess
+    import sys
+    url = "fake://?structure=two-mass&inertia_ratio=1.5&shaft_frequency=60&shaft_damping=0.1&speed=0"
+    code = ("import sys\nfrom motorid.cli import main\n"
+            f"sys.exit(main(['live', '--port', {url!r}, '--duration', '0.5', '--out', 'run.csv', '--method', 'oe']))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    from motorsim.reading import read_recording
+    assert len(read_recording(tmp_path / "run.csv")) == 100
