@@ -172,6 +172,9 @@ class Selection:
         Level of the test.
     criterion : str
         The test, in words.
+    refuted : (float, str) or None
+        Where a fit overruled the screen that left friction out: the score test's p-value and what the fit of
+        friction moved, in words (:func:`identify.default.selection.select_model`); None otherwise.
     """
 
     candidates: tuple[Candidate, ...]
@@ -183,6 +186,7 @@ class Selection:
     notes: tuple[str, ...] = ()
     level: float = LEVEL
     criterion: str = "simplest candidate within the noise of the best (batch-means test)"
+    refuted: tuple[float, str] | None = None
 
     def comparison(self) -> str:
         """The runner-up against the chosen model, in plain words."""

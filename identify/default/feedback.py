@@ -53,19 +53,21 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+from scipy import special
 
 from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
-from ..data import MIN_SEGMENT_SAMPLES, declared_input_delay, prepare_segments
+from ..data import MIN_SEGMENT_SAMPLES, Segment, declared_input_delay, prepare_segments
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..fits.friction import speed_reverses
 from ..fits.prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
-from .comparison import LEVEL, Candidate, Selection, largest_delay, parameters_threshold, threshold
+from .comparison import LEVEL, MATERIAL, Candidate, Selection, largest_delay, parameters_threshold, threshold
 from .selection_report import SelectionReport
 
-__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
+__all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "fit_changing_torque", "halves_checked",
+           "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
            "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS", "OUTPUT_LAGS",
            "sample_index", "clock_deviation", "LOST_SAMPLE_INTERVAL"]
 
@@ -326,8 +328,24 @@ def _doubt(est: Estimate, others: list[Estimate], apart: list[str], clear: bool)
     return ""
 
 
+def _on_all_rows(recs: list[Recording], fit: PredictionErrorFit, delay: int, skip: int) -> PredictionErrorFit:
+    """The chosen candidate on all its rows, from where it stands (its disturbance too), where it was fitted on
+    fewer (the common rows of the delays, or the first :data:`CLOSED_LOOP_ROWS`)."""
+    if skip != delay or sum(len(r) for r in recs) > CLOSED_LOOP_ROWS:
+        return solve_prediction_error(recs, prepare_segments(recs, delay), friction=fit.problem.friction,
+                                      start=_plant(fit), noise_start=_noise(fit))
+    return fit
+
+
+def _notes(opening: str, evidence: str) -> list[str]:
+    """The notes of a closed-loop answer: why it is one, and what is fitted under feedback."""
+    return [f"{opening}: {evidence}; fitted by prediction error with a torque disturbance "
+            "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
+            "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
+
+
 def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, *, input_delay: int | str = "auto",
-                    fix_bias: bool = False) -> ClosedLoopFit:
+                    fix_bias: bool = False, opening: str = "recorded in a closed loop") -> ClosedLoopFit:
     """The default on a closed-loop recording: ``pem-disturbance`` candidates, chosen by evidence (module docstring).
 
     Parameters
@@ -340,6 +358,9 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
         ``"auto"`` tries ``declared ... max(declared, CLOSED_LOOP_DELAYS)``; an integer fixes it.
     fix_bias : bool
         Refused when a disturbance is found (its level is the bias).
+    opening : str
+        What the first note says of the recordings before ``evidence`` (:func:`fit_changing_torque` says why an
+        open-loop run is fitted this way).
 
     Returns
     -------
@@ -387,16 +408,10 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
         scan(range(previous + 1, top + 1))
     selection = _choose(fitted)
     chosen = selection.chosen
-    fit = next(f for c, f in fitted if c is chosen)
-    if skip != chosen.input_delay or sum(len(r) for r in recs) > CLOSED_LOOP_ROWS:
-        # the chosen candidate on all its rows, from where it stands (its disturbance too)
-        fit = solve_prediction_error(recs, prepare_segments(recs, chosen.input_delay),
-                                     friction=fit.problem.friction, start=_plant(fit), noise_start=_noise(fit))
+    fit = _on_all_rows(recs, next(f for c, f in fitted if c is chosen), chosen.input_delay, skip)
     est = estimate_from(recs, fit, chosen.input_delay)
     others, apart = _material(recs, est, fit, [(c, f) for c, f in fitted if c.within_noise and c is not chosen])
-    notes = [f"recorded in a closed loop: {evidence}; fitted by prediction error with a torque disturbance "
-             "(pem-disturbance), which stays consistent under feedback where an output-error fit does not",
-             "under feedback only the bias and friction structures are fitted (no dead zone, no second pole)"]
+    notes = _notes(opening, evidence)
     est = _union(est, others)
     edge = auto and chosen.input_delay == top and top > declared
     if edge:
@@ -404,8 +419,121 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     clear = est.covariance_method == "gauss-newton" and not apart
     doubt = _doubt(est, others, apart, clear)
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
-    return ClosedLoopFit(dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
-                                             notes=tuple(([doubt] if doubt else []) + notes)))
+    est = dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
+                              notes=tuple(([doubt] if doubt else []) + notes))
+    # the one check that needs no structure under feedback: the same a and b on each half of the run
+    return ClosedLoopFit(halves_checked(recs, est))
+
+
+#: How :func:`fit_changing_torque`'s note begins.
+OPENING = "recorded without a loop, but"
+#: Level of the test that the two halves of an open-loop run fitted with a torque disturbance give one ``a`` and
+#: ``b`` (:func:`fit_changing_torque`), each parameter at half of it.
+HALVES_LEVEL = 0.01
+#: Fewest rows of a half's piece of a segment (shorter pieces are left out of its fit).
+MIN_HALF_PIECE = 50
+
+
+def fit_changing_torque(recordings: Sequence[Recording], why: str, *,
+                        input_delay: int | str = "auto") -> Estimate | None:
+    """The default's answer on an open-loop run that no output-error model answers (``why``), by prediction error
+    with a torque disturbance: a load switched on, a drag that comes and goes, an arm's weight.  None where the
+    data show no such disturbance (the output-error answer stands).
+
+    The disturbance follows any torque that changes over the run, but also part of a gain or a pole that does (a
+    motor warming), which it would then average into one ``a`` and ``b``: :func:`fit_closed_loop` checks every
+    answer on the halves of its run (:func:`halves_checked`).
+    """
+    recs = list(recordings)
+    found = fit_closed_loop(recs, why, input_delay=input_delay, opening=OPENING)
+    est = found.estimate
+    if est is None or est.selection is None:
+        return None
+    note = (f"{OPENING} {why}: fitted by prediction error with a torque disturbance as a state (pem-disturbance), "
+            "which follows a torque that changes over the run (a load switched on, a drag that comes and goes) where "
+            "every output-error model drifts away from the data; only the bias and friction structures are fitted so")
+
+    def renoted(notes: Sequence[str]) -> tuple[str, ...]:
+        return tuple(note if n.startswith(OPENING) else n for n in notes if not n.startswith("under feedback only"))
+    est = dataclasses.replace(est, notes=renoted(est.notes),
+                              selection=dataclasses.replace(est.selection, notes=renoted(est.selection.notes)),
+                              speed_residuals=tuple(_innovation_rows(est, rec) for rec in recs))
+    return est          # checked on its halves by fit_closed_loop
+
+
+def halves_checked(recs: Sequence[Recording], est: Estimate) -> Estimate:
+    """``est`` (a ``pem-disturbance`` answer) checked against its fits on each half of the rows: where the halves'
+    ``a`` or ``b`` differ (each at :data:`HALVES_LEVEL` / 2) by over :data:`~identify.default.comparison.MATERIAL`, not
+    clear, its intervals holding both halves' (a gain or a pole that changes over the run, which a disturbance
+    would average); ``est`` itself where they agree or a half cannot be fitted."""
+    halves = _halves(list(recs), est)
+    if not halves or est.selection is None:
+        return est
+    apart = []
+    for name in ("a", "b"):
+        v1, v2 = (float(h.value(name)) for h in halves)
+        se = math.hypot(*(float(h.stderr()[name]) for h in halves))
+        z = abs(v1 - v2) / se if se > 0 else math.inf
+        if z > float(-special.ndtri(HALVES_LEVEL / 4)) and abs(v1 - v2) > MATERIAL * abs(float(est.value(name))):
+            apart.append(f"{name} {v1:.4g} in the first half, {v2:.4g} in the second")
+    if not apart:
+        return est
+    doubt = (f"fitted on each half of the run, the torque-disturbance model gives {'; '.join(apart)}: a gain or a pole "
+             "that changes over the run (a motor warming?), which no single a and b describes; this is not a clear "
+             "choice, and the intervals hold both halves'")
+    est = _union(est, [est, *halves])
+    assert est.selection is not None
+    selection = dataclasses.replace(est.selection, clear=False, doubt=doubt + (
+        f"; {est.selection.doubt}" if est.selection.doubt else ""))
+    return dataclasses.replace(est, selection=selection, notes=(doubt, *est.notes))
+
+
+def _innovation_rows(est: Estimate, rec: Recording) -> np.ndarray:
+    """``est``'s one-step prediction errors on ``rec``, row by row (nan where no segment holds the row), in rad/s:
+    the residual a corrupted sample stands out in (the model simulated alone drifts with the torque it lacks)."""
+    from ..fits.prediction_error import innovations
+    out = np.full(len(rec), math.nan)
+    eps = innovations(est, rec)
+    place = 0
+    for seg in prepare_segments([rec], est.input_delay):
+        n = len(seg.time)
+        part = eps[place:place + n]
+        out[seg.start:seg.start + n] = part / rec.sample_period if seg.kind == "angle" else part
+        place += n
+    return out
+
+
+def _halves(recs: list[Recording], est: Estimate) -> list[Estimate]:
+    """``est`` (a ``pem-disturbance`` answer) fitted again on the first and on the second half of its rows, each
+    from where it stands; none where a half holds too few rows."""
+    segs = prepare_segments(recs, est.input_delay)
+    total = sum(len(seg.time) for seg in segs)
+    cut, seen = total // 2, 0
+    first: list[Segment] = []
+    second: list[Segment] = []
+    for seg in segs:
+        n = len(seg.time)
+        k = min(max(cut - seen, 0), n)
+        for part, lo, hi in ((first, 0, k), (second, k, n)):
+            if hi - lo >= MIN_HALF_PIECE:
+                part.append(dataclasses.replace(seg, time=seg.time[lo:hi], drive=seg.drive[lo:hi],
+                                                output=seg.output[lo:hi], start=seg.start + lo))
+        seen += n
+    if not (first and second):
+        return []
+    values = est.values()
+    friction = "friction" in est.param_names
+    start = (float(values["a"]), float(values["b"]), float(values.get("friction", 0.0) or 0.0),
+             float(values.get("bias", 0.0) or 0.0))
+    noise = (float(est.extra["disturbance_pole"]), float(est.extra["log_disturbance_ratio"]))
+    out = []
+    for part in (first, second):
+        try:
+            fit = solve_prediction_error(recs, part, friction=friction, start=start, noise_start=noise)
+        except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError, ValueError):
+            return []
+        out.append(estimate_from(recs, fit, est.input_delay))
+    return out
 
 
 def _without_disturbance(recs: list[Recording], delay: int, skip: int, reverses: bool) -> str:

@@ -74,7 +74,7 @@ from .comparison import (
 )
 from .consistency import PartCheck, consistency, widened_range
 from .evidence import on_evidence
-from .feedback import ClosedLoopFit, feedback_evidence, fit_closed_loop
+from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
 from .selection_report import SelectionReport
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
@@ -219,9 +219,10 @@ def _delays(recs: list[Recording], input_delay: int | str, max_delay: int, notes
 
 
 def _screened_out(recs: list[Recording], segments: dict, base: CandidateFit | None, nonlinear: list[str],
-                  fix_bias: bool, screen: bool, notes: list[str]) -> bool:
+                  fix_bias: bool, screen: bool, notes: list[str]) -> tuple[bool, tuple[float, str] | None]:
     """Whether the score test leaves friction and the dead zone out (the linear model's residuals show no sign of
-    them, and a friction fit on the best linear candidate's rows does not refute it); the note says either way."""
+    them, and a friction fit on the best linear candidate's rows does not refute it); the note says either way.
+    Also, where a fit overruled the screen, its p and what it moved."""
     if base is None:
         p, share = 0.0, 1.0
     else:
@@ -234,10 +235,11 @@ def _screened_out(recs: list[Recording], segments: dict, base: CandidateFit | No
         notes.append(f"{SCREENED_OUT}: the linear model's residuals show no sign of "
                      f"them (score test p = {p:.2g}; their directions explain {100 * share:.2g} % of the "
                      "residual)")
-        return True
+        return True, None
     if moved:
         notes.append(f"{REFUTED} (p = {p:.2g}): fitted on its rows, {moved}")
-    return False
+        return False, (p, moved)
+    return False, None
 
 
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
@@ -278,6 +280,7 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     input_delay, max_delay, fix_bias, level, wanted = _checked_arguments(structures, input_delay, max_delay,
                                                                          fix_bias, level)
     notes: list[str] = []
+    refuted: tuple[float, str] | None = None       # a fit that overruled the screen: its p and what it moved
     top, delays = _delays(recs, input_delay, max_delay, notes)
     segments = delayed_segments(recs, delays, top, SELECTION_ROWS)
     delays = [d for d in delays if segments[d]]
@@ -301,15 +304,17 @@ def select_model(recordings: Recording | Sequence[Recording], *, structures: Seq
     def refit(f: CandidateFit) -> CandidateFit:
         d = f.candidate.input_delay
         return _candidate(recs, segments[d], d, f.candidate.structure)
-    if nonlinear and linear and _screened_out(recs, segments, _refined_best(fitted, refit), nonlinear, fix_bias,
-                                              screen, notes):
-        nonlinear = []
+    if nonlinear and linear:
+        out, refuted = _screened_out(recs, segments, _refined_best(fitted, refit), nonlinear, fix_bias, screen, notes)
+        if out:
+            nonlinear = []
     if nonlinear:
         fitted += _fit_nonlinear(recs, segments, delays, nonlinear, fix_bias, best_fit(fitted), level)
     refine(fitted, refit, level)
     fitted += _fit_higher_ranks(recs, segments, delays, fitted, sticking if nonlinear else [], higher, fix_bias,
                                 level, notes, top if widening and input_delay == "auto" else None)
-    return choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+    selection = choose(fitted, level, notes, top if input_delay == "auto" else None, recs, segments)
+    return dataclasses.replace(selection, refuted=refuted) if refuted else selection
 
 
 def _fit_higher_ranks(recs: list[Recording], segments: dict[int, list[Segment]], delays: list[int],
@@ -527,7 +532,76 @@ def fit_selected(recordings: Recording | Sequence[Recording], *, input_delay: in
     closed = _closed_loop(recs, structures, input_delay, fix_bias)
     if closed.estimate is not None:
         return closed.estimate
-    loop_note = closed.note
+    changing = structures is None and not fix_bias and not closed.note
+    try:
+        est = _fit_open_loop(recs, structures, input_delay, fix_bias, closed.note)
+    except NotIdentifiableError as refusal:
+        # no output-error model could be fitted on all rows: a torque that changes over the run may be why
+        fallback = _changing_torque(recs, f"no output-error model could be fitted ({refusal})",
+                                    input_delay) if changing else None
+        if fallback is None:
+            raise
+        return fallback
+    if changing and _no_answer(est):
+        fallback = _changing_torque(recs, f"the output-error models give no answer ({_no_answer(est)})",
+                                    input_delay)
+        if fallback is not None:
+            return fallback
+    return est
+
+
+def _changing_torque(recs: list[Recording], why: str, input_delay: int | str) -> Estimate | None:
+    """:func:`~identify.default.feedback.fit_changing_torque`, None where it cannot be made either."""
+    try:
+        est = fit_changing_torque(recs, why, input_delay=input_delay)
+    except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError, ValueError):
+        return None
+    if est is None or est.selection is None:
+        return None
+    ci = est.confidence_interval(0.95)
+    if any(not (math.isfinite(ci[n][0]) and math.isfinite(ci[n][1]) and ci[n][0] < ci[n][1])
+           or ci[n][0] <= 0 <= ci[n][1] for n in ("a", "b")):
+        return None          # no answer either (or one pinned at a bound): the output-error answer stands
+    top = _one_magnitude(recs)
+    if top is None:
+        return est
+    # b u + d(t) at u = +-U is a gain of b + d(t)/U forward and b - d(t)/U in reverse: with one magnitude a torque
+    # that changes cannot be told from gains that differ by direction (_one_magnitude_bias, for a constant d)
+    doubt = (f"the input takes one magnitude, |u| = {top:g}, both ways, so a torque that changes over the run cannot "
+             "be told from forward and reverse gains that differ: this is not a clear choice; runs at two or more "
+             "amplitudes would separate them")
+    selection = dataclasses.replace(est.selection, clear=False, doubt=doubt + (
+        f"; {est.selection.doubt}" if est.selection.doubt else ""))
+    return dataclasses.replace(est, selection=selection, notes=(doubt, *est.notes))
+
+
+def _one_magnitude(recs: list[Recording]) -> float | None:
+    """The input's one magnitude where it takes one both ways (a binary PRBS, a square wave), else None."""
+    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
+    moving = moving[moving != 0]
+    if not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
+        return None
+    top = float(np.max(np.abs(moving)))
+    return top if float(np.mean(np.abs(moving) == top)) >= SINGLE_AMPLITUDE_SHARE else None
+
+
+def _no_answer(est: Estimate) -> str:
+    """Why the default's output-error answer is none (``""`` if it is one): not clear, and the 95 % interval of ``a``
+    or ``b`` unbounded or holding zero (the data do not tell the motor's pole or gain from none)."""
+    if est.selection is None or est.selection.clear:
+        return ""
+    ci = est.confidence_interval(0.95)
+    for name in ("a", "b"):
+        low, high = ci[name]
+        if not (math.isfinite(low) and math.isfinite(high)) or low <= 0 <= high:
+            return f"{name} in [{low:.4g}, {high:.4g}]"
+    return ""
+
+
+def _fit_open_loop(recs: list[Recording], structures: Sequence[str] | None, input_delay: int | str, fix_bias: bool,
+                   loop_note: str) -> Estimate:
+    """:func:`fit_selected` on a recording the closed-loop fit leaves to output error (``loop_note`` says why where
+    it was made in a loop after all)."""
     swept = _counts_swept(recs)
     structures, few_note = _few_counts(structures, swept)
     selection, edge = _select_widening(recs, structures, input_delay, fix_bias)
@@ -686,12 +760,8 @@ def _one_magnitude_bias(recs: list[Recording], est: Estimate, selection: Selecti
     :data:`MATERIAL`."""
     values = est.values()
     d = float(values.get("bias", 0.0) or 0.0)
-    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
-    moving = moving[moving != 0]
-    if d == 0 or not math.isfinite(d) or not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
-        return est, selection
-    top = float(np.max(np.abs(moving)))
-    if float(np.mean(np.abs(moving) == top)) < SINGLE_AMPLITUDE_SHARE:
+    top = _one_magnitude(recs)
+    if d == 0 or not math.isfinite(d) or top is None:
         return est, selection
     b, shift = float(est.b), abs(d) / top
     own = est.confidence_interval(0.95)["b"]
@@ -825,7 +895,7 @@ def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidat
     """Where a fit overruled the screen (:data:`REFUTED`) and a nonlinear structure was chosen, the best linear
     candidate (when not already ``within``): the score test found no friction and a fit of it moved ``a`` and ``b``,
     so the data back the linear model by the one and friction by the other, and neither answer is ruled out."""
-    if not any(n.startswith(REFUTED) for n in selection.notes) or STRUCTURES[selection.chosen.structure].linear:
+    if selection.refuted is None or STRUCTURES[selection.chosen.structure].linear:
         return []
     linear = [c for c in selection.candidates if STRUCTURES[c.structure].linear and STRUCTURES[c.structure].rank == 0
               and math.isfinite(c.residual_sum) and math.isfinite(c.a)]
@@ -836,13 +906,12 @@ def _linear_kept(selection: Selection, within: list[Candidate]) -> list[Candidat
 def _split_evidence(selection: Selection) -> Selection:
     """Not clear where a fit overruled the screen and a nonlinear structure was chosen: which structure the answer
     rests on, the data do not settle (a quasi-static ramp, one sine, friction that is not Coulomb's)."""
-    refuted = [n for n in selection.notes if n.startswith(REFUTED)]
-    if not refuted or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
+    if selection.refuted is None or STRUCTURES[selection.chosen.structure].linear or not selection.clear:
         return selection
-    test = refuted[0].split(": ", 1)[0].replace(REFUTED, "the score test")
-    moved = refuted[0].split("fitted on its rows, ", 1)[-1]
+    p, moved = selection.refuted
     return dataclasses.replace(selection, clear=False, doubt=(
-        f"the evidence for friction is split: {test} finds none, while {moved} on the first rows; the answer rests on "
+        f"the evidence for friction is split: the score test (p = {p:.2g}) finds none, while {moved} on the first "
+        "rows; the answer rests on "
         "a structure the data do not settle, so this is not a clear choice; runs through zero speed at several "
         "amplitudes would settle it"))
 

@@ -183,3 +183,51 @@ def test_a_pole_slower_than_the_whole_run_is_not_a_clear_choice():
         # said as the pole slower than the run, or as the interval the run does not determine
         assert not est.selection.clear
         assert "longer than the run" in est.selection.doubt or "does not determine" in est.selection.doubt
+
+
+def test_a_load_switched_on_is_followed_as_a_torque_disturbance_where_output_error_gives_no_answer():
+    # a constant load of 120 rad/s^2 switched on halfway: every output-error model drifts away from the angle
+    # (a 10.0 [-11.5, 31.5] before), while a torque disturbance follows the load and leaves a and b alone
+    rec = misfits.load_switched_on(0)
+    est = _fit(rec)
+    assert est.method == "pem-disturbance"
+    assert any(n.startswith("recorded without a loop, but the output-error models give no answer") for n in est.notes)
+    assert _covers(est, (25.0, 25.0), (3.0, 3.0))
+    se = est.stderr()
+    # a clear answer, and a precise one: within 2 % (the load leaves no more than the noise's share)
+    assert est.selection.clear and se["a"] < 0.01 * 25.0 and se["b"] < 0.01 * 3.0
+
+
+def _warming_with_a_load(drift: float):
+    """A motor warming by ``drift`` over 20 s that also takes a load of 120 rad/s^2 at 10 s; multisine, 5 ms."""
+    def accel(t, th, w, u):
+        return (1.0 - drift * t / 20.0) * (-25.0 * w + 3.0 * u) - (120.0 if t > 10 else 0.0)
+    return misfits._run(accel, misfits._multisine_duty, 0, 0.005, 20.0, 1000)
+
+
+def test_the_torque_disturbance_fit_is_not_clear_where_its_halves_differ():
+    # the disturbance follows the load but would average a warming motor's a and b: its halves tell
+    from identify.default.feedback import fit_changing_torque
+    est = fit_changing_torque([_warming_with_a_load(0.05)], "a test")
+    assert est is not None and not est.selection.clear
+    assert "in the first half" in est.selection.doubt and "in the second" in est.selection.doubt
+    halves = [float(x) for x in est.selection.doubt.split("gives a ", 1)[1].split(";")[0].replace(
+        " in the first half,", "").replace(" in the second", "").split()]
+    # the halves' a straddle the run's mean (25 x 0.975) and the interval holds both
+    ci = est.confidence_interval(0.95)
+    assert halves[0] > halves[1] and ci["a"][0] <= halves[1] and halves[0] <= ci["a"][1]
+
+
+def test_a_fit_that_overrules_the_friction_screen_splits_the_evidence():
+    # a slow ramp through friction: the score test finds no friction, a fit of it on the screen's rows moves a and b;
+    # the selection carries both (not as words to parse), and with friction chosen the answer is not clear
+    est = _fit(misfits.MISFITS["slow ramp through friction"](3))
+    from identify.default.selection import REFUTED
+    noted = [n for n in est.selection.notes if n.startswith(REFUTED)]
+    assert noted, est.selection.notes
+    assert est.selection.chosen.structure == "friction" and not est.selection.clear
+    # the doubt quotes the screen's p-value and the fit's shift as the note does
+    p_text = noted[0].split("(p = ", 1)[1].split(")", 1)[0]
+    moved = noted[0].split("fitted on its rows, ", 1)[1]
+    assert f"the evidence for friction is split: the score test (p = {p_text}) finds none, while {moved}" in \
+        est.selection.doubt
