@@ -88,6 +88,13 @@ class RecordedSample:
     counts: int
 
 
+#: The fastest line rate taken, in baud: beyond any UART or USB serial bridge (12 Mbaud for the fastest).
+MAX_BAUDRATE = 50_000_000
+#: The longest wait for a device, in s: an hour without a word is a device that is gone, not a slow one (the
+#: motor holds its last duty until the device's watchdog stops it).
+MAX_TIMEOUT = 3600.0
+
+
 class SerialRig:
     """The bench over a serial port, a context manager; implements ``motorsim.rig.Rig``.
 
@@ -136,7 +143,7 @@ class SerialRig:
                 raise ParameterError("port must be a device path or URL, got ''")
         elif not all(hasattr(port, a) for a in ("read", "write")):
             raise ParameterTypeError(f"port must be a str or an open serial port, got {type(port).__name__}")
-        baudrate = check_int("baudrate", baudrate, 1, allow_integral_float=False)
+        baudrate = check_int("baudrate", baudrate, 1, MAX_BAUDRATE, allow_integral_float=False)
         if counts_per_rev is not None:
             counts_per_rev = check_int("counts_per_rev", counts_per_rev, 1, allow_integral_float=False)
         if decoding not in (1, 2, 4):
@@ -145,7 +152,7 @@ class SerialRig:
             raise ParameterError(f"watchdog_ms must be 0 (off) or an integer in 50...60 000, got {watchdog_ms!r}")
         for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout),
                             ("command_timeout", command_timeout)):
-            check_real(name, value, positive=True)
+            check_real(name, value, positive=True, below=MAX_TIMEOUT)
         self.port = port
         self.baudrate = baudrate
         self.requested_counts_per_rev = counts_per_rev
@@ -551,6 +558,8 @@ class _RunState:
         self.duty_mismatches = 0
         self.first_mismatch = ""
         self.out_of_order = 0
+        self.clock_back = 0                     # samples whose device time did not advance: kept out
+        self.first_clock_back = ""
         self.encoder_flags = 0
         self.late_flags = 0
         self.last_index = -1
@@ -581,15 +590,9 @@ class _RunState:
                 if k <= self.last_index or k >= n_expected:
                     self.out_of_order += 1
                     continue
-                if not self.seq:
-                    self._first_us = self._prev_us = msg.time_us
-                    self._unwrapped = 0
-                    t = k * self.dt
-                    self._t_offset = t
-                else:
-                    self._unwrapped += (msg.time_us - self._prev_us) & 0xFFFFFFFF
-                    self._prev_us = msg.time_us
-                    t = self._t_offset + self._unwrapped * 1e-6
+                t = self._sample_time(k, msg.time_us)
+                if t is None:
+                    continue
                 if self.loop is not None:
                     if k == self.last_index + 1 and not self.unverified:
                         self.expected[k] = self.loop.step(k, msg.counts)
@@ -622,6 +625,27 @@ class _RunState:
             elif type(msg) is P.Boot:
                 self.boot = msg
                 return
+
+    def _sample_time(self, k: int, time_us: int) -> float | None:
+        """The time in s of sample ``k`` from the device's u32 microseconds, or None when it does not advance.
+
+        The step is read as a signed 32-bit number: a wrap (every 71.6 minutes) is a small step forward; a step
+        back (or none) contradicts the samples' order, and the sample is kept out and counted."""
+        if not self.seq:
+            self._first_us = self._prev_us = time_us
+            self._unwrapped = 0
+            self._t_offset = k * self.dt
+            return self._t_offset
+        step = (time_us - self._prev_us + 2**31) % 2**32 - 2**31
+        if step <= 0:
+            if not self.clock_back:
+                self.first_clock_back = f"sample {k} at {time_us} us after sample {self.last_index} at " \
+                                        f"{self._prev_us} us"
+            self.clock_back += 1
+            return None
+        self._unwrapped += step
+        self._prev_us = time_us
+        return self._t_offset + self._unwrapped * 1e-6
 
     def _unwrap_counts(self, k: int, raw: int) -> int:
         """The count of sample ``k`` on a counter that does not wrap: the device's is an int32, which wraps
@@ -668,11 +692,16 @@ class _RunState:
                             f"(first: {self.first_mismatch})")
         if self.out_of_order:
             problems.append(f"{self.out_of_order} samples arrived out of order or beyond n_samples")
+        if self.clock_back:
+            problems.append(f"{self.clock_back} samples carry a device time that does not advance (first: "
+                            f"{self.first_clock_back}), kept out of the recording")
         if self.n > e.samples_sent:
             problems.append(f"received {self.n} samples but the device sent {e.samples_sent}")
-        elif e.samples_sent - self.n > self.link_lost:
-            problems.append(f"the device sent {e.samples_sent} samples, {self.n} arrived, but the link "
-                            f"sequence shows only {self.link_lost} frames lost")
+        elif e.samples_sent - (self.n + self.out_of_order + self.clock_back) > self.link_lost:
+            kept_out = self.out_of_order + self.clock_back
+            problems.append(f"the device sent {e.samples_sent} samples, {self.n} arrived"
+                            + (f" (and {kept_out} kept out above)" if kept_out else "")
+                            + f", but the link sequence shows only {self.link_lost} frames lost")
         ticks = e.samples_sent + e.samples_dropped
         if e.reason == P.EndReason.COMPLETE and ticks != len(self.expected):
             problems.append(f"END says {ticks} ticks (sent {e.samples_sent} + dropped {e.samples_dropped}), "

@@ -382,13 +382,15 @@ def check_input_changes(recordings: Sequence[Recording]) -> np.ndarray:
     duty = recordings[0].duty if len(recordings) == 1 else np.concatenate([r.duty for r in recordings])
     constant = bool(len(duty) and duty.min() == duty.max())     # two reductions, no temporary arrays
     if constant and duty[0] == 0:
-        raise NotIdentifiableError("input is zero throughout: it is not persistently exciting; "
+        raise NotIdentifiableError(f"{_names(recordings)}: input is zero throughout: it is not persistently "
+                                   "exciting; "
                                    "use a sine, multisine or PRBS")
     if constant:
         unit = recordings[0].input_unit
         if any(_has_transient(r) for r in recordings):      # a step from rest: said once, by the screening
             return duty
-        raise NotIdentifiableError(f"input is constant ({duty[0]:g} {unit} throughout) and the speed holds no "
+        raise NotIdentifiableError(f"{_names(recordings)}: input is constant ({duty[0]:g} {unit} throughout) and "
+                                   "the speed holds no "
                                    "transient: it is not persistently exciting, a and b cannot be separated "
                                    "(a step recorded after the motor settled; pool it with the routine's other "
                                    "tests, or record from before the step); use a sine, multisine or PRBS")
@@ -438,11 +440,19 @@ def _has_transient(rec: Recording) -> bool:
     return False
 
 
+def _names(recordings: Sequence[Recording]) -> str:
+    """How a message names pooled recordings: each one's :meth:`~motorsim.Recording.name`."""
+    if len(recordings) == 1:
+        return recordings[0].name()
+    return ", ".join(r.name(i) for i, r in enumerate(recordings))
+
+
 def check_length(recordings: Sequence[Recording], n_params: int = 2) -> None:
     """Refuse recordings with fewer than ``3 n_params + 4`` samples in all: too short for any fit."""
     total = sum(len(r) for r in recordings)
     if total < 3 * n_params + 4:
-        raise NotIdentifiableError(f"recording is too short: {total} samples for {n_params} parameters; "
+        raise NotIdentifiableError(f"{_names(recordings)}: recording is too short: {total} samples for {n_params} "
+                                   "parameters; "
                                    f"record at least {3 * n_params + 4} (a few time constants) samples")
 
 
@@ -460,8 +470,12 @@ def check_excitation(recordings: Sequence[Recording], n_params: int = 2) -> None
         Parameters the estimator fits (sets the shortest acceptable record).
     """
     check_length(recordings, n_params)
-    duty = check_input_changes(recordings)
-    _check_input_scale(float(max(-duty.min(), duty.max())), recordings[0].input_unit)
+    check_input_changes(recordings)
+    largest = [float(np.max(np.abs(r.duty))) if len(r) else 0.0 for r in recordings]
+    k = int(np.argmax(largest))
+    name = recordings[k].name(k if len(recordings) > 1 else None) if largest[k] > INPUT_SCALE_LIMIT else \
+        _names(recordings)
+    _check_input_scale(largest[k], recordings[0].input_unit, name)
     for i, r in enumerate(recordings):
         check_output_moves(r, r.name(i))
         check_speed_agrees(r, r.name(i))
@@ -624,10 +638,10 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
 INPUT_SCALE_LIMIT = 1e100
 
 
-def _check_input_scale(largest: float, unit: str) -> None:
+def _check_input_scale(largest: float, unit: str, name: str = "recording") -> None:
     """Refuse an input whose magnitude no unit of a drive gives (``duty x 1e-300``): b**2 would overflow."""
     if not 1 / INPUT_SCALE_LIMIT <= largest <= INPUT_SCALE_LIMIT:
-        raise NotIdentifiableError(f"input's largest magnitude must be in {1 / INPUT_SCALE_LIMIT:g}..."
+        raise NotIdentifiableError(f"{name}: input's largest magnitude must be in {1 / INPUT_SCALE_LIMIT:g}..."
                                    f"{INPUT_SCALE_LIMIT:g} {unit}, got {largest:g}: no drive's input is that "
                                    "far from 1; give the input in its real unit (duty, V, %)")
 

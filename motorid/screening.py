@@ -96,7 +96,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
         A file given twice, or an isolated residual outlier without ``drop_outliers``.
     """
     from identify.checks.screening import screened_fit
-    from identify.errors import CorruptedSamplesError
+    from identify.errors import CorruptedSamplesError, NotIdentifiableError
     from identify.methods import method_function
     refuse_duplicates(files)
     if read is None:
@@ -110,6 +110,11 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
         shown = ", ".join(map(str, exc.seq[:10]))
         raise CommandError(f"{files[exc.recording]}: {exc.reason} at seq {shown}; a corrupted sample? fix the "
                            "file, or re-run with --drop-outliers to drop them as gaps") from None
+    except NotIdentifiableError as exc:
+        # every refusal of the data names the files they came from, whichever estimator found it
+        if any(str(f) in str(exc) for f in files):
+            raise
+        raise NotIdentifiableError(f"{', '.join(map(str, files))}: {exc}") from None
     dropped = [DroppedSamples(files[d.recording], list(d.seq), d.reason) for d in found.dropped]
     return with_speed_unit(found.estimate, found.recordings), list(found.recordings), dropped
 

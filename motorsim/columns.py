@@ -166,6 +166,9 @@ class Table:
     lines: np.ndarray
     has_header: bool
     units: Mapping[str, str] = dataclasses.field(default_factory=dict)   # the units the file states, by column
+    #: A text table with empty cells (held as nan): columns logged at different times, each row holding the
+    #: values logged at its instant (a plotting tool's export of topics); :func:`import_recording` aligns them.
+    sparse: bool = False
 
     def column(self, spec: ColumnSpec) -> np.ndarray:
         """The column ``spec`` names (by name, else by 0-based index); :class:`ImportFormatError` if none."""
@@ -281,25 +284,27 @@ def _read_text(path: str) -> Table:
         names = names[:-1]                        # LabVIEW's comment column, empty on every row
     decimal_comma = sep in (";", "\t") and bool(rows) and any(_DECIMAL_COMMA.match(c) for c in _split(rows[0][1], sep))
     values = np.empty((len(rows), len(names)))
+    sparse = False
     for r, (line, s) in enumerate(rows):
         cells = _split(s, sep)
         if len(cells) != len(names):
             _fail(path, line, f"{len(cells)} cells where the {'header' if has_header else 'first row'} has "
                               f"{len(names)}")
         for c, cell in enumerate(cells):
+            if not cell:               # nothing logged in this column at this row's instant: aligned on import
+                values[r, c] = math.nan
+                sparse = True
+                continue
             x = _number(cell.replace(",", ".") if decimal_comma else cell)
             if x is None or not math.isfinite(x):
                 said = " (a spreadsheet's error value: fix or delete the row where the file was made)" \
                     if _SPREADSHEET_ERROR.match(cell) else ""
-                if not cell:
-                    said = (" (an empty cell: columns logged at different times, as a plotting tool exports "
-                            "topics? export each value held until the next, or fill the cells where the file was "
-                            "made)")
                 _fail(path, line, f"column {names[c]!r} must hold a finite number, got {cell!r}{said}")
             values[r, c] = x
     if not rows:
         raise ImportFormatError(f"{path}: a header but no data rows")
-    return Table(path, names, tuple(values.T.copy()), np.array([line for line, _ in rows]), has_header)
+    return Table(path, names, tuple(values.T.copy()), np.array([line for line, _ in rows]), has_header,
+                 sparse=sparse)
 
 
 def _read_mat(path: str) -> Table:
@@ -420,6 +425,8 @@ def import_recording(path: str | os.PathLike, *, time: str | ColumnSpec, input: 
         table = read_table(path)
     problems += _shared_columns(table, specs)
     cols, defaulted, notes = _columns_read(table, specs, problems)
+    if table.sparse and not problems:
+        table, cols = _aligned(table, specs, cols, problems, notes)
     if "time" in defaulted:
         _time_unit_inferred(specs["time"], cols["time"], problems, notes)
     if not problems:
@@ -480,6 +487,65 @@ def _columns_read(table: Table, specs: dict[str, ColumnSpec], problems: list[str
             notes.append(f"the {quantity} column {spec.column!r} is read in {resolved.unit}, the unit its header "
                          "states")
     return cols, defaulted, notes
+
+
+def _aligned(table: Table, specs: Mapping[str, ColumnSpec], cols: Mapping[str, np.ndarray], problems: list[str],
+             notes: list[str]) -> tuple[Table, dict[str, np.ndarray]]:
+    """A table with empty cells read as PlotJuggler's users expect of its CSV export (each row holds the values
+    logged at its instant, the other cells empty): a sample at each row where every measured column holds a
+    value, its input the one in force over most of the interval to the next sample (the last logged at or
+    before the interval's middle, held as a drive holds its command: a command logged just after the state it
+    answers drives the interval that state starts).  Rows with no measurement, and samples with no input logged
+    yet, are left out; what was done is said in ``notes``.  An empty time cell is a problem (every row has its
+    instant)."""
+    n = len(table.lines)
+    measured = [q for q in ("speed", "angle", "counts") if q in cols]
+    empty = {q: ~np.isfinite(cols[q]) for q in cols}
+    if not any(e.any() for e in empty.values()):
+        return table, dict(cols)
+    if empty["time"].any():
+        k = int(np.flatnonzero(empty["time"])[0])
+        problems.append(f"{_where(table, specs['time'], k)}: the time cell is empty; every row needs its instant")
+        return table, dict(cols)
+    t = cols["time"]
+    logged = np.flatnonzero(~empty["input"])
+    if not len(logged):
+        problems.append(f"the input column {specs['input'].column!r} holds no value (every cell empty)")
+        return table, dict(cols)
+    if np.any(np.diff(t) <= 0):
+        return table, dict(cols)          # refused where the time is checked, naming the row
+    rows = np.flatnonzero(np.logical_and.reduce([~empty[q] for q in measured]))
+    what = " and ".join(f"{q} ({specs[q].column!r})" for q in measured)
+    if len(rows) < 2:
+        problems.append(f"cells are empty and only {len(rows)} row(s) hold the {what}: nothing to align")
+        return table, dict(cols)
+    start = t[rows]
+    end = np.empty(len(rows))
+    end[:-1] = start[1:]
+    end[-1] = start[-1] + (start[-1] - start[-2])
+    tc, uc = t[logged], cols["input"][logged]
+    area = np.concatenate([[0.0], np.cumsum(uc[:-1] * np.diff(tc))])      # the input's integral to each command
+
+    def integral(x: np.ndarray) -> np.ndarray:
+        j = np.maximum(np.searchsorted(tc, x, side="right") - 1, 0)
+        return area[j] + uc[j] * (x - tc[j])
+    ok = start >= tc[0]
+    kept = rows[ok]
+    if len(kept) < 2:
+        problems.append(f"cells are empty and only {len(kept)} row(s) hold the {what} with an input logged by "
+                        "then: nothing to align")
+        return table, dict(cols)
+    mean = (integral(end[ok]) - integral(start[ok])) / (end[ok] - start[ok])
+    changes = np.searchsorted(tc, start[ok], side="right") != np.searchsorted(tc, end[ok], side="left")
+    out = {q: (mean if q == "input" else c[kept]) for q, c in cols.items()}
+    early = len(rows) - len(kept)
+    notes.append(f"cells are empty (columns logged at different times, as PlotJuggler exports topics): read as "
+                 f"{len(kept)} samples at the rows holding the {what}, each with the input held from the last one "
+                 f"logged (as a drive holds its command), averaged over the sample's interval where a new one came "
+                 f"within it ({int(np.count_nonzero(changes))} samples); {n - len(kept)} of {n} rows left out (no "
+                 f"{' or '.join(measured)} in them" + (f", or {early} before any input" if early else "") + ")")
+    return dataclasses.replace(table, lines=table.lines[kept], columns=tuple(c[kept] for c in table.columns),
+                               sparse=False), out
 
 
 def _time_unit_inferred(spec: ColumnSpec, t: np.ndarray, problems: list[str], notes: list[str]) -> None:

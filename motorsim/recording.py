@@ -41,6 +41,7 @@ the first sample for a position controller).
 """
 from __future__ import annotations
 
+import builtins
 import dataclasses
 import math
 import os
@@ -458,11 +459,22 @@ class Recording:
 
     def slice(self, start: int, stop: int) -> "Recording":
         """Rows ``start:stop`` as a new Recording."""
-        def cut(x):
-            return None if x is None else x[start:stop]
-        return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
-                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq),
-                                   reference=cut(self.reference))
+        return self._rows(slice(start, stop))
+
+    def _rows(self, rows: "builtins.slice | np.ndarray") -> "Recording":
+        """The rows ``rows`` of this checked recording, not checked again: every rule of a recording holds on
+        its rows (a short run of a jittered clock would fail the time-base rule, which is the whole clock's)."""
+        sub = object.__new__(type(self))
+        for name in ("time", "duty", "counts", "angle", "speed", "seq", "reference"):
+            x = getattr(self, name)
+            if x is not None:
+                x = x[rows]
+                x.setflags(write=False)
+            object.__setattr__(sub, name, x)
+        for name in ("sample_period", "counts_per_rev", "path"):
+            object.__setattr__(sub, name, getattr(self, name))
+        object.__setattr__(sub, "metadata", dict(self.metadata))
+        return sub
 
     def implausible_samples(self) -> list[ImplausibleSample]:
         """Rows no motor can produce: a speed, time or duty step far beyond the rest of the run.
@@ -550,11 +562,7 @@ class Recording:
         keep = np.ones(len(self), dtype=bool)
         keep[list(rows)] = False
 
-        def cut(x):
-            return None if x is None else x[keep]
-        return dataclasses.replace(self, time=cut(self.time), duty=cut(self.duty), counts=cut(self.counts),
-                                   angle=cut(self.angle), speed=cut(self.speed), seq=cut(self.seq),
-                                   reference=cut(self.reference))
+        return self._rows(keep)
 
     @property
     def has_gaps(self) -> bool:

@@ -23,6 +23,7 @@ WPILib data log (``.wpilog``; optional extra ``wpilib``: ``robotpy-wpiutil``'s `
 """
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -86,7 +87,7 @@ def read_log_table(path: str | os.PathLike, base: str | None) -> tuple[tuple[str
         whole = check_wpilog_records(path)
         series, units, keep = _wpilog_series(path, whole)
     else:
-        series, units, keep = _ros_series(path), {}, None
+        series, units, keep = _bounded_ros_series(path), {}, None
         units = {name: unit for name in series for suffix, unit in (("/position", "rad"), ("/velocity", "rad/s"))
                  if name.endswith(suffix) and name.count("/") >= 2}
     return _table(path, series, units, base, keep)
@@ -97,7 +98,17 @@ def _check_inputs(path: str) -> None:
     device never end, a sparse file of gigabytes take minutes): refused before any reader opens them."""
     from .files import InputFileError, open_input
     p = Path(path)
-    files = [p] if not p.is_dir() else [q for q in sorted(p.iterdir()) if not q.is_dir()]
+    folder = p if p.is_dir() else p.parent if p.suffix.lower() in (".db3", ".mcap") else None
+    files = [p]
+    if folder is not None:      # a bag's reader reads its folder: its metadata and every database file in it
+        files = [q for q in sorted(folder.iterdir()) if not q.is_dir()
+                 and (q.name == "metadata.yaml" or q.suffix.lower() in (".db3", ".mcap"))]
+        inside = folder.resolve()
+        for q in files:
+            if q.is_symlink() and inside not in q.resolve().parents:
+                raise RecordingFormatError(f"{q}: a link to {os.readlink(q)!r}, outside the bag's folder "
+                                           f"{str(folder)!r}; motorid reads only the log it is given: copy the "
+                                           "file into the folder")
     for name in files:
         try:
             open_input(name, what="log", max_bytes=MAX_LOG_BYTES).close()
@@ -306,11 +317,89 @@ def _ros_series(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
                         add(f"{connection.topic}/{i}", timestamp * 1e-9, value)
                 else:
                     add(connection.topic, timestamp * 1e-9, msg.data)
-    except RecordingFormatError:
+    except (RecordingFormatError, MemoryError):
         raise
+    except OSError as exc:
+        if exc.errno == errno.EFBIG:          # unpacked past the bound of :func:`_ros_child`
+            raise
+        raise RecordingFormatError(f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})") from None
     except Exception as exc:  # noqa: BLE001 -- rosbags raises its own zoo on a damaged or foreign bag
         raise RecordingFormatError(f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})") from None
     return {name: _sorted(times, values) for name, (times, values) in data.items()}
+
+
+#: The memory a bag's reader may take beyond what the process holds: a floor for the reader itself, and a few
+#: times the bag's bytes for its messages held as numbers.  Compressed bags (zstd by file, by message, or
+#: MCAP's zstd and lz4 chunks) are unpacked by the reader with no bound of its own: a bomb of a few MB would
+#: ask for gigabytes.
+BAG_MEMORY_FLOOR = 1 << 30
+BAG_MEMORY_RATIO = 8
+
+
+def _bag_bytes(path: str) -> int:
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    return sum(q.stat().st_size for q in folder.iterdir() if q.is_file() and q.suffix.lower() in (".db3", ".mcap"))
+
+
+def _ros_child(path: str, extra: int, send: Any) -> None:
+    """The bag reader's process: its memory bounded by ``extra`` bytes more than it holds at the start."""
+    import faulthandler
+    faulthandler.disable()
+    from .mat_files import _limit_address_space
+    _limit_address_space(extra)
+    try:                 # a bag compressed by file is unpacked to a temporary file: bounded too (EFBIG, not a kill)
+        import resource
+        import signal
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (extra, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+    except (ImportError, AttributeError, OSError, ValueError):
+        pass
+    try:
+        send.send(("ok", _ros_series(path)))
+    except MemoryError:
+        send.send(("memory", ""))
+    except OSError as exc:
+        send.send(("memory", "") if exc.errno == errno.EFBIG else
+                  ("refused", f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})"))
+    except RecordingFormatError as exc:
+        send.send(("refused", str(exc)))
+    except Exception as exc:  # noqa: BLE001 -- said in the parent as the reader's error
+        send.send(("refused", f"{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})"))
+
+
+def _bounded_ros_series(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """:func:`_ros_series` in a process of its own whose memory is bounded by what the bag can honestly hold
+    (:data:`BAG_MEMORY_FLOOR` + :data:`BAG_MEMORY_RATIO` x its bytes), where processes fork (elsewhere read
+    here, unbounded)."""
+    import multiprocessing
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return _ros_series(path)
+    extra = BAG_MEMORY_FLOOR + BAG_MEMORY_RATIO * _bag_bytes(path)
+    ctx = multiprocessing.get_context("fork")
+    receive, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_ros_child, args=(path, extra, send), daemon=True)
+    child.start()
+    send.close()
+    try:
+        message = receive.recv()
+    except EOFError:                    # the child ended without a word: it crashed
+        message = None
+    finally:
+        receive.close()
+    child.join()
+    if message is None:
+        raise RecordingFormatError(f"{path}: a damaged ROS 2 bag: the reader crashed on it (exit status "
+                                   f"{child.exitcode})")
+    kind, payload = message
+    if kind == "memory":
+        raise RecordingFormatError(f"{path}: reading this bag needs more than the {extra} bytes a bag of "
+                                   f"{_bag_bytes(path)} bytes may take ({BAG_MEMORY_RATIO} x its size + "
+                                   f"{BAG_MEMORY_FLOOR >> 20} MiB, in memory or unpacked to a file): a decompression "
+                                   "bomb or a damaged bag, refused")
+    if kind == "refused":
+        raise RecordingFormatError(payload)
+    return payload
 
 
 _ROS_TYPES = {"sensor_msgs/msg/JointState", "std_msgs/msg/Float64MultiArray", "std_msgs/msg/Float64",

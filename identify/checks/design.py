@@ -69,7 +69,10 @@ class DesignPoint:
     def criterion(self) -> float:
         """``(se_a/a)^2 + (se_b/b)^2`` (dimensionless; smaller is better)."""
         r = self.relative_stderr
-        return r["a"] ** 2 + r["b"] ** 2
+        try:
+            return r["a"] ** 2 + r["b"] ** 2
+        except OverflowError:          # beyond a float's range: no design is judged by it
+            return math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +200,12 @@ def design_sine(a: float, b: float, sample_period: float, *, counts_per_rev: int
 
     grid = np.geomspace(lo, hi, n_frequencies)
     scan = [at(f, duty_limit) for f in grid]
-    k = int(np.argmin([p.criterion for p in scan]))
+    criteria = [p.criterion for p in scan]
+    if not any(math.isfinite(c) for c in criteria):
+        raise ParameterError(f"guesses a = {a:g} 1/s, b = {b:g} (rad/s^2)/duty: the predicted standard errors are "
+                             "not finite at any frequency (the motor moves less than the encoder resolves, or the "
+                             "numbers are beyond a float's range): give the guesses of a real motor")
+    k = int(np.argmin(criteria))
     # refine between the neighbours of the best grid frequency
     fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 17)[1:-1]
     scan += [at(f, duty_limit) for f in fine]

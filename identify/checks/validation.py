@@ -192,19 +192,32 @@ def _models(estimate: Estimate, recording: Recording) -> list[tuple[Segment, np.
 
     The estimate's input delay is a time: counted at the recording's sample period (refused
     when it is not a whole number of its samples, :func:`motorsim.plant.delay_at`).  The model a
-    fit kept on this very recording with these very values (:func:`keep_models`) is not simulated again.
+    fit kept on this very recording with these very values (:func:`keep_models`), or that this function made for
+    them last, is not simulated again; the arrays are read-only.
     """
     delay = delay_at(estimate.input_delay, estimate.sample_period, recording.sample_period)
     source = counts_behind_speed(recording) or recording
-    kept = _kept_models.get(source)
-    if kept is not None and kept[0] == _model_key(estimate, delay):
-        return list(kept[1])
-    return [(seg, _segment_model(estimate, seg)) for seg in prepare_segments([source], delay)]
+    key = _model_key(estimate, delay)
+    for store in (_kept_models, _made_models):
+        kept = store.get(source)
+        if kept is not None and kept[0] == key:
+            return list(kept[1])
+    pairs = [(seg, _segment_model(estimate, seg)) for seg in prepare_segments([source], delay)]
+    if any(k != key for k, _ in _made_models.values()):
+        _made_models.clear()
+    for _, model in pairs:
+        model.setflags(write=False)
+    _made_models[source] = (key, tuple(pairs))
+    return list(pairs)
 
 
 #: The model of the last fit that kept one (:func:`keep_models`), by recording: ``(key, [(segment, model), ...])``.
 #: Weak keys: an entry goes with its recording.
 _kept_models: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: The model :func:`_models` simulated last (for one estimate's values, on every recording it was asked for), kept
+#: alike: the checks that follow a fit that keeps none (a friction model's part checks, then its outlier check)
+#: simulate it once.
+_made_models: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _model_key(estimate: Estimate, delay: int) -> tuple:

@@ -186,7 +186,7 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
     if weakening:
         where[SPEED_CURVE] = list(range(len(inputs), len(inputs) + len(weakening)))
         inputs += weakening
-    moments = _moments(_columns(rows, inputs), rows.residual)
+    moments = _moments(rows, inputs)
     base = list(range(len(own)))
     alone = _fit_on(moments, base)
     _, jack, _, classical, _ = alone
@@ -249,10 +249,19 @@ def _curve_inputs(rows: _Rows) -> list[np.ndarray]:
     the drive takes fewer than three magnitudes (no curve to see)."""
     v = rows.drive
     moving = np.abs(v[v != 0])
-    if len(moving) == 0 or len(np.unique(moving)) < 3:
+    if not _three_magnitudes(moving):
         return []
     top = float(moving.max())
-    return [v * np.abs(v) / top, v ** 3 / top ** 2]
+    return [v * np.abs(v) / top, v * v * v / top ** 2]
+
+
+def _three_magnitudes(moving: np.ndarray) -> bool:
+    """Whether the magnitudes ``moving`` take three values or more (``len(np.unique(moving)) >= 3``, without its
+    sort): one strictly between the least and the largest."""
+    if len(moving) == 0:
+        return False
+    least, largest = float(moving.min()), float(moving.max())
+    return bool(np.any((moving > least) & (moving < largest)))
 
 
 def _curve_check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray, int], p_own: int,
@@ -276,8 +285,7 @@ def _curve_check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.nd
         pair, span = [], []
         for vec in maps[key]:
             shift = float(vec @ beta)
-            var = max(float(vec @ cov @ vec) if np.all(np.isfinite(cov)) else math.inf, float(vec @ classical @ vec))
-            se = math.sqrt(max(var, 0.0))
+            se = _stderr(vec, fitted)
             off |= abs(shift) > MATERIAL * abs(full)
             pair.append(full + shift)
             span.append((full + shift - z * se, full + shift + z * se))
@@ -313,9 +321,9 @@ def _beside_check(name: str, estimate: Any, alone: tuple[np.ndarray, np.ndarray,
     pairs, intervals, off = {}, {}, False
     for i, key, full in ((0, "a", float(estimate.a)), (1, "b", float(estimate.b))):
         values = []
-        for (bt, cv, _, cl, _) in (alone, fitted):
-            var = max(float(cv[i, i]) if math.isfinite(cv[i, i]) else math.inf, float(cl[i, i]))
-            se = math.sqrt(max(var, 0.0))
+        for fit in (alone, fitted):
+            bt = fit[0]
+            se = _stderr(np.eye(len(bt))[i], fit)
             values.append((full + float(bt[i]), (full + float(bt[i]) - z * se, full + float(bt[i]) + z * se), se))
         shift = values[1][0] - values[0][0]
         off |= abs(shift) > MATERIAL * abs(full)
@@ -433,9 +441,11 @@ def _windows(pairs: list[tuple[Segment, np.ndarray]], total: int) -> list[tuple[
     return out
 
 
-def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray) -> np.ndarray:
+def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray,
+             out: np.ndarray | None = None) -> np.ndarray:
     """The responses of the pole ``a`` from rest to the held inputs ``x`` (columns) on one segment, each less its
-    least-squares fit on the segment's initial state (speed, and for an angle the offset).
+    least-squares fit on the segment's initial state (speed, and for an angle the offset); into ``out`` (row-major,
+    the shape of ``x``) when given.
 
     On a uniform clock by one pass of :func:`motorsim.recursion.first_order_filter` over every column (the exact
     ZOH step, as :func:`identify.fits.sensitivity.zoh_response` takes it), else column by column through it."""
@@ -444,6 +454,8 @@ def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray)
 
     from ..fits.sensitivity import zoh_response
     n, k = x.shape
+    if out is None:
+        out = np.empty((n, k))
     if uniform and n > 1:
         h = float(t[1] - t[0])
         if a * h > 1e-4:
@@ -453,30 +465,30 @@ def _respond(a: float, t: np.ndarray, uniform: bool, angle: bool, x: np.ndarray)
             e = math.exp(-a * h)
             c1 = -math.expm1(-a * h) / a if a * h > 1e-8 else h
             c2 = h * h / 2 - a * h ** 3 / 6
-        # column-major: every pass below runs along contiguous columns
-        forcing = np.zeros((n, k), order="F")
+        # row-major, as the filter's scan takes it; one work array, the rest written in ``out``
+        forcing = np.empty((n, k))
+        forcing[0] = 0.0
         np.multiply(x[:-1], c1, out=forcing[1:])
-        out = first_order_filter(e, forcing)
+        first_order_filter(e, forcing, out=out)                             # the speeds
         s0 = np.power(e, np.arange(n, dtype=float))                        # the free response to a unit speed
-        if angle:
-            steps = np.zeros((n, k), order="F")
-            np.multiply(out[:-1], c1, out=steps[1:])
-            steps[1:] += c2 * x[:-1]
-            out = np.cumsum(steps, axis=0, out=steps)
+        if angle:                  # the angle's steps, c1 (speed before) + c2 (input), summed
+            np.multiply(out[:-1], c1, out=forcing[1:])
+            forcing[1:] += np.multiply(x[:-1], c2, out=out[1:])
+            np.cumsum(forcing, axis=0, out=out)
             s0 = np.concatenate([[0.0], np.cumsum(c1 * s0[:-1])])
     else:
         s0 = getattr(zoh_response(a, 0.0, np.zeros(n), t, 1.0, uniform=uniform, sensitivities=False),
                      "angle" if angle else "speed")
-        out = np.column_stack([getattr(zoh_response(a, 1.0, x[:, j], t, 0.0, uniform=uniform, sensitivities=False),
-                                       "angle" if angle else "speed") for j in range(k)])
-        out = np.asfortranarray(out)
+        for j in range(k):
+            out[:, j] = getattr(zoh_response(a, 1.0, x[:, j], t, 0.0, uniform=uniform, sensitivities=False),
+                                "angle" if angle else "speed")
     # less the least-squares fit on the initial state (project_out_initial_state, for every column at once)
     if angle:
         s0 = s0 - s0.mean()
         out -= out.mean(axis=0)
-    ss = float(np.einsum("i,i->", s0, s0))
+    ss = float(s0 @ s0)
     if ss > 0:
-        out -= np.multiply.outer(s0, np.einsum("i,ij->j", s0, out) / ss)
+        out -= np.multiply.outer(s0, (s0 @ out) / ss)
     return out
 
 
@@ -516,7 +528,7 @@ def _split_labels(rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, np.nda
     fwd_w, fwd_v = w > 0, v > 0
     if enough(fwd_w, w * w) and enough(fwd_v, v * v):
         out["forward / reverse"] = (fwd_w, fwd_v, fwd_w)
-    if len(moving_v) and len(np.unique(moving_v)) > 2:
+    if _three_magnitudes(moving_v):
         high = np.abs(v) > np.median(moving_v)
         if enough(high, v * v):
             out["low / high drive"] = (high, high, high)
@@ -534,15 +546,6 @@ def _exact(rows: _Rows) -> bool:
     """Whether the model reproduces the data to rounding (:data:`EXACT`)."""
     r = rows.residual
     return bool(np.sqrt(np.mean(r * r)) <= EXACT * rows.output_rms)
-
-
-def _columns(rows: _Rows, xs: Sequence[np.ndarray]) -> np.ndarray:
-    """The projected responses to the inputs ``xs`` (full length), segment by segment, as columns."""
-    inputs = np.asfortranarray(np.column_stack(xs))
-    out = np.empty_like(inputs, order="F")
-    for (lo, hi), respond in zip(rows.bounds, rows.respond):
-        out[lo:hi] = respond(inputs[lo:hi])
-    return out
 
 
 def _parted_inputs(rows: _Rows, name: str, masks: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:
@@ -586,8 +589,7 @@ def _check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray,
         pair = []
         for vec in (rest, part, part - rest):
             shift = float(vec @ beta)
-            var = max(float(vec @ cov @ vec) if np.all(np.isfinite(cov)) else math.inf, float(vec @ classical @ vec))
-            se = math.sqrt(var) if var >= 0 else 0.0
+            se = _stderr(vec, fitted)
             # materially off: a part's shift from the full fit, or the parts' difference, is over MATERIAL of the
             # value (the test has found it beyond the noise: within its own interval it is still a model refuted)
             off |= abs(shift) > MATERIAL * abs(full)
@@ -618,17 +620,42 @@ class _Moments:
     n: int
 
 
-def _moments(X: np.ndarray, r: np.ndarray) -> _Moments:
-    """:class:`_Moments` of the columns ``X`` and residual ``r`` over the blocks of
-    :func:`identify.default.comparison.block_sums`."""
+def _moments(rows: _Rows, xs: Sequence[np.ndarray]) -> _Moments:
+    """:class:`_Moments` of the projected responses to the inputs ``xs`` (full length, :func:`_respond` segment by
+    segment) and the residual, over the blocks of :func:`identify.default.comparison.block_sums`.
+
+    Made segment by segment in one work array of a segment's rows, each segment's cross-products taken while its
+    responses are fresh: the columns are never held for all rows at once (a 6000 x 18 array made, filtered and
+    scaled in memory cost more than the arithmetic).  The columns' norms are the square roots of the cross-products'
+    diagonal, and the cross-products are scaled by them at the end (:class:`_Moments` holds the unit-norm columns')."""
     from .comparison import _block_starts
-    scale = np.linalg.norm(X, axis=0)
+    r = rows.residual
+    n, k = len(r), len(xs)
+    bounds = np.append(_block_starts(n), n)
+    grams = np.zeros((len(bounds) - 1, k, k))
+    xr = np.zeros((len(bounds) - 1, k))
+    longest = max(hi - lo for lo, hi in rows.bounds)
+    inputs = np.empty((k, longest))               # a segment's inputs, one contiguous row each
+    out = np.empty((longest, k))                  # its responses, row-major as the filter takes them
+    for (lo, hi), respond in zip(rows.bounds, rows.respond):
+        for j, x in enumerate(xs):
+            inputs[j, :hi - lo] = x[lo:hi]
+        X = respond(inputs[:, :hi - lo].T, out=out[:hi - lo])
+        # the blocks (or their parts) within this segment
+        first = int(np.searchsorted(bounds, lo, side="right")) - 1
+        for b in range(first, len(bounds) - 1):
+            b_lo, b_hi = max(int(bounds[b]), lo), min(int(bounds[b + 1]), hi)
+            if b_lo >= b_hi:
+                break
+            part = X[b_lo - lo:b_hi - lo]
+            grams[b] += part.T @ part
+            xr[b] += r[b_lo:b_hi] @ part
+    gram = grams.sum(axis=0)
+    scale = np.sqrt(np.diagonal(gram).copy())
     scale[scale == 0] = 1.0
-    Xs = X / scale
-    bounds = list(_block_starts(len(r))) + [len(r)]
-    grams = np.stack([np.einsum("ij,ik->jk", Xs[lo:hi], Xs[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:])])
-    xr = np.stack([np.einsum("ij,i->j", Xs[lo:hi], r[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:])])
-    return _Moments(scale, grams.sum(axis=0), xr.sum(axis=0), float(np.einsum("i,i->", r, r)), grams, xr, len(r))
+    grams /= np.multiply.outer(scale, scale)
+    xr /= scale
+    return _Moments(scale, grams.sum(axis=0), xr.sum(axis=0), float(r @ r), grams, xr, n)
 
 
 def _fit_on(mom: _Moments, idx: list[int]) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, int]:
@@ -683,6 +710,19 @@ def _joint_p(delta: np.ndarray, cov: np.ndarray, m: int) -> float:
     if not m:
         return float(special.chdtrc(k, t2))
     return float(special.fdtrc(k, m - k, t2 * (m - k) / (k * (m - 1))))
+
+
+def _stderr(vec: np.ndarray, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray, int]) -> float:
+    """Standard error of ``vec @ beta``, a linear map of a check's step (:func:`_fit_on`'s ``beta``): from the larger
+    of its jackknife and its classical variance, the jackknife's infinite where its covariance could not be formed
+    (any entry not finite).  A variance below zero (rounding) counts as 0; one that is not a number gives a standard
+    error that is not one (no interval, never a material shift)."""
+    _, cov, _, classical, _ = fitted
+    var = float(vec @ classical @ vec)
+    jack = float(vec @ cov @ vec) if np.isfinite(cov).all() else math.inf
+    if not jack <= var:                 # the larger; a classical variance that is not a number gives way to it
+        var = jack
+    return math.sqrt(var) if not var < 0 else 0.0
 
 
 def _hint(name: str, a: tuple[float, float], b: tuple[float, float], parts: tuple[str, str]) -> str:

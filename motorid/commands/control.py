@@ -546,9 +546,8 @@ def _input_unit_and_limit(args: argparse.Namespace) -> tuple[str, float | None]:
         estimate = load_model_file(args.model)
         unit, limit = estimate.input_unit, estimate.input_limit
     if args.input_limit is not None:
-        if not (math.isfinite(args.input_limit) and args.input_limit > 0):
-            raise CommandError(f"--input-limit must be a number > 0 {unit}, got {args.input_limit!r}")
-        limit = args.input_limit
+        from motorid.commands.importing import check_input_limit
+        limit = check_input_limit(args.input_limit, unit)
     if limit is None and unit == "duty":
         limit = float(DUTY_LIMIT)
     if limit is None and unit == "%":

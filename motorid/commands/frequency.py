@@ -116,11 +116,19 @@ def _distortion(recs) -> Any:
     return best_linear_approximation(recs)
 
 
+#: The confidence levels ``--level`` takes.
+LEVEL_RANGE = (0.5, 1 - 1e-9)
+
+
 def run_frequency(args: argparse.Namespace) -> int:
     """Estimate, print the table (and the distortion summary), write the Bode plot if asked."""
     from identify.errors import NotIdentifiableError
     from identify.frequency.frequency_estimate import frequency_response
     say = print_to_stderr if args.json else print
+    if not (math.isfinite(args.level) and LEVEL_RANGE[0] <= args.level <= LEVEL_RANGE[1]):
+        raise CommandError(f"--level must be a probability in {LEVEL_RANGE[0]:g}...{LEVEL_RANGE[1]:g}, got "
+                           f"{args.level!r}: below one half a bound holds the response less often than not, and "
+                           "at 1 it is infinite")
     recs = read_inputs(args.files, args)
     try:
         frf = frequency_response(recs, method=args.method, segment=args.segment)

@@ -12,10 +12,12 @@ import math
 import os
 import warnings
 
+import numpy as np
+
 from motorid.arguments import CommandError, print_to_stderr
 from motorsim.columns import import_recording
 from motorsim.reading import read_recording
-from motorsim.recording import FORMAT_HEADER, Recording, RecordingFormatError
+from motorsim.recording import FORMAT_HEADER, MAX_COUNTS_PER_REV, Recording, RecordingFormatError
 from motorsim.units import ANGLE_UNITS, INPUT_UNITS, SPEED_UNITS, TIME_UNITS
 from motorsim.writing import write_recording
 
@@ -66,7 +68,8 @@ def column_flags_given(args: argparse.Namespace) -> bool:
         return True
     for flag, name in (("--counts-per-rev", "import_counts_per_rev"), ("--input-limit", "input_limit"),
                        ("--input-shift", "input_shift")):
-        if getattr(args, name, None) not in (None, 0):
+        given = getattr(args, name, None)
+        if given is not None and not (name == "input_shift" and given == 0):
             raise CommandError(f"{flag} describes a foreign file's columns (with --time, --input, ...); a format-v1 "
                                f"recording states its own in its header, got {flag} {getattr(args, name)!r} alone")
     return False
@@ -78,6 +81,14 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
         raise CommandError("a foreign file needs --time COL[:UNIT] and --input COL[:UNIT]")
     if args.speed is None and args.angle is None and args.counts is None:
         raise CommandError("a foreign file needs one of --speed, --angle, --counts")
+    cpr = args.import_counts_per_rev
+    if cpr is not None:
+        if not 1 <= cpr <= MAX_COUNTS_PER_REV:
+            raise CommandError(f"--counts-per-rev must be an encoder's counts per revolution, in 1..."
+                               f"{MAX_COUNTS_PER_REV}, got {cpr!r}")
+        if args.counts is None and args.angle is None:
+            raise CommandError(f"--counts-per-rev {cpr} describes a counts column (--counts COL, or --angle "
+                               "COL:counts); a speed column needs none: leave it out")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
         rec = import_recording(path, time=args.time, input=args.input, speed=args.speed, angle=args.angle,
@@ -88,10 +99,26 @@ def import_from_args(path: str, args: argparse.Namespace) -> Recording:
     _say_gaps(path, rec)
     limit = getattr(args, "input_limit", None)
     if limit is not None:
-        if not (math.isfinite(limit) and limit > 0):
-            raise CommandError(f"--input-limit must be a number > 0 {rec.input_unit}, got {limit!r}")
+        check_input_limit(limit, rec.input_unit)
+        largest = float(np.max(np.abs(rec.duty)))
+        if largest > limit * (1 + 1e-9):
+            raise CommandError(f"--input-limit {limit:g} {rec.input_unit} is below the input {path} records (its "
+                               f"largest magnitude {largest:g} {rec.input_unit}): a drive applies no more than its "
+                               "limit; give the drive's real limit")
         rec = dataclasses.replace(rec, metadata={**rec.metadata, "input_limit": f"{limit:g}"})
     return rec
+
+
+def check_input_limit(limit: float, unit: str, flag: str = "--input-limit") -> float:
+    """``limit`` if it is a drive's limit: a number in ``1e-100...1e12`` (the inputs a fit takes, and a
+    recording's largest magnitude); else :class:`CommandError` naming ``flag``.  Beyond them the top speed,
+    the reference and a controller's gains underflow to 0 or overflow, and a design says nothing true."""
+    from identify.data import INPUT_SCALE_LIMIT
+    from motorsim.recording import MAX_MAGNITUDE
+    if not (math.isfinite(limit) and 1 / INPUT_SCALE_LIMIT <= limit <= MAX_MAGNITUDE):
+        raise CommandError(f"{flag} must be a number in {1 / INPUT_SCALE_LIMIT:g}...{MAX_MAGNITUDE:g} {unit} (a "
+                           f"drive's largest input), got {limit!r}")
+    return limit
 
 
 def _say_gaps(path: str, rec: Recording) -> None:

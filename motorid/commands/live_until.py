@@ -106,7 +106,12 @@ def open_rig(args: argparse.Namespace):
     line (:class:`CommandError`).  ``live`` with and without ``--until`` opens it here."""
     import identify.model_structures  # noqa: F401 - registers the structures a fake:// port's plant may name
     from hardware.errors import RigError
-    from hardware.serial_rig import SerialRig
+    from hardware.serial_rig import MAX_BAUDRATE, MAX_TIMEOUT, SerialRig
+    if not 1 <= args.baud <= MAX_BAUDRATE:
+        raise CommandError(f"--baud must be a line rate in 1...{MAX_BAUDRATE} baud, got {args.baud!r}")
+    if not (math.isfinite(args.timeout) and 0 < args.timeout < MAX_TIMEOUT):
+        raise CommandError(f"--timeout must be a number of seconds > 0 and < {MAX_TIMEOUT:g} (an hour without a "
+                           f"sample is a device that is gone), got {args.timeout!r}")
     rig = SerialRig(args.port, args.baud, counts_per_rev=args.counts_per_rev, decoding=args.decoding,
                     watchdog_ms=args.watchdog_ms, timeout=args.timeout)
     try:

@@ -172,17 +172,18 @@ def test_when_no_candidate_can_be_fitted_on_all_rows_the_first_failure_is_raised
         _fit(rec)
 
 
-def test_a_pole_slower_than_the_whole_run_is_not_a_clear_choice():
+def test_a_pole_slower_than_the_whole_run_is_not_a_clear_choice(monkeypatch):
     # a load switched on halfway through a multisine: the second-order fit ran off to a = 2.5e-5 1/s and an
-    # electrical time constant of hours, its own standard error 1e-5, and was called clear (b = -43141 for 3)
+    # electrical time constant of hours, its own standard error 1e-5, and was called clear (b = -43141 for 3).
+    # The default now follows the load with a torque disturbance; without that route (as where the data show no
+    # disturbance) the output-error answer must still say it has none
+    monkeypatch.setattr(selection_module, "_changing_torque", lambda *args: None)
     est = _fit(misfits.MISFITS["load switched on halfway"](4))
-    if est.selection.clear:
-        assert _covers(est, (25.0, 25.0), (3.0, 3.0))
     span = est.n_samples * est.sample_period
-    if est.a * span < 1:
-        # said as the pole slower than the run, or as the interval the run does not determine
-        assert not est.selection.clear
-        assert "longer than the run" in est.selection.doubt or "does not determine" in est.selection.doubt
+    assert est.a * span < 1
+    # said as the pole slower than the run, or as the interval the run does not determine
+    assert not est.selection.clear
+    assert "longer than the run" in est.selection.doubt or "does not determine" in est.selection.doubt
 
 
 def test_a_load_switched_on_is_followed_as_a_torque_disturbance_where_output_error_gives_no_answer():
@@ -231,3 +232,45 @@ def test_a_fit_that_overrules_the_friction_screen_splits_the_evidence():
     moved = noted[0].split("fitted on its rows, ", 1)[1]
     assert f"the evidence for friction is split: the score test (p = {p_text}) finds none, while {moved}" in \
         est.selection.doubt
+
+
+def _warming_speed_loop(seed: int = 1):
+    """A PI speed loop (kp 3, ki 60) tracking two sines around a motor that warms by 8 % over 15 s (a and b falling
+    together), Coulomb friction of 60 rad/s^2 and a random torque of 5 rad/s^2 RMS (correlation time 0.1 s) that the
+    loop feeds back; 2000 counts, 1 ms.  Integrated by the midpoint rule on 8 sub-steps of each held sample."""
+    from motorsim import Recording
+    rng = np.random.default_rng(seed)
+    h, n, cpr, sub = 0.001, 15_000, 2000, 8
+    dt = h / sub
+    th = w = d = integral = 0.0
+    prev = 0
+    counts, duty = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    phase = rng.uniform(0, 6.28)
+    for k in range(n):
+        t = k * h
+        c = int(np.floor((th + rng.normal(0, 1e-4)) * cpr / (2 * np.pi)))
+        counts[k] = c
+        measured = (c - prev) * 2 * np.pi / cpr / h if k else 0.0
+        prev = c
+        error = 20 * np.sin(2 * np.pi * t) + 10 * np.sin(5.2 * np.pi * t + 1 + phase) - measured
+        integral += error * h
+        u = int(round(min(max(3.0 * error + 60.0 * integral, -255), 255)))
+        duty[k] = u
+        for _ in range(sub):
+            d += -d / 0.1 * dt + 5.0 * np.sqrt(2 * dt / 0.1) * rng.normal()
+            f = 1 - 0.08 * t / 15.0
+            mid = w + 0.5 * dt * (f * (-25.0 * w + 3.0 * u) - 60.0 * np.tanh(w / 0.05) + d)
+            th += dt * mid
+            w += dt * (f * (-25.0 * mid + 3.0 * u) - 60.0 * np.tanh(mid / 0.05) + d)
+            t += dt
+    return Recording(time=np.arange(n) * h, duty=duty, sample_period=h, counts=counts, counts_per_rev=cpr)
+
+
+def test_a_closed_loop_answer_whose_halves_differ_is_not_clear():
+    # a motor warming under a speed loop: the torque disturbance averages the drift into one a and b; fitted on each
+    # half of the run they differ (a about 24.3 against 23.5), so the answer is not clear and holds both
+    est = _fit(_warming_speed_loop())
+    assert est.method == "pem-disturbance"
+    assert not est.selection.clear and "in the first half" in est.selection.doubt
+    ci = est.confidence_interval(0.95)
+    assert ci["a"][0] <= 25.0 * 0.92 + 0.5 and 25.0 - 0.5 <= ci["a"][1]

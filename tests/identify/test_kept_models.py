@@ -19,6 +19,7 @@ def _simulated(est, rec):
     """The model as the checks computed it before any was kept."""
     kept = dict(validation._kept_models)
     validation._kept_models.clear()
+    validation._made_models.clear()
     try:
         return validation._models(est, rec)
     finally:
@@ -75,6 +76,7 @@ def test_the_default_answers_as_with_the_model_simulated(monkeypatch):
     kept = fit(rec)
     monkeypatch.setattr("identify.fits.output_error.keep_models", lambda *args: None)
     validation._kept_models.clear()
+    validation._made_models.clear()
     simulated = fit(rec)
     assert not validation._kept_models
     assert (kept.a, kept.b, kept.structure) == (simulated.a, simulated.b, simulated.structure)
@@ -83,3 +85,25 @@ def test_the_default_answers_as_with_the_model_simulated(monkeypatch):
     # the part checks' p-values from the two models: the same to the models' rounding
     np.testing.assert_allclose([c.p_value for c in kept.selection.checks],
                                [c.p_value for c in simulated.selection.checks], rtol=1e-6)
+
+
+def test_a_model_no_fit_kept_is_simulated_once_for_the_checks(monkeypatch):
+    # a friction model's fit keeps none: its part checks simulate it, and the outlier check after them takes that
+    rig = SimRig(Motor(25.0, 3.0, friction=40.0), Encoder(16667, angle_noise=1e-4), rng=np.random.default_rng(5))
+    rec = rig.run(Experiment(Multisine((5.0, 17.0, 41.0), (60, 60, 50), (0, 1, 2)), 0.005, 40.0))
+    made = []
+    simulate = validation._segment_model
+    monkeypatch.setattr(validation, "_segment_model", lambda est, seg: made.append(est.structure) or simulate(est, seg))
+    est = fit(rec)
+    assert est.structure == "friction" and est.selection.checks
+    assert made == ["friction"]                     # one segment, simulated once
+    (seg, model), = validation._models(est, rec)
+    assert not model.flags.writeable and made == ["friction"]
+    # and it is the model simulated afresh, to the last bit
+    (_, again), = _simulated(est, rec)
+    np.testing.assert_array_equal(model, again)
+    # other values: simulated again, and the first let go
+    moved = dataclasses.replace(est, a=est.a * 1.01)
+    validation._models(moved, rec)
+    assert made == ["friction", "friction", "friction"] and validation._made_models[rec][0][1] != \
+        validation._model_key(est, 0)[1]

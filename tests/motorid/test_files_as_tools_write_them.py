@@ -182,14 +182,3 @@ def test_a_recording_of_one_or_two_rows_is_too_short(tmp_path, capsys, rows):
 def test_a_recording_saved_with_a_bom_is_told_so_not_called_a_foreign_file(tmp_path, capsys):
     err = _v1(tmp_path, capsys, lambda s: "\ufeff" + s)
     assert "byte-order mark (BOM)" in err and "is not a motorid recording" not in err
-
-
-def test_an_empty_cell_says_what_left_it_empty(tmp_path, capsys):
-    # a plotting tool's export of topics logged at different times leaves cells empty: refused naming the cell
-    # and what to do, not guessed at
-    path = tmp_path / "topics.csv"
-    path.write_text("__time,/cmd,/speed\n" + "".join(f"{1.7e9 + a:.6f},{b:g},\n{1.7e9 + a + 0.001:.6f},,{c:.6f}\n"
-                                                    for a, b, c in _ROWS))
-    assert main(["identify", str(path), "--time", "__time:s", "--input", "/cmd:duty", "--speed", "/speed:rad/s"]) == 2
-    err = capsys.readouterr().err
-    assert "column '/speed' must hold a finite number, got '' (an empty cell: columns logged at different times" in err
