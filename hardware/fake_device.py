@@ -56,14 +56,14 @@ import sys
 import threading
 import time
 import urllib.parse
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
 from motorsim.checks import ParameterError, ParameterTypeError, check_bool, check_int, check_real
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
-from motorsim.plant import Motor, Plant, Stepper
+from motorsim.plant import Motor, Plant, Stepper, further_parameters, named_plant, registered_structures
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
@@ -674,12 +674,26 @@ _RENAMED_KEYS = {"cpr": "counts_per_rev", "noise": "angle_noise", "offset": "cou
 
 def _url_knobs() -> tuple[Knob, ...]:
     bench = tuple(k for k in bench_knobs() if k.owner in (Motor, Encoder))
-    return bench + _DEVICE_KNOBS + knobs_of(FaultPlan)
+    return bench + _DEVICE_KNOBS + knobs_of(FaultPlan) + _structure_knobs()
+
+
+def _structure_knobs() -> tuple[Knob, ...]:
+    """``structure`` and the further parameters of the registered structures (:func:`motorsim.plant.named_plant`)."""
+    structures = registered_structures()
+    return (Knob("structure", FakeDevice, str, "", "", "the model structure of the device's plant (default: the "
+                 "Motor of the motor's knobs)"),
+            *(Knob(name, FakeDevice, float, None, "", f"a parameter of the structures {_having(structures, name)}")
+              for name in further_parameters(structures)))
+
+
+def _having(structures, name: str) -> list[str]:
+    return [n for n, s in structures.items() if name in s.param_names]
 
 
 def url_keys() -> tuple[str, ...]:
     """The query keys of ``fake://``: the motor's and encoder's bench knobs, the device's
-    (``seed``, ``speed``, ``realtime``, ``queue``) and the :class:`FaultPlan` fields.
+    (``seed``, ``speed``, ``realtime``, ``queue``), the :class:`FaultPlan` fields, and ``structure`` with the further
+    parameters of the registered model structures (those ``identify`` registers when imported).
 
     Examples
     --------
@@ -699,7 +713,10 @@ def parse_fake_url(url: str) -> FakeDevice:
     Query keys (:func:`url_keys`): the bench knobs of ``Motor`` (``a``, ``b``, defaults 25 and 3;
     ``friction``, ``bias``, ``dead_zone``, ``input_delay``) and ``Encoder`` (``counts_per_rev``,
     ``count_offset``, ``angle_noise``) under their own names; ``seed``, ``speed``, ``realtime``, ``queue``;
-    and every :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``).
+    every :class:`FaultPlan` field (``flip_rate``, ..., ``mute``, ``version``, ``boot_delay``); and ``structure``, a
+    registered model structure whose plant the device runs, with its own parameters under their names
+    (``fake://?structure=two-mass&inertia_ratio=1.5&shaft_frequency=150&shaft_damping=0.1``; a parameter the
+    structure does not have is refused by name).
 
     Examples
     --------
@@ -719,14 +736,17 @@ def parse_fake_url(url: str) -> FakeDevice:
     if unknown:
         raise ParameterError(f"fake:// url has unknown keys {sorted(unknown)}; known: {sorted(knobs)}")
     try:
-        values = {name: knobs[name].parse(text) for name, text in query.items()}
+        values: dict[str, Any] = {name: knobs[name].parse(text) if knobs[name].kind is not str else text
+                  for name, text in query.items()}
     except ValueError as exc:
         raise ParameterError(f"fake:// url key {exc}") from None
 
     def fields_of(cls: type) -> dict:
         return {k.name: values[k.name] for k in knobs_of(cls) if k.name in values}
 
-    motor = Motor(**{**_MOTOR_DEFAULTS, **fields_of(Motor)})
+    plant_keys = [k.name for k in knobs_of(Motor)] + [k.name for k in _structure_knobs()[1:]]
+    given = {name: values[name] for name in plant_keys if name in values}
+    motor = named_plant(values.get("structure", ""), {**_MOTOR_DEFAULTS, **given}, registered_structures())
     return FakeDevice(motor, Encoder(**fields_of(Encoder)), FaultPlan(**fields_of(FaultPlan)),
                       speed=values.get("speed", 1.0), queue_size=values.get("queue", 16),
                       rng=np.random.default_rng(values.get("seed", 0)))

@@ -17,7 +17,7 @@ bench, the emulated or the real Arduino) in rounds:
    ``a`` of the interval so far; the block lasts as long as the prediction says it takes (at most
    three times the motor time so far, and the budget left).  While the choice of structure is not
    clear, every other block is an odd multisine over ``a/10 ... 10 a``
-   (:func:`~identify.design.design_multisine`): the evidence that separates the candidates.
+   (:func:`~identify.checks.design.design_multisine`): the evidence that separates the candidates.
 3. **Stopping early**, saying why: the time budget is spent (and which parameter is short by how
    much), the model fails (the estimator refuses the data, or its intervals are not finite), or a
    part the target needs cannot be excited within the limits (the motor does not turn at the duty
@@ -65,7 +65,7 @@ from motorsim.rig import Experiment
 
 from .errors import NotIdentifiableError
 from .estimate import Estimate
-from .sensitivity import zoh_response
+from .fits.sensitivity import zoh_response
 
 __all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
            "STOP_REASONS", "check_target", "lag_free_reach", "sub_sample_lag", "simultaneous", "SIMULTANEOUS"]
@@ -454,7 +454,7 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
         return None
     tau = float(lagged.value("electrical_time_constant"))
     se = float(lagged.stderr().get("electrical_time_constant", math.nan))
-    from .electrical import TAU_BOUNDS_SAMPLES
+    from .fits.electrical import TAU_BOUNDS_SAMPLES
     floor = 2 * TAU_BOUNDS_SAMPLES[0] * recording.sample_period      # a fit at its search's bound found no lag
     if not (math.isfinite(tau) and math.isfinite(se) and se > 0 and tau > max(_LAG_Z * se, floor)):
         return None
@@ -837,14 +837,7 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
         var = _variances(info)
         reach_now = np.where(np.isfinite(var) & (var >= 0),
                              100 * _Z * np.sqrt(sigma2 * np.abs(var)) / np.abs([a, b]), 1e3)
-    a_set = [a]
-    if est is not None and last.intervals:
-        lo, hi = last.intervals["a"]
-        if math.isfinite(lo) and math.isfinite(hi) and (hi > 1.2 * a or lo < a / 1.2):
-            a_set = [max(lo, a / 4), a, min(hi, 4 * a)]
-    else:
-        a_set = [a / 4, a, 4 * a]
-    a_set = sorted({x for x in a_set if x > 0})
+    a_set = _plausible_poles(est, last, a)
     extra = _nuisance(est)
     size = 3 + len(extra) + ("bias" not in extra and "friction" in extra)
     pasts = [sum((information(aa, b * aa / a, r.duty, dt, delay, lag=True, nuisance=extra) for r in state.fitted),
@@ -897,6 +890,19 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
                                         reach_now,
                                         target, length, lagged, fixed=True)[1] for aa, p in zip(a_set, pasts)], axis=0)
     return ex, length, {k: float(r) for k, r in zip(_PARAMS, reach)}, why
+
+
+def _plausible_poles(est: Any, last: UntilRound, a: float) -> list[float]:
+    """The poles a block is designed for: ``a``, and its interval's ends (within 4 times) while that is wide; a
+    quarter and four times ``a`` before any fit."""
+    a_set = [a]
+    if est is not None and last.intervals:
+        lo, hi = last.intervals["a"]
+        if math.isfinite(lo) and math.isfinite(hi) and (hi > 1.2 * a or lo < a / 1.2):
+            a_set = [max(lo, a / 4), a, min(hi, 4 * a)]
+    else:
+        a_set = [a / 4, a, 4 * a]
+    return sorted({x for x in a_set if x > 0})
 
 
 def _two_tone(frequency: float, amplitude: int, highest: float) -> Excitation:
@@ -1003,7 +1009,7 @@ def lag_free_reach(runs: Sequence[Recording], est: Estimate, reach: Mapping[str,
 def _multisine_block(a: float, b: float, dt: float, duty_limit: int, length: float,
                      max_speed: float | None) -> tuple[Excitation, float] | None:
     """An odd multisine over ``a/10 ... 10 a`` for about ``length`` s, or None when none fits."""
-    from .design import design_multisine
+    from .checks.design import design_multisine
     try:
         d = design_multisine(a, b, dt, duration=max(length, 0.5), duty_limit=duty_limit)
     except ParameterError:

@@ -23,6 +23,7 @@ import numpy as np
 from motorsim.checks import ParameterError, check_int
 from motorsim.plant import Plant
 
+from .default.selection_report import SelectionReport
 from .model_file import (
     ESTIMATE_FORMAT,
     MAX_ESTIMATE_BYTES,
@@ -33,7 +34,6 @@ from .model_file import (
     read_estimate_document,
 )
 from .model_structures import ModelStructure, structure, structure_fitted
-from .selection_report import SelectionReport
 
 if TYPE_CHECKING:
     import control
@@ -84,7 +84,7 @@ class Estimate:
         The recordings fitted, as ``(path, sha256 hex digest)`` (empty unless set, e.g. by
         ``motorid identify --save``).
     selection : SelectionReport, optional
-        How the default estimator chose this model (:func:`identify.selection.fit_selected`):
+        How the default estimator chose this model (:func:`identify.default.selection.fit_selected`):
         every candidate (structure, input delay, fit, score), the chosen one, the best, the
         runner-up, whether the choice was ``clear`` and the ``doubt`` line; None when a method
         was named.  A mapping given here (the JSON document's ``selection`` object) is read
@@ -100,7 +100,7 @@ class Estimate:
         How ``covariance`` was computed (``+model-spread`` when the selection widened it to cover
         the candidates the data cannot rule out): ``"gauss-newton"`` (white residuals assumed),
         ``"newey-west"`` (a sandwich that allows correlated residuals, see
-        :func:`identify.uncertainty.robust_covariance`), ``"encoder-bootstrap"`` (``oe`` on a
+        :func:`identify.checks.uncertainty.robust_covariance`), ``"encoder-bootstrap"`` (``oe`` on a
         coarse encoder: refits of the model re-quantised at other encoder phases) or
         ``"linearised-encoder-bootstrap"`` (``oe-friction`` when rounding dominates the
         residuals: one Gauss–Newton step per phase), ``"instrumental-variables"`` (``iv``: the
@@ -121,7 +121,7 @@ class Estimate:
         ``speed_unit``), for showing results in it; every value here stays in rad/s.
     speed_residuals : tuple of ndarray, optional
         The fit's speed residual (measured minus model, rad/s) on each recording it was fitted on,
-        in the order given, row by row exactly as :func:`identify.validation.model_output` gives it
+        in the order given, row by row exactly as :func:`identify.checks.validation.model_output` gives it
         (``nan`` where undefined): kept by ``oe`` so the outlier check after the fit need not
         simulate the model again.  In memory only (not in JSON); None when not kept.
     """

@@ -106,47 +106,47 @@ def _input_delay(default: int | str = DEFAULT_INPUT_DELAY, kind: str = "int or '
 _FIX_BIAS = EstimatorOption("fix_bias", "bool", False, "hold the bias (constant acceleration d) at 0")
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
-#: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
-DEFAULT = Estimator("auto", "selection:fit_selected", (
+#: (:func:`identify.default.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
+DEFAULT = Estimator("auto", "default.selection:fit_selected", (
     _input_delay(),
     EstimatorOption("structures", "sequence of str or None", None,
                     "the registered structures to choose among (identify.structures(); default all)"),
     EstimatorOption("fix_bias", "bool", False, "hold the bias at 0 in the friction structures")))
-EULER_LS = Estimator("euler-ls", "regression:fit_euler_ls")
-ZOH_LS = Estimator("zoh-ls", "regression:fit_zoh_ls")
-OE = Estimator("oe", "output_error:fit_output_error", (
+EULER_LS = Estimator("euler-ls", "fits.regression:fit_euler_ls")
+ZOH_LS = Estimator("zoh-ls", "fits.regression:fit_zoh_ls")
+OE = Estimator("oe", "fits.output_error:fit_output_error", (
     _input_delay(),
     EstimatorOption("fit_bias", "bool", False, "also fit a constant acceleration d (the bias structure)"),
     EstimatorOption("jac", "'analytic', '2-point' or '3-point'", "analytic",
                     "the Jacobian: analytic sensitivities or finite differences"),
     EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
                     "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
-    candidate="output_error:structure_candidate")
-IV = Estimator("iv", "instrumental:fit_instrumental_variables", (
+    candidate="fits.output_error:structure_candidate")
+IV = Estimator("iv", "fits.instrumental:fit_instrumental_variables", (
     _input_delay(),
     EstimatorOption("iterations", "int >= 1", 3, "instrumental-variable passes after the zoh-ls start")))
-OE_FRICTION = Estimator("oe-friction", "friction:fit_output_error_friction", (
+OE_FRICTION = Estimator("oe-friction", "fits.friction:fit_output_error_friction", (
     _input_delay(),
     _FIX_BIAS,
     EstimatorOption("dead_zone", "bool", True, "also fit a dead zone of the input"),
     EstimatorOption("static_friction", "bool", False,
                     "also fit a static friction above the friction (stiction; needs dead_zone false)")),
-    candidate="friction:structure_candidate")
-IV_REFERENCE = Estimator("iv-reference", "closed_loop:fit_reference_iv", (_input_delay(0, "int"),),
+    candidate="fits.friction:structure_candidate")
+IV_REFERENCE = Estimator("iv-reference", "fits.closed_loop:fit_reference_iv", (_input_delay(0, "int"),),
                          closed_loop_only=True)
-OE_ELECTRICAL = Estimator("oe-electrical", "electrical:fit_output_error_electrical", (_input_delay(),),
-                          candidate="electrical:structure_candidate", beyond_first_order=True)
-OE_ASYMMETRIC = Estimator("oe-asymmetric", "asymmetry:fit_output_error_asymmetric", (
+OE_ELECTRICAL = Estimator("oe-electrical", "fits.electrical:fit_output_error_electrical", (_input_delay(),),
+                          candidate="fits.electrical:structure_candidate", beyond_first_order=True)
+OE_ASYMMETRIC = Estimator("oe-asymmetric", "fits.asymmetry:fit_output_error_asymmetric", (
     _input_delay(),
     EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
                     "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
     beyond_first_order=True)
-OE_DRIVE_LIMIT = Estimator("oe-drive-limit", "drive_limit:fit_output_error_drive_limit", (
+OE_DRIVE_LIMIT = Estimator("oe-drive-limit", "fits.drive_limit:fit_output_error_drive_limit", (
     _input_delay(),
     EstimatorOption("covariance", "'auto' or 'gauss-newton'", "auto",
                     "intervals that hold when the noise is not white, or the fit's own (white noise assumed)")),
     beyond_first_order=True)
-PEM_DISTURBANCE = Estimator("pem-disturbance", "prediction_error:fit_prediction_error", (
+PEM_DISTURBANCE = Estimator("pem-disturbance", "fits.prediction_error:fit_prediction_error", (
     _input_delay(0, "int"),
     EstimatorOption("friction", "bool", True, "also fit Coulomb friction c"),
     EstimatorOption("disturbance_pole", "float in [0, 1] or None", None,
@@ -155,10 +155,10 @@ PEM_DISTURBANCE = Estimator("pem-disturbance", "prediction_error:fit_prediction_
 
 def linear_estimator(name: str, structure: str) -> Estimator:
     """The estimator ``name`` fitting the registered linear ``structure`` by output error
-    (:func:`identify.structure_fit.fit_linear_structure`): what a new linear structure names as its
+    (:func:`identify.fits.structure_fit.fit_linear_structure`): what a new linear structure names as its
     ``estimator``; it is listed by name from the structure registry (:data:`identify.methods.ESTIMATORS`)."""
     def fit(recordings: Any, *, input_delay: int | str = DEFAULT_INPUT_DELAY) -> Any:
-        return load(".structure_fit:fit_linear_structure", __package__)(recordings, structure=structure,
+        return load(".fits.structure_fit:fit_linear_structure", __package__)(recordings, structure=structure,
                                                                         input_delay=input_delay)
     fit.__name__ = fit.__qualname__ = f"fit_{structure.replace('-', '_')}"
     return Estimator(name, fit, (_input_delay(),), beyond_first_order=True)

@@ -38,14 +38,14 @@ __all__ = ["fit", "available_methods", "method_function", "method_options", "opt
 
 #: Every estimator by name (:mod:`identify.estimators`: each one's function, options and what it is made for),
 #: then the estimator each registered structure names, by object: a structure's own estimator (a new
-#: structure's, :func:`identify.structure_fit.linear_estimator`) is listed from the structure registry.
+#: structure's, :func:`identify.fits.structure_fit.linear_estimator`) is listed from the structure registry.
 ESTIMATORS: dict[str, Estimator] = {e.name: e for e in REGISTERED_ESTIMATORS}
 for _s in REGISTERED:
     if ESTIMATORS.setdefault(_s.estimator.name, _s.estimator) is not _s.estimator:
         raise RuntimeError(f"structure {_s.name!r} names an estimator {_s.estimator.name!r} that is another's")
 
 #: What ``fit`` does when no method is named: the delay and the structure chosen by evidence
-#: (:func:`identify.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
+#: (:func:`identify.default.selection.fit_selected`), the same for ``identify.fit`` and ``motorid identify``.
 DEFAULT_METHOD = DEFAULT.name
 
 
@@ -163,13 +163,13 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
     method : str
         ``"auto"`` (default, what ``motorid identify`` does too): the input delay ``0 ... 10``
         and the structure (linear, bias, Coulomb friction, dead zone) chosen by evidence
-        (:func:`identify.selection.fit_selected`; the estimate's ``selection`` says what was
+        (:func:`identify.default.selection.fit_selected`; the estimate's ``selection`` says what was
         compared).  Or one of :func:`available_methods` to force that estimator.
     outliers : {"refuse", "drop", "keep"}
         Corrupted samples (a row no motor can produce, an isolated residual outlier after the
         fit): refused with :class:`identify.errors.CorruptedSamplesError` (default, as
         ``motorid identify`` does), dropped as gaps and the fit repeated (``--drop-outliers``),
-        or kept (no screening).  :func:`identify.screening.screened_fit` also returns what it dropped.
+        or kept (no screening).  :func:`identify.checks.screening.screened_fit` also returns what it dropped.
     **options
         Passed to the method.  Each method's options:
 
@@ -211,7 +211,7 @@ def fit(recordings: Recording | list[Recording], method: str = DEFAULT_METHOD, *
     >>> print(f"pole {tf.poles()[0].real:.3f} 1/s, static gain {float(tf.dcgain()):.4f} (rad/s)/duty")
     pole -25.000 1/s, static gain 0.1200 (rad/s)/duty
     """
-    from .screening import screened_fit
+    from .checks.screening import screened_fit
     estimator = method_function(method)
     check_options(method, options)
     return screened_fit(recordings, estimator, options, outliers=outliers, name=method).estimate

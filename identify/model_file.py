@@ -257,7 +257,7 @@ def _selection(value: dict | None) -> Any:
     """The :class:`identify.SelectionReport` of a document's ``selection`` object (None when absent)."""
     if value is None:
         return None
-    from .selection_report import SelectionReport
+    from .default.selection_report import SelectionReport
     return SelectionReport.from_dict(value)
 
 

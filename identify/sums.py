@@ -7,7 +7,7 @@ a loaded 2-core machine.  Every long sum of products in :mod:`identify` goes thr
 
 The products numpy sends to BLAS all the same (a matrix times a long vector, ``x @ y`` in code
 that is not :mod:`identify`'s own) run single-threaded inside a fit: :func:`single_threaded_blas`,
-which every fit of :func:`identify.screening.screened_fit` (``identify.fit``, ``motorid identify``)
+which every fit of :func:`identify.checks.screening.screened_fit` (``identify.fit``, ``motorid identify``)
 runs in.  A fit is a sequence of passes over its rows, each too short for threads to pay: on a
 10^6-row ``motorid identify FILE`` the threads' waiting cost 0.11 s of CPU time of 0.55 s.
 """

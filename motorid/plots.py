@@ -156,7 +156,7 @@ def plot_overlay(recordings: Sequence[Recording], estimates: Sequence[Mapping[st
     -------
     matplotlib.figure.Figure
     """
-    from identify.validation import simulated_speed
+    from identify.checks.validation import simulated_speed
     n = len(recordings)
     fig = _figure(9.5, 2.3 * n + 0.4)
     axes = fig.subplots(n, 1, squeeze=False)[:, 0]
@@ -355,8 +355,8 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
     given ``frequency_response``, a Bode panel of the data with the model (:func:`bode_axes`), and, for
     the default's estimate, its part checks: ``a`` and ``b`` on each part of the recording (:func:`_part_axes`).
 
-    ``report`` is an ``identify.validation.ValidationReport`` of ``estimate``;
-    ``frequency_response`` an ``identify.frequency_estimate.FrequencyResponse`` of the same
+    ``report`` is an ``identify.checks.validation.ValidationReport`` of ``estimate``;
+    ``frequency_response`` an ``identify.frequency.frequency_estimate.FrequencyResponse`` of the same
     recording.  The PNG is written to ``path`` when given; the figure is returned.
     """
     bode = frequency_response is not None
@@ -408,7 +408,7 @@ def plot_validation(report, estimate, path=None, *, title: str = "", frequency_r
 
 
 def _part_axes(a_ax, b_ax, estimate, checks) -> None:
-    """The part checks (``identify.consistency``): each split's two parts' ``a`` and ``b`` with their 95 %
+    """The part checks (``identify.default.consistency``): each split's two parts' ``a`` and ``b`` with their 95 %
     intervals, against the answer's interval; a split whose parts differ is drawn in red."""
     ci = estimate.confidence_interval(0.95)
     for ax, name, unit in ((a_ax, "a", "1/s"), (b_ax, "b", f"(rad/s²)/{estimate.input_unit}")):
@@ -438,7 +438,7 @@ _MODEL_COLOURS = ("tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown
 def bode_axes(gain_ax, phase_ax, frf, models: Sequence = (), *, level: float = 0.95, distortion=None) -> None:
     """Draw a frequency response with its bounds, models with their bands and their departures, on two axes.
 
-    ``frf`` is an ``identify.frequency_estimate.FrequencyResponse``, ``models`` are its
+    ``frf`` is an ``identify.frequency.frequency_estimate.FrequencyResponse``, ``models`` are its
     ``ModelResponse``s; ``distortion`` an optional ``BestLinearApproximation`` whose detection lines
     are drawn on the gain axis (odd and even distortion, and the noise).
     """
@@ -598,7 +598,7 @@ class LivePlot:
 
     def show_fit(self, recording: Recording, estimate) -> None:
         """Draw ``estimate``'s simulated speed on ``recording`` over the measured speed, with the fit in the title."""
-        from identify.validation import simulated_speed
+        from identify.checks.validation import simulated_speed
         sim = simulated_speed(estimate.a, estimate.b, recording,
                               input_delay=estimate.input_delay)
         self.ax2.plot(recording.time, sim, color="k", lw=0.9, ls="--",

@@ -1,7 +1,7 @@
 """Recordings read for a fit, screened for corrupted samples and for the same file given twice.
 
 ``motorid identify`` reads its files through :func:`read_and_fit`: the screening itself is
-:func:`identify.screening.screened_fit`'s (what ``identify.fit`` does): a row no motor can
+:func:`identify.checks.screening.screened_fit`'s (what ``identify.fit`` does): a row no motor can
 produce or an isolated residual outlier after the fit is refused, naming the file and the row's
 ``seq``; with ``--drop-outliers`` such rows are dropped as gaps, the fit is repeated, and every
 dropped row is reported.  Pooling the same data twice would halve the
@@ -73,7 +73,7 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
                  ) -> tuple[Any, list[Recording], list[DroppedSamples]]:
     """Read ``files``, screen them, fit ``method``; returns the estimate, the recordings fitted, the drops.
 
-    The screening is :func:`identify.screening.screened_fit`'s, as ``identify.fit`` does it, so
+    The screening is :func:`identify.checks.screening.screened_fit`'s, as ``identify.fit`` does it, so
     the command line and Python give the same answer or the same refusal.
 
     Parameters
@@ -95,9 +95,9 @@ def read_and_fit(files: Sequence[str], method: str, options: dict[str, Any], *, 
     CommandError
         A file given twice, or an isolated residual outlier without ``drop_outliers``.
     """
+    from identify.checks.screening import screened_fit
     from identify.errors import CorruptedSamplesError, NotIdentifiableError
     from identify.methods import method_function
-    from identify.screening import screened_fit
     refuse_duplicates(files)
     if read is None:
         def read(path: str, check_samples: bool) -> Recording:

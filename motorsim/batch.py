@@ -17,7 +17,7 @@ Only what the engine runs exactly is batchable (:func:`is_batchable`): the first
 complete samples.  Anything else the plant carries (Coulomb or static friction, a bias, an
 electrical lag, or a part added later) is refused, never dropped: the sweep then runs the setting
 one repetition at a time through the exact simulator.  The estimators that fit these rows at
-once are :mod:`identify.batch`'s.
+once are :mod:`identify.fits.batch`'s.
 """
 from __future__ import annotations
 
@@ -52,14 +52,14 @@ def is_batchable(motor: Plant, *, jitter: float = 0.0, drop_rate: float = 0.0) -
     return not unbatchable_parts(motor) and jitter == 0 and drop_rate == 0
 
 
-def simulate_batch(motor: Motor, duty: np.ndarray, sample_period: float, *,
+def simulate_batch(motor: Plant, duty: np.ndarray, sample_period: float, *,
                    initial_speed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH simulation of every row of ``duty`` at once.
 
     Parameters
     ----------
-    motor : Motor
-        A first-order plant (:func:`is_batchable`); dead zone and delay are applied.
+    motor : Plant
+        A first-order plant (:func:`is_batchable`; any other refused by name); dead zone and delay are applied.
     duty : ndarray, shape (n_samples,) or (repetitions, n_samples)
         Duty of each run; ``duty[..., k]`` is held from sample k to k+1.
     sample_period : float

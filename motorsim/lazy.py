@@ -1,13 +1,15 @@
 """Names a module loads when first asked for: one mechanism for every lazy import of the project.
 
-Two helpers:
+Three helpers:
 
 - :func:`load` imports ``"module:name"`` now, for registries that name what they hold as
   text so that registering costs no import (estimators, port schemes);
 - :func:`lazy_attributes` gives a module the PEP 562 ``__getattr__`` and ``__dir__`` that
   resolve its names on first use: names defined in a submodule, loaded and cached
   (``exports``); names that moved elsewhere, which warn with a ``DeprecationWarning``
-  for one release (``moved``).
+  for one release (``moved``);
+- :func:`moved_modules` keeps a package's modules that moved into a subpackage importable by their earlier
+  names (the same module objects).
 
 The app's ``motorid.__version__``, a value read when asked rather than an import, keeps its
 own ``__getattr__``: importing this module runs ``motorsim/__init__`` (numpy, the
@@ -23,13 +25,16 @@ True
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import sys
 import warnings
 from typing import Any, Callable, Mapping
 
 from .checks import ParameterError
 
-__all__ = ["load", "lazy_attributes"]
+__all__ = ["load", "lazy_attributes", "moved_modules"]
 
 
 def load(target: str, package: str | None = None) -> Any:
@@ -95,3 +100,46 @@ def lazy_attributes(module_name: str, *, exports: Mapping[str, str] | None = Non
         return sorted({*vars(sys.modules[module_name]), *exports})
 
     return __getattr__, __dir__
+
+
+class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports of a package's modules by the names they had before they moved into a subpackage."""
+
+    def __init__(self, package: str, moved: Mapping[str, str]) -> None:
+        self.package, self.moved = package, dict(moved)
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
+        parent, _, leaf = fullname.rpartition(".")
+        if parent != self.package or leaf not in self.moved:
+            return None
+        return importlib.util.spec_from_loader(fullname, self)
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
+        return None
+
+    def exec_module(self, module: Any) -> None:
+        # the import system hands back what sys.modules holds under the name once this returns: the module itself
+        leaf = module.__name__.rpartition(".")[2]
+        sys.modules[module.__name__] = importlib.import_module(f"{self.package}.{self.moved[leaf]}")
+
+
+def moved_modules(package: str, moved: Mapping[str, str]) -> None:
+    """Keep the modules of ``package`` that moved into a subpackage importable by their earlier names.
+
+    ``import package.selection`` (or ``from package.selection import x``) then gives the module itself,
+    ``package.default.selection``: the same object, so a name patched through either path is patched for both;
+    nothing is imported until asked for, and nothing warns.
+
+    Parameters
+    ----------
+    package : str
+        The package's name (``"identify"``).
+    moved : mapping of str to str
+        An earlier module name -> where the module is now, both relative to ``package``
+        (``{"selection": "default.selection"}``).
+    """
+    for finder in sys.meta_path:
+        if isinstance(finder, _MovedModules) and finder.package == package:
+            finder.moved.update(moved)
+            return
+    sys.meta_path.append(_MovedModules(package, moved))

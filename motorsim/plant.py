@@ -21,18 +21,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
 from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
-from .knobs import knob
+from .knobs import knob, knobs_of
 from .recursion import first_order_filter
 
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Plant", "Motor", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL",
+__all__ = ["Plant", "Motor", "register_structures", "registered_structures", "structure_plant", "named_plant",
+           "further_parameters", "Trajectory", "simulate", "zoh_matrices", "delayed_duty", "delay_at", "RECURSION_RTOL",
            "ZOH_BLOCK", "lag_coefficients", "lag_response", "LagResponse", "first_order_coefficients", "Stepper",
            "speed_coefficients"]
 
@@ -499,7 +500,7 @@ def speed_coefficients(a: float, b: float, h: float, scale: float = 1.0) -> tupl
     From :func:`zoh_matrices` (``speed' = e speed + g v``, ``angle' = angle + p speed + q v``):
     ``beta1 = q / h``, ``beta2 = (p g - e q) / h``.  The one place this model is written: the
     controllers' (:meth:`motorsim.control.PlantModel.speed_coefficients`, ``scale`` their counts per
-    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.recursive`) take it from here.
+    sample per rad/s) and ``motorid live``'s running estimate (:mod:`identify.fits.recursive`) take it from here.
 
     Examples
     --------
@@ -777,3 +778,70 @@ def _iterated_recursion(e: np.ndarray, f: np.ndarray, out: np.ndarray, x0: float
         if not change > 1e-15 * float(np.max(np.abs(new))):
             return bool(np.all(np.isfinite(new)))
     return False
+
+
+#: Where the model structures come from: their registry lives above the bench (``identify`` registers its own on
+#: import), and the bench imports nothing above it.
+_STRUCTURE_REGISTRIES: list[Callable[[], Mapping[str, Any]]] = []
+
+
+def register_structures(registry: Callable[[], Mapping[str, Any]]) -> None:
+    """Make the model structures ``registry()`` returns (name -> structure) known to the bench: ``fake://``'s
+    ``structure`` key builds its plant from them (:func:`structure_plant`)."""
+    if registry not in _STRUCTURE_REGISTRIES:
+        _STRUCTURE_REGISTRIES.append(registry)
+
+
+def registered_structures() -> dict[str, Any]:
+    """The model structures the bench knows by name (:func:`register_structures`), in registration order."""
+    found: dict[str, Any] = {}
+    for registry in _STRUCTURE_REGISTRIES:
+        found.update(registry())
+    return found
+
+
+def structure_plant(structure: Any, given: Mapping[str, Any], input_delay: int = 0) -> Plant:
+    """The plant of a model ``structure`` (``name``, ``param_names``, ``plant(values, input_delay)``) with the
+    values ``given`` by name.
+
+    A value for a parameter the structure does not have is refused by name (a shaft's stiffness given to a
+    first-order motor would otherwise be dropped); one it has and is not given takes its neutral value or is
+    asked for (the structure's own rule).
+    """
+    names = tuple(structure.param_names)
+    extra = sorted(set(given) - set(names))
+    if extra:
+        raise ParameterError(f"{', '.join(extra)} {'is not a parameter' if len(extra) == 1 else 'are not parameters'} "
+                             f"of the {structure.name} structure (its parameters: {', '.join(names)})")
+    return structure.plant(dict(given), input_delay)
+
+
+def further_parameters(structures: Mapping[str, Any]) -> tuple[str, ...]:
+    """The parameters of the simulated ``structures`` (name -> structure) that are not knobs of :class:`Motor`, in
+    order of first appearance: the further keys of a plant named by its structure (``fake://``, a scenario)."""
+    motor = {k.name for k in knobs_of(Motor)}
+    out: dict[str, None] = {}
+    for s in structures.values():
+        if getattr(s, "simulated", True):
+            out.update((n, None) for n in s.param_names if n not in motor)
+    return tuple(out)
+
+
+def named_plant(structure: str, given: Mapping[str, Any], structures: Mapping[str, Any]) -> Plant:
+    """The plant ``structure`` names with the values ``given`` (``input_delay`` among them).
+
+    ``structure`` ``""``: the :class:`Motor` of the knobs given (a further parameter refused: it needs a structure
+    that has it); else the registered structure's plant (:func:`structure_plant`; ``structures`` name -> structure).
+    """
+    values = dict(given)
+    delay = values.pop("input_delay", 0)
+    if not structure:
+        further = sorted(set(values) - {k.name for k in knobs_of(Motor)})
+        if further:
+            raise ParameterError(f"{', '.join(further)} needs a structure that has it: set structure to one of "
+                                 f"{[n for n, s in structures.items() if set(further) <= set(s.param_names)]}")
+        return Motor(**values, input_delay=delay)
+    if structure not in structures:
+        raise ParameterError(f"structure must be one of {list(structures)}, got {structure!r}" + (
+            "" if structures else " (no structure is registered: identify registers its own when imported)"))
+    return structure_plant(structures[structure], values, delay)

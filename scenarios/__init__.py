@@ -4,7 +4,7 @@ A scenario (:mod:`scenarios.scenario`: a TOML file or a dict; ``builtin/*.toml``
 shipped ones) is a base setting of the bench, a grid of values to sweep, the estimators to
 compare and the repetitions per grid point.  :func:`run_sweep` runs one and writes the tidy
 CSV (one row per grid point x estimator) and ``summary.json``: the batch paths of the
-simulator and the estimators (:mod:`motorsim.batch`, :mod:`identify.batch`) simulate and fit
+simulator and the estimators (:mod:`motorsim.batch`, :mod:`identify.fits.batch`) simulate and fit
 every repetition of a point at once where they can, :mod:`scenarios.executors` spreads the points
 over processes or any ``concurrent.futures`` executor (Dask's too), and
 :mod:`scenarios.sweep_time` estimates a sweep's run time before it starts.  Usable from

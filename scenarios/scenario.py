@@ -9,8 +9,8 @@ A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
     methods = "all"                 # or a list of names from identify.available_methods()
 
     [motor]                         # any knob of Motor: a, b, friction, static_friction, bias, dead_zone, input_delay
-    a = 25.0
-    b = 3.0
+    a = 25.0                        # (or structure = "two-mass", any registered structure the simulator
+    b = 3.0                         # carries, with its parameters: inertia_ratio = 1.5, ...)
 
     [bench]                         # any knob of Encoder, SimRig or Experiment: counts_per_rev,
     sample_period = 0.005           # angle_noise, jitter, drop_rate, sample_period, duration, ...
@@ -27,7 +27,11 @@ A scenario is a TOML file (the built-in ones live in ``scenarios/builtin/``)::
 
 The keys of ``[motor]`` and ``[bench]`` are the bench knobs (:func:`motorsim.rig.bench_knobs`),
 so a knob added to one of the bench's classes is a scenario key, a :class:`Setting` field and
-a sweep CSV column without a change here.  Every grid point is a complete :class:`Setting`.
+a sweep CSV column without a change here.  ``[motor]`` also takes ``structure``, a registered model structure
+(``identify.structures()``) whose plant the bench runs, and the parameters of the registered structures beyond the
+Motor's knobs (a two-mass plant's ``inertia_ratio``, ``shaft_frequency``, ``shaft_damping``): a structure added to
+the registry is a scenario's plant, and a grid axis over its parameters, without a change here.
+Every grid point is a complete :class:`Setting`.
 Unknown keys, sections or grid axes are errors that name the key.
 """
 from __future__ import annotations
@@ -46,7 +50,7 @@ import numpy as np
 from motorsim.checks import check_int, is_int
 from motorsim.excitation import Excitation, Sine, parse_excitation
 from motorsim.knobs import knobs_of
-from motorsim.plant import Motor
+from motorsim.plant import Motor, Plant, further_parameters, named_plant
 from motorsim.rig import Experiment, SimRig, bench_knobs
 from motorsim.sensors import Encoder
 from motorsim.text import control_characters, printable
@@ -74,10 +78,20 @@ _REQUIRED_DEFAULTS = {"a": 25.0, "b": 3.0}
 DEFAULT_EXCITATION = "sine:10.0,200,0.0"
 _SINE_KEYS = ("frequency", "amplitude", "phase", "offset")
 
+
+
+def _structures() -> Mapping[str, Any]:
+    from identify.model_structures import structures
+    return structures()
+
+
+#: The parameters of the registered structures beyond the Motor's knobs (``[motor]`` keys; nan where not set).
+PLANT_PARAMETERS = further_parameters(_structures())
 #: section -> keys a scenario may set (and sweep as ``"section.key"``): ``[motor]`` holds the
-#: Motor's knobs, ``[bench]`` every other bench knob (Encoder, SimRig, Experiment).
+#: Motor's knobs, ``structure`` and :data:`PLANT_PARAMETERS`, ``[bench]`` every other bench knob (Encoder, SimRig,
+#: Experiment).
 SETTING_KEYS: dict[str, tuple[str, ...]] = {
-    "motor": tuple(k.name for k in knobs_of(Motor)),
+    "motor": (*(k.name for k in knobs_of(Motor)), "structure", *PLANT_PARAMETERS),
     "bench": tuple(k.name for k in bench_knobs() if k.owner is not Motor),
     "excitation": ("spec", *_SINE_KEYS),
 }
@@ -88,6 +102,7 @@ class _SettingMethods:
     """What a :class:`Setting` builds from its knobs (the fields come from :func:`bench_knobs`)."""
 
     excitation: str
+    structure: str
 
     def __post_init__(self) -> None:
         # Validate by building every object once; their messages name the parameter.
@@ -103,9 +118,13 @@ class _SettingMethods:
         knobs = {**self._knobs(Encoder), **self._knobs(SimRig)}
         return knobs["angle_noise"] > 0 or knobs["jitter"] > 0 or knobs["drop_rate"] > 0
 
-    def motor(self) -> Motor:
-        """The plant."""
-        return Motor(**self._knobs(Motor))
+    def motor(self) -> Plant:
+        """The plant: the Motor of the motor's knobs, or the plant of the structure ``structure`` names (the knobs
+        set away from their defaults and the parameters set given to it: one it does not have is refused)."""
+        given = {k.name: getattr(self, k.name) for k in knobs_of(Motor)
+                 if k.name in ("a", "b", "input_delay") or getattr(self, k.name) != k.default}
+        given.update((n, getattr(self, n)) for n in PLANT_PARAMETERS if not math.isnan(getattr(self, n)))
+        return named_plant(self.structure, given, _structures())
 
     def encoder(self) -> Encoder:
         """The encoder."""
@@ -145,8 +164,14 @@ def _setting_fields() -> list[tuple[str, type, Any]]:
     fields: list[tuple[str, type, Any]] = [
         (k.name, k.kind, dataclasses.field(default=_REQUIRED_DEFAULTS.get(k.name, k.default)))
         for k in bench_knobs()]
+    fields.append(("structure", str, dataclasses.field(default="")))
+    fields += [(name, float, dataclasses.field(default=math.nan)) for name in PLANT_PARAMETERS]
     fields.append(("excitation", str, dataclasses.field(default=DEFAULT_EXCITATION)))
     return fields
+
+
+def _having(name: str) -> list[str]:
+    return [n for n, st in _structures().items() if name in st.param_names]
 
 
 def _setting_doc() -> str:
@@ -156,6 +181,10 @@ def _setting_doc() -> str:
         default = _REQUIRED_DEFAULTS.get(k.name, k.default)
         lines += [f"{k.name} : {k.kind.__name__}", f"    {k.help}" + (f" [{k.unit}]" if k.unit else "")
                   + f" (default {default!r}; :class:`~{k.owner.__module__}.{k.owner.__name__}`)."]
+    lines += ["structure : str", "    A registered model structure whose plant the bench runs (default ``\"\"``: "
+              "the Motor of the motor's knobs)."]
+    for name in PLANT_PARAMETERS:
+        lines += [f"{name} : float", f"    A parameter of the structures {_having(name)} (default nan: not set)."]
     lines += ["excitation : str", "    The excitation in :func:`motorsim.excitation.parse_excitation` form "
               f"(default ``{DEFAULT_EXCITATION}``)."]
     return "\n".join(lines)

@@ -1,7 +1,7 @@
 """Scenario sweeps: every grid point x estimator x repetition, in parallel, streamed to a tidy CSV.
 
 :func:`run_point` does one grid point: all its repetitions at once through the
-batch engine (simulated by :mod:`motorsim.batch`, fitted by :mod:`identify.batch`) when the
+batch engine (simulated by :mod:`motorsim.batch`, fitted by :mod:`identify.fits.batch`) when the
 setting is linear and every sample arrives, else one :meth:`SimRig.run <motorsim.rig.SimRig.run>`
 and one :func:`identify.fit` per repetition -- the path users take.  Estimators with a
 batched implementation (``identify.BATCHED_METHODS``, and ``oe``) use it; any other
@@ -55,7 +55,7 @@ from motorsim.recording import Recording
 from motorsim.rig import bench_knobs
 
 from .executors import points_executor, results_in_order
-from .scenario import GridPoint, Scenario, Setting
+from .scenario import PLANT_PARAMETERS, GridPoint, Scenario, Setting
 
 __all__ = ["MethodOutcome", "PointResult", "SweepSummary", "run_point", "run_scenario", "CSV_COLUMNS",
            "SETTING_COLUMNS", "setting_column", "axis_column", "read_sweep_csv", "repetition_seed", "runs_batched"]
@@ -66,9 +66,12 @@ def setting_column(knob: str) -> str:
     return f"true_{knob}" if knob in ("a", "b") else knob
 
 
-#: Columns of the tidy CSV, one row per grid point x estimator: every bench knob, then the excitation.
-SETTING_COLUMNS = (*(setting_column(k.name) for k in bench_knobs()), "excitation", "frequency", "amplitude",
-                   "n_samples")
+#: The setting's columns beside the bench knobs: the plant's structure and the structures' further parameters.
+_PLANT_COLUMNS = ("structure", *PLANT_PARAMETERS)
+#: Columns of the tidy CSV, one row per grid point x estimator: every bench knob, the plant's structure and
+#: parameters, then the excitation.
+SETTING_COLUMNS = (*(setting_column(k.name) for k in bench_knobs()), *_PLANT_COLUMNS, "excitation", "frequency",
+                   "amplitude", "n_samples")
 STAT_COLUMNS = ("method", "repetitions", "successes", "failures", "failure_reasons",
                 "mean_a", "bias_a_pct", "std_a", "rmse_a", "crb_a",
                 "mean_b", "bias_b_pct", "std_b", "rmse_b", "crb_b")
@@ -145,7 +148,7 @@ class PointResult:
         In the scenario's method order.
     crb : dict of str to float, or None
         Cramér-Rao standard errors of ``a`` and ``b`` (linear settings without jitter or
-        drops, where ``identify.uncertainty.cramer_rao_bound`` applies), else None.
+        drops, where ``identify.checks.uncertainty.cramer_rao_bound`` applies), else None.
     samples_simulated : int
         Samples actually simulated (a noise-free setting is simulated once, its repetitions
         being identical).
@@ -163,7 +166,8 @@ class PointResult:
         """The CSV rows of this point (see :data:`CSV_COLUMNS`)."""
         s = self.point.setting
         base = {"point": self.point.index, **{setting_column(k.name): getattr(s, k.name) for k in bench_knobs()},
-                "excitation": s.excitation, "frequency": s.frequency, "amplitude": s.amplitude,
+                **{name: getattr(s, name) for name in _PLANT_COLUMNS}, "excitation": s.excitation,
+                "frequency": s.frequency, "amplitude": s.amplitude,
                 "n_samples": s.n_samples}
         return [dict(base, **self._statistics(o)) for o in self.outcomes]
 
@@ -297,7 +301,7 @@ def _run_each(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
 def _run_batched(s: Setting, exp, fits: _Fits, seed: int, index: int) -> None:
     """All repetitions through the batch engine, in chunks of about ``_CHUNK_SAMPLES`` samples.
 
-    Batched estimators fit whole chunks (:mod:`identify.batch`), ``oe`` too (rows it cannot fit
+    Batched estimators fit whole chunks (:mod:`identify.fits.batch`), ``oe`` too (rows it cannot fit
     fall back to ``identify.fit``); the others get one Recording per
     repetition built from the same counts.
     """
@@ -493,7 +497,7 @@ def _write_summary_json(path: Path, scenario: Scenario, tally: _Tally, elapsed: 
 
 def read_sweep_csv(path: str | os.PathLike) -> list[dict]:
     """Rows of a sweep CSV with numbers parsed (empty cells become nan, ``True``/``False`` bools)."""
-    text_cols = {"excitation", "method", "failure_reasons"}
+    text_cols = {"excitation", "method", "failure_reasons", "structure"}
     with open(path, encoding="utf-8", newline="") as f:
         return [{k: (v if k in text_cols else _parse_cell(v)) for k, v in raw.items()} for raw in csv.DictReader(f)]
 

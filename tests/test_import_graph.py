@@ -2,7 +2,7 @@
 
 The graph is read from the source with ``ast`` (every ``import`` and ``from ... import``
 statement, at module level or inside functions, relative imports resolved), not by
-importing anything.  A node is a module (``identify.output_error``); a package's
+importing anything.  A node is a module (``identify.fits.output_error``); a package's
 ``__init__.py`` is the package's own node (``identify``).  ``from pkg import name``
 points at ``pkg.name`` when that is a module, else at ``pkg``.
 
@@ -135,9 +135,9 @@ GRAPH = build_graph()
 
 
 def test_the_graph_sees_the_project():
-    assert {"identify.output_error", "identify.validation", "motorsim.plant", "motorid.cli",
+    assert {"identify.fits.output_error", "identify.checks.validation", "motorsim.plant", "motorid.cli",
             "hardware.serial_rig"} <= set(GRAPH)
-    assert "identify.validation" in GRAPH["identify.output_error"]
+    assert "identify.checks.validation" in GRAPH["identify.fits.output_error"]
 
 
 def test_find_cycles_names_a_cycle():
@@ -206,11 +206,11 @@ def private_imports(tree: ast.Module, rules: dict[str, str]) -> list[str]:
 
 
 def test_private_imports_are_found():
-    source = ("from identify import fit\nfrom identify.sensitivity import phi_functions\n"
+    source = ("from identify import fit\nfrom identify.fits.sensitivity import phi_functions\n"
               "def f():\n    from motorsim.plant import Motor, _private\n    import identify.data\n"
               "from motorsim.checks import ParameterError\n")
     found = private_imports(ast.parse(source), PUBLIC["scenarios"])
-    assert found == ["identify.sensitivity.phi_functions (line 2)", "motorsim.plant._private (line 4)",
+    assert found == ["identify.fits.sensitivity.phi_functions (line 2)", "motorsim.plant._private (line 4)",
                      "identify.data (line 5)"]
 
 

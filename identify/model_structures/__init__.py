@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 from motorsim.checks import ParameterError
+from motorsim.plant import register_structures
 
 from .base import ModelStructure, Parameter
 from .current_limit import CurrentLimit
@@ -49,6 +50,9 @@ def structures(*, in_default: bool = False) -> Mapping[str, ModelStructure]:
     ('a', 'b', 'friction', 'bias')
     """
     return {s.name: s for s in REGISTERED if s.in_default or not in_default}
+
+
+register_structures(structures)     # the bench builds a named structure's plant (fake://) from this registry
 
 
 def structure(name: str | ModelStructure) -> ModelStructure:

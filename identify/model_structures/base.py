@@ -148,7 +148,8 @@ class ModelStructure:
     def values(self, given: Mapping[str, float]) -> dict[str, float]:
         """Every parameter's value: ``given`` checked against the bounds, fixed ones filled in.
 
-        A further parameter (after ``a`` and ``b``) that is not given takes its neutral value, 0.
+        A further parameter (after ``a`` and ``b``) that is not given takes its neutral value, 0, where 0 is
+        within its bounds; one whose bounds exclude 0 (a shaft's frequency) is asked for.
 
         Raises
         ------
@@ -157,7 +158,8 @@ class ModelStructure:
         """
         out: dict[str, float] = {}
         for p in self.parameters:
-            if p.name not in given and p.name not in ("a", "b") and p.check(0.0) == 0.0:
+            if p.name not in given and p.name not in ("a", "b") and p.low <= 0.0 <= p.high and not (
+                    p.strict and p.low == 0.0):
                 out[p.name] = 0.0          # a further parameter not given: its neutral value (absent)
                 continue
             if p.name not in given:
@@ -214,8 +216,8 @@ class ModelStructure:
         return forced + free @ coef
 
     def starts(self, recordings, guess: tuple[float, float]) -> list[dict[str, float]]:
-        """Start values of an iterative fit (:mod:`identify.structure_fit`): the first-order motor's ``a`` and
-        ``b`` (``guess``, :func:`identify.start.initial_guess`'s) with each further parameter's
+        """Start values of an iterative fit (:mod:`identify.fits.structure_fit`): the first-order motor's ``a`` and
+        ``b`` (``guess``, :func:`identify.fits.start.initial_guess`'s) with each further parameter's
         :attr:`Parameter.starts` values, every combination."""
         import itertools
         a, b = guess
@@ -274,9 +276,9 @@ class ModelStructure:
         ``output`` as :class:`identify.FrequencyResponse`'s: ``"speed"``, the sampled speed;
         ``"angle"``, the mean speed over the interval the input is held; ``input_delay`` whole samples
         (a factor ``z^-input_delay``).  Here ``b/(s + a)``:
-        :func:`identify.frequency_estimate.zoh_speed_response`.
+        :func:`identify.frequency.frequency_estimate.zoh_speed_response`.
         """
-        from ..zoh_response import zoh_speed_response
+        from ..fits.zoh_response import zoh_speed_response
         plant = self.plant(values) if self.simulated else None
         if isinstance(plant, LinearPlant):
             return plant.frequency_response(sample_period, omega, output=output, input_delay=input_delay)

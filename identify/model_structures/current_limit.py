@@ -3,12 +3,12 @@
 ``d omega/dt = sat_L(b u - s a omega) - (1 - s) a omega + d``: the torque the motor's current gives, ``b u`` less
 the back-EMF's share ``s a omega`` of the pole, held within ``L`` (``current_limit``, rad/s^2) by the driver; the
 rest of the pole, ``(1 - s) a``, the shaft's own friction, and ``d`` a constant acceleration act whatever the current
-(:mod:`identify.current_limit`).  Below the limit it is the linear motor with a bias, so its linear part, transfer
+(:mod:`identify.fits.current_limit`).  Below the limit it is the linear motor with a bias, so its linear part, transfer
 function and frequency views are ``b/(s + a)``.  The simulator's plant has no such limit, so :meth:`plant` (and the
 controllers' model) refuse it by name: a controller is designed from ``a`` and ``b``, the limit given on purpose.
 
 The default (:func:`identify.fit`) fits it only where its answer's part checks find the gain or the pole materially
-different between parts and the structure fits better beyond the noise (:mod:`identify.evidence`).
+different between parts and the structure fits better beyond the noise (:mod:`identify.default.evidence`).
 """
 from __future__ import annotations
 
@@ -93,8 +93,8 @@ class CurrentLimit(FirstOrder):
     def response(self, values: Mapping[str, float], duty, time, *, input_delay: int = 0,
                  initial_speed: float = 0.0, initial_angle: float = 0.0) -> Trajectory:
         """The model's angle and speed at ``time`` under ``duty`` (zero-order hold, exact:
-        :func:`identify.limit_response.limit_response`), the duty delayed by ``input_delay`` samples (0 before)."""
-        from ..limit_response import limit_response
+        :func:`identify.fits.limit_response.limit_response`), the duty delayed by ``input_delay`` samples (0 before)."""
+        from ..fits.limit_response import limit_response
         v = self.values(values)
         t = np.asarray(time, dtype=float)
         u = np.asarray(duty, dtype=float)
@@ -107,7 +107,7 @@ class CurrentLimit(FirstOrder):
     def segment_output(self, values: Mapping[str, float], segment: Segment) -> np.ndarray:
         """The model's angle or speed on ``segment``, its initial speed fitted (the model is not linear in it) and,
         on an angle, its offset by least squares."""
-        from ..limit_response import initial_speed_fit, segment_model
+        from ..fits.limit_response import initial_speed_fit, segment_model
         v = self.values(values)
         theta = (v["a"], v["b"], v["current_limit"], v["emf_share"], v["bias"])
         out = segment_model(theta, segment, initial_speed_fit(theta, segment))

@@ -22,8 +22,8 @@ gain below the limit.  Either way the linear part, the transfer function and the
 model) refuse these structures by name: a controller is designed from one gain, or with the limit, given on purpose.
 
 The default (:func:`identify.fit`) fits a gain per direction only where the forward / reverse part check finds the
-chosen model's parts differ; the drive limit is not among its rules (:mod:`identify.evidence` says why).  Both are
-fitted by :func:`identify.asymmetry.fit_mapped` with their map.
+chosen model's parts differ; the drive limit is not among its rules (:mod:`identify.default.evidence` says why).
+Both are fitted by :func:`identify.fits.asymmetry.fit_mapped` with their map.
 """
 from __future__ import annotations
 

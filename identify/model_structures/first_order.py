@@ -70,7 +70,7 @@ class FirstOrder(ModelStructure):
         """The model's angle or speed on ``segment``; its initial speed (and angle offset) by exact
         least squares, or, with friction or a dead zone, fitted on a short window at the start
         (:func:`initial_state_rule`)."""
-        from ..sensitivity import project_out_initial_state, zoh_response
+        from ..fits.sensitivity import project_out_initial_state, zoh_response
         if _has_friction(values):
             return _friction_segment_output(values, segment)
         resp = zoh_response(values["a"], values["b"], segment.drive, segment.time, 0.0,
@@ -136,7 +136,7 @@ class Stiction(CoulombFriction):
     ``|b u + d| > c_s``, and a speed reaching zero sticks while ``|b u + d| <= c_s``.
 
     The static level moves only the decisions to stick, so ``oe-friction`` fits it by a profile
-    (:mod:`identify.stiction`).  The default judges it after the rest of the family (``rank`` 1):
+    (:mod:`identify.fits.stiction`).  The default judges it after the rest of the family (``rank`` 1):
     chosen only where no simpler candidate is within the noise of its fit.
     """
 
@@ -165,7 +165,7 @@ def _friction_segment_output(values: Mapping[str, float], seg: Segment) -> np.nd
     """
     from scipy.optimize import least_squares  # imported when used: slow to import
 
-    from ..friction_response import friction_response
+    from ..fits.friction_response import friction_response
     params = (values["a"], values["b"], float(values.get("friction", 0.0)), float(values.get("bias", 0.0)),
               float(values.get("dead_zone", 0.0)))
     static = float(values.get("static_friction", 0.0))

@@ -5,7 +5,7 @@ second pole, ``c = 1/tau_e``, usually much faster than the mechanical one: ``di/
 ``d omega/dt = -a omega + b i + d``.  Sampled slowly it looks like an input delay of a fraction
 of a sample; sampled fast (``tau_e`` of several samples) a first-order model absorbs it as a delay
 of a few samples and misses ``a`` and ``b`` by a percent or more.  Fitted by ``oe-electrical``
-(:mod:`identify.electrical`); the simulator carries it as :attr:`motorsim.plant.Motor.electrical_time_constant`.
+(:mod:`identify.fits.electrical`); the simulator carries it as :attr:`motorsim.plant.Motor.electrical_time_constant`.
 """
 from __future__ import annotations
 
@@ -52,9 +52,9 @@ class SecondOrder(ModelStructure):
         ``i(z) = (1 - e_c) / (z - e_c)`` and ``omega(z) = (b (p - q) + b q i(z)) / (z - e_a)`` per unit
         input (``"speed"``); the angle advances by ``p omega + b s i + b (r - s) v`` over the interval,
         so the mean speed there (``"angle"``) is that over ``h``.  At ``tau_e -> 0`` both are
-        :func:`identify.frequency_estimate.zoh_speed_response`'s.
+        :func:`identify.frequency.frequency_estimate.zoh_speed_response`'s.
         """
-        from ..zoh_response import OUTPUTS
+        from ..fits.zoh_response import OUTPUTS
         if output not in OUTPUTS:
             raise ParameterError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
         h = check_real("sample_period", sample_period, positive=True)

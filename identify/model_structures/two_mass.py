@@ -72,7 +72,7 @@ class TwoMassPlant(LinearPlant):
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         mu_m = 1.0 / (1.0 + self.inertia_ratio)
-        mu_l = 1.0 - mu_m
+        mu_l = self.inertia_ratio / (1.0 + self.inertia_ratio)    # not 1 - mu_m: 0 for a ratio under 1e-16
         kappa = self.shaft_frequency ** 2 * mu_m * mu_l
         gamma = 2.0 * self.shaft_damping * self.shaft_frequency * mu_m * mu_l
         # rows and columns: motor angle, motor speed, load speed, twist

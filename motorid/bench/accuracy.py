@@ -584,7 +584,7 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
     from scipy.optimize import least_squares
 
     from identify import fit_zoh_ls
-    from identify.sensitivity import zoh_response
+    from identify.fits.sensitivity import zoh_response
     y = np.asarray(recording.measured_angle())
     t, u = recording.time, recording.duty
     start = fit_zoh_ls(recording)
@@ -600,8 +600,8 @@ def naive_output_error(recording: Recording) -> tuple[float, float]:
 def _time_fits(rec: Recording, repeats: int) -> str:
     """One line: oe's fit time against its finite-difference and plain baselines, zoh-ls and iv."""
     from identify import fit_zoh_ls
-    from identify.instrumental import fit_instrumental_variables
-    from identify.output_error import fit_output_error
+    from identify.fits.instrumental import fit_instrumental_variables
+    from identify.fits.output_error import fit_output_error
     t_an = median_time(lambda: fit_output_error(rec, input_delay=0), repeats)
     t_fd = median_time(lambda: fit_output_error(rec, jac="2-point", input_delay=0), repeats)
     t_ls = median_time(lambda: fit_zoh_ls(rec), repeats)

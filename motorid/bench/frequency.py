@@ -38,7 +38,7 @@ def goal_figures() -> list[tuple[Goal, float]]:
     1000 counts; ``motorid bench --check``)."""
     import numpy as np
 
-    from identify.frequency_estimate import frequency_response
+    from identify.frequency.frequency_estimate import frequency_response
     from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
     seconds = []
     for dt, cpr in ((0.005, 16667), (0.001, 1000)):
@@ -53,7 +53,7 @@ def _measure(samples: int, segment: int, repeats: int, verbose: bool) -> float:
     import numpy as np
     from scipy import signal
 
-    from identify.frequency_estimate import frequency_response
+    from identify.frequency.frequency_estimate import frequency_response
     from motorsim import PRBS, Encoder, Experiment, Motor, SimRig
     args = argparse.Namespace(samples=samples, segment=segment, repeats=repeats)
     dt = 0.005

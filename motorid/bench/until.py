@@ -7,7 +7,7 @@ On seeded simulated rigs (:func:`until_rig`: ``a`` from 2 to 150 1/s, log-unifor
 default estimator lie within ``+-target`` %:
 
 - **adaptive**: :func:`identify.adaptive.run_until` (no guess: the ranging opening counts too);
-- **best sine**: the sine :func:`identify.design.design_sine` designs for the true motor;
+- **best sine**: the sine :func:`identify.checks.design.design_sine` designs for the true motor;
 - **article**: the article's four sines (10, 20, 30, 40 rad/s, duty 200), a quarter of the time each;
 - **PRBS**: duty +-200, a bit held 10 ms.
 
@@ -116,9 +116,9 @@ def fixed_time(seed: int, kind: str, target: float, tries: int = 5) -> float:
     A first run of 1 s, then runs of the length the last fit's intervals predict (their width falls
     as ``1/sqrt(T)``: ``T (reach / target)^2``, 5 % more), each a fresh run from rest: the shortest
     run found within target, ``inf`` when none is (at most the longest allowed).  The best sine is
-    designed (:func:`identify.design.design_sine`) for the true motor and each run's length.
+    designed (:func:`identify.checks.design.design_sine`) for the true motor and each run's length.
     """
-    from identify.design import ARTICLE_FREQUENCIES, design_sine
+    from identify.checks.design import ARTICLE_FREQUENCIES, design_sine
     from motorsim import PRBS, Experiment, Sine
     s = rig_spec(seed)
     longest = _longest(target)

@@ -1,6 +1,6 @@
 """``motorid design``: the sine that pins down a and b best, next to the article's four, and a multisine.
 
-The computations are :func:`identify.design.design_sine` and :func:`identify.design.design_multisine`;
+The computations are :func:`identify.checks.design.design_sine` and :func:`identify.checks.design.design_multisine`;
 this module is their command line.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.design import SineDesign, design_multisine, design_sine
+from identify.checks.design import SineDesign, design_multisine, design_sine
 from motorsim.files import make_output_dir, write_atomically
 
 __all__ = ["format_design", "add_design_arguments", "run_design"]

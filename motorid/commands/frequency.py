@@ -1,7 +1,7 @@
 """``motorid frequency``: the frequency response of recordings, models overlaid, distortion when it can tell.
 
-The computations are :func:`identify.frequency_estimate.frequency_response` and, for odd-multisine
-runs, :func:`identify.best_linear.best_linear_approximation`; this module is their command line.
+The computations are :func:`identify.frequency.frequency_estimate.frequency_response` and, for odd-multisine
+runs, :func:`identify.frequency.best_linear.best_linear_approximation`; this module is their command line.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ FIT_STRUCTURES = ("linear", "second-order")
 
 def add_frequency_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid frequency``."""
-    from identify.frequency_estimate import ESTIMATORS
+    from identify.frequency.frequency_estimate import ESTIMATORS
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="recordings (format v1), or foreign files with the column flags; several are pooled "
                              "(one run per frequency, realisations of an odd multisine)")
@@ -83,7 +83,7 @@ def _models(paths: list[str], frf) -> list:
 def _fit(args: argparse.Namespace, frf) -> Any:
     """The ``--structure`` fit to ``frf`` (:func:`identify.fit_frequency_response`), None without the flag."""
     from identify.errors import NotIdentifiableError
-    from identify.frequency_fit import fit_frequency_response
+    from identify.frequency.frequency_fit import fit_frequency_response
     if args.input_delay != 0 and args.structure is None:
         raise CommandError(f"--input-delay {args.input_delay} applies to the --structure fit: give --structure")
     if not 0 <= args.input_delay <= 1000:
@@ -108,8 +108,8 @@ def _describe_fit(estimate, structure: str) -> str:
 
 def _distortion(recs) -> Any:
     """The BLA of odd-multisine runs (None for any other input)."""
-    from identify.best_linear import best_linear_approximation
-    from identify.frequency_estimate import excitation_of
+    from identify.frequency.best_linear import best_linear_approximation
+    from identify.frequency.frequency_estimate import excitation_of
     from motorsim.excitation import OddMultisine
     if not all(isinstance(excitation_of(r), OddMultisine) for r in recs):
         return None
@@ -123,7 +123,7 @@ LEVEL_RANGE = (0.5, 1 - 1e-9)
 def run_frequency(args: argparse.Namespace) -> int:
     """Estimate, print the table (and the distortion summary), write the Bode plot if asked."""
     from identify.errors import NotIdentifiableError
-    from identify.frequency_estimate import frequency_response
+    from identify.frequency.frequency_estimate import frequency_response
     say = print_to_stderr if args.json else print
     if not (math.isfinite(args.level) and LEVEL_RANGE[0] <= args.level <= LEVEL_RANGE[1]):
         raise CommandError(f"--level must be a probability in {LEVEL_RANGE[0]:g}...{LEVEL_RANGE[1]:g}, got "

@@ -17,7 +17,7 @@ from motorid.progress import Ticker
 from motorsim.recording import Recording
 
 if TYPE_CHECKING:
-    from identify.selection_report import SelectionReport
+    from identify.default.selection_report import SelectionReport
 
 __all__ = ["add_identify_arguments", "run_identify", "estimator_options", "format_estimate", "format_validation",
            "in_speed_unit"]
@@ -133,7 +133,7 @@ def run_identify(args: argparse.Namespace) -> int:
         say(f"model       {args.save}")
     checks = None
     if est.selection is not None:
-        from identify.selection import residual_checks
+        from identify.default.selection import residual_checks
         checks = residual_checks(est, recs[0])
         say(format_selection(est.selection, checks))
     elif _input_delay_option(args) == "auto":
@@ -172,7 +172,7 @@ def run_identify(args: argparse.Namespace) -> int:
 def _frequency_response(recording: Recording) -> tuple[Any, str]:
     """The report's Bode panel data, or None and why the recording cannot give one (too short, gaps, a step)."""
     from identify.errors import NotIdentifiableError
-    from identify.frequency_estimate import frequency_response
+    from identify.frequency.frequency_estimate import frequency_response
     try:
         return frequency_response(recording), ""
     except NotIdentifiableError as exc:

@@ -2,7 +2,7 @@
 
 The samples go three ways as they arrive: to a :class:`~motorsim.writing.RecordingWriter`
 (so a fault or Ctrl-C leaves a valid recording marked ``complete: false``), to a
-running RLS estimate (:mod:`identify.recursive`) shown in the progress line, and
+running RLS estimate (:mod:`identify.fits.recursive`) shown in the progress line, and
 to an optional live plot.  After the run the recording is identified with
 ``identify.fit`` (default: ``identify.DEFAULT_METHOD``).
 
@@ -154,7 +154,7 @@ def default_out_path(now: float | None = None) -> str:
 def run_live(args: argparse.Namespace) -> int:
     """Run the experiment on the port, write the recording as it arrives, identify it."""
     from hardware.protocol import DEVICE_INPUT_DELAY
-    from identify.recursive import RunningEstimator
+    from identify.fits.recursive import RunningEstimator
     from motorid.commands.control import refuse_controller_flags
     if not 0 <= args.max_loss <= 100:
         raise CommandError(f"--max-loss must be a percentage in 0...100, got {args.max_loss!r}")

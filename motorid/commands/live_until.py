@@ -104,6 +104,7 @@ def _guess(args: argparse.Namespace) -> tuple[float, float] | None:
 def open_rig(args: argparse.Namespace):
     """The rig of ``live``'s flags (``--port``, ``--baud``, ...), opened; a port that cannot be opened is one
     line (:class:`CommandError`).  ``live`` with and without ``--until`` opens it here."""
+    import identify.model_structures  # noqa: F401 - registers the structures a fake:// port's plant may name
     from hardware.errors import RigError
     from hardware.serial_rig import MAX_BAUDRATE, MAX_TIMEOUT, SerialRig
     if not 1 <= args.baud <= MAX_BAUDRATE:

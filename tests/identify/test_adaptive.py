@@ -17,7 +17,7 @@ from identify.adaptive import (
     simultaneous,
     sub_sample_lag,
 )
-from identify.uncertainty import cramer_rao_bound
+from identify.checks.uncertainty import cramer_rao_bound
 from motorsim import Encoder, Experiment, Motor, Multisine, SimRig, Sine
 from motorsim.checks import ParameterError
 from motorsim.plant import simulate
@@ -35,7 +35,7 @@ def _quiet():
 
 
 def test_information_is_the_inverse_of_the_cramer_rao_bound():
-    # the bound's own code path (identify.uncertainty) with pure angle noise sigma: cov = sigma^2 I^-1
+    # the bound's own code path (identify.checks.uncertainty) with pure angle noise sigma: cov = sigma^2 I^-1
     duty = Sine(17.0, 150).duty(400, 0.005)
     sigma = 3e-3
     crb = cramer_rao_bound(25.0, 3.0, duty, 0.005, counts_per_rev=None, angle_noise=sigma)
@@ -62,7 +62,7 @@ def test_the_lag_column_is_the_angles_derivative_by_a_driver_lag_at_zero():
     assert full.shape == (3, 3)
     # the lag column against itself, with the initial speed and offset profiled out, is full[2, 2]; the
     # finite difference through the same projection gives the same number to O(tau)
-    from identify.sensitivity import zoh_response
+    from identify.fits.sensitivity import zoh_response
     S = zoh_response(10.0, 1.0, duty, t, 0.0, uniform=True).angle_sensitivity
     N = np.column_stack([S[:, 2], np.ones(300)])
     d = (lag - plain) / tau
@@ -225,7 +225,7 @@ def test_a_shared_nuisance_is_profiled_out_over_every_run_at_once():
     # at the exact crossing, which the information takes with the speed linear over that sample:
     # measured 0.22 % apart (the friction column nearly a square wave beside b's sine), 0.5 % allowed
     from identify.adaptive import _profiled
-    from identify.sensitivity import zoh_response
+    from identify.fits.sensitivity import zoh_response
     a, b, dt, eps = 8.0, 1.2, 0.005, 1e-7
     duties = [Multisine((6.0, 18.0), (150, 75), (0.0, 0.0)).duty(300, dt), Sine(40.0, 200).duty(200, dt)]
     blocks = []

@@ -134,7 +134,7 @@ def test_controllers_refuse_what_cannot_be_designed_or_predicted(make, match):
 
 @pytest.mark.parametrize("max_lag", [3, 40, 900])
 def test_newey_west_lag_sums_by_fft_equal_the_direct_sums(max_lag):
-    from identify.uncertainty import _weighted_lag_products
+    from identify.checks.uncertainty import _weighted_lag_products
     rng = np.random.default_rng(3)
     g = rng.standard_normal((3000, 3))
     g[:, 1] += np.convolve(g[:, 0], np.ones(25) / 25, "same")
@@ -148,7 +148,7 @@ def test_newey_west_lag_sums_by_fft_equal_the_direct_sums(max_lag):
 @pytest.mark.parametrize("call", [
     lambda: __import__("identify").frequency_response([]),
     lambda: __import__("scenarios").run_sweep(42, "out"),
-    lambda: __import__("identify.selection", fromlist=["x"]).select_model([], level=0.9),
+    lambda: __import__("identify.default.selection", fromlist=["x"]).select_model([], level=0.9),
 ], ids=["frequency_response", "run_sweep", "select_model"])
 def test_library_entry_points_raise_our_error_types(call):
     from motorsim.checks import ParameterError

@@ -114,7 +114,7 @@ def test_the_default_chooses_it_on_a_driver_stronger_forward(seed):
 
 def test_the_default_does_not_fit_it_where_the_directions_agree(monkeypatch):
     # a symmetric motor: the forward / reverse check agrees, and the gain per direction is never even fitted
-    import identify.asymmetry as asymmetry
+    import identify.fits.asymmetry as asymmetry
 
     def refuse(*args, **kwargs):
         raise AssertionError("fitted a gain per direction on a symmetric motor")

@@ -1,4 +1,4 @@
-"""identify.batch: the estimators on many repetitions at once against the one-run fits they replace."""
+"""identify.fits.batch: the estimators on many repetitions at once against the one-run fits they replace."""
 import math
 
 import numpy as np

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from identify.best_linear import best_linear_approximation
 from identify.errors import NotIdentifiableError
+from identify.frequency.best_linear import best_linear_approximation
 from motorsim import PRBS, Encoder, Experiment, Motor, OddMultisine, SimRig
 
 A, B, DT, PERIOD = 25.0, 3.0, 0.005, 1024

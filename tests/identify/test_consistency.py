@@ -1,4 +1,4 @@
-"""The part checks (identify.consistency): the chosen answer against the data's own parts.
+"""The part checks (identify.default.consistency): the chosen answer against the data's own parts.
 
 A right model gives the same ``a`` and ``b`` on every part of its recording; a model one step past every
 registered structure (a warming motor, asymmetric gains, a load switched on, ...) does not, whatever was
@@ -16,7 +16,7 @@ import pytest
 
 import identify
 from identify import Estimate, fit
-from identify.consistency import PART_LEVEL, SPLITS, PartCheck, part_checks
+from identify.default.consistency import PART_LEVEL, SPLITS, PartCheck, part_checks
 from motorid.bench import misfits
 from motorsim import Encoder, Experiment, Motor, Multisine, Recording, SimRig
 from motorsim.checks import ParameterError
@@ -178,7 +178,7 @@ def test_an_interval_the_blocks_show_too_narrow_widens_to_theirs():
     est = _fit(rec)
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= 54.0 <= ci["a"][1], (est.a, ci["a"], est.selection.chosen.label)
-    from identify.consistency import COLOURED, consistency
+    from identify.default.consistency import COLOURED, consistency
     found = consistency(est, [rec])
     assert "a" in found.block_stderr
     # on a right model's white residual the blocks add nothing: no widening
@@ -191,10 +191,10 @@ def test_an_interval_the_blocks_show_too_narrow_widens_to_theirs():
 @pytest.mark.parametrize("uniform", [True, False], ids=["uniform clock", "jittered clock"])
 @pytest.mark.parametrize("kind", ["angle", "speed"])
 def test_the_checks_responses_are_the_exact_zoh_responses_projected(kind, uniform):
-    # the batched pass against identify.sensitivity.zoh_response column by column, each less its fit on the
+    # the batched pass against identify.fits.sensitivity.zoh_response column by column, each less its fit on the
     # initial state: the same recursion, so equal to rounding (1e-9 of the column's scale)
-    from identify.consistency import _respond
-    from identify.sensitivity import project_out_initial_state, zoh_response
+    from identify.default.consistency import _respond
+    from identify.fits.sensitivity import project_out_initial_state, zoh_response
     rng = np.random.default_rng(0)
     t = np.arange(3000) * 0.002 + (0 if uniform else rng.uniform(0, 2e-4, 3000))
     x = np.column_stack([rng.normal(size=3000), np.sign(np.sin(7 * t)), np.ones(3000)])

@@ -7,8 +7,8 @@ import pytest
 
 import identify
 from identify import fit
-from identify.evidence import CURRENT_LIMIT, RULES
-from identify.limit_response import _compiled, limit_run_python
+from identify.default.evidence import CURRENT_LIMIT, RULES
+from identify.fits.limit_response import _compiled, limit_run_python
 from motorid.bench.misfits import current_limit
 from motorsim import Recording
 from motorsim.checks import ParameterError

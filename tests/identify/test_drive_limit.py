@@ -5,7 +5,7 @@ import pytest
 
 import identify
 from identify import fit
-from identify.evidence import DRIVE_LIMIT, RULES
+from identify.default.evidence import DRIVE_LIMIT, RULES
 from motorid.bench.misfits import clipped_duty
 from motorsim import Recording
 from motorsim.checks import ParameterError
@@ -57,11 +57,11 @@ def test_the_default_leaves_the_clipped_driver_unclear_and_the_rule_would_make_i
     assert not est.selection.clear and est.structure != "drive-limit"
     # the rule itself, given the same answer, finds the limit (right to well within 1e-3 here: 4096 counts)
     from identify.data import as_recordings
-    from identify.evidence import on_evidence
-    from identify.selection import _check_parts
+    from identify.default.evidence import on_evidence
+    from identify.default.selection import _check_parts
     recs = as_recordings([clipped_duty(0)])
     start = fit(recs, "oe", input_delay=0)
-    from identify.comparison import Candidate, Selection
+    from identify.default.comparison import Candidate, Selection
     chosen = Candidate("linear", 0, start.a, start.b, 1.0, 0.0, True)
     selection = Selection((chosen,), chosen, chosen, None)
     after = _check_parts(recs, start, selection, open_loop=True)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from identify.encoder_bootstrap import rounding_steps
+from identify.checks.encoder_bootstrap import rounding_steps
 
 
 @pytest.mark.parametrize("runs", [1, 7, 64], ids=["one", "seven", "sixty-four"])
@@ -19,8 +19,8 @@ def test_rounding_steps_equal_the_floors_at_every_phase(runs):
 
 def test_a_nuisance_column_the_data_do_not_see_leaves_the_covariance_unchanged():
     # a segment's initial speed while the shaft starts stuck by friction has an all-zero Jacobian column
+    from identify.checks.encoder_bootstrap import linearised_encoder_bootstrap_covariance
     from identify.data import Segment
-    from identify.encoder_bootstrap import linearised_encoder_bootstrap_covariance
     rng = np.random.default_rng(3)
     n, step = 500, 2 * np.pi / 4096
     t = np.arange(n) * 0.005

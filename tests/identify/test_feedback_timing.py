@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify.feedback import FEEDBACK_SHARE, clock_deviation, feedback_evidence, feedback_share, sample_index
+from identify.default.feedback import FEEDBACK_SHARE, clock_deviation, feedback_evidence, feedback_share, sample_index
 from motorsim import Encoder, Experiment, Motor, Recording, SimRig, Sine, Step
 from motorsim.plant import simulate
 

@@ -4,8 +4,8 @@ import pytest
 
 from identify import fit
 from identify.errors import NotIdentifiableError
-from identify.frequency_estimate import FrequencyResponse, frequency_response
-from identify.frequency_fit import fit_frequency_response
+from identify.frequency.frequency_estimate import FrequencyResponse, frequency_response
+from identify.frequency.frequency_fit import fit_frequency_response
 from motorsim import PRBS, Encoder, Experiment, Motor, OddMultisine, SimRig
 
 A, B, DT = 25.0, 3.0, 0.005

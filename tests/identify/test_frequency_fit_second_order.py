@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from identify import Estimate, structures
-from identify.frequency_estimate import frequency_response
-from identify.frequency_fit import fit_frequency_response
+from identify.frequency.frequency_estimate import frequency_response
+from identify.frequency.frequency_fit import fit_frequency_response
 from motorsim import Encoder, Experiment, Motor, OddMultisine, SimRig
 from motorsim.checks import ParameterError
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify.errors import NotIdentifiableError
-from identify.frequency_estimate import FrequencyResponse, frequency_response, zoh_speed_response
+from identify.frequency.frequency_estimate import FrequencyResponse, frequency_response, zoh_speed_response
 from motorsim import PRBS, Encoder, Experiment, Motor, Multisine, OddMultisine, Recording, SimRig, Sine
 from motorsim.plant import simulate
 
@@ -183,7 +183,7 @@ def test_the_package_name_is_the_function_whatever_was_imported_first():
     import importlib
 
     import identify
-    importlib.import_module("identify.frequency_estimate")
+    importlib.import_module("identify.frequency.frequency_estimate")
     assert callable(identify.frequency_response) and identify.frequency_response is frequency_response
 
 

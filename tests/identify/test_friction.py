@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify.friction import fit_output_error_friction, speed_reverses
+from identify.fits.friction import fit_output_error_friction, speed_reverses
 from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording
 
@@ -111,7 +111,7 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
     # within 3 standard errors of the truth.
     import math
 
-    from identify import friction, friction_solver
+    from identify.fits import friction, friction_solver
     from motorsim.excitation import Sine
     n, dt, cpr = 10_000, 0.005, 4096
     t = np.arange(n) * dt
@@ -134,7 +134,7 @@ def test_long_fit_is_as_good_as_iterating_on_all_rows_to_rounding(monkeypatch, p
 
 def _count_runs(monkeypatch):
     """Record the rows of every Levenberg–Marquardt run oe-friction makes."""
-    from identify import friction
+    from identify.fits import friction
     runs = []
     original = friction.levenberg_marquardt
 
@@ -153,7 +153,7 @@ def test_a_good_start_makes_one_run_on_all_rows(monkeypatch):
 
 
 def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
-    from identify import friction
+    from identify.fits import friction
     runs = _count_runs(monkeypatch)
     # a start far from the linear fit's pole (a 50 times too large) is not trusted
     good = friction._regression_start
@@ -164,7 +164,7 @@ def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
 
 
 def test_the_statistic_is_at_least_the_relative_excess_the_scan_bound_rests_on():
-    from identify.comparison import statistic
+    from identify.default.comparison import statistic
     rng = np.random.default_rng(4)
     for _ in range(200):
         best = rng.normal(size=640) * rng.uniform(0.1, 10.0)
@@ -176,7 +176,7 @@ def test_the_statistic_is_at_least_the_relative_excess_the_scan_bound_rests_on()
 
 def test_a_candidate_that_cannot_come_near_the_best_stops_early_and_is_refitted_in_full():
     from identify.data import prepare_segments
-    from identify.friction import FrictionScan, friction_candidate
+    from identify.fits.friction import FrictionScan, friction_candidate
     rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0), n=2000)
     segs = prepare_segments([rec], 3)               # the wrong delay: far worse than delay 0
     best = friction_candidate([rec], prepare_segments([rec], 0), 0, "friction", False)
@@ -190,9 +190,9 @@ def test_a_candidate_that_cannot_come_near_the_best_stops_early_and_is_refitted_
 def test_a_long_candidate_far_from_the_best_stops_at_its_start_without_a_run(monkeypatch):
     # on data long enough for the prefix stage, the bound is tested at the start itself: a candidate that cannot
     # come near the best costs one evaluation there, no Levenberg-Marquardt run (not even the prefix's)
-    from identify import friction
     from identify.data import prepare_segments
-    from identify.friction import FrictionScan, friction_candidate
+    from identify.fits import friction
+    from identify.fits.friction import FrictionScan, friction_candidate
     rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0), n=10_000)
     assert len(rec.time) >= friction.PREFIX_MIN_ROWS
     best = friction_candidate([rec], prepare_segments([rec], 0), 0, "friction", False)
@@ -206,7 +206,7 @@ def test_a_long_candidate_far_from_the_best_stops_at_its_start_without_a_run(mon
 
 def test_neighbouring_delays_share_their_start():
     from identify.data import prepare_segments
-    from identify.friction import FrictionScan, friction_candidate
+    from identify.fits.friction import FrictionScan, friction_candidate
     rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
     scan = FrictionScan()
     first = friction_candidate([rec], prepare_segments([rec], 0, skip=2), 0, "dead-zone", False, scan=scan)
@@ -222,7 +222,7 @@ def test_neighbouring_delays_share_their_start():
 
 def test_the_fit_is_the_same_without_the_compiled_kernel(monkeypatch):
     # without numba (MOTORID_NUMBA=0, or where it cannot install) the vectorised response: the same fit to rounding
-    from identify import friction_response as response_module
+    from identify.fits import friction_response as response_module
     rec = _run(Motor(25.0, 3.0, friction=40.0, dead_zone=12.0), freq=25.0)
     fast = fit_output_error_friction(rec)
     monkeypatch.setattr(response_module, "kernel_for", lambda rows: None)
@@ -236,8 +236,8 @@ def test_the_structures_at_one_delay_share_their_linear_fit(monkeypatch):
     # each scanned candidate that is fitted in full checks itself against the linear model on its rows; the
     # structures fitted at one delay (the same rows) share that fit, and it decides nothing differently from
     # a fit of its own
-    from identify import friction
     from identify.data import prepare_segments
+    from identify.fits import friction
     rec = _run(Motor(25.0, 3.0, friction=60.0, bias=-20.0, input_delay=1), n=2000)
     made = []
     linear_fit = friction._linear_fit

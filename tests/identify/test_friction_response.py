@@ -3,9 +3,9 @@ sensitivities are exact."""
 import numpy as np
 import pytest
 
-from identify import friction_response as response_module
-from identify.friction_kernel import compiled_response
-from identify.friction_response import friction_response
+from identify.fits import friction_response as response_module
+from identify.fits.friction_kernel import compiled_response
+from identify.fits.friction_response import friction_response
 from motorsim.plant import Motor, simulate
 
 
@@ -116,7 +116,7 @@ def test_the_two_paths_agree_to_rounding(params, jitter, monkeypatch):
 
 
 def test_short_runs_take_the_kernel_only_once_it_is_loaded(monkeypatch):
-    from identify import friction_kernel
+    from identify.fits import friction_kernel
     if compiled_response() is None:
         pytest.skip("numba is not installed or MOTORID_NUMBA=0")
     monkeypatch.undo()                               # the real kernel_for, not the fixture's

@@ -1,8 +1,8 @@
-"""The friction fit's Levenberg–Marquardt (:mod:`identify.friction_solver`) on problems with known answers."""
+"""The friction fit's Levenberg–Marquardt (:mod:`identify.fits.friction_solver`) on problems with known answers."""
 import numpy as np
 import pytest
 
-from identify.friction_solver import levenberg_marquardt
+from identify.fits.friction_solver import levenberg_marquardt
 
 
 class _Linear:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify import selection as selection_module
+from identify.default import selection as selection_module
 from identify.errors import NotIdentifiableError
 from motorid.bench import misfits
 from motorsim import Encoder, Experiment, Motor, Multisine, SimRig
@@ -208,7 +208,7 @@ def _warming_with_a_load(drift: float):
 
 def test_the_torque_disturbance_fit_is_not_clear_where_its_halves_differ():
     # the disturbance follows the load but would average a warming motor's a and b: its halves tell
-    from identify.feedback import fit_changing_torque
+    from identify.default.feedback import fit_changing_torque
     est = fit_changing_torque([_warming_with_a_load(0.05)], "a test")
     assert est is not None and not est.selection.clear
     assert "in the first half" in est.selection.doubt and "in the second" in est.selection.doubt
@@ -223,7 +223,7 @@ def test_a_fit_that_overrules_the_friction_screen_splits_the_evidence():
     # a slow ramp through friction: the score test finds no friction, a fit of it on the screen's rows moves a and b;
     # the selection carries both (not as words to parse), and with friction chosen the answer is not clear
     est = _fit(misfits.MISFITS["slow ramp through friction"](3))
-    from identify.selection import REFUTED
+    from identify.default.selection import REFUTED
     noted = [n for n in est.selection.notes if n.startswith(REFUTED)]
     assert noted, est.selection.notes
     assert est.selection.chosen.structure == "friction" and not est.selection.clear

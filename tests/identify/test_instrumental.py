@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from identify import NotIdentifiableError, fit
-from identify.instrumental import fit_instrumental_variables
+from identify.fits.instrumental import fit_instrumental_variables
 from motorsim.recording import Recording
 
 

@@ -1,10 +1,11 @@
-"""The model an ``oe`` fit keeps for the checks that follow it (identify.validation.keep_models)."""
+"""The model an ``oe`` fit keeps for the checks that follow it (identify.checks.validation.keep_models)."""
 import dataclasses
 import gc
 
 import numpy as np
 
-from identify import fit, validation
+from identify import fit
+from identify.checks import validation
 from motorsim import Encoder, Experiment, Motor, Multisine, SimRig
 
 
@@ -73,7 +74,7 @@ def test_a_kept_model_goes_with_its_recording():
 def test_the_default_answers_as_with_the_model_simulated(monkeypatch):
     rec = _recording(3, seconds=40.0)       # 8000 rows: the part checks run
     kept = fit(rec)
-    monkeypatch.setattr("identify.output_error.keep_models", lambda *args: None)
+    monkeypatch.setattr("identify.fits.output_error.keep_models", lambda *args: None)
     validation._kept_models.clear()
     validation._made_models.clear()
     simulated = fit(rec)

@@ -76,7 +76,7 @@ def test_an_unknown_name_is_refused_with_the_known_ones():
 
 def test_listing_the_methods_imports_no_estimator():
     code = ("import sys\nfrom identify import available_methods, DEFAULT_METHOD\navailable_methods()\n"
-            "print(','.join(m for m in ('identify.output_error', 'identify.friction', 'scipy.optimize')"
+            "print(','.join(m for m in ('identify.fits.output_error', 'identify.fits.friction', 'scipy.optimize')"
             " if m in sys.modules))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                           env={"PYTHONPATH": str(ROOT), "PATH": ""})

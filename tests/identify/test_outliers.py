@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from identify import fit
+from identify.checks.outliers import residual_outliers
 from identify.errors import CorruptedSamplesError
-from identify.outliers import residual_outliers
 from motorsim import Encoder, Experiment, Motor, Recording, SimRig, Sine
 
 
@@ -69,10 +69,10 @@ def _speed_only(rec):
 
 @pytest.mark.parametrize("case", ["separable", "bias", "gaps and pooled", "speed only"])
 def test_the_fits_own_speed_residuals_are_model_outputs(rec, case):
-    # reference: identify.validation.model_output simulates the estimate again on each recording;
+    # reference: identify.checks.validation.model_output simulates the estimate again on each recording;
     # the residuals the oe fit keeps must be the same numbers (1e-9 of the speed scale: two
     # orders of rounding through the fit's least squares), nan at the same rows
-    from identify.validation import model_output
+    from identify.checks.validation import model_output
     options = {"fit_bias": True} if case == "bias" else {}
     if case == "gaps and pooled":
         recs = [rec.drop_rows([100, 101, 1500]), rec.slice(0, 900)]

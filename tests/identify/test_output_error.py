@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from identify import NotIdentifiableError, cramer_rao_bound, fit
-from identify.output_error import fit_output_error, select_delay
-from identify.validation import model_output
+from identify.checks.validation import model_output
+from identify.fits.output_error import fit_output_error, select_delay
 from motorsim.recording import Recording
 
 # Noise-free data from expm / python-control agree with the closed-form ZOH model to ~1e-13;
@@ -204,7 +204,7 @@ def test_the_default_chooses_among_models_and_oe_can_be_forced():
 @pytest.mark.parametrize("kind", ["angle", "speed"])
 def test_one_scan_over_all_segments_equals_segment_by_segment(reference, kind):
     from identify.data import prepare_segments
-    from identify.output_error import OutputErrorProblem
+    from identify.fits.output_error import OutputErrorProblem
     rng = np.random.default_rng(5)
     dt, n = 0.005, 2000
     t = np.arange(n) * dt + rng.uniform(-0.05, 0.05, n) * dt

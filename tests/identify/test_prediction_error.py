@@ -14,17 +14,18 @@ import math
 import numpy as np
 import pytest
 
-from identify import fit, prediction_error
-from identify.comparison import largest_delay
+from identify import fit
 from identify.data import prepare_segments
-from identify.feedback import (
+from identify.default.comparison import largest_delay
+from identify.default.feedback import (
     CLOSED_LOOP_LARGEST_DELAY,
     CLOSED_LOOP_ROWS,
     FEEDBACK_SHARE,
     feedback_evidence,
     feedback_share,
 )
-from identify.prediction_error import (
+from identify.fits import prediction_error
+from identify.fits.prediction_error import (
     _Problem,
     compiled_filter_pass,
     compiled_sensitivity_pass,

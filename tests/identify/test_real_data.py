@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from identify import fit
-from identify.validation import model_output, nrmse_fit
+from identify.checks.validation import model_output, nrmse_fit
 from motorsim.recording import Recording
 
 DATA = Path(__file__).parents[1] / "data" / "undcmotor"

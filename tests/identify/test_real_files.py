@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from identify import fit
+from identify.checks.screening import RunStartWarning
 from identify.data import ConstantInputTurnWarning, as_recordings, check_constant_input_runs
 from identify.errors import NotIdentifiableError
-from identify.screening import RunStartWarning
 from motorsim import Motor, Recording
 from motorsim.columns import import_recording
 from motorsim.plant import simulate

@@ -1,4 +1,4 @@
-"""identify.recursive: RLS against batch least squares, and the running estimators against the truth."""
+"""identify.fits.recursive: RLS against batch least squares, and the running estimators against the truth."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from identify import fit_zoh_ls
-from identify.recursive import RecursiveLeastSquares, RunningEstimator
+from identify.fits.recursive import RecursiveLeastSquares, RunningEstimator
 from motorsim import PRBS, Encoder, Experiment, Motor, SimRig, Sine
 
 

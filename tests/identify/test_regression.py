@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from identify import NotIdentifiableError, fit, fit_euler_ls, fit_zoh_ls
-from identify.regression import solve_least_squares
+from identify.fits.regression import solve_least_squares
 from motorsim import PRBS, Constant, Experiment, Motor, Recording, SimRig, Sine, simulate
 
 RTOL = 1e-9  # noise-free: both regressions are exact up to rounding
@@ -83,7 +83,7 @@ def test_covariance_is_the_delta_method_of_the_ols_covariance(method):
                       speed=rec.speed + rng.normal(0, 0.5, len(rec)))
     est = fit(noisy, method=method)
     # finite-difference Jacobian of the mapping (theta1, theta2) -> (a, b) around the LS solution
-    from identify.regression import regression_rows
+    from identify.fits.regression import regression_rows
     A, y = regression_rows([noisy])
     x, cov_x, _ = solve_least_squares(A, y)
     dt = 0.005

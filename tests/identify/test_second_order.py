@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from identify import Estimate, fit
-from identify.electrical import fit_output_error_electrical
+from identify.fits.electrical import fit_output_error_electrical
 from identify.model_structures import structure
 from motorsim import Encoder, Experiment, Motor, Multisine, Recording, SimRig
 from motorsim.checks import ParameterError

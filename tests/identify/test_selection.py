@@ -1,4 +1,5 @@
-"""The default estimator (identify.selection): delay and structure chosen by evidence, doubt where the data cannot tell.
+"""The default estimator (identify.default.selection): delay and structure chosen by evidence, doubt where the data
+cannot tell.
 
 Each class of recording below is one the default met badly before it chose by evidence: one sine on a
 hobby encoder (a delay-vs-lag ridge), a true input delay, Coulomb friction, a bias, a dead zone, a
@@ -13,9 +14,9 @@ import numpy as np
 import pytest
 
 from identify import Estimate, fit
-from identify.comparison import LEVEL, threshold
+from identify.default.comparison import LEVEL, threshold
+from identify.default.selection import fit_selected, residual_checks, select_model
 from identify.estimate import json_ready
-from identify.selection import fit_selected, residual_checks, select_model
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, SimRig, Sine
 
 A, B, DT = 25.0, 3.0, 0.005
@@ -242,7 +243,7 @@ def test_block_mean_p_is_hotellings_test(k):
     # normal blocks (32 of them, as the selection's): 2000 draws at 5 %, binomial sd 0.5 %
     from scipy.stats import f as f_dist
 
-    from identify.comparison import BLOCKS, block_mean_p
+    from identify.default.comparison import BLOCKS, block_mean_p
     rng = np.random.default_rng(k)
     x = rng.normal(size=(BLOCKS, k)) + 0.3
     mean, cov = x.mean(axis=0), np.cov(x.T, ddof=1).reshape(k, k)
@@ -340,7 +341,7 @@ def test_prepare_segments_with_rows_is_first_rows_of_all(kind):
 def test_no_screen_overrules_a_fit_friction_left_out_is_fitted_when_the_residuals_refute_the_choice(monkeypatch):
     # the screen made blind (it leaves friction out whatever it sees): the linear model's own residuals,
     # correlated with the sign of its speed, bring the friction candidates back and they win
-    import identify.selection as selection
+    import identify.default.selection as selection
     monkeypatch.setattr(selection, "SCREEN_LEVEL", 0.0)
     monkeypatch.setattr(selection, "SCREEN_SHARE", 2.0)
     monkeypatch.setattr(selection, "_screen_refuted", lambda *args: "")     # and the fit that checks it blind too
@@ -354,7 +355,7 @@ def test_no_screen_overrules_a_fit_friction_left_out_is_fitted_when_the_residual
 
 def test_a_screen_that_leaves_friction_out_is_checked_by_a_fit_on_its_rows(monkeypatch):
     # the screen made blind: a fit of friction on its first rows moves a far beyond 1 %, so friction is fitted
-    import identify.selection as selection
+    import identify.default.selection as selection
     monkeypatch.setattr(selection, "SCREEN_LEVEL", 0.0)
     monkeypatch.setattr(selection, "SCREEN_SHARE", 2.0)
     rig = SimRig(Motor(A, B, friction=100.0), Encoder(angle_noise=1e-4), rng=np.random.default_rng(4))
@@ -402,7 +403,7 @@ def test_a_position_loop_with_friction_and_a_fed_back_load_is_never_a_narrow_wro
 
 def test_a_fit_without_finite_intervals_is_never_a_clear_choice(monkeypatch):
     # whatever the candidates: an estimate whose own covariance is singular cannot be called clear
-    import identify.selection as selection
+    import identify.default.selection as selection
     original = selection._chosen_fit
 
     def singular(recs, chosen, fix_bias):
@@ -418,8 +419,8 @@ def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
     # the selection scores its candidates with their differences stacked (one product with the rounding
     # realisations for many): each statistic is the candidate's own to rounding, for more candidates than
     # one stack holds
-    from identify import comparison
-    from identify.comparison import Candidate, CandidateFit, statistic
+    from identify.default import comparison
+    from identify.default.comparison import Candidate, CandidateFit, statistic
     rng = np.random.default_rng(4)
     n = 3000
     best_r = rng.normal(0, 1e-3, n)
@@ -440,8 +441,8 @@ def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
 
 def test_the_rounding_realisations_are_the_encoder_rounding_at_each_phase():
     # column j: -step frac(model / step + phase_j), centred per segment (model = output - residuals)
-    from identify.comparison import PHASES, rounding_realisations
     from identify.data import prepare_segments
+    from identify.default.comparison import PHASES, rounding_realisations
     rec = _run(duration=2.0, counts=2000, noise=0.0)
     segs = prepare_segments([rec], 0)
     step = 2 * math.pi / 2000
@@ -467,8 +468,8 @@ def _friction_sine_1ms(seconds=4.0, delay=0, counts=1000, seed=0):
 def test_a_linear_candidate_the_regression_cannot_start_is_fitted_in_a_from_the_grid(monkeypatch):
     # the separable iteration in a fails from the regression's pole; from the grid's it reaches the minimum of the
     # general Levenberg-Marquardt fit (which the candidate took before, at twenty times the cost)
-    from identify import output_error
     from identify.data import prepare_segments
+    from identify.fits import output_error
     rec = _friction_sine_1ms()
     segs = prepare_segments([rec], 0)
     assert output_error.regression_start(segs) > 10 * A          # the regression's pole: far off
@@ -489,7 +490,7 @@ def test_a_second_pole_and_a_static_level_stop_where_their_fits_have_worsened_fa
     # a long delay through friction: below the friction fit's delay every second-pole and static-level fit is far
     # worse than it; the scan down stops after two such delays (said in a note), and the choice is the one the
     # full scan makes
-    from identify import selection
+    from identify.default import selection
     rec = _friction_sine_1ms(seconds=3.0, delay=8, counts=16667)
     stopped = select_model(rec)
     assert stopped.chosen.structure == "friction" and stopped.chosen.input_delay == 8
@@ -508,7 +509,7 @@ def test_a_choice_at_the_top_of_the_range_leaves_the_higher_ranks_to_the_wider_o
     # the delay range is widened when the first-order family's best fit is at its top; the second pole and the
     # static level are then fitted once, on the wider range, and the answer is the same as when they are fitted
     # on both
-    from identify import selection
+    from identify.default import selection
     rig = SimRig(Motor(A, B, friction=30.0, input_delay=13), Encoder(angle_noise=1e-4), rng=np.random.default_rng(0))
     rec = rig.run(Experiment(Multisine((3.0, 17.0, 70.0, 200.0), (60, 50, 40, 40), (0, 1, 2, 3)), 0.001, 3.0))
     calls = []

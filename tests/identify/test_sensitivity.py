@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from identify.sensitivity import zoh_response
+from identify.fits.sensitivity import zoh_response
 from motorsim.plant import Motor, simulate
 
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from identify.data import prepare_segments
-from identify.sensitivity import zoh_response
-from identify.start import grid_guess
+from identify.fits.sensitivity import zoh_response
+from identify.fits.start import grid_guess
 from motorsim import Encoder, Experiment, Motor, SimRig, Sine
 
 
@@ -49,7 +49,7 @@ def test_the_regression_guess_is_kept_with_its_recording(monkeypatch):
     # that has been fitted still pickles (a sweep sends it to its workers); pooled recordings keep nothing
     import pickle
 
-    from identify import start
+    from identify.fits import start
     runs = [SimRig(Motor(a, 3.0), Encoder(360, angle_noise=1e-3), rng=np.random.default_rng(a)).run(
         Experiment(Sine(20.0, 150), 0.005, 2.0)) for a in (10, 25)]
     fresh = [start._regression_guess([r]) for r in runs] + [start._regression_guess(runs)]

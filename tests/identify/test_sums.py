@@ -7,8 +7,8 @@ import scipy.linalg  # noqa: F401  (its BLAS loaded, as inside every fit)
 import threadpoolctl
 
 from identify import sums
+from identify.checks.screening import screened_fit
 from identify.methods import method_function
-from identify.screening import screened_fit
 from motorsim import Experiment, Motor, Multisine, SimRig
 
 

@@ -126,3 +126,12 @@ def test_the_command_line_gives_the_python_answer(fitted, recording, tmp_path, c
     data = json.loads(capsys.readouterr().out)
     assert data["input_delay"] == fitted.input_delay
     assert {n: data[n] for n in fitted.param_names} == fitted.values()
+
+
+def test_a_load_far_lighter_than_the_motor_is_the_rigid_motor_not_a_division_by_zero():
+    # 1 - 1/(1 + r) is 0 in floating point for r under 1e-16; the fit's bound reaches 1e-300
+    t = np.arange(500) * 0.001
+    u = np.round(100 * np.sin(7 * t))
+    light = simulate(TwoMassPlant(25.0, 3.0, 1e-20, 150.0, 0.1), u, t)
+    rigid = simulate(Motor(25.0, 3.0), u, t)
+    assert np.max(np.abs(light.speed - rigid.speed)) <= 1e-9 * np.max(np.abs(rigid.speed))

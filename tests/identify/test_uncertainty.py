@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify import cramer_rao_bound
-from identify.uncertainty import quantisation_variance
+from identify.checks.uncertainty import quantisation_variance
 
 
 def _duty(n, dt, freq=10.0):
@@ -86,7 +86,7 @@ def test_bad_arguments_name_the_parameter(kwargs, match):
 
 def test_newey_west_without_lags_is_the_white_sandwich():
     # L = 0: (J^T J)^-1 (sum r_t^2 J_t J_t^T) (J^T J)^-1, exactly (to rounding)
-    from identify.uncertainty import newey_west_covariance
+    from identify.checks.uncertainty import newey_west_covariance
     rng = np.random.default_rng(3)
     J = rng.normal(size=(500, 3)) * [1.0, 100.0, 0.01]
     r = rng.normal(size=500)
@@ -98,7 +98,7 @@ def test_newey_west_without_lags_is_the_white_sandwich():
 def test_correlated_residuals_switch_to_newey_west_and_widen_the_interval():
     # AR(1) residuals with coefficient 0.9: the variance of a mean is about (1 + 0.9)/(1 - 0.9) = 19 times
     # the white formula's; Newey-West must see most of that (> 5 x) while Gauss-Newton cannot
-    from identify.uncertainty import robust_covariance
+    from identify.checks.uncertainty import robust_covariance
     rng = np.random.default_rng(4)
     e = rng.normal(size=4000)
     r = np.empty_like(e)
@@ -143,7 +143,7 @@ def test_correlation_length_and_ljung_box_match_a_direct_reference(phi):
     # is correlated past the dot-product lags, so the FFT path is checked too
     from scipy.stats import chi2
 
-    from identify.uncertainty import _DIRECT_AUTOCORRELATION_LAGS, _correlation_length
+    from identify.checks.uncertainty import _DIRECT_AUTOCORRELATION_LAGS, _correlation_length
     rng = np.random.default_rng(7)
     e = rng.normal(size=3000)
     r = np.empty_like(e)

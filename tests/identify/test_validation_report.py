@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify import fit, validate
-from identify.validation import autocorrelation, cross_correlation, nrmse_fit
+from identify.checks.validation import autocorrelation, cross_correlation, nrmse_fit
 from motorsim.excitation import Sine
 from motorsim.plant import Motor, simulate
 from motorsim.recording import Recording

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from identify.checks.uncertainty import covariance_from_jacobian
 from identify.data import as_recordings, prepare_segments
-from identify.output_error import OutputErrorProblem, select_delay
-from identify.start import initial_guess
-from identify.uncertainty import covariance_from_jacobian
-from identify.variable_projection import (
+from identify.fits.output_error import OutputErrorProblem, select_delay
+from identify.fits.start import initial_guess
+from identify.fits.variable_projection import (
     is_separable,
     separable_residual_sum,
     solve_separable,

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from identify.design import design_sine, predicted_stderr
-from identify.uncertainty import cramer_rao_bound
+from identify.checks.design import design_sine, predicted_stderr
+from identify.checks.uncertainty import cramer_rao_bound
 from motorid.cli import main
 from motorsim import Motor, Sine, simulate
 

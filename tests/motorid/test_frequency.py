@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from identify.design import design_multisine
-from identify.frequency_estimate import frequency_response
+from identify.checks.design import design_multisine
+from identify.frequency.frequency_estimate import frequency_response
 from motorid.cli import main
 from motorsim import Encoder, Experiment, Motor, SimRig, read_recording
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify import structures
-from identify.frequency_estimate import frequency_response
+from identify.frequency.frequency_estimate import frequency_response
 from motorid import plots
 from motorid.cli import main
 from motorsim import read_recording

@@ -388,7 +388,7 @@ def test_the_late_input_check_refuses_a_late_log_and_passes_the_same_run_logged_
     # measured: the residual shrinks 15 % with the input one sample earlier under 2 mrad of noise, tenfold clean
     import numpy as np
 
-    from identify.causality import check_input_leads
+    from identify.checks.causality import check_input_leads
     from identify.errors import NotIdentifiableError
     from motorsim import Encoder
     from motorsim.recording import Recording

@@ -81,7 +81,7 @@ def test_a_fault_mid_run_leaves_a_valid_incomplete_recording(tmp_path, capsys):
 def test_ctrl_c_during_a_live_run_keeps_the_partial_recording(tmp_path, capsys, monkeypatch):
     # Ctrl-C arrives as an asynchronous KeyboardInterrupt in the main thread; send it (as the
     # terminal would) once sample 100 has arrived.
-    from identify.recursive import RunningEstimator
+    from identify.fits.recursive import RunningEstimator
     add = RunningEstimator.add
 
     def add_then_interrupt(self, seq, *args):

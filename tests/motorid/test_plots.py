@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from identify import fit, validate
-from identify.recursive import RunningEstimator
+from identify.fits.recursive import RunningEstimator
 from motorid import plots
 from motorsim.excitation import Sine
 from motorsim.plant import Motor

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from identify.zoh_response import zoh_speed_response
+from identify.fits.zoh_response import zoh_speed_response
 from motorsim.batch import unbatchable_parts
 from motorsim.checks import ParameterError
 from motorsim.linear_plant import LinearPlant

@@ -11,7 +11,7 @@ import pytest
 
 import identify.methods
 from identify import fit
-from identify.uncertainty import cramer_rao_bound
+from identify.checks.uncertainty import cramer_rao_bound
 from motorid.cli import main
 from motorid.commands.sweep import format_sweep_table
 from scenarios.scenario import load_scenario, scenario_from_dict

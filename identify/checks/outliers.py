@@ -1,0 +1,102 @@
+"""Isolated residual outliers after a fit: single samples the fitted model cannot explain.
+
+A corrupted sample too small for :func:`motorsim.plausibility.implausible_samples` still
+pulls a least-squares fit.  After the fit it stands out as an isolated spike in the speed
+residual (measured minus the model's speed, :func:`identify.checks.validation.model_output`).
+
+Rule: a row is an outlier when its residual exceeds :data:`RESIDUAL_FACTOR` robust
+standard deviations (1.4826 times the median absolute deviation, of at most
+:data:`SCALE_SAMPLES` evenly spaced residuals) and 0.1 % of the RMS
+measured speed (a noise-free fit has a near-zero deviation), and the outliers are isolated:
+at most :data:`ISOLATED_SHARE` of the rows, each standing out by as much from the median of its
+:data:`NEIGHBOURHOOD` neighbours either side (a misfit that lasts, a segment's start the model
+misses, moves its neighbours with it).  Many large residuals mean a model that misses
+dynamics (friction, delay), which :func:`identify.validate` reports; they are not named here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from motorsim.checks import ParameterError
+from motorsim.plausibility import spike_rows
+from motorsim.recording import Recording
+
+from ..estimate import Estimate
+from .validation import model_output
+
+__all__ = ["residual_outliers", "RESIDUAL_FACTOR", "ISOLATED_SHARE", "SCALE_SAMPLES", "NEIGHBOURHOOD"]
+
+#: Robust standard deviations beyond which a residual is an outlier.
+RESIDUAL_FACTOR = 10.0
+#: Largest share of rows that can be outliers and still be called isolated.
+ISOLATED_SHARE = 0.01
+#: Rows either side whose median a corrupted sample must stand out from (a count off and back moves two
+#: speed rows, so at least three of the five on either side stay put).
+NEIGHBOURHOOD = 5
+#: Residuals, evenly spaced, of which the median absolute deviation is taken on longer records: its
+#: relative standard error is then about 0.4 %, nothing against :data:`RESIDUAL_FACTOR`.
+SCALE_SAMPLES = 100_000
+
+
+def residual_outliers(estimate: Estimate, recording: Recording, residual: np.ndarray | None = None) -> list[int]:
+    """Rows (0-based) of ``recording`` whose speed residual is an isolated outlier.
+
+    Parameters
+    ----------
+    estimate : Estimate
+        A fit (of this recording, or pooled with it).
+    recording : Recording
+        The data.
+    residual : ndarray, shape (n,), optional
+        The recording's speed residual under ``estimate`` when the caller has it (the entry of
+        :attr:`Estimate.speed_residuals` for this recording); by default it is computed
+        (:func:`identify.checks.validation.model_output`).
+
+    Returns
+    -------
+    list of int
+        Outlier rows; a count jump and back is named by its first row.  Empty when none,
+        or when too many rows exceed the limit to be isolated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from motorsim import Encoder, Experiment, Motor, SimRig, Sine
+    >>> from identify import fit
+    >>> rec = SimRig(Motor(25.0, 3.0), Encoder(angle_noise=1e-3), rng=np.random.default_rng(1)).run(
+    ...     Experiment(Sine(20.0), 0.005, 4.0))
+    >>> residual_outliers(fit(rec, method="zoh-ls"), rec)
+    []
+    """
+    if residual is None:
+        measured, simulated = model_output(estimate, recording)
+        residual = measured - simulated
+    else:
+        residual = np.asarray(residual, dtype=float)
+        if residual.shape != (len(recording),):
+            raise ParameterError(f"residual must have one value per row of the recording ({len(recording)}), "
+                                 f"got shape {residual.shape}")
+        measured = recording.measured_speed()
+    defined = np.isfinite(residual)
+    finite = residual[defined]
+    if len(finite) < 10:
+        return []
+    spread = finite[::-(-len(finite) // SCALE_SAMPLES)]     # evenly spaced, at most SCALE_SAMPLES
+    sigma = 1.4826 * float(np.median(np.abs(spread - np.median(spread))))
+    speed = measured[defined]
+    speed = speed[np.isfinite(speed)]
+    speed_rms = float(np.sqrt(np.mean(speed ** 2))) if len(speed) else 0.0
+    limit = max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms)
+    rows = [k for k in spike_rows(residual, limit) if abs(_local_deviation(residual, k)) > limit]
+    return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []
+
+
+def _local_deviation(residual: np.ndarray, row: int) -> float:
+    """``residual[row]`` less the median of the rows within :data:`NEIGHBOURHOOD` either side (nan kept out).
+
+    A corrupted sample stands out from its neighbours (a count off and back: two rows); a misfit that
+    lasts (a segment's start, a transient the model misses) moves its neighbours with it, and is no
+    corrupted sample."""
+    window = residual[max(0, row - NEIGHBOURHOOD):row + NEIGHBOURHOOD + 1]
+    window = window[np.isfinite(window)]
+    return float(residual[row] - np.median(window)) if len(window) else 0.0

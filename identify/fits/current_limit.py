@@ -1,0 +1,243 @@
+"""``oe-current-limit``: output error of the motor behind a driver that limits its current.
+
+The structure (:class:`identify.model_structures.current_limit.CurrentLimit`) is
+
+``d omega/dt = sat_L(b u - s a omega) - (1 - s) a omega + d``,
+
+``sat_L(x) = min(max(x, -L), L)``.  The motor's current, ``(V - k_e omega) / R``, makes the torque ``b u - s a omega``
+(``s`` = ``emf_share``, the share of the pole ``a`` the back-EMF gives); the driver holds that current within its
+limit, the torque within ``L`` (``current_limit``, rad/s^2); the rest of the pole, ``(1 - s) a``, is the shaft's
+own viscous friction, which acts whatever the current.  Below the limit it is the linear motor ``b/(s + a)`` with
+a constant acceleration ``d`` (a load, outside the driver's loop).  The limit acts where the torque asked for is
+large: at steps and reversals of the drive, where the back-EMF has not yet caught up.
+
+The exact zero-order-hold response (:mod:`identify.fits.limit_response`): over each held sample the vector field is
+continuous and piecewise linear in ``omega``, solved in closed form through its crossings of the limit.
+
+The fit is nonlinear least squares (:func:`scipy.optimize.least_squares`, bounded: ``a > 0``, ``L > 0``,
+``0 < s <= 1``) on ``(a, b, L, s, d)`` and each segment's initial speed, the angle offset projected out, from
+several starting limits; its covariance is :func:`identify.fits.asymmetry.fit_mapped`'s (the encoder's rounding by the
+linearised bootstrap where it dominates, else Gauss--Newton or Newey--West), the initial speeds projected out of
+the Jacobian.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from motorsim.checks import check_choice
+from motorsim.recording import Recording
+
+from ..data import (
+    DEFAULT_INPUT_DELAY,
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    prepare_segments,
+    residual_unit,
+)
+from ..errors import NotIdentifiableError
+from ..estimate import Estimate
+from ..sums import sum_squares
+from .limit_response import initial_speed_fit, limit_response, segment_model
+
+__all__ = ["fit_output_error_current_limit", "asked_torque", "STRUCTURE", "FITTED", "START_QUANTILES", "START_SHARES",
+           "MIN_SHARE"]
+
+#: The structure's name.
+STRUCTURE = "current-limit"
+#: The parameters the fit estimates.
+FITTED = ("a", "b", "current_limit", "emf_share", "bias")
+#: Quantiles of the torque the linear model asks for (``|b u - a omega|`` along its run) the limit starts from.
+START_QUANTILES = (0.6, 0.8, 0.95)
+#: Back-EMF shares the fit starts from.
+START_SHARES = (0.5, 0.9)
+#: The smallest back-EMF share (the bound of the fit): a driver's current limit needs a back-EMF to act through.
+MIN_SHARE = 0.01
+
+
+def _residuals(x: np.ndarray, segments: Sequence[Segment]) -> np.ndarray:
+    theta = x[:5]
+    out = []
+    for j, seg in enumerate(segments):
+        r = seg.output - segment_model(theta, seg, float(x[5 + j]))
+        out.append(r - r.mean() if seg.kind == "angle" else r)
+    return np.concatenate(out)
+
+
+def _starts(segments: Sequence[Segment], a: float, b: float, bias: float) -> list[np.ndarray]:
+    """Start points: the linear model's ``a``, ``b``, ``bias``; limits at :data:`START_QUANTILES` of the torque it
+    asks for along its run; shares :data:`START_SHARES`."""
+    asked = []
+    for seg in segments:
+        angle, speed = limit_response(a, b, math.inf, 1.0, bias, seg.drive, seg.time, seg.initial_speed_guess())
+        asked.append(np.abs(b * np.asarray(seg.drive, dtype=float) - a * speed))
+    torque = np.concatenate(asked)
+    torque = torque[torque > 0]
+    if len(torque) < 3:
+        return []
+    return [np.array([a, b, float(np.quantile(torque, q)), s, bias]) for q in START_QUANTILES for s in START_SHARES]
+
+
+def _fit(recs: list[Recording], delay: int, a: float, b: float, bias: float, covariance: str = "auto") -> Estimate:
+    """The fit at ``delay`` from the linear model's ``a``, ``b``, ``bias`` and :func:`_starts`' limits and shares."""
+    from scipy.optimize import least_squares
+
+    from ..checks.encoder_bootstrap import linearised_encoder_bootstrap_covariance
+    from ..checks.uncertainty import covariance_from_jacobian, robust_covariance
+    from ..checks.validation import segment_fit_percent
+    from .friction import ROUNDING_DOMINATED
+    segments = prepare_segments(recs, delay)
+    n = sum(len(s.time) for s in segments)
+    p = len(FITTED)
+    nuisance = sum(2 if s.kind == "angle" else 1 for s in segments)
+    if not segments or n - nuisance <= p + 1:
+        raise NotIdentifiableError(f"recording is too short for a current limit: {p} parameters and the initial "
+                                   f"state of {len(segments)} segments; record longer")
+    if not (math.isfinite(a) and a > 0 and math.isfinite(b) and b != 0):
+        raise NotIdentifiableError(f"a current limit needs a stable linear start, got a = {a:.6g}, b = {b:.6g}")
+    starts = _starts(segments, a, abs(b), bias)
+    if not starts:
+        raise NotIdentifiableError("a current limit needs a motor that moved: the drive asked for no torque")
+    w0s = [seg.initial_speed_guess() for seg in segments]
+    lower = np.array([1e-9, -np.inf, 1e-9, MIN_SHARE, -np.inf] + [-np.inf] * len(segments))
+    upper = np.array([np.inf, np.inf, np.inf, 1.0, np.inf] + [np.inf] * len(segments))
+    best = None
+    for start in starts:
+        x0 = np.concatenate([start, w0s])
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                found = least_squares(_residuals, np.clip(x0, lower + 1e-12, upper), bounds=(lower, upper),
+                                      args=(segments,), x_scale="jac", xtol=1e-12, ftol=1e-14, gtol=1e-14,
+                                      max_nfev=400)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            continue
+        if np.all(np.isfinite(found.x)) and (best is None or found.cost < best.cost):
+            best = found
+    if best is None:
+        raise NotIdentifiableError("no fit with a current limit converged: the data do not show one")
+    x = best.x
+    residual = _residuals(x, segments)
+    rss = sum_squares(residual)
+    J_all = -_jacobian(x, segments)          # d model / d x, the angle offsets projected out
+    W, J = J_all[:, p:], J_all[:, :p]
+    if W.shape[1]:
+        J = J - W @ np.linalg.lstsq(W, J, rcond=None)[0]
+    dof = max(n - nuisance - p, 1)
+    s2 = rss / dof
+    models, lo = [], 0
+    for seg in segments:
+        hi = lo + len(seg.time)
+        models.append(seg.output - residual[lo:hi])
+        lo = hi
+    steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segments)]
+    variance = rss / n
+    encoders = all(s.kind == "angle" and st for s, st in zip(segments, steps))
+    if covariance == "gauss-newton":
+        cov, how = covariance_from_jacobian(J, s2, p), "gauss-newton"
+    elif encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
+        cov = linearised_encoder_bootstrap_covariance(segments, models, steps, variance, -J, p)
+        how = "linearised-encoder-bootstrap"
+    else:
+        cov, how = robust_covariance(J, residual, s2, p)
+    a1, b1, limit, share, d = (float(v) for v in x[:5])
+    return Estimate(method="oe-current-limit", a=a1, b=b1, n_samples=n, sample_period=recs[0].sample_period,
+                    residual_rms=math.sqrt(rss / n), fit_percent=segment_fit_percent(segments, models),
+                    covariance=cov, param_names=FITTED,
+                    extra={"current_limit": limit, "emf_share": share, "bias": d, "input_delay": delay},
+                    residual_unit=residual_unit(segments), input_unit=recs[0].input_unit,
+                    input_limit=recs[0].input_limit, structure=STRUCTURE, covariance_method=how)
+
+
+def _jacobian(x: np.ndarray, segments: Sequence[Segment]) -> np.ndarray:
+    """Central differences of :func:`_residuals` (steps relative to each value)."""
+    r0 = _residuals(x, segments)
+    J = np.empty((len(r0), len(x)))
+    for i in range(len(x)):
+        h = 1e-6 * max(abs(float(x[i])), 1e-3)
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        if i == 3 and up[i] > 1.0:          # the share at its bound: one-sided
+            up[i], h2 = x[i], h
+            J[:, i] = (_residuals(up, segments) - _residuals(down, segments)) / h2
+            continue
+        J[:, i] = (_residuals(up, segments) - _residuals(down, segments)) / (2 * h)
+    return J
+
+
+def fit_output_error_current_limit(recordings: Recording | Sequence[Recording], *,
+                                   input_delay: int | str = DEFAULT_INPUT_DELAY,
+                                   covariance: str = "auto") -> Estimate:
+    """Output-error fit of the motor behind a driver that limits its current (``oe-current-limit``).
+
+    ``d omega/dt = sat_L(b u - s a omega) - (1 - s) a omega + d`` (module docstring), exact under the zero-order
+    hold, on the encoder angle (or the speed column).
+
+    Parameters
+    ----------
+    recordings : Recording or sequence of Recording
+        Pooled: one set of parameters, an initial speed (and angle offset) per gap-free segment.
+    input_delay : int or "auto"
+        Whole samples, or ``"auto"`` (default): the delay ``oe`` with a bias chooses.
+    covariance : {"auto", "gauss-newton"}
+        As :func:`identify.fits.asymmetry.fit_output_error_asymmetric`'s.
+
+    Returns
+    -------
+    Estimate
+        Structure ``current-limit``: ``a``, ``b`` (the linear motor's, below the limit), ``extra``
+        ``current_limit`` (rad/s^2), ``emf_share`` and ``bias``; the covariance over
+        ``("a", "b", "current_limit", "emf_share", "bias")``.
+
+    Raises
+    ------
+    NotIdentifiableError
+        Too short, a motor that did not move, or no fit converged.
+
+    Examples
+    --------
+    A driver that holds the torque within 400 rad/s^2 at steps of the duty, noise-free:
+
+    >>> import numpy as np
+    >>> from identify import fit
+    >>> from identify.model_structures import structure
+    >>> from motorsim import Recording
+    >>> t = np.arange(3000) * 0.002
+    >>> duty = np.where(np.sin(2.5 * t) > 0, 180, -150)
+    >>> truth = {"a": 25.0, "b": 3.0, "current_limit": 400.0, "emf_share": 0.8, "bias": 0.0}
+    >>> angle = structure("current-limit").response(truth, duty, t).angle
+    >>> est = fit(Recording(time=t, duty=duty, sample_period=0.002, angle=angle), "oe-current-limit", input_delay=0)
+    >>> print(f"a = {est.a:.6f}, b = {est.b:.6f}, limit {est.extra['current_limit']:.4f}, "
+    ...       f"share {est.extra['emf_share']:.6f}")
+    a = 25.000000, b = 3.000000, limit 400.0000, share 0.800000
+    """
+    recs = as_recordings(recordings)
+    input_delay = check_input_delay(input_delay)
+    check_choice("covariance", covariance, ("auto", "gauss-newton"))
+    check_excitation(recs, 5)
+    if input_delay == "auto":
+        from .output_error import select_delay
+        input_delay = select_delay(recs, with_bias=True)
+    from .output_error import fit_output_error
+    delay = int(input_delay)
+    start = fit_output_error(recs, input_delay=delay, fit_bias=True, covariance="gauss-newton")
+    return _fit(recs, delay, start.a, start.b, float(start.extra.get("bias", 0.0)), covariance)
+
+
+def asked_torque(est: Estimate, recs: Sequence[Recording]) -> float:
+    """The largest torque (rad/s^2) the fitted model's current asks for on the recordings, ``|b u - s a omega|`` along
+    its own run: what its limit cuts."""
+    delay = int(est.input_delay)
+    v = est.values()
+    theta = (v["a"], v["b"], v["current_limit"], v["emf_share"], v["bias"])
+    top = 0.0
+    for seg in prepare_segments(list(recs), delay):
+        w0 = initial_speed_fit(theta, seg)
+        _, speed = limit_response(*theta, seg.drive, seg.time, w0)
+        asked = np.abs(theta[1] * np.asarray(seg.drive, dtype=float)[:-1] - theta[3] * theta[0] * speed[:-1])
+        top = max(top, float(np.max(asked, initial=0.0)))
+    return top

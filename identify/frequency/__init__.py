@@ -1,0 +1,2 @@
+"""The frequency view: the measured frequency response, the best linear approximation, and a structure's
+parameters fitted from a frequency response."""
