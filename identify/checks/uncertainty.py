@@ -54,6 +54,8 @@ def covariance_from_jacobian(jacobian: np.ndarray, noise_variance: float, keep: 
     Returns a matrix of ``inf`` when ``J`` is rank-deficient.
     """
     J = _without_idle_nuisances(np.asarray(jacobian, dtype=float), keep)
+    if J.ndim != 2 or J.shape[0] == 0 or J.shape[1] < keep or J.shape[1] == 0:
+        return np.full((keep, keep), math.inf)      # no column (or no row) to tell the parameters by
     scale = np.linalg.norm(J, axis=0)
     if np.any(scale == 0) or not np.all(np.isfinite(J)):
         return np.full((keep, keep), math.inf)
@@ -94,6 +96,8 @@ def newey_west_covariance(jacobian: np.ndarray, residuals: np.ndarray, keep: int
         ``L`` in samples, >= 0.
     """
     J = _without_idle_nuisances(np.asarray(jacobian, dtype=float), keep)
+    if J.ndim != 2 or J.shape[0] == 0 or J.shape[1] < keep or J.shape[1] == 0:
+        return np.full((keep, keep), math.inf)      # no column (or no row) to tell the parameters by
     scale = np.linalg.norm(J, axis=0)
     if np.any(scale == 0) or not np.all(np.isfinite(J)):
         return np.full((keep, keep), math.inf)

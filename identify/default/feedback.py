@@ -530,9 +530,9 @@ def _halves(recs: list[Recording], est: Estimate) -> list[Estimate]:
     for part in (first, second):
         try:
             fit = solve_prediction_error(recs, part, friction=friction, start=start, noise_start=noise)
+            out.append(estimate_from(recs, fit, est.input_delay))
         except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError, ValueError):
             return []
-        out.append(estimate_from(recs, fit, est.input_delay))
     return out
 
 

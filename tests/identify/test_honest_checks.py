@@ -307,3 +307,19 @@ def test_a_motor_on_a_jittered_clock_passes_the_interval_split():
     assert not check.material and abs(check.a[1] / check.a[0] - 1) < 0.01, check.describe()
     se = est.stderr()
     assert est.selection.clear and abs(est.a - 25.0) < 3 * se["a"] and abs(est.b - 3.0) < 3 * se["b"]
+
+
+def test_a_half_that_determines_nothing_leaves_the_torque_disturbance_answer_unchecked_not_crashed():
+    # a speed timed between encoder edges (seed 9): no output-error answer, so the torque-disturbance fit is tried,
+    # and a half of its run determines none of its parameters (an empty Jacobian once the held ones are left out);
+    # that raised an IndexError from inside the covariance before
+    est = _fit(misfits.MISFITS["speed timed between edges"](9))
+    assert not est.selection.clear
+
+
+def test_the_covariance_of_a_jacobian_with_no_columns_is_unbounded():
+    from identify.checks.uncertainty import covariance_from_jacobian
+    cov = covariance_from_jacobian(np.zeros((50, 0)), 1.0, 0)
+    assert cov.shape == (0, 0)
+    cov = covariance_from_jacobian(np.zeros((0, 2)), 1.0, 2)
+    assert cov.shape == (2, 2) and np.all(np.isinf(cov))
