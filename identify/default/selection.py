@@ -554,8 +554,8 @@ def _changing_torque(recs: list[Recording], why: str, input_delay: int | str) ->
     """:func:`~identify.default.feedback.fit_changing_torque`, None where it cannot be made either."""
     try:
         est = fit_changing_torque(recs, why, input_delay=input_delay)
-    except (NotIdentifiableError, FloatingPointError, np.linalg.LinAlgError, ValueError):
-        return None
+    except (NotIdentifiableError, ArithmeticError, LookupError, np.linalg.LinAlgError, ValueError):
+        return None          # a second opinion that cannot be formed leaves the first answer, never a crash
     if est is None or est.selection is None:
         return None
     ci = est.confidence_interval(0.95)
