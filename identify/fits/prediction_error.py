@@ -42,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -117,21 +117,7 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
         w += k1 * ek
         d += k2 * ek
         force = b * u[k] + bias + d
-        if c > 0.0:
-            if w == 0.0:
-                s = (1.0 if force > 0 else -1.0) if abs(force) > c else 0.0
-            else:
-                s = 1.0 if w > 0 else -1.0
-            if s == 0.0:
-                d_angle, w_next = 0.0, 0.0
-            else:
-                end = e * w + p * (force - s * c)
-                if w != 0.0 and s * end < 0.0:
-                    w_next, d_angle = event_interval(w, force, c, a, h, s, c)
-                else:
-                    w_next, d_angle = end, p * w + q * (force - s * c)
-        else:
-            w_next, d_angle = e * w + p * force, p * w + q * force
+        _, _, w_next, d_angle = _friction_mode(w, force, c, a, h, e, p, q)
         th += d_angle
         w = w_next
         d = phi * d
@@ -139,9 +125,7 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
             continue
         n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
                                                        phi, ratio, speed_kind)
-        settled = (abs(n00 - p00) <= STEADY * abs(n00) and abs(n01 - p01) <= STEADY * abs(n01)
-                   and abs(n02 - p02) <= STEADY * abs(n02) and abs(n11 - p11) <= STEADY * abs(n11)
-                   and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
+        settled = _settled(n00, n01, n02, n11, n12, n22, p00, p01, p02, p11, p12, p22)
         p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
     return log_det
 
@@ -388,8 +372,8 @@ def _innovation_sensitivities(jac: np.ndarray, k: int, sth: np.ndarray, sw: np.n
 
 def _friction_mode(w: float, force: float, c: float, a: float, h: float, e: float, p: float,
                    q: float) -> tuple[float, bool, float, float]:
-    """The interval's mode as :func:`filter_pass` steps it: the sign of the friction (0: stuck), whether it is an
-    event interval, the speed at its end and the angle it adds."""
+    """One interval's step of :func:`filter_pass` and :func:`filter_pass_sensitivities`: the sign of the friction
+    (0: stuck), whether it is an event interval, the speed at its end and the angle it adds."""
     s = 0.0
     event = False
     if c > 0.0:
@@ -427,8 +411,17 @@ def compiled_filter_pass() -> Callable[..., float] | None:
     if jit is None:
         return None
     import types
-    scope = dict(filter_pass.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step))
+    scope = dict(filter_pass.__globals__, covariance_step=jit(covariance_step), _settled=jit(_settled),
+                 _friction_mode=_compiled_friction_mode(jit))
     return jit(types.FunctionType(filter_pass.__code__, scope, filter_pass.__name__))
+
+
+def _compiled_friction_mode(jit: Callable[..., Any]) -> Callable[..., Any]:
+    """:func:`_friction_mode` compiled by ``jit`` with the event interval it calls."""
+    import types
+    return jit(types.FunctionType(_friction_mode.__code__,
+                                  dict(_friction_mode.__globals__, event_interval=jit(event_interval)),
+                                  _friction_mode.__name__))
 
 
 @functools.cache
@@ -451,10 +444,7 @@ def compiled_sensitivity_pass() -> Callable[..., float] | None:
                  _gain_derivatives=jit(_gain_derivatives), _moving_step_sensitivities=jit(_moving_step_sensitivities),
                  _coefficient_derivatives=jit(_coefficient_derivatives), _event_step_sensitivities=jit(event_step),
                  _innovation_sensitivities=jit(_innovation_sensitivities), _settled=jit(_settled),
-                 _friction_mode=jit(types.FunctionType(_friction_mode.__code__,
-                                                       dict(_friction_mode.__globals__,
-                                                            event_interval=jit(event_interval)),
-                                                       _friction_mode.__name__)))
+                 _friction_mode=_compiled_friction_mode(jit))
     return jit(types.FunctionType(function.__code__, scope, function.__name__))
 
 
