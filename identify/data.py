@@ -223,6 +223,11 @@ class Segment:
     recording: int
     start: int
 
+    def rows(self, lo: int, hi: int) -> "Segment":
+        """Rows ``lo ... hi - 1`` of the segment, a segment of their own (its ``start`` the row of the first)."""
+        return dataclasses.replace(self, time=self.time[lo:hi], drive=self.drive[lo:hi], output=self.output[lo:hi],
+                                   start=self.start + int(lo))
+
     def initial_speed_guess(self) -> float:
         """Speed near the first sample from the data (rad/s)."""
         if self.kind == "speed":
@@ -240,7 +245,7 @@ def first_rows(segments: Sequence[Segment], rows: int) -> list[Segment]:
     out = []
     for seg in segments:
         m = max(3, len(seg.time) * rows // total)
-        out.append(dataclasses.replace(seg, time=seg.time[:m], drive=seg.drive[:m], output=seg.output[:m]))
+        out.append(seg.rows(0, m))
     return out
 
 

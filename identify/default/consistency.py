@@ -449,9 +449,7 @@ def _windows(pairs: list[tuple[Segment, np.ndarray]], total: int) -> list[tuple[
             width = max(MIN_WINDOW, keep // WINDOWS)
             for lo in np.linspace(0, n - width, max(1, keep // width)).astype(int):
                 hi = lo + width
-                out.append((dataclasses.replace(seg, time=seg.time[lo:hi], drive=seg.drive[lo:hi],
-                                                output=seg.output[lo:hi], start=seg.start + int(lo)),
-                            model[lo:hi], place + int(lo)))
+                out.append((seg.rows(lo, hi), model[lo:hi], place + int(lo)))
         place += n
     return out
 

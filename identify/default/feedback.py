@@ -516,8 +516,7 @@ def _halves(recs: list[Recording], est: Estimate) -> list[Estimate]:
         k = min(max(cut - seen, 0), n)
         for part, lo, hi in ((first, 0, k), (second, k, n)):
             if hi - lo >= MIN_HALF_PIECE:
-                part.append(dataclasses.replace(seg, time=seg.time[lo:hi], drive=seg.drive[lo:hi],
-                                                output=seg.output[lo:hi], start=seg.start + lo))
+                part.append(seg.rows(lo, hi))
         seen += n
     if not (first and second):
         return []
