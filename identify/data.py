@@ -439,7 +439,7 @@ def _has_transient(rec: Recording) -> bool:
         w = w[np.isfinite(w)]
         if len(w) < RUN_MIN:
             continue
-        rise, fall, noise = _turn(w)
+        rise, fall, noise = run_turns(w)
         if max(rise, fall) > max(noise, 0.25 * float(np.max(np.abs(w)))):
             return True
     return False
@@ -554,7 +554,7 @@ def _run_noise(w: np.ndarray) -> tuple[float, float]:
     return sigma, float(steps.min()) if len(steps) else 0.0
 
 
-def _turn(w: np.ndarray) -> tuple[float, float, float]:
+def run_turns(w: np.ndarray) -> tuple[float, float, float]:
     """The rise and fall of a run's speed smoothed over :data:`RUN_SMOOTHING` of it, and the noise they
     are judged against (:data:`RUN_NOISE_FACTOR` smoothed standard deviations, or two rounding steps)."""
     width = max(1, int(len(w) * RUN_SMOOTHING))
@@ -569,6 +569,10 @@ def _turn(w: np.ndarray) -> tuple[float, float, float]:
     return rise, fall, max(RUN_NOISE_FACTOR * sigma / math.sqrt(width), 2 * step)
 
 
+def _more(turns: list) -> str:
+    return f" (and in {len(turns) - 1} more such runs)" if len(turns) > 1 else ""
+
+
 def check_constant_input_runs(rec: Recording, name: str = "recording", input_delay: int = 0) -> None:
     """Refuse a recording whose speed both rises and falls while its recorded input stays constant.
 
@@ -580,7 +584,9 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
     received +-200, say, which would give a confident, wrong ``b``.  It is refused when it does so
     in two runs or more, or by more than :data:`RUN_REFUSE_SHARE` of its range; one run that turns
     by less (a load, a supply that sags) is said by a :class:`ConstantInputTurnWarning` and the fit
-    goes on.
+    goes on.  So it goes on, said the same way, where a torque of the angle learned from the rest of
+    the run explains every turn (:func:`identify.checks.angle_turns.angle_torque_explains`): gravity on
+    an arm, a spring, an unbalanced load turn the speed under a constant input too.
 
     What a real step response holds is not counted: the run is smoothed over :data:`RUN_SMOOTHING`
     of its samples first (noise, the encoder's rounding, commutator ripple), and a rise or fall
@@ -614,25 +620,31 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
     floor = 0.0
     if rec.counts is not None and rec.counts_per_rev:     # beyond the encoder's rounding, many times over
         floor = 10 * 2 * math.pi / rec.counts_per_rev / rec.sample_period
-    turns = []
+    turns, runs = [], []
     for start, end in zip(starts[long], ends[long]):
         w = speed[start + skip:end]
         w = w[np.isfinite(w)]
         if len(w) < RUN_MIN:
             continue
-        rise, fall, noise = _turn(w)
+        rise, fall, noise = run_turns(w)
         if min(rise, fall) > max(noise, floor, RUN_SHARE * span):
+            runs.append((start + skip, end, max(floor, RUN_SHARE * span)))
             turns.append((min(rise, fall), f"{name}: while the recorded input stays at {u[start]:g} {rec.input_unit} "
                                            f"(seq {int(seq[start])}...{int(seq[end - 1])}) the speed rises by "
                                            f"{rise:.3g} and falls by {fall:.3g} rad/s"))
     if not turns:
         return
     largest, where = max(turns)
+    from .checks.angle_turns import angle_torque_explains
+    if (len(turns) > 1 or largest > RUN_REFUSE_SHARE * span) and angle_torque_explains(rec, runs, input_delay):
+        warnings.warn(f"{where}{_more(turns)}: a torque of the angle (gravity on an arm, a spring, an unbalanced "
+                      "load), learned from the rest of the run, explains it; the fit goes on, and its checks judge "
+                      "the model", ConstantInputTurnWarning, stacklevel=3)
+        return
     if len(turns) > 1 or largest > RUN_REFUSE_SHARE * span:
-        more = f" (and in {len(turns) - 1} more such runs)" if len(turns) > 1 else ""
         raise NotIdentifiableError(
-            f"{where}{more}; a motor under a constant input moves one way, so the input logged is not the input it "
-            "received (clipped or scaled in the log?): record the input the drive applied")
+            f"{where}{_more(turns)}; a motor under a constant input moves one way, so the input logged is not the "
+            "input it received (clipped or scaled in the log?): record the input the drive applied")
     warnings.warn(f"{where}, {100 * largest / span:.0f} % of its range, in this one run; a motor under a constant "
                   "input moves one way: a load, a supply that sags, a slow ripple? the fit goes on; look at its "
                   "residuals there", ConstantInputTurnWarning, stacklevel=3)
