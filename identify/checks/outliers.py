@@ -7,7 +7,8 @@ residual (measured minus the model's speed, :func:`identify.checks.validation.mo
 Rule: a row is an outlier when its residual exceeds :data:`RESIDUAL_FACTOR` robust
 standard deviations (1.4826 times the median absolute deviation, of at most
 :data:`SCALE_SAMPLES` evenly spaced residuals) and 0.1 % of the RMS
-measured speed (a noise-free fit has a near-zero deviation), and the outliers are isolated:
+measured speed (a noise-free fit has a near-zero deviation) and :data:`ROUNDING_FACTOR` of the speed's
+rounding step (:func:`rounding_step`: a coarse encoder's count is no outlier), and the outliers are isolated:
 at most :data:`ISOLATED_SHARE` of the rows, each standing out by as much from the median of its
 :data:`NEIGHBOURHOOD` neighbours either side (a misfit that lasts, a segment's start the model
 misses, moves its neighbours with it).  Many large residuals mean a model that misses
@@ -24,7 +25,8 @@ from motorsim.recording import Recording
 from ..estimate import Estimate
 from .validation import model_output
 
-__all__ = ["residual_outliers", "RESIDUAL_FACTOR", "ISOLATED_SHARE", "SCALE_SAMPLES", "NEIGHBOURHOOD"]
+__all__ = ["residual_outliers", "rounding_step", "RESIDUAL_FACTOR", "ISOLATED_SHARE", "SCALE_SAMPLES", "NEIGHBOURHOOD",
+           "ROUNDING_FACTOR", "GRID_SHARE", "GRID_TOLERANCE"]
 
 #: Robust standard deviations beyond which a residual is an outlier.
 RESIDUAL_FACTOR = 10.0
@@ -36,6 +38,12 @@ NEIGHBOURHOOD = 5
 #: Residuals, evenly spaced, of which the median absolute deviation is taken on longer records: its
 #: relative standard error is then about 0.4 %, nothing against :data:`RESIDUAL_FACTOR`.
 SCALE_SAMPLES = 100_000
+#: Rounding steps (:func:`rounding_step`) a residual must exceed to be an outlier: differencing a rounded angle
+#: errs by less than one step either way, and the model's own misfit adds to it.
+ROUNDING_FACTOR = 1.5
+#: A speed's changes lie on a grid when this share of them are whole multiples of the smallest, each within
+#: :data:`GRID_TOLERANCE` of it (relative, the float's printing of a multiple).
+GRID_SHARE, GRID_TOLERANCE = 0.9, 1e-3
 
 
 def residual_outliers(estimate: Estimate, recording: Recording, residual: np.ndarray | None = None) -> list[int]:
@@ -87,8 +95,33 @@ def residual_outliers(estimate: Estimate, recording: Recording, residual: np.nda
     speed = speed[np.isfinite(speed)]
     speed_rms = float(np.sqrt(np.mean(speed ** 2))) if len(speed) else 0.0
     limit = max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms)
-    rows = [k for k in spike_rows(residual, limit) if abs(_local_deviation(residual, k)) > limit]
+    step = ROUNDING_FACTOR * rounding_step(recording)
+    rows = [k for k in spike_rows(residual, limit)
+            if abs(_local_deviation(residual, k)) > max(limit, step[k]) and abs(residual[k]) > step[k]]
     return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []
+
+
+def rounding_step(recording: Recording) -> np.ndarray:
+    """Per row, the step by which the measured speed is rounded: one count over the row's interval on an encoder;
+    else the grid the speed's changes lie on (a speed column printed from counts, or to fixed decimals), or 0.
+
+    Differenced, a rounded angle errs by up to one step either way: on a 12-count encoder at 1 ms a speed of
+    0 rad/s most rows and 524 rad/s at a count is the motor's rounding, no corrupted sample."""
+    n = len(recording)
+    if recording.counts is not None and recording.counts_per_rev:
+        dt = np.r_[np.nan, np.diff(recording.time)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = 2 * np.pi / recording.counts_per_rev / dt
+        return np.nan_to_num(step, nan=0.0, posinf=0.0)
+    speed = np.asarray(recording.measured_speed(), dtype=float)
+    changes = np.abs(np.diff(speed[np.isfinite(speed)]))
+    changes = changes[changes > 0]
+    if len(changes) < 10:
+        return np.zeros(n)
+    grid = float(np.min(changes))
+    multiples = changes / grid
+    on_grid = np.mean(np.abs(multiples - np.round(multiples)) <= GRID_TOLERANCE * np.maximum(multiples, 1.0))
+    return np.full(n, grid if on_grid >= GRID_SHARE else 0.0)
 
 
 def _local_deviation(residual: np.ndarray, row: int) -> float:

@@ -104,3 +104,39 @@ def test_a_residual_of_the_wrong_length_is_refused(rec):
     est = fit(rec, method="oe")
     with pytest.raises(ParameterError, match="residual must have one value per row"):
         residual_outliers(est, rec, np.zeros(10))
+
+
+# --- a coarse encoder's count is its rounding, not a corrupted sample ----------------------------------
+
+def _coarse(counts_per_rev: int, speed_column: bool = False) -> Recording:
+    """Steps of a slow motor on a coarse encoder at 1 ms: the differenced speed is 0 most rows and one count's
+    speed (2 pi / counts_per_rev / 1 ms) where a count arrives."""
+    exp = Experiment(Sine(3.0, amplitude=120), 0.001, 6.0)
+    rec = SimRig(Motor(20.0, 1.0), Encoder(counts_per_rev=counts_per_rev, angle_noise=1e-4),
+                 rng=np.random.default_rng(3)).run(exp)
+    if not speed_column:
+        return rec
+    speed = np.round(rec.measured_speed(), 2)
+    speed[0] = 0.0
+    return Recording(time=rec.time, duty=rec.duty, sample_period=rec.sample_period, speed=speed)
+
+
+@pytest.mark.parametrize("counts_per_rev, speed_column", [(12, False), (12, True)])
+def test_a_coarse_encoders_counts_are_no_outliers(counts_per_rev, speed_column, monkeypatch):
+    import identify.checks.outliers as outliers
+    rec = _coarse(counts_per_rev, speed_column)
+    est = fit(rec, method="oe")
+    step = 2 * np.pi / counts_per_rev / 0.001
+    assert np.allclose(outliers.rounding_step(rec)[1:], step, rtol=1e-3)     # the count found, from the column too
+    assert residual_outliers(est, rec) == []
+    monkeypatch.setattr(outliers, "ROUNDING_FACTOR", 0.0)       # the rule without it names the counts: can fail
+    assert len(residual_outliers(est, rec)) > 0
+
+
+def test_a_glitch_of_many_counts_on_a_coarse_encoder_is_still_found():
+    rec = _coarse(48)
+    counts = rec.counts.copy()
+    counts[3000] += 5                                  # five counts off and back: beyond any rounding
+    bad = Recording(time=rec.time, duty=rec.duty, sample_period=rec.sample_period, counts=counts,
+                    counts_per_rev=rec.counts_per_rev)
+    assert 3000 in residual_outliers(fit(bad, method="oe", outliers="keep"), bad)
