@@ -25,7 +25,9 @@ parts of the recording, and what that suggests.  Three of those suggestions are 
 * it fits better than the chosen model (and the candidates' best, fitted on all rows) beyond the noise (the
   selection's own batch-means test, :func:`identify.default.comparison.statistic`, at
   :data:`~identify.default.comparison.LEVEL`);
-* its own part checks find no material difference, and its intervals are finite and narrower than the values.
+* its own part checks find no difference, material or not (a structure taken on a check's evidence must fit: one
+  refuted however little its ``a`` and ``b`` move stands in for another misfit, as a current limit does for a
+  quadratic drag, ``b`` 23 % off), and its intervals are finite and narrower than the values.
 
 Then it is called a clear choice, its ``a`` and ``b`` intervals wide enough to hold every quantity they are judged
 on together in 95 % of runs (Bonferroni: :data:`JOINT_Z`, :data:`PAIR_Z`); otherwise the answer stays the one the
@@ -189,6 +191,11 @@ def _judged(rule: Rule, split: PartCheck, recs: list[Recording], before: tuple[E
     new_est, new_sel, new_parts = check_parts(recs, alt, trial, open_loop=True)
     if not new_sel.clear:
         return _noted(after, f"{said}, but its own parts differ too ({new_sel.doubt}), so it is not chosen")
+    refuted = [c for c in new_parts if not c.agree]
+    if refuted:             # a structure taken on evidence must fit: a check that refutes it, however little a
+        first = min(refuted, key=lambda c: c.p_value)     # and b move, says it stands in for another misfit
+        return _noted(after, f"{said}, but a part check refutes it too, {first.split} (p = {first.p_value:.2g}): "
+                             f"{first.hint}; so it is not chosen")
     new_est, line = rule.answer(new_est)
     return new_est, dataclasses.replace(new_sel, notes=(*new_sel.notes, line)), new_parts
 

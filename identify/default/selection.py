@@ -73,11 +73,15 @@ from .comparison import (
     separating_experiment,
 )
 from .consistency import PartCheck, consistency, widened_range
+from .disturbance import disturbance_follows_input
 from .evidence import on_evidence
 from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
-from .selection_report import SelectionReport
+from .selection_report import SelectionReport, doubted
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
+
+#: What the doubt of an answer that lacks an interval suggests where it had no doubt of its own.
+RICHER_INPUT = "a richer input (several frequencies, a step) would pin them down"
 
 #: Rows of the score test that screens friction and a dead zone (the first of every segment).
 SCREEN_SAMPLES = 2000
@@ -562,17 +566,34 @@ def _changing_torque(recs: list[Recording], why: str, input_delay: int | str) ->
     if any(not (math.isfinite(ci[n][0]) and math.isfinite(ci[n][1]) and ci[n][0] < ci[n][1])
            or ci[n][0] <= 0 <= ci[n][1] for n in ("a", "b")):
         return None          # no answer either (or one pinned at a bound): the output-error answer stands
+    est = _load_or_drive(recs, est)
     top = _one_magnitude(recs)
-    if top is None:
+    if top is None or est.selection is None:
         return est
     # b u + d(t) at u = +-U is a gain of b + d(t)/U forward and b - d(t)/U in reverse: with one magnitude a torque
     # that changes cannot be told from gains that differ by direction (_one_magnitude_bias, for a constant d)
     doubt = (f"the input takes one magnitude, |u| = {top:g}, both ways, so a torque that changes over the run cannot "
              "be told from forward and reverse gains that differ: this is not a clear choice; runs at two or more "
              "amplitudes would separate them")
-    selection = dataclasses.replace(est.selection, clear=False, doubt=doubt + (
-        f"; {est.selection.doubt}" if est.selection.doubt else ""))
-    return dataclasses.replace(est, selection=selection, notes=(doubt, *est.notes))
+    return dataclasses.replace(est, selection=doubted(est.selection, doubt), notes=(doubt, *est.notes))
+
+
+def _load_or_drive(recs: list[Recording], est: Estimate) -> Estimate:
+    """``est`` (a ``pem-disturbance`` answer on an open-loop run) not clear where its disturbance follows the input
+    (:func:`~identify.default.disturbance.disturbance_follows_input`: a drive that clips or limits, not a load), ``b``'s
+    interval holding the gains at a small and the full input."""
+    found = disturbance_follows_input(recs, est)
+    if found is None or not found.follows or est.selection is None:
+        return est
+    ranges = dict(est.model_range) if est.model_range else {n: est.confidence_interval(0.95)[n] for n in ("a", "b")}
+    lo, hi = ranges["b"]
+    ranges["b"] = (min(lo, found.small_gain, found.full_gain), max(hi, found.small_gain, found.full_gain))
+    doubt = (f"the torque the disturbance model calls a load follows the input (p = {found.p_value:.2g}): the gain is "
+             f"{found.small_gain:.4g} at a small input and {found.full_gain:.4g} at the full one, so the drive clips "
+             "or limits (or curves) rather than a load changing; this is not a clear choice, and b's interval holds "
+             "both gains")
+    return dataclasses.replace(est, model_range=ranges, selection=doubted(est.selection, doubt),
+                               notes=(doubt, *est.notes))
 
 
 def _one_magnitude(recs: list[Recording]) -> float | None:
@@ -616,8 +637,7 @@ def _fit_open_loop(recs: list[Recording], structures: Sequence[str] | None, inpu
     averaged = _speed_as_average(recs, est, chosen, structures, input_delay, fix_bias)
     if averaged is not None:
         est, doubt = averaged
-        selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
-            f"; {selection.doubt}" if selection.doubt else ""))
+        selection = doubted(selection, doubt)
     est, selection = _unsure_intervals(est, selection)
     selection = _doubts(est, selection, edge, notes, checks, loop_note)
     before = (est, selection)
@@ -699,21 +719,18 @@ def _doubts(est: Estimate, selection: Selection, edge: str, notes: list[str], ch
     se = est.stderr()
     if not (math.isfinite(se["a"]) and math.isfinite(se["b"])):
         # a choice whose own fit cannot say how well it knows a and b is no clear choice
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the chosen fit has no finite interval for a and b ({est.missing_intervals()}); "
-            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
+        selection = doubted(selection, f"the chosen fit has no finite interval for a and b ({est.missing_intervals()})",
+                            RICHER_INPUT)
     if edge:
-        selection = dataclasses.replace(selection, clear=False, doubt=edge + (
-            f"; {selection.doubt}" if selection.doubt else ""))
+        selection = doubted(selection, edge)
     selection = dataclasses.replace(selection, notes=tuple(notes))
     if checks and checks.get("sign_p", 1.0) < SIGN_LEVEL and STRUCTURES[selection.chosen.structure].linear:
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the chosen model's residuals correlate with the sign of its speed (p = {checks['sign_p']:.2g}): "
-            "it misses something friction-like; " + (selection.doubt or "its intervals may not cover the motor")))
+        selection = doubted(selection, f"the chosen model's residuals correlate with the sign of its speed (p = "
+                                       f"{checks['sign_p']:.2g}): it misses something friction-like",
+                            "its intervals may not cover the motor")
     if loop_note:
         # no disturbance to feed back, but the encoder's rounding and noise still reach the duty
-        selection = dataclasses.replace(selection, clear=False, doubt=LOOP_DOUBT + (
-            f"; {selection.doubt}" if selection.doubt else ""))
+        selection = doubted(selection, LOOP_DOUBT)
     return selection
 
 
@@ -745,10 +762,9 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
         first = min(material, key=lambda c: c.p_value)
         others = f" (and {len(material) - 1} more split{'s' if len(material) > 2 else ''}: see the part checks)" \
             if len(material) > 1 else ""
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the model's a and b differ between parts of the recording, {first.split} (p = {first.p_value:.2g}): "
-            f"{first.hint}{others}; no single a and b fits it all, so this is not a clear choice; the intervals "
-            "hold every part's" + (f"; {selection.doubt}" if selection.doubt else "")))
+        selection = doubted(selection, f"the model's a and b differ between parts of the recording, {first.split} "
+                                       f"(p = {first.p_value:.2g}): {first.hint}{others}; no single a and b fits it "
+                                       "all, so this is not a clear choice; the intervals hold every part's")
     return est, selection, parts
 
 
@@ -772,11 +788,11 @@ def _one_magnitude_bias(recs: list[Recording], est: Estimate, selection: Selecti
     est = dataclasses.replace(est, model_range=ranges)
     if shift > MATERIAL * abs(b):
         forward, reverse = b + math.copysign(shift, d), b - math.copysign(shift, d)
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the input takes one magnitude, |u| = {top:g}, both ways, so the constant acceleration d = {d:.4g} is "
-            f"also a forward gain {forward:.4g} and a reverse one {reverse:.4g}: "
-            "the data cannot tell them apart, so b's interval holds both and this is not a clear choice; runs at two "
-            "or more amplitudes would separate them" + (f"; {selection.doubt}" if selection.doubt else "")))
+        selection = doubted(selection, f"the input takes one magnitude, |u| = {top:g}, both ways, so the constant "
+                                       f"acceleration d = {d:.4g} is also a forward gain {forward:.4g} and a reverse "
+                                       f"one {reverse:.4g}: the data cannot tell them apart, so b's interval holds "
+                                       "both and this is not a clear choice; runs at two or more amplitudes would "
+                                       "separate them")
     return est, selection
 
 
@@ -806,25 +822,22 @@ def _unsure_intervals(est: Estimate, selection: Selection) -> tuple[Estimate, Se
         # a covariance that knows a parameter exactly from data with a residual is degenerate: it is no interval
         ranges = est.model_range or {n: est.confidence_interval(0.95)[n] for n in ("a", "b")}
         est = dataclasses.replace(est, model_range={**ranges, **{n: (-math.inf, math.inf) for n in exact}})
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the chosen fit's covariance is degenerate (a zero standard error for {' and '.join(exact)} from data "
-            "with a residual), so it gives no interval; " + (selection.doubt or "a richer input (several "
-                                                             "frequencies, a step) would pin them down")))
+        selection = doubted(selection, f"the chosen fit's covariance is degenerate (a zero standard error for "
+                                       f"{' and '.join(exact)} from data with a residual), so it gives no interval",
+                            RICHER_INPUT)
     # the chosen fit's own interval (not the range of candidates the data cannot rule out, which may be a richer
     # structure's wide one around a well-determined answer)
     wide = [n for n in ("a", "b") if math.isfinite(se[n]) and 1.959963984540054 * se[n] > abs(est.value(n))]
     slow = _slower_than_run(est)
     if slow and not (exact or wide):
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"{slow}: the run does not determine the pole, so this is not a clear choice; "
-            + (selection.doubt or "a run several time constants long would")))
+        selection = doubted(selection, f"{slow}: the run does not determine the pole, so this is not a clear choice",
+                            "a run several time constants long would")
     if wide and not exact:
         # an interval wider than the value itself (a ramp, a few steps): the run does not determine it
         ci = est.confidence_interval(0.95)
         said = ", ".join(f"{n} in [{ci[n][0]:.4g}, {ci[n][1]:.4g}]" for n in wide)
-        selection = dataclasses.replace(selection, clear=False, doubt=(
-            f"the run does not determine {' and '.join(wide)} ({said}, 95 %): this is not a clear choice; "
-            + (selection.doubt or "a richer input (several frequencies, a step) would pin them down")))
+        selection = doubted(selection, f"the run does not determine {' and '.join(wide)} ({said}, 95 %): this is not "
+                                       "a clear choice", RICHER_INPUT)
     return est, selection
 
 

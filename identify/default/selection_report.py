@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping, TypeVar
 
 from motorsim.checks import ParameterError, ParameterTypeError
 
 if TYPE_CHECKING:
     from .comparison import Candidate, Selection
 
-__all__ = ["CandidateReport", "SelectionReport", "PartCheck"]
+__all__ = ["CandidateReport", "SelectionReport", "PartCheck", "doubted"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,6 +263,16 @@ class PartCheck:
                    a_interval=intervals("a_interval"), b_interval=intervals("b_interval"),
                    p_value=f.real("p_value"), agree=f.flag("agree"), material=f.flag("material"),
                    hint=f.text("hint", ""))
+
+
+_Doubted = TypeVar("_Doubted", "Selection", "SelectionReport")
+
+
+def doubted(selection: _Doubted, doubt: str, otherwise: str = "") -> _Doubted:
+    """``selection`` (a :class:`SelectionReport` or the selection it is made from) not clear, ``doubt`` said before
+    the doubt it had (or, where it had none, before ``otherwise``), the two joined by ``"; "``."""
+    rest = selection.doubt or otherwise
+    return dataclasses.replace(selection, clear=False, doubt=f"{doubt}; {rest}" if rest else doubt)
 
 
 def _bad(where: str, name: str, rule: str, value: Any) -> Exception:

@@ -323,3 +323,4 @@ def test_the_covariance_of_a_jacobian_with_no_columns_is_unbounded():
     assert cov.shape == (0, 0)
     cov = covariance_from_jacobian(np.zeros((0, 2)), 1.0, 2)
     assert cov.shape == (2, 2) and np.all(np.isinf(cov))
+
