@@ -36,15 +36,36 @@ import numpy as np
 
 from motorsim.compiled import numba_jit
 from motorsim.plant import first_order_coefficients
-from motorsim.recording import Recording
 
 from ..data import Segment
-from ..fits.prediction_error import (DIFFUSE, LOG_RATIO_LIMIT, PredictionErrorFit, _friction_mode, _Problem,
-                                     _settled, covariance_step)
+from ..fits.prediction_error import (
+    DIFFUSE,
+    LOG_RATIO_LIMIT,
+    PredictionErrorFit,
+    _friction_mode,
+    _Problem,
+    _settled,
+    covariance_step,
+)
 from .comparison import _block_starts
-from .consistency import (ANGLE, CURVE, PART_LEVEL, SPEED_CURVE, PartCheck, _angle_inputs, _beside_check, _check,
-                          _curve_check, _curve_inputs, _fit_on, _friction_curve_inputs, _Moments, _parted_inputs,
-                          _Rows, _split_labels)
+from .consistency import (
+    ANGLE,
+    CURVE,
+    PART_LEVEL,
+    SPEED_CURVE,
+    PartCheck,
+    _angle_inputs,
+    _beside_check,
+    _check,
+    _curve_check,
+    _curve_inputs,
+    _fit_on,
+    _friction_curve_inputs,
+    _Moments,
+    _parted_inputs,
+    _Rows,
+    _split_labels,
+)
 
 __all__ = ["innovation_checks", "extra_input_pass", "MAX_ROWS", "WINDOWS", "MIN_WINDOW"]
 
@@ -209,8 +230,7 @@ def _moments_of(X: np.ndarray, r: np.ndarray) -> _Moments:
     return _Moments(scale, grams.sum(axis=0), xr.sum(axis=0), float(r @ r), grams, xr, n)
 
 
-def innovation_checks(estimate: Any, fit: PredictionErrorFit, recordings: Sequence[Recording] = (), *,
-                      level: float = PART_LEVEL) -> tuple[PartCheck, ...]:
+def innovation_checks(estimate: Any, fit: PredictionErrorFit, *, level: float = PART_LEVEL) -> tuple[PartCheck, ...]:
     """The closed-loop answer's ``a`` and ``b`` on each part of its rows, tested on its innovations (module
     docstring).
 
@@ -219,9 +239,7 @@ def innovation_checks(estimate: Any, fit: PredictionErrorFit, recordings: Sequen
     estimate : Estimate
         ``fit``'s estimate (``pem-disturbance``).
     fit : PredictionErrorFit
-        The solved fit on all rows.
-    recordings : sequence of Recording
-        Unused (the fit holds its segments); accepted for the open-loop checks' signature.
+        The solved fit on all rows (:func:`identify.fits.prediction_error.solve_prediction_error`).
     level : float
         Level of the whole check; each check's test is at ``level`` over the number made.
 
@@ -231,77 +249,36 @@ def innovation_checks(estimate: Any, fit: PredictionErrorFit, recordings: Sequen
         One per check made; none where the innovations or their columns cannot be formed.
     """
     problem = fit.problem
-    if problem.pole is not None and not problem.disturbance:
-        return ()
     segs, places, total = _windows(problem.segments)
-    if not segs:
-        return ()
-    x = np.asarray(fit.x, dtype=float)
-    a, b, c, bias, phi, lr = problem.unpack(x)
+    a, b, c, bias, phi, lr = problem.unpack(np.asarray(fit.x, dtype=float))
     h = problem.h
-    if not (all(math.isfinite(v) for v in (a, b, c, bias, phi)) and a * h < 2.0):
+    if not (segs and problem.disturbance and all(math.isfinite(v) for v in (a, b, c, bias, phi)) and a * h < 2.0):
         return ()
     windowed = _Problem(segs, problem.friction, h, problem.pole, problem.disturbance)
-    r, jac = windowed.jacobian(x)
+    r, jac = windowed.jacobian(np.asarray(fit.x, dtype=float))
     own = [jac[:, j] for j in range(jac.shape[1])]
     if not (np.all(np.isfinite(own[0])) and np.all(np.isfinite(own[1])) and np.all(np.isfinite(r))):
         return ()
+    # a and b first (the checks' maps take them there), then the rest the data determine
     own = own[:2] + [col for col in own[2:] if np.all(np.isfinite(col)) and np.any(col != 0)]
     e, p, q = first_order_coefficients(a, h)
-    ratio = math.exp(min(lr, LOG_RATIO_LIMIT))
-    # the predicted speeds first (no extra input), then the columns they make
-    speeds, drives, orders, angles = [], [], [], []
-    for seg, w0, place in zip(segs, windowed.w0, places):
-        n = len(seg.time)
-        sp = np.empty(n)
-        _pass()(seg.drive, seg.output, seg.kind == "speed", e, p, q, a, h, b, c, bias, phi, ratio, float(w0),
-                np.zeros((n, 0)), np.empty(n), sp, np.empty((n, 0)))
-        speeds.append(np.append(sp[:-1], 0.0))
-        drives.append(np.append(np.asarray(seg.drive, dtype=float)[:-1], 0.0))
-        orders.append((place + np.arange(n)) / max(total - 1, 1))
-        if seg.kind == "angle":
-            angles.append(np.asarray(seg.output, dtype=float))
-        else:
-            t = seg.time
-            angles.append(np.concatenate([[0.0], np.cumsum(0.5 * (seg.output[1:] + seg.output[:-1]) * np.diff(t))]))
-    rows = _Rows(r, np.concatenate(speeds), np.concatenate(drives), np.concatenate(orders), [],
-                 np.concatenate(angles), [], problem.friction and c > 0, 1.0, None)
-    splits = _split_labels(rows)
-    inputs: list[np.ndarray] = []
-    where: dict[str, list[int]] = {}
-
-    def add(name: str, cols: list[np.ndarray]) -> None:
-        if cols:
-            where[name] = list(range(len(inputs), len(inputs) + len(cols)))
-            inputs.extend(cols)
-    for name, masks in splits.items():
-        add(name, _parted_inputs(rows, name, masks))
-    add(CURVE, _curve_inputs(rows))
-    add(ANGLE, _angle_inputs(rows))
-    add(SPEED_CURVE, _friction_curve_inputs(rows))
+    args = (e, p, q, a, h, b, c, bias, phi, math.exp(min(lr, LOG_RATIO_LIMIT)))
+    rows = _predicted_rows(segs, windowed.w0, places, total, args, r, problem.friction and c > 0)
+    inputs, where = _check_inputs(rows)
     if not where:
         return ()
-    Z = np.column_stack(inputs)
-    D = np.empty((len(r), Z.shape[1]))
-    row, log_det = 0, 0.0
-    for seg, w0 in zip(segs, windowed.w0):
-        n = len(seg.time)
-        log_det += _pass()(seg.drive, seg.output, seg.kind == "speed", e, p, q, a, h, b, c, bias, phi, ratio,
-                           float(w0), np.ascontiguousarray(Z[row:row + n]), np.empty(n), np.empty(n), D[row:row + n])
-        row += n
-    D *= math.exp(min(0.5 * log_det / max(len(r), 1), LOG_RATIO_LIMIT))
-    if not np.all(np.isfinite(D)):
+    deps = _derivatives(segs, windowed.w0, args, np.column_stack(inputs), len(r))
+    if not np.all(np.isfinite(deps)):
         return ()
     # the model's output moves against its innovations: the columns are the prediction's derivatives
-    X = -np.column_stack(own + [D[:, j] for j in range(D.shape[1])])
-    moments = _moments_of(X, r)
+    moments = _moments_of(-np.column_stack(own + [deps[:, j] for j in range(deps.shape[1])]), r)
     p_own = len(own)
     base = list(range(p_own))
     alone = _fit_on(moments, base)
     each = level / len(where)
     checks = []
-    for name in where:
-        fitted = _fit_on(moments, base + [p_own + j for j in where[name]])
+    for name, columns in where.items():
+        fitted = _fit_on(moments, base + [p_own + j for j in columns])
         if name == CURVE:
             checks.append(_curve_check(estimate, fitted, p_own, each))
         elif name in (ANGLE, SPEED_CURVE):
@@ -311,5 +288,58 @@ def innovation_checks(estimate: Any, fit: PredictionErrorFit, recordings: Sequen
     return tuple(checks)
 
 
+def _predicted_rows(segs: list[Segment], w0: list[float], places: list[int], total: int, args: tuple,
+                    r: np.ndarray, friction: bool) -> _Rows:
+    """What the parts are made of, segments concatenated: the filter's predicted mean speed over each interval, the
+    drive, each row's place in the run and the angle (a speed column's integrated); the last row's interval of each
+    segment, which moves no innovation, is 0."""
+    speeds, drives, orders, angles = [], [], [], []
+    for seg, start, place in zip(segs, w0, places):
+        n = len(seg.time)
+        sp = np.empty(n)
+        _pass()(seg.drive, seg.output, seg.kind == "speed", *args, float(start), np.zeros((n, 0)), np.empty(n), sp,
+                np.empty((n, 0)))
+        speeds.append(np.append(sp[:-1], 0.0))
+        drives.append(np.append(np.asarray(seg.drive, dtype=float)[:-1], 0.0))
+        orders.append((place + np.arange(n)) / max(total - 1, 1))
+        if seg.kind == "angle":
+            angles.append(np.asarray(seg.output, dtype=float))
+        else:
+            mean = 0.5 * (seg.output[1:] + seg.output[:-1])
+            angles.append(np.concatenate([[0.0], np.cumsum(mean * np.diff(seg.time))]))
+    return _Rows(r, np.concatenate(speeds), np.concatenate(drives), np.concatenate(orders), [],
+                 np.concatenate(angles), [], friction, 1.0, None)
+
+
+def _check_inputs(rows: _Rows) -> tuple[list[np.ndarray], dict[str, list[int]]]:
+    """Every check's extra inputs (:mod:`identify.default.consistency`'s parts and curves) and, by check, their
+    places among them."""
+    inputs: list[np.ndarray] = []
+    where: dict[str, list[int]] = {}
+    made = [(name, _parted_inputs(rows, name, masks)) for name, masks in _split_labels(rows).items()]
+    made += [(CURVE, _curve_inputs(rows)), (ANGLE, _angle_inputs(rows)), (SPEED_CURVE, _friction_curve_inputs(rows))]
+    for name, cols in made:
+        if cols:
+            where[name] = list(range(len(inputs), len(inputs) + len(cols)))
+            inputs.extend(cols)
+    return inputs, where
+
+
+def _derivatives(segs: list[Segment], w0: list[float], args: tuple, z: np.ndarray, n_rows: int) -> np.ndarray:
+    """The scaled innovations' derivatives with respect to the extra inputs ``z`` (:func:`extra_input_pass`), scaled
+    as :class:`~identify.fits.prediction_error._Problem`'s innovations are (by the geometric mean of their
+    deviations)."""
+    out = np.empty((n_rows, z.shape[1]))
+    row, log_det = 0, 0.0
+    for seg, start in zip(segs, w0):
+        n = len(seg.time)
+        log_det += _pass()(seg.drive, seg.output, seg.kind == "speed", *args, float(start),
+                           np.ascontiguousarray(z[row:row + n]), np.empty(n), np.empty(n), out[row:row + n])
+        row += n
+    out *= math.exp(min(0.5 * log_det / max(n_rows, 1), LOG_RATIO_LIMIT))
+    return out
+
+
 def _pass() -> Callable[..., float]:
+    """:func:`extra_input_pass`, compiled where numba is."""
     return compiled_extra_input_pass() or extra_input_pass
