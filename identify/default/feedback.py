@@ -43,7 +43,12 @@ The fit is consistent under feedback only when the disturbance model describes t
 which the data can only test, so the chosen candidate
 is refitted with the disturbance as a random walk and the interval always holds both fits'
 intervals; the choice is called clear only when the two agree, no other candidate widened the
-interval, the delay is not at the top of the range searched, and the innovations are white.
+interval, the delay is not at the top of the range searched, and the innovations are white.  Last, the answer
+must give the same ``a`` and ``b`` on the data's own parts (:func:`parts_checked`: early and late, forward and
+reverse, low and high drive, slow and fast, and beside a gain curved by the duty, a torque of the angle and a
+friction that changes with speed, tested on the innovations by
+:func:`identify.default.innovation_checks.innovation_checks`) and on each half of the run (:func:`halves_checked`):
+where they differ materially it is not clear and its intervals hold every part's.
 """
 from __future__ import annotations
 
