@@ -10,6 +10,7 @@ import math
 import warnings
 
 import numpy as np
+import pytest
 
 from identify import fit
 from identify.data import prepare_segments
@@ -93,6 +94,7 @@ def _differ(est) -> dict:
     return {c.split: c for c in est.selection.checks if not c.agree and c.material}
 
 
+@pytest.mark.slow          # 3 s: a 15 000-sample loop integrated in Python, two fits and eight filter passes
 def test_the_extra_inputs_columns_are_the_innovations_derivatives():
     # the columns the score test regresses on: the scaled innovations' derivatives with respect to an acceleration
     # added over each interval, against central differences of the filter's own pass (the duty moved by theta z / b).

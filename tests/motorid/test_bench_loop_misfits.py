@@ -10,6 +10,7 @@ from motorid.bench.coverage import CLASSES, TRUTH
 from motorsim.plant import first_order_coefficients
 
 
+@pytest.mark.slow          # 2.5 s: a 15 000-sample loop integrated by RK4 in Python
 def test_the_loop_integrates_the_motor_exactly(monkeypatch):
     # without the random torque, a linear motor under the loop: the counts are the exact ZOH motor's for the duty the
     # loop logged (the closed form), to the encoder's noise of 1e-4 rad (0.03 of a count): at most one count apart,
@@ -28,6 +29,7 @@ def test_the_loop_integrates_the_motor_exactly(monkeypatch):
     assert np.ptp(rec.counts) > 1000 and np.max(np.abs(rec.duty)) == 255     # it moves, and the loop saturates
 
 
+@pytest.mark.slow          # 2.3 s each: two 15 000-sample loops integrated by RK4 in Python
 @pytest.mark.parametrize("name", sorted(loop_misfits.LOOP_MISFITS))
 def test_each_loop_class_is_found_to_be_a_loop_and_follows_its_seed(name):
     rec = CLASSES[f"past: {name}"](0)
