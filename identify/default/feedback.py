@@ -43,7 +43,12 @@ The fit is consistent under feedback only when the disturbance model describes t
 which the data can only test, so the chosen candidate
 is refitted with the disturbance as a random walk and the interval always holds both fits'
 intervals; the choice is called clear only when the two agree, no other candidate widened the
-interval, the delay is not at the top of the range searched, and the innovations are white.
+interval, the delay is not at the top of the range searched, and the innovations are white.  Last, the answer
+must give the same ``a`` and ``b`` on the data's own parts (:func:`parts_checked`: early and late, forward and
+reverse, low and high drive, slow and fast, and beside a gain curved by the duty, a torque of the angle and a
+friction that changes with speed, tested on the innovations by
+:func:`identify.default.innovation_checks.innovation_checks`) and on each half of the run (:func:`halves_checked`):
+where they differ materially it is not clear and its intervals hold every part's.
 """
 from __future__ import annotations
 
@@ -64,9 +69,12 @@ from ..estimate import Estimate
 from ..fits.friction import speed_reverses
 from ..fits.prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
 from .comparison import LEVEL, MATERIAL, Candidate, Selection, largest_delay, parameters_threshold, threshold
+from .consistency import widened_range
+from .innovation_checks import innovation_checks
 from .selection_report import SelectionReport
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "fit_changing_torque", "halves_checked",
+           "parts_checked",
            "ClosedLoopFit", "FEEDBACK_SHARE", "INPUT_LAGS",
            "CLOSED_LOOP_DELAYS", "CLOSED_LOOP_LARGEST_DELAY", "CLOSED_LOOP_ROWS", "TEST_ROWS", "OUTPUT_LAGS",
            "sample_index", "clock_deviation", "LOST_SAMPLE_INTERVAL"]
@@ -421,8 +429,9 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
     est = dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
                               notes=tuple(([doubt] if doubt else []) + notes))
-    # the one check that needs no structure under feedback: the same a and b on each half of the run
-    return ClosedLoopFit(halves_checked(recs, est))
+    # checks that need no right structure under feedback: the same a and b on every part of the rows, tested on the
+    # innovations, and on each half of the run
+    return ClosedLoopFit(halves_checked(recs, parts_checked(est, fit)))
 
 
 #: How :func:`fit_changing_torque`'s note begins.
@@ -459,6 +468,39 @@ def fit_changing_torque(recordings: Sequence[Recording], why: str, *,
                               selection=dataclasses.replace(est.selection, notes=renoted(est.selection.notes)),
                               speed_residuals=tuple(_innovation_rows(est, rec) for rec in recs))
     return est          # checked on its halves by fit_closed_loop
+
+
+def parts_checked(est: Estimate, fit: PredictionErrorFit) -> Estimate:
+    """``est`` (``fit``'s estimate) with its part checks on the innovations
+    (:func:`identify.default.innovation_checks.innovation_checks`) in ``selection.checks``: where parts disagree its
+    intervals hold each part's, and where a part's ``a`` or ``b`` is materially off it is not clear, the doubt
+    saying which part differs and what it suggests.  ``est`` unchanged where no check can be formed."""
+    if est.selection is None:
+        return est
+    try:
+        checks = innovation_checks(est, fit)
+    except (ArithmeticError, LookupError, np.linalg.LinAlgError, ValueError):
+        checks = ()          # a check that cannot be formed leaves the answer as it is, never a crash
+    if not checks:
+        return est
+    selection = dataclasses.replace(est.selection, checks=checks)
+    differ = [c for c in checks if not c.agree]
+    if differ:
+        ci = est.confidence_interval(0.95)
+        est = dataclasses.replace(est, model_range=widened_range({n: ci[n] for n in ("a", "b")}, differ))
+    material = [c for c in differ if c.material]
+    notes = est.notes
+    if material:
+        first = min(material, key=lambda c: c.p_value)
+        others = f" (and {len(material) - 1} more check{'s' if len(material) > 2 else ''}: see the part checks)" \
+            if len(material) > 1 else ""
+        doubt = (f"the torque-disturbance model's a and b differ between parts of the recording, {first.split} "
+                 f"(p = {first.p_value:.2g}, on its one-step prediction errors): {first.hint}{others}; no single a "
+                 "and b fits it all, so this is not a clear choice; the intervals hold every part's")
+        selection = dataclasses.replace(selection, clear=False, doubt=doubt + (
+            f"; {selection.doubt}" if selection.doubt else ""))
+        notes = (doubt, *notes)
+    return dataclasses.replace(est, selection=selection, notes=notes)
 
 
 def halves_checked(recs: Sequence[Recording], est: Estimate) -> Estimate:

@@ -34,6 +34,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from motorid.bench.flags import integer
+from motorid.bench.loop_misfits import LOOP_MISFITS, LOOP_TRUTH
 from motorid.bench.misfits import MISFITS, random_rig
 from motorid.bench.misfits import TRUTH as MISFIT_TRUTH
 
@@ -140,9 +141,10 @@ CLASSES: dict[str, Callable[[int], object]] = {
     "PI speed loop, friction, torque": _speed_loop,
     **{f"past: {name}": maker for name, maker in MISFITS.items()},
     "past: random rigs": random_rig,
+    **{f"past: {name}": maker for name, maker in LOOP_MISFITS.items()},
 }
 #: class name -> the range of ``a`` and of ``b`` an interval must hold (classes not listed: ``A`` and ``B``).
-TRUTH = {f"past: {name}": truth for name, truth in MISFIT_TRUTH.items()}
+TRUTH = {f"past: {name}": truth for name, truth in {**MISFIT_TRUTH, **LOOP_TRUTH}.items()}
 
 
 class Outcome(NamedTuple):
