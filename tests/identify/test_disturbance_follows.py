@@ -52,17 +52,11 @@ def test_a_load_switched_on_is_no_input_following(seed):
     assert found is not None and not found.follows
 
 
-def test_the_default_on_a_clipping_driver_is_not_clear_and_holds_the_gain(monkeypatch):
-    import identify.default.selection as selection
-    rec = _clipped_steps(1)
+def test_the_default_on_a_clipping_driver_is_not_clear_and_holds_the_gain():
+    # b 0.596 [0.580, 0.613] for 0.74 and clear before either check of the torque-disturbance answer
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = fit(rec)
-        with monkeypatch.context() as m:             # without the check: b 0.596 [0.580, 0.613], clear
-            m.setattr(selection, "_load_or_drive", lambda recs, found: found)
-            before = fit(rec)
-    low, high = before.confidence_interval()["b"]
-    assert before.selection.clear and not low <= B <= high
+        est = fit(_clipped_steps(1))
     ci = est.confidence_interval()
     assert not est.selection.clear and ci["b"][0] <= B <= ci["b"][1]
     assert "follows the input" in est.selection.doubt
