@@ -11,7 +11,8 @@ unexplained, in the integrated form of ``dω/dt = -a ω + b u + τ(t)`` over win
 
     ``∫τ = Δω + a Δθ - b h Σ u``
 
-(the angle and the logged input as regressors, the speed's noise on the left), and fits it by a torque that is
+(the angle and the logged input as regressors, the speed's noise on the left; a speed differenced from the angle
+is taken half a sample earlier, where it is the speed), and fits it by a torque that is
 constant over each of :data:`TIME_BLOCKS` stretches of the run (any load that changes slower than that) plus a
 change of gain ``δb u`` and a curve of it ``c |u| u / U`` (``U`` the largest input).  Where the two input
 columns are not zero (Wald test with the Newey--West covariance, level :data:`FOLLOW_LEVEL`) and the gain they
@@ -69,8 +70,14 @@ def _rows(rec: Recording, a: float, b: float, delay: int) -> tuple[np.ndarray, n
     h = np.r_[np.diff(rec.time), 0.0]
     block = np.minimum((np.arange(n) * TIME_BLOCKS) // n, TIME_BLOCKS - 1)
     cols = np.column_stack([u * h, np.abs(u) * u / top * h] + [h * (block == j) for j in range(TIME_BLOCKS)])
-    sums = np.vstack([np.zeros(cols.shape[1]), np.cumsum(cols, axis=0)])
-    starts = np.arange(0, n - WINDOW, WINDOW)
+    sums = np.vstack([np.zeros(cols.shape[1]), np.cumsum(cols, axis=0)])[:n]
+    if rec.speed is None:
+        # a speed differenced from the angle is the mean over the interval before its row, the speed half a sample
+        # earlier: the angle and the sums are taken there too (else the window's torque holds h/2 of dω/dt, which
+        # follows the input)
+        theta = np.r_[theta[0], 0.5 * (theta[1:] + theta[:-1])]
+        sums = sums - 0.5 * np.vstack([np.zeros(cols.shape[1]), cols[:-1]])
+    starts = np.arange(1, n - WINDOW, WINDOW)
     ends = starts + WINDOW
     gaps = np.cumsum(np.r_[False, np.diff(rec.seq) != 1])
     keep = (gaps[ends] == gaps[starts]) & np.isfinite(w[starts]) & np.isfinite(w[ends])
