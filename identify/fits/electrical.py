@@ -20,6 +20,7 @@ from motorsim.recording import Recording
 
 from ..checks.uncertainty import robust_covariance
 from ..checks.validation import segment_fit_percent
+from ..comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -28,7 +29,6 @@ from ..data import (
     check_input_delay,
     residual_unit,
 )
-from ..default.comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..model_structures import ModelStructure

@@ -58,6 +58,7 @@ from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
 from ..checks.validation import segment_fit_percent
+from ..comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -68,7 +69,6 @@ from ..data import (
     prepare_segments,
     residual_unit,
 )
-from ..default.comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..model_structures import ModelStructure
@@ -386,7 +386,7 @@ class FrictionScan:
     best : float
         The least residual sum already fitted on the same rows (the linear candidates'), inf if none.
     level : float
-        Level of the selection's test (:data:`identify.default.comparison.LEVEL`).
+        Level of the selection's test (:data:`identify.comparison.LEVEL`).
     """
 
     def __init__(self, best: float = math.inf, level: float = LEVEL):

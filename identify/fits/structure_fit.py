@@ -13,7 +13,7 @@ initial states (and the angle's offset) are projected out by least squares
 moves the parameters within their bounds from each start, the best kept.  The covariance is
 :func:`identify.checks.uncertainty.robust_covariance`'s on the Jacobian at the optimum (central
 differences), the initial states counted as nuisance parameters.  The input delay is searched as
-every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.default.comparison.choose_delay`).
+every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.comparison.choose_delay`).
 """
 from __future__ import annotations
 
@@ -116,7 +116,7 @@ def fit_linear_structure(recordings: Recording | list[Recording], *, structure: 
     """
     from ..checks.uncertainty import robust_covariance
     from ..checks.validation import segment_fit_percent
-    from ..default.comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
+    from ..comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
     from ..model_structures import structure as registered
     s = registered(structure)
     recs = as_recordings(recordings)
