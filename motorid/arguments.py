@@ -54,10 +54,13 @@ def _seed(text: str) -> int:
     return value
 
 
-def add_knob_flag(group: Any, k: Knob, default: Any = None) -> None:
-    """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own)."""
+def add_knob_flag(group: Any, k: Knob, default: Any = None, rule: str | None = None) -> None:
+    """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own; ``rule``, the range a command
+    holds it to, is said after its own help)."""
     value = k.default if default is None else default
     help_ = k.describe() if default is None else f"{k.help}{f' [{k.unit}]' if k.unit else ''} (default {value!r})"
+    if rule:
+        help_ = f"{help_}; {rule}"
     if k.kind is bool:
         group.add_argument(k.flag, dest=k.name, action="store_true", help=k.describe())
     elif k.required and default is None:
@@ -75,10 +78,11 @@ def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> Non
 
     ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional).
     """
+    from motorid.ranges import BENCH_RULES
     g = parser.add_argument_group("simulated bench")
     for cls in (Motor, Encoder, SimRig):
         for k in knobs_of(cls):
-            add_knob_flag(g, k, defaults.get(k.name))
+            add_knob_flag(g, k, defaults.get(k.name), BENCH_RULES.get(k.name))
     g.add_argument("--seed", type=_seed, default=0, help="seed of the noise, jitter and drops (default 0)")
 
 
@@ -106,14 +110,16 @@ EXCITATION_FLAGS = {
 }
 
 
-def add_experiment_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+def add_experiment_arguments(parser: argparse.ArgumentParser, *, simulated: bool = False, **defaults: Any) -> None:
     """Flags of an :class:`~motorsim.rig.Experiment`: its knobs and the excitation.
 
-    ``defaults`` give defaults to knobs by name (``duration=60.0``).
+    ``defaults`` give defaults to knobs by name (``duration=60.0``); ``simulated``: the experiment runs on the
+    simulated bench, whose ranges (:data:`motorid.ranges.BENCH_RULES`) the help says.
     """
+    from motorid.ranges import BENCH_RULES
     g = parser.add_argument_group("experiment")
     for k in knobs_of(Experiment):
-        add_knob_flag(g, k, defaults.get(k.name))
+        add_knob_flag(g, k, defaults.get(k.name), BENCH_RULES.get(k.name) if simulated else None)
     ex = g.add_mutually_exclusive_group()
     for name, help_ in EXCITATION_FLAGS.items():
         ex.add_argument(f"--{name}", metavar="ARGS", help=help_)
