@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -73,16 +73,17 @@ def _values(args: argparse.Namespace, cls: type) -> dict[str, Any]:
     return {k.name: getattr(args, k.name) for k in knobs_of(cls)}
 
 
-def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+def add_bench_arguments(parser: argparse.ArgumentParser, rules: Mapping[str, str] | None = None,
+                        **defaults: Any) -> None:
     """Flags of the simulated bench: every knob of Motor, Encoder and SimRig, and ``--seed``.
 
-    ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional).
+    ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional); ``rules``, the ranges the
+    command holds knobs to by name (:data:`motorid.ranges.BENCH_RULES`), are said in their help.
     """
-    from motorid.ranges import BENCH_RULES
     g = parser.add_argument_group("simulated bench")
     for cls in (Motor, Encoder, SimRig):
         for k in knobs_of(cls):
-            add_knob_flag(g, k, defaults.get(k.name), BENCH_RULES.get(k.name))
+            add_knob_flag(g, k, defaults.get(k.name), (rules or {}).get(k.name))
     g.add_argument("--seed", type=_seed, default=0, help="seed of the noise, jitter and drops (default 0)")
 
 
@@ -110,16 +111,15 @@ EXCITATION_FLAGS = {
 }
 
 
-def add_experiment_arguments(parser: argparse.ArgumentParser, *, simulated: bool = False, **defaults: Any) -> None:
+def add_experiment_arguments(parser: argparse.ArgumentParser, rules: Mapping[str, str] | None = None,
+                             **defaults: Any) -> None:
     """Flags of an :class:`~motorsim.rig.Experiment`: its knobs and the excitation.
 
-    ``defaults`` give defaults to knobs by name (``duration=60.0``); ``simulated``: the experiment runs on the
-    simulated bench, whose ranges (:data:`motorid.ranges.BENCH_RULES`) the help says.
+    ``defaults`` give defaults to knobs by name (``duration=60.0``); ``rules``, as for :func:`add_bench_arguments`.
     """
-    from motorid.ranges import BENCH_RULES
     g = parser.add_argument_group("experiment")
     for k in knobs_of(Experiment):
-        add_knob_flag(g, k, defaults.get(k.name), BENCH_RULES.get(k.name) if simulated else None)
+        add_knob_flag(g, k, defaults.get(k.name), (rules or {}).get(k.name))
     ex = g.add_mutually_exclusive_group()
     for name, help_ in EXCITATION_FLAGS.items():
         ex.add_argument(f"--{name}", metavar="ARGS", help=help_)

@@ -104,7 +104,7 @@ def format_table(rows: Sequence[DemoRow], a: float, b: float) -> str:
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid demo``: the bench (a = 25, b = 3 by default), the sines, ``--out``."""
-    add_bench_arguments(parser, a=25.0, b=3.0)
+    add_bench_arguments(parser, BENCH_RULES, a=25.0, b=3.0)
     g = parser.add_argument_group("experiments")
     for k in knobs_of(Experiment):
         if k.name in ("sample_period", "duration"):

@@ -17,7 +17,7 @@ from motorid.arguments import (
     sim_rig_from_args,
 )
 from motorid.budget import SIMULATE_BYTES_PER_SAMPLE, add_max_memory_flag, check_memory
-from motorid.ranges import check_bench_flags
+from motorid.ranges import BENCH_RULES, check_bench_flags
 from motorsim.writing import write_recording
 
 __all__ = ["add_simulate_arguments", "run_simulate"]
@@ -26,8 +26,8 @@ __all__ = ["add_simulate_arguments", "run_simulate"]
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid simulate``: the bench, the experiment, a controller and ``--out``."""
     from motorid.commands.control import add_controller_arguments
-    add_bench_arguments(parser)
-    add_experiment_arguments(parser, simulated=True)
+    add_bench_arguments(parser, BENCH_RULES)
+    add_experiment_arguments(parser, BENCH_RULES)
     add_controller_arguments(parser)
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     add_max_memory_flag(parser)
