@@ -42,7 +42,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, exports={name: f".{module}" for
 
 #: The modules that moved into a subpackage (the estimators to ``fits``, the default's selection to ``default``, the
 #: uncertainty and checks to ``checks``, the frequency view to ``frequency``), by their earlier names: ``import
-#: identify.selection`` gives ``identify.default.selection`` itself.
+#: identify.selection`` gives ``identify.default.selection`` itself.  The comparison of candidates moved back to the
+#: top, where the estimators' own delay search, the checks and the default share it: ``identify.default.comparison``
+#: is ``identify.comparison``.
 MOVED_MODULES = {
     "asymmetry": "fits.asymmetry", "batch": "fits.batch", "batch_output_error": "fits.batch_output_error",
     "closed_loop": "fits.closed_loop", "drive_limit": "fits.drive_limit", "electrical": "fits.electrical",
@@ -52,12 +54,13 @@ MOVED_MODULES = {
     "prediction_error": "fits.prediction_error", "recursive": "fits.recursive", "regression": "fits.regression",
     "sensitivity": "fits.sensitivity", "start": "fits.start", "stiction": "fits.stiction",
     "structure_fit": "fits.structure_fit", "variable_projection": "fits.variable_projection",
-    "zoh_response": "fits.zoh_response", "comparison": "default.comparison", "consistency": "default.consistency",
+    "zoh_response": "fits.zoh_response", "consistency": "default.consistency",
     "evidence": "default.evidence", "feedback": "default.feedback", "selection": "default.selection",
     "selection_report": "default.selection_report", "causality": "checks.causality", "design": "checks.design",
     "encoder_bootstrap": "checks.encoder_bootstrap", "outliers": "checks.outliers", "screening": "checks.screening",
     "uncertainty": "checks.uncertainty", "validation": "checks.validation", "best_linear": "frequency.best_linear",
     "frequency_estimate": "frequency.frequency_estimate", "frequency_fit": "frequency.frequency_fit",
     "current_limit": "fits.current_limit", "limit_response": "fits.limit_response",
+    "default.comparison": "comparison",
 }
 moved_modules(__name__, MOVED_MODULES)

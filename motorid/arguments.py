@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -54,10 +54,13 @@ def _seed(text: str) -> int:
     return value
 
 
-def add_knob_flag(group: Any, k: Knob, default: Any = None) -> None:
-    """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own)."""
+def add_knob_flag(group: Any, k: Knob, default: Any = None, rule: str | None = None) -> None:
+    """Add the flag ``--name`` of knob ``k`` (``default`` overrides the knob's own; ``rule``, the range a command
+    holds it to, is said after its own help)."""
     value = k.default if default is None else default
     help_ = k.describe() if default is None else f"{k.help}{f' [{k.unit}]' if k.unit else ''} (default {value!r})"
+    if rule:
+        help_ = f"{help_}; {rule}"
     if k.kind is bool:
         group.add_argument(k.flag, dest=k.name, action="store_true", help=k.describe())
     elif k.required and default is None:
@@ -70,15 +73,17 @@ def _values(args: argparse.Namespace, cls: type) -> dict[str, Any]:
     return {k.name: getattr(args, k.name) for k in knobs_of(cls)}
 
 
-def add_bench_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+def add_bench_arguments(parser: argparse.ArgumentParser, rules: Mapping[str, str] | None = None,
+                        **defaults: Any) -> None:
     """Flags of the simulated bench: every knob of Motor, Encoder and SimRig, and ``--seed``.
 
-    ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional).
+    ``defaults`` give defaults to knobs by name (``a=25.0`` makes ``--a`` optional); ``rules``, the ranges the
+    command holds knobs to by name (:data:`motorid.ranges.BENCH_RULES`), are said in their help.
     """
     g = parser.add_argument_group("simulated bench")
     for cls in (Motor, Encoder, SimRig):
         for k in knobs_of(cls):
-            add_knob_flag(g, k, defaults.get(k.name))
+            add_knob_flag(g, k, defaults.get(k.name), (rules or {}).get(k.name))
     g.add_argument("--seed", type=_seed, default=0, help="seed of the noise, jitter and drops (default 0)")
 
 
@@ -106,14 +111,15 @@ EXCITATION_FLAGS = {
 }
 
 
-def add_experiment_arguments(parser: argparse.ArgumentParser, **defaults: Any) -> None:
+def add_experiment_arguments(parser: argparse.ArgumentParser, rules: Mapping[str, str] | None = None,
+                             **defaults: Any) -> None:
     """Flags of an :class:`~motorsim.rig.Experiment`: its knobs and the excitation.
 
-    ``defaults`` give defaults to knobs by name (``duration=60.0``).
+    ``defaults`` give defaults to knobs by name (``duration=60.0``); ``rules``, as for :func:`add_bench_arguments`.
     """
     g = parser.add_argument_group("experiment")
     for k in knobs_of(Experiment):
-        add_knob_flag(g, k, defaults.get(k.name))
+        add_knob_flag(g, k, defaults.get(k.name), (rules or {}).get(k.name))
     ex = g.add_mutually_exclusive_group()
     for name, help_ in EXCITATION_FLAGS.items():
         ex.add_argument(f"--{name}", metavar="ARGS", help=help_)

@@ -108,9 +108,14 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def __init__(self, package: str, moved: Mapping[str, str]) -> None:
         self.package, self.moved = package, dict(moved)
 
+    def _earlier(self, fullname: str) -> str | None:
+        """``fullname``'s earlier name relative to the package (``selection``, ``default.comparison``), if it moved."""
+        prefix = self.package + "."
+        earlier = fullname[len(prefix):] if fullname.startswith(prefix) else None
+        return earlier if earlier in self.moved else None
+
     def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
-        parent, _, leaf = fullname.rpartition(".")
-        if parent != self.package or leaf not in self.moved:
+        if self._earlier(fullname) is None:
             return None
         return importlib.util.spec_from_loader(fullname, self)
 
@@ -119,8 +124,9 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def exec_module(self, module: Any) -> None:
         # the import system hands back what sys.modules holds under the name once this returns: the module itself
-        leaf = module.__name__.rpartition(".")[2]
-        sys.modules[module.__name__] = importlib.import_module(f"{self.package}.{self.moved[leaf]}")
+        earlier = self._earlier(module.__name__)
+        assert earlier is not None
+        sys.modules[module.__name__] = importlib.import_module(f"{self.package}.{self.moved[earlier]}")
 
 
 def moved_modules(package: str, moved: Mapping[str, str]) -> None:
@@ -136,7 +142,7 @@ def moved_modules(package: str, moved: Mapping[str, str]) -> None:
         The package's name (``"identify"``).
     moved : mapping of str to str
         An earlier module name -> where the module is now, both relative to ``package``
-        (``{"selection": "default.selection"}``).
+        (``{"selection": "default.selection"}``; an earlier name may be in a subpackage, ``"default.comparison"``).
     """
     for finder in sys.meta_path:
         if isinstance(finder, _MovedModules) and finder.package == package:

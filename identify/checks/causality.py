@@ -9,7 +9,7 @@ the article's sine, with an interval that excludes 25).
 :func:`check_input_leads` fits ``oe`` twice on the longest gap-free stretch of each recording
 (its first :data:`LEAD_ROWS` rows): as recorded, and with the input moved one sample earlier, both
 at the delay the recording declares (``input_delay_samples``, else 0).  When the earlier input
-fits better beyond the noise (the comparison of :mod:`identify.default.comparison`, at level
+fits better beyond the noise (the comparison of :mod:`identify.comparison`, at level
 :data:`LEAD_LEVEL`), materially (:data:`MATERIAL`) and to white residuals (:data:`WHITE_LAGS`: the
 shifted input explains the data, not some other misfit), the data are refused, saying so.
 """
@@ -64,7 +64,7 @@ class LeadTest(NamedTuple):
         """Whether the earlier input fits better beyond the noise, materially, and to white residuals."""
         from scipy.special import chdtri, fdtri
 
-        from ..default.comparison import BLOCKS
+        from ..comparison import BLOCKS
         return (self.statistic > float(fdtri(1, BLOCKS - 1, 1.0 - LEAD_LEVEL))
                 and self.rms_earlier <= MATERIAL * self.rms_recorded
                 and self.whiteness < float(chdtri(WHITE_LAGS, LEAD_LEVEL)))
@@ -84,7 +84,7 @@ def input_lead_test(rec: Recording) -> LeadTest:
 
 
 def _input_lead_test(rec: Recording) -> LeadTest:
-    from ..default.comparison import statistic
+    from ..comparison import statistic
     from .validation import autocorrelation
     none = LeadTest(0.0, 0.0, 0.0, 0.0)
     seg = max(rec.segments(), key=len)

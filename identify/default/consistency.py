@@ -70,8 +70,8 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from ..comparison import MATERIAL
 from ..data import Segment
-from .comparison import MATERIAL
 from .selection_report import PartCheck, _g
 
 __all__ = ["PartCheck", "part_checks", "Consistency", "consistency", "COLOURED", "SPLITS", "PART_LEVEL",
@@ -645,7 +645,7 @@ def _moments(rows: _Rows, xs: Sequence[np.ndarray]) -> _Moments:
     responses are fresh: the columns are never held for all rows at once (a 6000 x 18 array made, filtered and
     scaled in memory cost more than the arithmetic).  The columns' norms are the square roots of the cross-products'
     diagonal, and the cross-products are scaled by them at the end (:class:`_Moments` holds the unit-norm columns')."""
-    from .comparison import _block_starts
+    from ..comparison import _block_starts
     r = rows.residual
     n, k = len(r), len(xs)
     bounds = np.append(_block_starts(n), n)

@@ -31,8 +31,8 @@ from scipy import stats
 from motorsim.recording import Recording
 
 from ..checks.uncertainty import newey_west_covariance
+from ..comparison import MATERIAL
 from ..estimate import Estimate
-from .comparison import MATERIAL
 
 __all__ = ["disturbance_follows_input", "InputFollowing", "WINDOW", "TIME_BLOCKS", "FOLLOW_LEVEL"]
 

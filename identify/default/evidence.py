@@ -19,12 +19,12 @@ parts of the recording, and what that suggests.  Three of those suggestions are 
 * the choice was in doubt from the part checks alone, or also from candidates the misfit left within its noise
   (``the data cannot tell ...``), which it must then beat too; any other doubt (a delay at the top of the range,
   a recording made in a loop, ...) stands;
-* what it adds is material (the gains differ by more than :data:`~identify.default.comparison.MATERIAL`; the limit cuts
+* what it adds is material (the gains differ by more than :data:`~identify.comparison.MATERIAL`; the limit cuts
   the drive by more than that);
 * its fits at the delays of those candidates do not disagree materially within the noise;
 * it fits better than the chosen model (and the candidates' best, fitted on all rows) beyond the noise (the
-  selection's own batch-means test, :func:`identify.default.comparison.statistic`, at
-  :data:`~identify.default.comparison.LEVEL`);
+  selection's own batch-means test, :func:`identify.comparison.statistic`, at
+  :data:`~identify.comparison.LEVEL`);
 * its own part checks find no difference, material or not (a structure taken on a check's evidence must fit: one
   refuted however little its ``a`` and ``b`` move stands in for another misfit, as a current limit does for a
   quadratic drag, ``b`` 23 % off), and its intervals are finite and narrower than the values.
@@ -45,11 +45,11 @@ import numpy as np
 
 from motorsim.recording import Recording
 
+from ..comparison import LEVEL, MATERIAL, Candidate, parameters_threshold, statistic
 from ..data import Segment, prepare_segments
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..sums import sum_squares
-from .comparison import LEVEL, MATERIAL, Candidate, parameters_threshold, statistic
 from .selection_report import PartCheck
 
 __all__ = ["on_evidence", "Rule", "RULES", "ASYMMETRIC", "DRIVE_LIMIT", "CURRENT_LIMIT", "CANDIDATES_DOUBT", "JOINT_Z",

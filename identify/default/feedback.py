@@ -63,12 +63,12 @@ from scipy import special
 from motorsim.checks import ParameterError, check_int
 from motorsim.recording import Recording
 
+from ..comparison import LEVEL, MATERIAL, Candidate, Selection, largest_delay, parameters_threshold, threshold
 from ..data import MIN_SEGMENT_SAMPLES, Segment, declared_input_delay, prepare_segments
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..fits.friction import speed_reverses
 from ..fits.prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
-from .comparison import LEVEL, MATERIAL, Candidate, Selection, largest_delay, parameters_threshold, threshold
 from .consistency import widened_range
 from .innovation_checks import innovation_checks
 from .selection_report import SelectionReport

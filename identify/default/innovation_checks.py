@@ -37,6 +37,7 @@ import numpy as np
 from motorsim.compiled import numba_jit
 from motorsim.plant import first_order_coefficients
 
+from ..comparison import _block_starts
 from ..data import Segment
 from ..fits.prediction_error import (
     DIFFUSE,
@@ -47,7 +48,6 @@ from ..fits.prediction_error import (
     _settled,
     covariance_step,
 )
-from .comparison import _block_starts
 from .consistency import (
     ANGLE,
     CURVE,

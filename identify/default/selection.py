@@ -36,22 +36,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-from ..data import (
-    DEFAULT_INPUT_DELAY,
-    Segment,
-    as_recordings,
-    check_excitation,
-    check_input_delay,
-    declared_input_delay,
-    delayed_segments,
-    first_rows,
-    saturation_note,
-)
-from ..errors import NotIdentifiableError
-from ..estimate import Estimate
-from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
-from ..sums import sum_squares
-from .comparison import (
+from ..comparison import (
     CLOSE,
     LEVEL,
     MATERIAL,
@@ -72,6 +57,21 @@ from .comparison import (
     scan_delays,
     separating_experiment,
 )
+from ..data import (
+    DEFAULT_INPUT_DELAY,
+    Segment,
+    as_recordings,
+    check_excitation,
+    check_input_delay,
+    declared_input_delay,
+    delayed_segments,
+    first_rows,
+    saturation_note,
+)
+from ..errors import NotIdentifiableError
+from ..estimate import Estimate
+from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
+from ..sums import sum_squares
 from .consistency import PartCheck, consistency, widened_range
 from .disturbance import disturbance_follows_input
 from .evidence import on_evidence

@@ -1,7 +1,7 @@
 """``SelectionReport``: how the default estimator chose its model, as kept with the estimate.
 
 :func:`identify.default.selection.fit_selected` compares candidate models (a structure at an input
-delay, :mod:`identify.default.comparison`) and returns the chosen one's :class:`identify.Estimate`; its
+delay, :mod:`identify.comparison`) and returns the chosen one's :class:`identify.Estimate`; its
 ``selection`` field is a :class:`SelectionReport`: every candidate with its fit and score
 (:class:`CandidateReport`), the chosen one, the best, the runner-up, whether the choice was
 clear and the doubt when it was not.  It is a record of what was compared, independent of the
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Mapping, TypeVar
 from motorsim.checks import ParameterError, ParameterTypeError
 
 if TYPE_CHECKING:
-    from .comparison import Candidate, Selection
+    from ..comparison import Candidate, Selection
 
 __all__ = ["CandidateReport", "SelectionReport", "PartCheck", "doubted"]
 
@@ -65,7 +65,7 @@ class CandidateReport:
 
     @classmethod
     def from_candidate(cls, c: Candidate) -> CandidateReport:
-        """The report of a scored :class:`identify.default.comparison.Candidate`."""
+        """The report of a scored :class:`identify.comparison.Candidate`."""
         return cls(structure=c.structure, input_delay=c.input_delay, method=c.method, a=c.a, b=c.b,
                    residual_sum=c.residual_sum, statistic=c.statistic, within_noise=c.within_noise, note=c.note)
 
@@ -138,7 +138,7 @@ class SelectionReport:
 
     @classmethod
     def from_selection(cls, selection: Selection) -> SelectionReport:
-        """The report of an :class:`identify.default.comparison.Selection`."""
+        """The report of an :class:`identify.comparison.Selection`."""
         runner_up = selection.runner_up
         return cls(chosen=CandidateReport.from_candidate(selection.chosen),
                    best=CandidateReport.from_candidate(selection.best),
@@ -199,7 +199,7 @@ class PartCheck:
     agree : bool
         ``p_value`` at or above the level.
     material : bool
-        A part's ``a`` or ``b`` differs from the full fit's by more than :data:`~identify.default.comparison.MATERIAL`
+        A part's ``a`` or ``b`` differs from the full fit's by more than :data:`~identify.comparison.MATERIAL`
         (relative): disagreement that makes the choice unclear.
     hint : str
         What the difference suggests, in words ("" when the parts agree).

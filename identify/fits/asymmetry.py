@@ -24,21 +24,18 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from motorsim.checks import check_choice
 from motorsim.recording import Recording
 
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
-    as_recordings,
-    check_excitation,
-    check_input_delay,
     prepare_segments,
     residual_unit,
 )
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..sums import sum_squares
+from .oe_common import check_rows, fit_covariance, linear_start, segment_models
 from .sensitivity import zoh_response
 
 __all__ = ["fit_output_error_asymmetric", "evaluate", "solve", "fit_mapped", "directional", "MappedFit", "STRUCTURE",
@@ -136,11 +133,9 @@ def solve(segments: Sequence[Segment], theta0: np.ndarray, drive_map: DriveMap =
     return theta, here
 
 
-def _start(recs: list[Recording], delay: int) -> np.ndarray:
-    """``(a, b, b, bias)`` of the linear motor with a bias fitted by ``oe`` at ``delay``."""
-    from .output_error import fit_output_error
-    est = fit_output_error(recs, input_delay=delay, fit_bias=True, covariance="gauss-newton")
-    return np.array([est.a, est.b, est.b, est.extra.get("bias", 0.0)])
+def _start(linear: Estimate) -> np.ndarray:
+    """``(a, b, b, bias)`` of the linear motor with a bias (``oe``'s, :func:`identify.fits.oe_common.linear_start`)."""
+    return np.array([linear.a, linear.b, linear.b, linear.extra.get("bias", 0.0)])
 
 
 @dataclasses.dataclass
@@ -163,41 +158,18 @@ def fit_mapped(recs: list[Recording], delay: int, start: np.ndarray, drive_map: 
     """:func:`solve` on the recordings' segments at ``delay`` from ``start``, with its covariance: the linearised
     encoder bootstrap where the residuals are mostly an encoder's rounding, else Gauss--Newton or Newey--West
     (module docstring); ``what`` names the structure in messages."""
-    from ..checks.encoder_bootstrap import linearised_encoder_bootstrap_covariance
-    from ..checks.uncertainty import covariance_from_jacobian, robust_covariance
     from ..checks.validation import segment_fit_percent
-    from .friction import ROUNDING_DOMINATED
     p = len(start)
     segments = prepare_segments(recs, delay)
-    n = sum(len(s.time) for s in segments)
-    nuisance = sum(2 if s.kind == "angle" else 1 for s in segments)
-    if not segments or n - nuisance <= p + 1:
-        raise NotIdentifiableError(f"recording is too short for {what}: {p} parameters and the initial state of "
-                                   f"{len(segments)} segments; record longer")
+    n, nuisance = check_rows(segments, p, what)
     theta, found = solve(segments, start, drive_map, valid)
     if not (np.all(np.isfinite(theta)) and valid(theta)):
         raise NotIdentifiableError(f"the fit of {what} landed on a = {theta[0]:.6g} 1/s: no stable model of this "
                                    "structure fits; check that the motor moved")
-    dof = max(n - nuisance - p, 1)
-    s2 = found.rss / dof
-    J = found.jacobian
-    assert J is not None
-    models, lo = [], 0
-    for seg in segments:
-        hi = lo + len(seg.time)
-        models.append(seg.output - found.residual[lo:hi])
-        lo = hi
-    steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segments)]
-    variance = found.rss / n
-    encoders = all(s.kind == "angle" and st for s, st in zip(segments, steps))
-    if covariance == "gauss-newton":
-        cov, how = covariance_from_jacobian(J, s2, p), "gauss-newton"
-    elif encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
-        # mostly the encoder's rounding, which stays put while the shaft is slow: its spread over the phases
-        cov = linearised_encoder_bootstrap_covariance(segments, models, steps, variance, -J, p)
-        how = "linearised-encoder-bootstrap"
-    else:
-        cov, how = robust_covariance(J, found.residual, s2, p)
+    assert found.jacobian is not None
+    models = segment_models(segments, found.residual)
+    cov, how = fit_covariance(recs, segments, models, found.residual, -found.jacobian, max(n - nuisance - p, 1), p,
+                              covariance)
     return MappedFit(theta, cov, how, n, found.rss, segment_fit_percent(segments, models), residual_unit(segments))
 
 
@@ -267,14 +239,5 @@ def fit_output_error_asymmetric(recordings: Recording | Sequence[Recording], *,
     >>> print(f"a = {est.a:.6f}, b forward {est.extra['b_forward']:.6f}, reverse {est.extra['b_reverse']:.6f}")
     a = 25.000000, b forward 3.150000, reverse 2.850000
     """
-    recs = as_recordings(recordings)
-    input_delay = check_input_delay(input_delay)
-    check_choice("covariance", covariance, ("auto", "gauss-newton"))
-    check_excitation(recs, 3)
-    if input_delay == "auto":
-        from .output_error import select_delay
-        input_delay = select_delay(recs, with_bias=True)
-    delay = int(input_delay)
-    return _fit(recs, delay, _start(recs, delay), covariance)
-
-
+    recs, delay, linear = linear_start(recordings, input_delay, covariance, 3)
+    return _fit(recs, delay, _start(linear), covariance)

@@ -27,15 +27,11 @@ from typing import Sequence
 
 import numpy as np
 
-from motorsim.checks import check_choice
 from motorsim.recording import Recording
 
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
-    as_recordings,
-    check_excitation,
-    check_input_delay,
     prepare_segments,
     residual_unit,
 )
@@ -43,6 +39,7 @@ from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..sums import sum_squares
 from .limit_response import initial_speed_fit, limit_response, segment_model
+from .oe_common import check_rows, fit_covariance, linear_start, segment_models
 
 __all__ = ["fit_output_error_current_limit", "asked_torque", "STRUCTURE", "FITTED", "START_QUANTILES", "START_SHARES",
            "MIN_SHARE"]
@@ -86,17 +83,10 @@ def _fit(recs: list[Recording], delay: int, a: float, b: float, bias: float, cov
     """The fit at ``delay`` from the linear model's ``a``, ``b``, ``bias`` and :func:`_starts`' limits and shares."""
     from scipy.optimize import least_squares
 
-    from ..checks.encoder_bootstrap import linearised_encoder_bootstrap_covariance
-    from ..checks.uncertainty import covariance_from_jacobian, robust_covariance
     from ..checks.validation import segment_fit_percent
-    from .friction import ROUNDING_DOMINATED
     segments = prepare_segments(recs, delay)
-    n = sum(len(s.time) for s in segments)
     p = len(FITTED)
-    nuisance = sum(2 if s.kind == "angle" else 1 for s in segments)
-    if not segments or n - nuisance <= p + 1:
-        raise NotIdentifiableError(f"recording is too short for a current limit: {p} parameters and the initial "
-                                   f"state of {len(segments)} segments; record longer")
+    n, nuisance = check_rows(segments, p, "a current limit")
     if not (math.isfinite(a) and a > 0 and math.isfinite(b) and b != 0):
         raise NotIdentifiableError(f"a current limit needs a stable linear start, got a = {a:.6g}, b = {b:.6g}")
     starts = _starts(segments, a, abs(b), bias)
@@ -126,23 +116,8 @@ def _fit(recs: list[Recording], delay: int, a: float, b: float, bias: float, cov
     W, J = J_all[:, p:], J_all[:, :p]
     if W.shape[1]:
         J = J - W @ np.linalg.lstsq(W, J, rcond=None)[0]
-    dof = max(n - nuisance - p, 1)
-    s2 = rss / dof
-    models, lo = [], 0
-    for seg in segments:
-        hi = lo + len(seg.time)
-        models.append(seg.output - residual[lo:hi])
-        lo = hi
-    steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segments)]
-    variance = rss / n
-    encoders = all(s.kind == "angle" and st for s, st in zip(segments, steps))
-    if covariance == "gauss-newton":
-        cov, how = covariance_from_jacobian(J, s2, p), "gauss-newton"
-    elif encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
-        cov = linearised_encoder_bootstrap_covariance(segments, models, steps, variance, -J, p)
-        how = "linearised-encoder-bootstrap"
-    else:
-        cov, how = robust_covariance(J, residual, s2, p)
+    models = segment_models(segments, residual)
+    cov, how = fit_covariance(recs, segments, models, residual, -J, max(n - nuisance - p, 1), p, covariance)
     a1, b1, limit, share, d = (float(v) for v in x[:5])
     return Estimate(method="oe-current-limit", a=a1, b=b1, n_samples=n, sample_period=recs[0].sample_period,
                     residual_rms=math.sqrt(rss / n), fit_percent=segment_fit_percent(segments, models),
@@ -215,16 +190,7 @@ def fit_output_error_current_limit(recordings: Recording | Sequence[Recording], 
     ...       f"share {est.extra['emf_share']:.6f}")
     a = 25.000000, b = 3.000000, limit 400.0000, share 0.800000
     """
-    recs = as_recordings(recordings)
-    input_delay = check_input_delay(input_delay)
-    check_choice("covariance", covariance, ("auto", "gauss-newton"))
-    check_excitation(recs, 5)
-    if input_delay == "auto":
-        from .output_error import select_delay
-        input_delay = select_delay(recs, with_bias=True)
-    from .output_error import fit_output_error
-    delay = int(input_delay)
-    start = fit_output_error(recs, input_delay=delay, fit_bias=True, covariance="gauss-newton")
+    recs, delay, start = linear_start(recordings, input_delay, covariance, 5)
     return _fit(recs, delay, start.a, start.b, float(start.extra.get("bias", 0.0)), covariance)
 
 

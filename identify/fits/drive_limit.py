@@ -16,13 +16,13 @@ from typing import Sequence
 
 import numpy as np
 
-from motorsim.checks import check_choice
 from motorsim.recording import Recording
 
-from ..data import DEFAULT_INPUT_DELAY, as_recordings, check_excitation, check_input_delay, prepare_segments
+from ..data import DEFAULT_INPUT_DELAY, prepare_segments
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from .asymmetry import MappedFit, fit_mapped
+from .oe_common import linear_start
 
 __all__ = ["fit_output_error_drive_limit", "clipping", "STRUCTURE", "START_QUANTILES"]
 
@@ -115,14 +115,5 @@ def fit_output_error_drive_limit(recordings: Recording | Sequence[Recording], *,
     >>> print(f"a = {est.a:.6f}, b = {est.b:.6f}, limit {est.extra['drive_limit']:.6f}")
     a = 25.000000, b = 3.000000, limit 150.000000
     """
-    recs = as_recordings(recordings)
-    input_delay = check_input_delay(input_delay)
-    check_choice("covariance", covariance, ("auto", "gauss-newton"))
-    check_excitation(recs, 4)
-    if input_delay == "auto":
-        from .output_error import select_delay
-        input_delay = select_delay(recs, with_bias=True)
-    from .output_error import fit_output_error
-    delay = int(input_delay)
-    start = fit_output_error(recs, input_delay=delay, fit_bias=True, covariance="gauss-newton")
+    recs, delay, start = linear_start(recordings, input_delay, covariance, 4)
     return _fit(recs, delay, start.a, start.b, float(start.extra.get("bias", 0.0)), covariance)

@@ -20,20 +20,20 @@ from motorsim.recording import Recording
 
 from ..checks.uncertainty import robust_covariance
 from ..checks.validation import segment_fit_percent
+from ..comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
     as_recordings,
     check_excitation,
     check_input_delay,
-    prepare_segments,
     residual_unit,
 )
-from ..default.comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..model_structures import ModelStructure
 from ..model_structures.second_order import segment_columns
+from .oe_common import segment_models, segments_at
 
 __all__ = ["fit_output_error_electrical", "structure_candidate", "TAU_GRID_SAMPLES", "RESTARTS"]
 
@@ -201,9 +201,7 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
         delay = choose_delay(recs, fit_at, MAX_AUTO_DELAY, LEVEL, "oe-electrical")
     else:
         delay = int(delay_option)
-    segs = prepare_segments(recs, delay)
-    if not segs:
-        raise NotIdentifiableError(f"recording is too short for an input delay of {delay} samples")
+    segs = segments_at(recs, delay)
     problem = _Projection(segs)
     a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), recs[0].sample_period), recs[0].sample_period)
     r, coef, X = problem.solve(a, c)
@@ -214,7 +212,7 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
     J = _jacobian(problem, a, c, coef, X)
     s2 = float(r @ r) / (n - k)
     cov, how = robust_covariance(J, r, s2, 4)
-    models = [seg.output - rr for seg, rr in zip(segs, np.split(r, np.cumsum([len(s.time) for s in segs])[:-1]))]
+    models = segment_models(segs, r)
     return Estimate(method="oe-electrical", structure="second-order", a=a, b=b, n_samples=n,
                     sample_period=recs[0].sample_period, residual_rms=float(np.sqrt(np.mean(r * r))),
                     fit_percent=segment_fit_percent(segs, models), covariance=cov,

@@ -37,7 +37,7 @@ acceleration as ``d`` (linear model with bias, analytic Jacobian), sets
 
 The covariance (``covariance_method`` in the estimate and its JSON): when every
 segment is an encoder's angle and the residuals are mostly its rounding (variance at
-most :data:`ROUNDING_DOMINATED` times ``step^2/12``), ``"linearised-encoder-bootstrap"``
+most :data:`identify.fits.oe_common.ROUNDING_DOMINATED` times ``step^2/12``), ``"linearised-encoder-bootstrap"``
 (:func:`identify.checks.encoder_bootstrap.linearised_encoder_bootstrap_covariance`): the shaft
 sticks for many samples around each reversal, and the rounding error then stays put, a
 correlation over whole stuck intervals that Gauss–Newton and Newey–West intervals miss.
@@ -57,9 +57,8 @@ from motorsim.checks import ParameterError, check_bool
 from motorsim.plant import first_order_coefficients
 from motorsim.recording import Recording
 
-from ..checks.encoder_bootstrap import linearised_encoder_bootstrap_covariance
-from ..checks.uncertainty import robust_covariance
 from ..checks.validation import segment_fit_percent
+from ..comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from ..data import (
     DEFAULT_INPUT_DELAY,
     Segment,
@@ -70,13 +69,13 @@ from ..data import (
     prepare_segments,
     residual_unit,
 )
-from ..default.comparison import BLOCKS, LEVEL, STOP_FACTOR, STRUCTURES, Candidate, CandidateFit, choose_delay
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..model_structures import ModelStructure
 from ..sums import sum_squares
 from .friction_response import FRICTION_PARAMETERS, FrictionResponse, friction_response
 from .friction_solver import levenberg_marquardt, reachable_cost
+from .oe_common import fit_covariance, segment_models
 from .output_error import MAX_AUTO_DELAY, fit_output_error, linear_candidate, select_delay
 from .stiction import GATE_ROWS, StaticProfile, profile_static_level, stiction_evident
 from .variable_projection import is_separable, separable_candidate, static_gain_ceiling
@@ -282,10 +281,8 @@ def fit_output_error_friction(recordings: Recording | list[Recording], *,
     if static_friction:
         res, profile = profile_static_level(problem, res, levenberg_marquardt)
     a, b, friction, bias, zone = (float(v) for v in problem.unpack(res.x))
-    s2 = sum_squares(res.fun) / problem.dof
-    ends = np.cumsum([0] + [len(s.time) for s in segments])
-    placed = [s.output - res.fun[i:j] for s, i, j in zip(segments, ends[:-1], ends[1:])]   # model (+ offset)
-    cov, cov_method = _covariance(recs, problem, res, s2, placed)
+    placed = segment_models(segments, res.fun)        # model (+ offset)
+    cov, cov_method = fit_covariance(recs, segments, placed, res.fun, res.jac, problem.dof, problem.n_global)
     extra = {"friction": friction, "bias": bias, "dead_zone": zone, "input_delay": delay}
     est = Estimate(method="oe-friction", structure="dead-zone" if dead_zone else "friction", a=a, b=b,
                    n_samples=problem.n_rows, sample_period=recs[0].sample_period,
@@ -389,7 +386,7 @@ class FrictionScan:
     best : float
         The least residual sum already fitted on the same rows (the linear candidates'), inf if none.
     level : float
-        Level of the selection's test (:data:`identify.default.comparison.LEVEL`).
+        Level of the selection's test (:data:`identify.comparison.LEVEL`).
     """
 
     def __init__(self, best: float = math.inf, level: float = LEVEL):
@@ -554,27 +551,6 @@ def stiction_candidate(recs: list[Recording], segs: list[Segment], delay: int, n
         return CandidateFit(Candidate(name, delay, math.nan, math.nan, math.nan, note=str(exc)), None)
     r = np.asarray(res.fun, float)
     return CandidateFit(Candidate(name, delay, float(res.x[0]), float(res.x[1]), sum_squares(r)), r)
-
-
-#: Residual variance, in units of the encoder's rounding variance ``step^2/12``, up to which the
-#: residuals count as mostly rounding (then the linearised encoder bootstrap gives the covariance).
-ROUNDING_DOMINATED = 4.0
-
-
-def _covariance(recs: list[Recording], problem: FrictionProblem, res: OptimizeResult, s2: float,
-                placed: list[np.ndarray]) -> tuple[np.ndarray, str]:
-    """The linearised encoder bootstrap when every angle is an encoder's and the residuals are mostly
-    its rounding (module docstring), else Gauss–Newton or Newey–West (:func:`robust_covariance`).
-    ``placed``: each segment's fitted model output (angles with their offset)."""
-    jac = res.jac
-    segs = problem.segments
-    steps = [2 * math.pi / c if c else None for c in (recs[s.recording].counts_per_rev for s in segs)]
-    variance = sum_squares(res.fun) / problem.n_rows
-    encoders = all(s.kind == "angle" and st for s, st in zip(segs, steps))
-    if encoders and variance <= ROUNDING_DOMINATED * max(st or 0.0 for st in steps) ** 2 / 12.0:
-        cov = linearised_encoder_bootstrap_covariance(segs, placed, steps, variance, jac, problem.n_global)
-        return cov, "linearised-encoder-bootstrap"
-    return robust_covariance(jac, res.fun, s2, problem.n_global)
 
 
 def _regression_start(problem: FrictionProblem) -> np.ndarray | None:

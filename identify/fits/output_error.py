@@ -38,6 +38,7 @@ from motorsim.recording import Recording
 from ..checks.encoder_bootstrap import encoder_bootstrap_covariance, is_coarse
 from ..checks.uncertainty import covariance_from_jacobian, robust_covariance
 from ..checks.validation import keep_models, segment_fit_percent, segment_speeds
+from ..comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..data import (
     DEFAULT_INPUT_DELAY,
     MIN_SEGMENT_SAMPLES,
@@ -49,7 +50,6 @@ from ..data import (
     prepare_segments,
     residual_unit,
 )
-from ..default.comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..model_structures import ModelStructure
@@ -358,7 +358,7 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
 def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
                 refine: bool = True) -> CandidateFit:
     """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
-    (with ``refine=False`` on long data, only its first steps: see :func:`identify.default.comparison.refine`)."""
+    (with ``refine=False`` on long data, only its first steps: see :func:`identify.comparison.refine`)."""
     name = "bias" if with_bias else "linear"
     if is_separable(segs, False):
         ceiling = static_gain_ceiling(segs)

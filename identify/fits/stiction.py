@@ -28,7 +28,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from ..default.comparison import BLOCKS, CLOSE, LEVEL, statistic
+from ..comparison import BLOCKS, CLOSE, LEVEL, statistic
 from ..sums import sum_squares
 
 __all__ = ["StaticProfile", "candidate_levels", "profile_static_level", "search_static_level", "stiction_evident",
@@ -167,9 +167,9 @@ def stiction_evident(problem: _Problem, x: np.ndarray, refit: Callable[[Any, np.
     it are ranked by the cost one Gauss–Newton step would reach; the best :data:`GATE_REFITS` of them are
     refitted (``refit(problem, x0)``, as in :func:`profile_static_level`), and the best refit is compared with
     the fit without a static level refitted on the same rows, by the selection's batch-means statistic
-    (:func:`identify.default.comparison.statistic`), which must reach :data:`GATE_FACTOR` times the threshold of one
+    (:func:`identify.comparison.statistic`), which must reach :data:`GATE_FACTOR` times the threshold of one
     more parameter at ``level``, and by the residual sum, which must drop by
-    :data:`~identify.default.comparison.CLOSE` of it at least.  A cheap test (a few evaluations on the rows the caller
+    :data:`~identify.comparison.CLOSE` of it at least.  A cheap test (a few evaluations on the rows the caller
     gives, e.g. the first thousand) that lets the default leave the profile out where the data do not call for
     it.  Leaves ``problem.static`` at 0.
     """

@@ -13,7 +13,7 @@ initial states (and the angle's offset) are projected out by least squares
 moves the parameters within their bounds from each start, the best kept.  The covariance is
 :func:`identify.checks.uncertainty.robust_covariance`'s on the Jacobian at the optimum (central
 differences), the initial states counted as nuisance parameters.  The input delay is searched as
-every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.default.comparison.choose_delay`).
+every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.comparison.choose_delay`).
 """
 from __future__ import annotations
 
@@ -30,11 +30,11 @@ from ..data import (
     as_recordings,
     check_excitation,
     check_input_delay,
-    prepare_segments,
     residual_unit,
 )
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
+from .oe_common import segment_models, segments_at
 
 if TYPE_CHECKING:
     from ..model_structures import ModelStructure
@@ -116,7 +116,7 @@ def fit_linear_structure(recordings: Recording | list[Recording], *, structure: 
     """
     from ..checks.uncertainty import robust_covariance
     from ..checks.validation import segment_fit_percent
-    from ..default.comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
+    from ..comparison import LEVEL, MAX_AUTO_DELAY, Candidate, CandidateFit, choose_delay
     from ..model_structures import structure as registered
     s = registered(structure)
     recs = as_recordings(recordings)
@@ -139,9 +139,7 @@ def fit_linear_structure(recordings: Recording | list[Recording], *, structure: 
         delay = choose_delay(recs, fit_at, MAX_AUTO_DELAY, LEVEL, s.method)
     else:
         delay = int(delay_option)
-    segs = prepare_segments(recs, delay)
-    if not segs:
-        raise NotIdentifiableError(f"recording is too short for an input delay of {delay} samples")
+    segs = segments_at(recs, delay)
     # the full fit on every row from the common rows' full fit at this delay, where the search made one
     x, r = _full(s, segs, full[delay][0] if delay in full else _coarse(s, recs, segs))
     nuisance = sum(len(s.plant(dict(zip(s.param_names, x))).state_names()) - (seg.kind != "angle")
@@ -159,7 +157,7 @@ def fit_linear_structure(recordings: Recording | list[Recording], *, structure: 
     s2 = float(r @ r) / (n - k)
     cov, how = robust_covariance(J, r, s2, s.n_params)
     values = dict(zip(s.param_names, (float(v) for v in x)))
-    models = [seg.output - rr for seg, rr in zip(segs, np.split(r, np.cumsum([len(g.time) for g in segs])[:-1]))]
+    models = segment_models(segs, r)
     return Estimate(method=s.method, structure=s.name, a=values["a"], b=values["b"], n_samples=n,
                     sample_period=recs[0].sample_period, residual_rms=float(np.sqrt(np.mean(r * r))),
                     fit_percent=segment_fit_percent(segs, models), covariance=cov, param_names=s.param_names,

@@ -22,6 +22,7 @@ from identify import NotIdentifiableError, available_methods, fit
 from identify.estimate import Estimate
 from motorid.arguments import CommandError, add_bench_arguments, add_knob_flag, sim_rig_from_args, warn_if_clipped
 from motorid.progress import ProgressBar
+from motorid.ranges import BENCH_RULES, check_bench_flags
 from motorsim.excitation import Sine
 from motorsim.files import write_atomically
 from motorsim.knobs import knobs_of
@@ -103,11 +104,11 @@ def format_table(rows: Sequence[DemoRow], a: float, b: float) -> str:
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid demo``: the bench (a = 25, b = 3 by default), the sines, ``--out``."""
-    add_bench_arguments(parser, a=25.0, b=3.0)
+    add_bench_arguments(parser, BENCH_RULES, a=25.0, b=3.0)
     g = parser.add_argument_group("experiments")
     for k in knobs_of(Experiment):
         if k.name in ("sample_period", "duration"):
-            add_knob_flag(g, k)
+            add_knob_flag(g, k, rule=BENCH_RULES[k.name])
     g.add_argument("--frequencies", default="10,20,30,40", metavar="W,W,...",
                    help="sine frequencies in rad/s (default 10,20,30,40)")
     g.add_argument("--amplitude", type=int, default=200, help="sine amplitude in duty (default 200)")
@@ -149,6 +150,7 @@ def run_demo(args: argparse.Namespace) -> int:
     for m in methods or []:
         if m not in available_methods():
             raise CommandError(f"--methods must name methods among {available_methods()}, got {m!r}")
+    check_bench_flags(args)
     rig = sim_rig_from_args(args)
     exps = article_experiments(freqs, args.amplitude, args.phase, args.sample_period, args.duration)
     if exps:

@@ -17,6 +17,7 @@ from motorid.arguments import (
     sim_rig_from_args,
 )
 from motorid.budget import SIMULATE_BYTES_PER_SAMPLE, add_max_memory_flag, check_memory
+from motorid.ranges import BENCH_RULES, check_bench_flags
 from motorsim.writing import write_recording
 
 __all__ = ["add_simulate_arguments", "run_simulate"]
@@ -25,8 +26,8 @@ __all__ = ["add_simulate_arguments", "run_simulate"]
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``motorid simulate``: the bench, the experiment, a controller and ``--out``."""
     from motorid.commands.control import add_controller_arguments
-    add_bench_arguments(parser)
-    add_experiment_arguments(parser)
+    add_bench_arguments(parser, BENCH_RULES)
+    add_experiment_arguments(parser, BENCH_RULES)
     add_controller_arguments(parser)
     parser.add_argument("--out", required=True, metavar="FILE.csv", help="path of the recording to write")
     add_max_memory_flag(parser)
@@ -34,9 +35,9 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Simulate the experiment (or the closed loop) and write the recording (format v1)."""
-    if args.sample_period > 0 and args.duration > 0:    # before the Experiment computes its duty
-        n = args.duration / args.sample_period
-        check_memory(f"simulating {n:,.0f} samples", n * SIMULATE_BYTES_PER_SAMPLE, args.max_memory)
+    check_bench_flags(args)        # the bench's ranges first: the memory a run needs follows from its length
+    n = args.duration / args.sample_period
+    check_memory(f"simulating {n:,.0f} samples", n * SIMULATE_BYTES_PER_SAMPLE, args.max_memory)
     if getattr(args, "controller", None):
         return _run_closed_loop(args)
     from motorid.commands.control import refuse_controller_flags

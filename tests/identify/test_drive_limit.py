@@ -61,7 +61,7 @@ def test_the_default_leaves_the_clipped_driver_unclear_and_the_rule_would_make_i
     from identify.default.selection import _check_parts
     recs = as_recordings([clipped_duty(0)])
     start = fit(recs, "oe", input_delay=0)
-    from identify.default.comparison import Candidate, Selection
+    from identify.comparison import Candidate, Selection
     chosen = Candidate("linear", 0, start.a, start.b, 1.0, 0.0, True)
     selection = Selection((chosen,), chosen, chosen, None)
     after = _check_parts(recs, start, selection, open_loop=True)

@@ -164,7 +164,7 @@ def test_a_bad_regression_start_falls_back_to_the_linear_starts(monkeypatch):
 
 
 def test_the_statistic_is_at_least_the_relative_excess_the_scan_bound_rests_on():
-    from identify.default.comparison import statistic
+    from identify.comparison import statistic
     rng = np.random.default_rng(4)
     for _ in range(200):
         best = rng.normal(size=640) * rng.uniform(0.1, 10.0)

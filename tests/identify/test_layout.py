@@ -27,7 +27,7 @@ LONG_MODULES = {
 def test_a_moved_module_is_imported_by_its_earlier_name_as_itself(old, new):
     moved = importlib.import_module(f"identify.{new}")
     assert importlib.import_module(f"identify.{old}") is moved
-    assert not (ROOT / "identify" / f"{old}.py").exists()
+    assert not (ROOT / "identify" / f"{old.replace('.', '/')}.py").exists()
     assert (ROOT / "identify" / f"{new.replace('.', '/')}.py").exists()
 
 
@@ -64,3 +64,44 @@ def test_no_module_is_over_800_lines_without_its_reason():
     long = {p.relative_to(ROOT).as_posix(): len(p.read_text(encoding="utf-8").splitlines()) for p in _modules()}
     long = {p: n for p, n in long.items() if n > 800}
     assert set(long) <= set(LONG_MODULES), f"modules over 800 lines with no reason given: {long}"
+
+
+#: The folders the default is built on: none of their modules imports the default's selection (``default/``).
+BELOW_THE_DEFAULT = ("fits", "checks", "frequency", "model_structures")
+
+
+def _imported_modules(source: str, module: str) -> list[tuple[str, int]]:
+    """The dotted names the module ``module`` (``identify.fits.output_error``; a package's ``__init__`` named
+    as ``identify.fits.__init__``) imports in ``source``, relative imports made absolute, with their lines."""
+    package = module.split(".")[:-1]
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - (node.level - 1)] if node.level else []
+            stem = ".".join(base + ([node.module] if node.module else []))
+            found += [(f"{stem}.{alias.name}", node.lineno) for alias in node.names]
+    return found
+
+
+def _imports_of_the_default(path: Path) -> list[str]:
+    module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    return [f"{path.relative_to(ROOT)}:{line} imports {name}"
+            for name, line in _imported_modules(path.read_text(encoding="utf-8"), module)
+            if name == "identify.default" or name.startswith("identify.default.")]
+
+
+def test_the_estimators_and_the_checks_import_nothing_of_the_default():
+    offenders = [found for folder in BELOW_THE_DEFAULT for path in sorted((ROOT / "identify" / folder).rglob("*.py"))
+                 for found in _imports_of_the_default(path)]
+    assert not offenders, "the default is built on these folders, not they on it:\n" + "\n".join(offenders)
+
+
+def test_the_rule_resolves_relative_imports():
+    source = ("from ..default.comparison import LEVEL\nfrom .sensitivity import zoh_response\n"
+              "def f():\n    from ...identify import default\n    import identify.default.selection\n")
+    assert _imported_modules(source, "identify.fits.output_error") == [
+        ("identify.default.comparison.LEVEL", 1), ("identify.fits.sensitivity.zoh_response", 2),
+        ("identify.default", 4), ("identify.default.selection", 5)]
+    assert _imported_modules("from . import x\n", "identify.fits.__init__") == [("identify.fits.x", 1)]

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from identify import fit
+from identify.comparison import largest_delay
 from identify.data import prepare_segments
-from identify.default.comparison import largest_delay
 from identify.default.feedback import (
     CLOSED_LOOP_LARGEST_DELAY,
     CLOSED_LOOP_ROWS,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from identify import Estimate, fit
-from identify.default.comparison import LEVEL, threshold
+from identify.comparison import LEVEL, threshold
 from identify.default.selection import fit_selected, residual_checks, select_model
 from identify.estimate import json_ready
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, SimRig, Sine
@@ -243,7 +243,7 @@ def test_block_mean_p_is_hotellings_test(k):
     # normal blocks (32 of them, as the selection's): 2000 draws at 5 %, binomial sd 0.5 %
     from scipy.stats import f as f_dist
 
-    from identify.default.comparison import BLOCKS, block_mean_p
+    from identify.comparison import BLOCKS, block_mean_p
     rng = np.random.default_rng(k)
     x = rng.normal(size=(BLOCKS, k)) + 0.3
     mean, cov = x.mean(axis=0), np.cov(x.T, ddof=1).reshape(k, k)
@@ -419,8 +419,8 @@ def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
     # the selection scores its candidates with their differences stacked (one product with the rounding
     # realisations for many): each statistic is the candidate's own to rounding, for more candidates than
     # one stack holds
-    from identify.default import comparison
-    from identify.default.comparison import Candidate, CandidateFit, statistic
+    from identify import comparison
+    from identify.comparison import Candidate, CandidateFit, statistic
     rng = np.random.default_rng(4)
     n = 3000
     best_r = rng.normal(0, 1e-3, n)
@@ -441,8 +441,8 @@ def test_the_statistics_stacked_are_each_candidates_own(with_rounding):
 
 def test_the_rounding_realisations_are_the_encoder_rounding_at_each_phase():
     # column j: -step frac(model / step + phase_j), centred per segment (model = output - residuals)
+    from identify.comparison import PHASES, rounding_realisations
     from identify.data import prepare_segments
-    from identify.default.comparison import PHASES, rounding_realisations
     rec = _run(duration=2.0, counts=2000, noise=0.0)
     segs = prepare_segments([rec], 0)
     step = 2 * math.pi / 2000

@@ -69,7 +69,8 @@ def test_simulate_excitation_flags(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["simulate", "--a", "-1", "--b", "3", "--out", "x.csv"], "a must be > 0, got -1.0"),
     (["simulate", "--a", "1", "--b", "3", "--sine", "10,abc", "--out", "x.csv"], "comma-separated numbers"),
-    (["simulate", "--a", "1", "--b", "3", "--sample-period", "0", "--out", "x.csv"], "sample_period must be > 0"),
+    (["simulate", "--a", "1", "--b", "3", "--sample-period", "0", "--out", "x.csv"],
+     "--sample-period must be in 1e-06...4294.97 s"),
     (["identify", "does-not-exist.csv"], "does-not-exist.csv: cannot read"),
 ], ids=["a", "sine", "dt", "missing-file"])
 def test_user_errors_exit_2_with_a_message_not_a_traceback(tmp_path, monkeypatch, capsys, argv, message):

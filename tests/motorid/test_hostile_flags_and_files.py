@@ -216,3 +216,63 @@ def test_a_recordings_angle_rad_column_in_degrees_is_said(tmp_path, capsys, enco
         warnings.simplefilter("always")           # as on the command line: shown, not raised
         assert main(["identify", str(path)]) == 0
     assert "column angle_rad: it moves only in exact steps" in capsys.readouterr().err
+
+
+# --- the simulated bench's numbers: a range each, said in its help, refused in one line before anything runs ------
+
+@pytest.mark.parametrize("extra, said", [
+    (["--a", "4.3e9"], ("--a times --sample-period", "1e-09...700", "4300000000.0", "a h = 2.15e+07")),
+    (["--a", "1e-10"], ("--a times --sample-period", "1e-09...700", "1e-10", "a h = 5e-13")),
+    (["--b", "4.3e11"], ("--b", "within 100000 rad/s", "430000000000.0", "4.39e+12 rad/s")),
+    (["--b", "1e-300"], ("--b", "at least one count", "1e-300")),
+    (["--bias=-1e9"], ("--bias", "within 100000 rad/s", "-1000000000.0", "4e+07 rad/s")),
+    (["--friction", "1e9"], ("--friction", "at most a x 100000 rad/s", "1000000000.0")),
+    (["--friction", "1", "--static-friction", "1e9"], ("--static-friction", "at most a x 100000", "1000000000.0")),
+    (["--initial-speed=-2e5"], ("--initial-speed", "+-100000 rad/s", "-200000.0")),
+    (["--angle-noise", "1e11"], ("--angle-noise", "at most 6.28319 rad", "100000000000.0")),
+    (["--dead-zone", "300"], ("--dead-zone", "at most 255", "300.0")),
+    (["--electrical-time-constant", "1e12"], ("--electrical-time-constant", "1e-06...700", "1000000000000.0")),
+    (["--electrical-time-constant", "1e-300"], ("--electrical-time-constant", "1e-06...700", "1e-300")),
+    (["--sample-period", "1e-300"], ("--sample-period", "1e-06...4294.97 s", "1e-300")),
+    (["--duration", "1e12"], ("--duration", "under 2**32 samples", "1000000000000.0")),
+], ids=["a-4.3e9", "a-h-1e-12", "b-huge", "b-tiny", "bias", "friction", "static-friction", "initial-speed",
+        "angle-noise", "dead-zone", "lag-long", "lag-short", "sample-period", "duration"])
+def test_simulate_refuses_a_bench_number_past_its_range_naming_flag_rule_and_value(tmp_path, capsys, extra, said):
+    # before: each wrote a recording (a pole of 4.3e9 1/s at 5 ms moved no count; b = 4.3e11 turned the shaft at
+    # 4e12 rad/s), or named no flag (a sample period of 1e-300 s and a run of 1e12 s: "would need 2.2e+288 PiB")
+    out = tmp_path / "r.csv"
+    err = _error(capsys, ["simulate", "--a", "25", "--b", "3", *extra, "--out", str(out)])
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("motorid: error: ") and all(s in line for s in said), line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("extra", [["--controller", "pi"], ["--sine", "10,100"]], ids=["closed loop", "open loop"])
+def test_the_range_holds_in_closed_loop_and_for_the_demo(tmp_path, capsys, extra):
+    err = _error(capsys, ["simulate", "--a", "4.3e9", "--b", "3", *extra, "--out", str(tmp_path / "r.csv")])
+    assert "--a times --sample-period" in err
+    err = _error(capsys, ["demo", "--b", "4.3e11", "--out", str(tmp_path / "demo"), "--no-plots", "--no-control"])
+    assert "--b must keep the top speed of the run" in err and not (tmp_path / "demo").exists()
+
+
+@pytest.mark.parametrize("extra", [
+    ["--a", "140000"], ["--a", "2.1e-7"], ["--a", "2.1e-7", "--b", "390"], ["--b", "1960"], ["--bias=-2.5e6"],
+    ["--electrical-time-constant", "7.2e-6"], ["--angle-noise", "6.28"], ["--dead-zone", "255"],
+    ["--initial-speed", "1e5"],
+], ids=["a h 700", "a h 1e-9", "a h 1e-9 near the top speed", "top speed 1e5", "bias at the top speed",
+        "lag h/700", "noise of a turn", "dead zone 255", "initial speed 1e5"])
+def test_simulate_takes_a_bench_number_at_the_edge_of_its_range(tmp_path, extra):
+    out = tmp_path / "r.csv"
+    assert main(["simulate", "--a", "25", "--b", "3", "--duration", "1", *extra, "--out", str(out)]) == 0
+    assert out.exists()
+
+
+def test_simulate_help_says_each_bench_range(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for rule in ("a x --sample-period within 1e-09...700",
+                 "|b| x the duty limit x (1 - exp(-a T)) / a at most 100000 rad/s",
+                 "--sample-period / it within 1e-06...700", "at most 6.28319 rad (one turn)", "1e-06...4294.97 s",
+                 "2 samples to 2**32 samples", "|initial speed| at most 100000 rad/s"):
+        assert rule in text, rule

@@ -49,10 +49,10 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-from ..data import Segment, prepare_segments
-from ..errors import NotIdentifiableError
-from ..model_structures import ModelStructure, structures
-from ..sums import sum_squares
+from .data import Segment, prepare_segments
+from .errors import NotIdentifiableError
+from .model_structures import ModelStructure, structures
+from .sums import sum_squares
 
 __all__ = ["Candidate", "CandidateFit", "Selection", "STRUCTURES", "MAX_AUTO_DELAY", "LEVEL", "BLOCKS", "MATERIAL",
            "best_fit", "block_sums", "block_mean_p", "choose", "choose_delay", "largest_delay", "plausible", "refine",
