@@ -481,12 +481,14 @@ def lag_coefficients(a: float, c: float, h) -> tuple:
     r = (h - p) / a
     x = (a - c) * h
     small = np.abs(x) < 1e-5
+    f_c = -np.expm1(-c * h) / c
+    if not np.any(small):        # no interval near a = c: the general forms alone (the same numbers as below)
+        return e_a, e_c, p, r, e_a * h * (np.expm1(x) / x), (f_c - p) / (a - c)
     # q = e_a h expm1(x)/x; the series 1 + x/2 + x^2/6 where x is small
     phi = np.where(small, 1 + x / 2 + x * x / 6, np.expm1(x) / np.where(small, 1.0, x))
     q = e_a * h * phi
     # s = integral of q: (F(c) - F(a))/(a - c) with F(y) = (1 - exp(-y h))/y; near a = c, -F'(m) at the midpoint
     m = 0.5 * (a + c)
-    f_c = -np.expm1(-c * h) / c
     deriv = (h * np.exp(-m * h) * m + np.expm1(-m * h)) / (m * m)          # F'(m)
     s = np.where(small, -deriv, (f_c - p) / np.where(small, 1.0, a - c))
     return e_a, e_c, p, r, q, s

@@ -161,12 +161,21 @@ def first_order_filter(e: float, x: np.ndarray, initial: float | np.ndarray = 0.
     return out
 
 
+@functools.lru_cache(maxsize=8)
+def _scan_factors(e: float) -> tuple[np.ndarray, np.ndarray]:
+    """``e^0 ... e^BLOCK`` and a zero (read-only), and the block's lower-triangular ``P[i, j] = e^(i-j)``: the same
+    for every pass with the factor ``e`` (a fit's few factors recur pass after pass)."""
+    powers = np.power(e, _EXPONENTS)
+    powers[BLOCK + 1] = 0.0
+    within = powers[_POWER_INDEX]
+    powers.flags.writeable = within.flags.writeable = False
+    return powers, within
+
+
 def _blocked_scan(e: float, x: np.ndarray, start: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
     """The numpy scan of the module docstring; ``x`` (n, m) with n >= 1, ``start`` (m,), into ``y``."""
     n, m = x.shape
-    powers = np.power(e, _EXPONENTS)                             # e^0 ... e^BLOCK, and a zero
-    powers[BLOCK + 1] = 0.0
-    within = powers[_POWER_INDEX]
+    powers, within = _scan_factors(e)
     if y is None:
         y = np.empty((n, m))
     if n <= BLOCK:                                               # one block
@@ -182,7 +191,7 @@ def _blocked_scan(e: float, x: np.ndarray, start: np.ndarray, y: np.ndarray | No
     parts = blocks + (1 if tail else 0)
     incoming = np.empty((parts, m))                              # the state before each block
     incoming[0] = start
-    incoming[1:] = _blocked_scan(float(powers[BLOCK]), y[BLOCK - 1:full:BLOCK][:parts - 1], start)
+    _blocked_scan(float(powers[BLOCK]), y[BLOCK - 1:full:BLOCK][:parts - 1], start, incoming[1:])
     body += incoming[:blocks, None, :] * powers[1:BLOCK + 1, None]
     if tail:
         y[full:] += incoming[blocks] * powers[1:tail + 1, None]

@@ -71,6 +71,7 @@ from ..data import (
 from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
+from ..fits.variable_projection import shared_work
 from ..sums import sum_squares
 from .consistency import PartCheck, consistency, widened_range
 from .disturbance import disturbance_follows_input
@@ -252,6 +253,7 @@ def _screened_out(recs: list[Recording], segments: dict, base: CandidateFit | No
     return False, None
 
 
+@shared_work()      # candidates on the same rows share what they compute alike (the same numbers)
 def select_model(recordings: Recording | Sequence[Recording], *, structures: Sequence[str] | None = None,
                  input_delay: int | str = DEFAULT_INPUT_DELAY, max_delay: int = MAX_AUTO_DELAY, fix_bias: bool = False,
                  level: float = LEVEL, screen: bool = True, widening: bool = False) -> Selection:

@@ -47,9 +47,17 @@ class _Projection:
     def __init__(self, segments: Sequence[Segment]):
         self.segments = list(segments)
         self.outputs = np.concatenate([s.output for s in self.segments])
+        self._last: tuple[tuple[float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def solve(self, a: float, c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual, the linear solution ``[b, d, nuisances...]`` and the design matrix at ``(a, c)``."""
+        """Residual, the linear solution ``[b, d, nuisances...]`` and the design matrix at ``(a, c)`` (the last
+        poles' kept: the search ends where it last evaluated, and the candidate asks for that point again)."""
+        if self._last is not None and self._last[0] == (a, c):
+            return self._last[1]
+        self._last = ((a, c), self._solve(a, c))
+        return self._last[1]
+
+    def _solve(self, a: float, c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         blocks, shared = [], []
         for seg in self.segments:
             forced, free = segment_columns(a, c, seg)

@@ -24,8 +24,10 @@ projected Jacobian over ``(a, b)`` is returned for the covariance.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -36,7 +38,7 @@ from ..sums import dot
 from .sensitivity import phi_functions
 
 __all__ = ["SeparableSolution", "solve_separable", "separable_residual_sum", "separable_candidate", "is_separable",
-           "regression_start", "static_gain_ceiling"]
+           "regression_start", "static_gain_ceiling", "shared_work"]
 
 #: Relative step in ``a`` after which the iteration stops.  Gauss--Newton converges
 #: quadratically here (small residuals), so the error left after such a step is of
@@ -62,6 +64,43 @@ def _dot(x: np.ndarray, y: np.ndarray) -> float:
 
 
 _BLAS_BELOW = 4096
+
+
+#: Within :func:`shared_work`: what the candidates of one selection compute alike on the same rows, by key; each
+#: entry holds the object it was made from (compared by identity, so a key is never a reused ``id``).  None outside.
+_SHARED: dict[tuple, tuple[Any, Any]] | None = None
+
+
+@contextlib.contextmanager
+def shared_work() -> Iterator[None]:
+    """Within it, candidates fitted on the same segments (the same list object) share their work: the regression's
+    start and the coarse steps, which a refit of the same candidate
+    (:func:`identify.default.comparison.refine`) would repeat from the same start and resumes instead.  The numbers
+    are the ones each fit computes alone, bit for bit: the same operations on the same values.  Forgotten on exit."""
+    global _SHARED
+    outer = _SHARED
+    if outer is None:
+        _SHARED = {}
+    try:
+        yield
+    finally:
+        if outer is None:
+            _SHARED = None
+
+
+def _shared(key: tuple, made_from: Any) -> tuple[bool, Any]:
+    """``(True, value)`` for ``key`` when :func:`shared_work` holds it for the very object ``made_from``."""
+    entry = None if _SHARED is None else _SHARED.get(key)
+    if entry is not None and entry[0] is made_from:
+        return True, entry[1]
+    return False, None
+
+
+def _share(key: tuple, made_from: Any, value: Any) -> Any:
+    """Keep ``value`` for ``key`` within :func:`shared_work` (nothing outside it); returns ``value``."""
+    if _SHARED is not None:
+        _SHARED[key] = (made_from, value)
+    return value
 
 
 def _mean(x: np.ndarray) -> float:
@@ -365,6 +404,13 @@ def regression_start(segments: list[Segment]) -> float | None:
     2 x 2 normal-equation solve pooled over segments, ``a = -log(theta_1)/h``: a start
     value only (biased by the averaging and the encoder's noise, a few per cent).
     """
+    found, start = _shared(("start", id(segments)), segments)
+    if found:
+        return start
+    return _share(("start", id(segments)), segments, _regression_start(segments))
+
+
+def _regression_start(segments: list[Segment]) -> float | None:
     s11 = s12 = s22 = t1 = t2 = 0.0
     for seg in segments:
         d = np.diff(seg.output)
@@ -472,12 +518,10 @@ def separable_candidate(segments: list[Segment], a0: float, *, with_bias: bool =
     ``a``, whose sum of squares bounds the fit's from above (``refined`` says which was done).
     """
     if not refine and sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
-        coarse = _iterate([_Segment(seg, with_bias) for seg in first_rows(segments, coarse_samples)], float(a0),
-                          COARSE_RTOL, ceiling, budget=COARSE_BUDGET)
+        coarse = _coarse_steps(segments, float(a0), with_bias, ceiling, coarse_samples, COARSE_BUDGET)
         if coarse is not None:
-            segs = [_Segment(seg, with_bias) for seg in segments]
-            return _candidate(segs, coarse[0], False)
-    solved = _solve_pole(segments, a0, ceiling, with_bias=with_bias, coarse_samples=coarse_samples)
+            return _candidate([_Segment(seg, with_bias) for seg in segments], coarse[0], False)
+    solved = _solve_pole(segments, a0, ceiling, with_bias=with_bias, coarse_samples=coarse_samples, share=True)
     if solved is None:
         return None
     return _candidate(solved[0], solved[1], True)
@@ -490,14 +534,41 @@ def _candidate(segs: list[_Segment], a: float, refined: bool) -> tuple[float, fl
     return a, final.b, final.delta * a, np.concatenate([s.r for s in segs]), refined
 
 
+def _coarse_steps(segments: list[Segment], a0: float, with_bias: bool, ceiling: float, coarse_samples: int,
+                  budget: int | None, share: bool = True) -> tuple[float, _Point, int] | None:
+    """The coarse phase: :func:`_iterate` on the first ``coarse_samples`` rows from ``a0`` to :data:`COARSE_RTOL`,
+    within ``budget`` evaluations when given.  Within :func:`shared_work` (and ``share``) the same phase from the same
+    start on the same segments is made once: a later call resumes where an earlier one stopped at its budget (each
+    step depends on its ``a`` alone, so the steps are the ones an unbroken run makes).  Only the phase's result is
+    kept, not its work arrays: arrays held between fits cost more in the cache than making them again."""
+    segs = [_Segment(s, with_bias) for s in first_rows(segments, coarse_samples)]
+    if not share:
+        return _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget)
+    key = ("coarse", id(segments), with_bias, a0, ceiling, coarse_samples)
+    found, done = _shared(key, segments)
+    if found:
+        if done is None or done[3] or (budget is not None and done[2] >= budget):
+            return None if done is None else done[:3]
+        coarse = _iterate(segs, done[0], COARSE_RTOL, ceiling, budget=budget, evaluations=done[2])
+    else:
+        coarse = _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget)
+    if coarse is None:
+        return _share(key, segments, None)
+    a, point, count = coarse
+    # finished: converged or at the ceiling (an unbroken run stops there too), not only at the budget
+    finished = a == ceiling or abs(point.step) <= COARSE_RTOL * abs(a)
+    _share(key, segments, (a, point, count, finished))
+    return coarse
+
+
 def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: bool,
-                coarse_samples: int = COARSE_SAMPLES) -> tuple[list[_Segment], float, _Point, int] | None:
+                coarse_samples: int = COARSE_SAMPLES, share: bool = False
+                ) -> tuple[list[_Segment], float, _Point, int] | None:
     """Gauss--Newton in ``a`` (coarse phase on long recordings first): the work segments, ``a``, the
-    last point and the evaluations, or None."""
+    last point and the evaluations, or None.  ``share``: the coarse phase shared within :func:`shared_work`."""
     evaluations = 0
     if sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
-        coarse = _iterate([_Segment(seg, with_bias) for seg in first_rows(segments, coarse_samples)], float(a0),
-                          COARSE_RTOL, ceiling)
+        coarse = _coarse_steps(segments, float(a0), with_bias, ceiling, coarse_samples, None, share)
         if coarse is not None:
             a0, evaluations = coarse[0], coarse[2]
     segs = [_Segment(s, with_bias) for s in segments]
@@ -509,11 +580,11 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: b
 
 
 def _iterate(segs: list[_Segment], a: float, rtol: float, ceiling: float = math.inf,
-             budget: int | None = None) -> tuple[float, _Point, int] | None:
+             budget: int | None = None, evaluations: int = 0) -> tuple[float, _Point, int] | None:
     """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative, or ``a`` passes ``ceiling``
     (then ``a = ceiling``): ``(a, last point, evaluations)``.  With a ``budget``, the ``a`` reached
-    after that many evaluations is returned even when not converged."""
-    evaluations = 0
+    after that many evaluations is returned even when not converged.  ``evaluations``: those made before
+    ``a`` (a run resumed), counted towards :data:`MAX_ITERATIONS` and the budget."""
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
             return None

@@ -135,3 +135,31 @@ def test_friction_fit_finds_the_delay_of_a_plant_with_friction_and_a_bias():
     assert est.input_delay == 2
     assert est.a == pytest.approx(25.0, rel=1e-3) and est.b == pytest.approx(3.0, rel=1e-3)
     assert est.extra["bias"] == pytest.approx(5.0, rel=0.02)
+
+
+@pytest.mark.parametrize("with_bias", [False, True])
+def test_shared_work_resumes_the_coarse_steps_and_changes_no_number(monkeypatch, with_bias):
+    """Within ``shared_work`` a coarse candidate and the full fit of the same candidate (what the default's refine
+    makes) give the numbers each gives alone, bit for bit, and the full fit makes no coarse step again."""
+    from identify.fits import variable_projection as vp
+    from identify.fits.output_error import linear_candidate
+    from motorsim.excitation import Multisine
+    rec = SimRig(Motor(25.0, 3.0), Encoder(16667, angle_noise=1e-4), rng=np.random.default_rng(3)).run(
+        Experiment(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3)), 0.005, 30.0))
+    segs = prepare_segments([rec], 1, skip=2)
+    alone = [linear_candidate([rec], segs, 1, with_bias, refine=refine) for refine in (False, True)]
+    coarse_rows = []
+    evaluate = vp._evaluate
+    monkeypatch.setattr(vp, "_evaluate", lambda s, a, direction=True: coarse_rows.append(s[0].n) or evaluate(
+        s, a, direction))
+    with vp.shared_work():
+        first = linear_candidate([rec], segs, 1, with_bias, refine=False)
+        made = len(coarse_rows)
+        full = linear_candidate([rec], segs, 1, with_bias, refine=True)
+    assert not first.refined and full.refined
+    for got, want in zip((first, full), alone):
+        assert got.candidate.a == want.candidate.a and got.candidate.b == want.candidate.b
+        assert got.bias == want.bias and np.array_equal(got.residuals, want.residuals)
+    # the coarse steps run on the first rows (1000 of the run's 5999): the full fit's evaluations are all on every row
+    assert 0 < sum(n < 2000 for n in coarse_rows[:made]) and not any(n < 2000 for n in coarse_rows[made:])
+    assert vp._SHARED is None                       # forgotten on exit
