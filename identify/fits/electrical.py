@@ -164,7 +164,8 @@ def _start_pole(segs: list[Segment], recs: list[Recording]) -> float:
 
 
 def fit_output_error_electrical(recordings: Recording | list[Recording], *,
-                                input_delay: int | str = DEFAULT_INPUT_DELAY) -> Estimate:
+                                input_delay: int | str = DEFAULT_INPUT_DELAY,
+                                starts: Sequence[tuple[float, float]] = ()) -> Estimate:
     """Output error of ``b / ((s + a)(tau_e s + 1))`` with a bias (module docstring).
 
     Parameters
@@ -174,6 +175,10 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
     input_delay : int or "auto"
         Whole samples of input delay, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`):
         the shortest within the noise of the best over ``0 ... 10``.
+    starts : sequence of (a, 1/tau_e), optional
+        Start values of the poles tried besides the first-order pole with the grid of lags (a caller
+        that knows a good first-order ``a``: the search from a poor regression start can end on the two
+        poles equal, far from a short lag).
 
     Returns
     -------
@@ -205,7 +210,8 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
     if not segs:
         raise NotIdentifiableError(f"recording is too short for an input delay of {delay} samples")
     problem = _Projection(segs)
-    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), recs[0].sample_period), recs[0].sample_period)
+    h = recs[0].sample_period
+    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), h) + [tuple(map(float, x)) for x in starts], h)
     r, coef, X = problem.solve(a, c)
     b, d = float(coef[0]), float(coef[1])
     n, k = len(r), X.shape[1] + 2
