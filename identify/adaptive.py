@@ -11,9 +11,9 @@ bench, the emulated or the real Arduino) in rounds:
 2. **Rounds.**  The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
    intervals of ``a`` and ``b`` lie within ``+-target`` % of their values, the structure is a
    clear choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or
-   a dead time left free (:func:`lag_free_reach`), stop.  Otherwise choose the next block: a line
-   and its third harmonic (frequency, the largest amplitude the duty limit and the budgets allow)
-   whose predicted intervals, with the lag free, reach the target soonest, judged over the plausible
+   a dead time left free (:func:`lag_free_reach`), stop.  Otherwise choose the next block: two lines
+   (:data:`_SHAPES`: the second at 3-15 times the first; frequency and shape, the largest amplitude
+   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the target soonest, judged over the plausible
    ``a`` of the interval so far; the block lasts as long as the prediction says it takes (at most
    three times the motor time so far, and the budget left).  While the choice of structure is not
    clear, every other block is an odd multisine over ``a/10 ... 10 a``
@@ -33,7 +33,9 @@ show a lag shorter than the quarter sample it fits (:func:`sub_sample_lag`), the
 ``a`` and ``b`` are the round's.  Each round's standard errors are widened by :data:`SIMULTANEOUS`
 (1.144): each interval is a 97.5 % one, so that the two hold ``a`` and ``b`` at once with at least
 95 % (Bonferroni's inequality; Dunn, "Multiple comparisons among means", JASA 56, 1961) -- the stop
-needs both, and two correlated 95 % intervals hold both in 90-95 % of runs.  No further widening is
+needs both, and two correlated 95 % intervals hold both in 90-95 % of runs.  The final answer, where
+it has no lag of its own, has the standard errors of ``a`` and ``b`` a fit with the lag left free
+would give (:func:`lag_widened`; the stop asks those within the target already).  No further widening is
 made for stopping on the data: the rule stops when the intervals are *narrow* enough, a function of
 the information and the noise's scale, not of where the estimate lies, which is the fixed-width
 rule of Chow and Robbins ("On the asymptotic theory of fixed-width sequential confidence intervals
@@ -46,8 +48,8 @@ each interval 1.37 times as wide as this one, 1.9 times the motor time).  ``moto
 Every run is kept in one :class:`~motorsim.recording.Recording` (:attr:`UntilResult.recording`):
 the runs follow each other with a gap of ``seq`` between them, so each is its own segment (its
 own initial state) for every estimator, and ``identify.fit(result.fitted_recording)`` reproduces the
-final estimate (its covariance before the widening; ``method="oe-electrical"`` where a sub-sample lag
-was taken).
+final estimate (its covariance before the widenings; :func:`judge` on the same runs gives the round's
+answer and reaches; ``oe-electrical``, started from the answer's pole, where a sub-sample lag was taken).
 """
 from __future__ import annotations
 

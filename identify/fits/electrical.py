@@ -211,7 +211,7 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
         raise NotIdentifiableError(f"recording is too short for an input delay of {delay} samples")
     problem = _Projection(segs)
     h = recs[0].sample_period
-    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), h) + [tuple(map(float, x)) for x in starts], h)
+    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), h) + [(float(x), float(y)) for x, y in starts], h)
     r, coef, X = problem.solve(a, c)
     b, d = float(coef[0]), float(coef[1])
     n, k = len(r), X.shape[1] + 2

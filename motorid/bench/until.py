@@ -4,7 +4,10 @@ On seeded simulated rigs (:func:`until_rig`: ``a`` from 2 to 150 1/s, log-unifor
 15-60 rad/s at duty 200; one rig in four plain, with Coulomb friction, with an input delay of
 1-3 samples, or behind a driver lag of 0.5-2 ms; 1000 counts with 10 mrad of angle noise, about
 3 rad/s of differenced speed noise at 5 ms), the motor time until both 95 % intervals of the
-default estimator lie within ``+-target`` %:
+default estimator lie within ``+-target`` %, every experiment judged by the adaptive run's own
+stopping rule (:func:`identify.adaptive.judge`: the same answer, its intervals widened for the two
+at once, with a lag left free, the structure a clear choice; ``--rule plain``: the default's 95 %
+intervals alone, as a user reading ``identify`` would):
 
 - **adaptive**: :func:`identify.adaptive.run_until` (no guess: the ranging opening counts too);
 - **best sine**: the sine :func:`identify.checks.design.design_sine` designs for the true motor;
@@ -12,9 +15,9 @@ default estimator lie within ``+-target`` %:
 - **PRBS**: duty +-200, a bit held 10 ms.
 
 A fixed experiment's time is found by running it: a first run, then runs of the length that the
-fit's own intervals predict (their width falls as ``1/sqrt(T)``), up to four, each a fresh run
-from rest with fresh noise; the first within target is the time (``-`` when none within the
-longest allowed run).  Prints per rig and the medians, the ratios adaptive / best sine and
+fit's own intervals predict (their width falls as ``1/sqrt(T)``; twice as long after a run whose
+structure is not a clear choice), up to four, each a fresh run from rest with fresh noise; the
+shortest within target is the time (``-`` when none within the longest allowed run).  Prints per rig and the medians, the ratios adaptive / best sine and
 article / adaptive where the article reached the target, and how often the adaptive run's
 intervals hold the built ``a`` and ``b`` (coverage under its stopping rule).  Goals: median
 adaptive time at most 1.5 x the best sine's, at least 2 x faster than the article's four sines
