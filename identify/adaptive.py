@@ -8,16 +8,17 @@ bench, the emulated or the real Arduino) in rounds:
    doubling would leave the speed or travel budget.  The duty where the counts first move is the
    break-away duty; the default estimator on the ranging runs gives a first rough ``a`` and ``b``.
    With a guess (``guess=(a, b)``) the opening is one short sine designed for it.
-2. **Rounds.**  The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
-   intervals of ``a`` and ``b`` lie within ``+-target`` % of their values, the structure is a
-   clear choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or
-   a dead time left free (:func:`lag_free_reach`), stop.  Otherwise choose the next block: two lines
+2. **Rounds.** The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
+   intervals of ``a`` and ``b`` lie within ``+-target`` % of their values, the structure is a clear
+   choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or a dead
+   time left free (:func:`lag_free_reach`), stop. Otherwise choose the next block: two lines
    (:data:`_SHAPES`: the second at 3-15 times the first; frequency and shape, the largest amplitude
-   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the target soonest, judged over the plausible
-   ``a`` of the interval so far; the block lasts as long as the prediction says it takes (at most
-   three times the motor time so far, and the budget left).  While the choice of structure is not
-   clear, every other block is an odd multisine over ``a/10 ... 10 a``
-   (:func:`~identify.checks.design.design_multisine`): the evidence that separates the candidates.
+   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the
+   target soonest, judged over the plausible ``a`` of the interval so far; the block lasts as long
+   as the prediction says it takes (at most three times the motor time so far, and the budget left).
+   While the choice of structure is not clear, every other block is an odd multisine over ``a/10 ...
+   10 a`` (:func:`~identify.checks.design.design_multisine`): the evidence that separates the
+   candidates.
 3. **Stopping early**, saying why: the time budget is spent (and which parameter is short by how
    much), the model fails (the estimator refuses the data, or its intervals are not finite), or a
    part the target needs cannot be excited within the limits (the motor does not turn at the duty

@@ -17,11 +17,12 @@ intervals alone, as a user reading ``identify`` would):
 A fixed experiment's time is found by running it: a first run, then runs of the length that the
 fit's own intervals predict (their width falls as ``1/sqrt(T)``; twice as long after a run whose
 structure is not a clear choice), up to four, each a fresh run from rest with fresh noise; the
-shortest within target is the time (``-`` when none within the longest allowed run).  Prints per rig and the medians, the ratios adaptive / best sine and
-article / adaptive where the article reached the target, and how often the adaptive run's
-intervals hold the built ``a`` and ``b`` (coverage under its stopping rule).  Goals: median
-adaptive time at most 1.5 x the best sine's, at least 2 x faster than the article's four sines
-where they reach the target, coverage at least 93 %.  Exits 1 when one is missed.
+shortest within target is the time (``-`` when none within the longest allowed run). Prints per rig
+and the medians, the ratios adaptive / best sine and article / adaptive where the article reached
+the target, and how often the adaptive run's intervals hold the built ``a`` and ``b`` (coverage
+under its stopping rule). Goals: median adaptive time at most 1.5 x the best sine's, at least 2 x
+faster than the article's four sines where they reach the target, coverage at least 93 %. Exits 1
+when one is missed.
 
 ``motorid bench coverage --until`` runs the adaptive runs only and reports their coverage.
 """
