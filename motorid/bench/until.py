@@ -272,6 +272,8 @@ def _run(n_rigs: int, targets: list[float], fixed_rigs: int, workers: int | None
                       f"{'' if out.clear else ', not clear'}", file=sys.stderr, flush=True)
             else:
                 fixed[job] = float(out)
+                print(f"rig {job[1]:3d} {job[0]:8s} ±{job[2]:g} %: {_fmt(float(out)).strip()} s", file=sys.stderr,
+                      flush=True)
             if (i + 1) % max(1, len(jobs) // 20) == 0 or i + 1 == len(jobs):
                 print(f"until: {i + 1}/{len(jobs)} runs", file=sys.stderr, flush=True)
     ok = True
