@@ -452,7 +452,7 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
     lag's distortion: a = 108 for 117 1/s behind 0.64 ms, called clear), the lag is taken only where it
     fits the runs at least as well without them.
     """
-    from .fits.electrical import fit_output_error_electrical
+    from .fits.electrical import fit_electrical_from
     if est.structure == "second-order" or _has_lag(est):
         return None
     a0, h = float(est.a), recording.sample_period
@@ -460,7 +460,7 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
     # poles equal (a = 44.5 and tau = 22 ms for a = 20.4 behind 0.63 ms), missing the short lag
     starts = [(a0, 1 / (k * h)) for k in _LAG_STARTS] if math.isfinite(a0) and a0 > 0 else []
     try:
-        lagged = fit_output_error_electrical(recording, input_delay=int(est.input_delay), starts=starts)
+        lagged = fit_electrical_from(recording, input_delay=int(est.input_delay), starts=starts)
     except (NotIdentifiableError, ParameterError, ArithmeticError, np.linalg.LinAlgError):
         return None
     tau = float(lagged.value("electrical_time_constant"))
