@@ -8,16 +8,17 @@ bench, the emulated or the real Arduino) in rounds:
    doubling would leave the speed or travel budget.  The duty where the counts first move is the
    break-away duty; the default estimator on the ranging runs gives a first rough ``a`` and ``b``.
    With a guess (``guess=(a, b)``) the opening is one short sine designed for it.
-2. **Rounds.**  The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
-   intervals of ``a`` and ``b`` lie within ``+-target`` % of their values, the structure is a
-   clear choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or
-   a dead time left free (:func:`lag_free_reach`), stop.  Otherwise choose the next block: a line
-   and its third harmonic (frequency, the largest amplitude the duty limit and the budgets allow)
-   whose predicted intervals, with the lag free, reach the target soonest, judged over the plausible
-   ``a`` of the interval so far; the block lasts as long as the prediction says it takes (at most
-   three times the motor time so far, and the budget left).  While the choice of structure is not
-   clear, every other block is an odd multisine over ``a/10 ... 10 a``
-   (:func:`~identify.checks.design.design_multisine`): the evidence that separates the candidates.
+2. **Rounds.** The default estimator (:func:`identify.fit`) on every run so far; when both 95 %
+   intervals of ``a`` and ``b`` lie within ``+-target`` % of their values, the structure is a clear
+   choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or a dead
+   time left free (:func:`lag_free_reach`), stop. Otherwise choose the next block: two lines
+   (:data:`_SHAPES`: the second at 3-15 times the first; frequency and shape, the largest amplitude
+   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the
+   target soonest, judged over the plausible ``a`` of the interval so far; the block lasts as long
+   as the prediction says it takes (at most three times the motor time so far, and the budget left).
+   While the choice of structure is not clear, every other block is an odd multisine over ``a/10 ...
+   10 a`` (:func:`~identify.checks.design.design_multisine`): the evidence that separates the
+   candidates.
 3. **Stopping early**, saying why: the time budget is spent (and which parameter is short by how
    much), the model fails (the estimator refuses the data, or its intervals are not finite), or a
    part the target needs cannot be excited within the limits (the motor does not turn at the duty
@@ -33,7 +34,9 @@ show a lag shorter than the quarter sample it fits (:func:`sub_sample_lag`), the
 ``a`` and ``b`` are the round's.  Each round's standard errors are widened by :data:`SIMULTANEOUS`
 (1.144): each interval is a 97.5 % one, so that the two hold ``a`` and ``b`` at once with at least
 95 % (Bonferroni's inequality; Dunn, "Multiple comparisons among means", JASA 56, 1961) -- the stop
-needs both, and two correlated 95 % intervals hold both in 90-95 % of runs.  No further widening is
+needs both, and two correlated 95 % intervals hold both in 90-95 % of runs.  The final answer, where
+it has no lag of its own, has the standard errors of ``a`` and ``b`` a fit with the lag left free
+would give (:func:`lag_widened`; the stop asks those within the target already).  No further widening is
 made for stopping on the data: the rule stops when the intervals are *narrow* enough, a function of
 the information and the noise's scale, not of where the estimate lies, which is the fixed-width
 rule of Chow and Robbins ("On the asymptotic theory of fixed-width sequential confidence intervals
@@ -46,8 +49,8 @@ each interval 1.37 times as wide as this one, 1.9 times the motor time).  ``moto
 Every run is kept in one :class:`~motorsim.recording.Recording` (:attr:`UntilResult.recording`):
 the runs follow each other with a gap of ``seq`` between them, so each is its own segment (its
 own initial state) for every estimator, and ``identify.fit(result.fitted_recording)`` reproduces the
-final estimate (its covariance before the widening; ``method="oe-electrical"`` where a sub-sample lag
-was taken).
+final estimate (its covariance before the widenings; :func:`judge` on the same runs gives the round's
+answer and reaches; ``oe-electrical``, started from the answer's pole, where a sub-sample lag was taken).
 """
 from __future__ import annotations
 
@@ -68,7 +71,9 @@ from .estimate import Estimate
 from .fits.sensitivity import zoh_response
 
 __all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
-           "STOP_REASONS", "check_target", "lag_free_reach", "sub_sample_lag", "simultaneous", "SIMULTANEOUS"]
+           "STOP_REASONS", "check_target", "lag_free_reach", "judge", "Judgement", "sub_sample_lag", "simultaneous",
+           "lag_widened",
+           "SIMULTANEOUS"]
 
 #: Default motor-time budget in s.
 DEFAULT_MAX_TIME = 60.0
@@ -429,6 +434,8 @@ _LAGLESS = ("linear", "bias")
 #: A sub-sample lag is taken when its time constant is this many standard errors above 0 (the 1 %
 #: level, two-sided, of the default's own checks).
 _LAG_Z = statistics.NormalDist().inv_cdf(0.995)
+#: Lags (in samples) the second-order fit starts from at the answer's own pole.
+_LAG_STARTS = (0.05, 0.1, 0.2, 0.4, 1.0)
 
 
 def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
@@ -445,11 +452,15 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
     lag's distortion: a = 108 for 117 1/s behind 0.64 ms, called clear), the lag is taken only where it
     fits the runs at least as well without them.
     """
-    from . import fit
+    from .fits.electrical import fit_electrical_from
     if est.structure == "second-order" or _has_lag(est):
         return None
+    a0, h = float(est.a), recording.sample_period
+    # started from the answer's own pole too: from the regression's start alone the search can end on the two
+    # poles equal (a = 44.5 and tau = 22 ms for a = 20.4 behind 0.63 ms), missing the short lag
+    starts = [(a0, 1 / (k * h)) for k in _LAG_STARTS] if math.isfinite(a0) and a0 > 0 else []
     try:
-        lagged = fit(recording, method="oe-electrical", input_delay=int(est.input_delay), outliers="keep")
+        lagged = fit_electrical_from(recording, input_delay=int(est.input_delay), starts=starts)
     except (NotIdentifiableError, ParameterError, ArithmeticError, np.linalg.LinAlgError):
         return None
     tau = float(lagged.value("electrical_time_constant"))
@@ -466,12 +477,104 @@ def sub_sample_lag(recording: Recording, est: Estimate) -> Estimate | None:
     return lagged
 
 
+@dataclasses.dataclass(frozen=True)
+class Judgement:
+    """What the stopping rule sees on a set of runs (:func:`judge`).
+
+    Attributes
+    ----------
+    estimate : Estimate or None
+        The answer, its covariance widened by :data:`SIMULTANEOUS` (None: the estimator refused the runs).
+    clear : bool or None
+        Whether the default called its structure a clear choice.
+    intervals, reach, lag_free : dict
+        The answer's 95 % intervals of ``a`` and ``b``, their reach in %, and the reach with a lag left free.
+    problem : str
+        Why the estimator refused the runs ("" when it did not).
+    structure : str
+        The default's structure (before a sub-sample lag replaced its ``a`` and ``b``).
+    lag_ms : float or None
+        The sub-sample lag taken, in ms (None where none was).
+    first_order_a : float
+        The default's ``a`` where a sub-sample lag replaced it (nan otherwise).
+    """
+
+    estimate: Estimate | None
+    clear: bool | None
+    intervals: Mapping[str, tuple[float, float]]
+    reach: Mapping[str, float]
+    lag_free: Mapping[str, float]
+    problem: str = ""
+    structure: str = ""
+    lag_ms: float | None = None
+    first_order_a: float = math.nan
+
+    def within(self, target: float) -> bool:
+        """The stopping rule: both intervals, and both with a lag left free, within ``+-target`` %, and clear."""
+        return bool(self.estimate is not None and self.clear
+                    and all(self.reach[k] <= target and self.lag_free.get(k, 0) <= target for k in _PARAMS))
+
+    @property
+    def worst(self) -> float:
+        """The largest of the reaches and the lag-free reaches, in % (``inf`` without an estimate)."""
+        return max([*self.reach.values(), *self.lag_free.values()], default=math.inf)
+
+
+def judge(runs: Sequence[Recording], fit_options: Mapping[str, Any] | None = None,
+          descriptions: Sequence[str] | None = None) -> Judgement:
+    """The answer :func:`run_until` gives on ``runs`` and what its stopping rule sees in it.
+
+    The default estimator on the runs joined (:func:`join_runs`); the second-order fit where the runs show
+    a sub-sample lag the answer leaves out (:func:`sub_sample_lag`); the covariance widened by
+    :data:`SIMULTANEOUS`; the reach of both intervals, and with a lag left free (:func:`lag_free_reach`).
+    ``motorid bench until`` judges its fixed experiments with it, so that they meet the same rule.
+    """
+    options = dict(fit_options or {})
+    joined = join_runs(runs, descriptions)
+    est, problem = _fit(joined, options)
+    if est is None:
+        inf = {k: math.inf for k in _PARAMS}
+        return Judgement(None, None, {}, inf, dict(inf), problem)
+    clear = bool(est.selection.clear) if est.selection is not None else True
+    structure, lag_ms, first_a = est.structure, None, math.nan
+    lagged = None if "method" in options else sub_sample_lag(joined, est)
+    if lagged is not None:
+        lag_ms, first_a = 1e3 * float(lagged.value("electrical_time_constant")), float(est.a)
+        est = lagged
+    est = simultaneous(est)
+    intervals, reach = _reach(est)
+    return Judgement(est, clear, intervals, reach, lag_free_reach(runs, est, reach), "", structure, lag_ms, first_a)
+
+
 def simultaneous(est: Estimate) -> Estimate:
     """The estimate with its covariance scaled by :data:`SIMULTANEOUS` squared: 95 % intervals for ``a``
     and ``b`` at once (the ranges of candidates the data cannot rule out kept as they are)."""
     if est.covariance is None:
         return est
     return dataclasses.replace(est, covariance=np.asarray(est.covariance, dtype=float) * SIMULTANEOUS ** 2)
+
+
+def lag_widened(est: Estimate, reach: Mapping[str, float], lag_free: Mapping[str, float]) -> Estimate:
+    """The answer with the standard errors of ``a`` and ``b`` widened to those with a lag left free.
+
+    A first-order answer whose runs do not rule out a driver lag (or a fraction of a sample's dead time)
+    holds ``a`` and ``b`` only as well as a fit with the lag free would: such a lag, too small to be
+    told from noise, still moves the first-order ``a`` by about ``a^2 tau``.  The stop already asks
+    that the lag-free reach (:func:`lag_free_reach`) be within the target, so the wider intervals cost
+    no motor time; each standard error is scaled by ``lag_free / reach`` (at least 1), the
+    correlations kept.  An answer with a lag of its own, or without a covariance, is returned as it is.
+    """
+    if est.covariance is None or _has_lag(est):
+        return est
+    scale = np.ones(len(est.param_names))
+    for k in _PARAMS:
+        r, f = reach.get(k, math.nan), lag_free.get(k, math.nan)
+        if math.isfinite(r) and math.isfinite(f) and r > 0 and f > r:
+            scale[est.param_names.index(k)] = f / r
+    if np.all(scale == 1):
+        return est
+    cov = np.asarray(est.covariance, dtype=float) * np.outer(scale, scale)
+    return dataclasses.replace(est, covariance=cov)
 
 
 def _breakaway(run: Recording, delay: int) -> float | None:
@@ -633,27 +736,13 @@ class _Loop:
         state.halfsines += bool(halfsine)
         state.motor_time += n * dt
         first = state.fitted_from
-        joined = join_runs(state.runs[first:], state.descriptions[first:])
-        est, problem = _fit(joined, self.fit_options)
-        clear = None
-        if est is not None:
-            clear = bool(est.selection.clear) if est.selection is not None else True
-            lagged = None if "method" in self.fit_options else sub_sample_lag(joined, est)
-            if lagged is not None:
-                tau = float(lagged.value("electrical_time_constant"))
-                why = f"{why}; the runs show a lag of {1e3 * tau:.2g} ms ({tau / dt:.2g} sample) behind the " \
-                      f"'{est.structure}' answer (a = {est.a:.5g}): the second-order fit's a and b"
-                est = lagged
-        if est is not None:
-            est = simultaneous(est)
-        intervals: dict[str, tuple[float, float]] = {}
-        if est is None:
-            reach, clear = {k: math.inf for k in _PARAMS}, None
-            lag_free = dict(reach)
-            why = f"{why}; the estimator refused the runs so far: {problem}" if problem else why
-        else:
-            intervals, reach = _reach(est)
-            lag_free = lag_free_reach(state.fitted, est, reach)
+        j = judge(state.fitted, self.fit_options, state.descriptions[first:])
+        est, clear, intervals, reach, lag_free = j.estimate, j.clear, j.intervals, j.reach, j.lag_free
+        if j.lag_ms is not None:
+            why = f"{why}; the runs show a lag of {j.lag_ms:.2g} ms ({1e-3 * j.lag_ms / dt:.2g} sample) behind the " \
+                  f"'{j.structure}' answer (a = {j.first_order_a:.5g}): the second-order fit's a and b"
+        if j.problem:
+            why = f"{why}; the estimator refused the runs so far: {j.problem}"
         rnd = UntilRound(len(state.rounds) + 1, phase, excitation.describe(), n * dt, state.motor_time, why, est,
                          intervals, reach, clear, dict(predicted), lag_free)
         state.rounds.append(rnd)
@@ -663,7 +752,8 @@ class _Loop:
 
     def finish(self, stop: str, reason: str) -> UntilResult:
         state = self.state
-        est = next((r.estimate for r in reversed(state.rounds) if r.estimate is not None), None)
+        last = next((r for r in reversed(state.rounds) if r.estimate is not None), None)
+        est = None if last is None else lag_widened(last.estimate, last.reach, last.lag_free)
         recording = join_runs(state.runs, state.descriptions) if state.runs else None
         fitted = join_runs(state.fitted, state.descriptions[state.fitted_from:]) if state.runs else None
         return UntilResult(stop == "target", stop, reason, est, recording, tuple(state.rounds),  # type: ignore
@@ -848,15 +938,16 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     share = bool(last.clear)
     hi_f = 0.8 * math.pi / dt
     best = None
-    for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28):
+    for f, (ratio, upper) in ((f, shape) for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28)
+                              for shape in _SHAPES):
         amp = _amplitude(a, b, f, duty_limit, max_speed, max_travel)
         if breakaway is not None and amp <= breakaway:
             continue
         unit = max(min_block, 2 * 2 * math.pi / f, 1.0 / a)     # two periods, the transient
-        if unit > left:
+        if unit > left or (ratio > 3 and ratio * f >= hi_f):
             continue
         n = max(int(round(unit / dt)), 20)
-        ex = _two_tone(float(f"{f:.4g}"), amp, hi_f)
+        ex = _two_tone(float(f"{f:.4g}"), amp, hi_f, ratio, upper)
         duty = ex.duty(n, dt, duty_limit)
         worst_time, worst_reach = 0.0, np.zeros(2)
         for aa, past in zip(a_set, pasts):
@@ -905,23 +996,32 @@ def _plausible_poles(est: Any, last: UntilRound, a: float) -> list[float]:
     return sorted({x for x in a_set if x > 0})
 
 
-def _two_tone(frequency: float, amplitude: int, highest: float) -> Excitation:
-    """The block's excitation: the line ``frequency`` and its third harmonic (its third, near ``highest``).
+#: The two lines a block may be: the upper line at this many times the lower, with this share of the duty.
+#: A lag left free is told from ``a`` by the phase the upper line adds: over 2 s of angle data at 10 mrad
+#: (``information``, the lag free) the best of the shapes with equal lines needs 0.49 (``a`` 20 1/s),
+#: 0.34 (117), 0.54 (9.5) of the time of the third harmonic at a third of the duty, which slow motors
+#: (``a`` 2.6 and 3.6: 1.2 and 1.1 times as long) keep.  Lines with the upper one larger still (2/3)
+#: left the default's friction and dead-zone candidates within the noise, not clear, more often.
+_SHAPES = ((3, 1 / 3), (3, 1 / 2), (5, 1 / 2), (9, 1 / 2), (15, 1 / 2))
+
+
+def _two_tone(frequency: float, amplitude: int, highest: float, ratio: int = 3, upper: float = 1 / 3) -> Excitation:
+    """The block's excitation: the line ``frequency`` and one at ``ratio`` times it with the share ``upper`` of
+    the amplitude (where that passes ``highest``: the second line at ``frequency / ratio`` instead).
 
     One sine fits a first-order model exactly whatever the plant behind it (a lag, friction or a
     delay move its gain and phase at that one frequency only), so the default could not tell them
-    apart, and a lag left free would leave ``a`` and ``b`` unknown; a second line at three times the
-    frequency (a third of the amplitude), or at a third of it where the third harmonic would pass
-    ``highest``, gives the evidence, for some of the information about ``a`` and ``b``.
+    apart, and a lag left free would leave ``a`` and ``b`` unknown; a second line gives the
+    evidence, for some of the information about ``a`` and ``b``.
     """
     from motorsim.excitation import Multisine
     if amplitude < 6:
         return Sine(frequency, amplitude)
-    third = float(f"{3 * frequency:.4g}")
-    hi = int(round(amplitude * 2 / 3))
-    if third >= highest:
-        return Multisine((float(f"{frequency / 3:.4g}"), frequency), (amplitude - hi, hi), (0.0, 0.0))
-    return Multisine((frequency, third), (hi, amplitude - hi), (0.0, 0.0))
+    upper_freq = float(f"{ratio * frequency:.4g}")
+    up = int(round(amplitude * upper))
+    if upper_freq >= highest:
+        return Multisine((float(f"{frequency / ratio:.4g}"), frequency), (up, amplitude - up), (0.0, 0.0))
+    return Multisine((frequency, upper_freq), (amplitude - up, up), (0.0, 0.0))
 
 
 def _what(ex: Excitation) -> str:

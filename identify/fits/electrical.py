@@ -35,7 +35,7 @@ from ..model_structures import ModelStructure
 from ..model_structures.second_order import segment_columns
 from .oe_common import segment_models, segments_at
 
-__all__ = ["fit_output_error_electrical", "structure_candidate", "TAU_GRID_SAMPLES", "RESTARTS"]
+__all__ = ["fit_output_error_electrical", "fit_electrical_from", "structure_candidate", "TAU_GRID_SAMPLES", "RESTARTS"]
 
 #: Start values of ``tau_e``, in sample periods.
 TAU_GRID_SAMPLES = (0.3, 1.0, 3.0, 10.0, 30.0)
@@ -182,7 +182,6 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
     input_delay : int or "auto"
         Whole samples of input delay, or ``"auto"`` (default, :data:`identify.data.DEFAULT_INPUT_DELAY`):
         the shortest within the noise of the best over ``0 ... 10``.
-
     Returns
     -------
     Estimate
@@ -199,6 +198,14 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
     >>> print(f"a = {est.a:.3f}, b = {est.b:.4f}, tau_e = {est.extra['electrical_time_constant']:.5f} s")
     a = 25.000, b = 3.0000, tau_e = 0.00400 s
     """
+    return fit_electrical_from(recordings, input_delay=input_delay)
+
+
+def fit_electrical_from(recordings: Recording | list[Recording], *, input_delay: int | str = DEFAULT_INPUT_DELAY,
+                        starts: Sequence[tuple[float, float]] = ()) -> Estimate:
+    """:func:`fit_output_error_electrical` with ``starts``, start values ``(a, 1/tau_e)`` of the poles tried
+    besides the first-order pole with the grid of lags: for a caller that knows a good first-order ``a``
+    (from a poor regression start the search can end on the two poles equal, far from a short lag)."""
     from ..model_structures import structure
     recs = as_recordings(recordings)
     check_excitation(recs, 3)
@@ -211,7 +218,8 @@ def fit_output_error_electrical(recordings: Recording | list[Recording], *,
         delay = int(delay_option)
     segs = segments_at(recs, delay)
     problem = _Projection(segs)
-    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), recs[0].sample_period), recs[0].sample_period)
+    h = recs[0].sample_period
+    a, c = _fit_poles(problem, _starts(_start_pole(segs, recs), h) + [(float(x), float(y)) for x, y in starts], h)
     r, coef, X = problem.solve(a, c)
     b, d = float(coef[0]), float(coef[1])
     n, k = len(r), X.shape[1] + 2

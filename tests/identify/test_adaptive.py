@@ -10,15 +10,18 @@ import pytest
 from identify import fit
 from identify.adaptive import (
     SIMULTANEOUS,
+    _two_tone,
     information,
     join_runs,
+    judge,
     lag_free_reach,
+    lag_widened,
     run_until,
     simultaneous,
     sub_sample_lag,
 )
 from identify.checks.uncertainty import cramer_rao_bound
-from motorsim import Encoder, Experiment, Motor, Multisine, SimRig, Sine
+from motorsim import PRBS, Encoder, Experiment, Motor, Multisine, SimRig, Sine
 from motorsim.checks import ParameterError
 from motorsim.plant import simulate
 
@@ -123,6 +126,50 @@ def test_run_until_behind_a_sub_sample_lag_stops_on_intervals_holding_the_motor(
     assert all(last.reach[k] <= 1.0 and last.lag_free[k] <= 1.0 for k in ("a", "b"))
     ci = result.estimate.confidence_interval(0.95)
     assert ci["a"][0] <= a <= ci["a"][1] and ci["b"][0] <= b <= ci["b"][1]
+    assert last.estimate.structure == "second-order"
+
+
+def test_the_second_order_fit_starts_from_the_answers_pole_too():
+    # a PRBS and a block of two lines behind 0.63 ms: from the regression's start alone the search ends on two
+    # equal poles (a = 44.3, tau = 22.6 ms) and the first-order a = 20.03, 1.6 % low, would stand
+    a, b, tau = 20.36, 1.79, 0.00063
+    rig = SimRig(Motor(a, b, electrical_time_constant=tau), Encoder(1000, angle_noise=1e-2),
+                 rng=np.random.default_rng(0))
+    rec = join_runs([rig.run(Experiment(PRBS(253, -253, 7, 2, 1), 0.005, 0.5)),
+                     rig.run(Experiment(Multisine((7.98, 23.94), (84, 169), (0.0, 0.0)), 0.005, 1.73))])
+    est = fit(rec, outliers="keep")
+    assert est.structure == "linear" and est.a < 0.99 * a
+    assert fit(rec, method="oe-electrical", outliers="keep").a > 2 * a
+    lagged = sub_sample_lag(rec, est)
+    assert lagged is not None
+    ci = lagged.confidence_interval(0.95)
+    assert ci["a"][0] <= a <= ci["a"][1] and ci["b"][0] <= b <= ci["b"][1]
+    assert ci["electrical_time_constant"][0] <= tau <= ci["electrical_time_constant"][1]
+
+
+def test_the_answer_without_a_lag_holds_a_and_b_as_a_fit_with_the_lag_free_would():
+    # one sine and its third: the first-order fit pins the lag at 0 more than the runs do
+    rig = _rig(20.0, 2.0, seed=8)
+    rec = rig.run(Experiment(Multisine((8.0, 24.0), (169, 84), (0.0, 0.0)), 0.005, 1.5))
+    j = judge([rec])
+    assert j.estimate.structure == "linear" and j.lag_ms is None
+    assert j.lag_free["a"] > 1.5 * j.reach["a"]
+    wide = lag_widened(j.estimate, j.reach, j.lag_free)
+    for k in ("a", "b"):
+        # lag_free / reach is sqrt(var(lag free) / var(lag 0)) however wide the candidates make the interval
+        assert wide.stderr()[k] == pytest.approx(j.estimate.stderr()[k] * j.lag_free[k] / j.reach[k], rel=1e-12)
+    # the correlation of a and b kept
+    corr = [e.covariance[0, 1] / math.sqrt(e.covariance[0, 0] * e.covariance[1, 1]) for e in (j.estimate, wide)]
+    assert corr[0] == pytest.approx(corr[1], rel=1e-12)
+
+
+def test_a_block_is_two_lines_of_the_shape_asked():
+    lines = _two_tone(10.0, 200, 500.0, 5, 1 / 2)
+    assert lines.frequencies == (10.0, 50.0) and lines.amplitudes == (100, 100)
+    # the third harmonic past the highest frequency: the second line a third below, the designed line keeping 2/3
+    lines = _two_tone(300.0, 200, 500.0, 3, 1 / 3)
+    assert lines.frequencies == (100.0, 300.0) and lines.amplitudes == (67, 133)
+    assert isinstance(_two_tone(10.0, 5, 500.0), Sine)
 
 
 def test_joined_runs_fit_as_the_runs_pooled():
@@ -156,6 +203,16 @@ def test_run_until_stops_within_target_and_its_intervals_hold_the_motor():
     assert len(result.fitted_recording.segments()) == len(result.rounds) - result.fitted_from
     again = fit(result.fitted_recording, outliers="keep")
     assert again.a == pytest.approx(result.estimate.a, rel=1e-9)
+    # the stopping rule's view of those runs, as the benchmark judges fixed experiments by it
+    j = judge(result.fitted_recording.segments())
+    assert j.within(1.0) and j.clear == last.clear
+    for k in ("a", "b"):
+        assert j.reach[k] == pytest.approx(last.reach[k], rel=1e-9)
+        assert j.lag_free[k] == pytest.approx(last.lag_free[k], rel=1e-9)
+        # the answer's intervals are the wider of the two
+        lo, hi = result.estimate.confidence_interval(0.95)[k]
+        v = result.estimate.value(k)
+        assert 100 * max(v - lo, hi - v) / abs(v) == pytest.approx(max(last.reach[k], last.lag_free[k]), rel=1e-9)
 
 
 @pytest.mark.parametrize("a, b", [(2.0, 0.3), (150.0, 20.0)])
