@@ -636,12 +636,13 @@ def check_constant_input_runs(rec: Recording, name: str = "recording", input_del
         return
     largest, where = max(turns)
     from .checks.angle_turns import angle_torque_explains
-    if (len(turns) > 1 or largest > RUN_REFUSE_SHARE * span) and angle_torque_explains(rec, runs, input_delay):
+    refused = len(turns) > 1 or largest > RUN_REFUSE_SHARE * span
+    if refused and angle_torque_explains(rec, runs, input_delay, run_turns):
         warnings.warn(f"{where}{_more(turns)}: a torque of the angle (gravity on an arm, a spring, an unbalanced "
                       "load), learned from the rest of the run, explains it; the fit goes on, and its checks judge "
                       "the model", ConstantInputTurnWarning, stacklevel=3)
         return
-    if len(turns) > 1 or largest > RUN_REFUSE_SHARE * span:
+    if refused:
         raise NotIdentifiableError(
             f"{where}{_more(turns)}; a motor under a constant input moves one way, so the input logged is not the "
             "input it received (clipped or scaled in the log?): record the input the drive applied")

@@ -16,7 +16,7 @@ form of ``dω/dt = -a ω + b u + c + g(θ)``,
 ``g`` a spring's ``θ`` and the first :data:`HARMONICS` harmonics of a turn (``sin kθ``, ``cos kθ``): the
 regressors are the angle and the logged input, so the speed's noise is on the left alone and biases
 nothing.  Then it predicts each turning run from its first sample by the same sum and asks whether the
-run still turns in what is left (:func:`identify.data.run_turns`, at the thresholds the screen used).
+run still turns in what is left (the screen's own measure of a turn, at the thresholds it used).
 
 A torque of the angle acts the same in every part of the run, so what it learns outside the turning runs
 predicts them: the turns are explained.  A log that misses the input the motor received does not: outside
@@ -26,7 +26,7 @@ unclipped rows), so the turns stay.  Where too few rows lie outside the turning 
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -60,7 +60,8 @@ def _columns(theta: np.ndarray, u: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]], input_delay: int = 0) -> bool:
+def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]], input_delay: int,
+                          turns: Callable[[np.ndarray], tuple[float, float, float]]) -> bool:
     """Whether a torque of the angle, learned outside the turning ``runs``, explains their turns (module docstring).
 
     Parameters
@@ -72,8 +73,10 @@ def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]]
         as a turn there.
     input_delay : int
         The fitted input delay, in samples.
+    turns : callable
+        A run's speed to its rise, fall and the noise they are judged against (the screen's own,
+        :func:`identify.data.run_turns`).
     """
-    from ..data import run_turns
 
     theta = _angle(rec)
     n = len(rec)
@@ -108,7 +111,7 @@ def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]]
             continue
         k0 = rows[0]
         drift = np.column_stack([-(theta[rows] - theta[k0]), sums[rows] - sums[k0]]) @ coef
-        rise, fall, noise = run_turns(w[rows] - w[k0] - drift)
+        rise, fall, noise = turns(w[rows] - w[k0] - drift)
         if min(rise, fall) > max(noise, threshold):
             return False
     return True

@@ -26,7 +26,7 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from motorsim.recording import Recording
 
@@ -111,7 +111,7 @@ def disturbance_follows_input(recs: Sequence[Recording], est: Estimate) -> Input
         wald = float(beta @ np.linalg.solve(cov, beta))
     except np.linalg.LinAlgError:
         return None
-    p = float(stats.chi2.sf(wald, 2))
+    p = float(special.chdtrc(2, wald))        # chi-square survival, without importing scipy.stats
     small, full = b + float(beta[0]), b + float(beta[0] + beta[1])
     material = max(abs(small - b), abs(full - b)) > MATERIAL * abs(b)
     return InputFollowing(p, small, full, p < FOLLOW_LEVEL and material)

@@ -16,7 +16,7 @@ import pytest
 
 import identify.checks.angle_turns as angle_turns
 from identify import fit
-from identify.data import ConstantInputTurnWarning, check_constant_input_runs
+from identify.data import ConstantInputTurnWarning, check_constant_input_runs, run_turns
 from identify.errors import NotIdentifiableError
 from motorid.bench.misfits import _integrate, _record
 from motorsim import Motor, Recording
@@ -72,4 +72,4 @@ def test_a_log_clipped_below_the_input_is_still_refused(clip):
 def test_too_few_rows_outside_the_turns_explain_nothing():
     # one constant input over the whole run: nothing outside it to learn a torque from
     rec = _arm(0)
-    assert angle_turns.angle_torque_explains(rec, [(3, len(rec), 1.0)]) is False
+    assert angle_turns.angle_torque_explains(rec, [(3, len(rec), 1.0)], 0, run_turns) is False
