@@ -46,15 +46,15 @@ MAX_ANGLE_NOISE = 2 * math.pi
 #: Each bench flag's range, as its help says it (:func:`check_bench_flags` applies them).
 BENCH_RULES = {
     "a": f"a x --sample-period within {POLE_STEP_RANGE[0]:g}...{POLE_STEP_RANGE[1]:g}",
-    "b": f"the run's top speed |b| x the duty limit x (1 - exp(-a T)) / a at most {MAX_SPEED:g} rad/s (T the "
+    "b": f"the run's top speed abs(b) x the duty limit x (1 - exp(-a T)) / a at most {MAX_SPEED:g} rad/s (T the "
          "duration), and enough to move the encoder a count",
     "friction": f"at most a x {MAX_SPEED:g} rad/s",
-    "bias": f"|bias| x (1 - exp(-a T)) / a at most {MAX_SPEED:g} rad/s",
+    "bias": f"abs(bias) x (1 - exp(-a T)) / a at most {MAX_SPEED:g} rad/s",
     "dead_zone": "at most 255",
     "electrical_time_constant": f"--sample-period / it within {LAG_STEP_RANGE[0]:g}...{LAG_STEP_RANGE[1]:g}",
     "static_friction": f"at most a x {MAX_SPEED:g} rad/s",
     "angle_noise": f"at most {MAX_ANGLE_NOISE:.6g} rad (one turn)",
-    "initial_speed": f"|initial speed| at most {MAX_SPEED:g} rad/s",
+    "initial_speed": f"abs(initial speed) at most {MAX_SPEED:g} rad/s",
     "sample_period": f"{MIN_SAMPLE_PERIOD:g}...{MAX_SAMPLE_PERIOD:.6g} s",
     "duration": "2 samples to 2**32 samples",
 }

@@ -272,7 +272,7 @@ def test_simulate_help_says_each_bench_range(capsys):
         main(["simulate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     for rule in ("a x --sample-period within 1e-09...700",
-                 "|b| x the duty limit x (1 - exp(-a T)) / a at most 100000 rad/s",
+                 "abs(b) x the duty limit x (1 - exp(-a T)) / a at most 100000 rad/s",
                  "--sample-period / it within 1e-06...700", "at most 6.28319 rad (one turn)", "1e-06...4294.97 s",
-                 "2 samples to 2**32 samples", "|initial speed| at most 100000 rad/s"):
+                 "2 samples to 2**32 samples", "abs(initial speed) at most 100000 rad/s"):
         assert rule in text, rule
