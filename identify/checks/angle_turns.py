@@ -32,7 +32,7 @@ import numpy as np
 
 from motorsim.recording import Recording
 
-__all__ = ["angle_torque_explains", "WINDOW", "HARMONICS", "MIN_WINDOWS"]
+__all__ = ["angle_torque_explains", "recorded_angle", "whole_windows", "WINDOW", "HARMONICS", "MIN_WINDOWS"]
 
 #: Samples over which the speed's change is summed: enough for the angle's change to stand above an
 #: encoder's count, few enough that the windows outside the turning runs are many.
@@ -43,13 +43,24 @@ HARMONICS = 2
 MIN_WINDOWS = 10
 
 
-def _angle(rec: Recording) -> np.ndarray | None:
+def recorded_angle(rec: Recording) -> np.ndarray | None:
     """The angle in rad: measured, else the speed column integrated by trapezoids (its offset is arbitrary)."""
     theta = rec.measured_angle()
     if theta is not None:
         return np.asarray(theta, dtype=float)
     w = np.nan_to_num(np.asarray(rec.speed, dtype=float))
     return np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(rec.time))])
+
+
+def whole_windows(seq: np.ndarray, speed: np.ndarray, first: int, width: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Consecutive windows of ``width`` rows from row ``first``: their first and last rows, and whether each is
+    whole (no gap in ``seq`` inside it, a finite ``speed`` at both ends)."""
+    n = len(seq)
+    gaps = np.cumsum(np.r_[False, np.diff(seq) != 1])
+    starts = np.arange(first, n - width, width)
+    ends = starts + width
+    return starts, ends, (gaps[ends] == gaps[starts]) & np.isfinite(speed[starts]) & np.isfinite(speed[ends])
 
 
 def _columns(theta: np.ndarray, u: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -78,7 +89,7 @@ def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]]
         :func:`identify.data.run_turns`).
     """
 
-    theta = _angle(rec)
+    theta = recorded_angle(rec)
     n = len(rec)
     w = np.asarray(rec.measured_speed(), dtype=float)
     if theta is None or n < 2 or not np.all(np.isfinite(theta)):
@@ -91,13 +102,9 @@ def angle_torque_explains(rec: Recording, runs: Sequence[tuple[int, int, float]]
     inside = np.zeros(n, dtype=bool)
     for start, end, _ in runs:
         inside[max(start - WINDOW, 0):end] = True
-    gap = np.r_[False, np.diff(rec.seq) != 1]            # a window holds no gap in the rows
-    gaps = np.cumsum(gap)
-    starts = np.arange(0, n - WINDOW, WINDOW)
-    ends = starts + WINDOW
+    starts, ends, whole = whole_windows(rec.seq, w, 0, WINDOW)
     blocked = np.cumsum(np.r_[0, inside.astype(int)])
-    keep = ((blocked[ends + 1] - blocked[starts]) == 0) & (gaps[ends] == gaps[starts]) \
-        & np.isfinite(w[starts]) & np.isfinite(w[ends])
+    keep = ((blocked[ends + 1] - blocked[starts]) == 0) & whole
     design = np.column_stack([-(theta[ends] - theta[starts]), sums[ends] - sums[starts]])
     if int(keep.sum()) < MIN_WINDOWS * design.shape[1]:
         return False

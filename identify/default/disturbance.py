@@ -30,6 +30,7 @@ from scipy import special
 
 from motorsim.recording import Recording
 
+from ..checks.angle_turns import recorded_angle, whole_windows
 from ..checks.uncertainty import newey_west_covariance
 from ..comparison import MATERIAL
 from ..estimate import Estimate
@@ -56,8 +57,7 @@ class InputFollowing(NamedTuple):
 def _rows(rec: Recording, a: float, b: float, delay: int) -> tuple[np.ndarray, np.ndarray] | None:
     """The windows' unexplained torque integrals and their design columns (``Σu h``, ``Σ|u|u/U h``, per block
     ``Σh``), or None where too few windows are whole."""
-    from ..checks.angle_turns import _angle
-    theta = _angle(rec)
+    theta = recorded_angle(rec)
     n = len(rec)
     if theta is None or n < 4 * WINDOW or not np.all(np.isfinite(theta)):
         return None
@@ -77,10 +77,7 @@ def _rows(rec: Recording, a: float, b: float, delay: int) -> tuple[np.ndarray, n
         # follows the input)
         theta = np.r_[theta[0], 0.5 * (theta[1:] + theta[:-1])]
         sums = sums - 0.5 * np.vstack([np.zeros(cols.shape[1]), cols[:-1]])
-    starts = np.arange(1, n - WINDOW, WINDOW)
-    ends = starts + WINDOW
-    gaps = np.cumsum(np.r_[False, np.diff(rec.seq) != 1])
-    keep = (gaps[ends] == gaps[starts]) & np.isfinite(w[starts]) & np.isfinite(w[ends])
+    starts, ends, keep = whole_windows(rec.seq, w, 1, WINDOW)
     if int(keep.sum()) < 10 * cols.shape[1]:
         return None
     s, e = starts[keep], ends[keep]
