@@ -54,6 +54,7 @@ from numpy.typing import ArrayLike
 from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
+from .quantiles import median
 from .sensors import backward_difference, counts_to_angle
 from .units import SPEED_UNITS
 
@@ -189,8 +190,11 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
     if len(time) < 3:
         return
     per_step = np.diff(time)
-    per_step /= np.maximum(np.diff(seq), 1)
-    interval = float(np.median(per_step, overwrite_input=True))
+    steps = np.diff(seq)
+    if not np.all(steps == 1):      # a division by whole steps of one changes nothing, and costs a conversion
+        per_step /= np.maximum(steps, 1)
+    del steps
+    interval = median(per_step)
     del per_step
     ratio = interval / sample_period
     if abs(ratio - 1) > TIME_BASE_TOLERANCE:
@@ -444,7 +448,9 @@ class Recording:
         speed = self.__dict__.get("_measured_speed")
         if speed is None:
             speed = backward_difference(self.measured_angle(), self.time)
-            speed[1:][np.diff(self.seq) != 1] = np.nan
+            gaps = np.diff(self.seq) != 1
+            if gaps.any():
+                speed[1:][gaps] = np.nan
             speed.setflags(write=False)
             object.__setattr__(self, "_measured_speed", speed)
         return speed.copy()
