@@ -211,11 +211,9 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], size: int) ->
         return None
     if not n:
         return None
-    for h, v in values.items():
-        if len(v) - n > n // 4:     # far more room than rows: the columns alone, in arrays of their own
-            v = v[:n].copy()
-        values[h] = v = v[:n]
-        v.setflags(write=False)     # owned by nobody else: the Recording keeps them without a copy
+    for v in values.values():
+        v.resize(n, refcheck=False)     # in place (no other reference to it is left): an array of its own
+        v.setflags(write=False)         # owned by nobody else: the Recording keeps them without a copy
     return values
 
 
