@@ -448,20 +448,26 @@ class Recording:
         speed = self.__dict__.get("_measured_speed")
         if speed is None:
             speed = backward_difference(self.measured_angle(), self.time)
-            gaps = np.diff(self.seq) != 1
-            if gaps.any():
-                speed[1:][gaps] = np.nan
+            speed[np.asarray(self._gaps(), dtype=np.intp)] = np.nan
             speed.setflags(write=False)
             object.__setattr__(self, "_measured_speed", speed)
         return speed.copy()
 
     def segments(self) -> list["Recording"]:
         """Split at gaps in ``seq`` into gap-free recordings (one if there is no gap)."""
-        cuts = np.flatnonzero(np.diff(self.seq) != 1) + 1
-        if len(cuts) == 0:
+        cuts = self._gaps()
+        if not cuts:
             return [self]
-        bounds = [0, *cuts.tolist(), len(self)]
+        bounds = [0, *cuts, len(self)]
         return [self.slice(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
+
+    def _gaps(self) -> list[int]:
+        """The rows after a gap in ``seq`` (found once: the recording never changes, and every fit asks)."""
+        cuts = self.__dict__.get("_cuts")
+        if cuts is None:
+            cuts = (np.flatnonzero(np.diff(self.seq) != 1) + 1).tolist()
+            object.__setattr__(self, "_cuts", cuts)
+        return list(cuts)
 
     def slice(self, start: int, stop: int) -> "Recording":
         """Rows ``start:stop`` as a new Recording."""
@@ -573,7 +579,7 @@ class Recording:
     @property
     def has_gaps(self) -> bool:
         """True when ``seq`` shows dropped samples."""
-        return bool(np.any(np.diff(self.seq) != 1))
+        return bool(self._gaps())
 
 
 #: Names that moved out of this module, and where to (old imports warn for one release).

@@ -606,8 +606,8 @@ def _load_or_drive(recs: list[Recording], est: Estimate) -> Estimate:
 
 def _one_magnitude(recs: list[Recording]) -> float | None:
     """The input's one magnitude where it takes one both ways (a binary PRBS, a square wave), else None."""
-    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
-    moving = moving[moving != 0]
+    pooled = recs[0].duty if len(recs) == 1 else np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
+    moving = pooled[pooled != 0]
     if not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
         return None
     top = float(np.max(np.abs(moving)))
