@@ -187,6 +187,8 @@ def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]
     [(1, 3)]
     """
     duty = np.asarray(duty)
+    if not len(duty) or max(float(duty.max()), -float(duty.min())) < duty_limit * (1 - 2e-9):
+        return []                           # no sample reaches the limit: two reductions, no pass building masks
     if duty.dtype.kind in "iu" and float(duty_limit).is_integer():     # exact: no float pass
         at = (duty == int(duty_limit)) | (duty == -int(duty_limit))
     else:
