@@ -142,7 +142,7 @@ def _check_finite(name: str, arr: np.ndarray | None) -> None:
     if not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ParameterError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
-    if name != "time" and len(arr) and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+    if name != "time" and len(arr) and max(float(arr.max()), -float(arr.min())) > MAX_MAGNITUDE:
         k = int(np.argmax(np.abs(arr)))
         raise ParameterError(f"{name} must be within +-{MAX_MAGNITUDE:g} (no motor gives more), got {arr[k]!r} "
                              f"at sample {k}")
@@ -190,10 +190,10 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
     if len(time) < 3:
         return
     per_step = np.diff(time)
-    steps = np.diff(seq)
-    if not np.all(steps == 1):      # a division by whole steps of one changes nothing, and costs a conversion
-        per_step /= np.maximum(steps, 1)
-    del steps
+    # seq strictly increasing (checked first) from seq[0] to seq[0] + n - 1 steps by ones: a division by them
+    # would change nothing, and costs a conversion
+    if int(seq[-1]) - int(seq[0]) != len(seq) - 1:
+        per_step /= np.maximum(np.diff(seq), 1)
     interval = median(per_step)
     del per_step
     ratio = interval / sample_period
