@@ -243,11 +243,12 @@ def _copy_column(column, out: np.ndarray) -> None:
 
 
 class _FastParse(NamedTuple):
-    """What the fast reader found: metadata, the header's line and byte offset after it, the columns."""
+    """What the fast reader found: metadata, the header's line and byte offset after it, the bytes read, the columns."""
 
     meta: dict[str, str]
     header_line: int
     offset: int
+    size: int
     counts_per_rev: int | None
     values: dict[str, np.ndarray]
 
@@ -272,7 +273,7 @@ def _parse_fast(path: Path, head: _Head) -> _FastParse | None:
     values = _read_columns_fast(path, offset, header, head.size)
     if values is None:
         return None
-    return _FastParse(meta, header_index + 1, offset, cpr, values)
+    return _FastParse(meta, header_index + 1, offset, head.size, cpr, values)
 
 
 def _build_fast(parsed: _FastParse, path: Path, check_samples: bool) -> Recording | None:
@@ -293,7 +294,7 @@ def _build_fast(parsed: _FastParse, path: Path, check_samples: bool) -> Recordin
     if check_samples:
         bad = rec.implausible_samples()
         if bad:
-            lines = _row_lines(path, parsed.offset, parsed.header_line, len(rec))
+            lines = _row_lines(path, parsed.offset, parsed.size, parsed.header_line, len(rec))
             if lines is None:
                 return None     # blank lines or lone carriage returns: the careful parser knows the lines
             _refuse_implausible(bad, lines, fail)
@@ -301,13 +302,13 @@ def _build_fast(parsed: _FastParse, path: Path, check_samples: bool) -> Recordin
     return rec
 
 
-def _row_lines(path: Path, offset: int, header_line: int, rows: int) -> range | None:
+def _row_lines(path: Path, offset: int, size: int, header_line: int, rows: int) -> range | None:
     """The line of every data row when each is one line (no blank line, no lone carriage return), else None.
 
     Read again, only to name the lines of a file that is refused.
     """
     newlines = 0
-    for block in _blocks(path, offset, path.stat().st_size):
+    for block in _blocks(path, offset, size):
         data = block.tobytes()
         newlines += data.count(b"\n")
         if data.count(b"\r") != data.count(b"\r\n"):
