@@ -177,3 +177,18 @@ def test_an_implausible_row_is_named_without_the_careful_parser(tmp_path, monkey
     monkeypatch.setattr(reading, "_parse", lambda *a, **k: pytest.fail("the careful parser was asked"))
     with pytest.raises(RecordingFormatError, match=r"rows\.csv, line 25: implausible sample \(seq 20\)"):
         read_recording(path)
+
+
+def test_a_plain_file_is_read_once(written, monkeypatch):
+    # the head, then the rows block by block: no pass over the file before the parse
+    rec, path = written
+    passes = []
+    blocks = reading._blocks
+    monkeypatch.setattr(reading, "_blocks", lambda *a: passes.append(a) or blocks(*a))
+    opened = []
+    read_head = reading._read_head
+    monkeypatch.setattr(reading, "_read_head", lambda p: opened.append(p) or read_head(p))
+    back = read_recording(path)
+    assert len(passes) == 1 and len(opened) == 1
+    assert passes[0][2] == path.stat().st_size
+    np.testing.assert_array_equal(back.counts, rec.counts)
