@@ -185,15 +185,17 @@ def _refuse_unit_metadata(metadata: Mapping[str, str]) -> None:
                                  f"{column}:{given.strip()} ...")
 
 
-def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
-    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
+def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float,
+                     intervals: np.ndarray | None = None) -> None:
+    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period`` (``intervals``:
+    ``np.diff(time)`` when the caller has it)."""
     if len(time) < 3:
         return
-    per_step = np.diff(time)
+    per_step = np.diff(time) if intervals is None else intervals
     # seq strictly increasing (checked first) from seq[0] to seq[0] + n - 1 steps by ones: a division by them
     # would change nothing, and costs a conversion
     if int(seq[-1]) - int(seq[0]) != len(seq) - 1:
-        per_step /= np.maximum(np.diff(seq), 1)
+        per_step = per_step / np.maximum(np.diff(seq), 1)
     interval = median(per_step)
     del per_step
     ratio = interval / sample_period
@@ -204,9 +206,10 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
             f"(allowed: within {TIME_BASE_TOLERANCE:.0%}); is time in seconds, and is the period right?")
 
 
-def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
-    if len(time) > 1 and np.any(np.diff(time) <= 0):
-        k = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 1
+def _check_increasing(time: np.ndarray, seq: np.ndarray, intervals: np.ndarray | None = None) -> None:
+    intervals = np.diff(time) if intervals is None else intervals
+    if len(time) > 1 and np.any(intervals <= 0):
+        k = int(np.flatnonzero(intervals <= 0)[0]) + 1
         raise ParameterError(f"time must be strictly increasing, got {time[k]!r} after {time[k-1]!r} at sample {k}")
     if len(seq) > 1 and np.any(np.diff(seq) <= 0):
         raise ParameterError("seq must be strictly increasing")
@@ -293,8 +296,10 @@ class Recording:
         object.__setattr__(self, "counts_per_rev", counts_per_rev)
         for name in ("time", "duty", "angle", "speed", "reference"):
             _check_finite(name, columns[name])
-        _check_increasing(t, seq_array)
-        _check_time_base(t, seq_array, self.sample_period)
+        intervals = np.diff(t)           # once, for both checks of the clock
+        _check_increasing(t, seq_array, intervals)
+        _check_time_base(t, seq_array, self.sample_period, intervals)
+        del intervals
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):
