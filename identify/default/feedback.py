@@ -371,19 +371,16 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     fix_bias : bool
         Refused when a disturbance is found (its level is the bias).
     opening : str
-        What the first note says of the recordings before ``evidence`` (:func:`fit_changing_torque` says why an
-        open-loop run is fitted this way).
+        What the first note says before ``evidence`` (:func:`fit_changing_torque`: why an open-loop run is fitted so).
     in_loop : bool
-        The recordings were made inside a loop (:func:`parts_checked`'s ``in_loop``); False for
-        :func:`fit_changing_torque`'s open-loop runs.
+        Made inside a loop (:func:`parts_checked`); False for :func:`fit_changing_torque`'s open-loop runs.
 
     Returns
     -------
     ClosedLoopFit
-        The estimate made by ``pem-disturbance`` on all rows, with ``selection`` and ``notes`` as the
-        default gives them; or, when the data show no disturbance the loop feeds back (the fit with one
-        is within the noise of the fit without), no estimate and a note saying so: output error is then
-        consistent, and the caller's default fits as on any recording.
+        The estimate made by ``pem-disturbance`` on all rows, with ``selection`` and ``notes`` as the default gives
+        them; or, where the data show no disturbance the loop feeds back (within the noise of a fit without one), no
+        estimate and a note saying so: output error is consistent there, and the caller fits as on any recording.
     """
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     declared = declared_input_delay(recs)
@@ -436,8 +433,7 @@ def fit_closed_loop(recordings: Recording | Sequence[Recording], evidence: str, 
     selection = dataclasses.replace(selection, clear=clear, doubt=doubt, notes=tuple(notes))
     est = dataclasses.replace(est, selection=SelectionReport.from_selection(selection),
                               notes=tuple(([doubt] if doubt else []) + notes))
-    # checks that need no right structure under feedback: the same a and b on every part of the rows, tested on the
-    # innovations, and on each half of the run
+    # checks that need no right structure: the same a and b on every part of the rows (innovations) and on each half
     return ClosedLoopFit(halves_checked(recs, parts_checked(est, fit, in_loop=in_loop)))
 
 

@@ -361,13 +361,15 @@ def test_default_on_a_closed_loop_covers_the_motor_and_says_why(loops):
 def test_default_covers_a_delay_the_closed_loop_cannot_pin_down():
     # a duty acting 2 samples after it is logged: in this stiff loop the prediction errors hardly tell delays
     # 0-3 apart (measured: within 0.02 % of each other), and a falls from 24.9 to 22.8 as the delay assumed
-    # shrinks; the interval must hold the truth, and the choice is not clear
+    # shrinks; the interval must hold the truth, and the choice is not clear.  It also holds what the run's parts
+    # show: the run's end gives a 16.7 [12.7, 20.7] (early / late, p = 0.006, within the checks' level of 0.01 / 7),
+    # so a's interval reaches down to 12.7 (16.96 before it held the parts): a half-width of 7.2, under 0.3 A
     rec = position_loop(3, samples=8000, delay=2, reference=False)
     est = fit(rec)
     assert est.method == "pem-disturbance"
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
-    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A
+    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.3 * A
     assert not est.selection.clear
 
 
