@@ -72,8 +72,7 @@ from .fits.sensitivity import zoh_response
 
 __all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
            "STOP_REASONS", "check_target", "lag_free_reach", "judge", "Judgement", "sub_sample_lag", "simultaneous",
-           "lag_widened",
-           "SIMULTANEOUS"]
+           "lag_widened", "SIMULTANEOUS", "FixedDesign", "design_fixed", "fixed_design_time"]
 
 #: Default motor-time budget in s.
 DEFAULT_MAX_TIME = 60.0
@@ -1023,6 +1022,94 @@ def _two_tone(frequency: float, amplitude: int, highest: float, ratio: int = 3, 
         return Multisine((float(f"{frequency / ratio:.4g}"), frequency), (up, amplitude - up), (0.0, 0.0))
     return Multisine((frequency, upper_freq), (amplitude - up, up), (0.0, 0.0))
 
+
+# --------------------------------------------------------------------------------------------- fixed experiments
+
+@dataclasses.dataclass(frozen=True)
+class FixedDesign:
+    """The fixed experiment :func:`design_fixed` chooses for a known motor.
+
+    Attributes
+    ----------
+    excitation : Excitation
+        A sine, or two lines of one of the loop's shapes (:data:`_SHAPES`).
+    duration : float
+        The run's length in s.
+    reach : dict
+        The Cramér-Rao reach of ``a`` and ``b`` (%): the 95 % half-widths for both at once
+        (:data:`SIMULTANEOUS`) with a driver lag left free, from the angle noise and the encoder's rounding.
+    """
+
+    excitation: Excitation
+    duration: float
+    reach: Mapping[str, float]
+
+
+def design_fixed(a: float, b: float, sample_period: float, duration: float, *, input_delay: int = 0,
+                 nuisance: Sequence[str] = (), duty_limit: int = 255, angle_noise: float = 0.0,
+                 counts_per_rev: int | None = None) -> FixedDesign:
+    """The one fixed experiment of the loop's family that pins ``a`` and ``b`` best in ``duration`` s.
+
+    The family is what :func:`run_until` may run as a block: a sine, or two lines of one of its shapes
+    (:data:`_SHAPES`), at the largest amplitude the duty limit allows; the frequency on a logarithmic
+    grid from two periods per run to 0.8 of the Nyquist frequency.  The criterion is the stopping
+    rule's: the larger relative Cramér-Rao standard error of ``a`` and ``b`` with a driver lag left free
+    and ``nuisance`` (:data:`NUISANCE`) unknown (:func:`information`, the run's initial state profiled
+    out).  Runs longer than 8 s are judged on their first 8 s, the information scaled by the length.
+    """
+    a = check_real("a", a, positive=True)
+    b = check_real("b", b)
+    dt = check_real("sample_period", sample_period, positive=True)
+    duration = check_real("duration", duration, positive=True)
+    if b == 0:
+        raise ParameterError(f"b must be nonzero, got {b!r}")
+    hi_f = 0.8 * math.pi / dt
+    n_all = max(int(round(duration / dt)), 20)
+    n = min(n_all, max(int(round(8.0 / dt)), 20))
+    best = None
+    for f in np.geomspace(max(2 * 2 * math.pi / (n_all * dt), min(0.2, a / 20)), hi_f, 40):
+        amp = _amplitude(a, b, f, duty_limit, None, None)
+        for shape in ((1, 0.0), *_SHAPES):
+            ratio, upper = shape
+            if ratio > 3 and ratio * f >= hi_f:
+                continue
+            ex = Sine(float(f"{f:.4g}"), amp) if ratio == 1 else _two_tone(float(f"{f:.4g}"), amp, hi_f, ratio, upper)
+            info = information(a, b, ex.duty(n, dt, duty_limit), dt, input_delay, lag=True, nuisance=nuisance)
+            var = _variances(_profiled(info * (n_all / n)))
+            worst = float(np.max(var / np.square([a, b]))) if np.all(np.isfinite(var)) and np.all(var > 0) \
+                else math.inf
+            if best is None or worst < best[0]:
+                best = (worst, ex, var)
+    assert best is not None
+    _, ex, var = best
+    sigma2 = angle_noise ** 2 + ((2 * math.pi / counts_per_rev) ** 2 / 12 if counts_per_rev else 0.0)
+    reach = {k: 100 * _Z * SIMULTANEOUS * math.sqrt(sigma2 * v) / abs(x) if math.isfinite(v) and v > 0 else math.inf
+             for k, v, x in zip(_PARAMS, var, (a, b))}
+    return FixedDesign(ex, n_all * dt, reach)
+
+
+def fixed_design_time(a: float, b: float, sample_period: float, target: float, longest: float,
+                      **options: Any) -> FixedDesign:
+    """The shortest :func:`design_fixed` predicted to reach ``target`` % (at most ``longest`` s).
+
+    The length is bisected on a logarithmic scale, each length's experiment designed for it (the
+    best frequency and shape change with the length: a short run spends its information on the
+    transient); ``longest`` s's design where even that is predicted short of the target.
+    """
+    lo, hi = max(40 * sample_period, 0.2), float(longest)
+    d = design_fixed(a, b, sample_period, hi, **options)
+    if not max(d.reach.values()) <= target:
+        return d
+    for _ in range(12):
+        mid = math.sqrt(lo * hi)
+        m = design_fixed(a, b, sample_period, mid, **options)
+        if max(m.reach.values()) <= target:
+            hi, d = mid, m
+        else:
+            lo = mid
+        if hi / lo < 1.03:
+            break
+    return d
 
 def _what(ex: Excitation) -> str:
     freqs: tuple = getattr(ex, "frequencies", ())
