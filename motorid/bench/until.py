@@ -34,7 +34,7 @@ import statistics
 import sys
 import time
 import warnings
-from typing import NamedTuple, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
@@ -190,7 +190,7 @@ def oracle_design(seed: int, target: float, length: float | None = None):
     (None) for the shortest length predicted to reach ``target`` % (:func:`identify.adaptive.fixed_design_time`)."""
     from identify.adaptive import design_fixed, fixed_design_time
     s = rig_spec(seed)
-    options = dict(input_delay=s.input_delay, nuisance=("friction",) if s.friction else (), duty_limit=253,
+    options: dict[str, Any] = dict(input_delay=s.input_delay, nuisance=("friction",) if s.friction else (), duty_limit=253,
                    angle_noise=1e-2, counts_per_rev=1000)
     if length is None:
         return fixed_design_time(s.a, s.b, SAMPLE_PERIOD, target, _longest(target), **options)
