@@ -13,7 +13,9 @@ bench, the emulated or the real Arduino) in rounds:
    choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or a dead
    time left free (:func:`lag_free_reach`), stop. Otherwise choose the next block: two lines
    (:data:`_SHAPES`: the second at 3-15 times the first; frequency and shape, the largest amplitude
-   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the
+   the duty limit and the budgets allow) or, once a run of more than one duty magnitude is in and
+   no travel budget is set, a PRBS of the largest duty the speed budget allows (the bit's hold
+   chosen; :func:`_blocks`), whose predicted intervals, with the lag free, reach the
    target soonest, judged over the plausible ``a`` of the interval so far; the block lasts as long
    as the prediction says it takes (at most three times the motor time so far, and the budget left).
    While the choice of structure is not clear, every other block is an odd multisine over ``a/10 ...
