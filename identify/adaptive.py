@@ -1108,7 +1108,7 @@ def design_fixed(a: float, b: float, sample_period: float, duration: float, *, i
     n = min(n_all, max(int(round(8.0 / dt)), 20))
     best = None
     for ex, _, _ in _blocks(a, b, max(2 * 2 * math.pi / (n_all * dt), min(0.2, a / 20)), dt, duty_limit, None, None,
-                            0.0, n_all * dt, None, sines=True, frequencies=40, prbs=False):
+                            0.0, math.inf, None, sines=True, frequencies=40, prbs=False):
         info = information(a, b, ex.duty(n, dt, duty_limit), dt, input_delay, lag=True, nuisance=nuisance)
         var = _variances(_profiled(info * (n_all / n)))
         worst = float(np.max(var / np.square([a, b]))) if np.all(np.isfinite(var)) and np.all(var > 0) else math.inf
