@@ -1087,11 +1087,13 @@ class FixedDesign:
 
 def design_fixed(a: float, b: float, sample_period: float, duration: float, *, input_delay: int = 0,
                  nuisance: Sequence[str] = (), duty_limit: int = 255, angle_noise: float = 0.0,
-                 counts_per_rev: int | None = None) -> FixedDesign:
+                 counts_per_rev: int | None = None, sines: bool = False) -> FixedDesign:
     """The one fixed experiment of the loop's family that pins ``a`` and ``b`` best in ``duration`` s.
 
-    The family is what :func:`run_until` may run as a first block: a sine, or two lines of one of its shapes
-    (:data:`_SHAPES`), at the largest amplitude the duty limit allows (a PRBS, which the loop runs only after
+    The family is what :func:`run_until` may run as a first block: two lines of one of its shapes
+    (:data:`_SHAPES`), at the largest amplitude the duty limit allows (with ``sines``, one line too: one line
+    fits a first-order model whatever the plant behind it, so the default seldom calls its structure clear on
+    it, though the bound, which knows the structure, may prefer it; a PRBS, which the loop runs only after
     a run of more than one duty magnitude, cannot tell the gain from a dead zone alone); the frequency on a logarithmic
     grid from two periods per run to 0.8 of the Nyquist frequency.  The criterion is the stopping
     rule's: the larger relative Cramér-Rao standard error of ``a`` and ``b`` with a driver lag left free
@@ -1108,7 +1110,7 @@ def design_fixed(a: float, b: float, sample_period: float, duration: float, *, i
     n = min(n_all, max(int(round(8.0 / dt)), 20))
     best = None
     for ex, _, _ in _blocks(a, b, max(2 * 2 * math.pi / (n_all * dt), min(0.2, a / 20)), dt, duty_limit, None, None,
-                            0.0, math.inf, None, sines=True, frequencies=40, prbs=False):
+                            0.0, math.inf, None, sines=sines, frequencies=40, prbs=False):
         info = information(a, b, ex.duty(n, dt, duty_limit), dt, input_delay, lag=True, nuisance=nuisance)
         var = _variances(_profiled(info * (n_all / n)))
         worst = float(np.max(var / np.square([a, b]))) if np.all(np.isfinite(var)) and np.all(var > 0) else math.inf
