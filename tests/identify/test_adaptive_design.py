@@ -31,11 +31,17 @@ def test_the_fixed_design_is_the_best_of_the_family_by_the_bound_it_reports(a, b
         assert d.reach[k] == pytest.approx(100 * 1.959964 * SIMULTANEOUS * math.sqrt(NOISE * v) / x, rel=1e-5)
     # no member of the family on a coarser grid does better (the grid's own points are among the candidates)
     mine = _worst(a, b, d.excitation, 2.0)
-    for f in np.geomspace(2 * 2 * math.pi / 2.0, 0.8 * math.pi / DT, 9):
-        for ex in (Sine(float(f"{f:.4g}"), 251), _two_tone(float(f"{f:.4g}"), 251, 0.8 * math.pi / DT, 3, 1 / 3)):
-            assert mine <= _worst(a, b, ex, 2.0) * (1 + 1e-9)
-    # a PRBS alone is not of the family (one duty magnitude does not tell the gain from a dead zone)
-    assert not isinstance(d.excitation, PRBS)
+    grid = np.geomspace(2 * 2 * math.pi / 2.0, 0.8 * math.pi / DT, 9)
+    for f in grid:
+        assert mine <= _worst(a, b, _two_tone(float(f"{f:.4g}"), 251, 0.8 * math.pi / DT, 3, 1 / 3), 2.0) * (1 + 1e-9)
+    # the loop's blocks are two lines, and a PRBS alone is not of the family (one duty magnitude does not tell
+    # the gain from a dead zone); with sines, a single line is a candidate too
+    assert len(d.excitation.frequencies) == 2 and not isinstance(d.excitation, PRBS)
+    with_sines = design_fixed(a, b, DT, 2.0, duty_limit=253, angle_noise=1e-2, counts_per_rev=1000, sines=True)
+    best = _worst(a, b, with_sines.excitation, 2.0)
+    assert best <= mine * (1 + 1e-9)
+    for f in grid:
+        assert best <= _worst(a, b, Sine(float(f"{f:.4g}"), 251), 2.0) * (1 + 1e-9)
 
 
 def test_the_fixed_design_time_is_the_shortest_predicted_to_reach_the_target():
@@ -75,3 +81,21 @@ def test_the_prbs_blocks_keep_the_budgets_and_wait_for_a_run_of_more_than_one_ma
     assert {ex.high for ex in prbs(max_speed=20.0)} == {200}
     assert prbs(max_travel=3.0) == [] and prbs(prbs=False) == []
     assert prbs(breakaway=253.0) == []
+
+
+@pytest.mark.slow
+def test_after_a_run_of_two_lines_the_loop_runs_a_prbs_and_its_intervals_hold_the_motor():
+    import warnings
+
+    from identify.adaptive import run_until
+    from motorsim import Encoder, Motor, SimRig
+    rig = SimRig(Motor(117.0, 27.0), Encoder(1000, angle_noise=1e-2), rng=np.random.default_rng(3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_until(rig, 0.5, max_time=60.0)
+    kinds = [r.excitation.split(":")[0] for r in result.rounds if r.phase == "design"]
+    # measured: two lines (3 s), then a PRBS held 3 samples (4.7 s), 8.7 s in all
+    assert kinds[0] == "multisine" and "prbs" in kinds[1:]
+    assert result.reached
+    ci = result.estimate.confidence_interval(0.95)
+    assert ci["a"][0] <= 117.0 <= ci["a"][1] and ci["b"][0] <= 27.0 <= ci["b"][1]
