@@ -6,8 +6,16 @@ import math
 import numpy as np
 import pytest
 
-from identify.adaptive import SIMULTANEOUS, _blocks, _profiled, _two_tone, _variances, design_fixed, \
-    fixed_design_time, information
+from identify.adaptive import (
+    SIMULTANEOUS,
+    _blocks,
+    _profiled,
+    _two_tone,
+    _variances,
+    design_fixed,
+    fixed_design_time,
+    information,
+)
 from motorsim import PRBS, Sine
 from motorsim.checks import ParameterError
 
