@@ -77,10 +77,20 @@ from motorsim.recording import Recording
 
 from ..comparison import MATERIAL
 from ..data import Segment
+from .check_columns import (
+    KNEES,
+    MIN_TURN_RANGE,
+    _angle_inputs,
+    _curve_inputs,
+    _drag_inputs,
+    _friction_curve_inputs,
+    _push_curve_inputs,
+    _three_magnitudes,
+)
 from .selection_report import PartCheck, _g
 
 __all__ = ["PartCheck", "part_checks", "Consistency", "consistency", "COLOURED", "SPLITS", "PART_LEVEL",
-           "MIN_PART_SHARE", "MAX_ROWS", "BLIND", "blind_check"]
+           "MIN_PART_SHARE", "MAX_ROWS", "BLIND", "blind_check", "KNEES", "MIN_TURN_RANGE"]
 
 #: The splits, in the order they are made and reported: name and the two parts' names.
 SPLITS: dict[str, tuple[str, str]] = {
@@ -199,6 +209,7 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
         where[ANGLE] = list(range(len(inputs), len(inputs) + len(turning)))
         inputs += turning
     weakening = _friction_curve_inputs(rows)
+    weakening += _drag_inputs(rows) if weakening else []
     if weakening:
         where[SPEED_CURVE] = list(range(len(inputs), len(inputs) + len(weakening)))
         inputs += weakening
@@ -235,76 +246,6 @@ def consistency(estimate: Any, recordings: Sequence[Recording], *, level: float 
 #: The check that is no split: the model's own torque, ``b v - a ω``, through a curve beside it
 #: (:func:`_push_curve_inputs`).
 PUSH_CURVE = "torque curve"
-
-
-def _push_curve_inputs(rows: _Rows) -> list[np.ndarray]:
-    """The model's torque ``T = b v - a ω`` through a curve, ``T |T| / P`` and ``T^3 / P^2`` (``P`` its largest
-    magnitude): Ramsey's RESET in the model's own terms.  A plant whose torque bends where the model's is large (a
-    current limit, a driver or a supply that saturates) fits these; a right model does not.  None without the
-    model's torque."""
-    push = rows.push
-    if push is None or not len(push):
-        return []
-    top = float(np.max(np.abs(push)))
-    if not (math.isfinite(top) and top > 0):
-        return []
-    return [push * np.abs(push) / top, push * push * push / top ** 2]
-
-
-#: Least range of the angle, rad, over which a torque of ``sin θ`` and ``cos θ`` is tested beside one of ``θ``: over
-#: less they are a line and a constant (the spring's column and the constant acceleration).
-MIN_TURN_RANGE = 1.0
-
-
-def _angle_inputs(rows: _Rows) -> list[np.ndarray]:
-    """The accelerations of a torque of the angle ``θ`` (module docstring): ``θ`` itself (a spring, a cable, gravity
-    near its balance), and over :data:`MIN_TURN_RANGE` ``sin θ`` and ``cos θ`` too (gravity on an arm, whatever its
-    zero; a load unbalanced once a turn); none where the angle does not move."""
-    theta = rows.angle
-    if not (len(theta) and np.all(np.isfinite(theta))) or float(np.ptp(theta)) == 0:
-        return []
-    out = [-(theta - float(np.mean(theta)))]
-    if float(np.ptp(theta)) >= MIN_TURN_RANGE:
-        out += [-np.sin(theta), -np.cos(theta)]
-    return out
-
-
-#: Speeds, as shares of the model's largest, at which the friction curve's columns fall to ``1/e`` of their level at
-#: rest (:func:`_friction_curve_inputs`): Stribeck's knee sits at 2-20 % of the top speed on the benches we know.
-KNEES = (0.05, 0.2)
-
-
-def _friction_curve_inputs(rows: _Rows) -> list[np.ndarray]:
-    """A friction that changes with speed (module docstring): ``sign(ω) exp(-(ω/s)²)`` at each knee ``s`` of
-    :data:`KNEES` (times the model's top speed), friction that weakens (or grows) from rest, as Stribeck's does; a
-    constant Coulomb level is the model's own, or the constant's; and ``ω |ω|``, a drag that grows with speed.  None
-    where the speed does not move."""
-    w = rows.speed
-    top = float(np.max(np.abs(w))) if len(w) else 0.0
-    if not (math.isfinite(top) and top > 0):
-        return []
-    return [-np.sign(w) * np.exp(-(w / (share * top)) ** 2) for share in KNEES] + [-w * np.abs(w) / top]
-
-
-def _curve_inputs(rows: _Rows) -> list[np.ndarray]:
-    """The drive's curve (module docstring): ``v |v| / V`` and ``v^3 / V^2`` (``V`` its largest magnitude), a gain
-    that changes smoothly with the duty (a supply that sags, a current limit, a driver's curved map); none where
-    the drive takes fewer than three magnitudes (no curve to see)."""
-    v = rows.drive
-    moving = np.abs(v[v != 0])
-    if not _three_magnitudes(moving):
-        return []
-    top = float(moving.max())
-    return [v * np.abs(v) / top, v * v * v / top ** 2]
-
-
-def _three_magnitudes(moving: np.ndarray) -> bool:
-    """Whether the magnitudes ``moving`` take three values or more (``len(np.unique(moving)) >= 3``, without its
-    sort): one strictly between the least and the largest."""
-    if len(moving) == 0:
-        return False
-    least, largest = float(moving.min()), float(moving.max())
-    return bool(np.any((moving > least) & (moving < largest)))
 
 
 def _curve_check(estimate: Any, fitted: tuple[np.ndarray, np.ndarray, int, np.ndarray, int], p_own: int,
