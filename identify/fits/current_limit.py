@@ -16,10 +16,10 @@ continuous and piecewise linear in ``omega``, solved in closed form through its 
 
 The fit is nonlinear least squares (:func:`scipy.optimize.least_squares`, bounded: ``a > 0``, ``L > 0``,
 ``0 < s <= 1``) on ``(a, b, L, s, d)`` and each segment's initial speed, the angle offset projected out, from
-several starting limits, its Jacobian the response's exact sensitivities
-(:func:`identify.fits.limit_response.limit_sensitivities`); its covariance is :func:`identify.fits.asymmetry.fit_mapped`'s (the encoder's rounding by the
-linearised bootstrap where it dominates, else Gauss--Newton or Newey--West), the initial speeds projected out of
-the Jacobian.
+several starting limits (solved in ``(1 - s) a`` for ``s``: :func:`_solve`), its Jacobian the response's exact
+sensitivities (:func:`identify.fits.limit_response.limit_sensitivities`); its covariance is
+:func:`identify.fits.asymmetry.fit_mapped`'s (the encoder's rounding by the linearised bootstrap where it dominates,
+else Gauss--Newton or Newey--West), the initial speeds projected out of the Jacobian.
 """
 from __future__ import annotations
 

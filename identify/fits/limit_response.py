@@ -112,6 +112,38 @@ def limit_interval(ae: float, am: float, bu: float, limit: float, d: float, w: f
     return w, th
 
 
+def _piece(reg: int, a: float, s: float, ae: float, am: float, u: float, bu: float, limit: float, d: float,
+           dal: np.ndarray, dc: np.ndarray) -> tuple[float, float]:
+    """The field ``c - alpha w`` of region ``reg`` (0 linear, 1 or -1 held at the limit): ``alpha``, ``c``, and
+    their derivatives with respect to ``(a, b, L, s, d, w0)`` in ``dal``, ``dc``."""
+    for i in range(6):
+        dal[i] = 0.0
+        dc[i] = 0.0
+    dc[4] = 1.0
+    if reg == 0:
+        dal[0] = 1.0
+        dc[1] = u
+        return ae + am, bu + d
+    dal[0] = 1.0 - s
+    dal[3] = -a
+    dc[2] = float(reg)
+    return am, reg * limit + d
+
+
+def _next_region(ae: float, reg: int, f: float, up: float, lo: float) -> tuple[float, int]:
+    """The speed at which a motion of rate ``f`` in region ``reg`` leaves it and the region it enters (2: none)."""
+    if ae > 0.0:
+        if reg == 0 and f > 0.0:
+            return lo, -1
+        if reg == 0 and f < 0.0:
+            return up, 1
+        if reg == 1 and f > 0.0:
+            return up, 0
+        if reg == -1 and f < 0.0:
+            return lo, 0
+    return 0.0, 2
+
+
 def limit_interval_sensitivity(a: float, s: float, u: float, b: float, limit: float, d: float, w: float, th: float,
                                h: float, dw: np.ndarray, dth: np.ndarray, dal: np.ndarray, dc: np.ndarray,
                                df: np.ndarray) -> tuple[float, float]:
@@ -132,32 +164,11 @@ def limit_interval_sensitivity(a: float, s: float, u: float, b: float, limit: fl
         reg = 1 if bu > limit else (-1 if bu < -limit else 0)
     remaining = h
     for _ in range(4):
-        for i in range(6):
-            dal[i] = 0.0
-            dc[i] = 0.0
-        if reg == 0:
-            alpha, c = ae + am, bu + d
-            dal[0] = 1.0
-            dc[1] = u
-        else:
-            alpha, c = am, reg * limit + d
-            dal[0] = 1.0 - s
-            dal[3] = -a
-            dc[2] = float(reg)
-        dc[4] = 1.0
+        alpha, c = _piece(reg, a, s, ae, am, u, bu, limit, d, dal, dc)
         f = c - alpha * w
         for i in range(6):
             df[i] = dc[i] - w * dal[i] - alpha * dw[i]
-        target, nxt = 0.0, 2
-        if ae > 0.0:
-            if reg == 0 and f > 0.0:
-                target, nxt = lo, -1
-            elif reg == 0 and f < 0.0:
-                target, nxt = up, 1
-            elif reg == 1 and f > 0.0:
-                target, nxt = up, 0
-            elif reg == -1 and f < 0.0:
-                target, nxt = lo, 0
+        target, nxt = _next_region(ae, reg, f, up, lo)
         tau = remaining
         crossed = False
         if nxt != 2:
@@ -234,7 +245,8 @@ def _compiled_sensitivity() -> Callable[..., None] | None:
     jit = numba_jit()
     if jit is None:
         return None
-    interval = jit(_rebound(limit_interval_sensitivity, _phi=jit(_phi), _dphi=jit(_dphi)))
+    interval = jit(_rebound(limit_interval_sensitivity, _phi=jit(_phi), _dphi=jit(_dphi), _piece=jit(_piece),
+                            _next_region=jit(_next_region)))
     return jit(_rebound(limit_sensitivity_run_python, limit_interval_sensitivity=interval))
 
 

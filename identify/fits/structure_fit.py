@@ -13,8 +13,9 @@ initial states (and the angle's offset) are projected out by least squares
 moves the parameters within their bounds from each start, the best kept.  The covariance is
 :func:`identify.checks.uncertainty.robust_covariance`'s on the Jacobian at the optimum (central
 differences), the initial states counted as nuisance parameters; a fit that ends on a parameter's bound
-(closer to it than the differences' step) is refused by a :class:`~identify.errors.NotIdentifiableError` naming it.  The input delay is searched as
-every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.comparison.choose_delay`).
+(closer to it than the differences' step) is refused by a :class:`~identify.errors.NotIdentifiableError` naming
+it.  The input delay is searched as every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`,
+:func:`identify.comparison.choose_delay`).
 """
 from __future__ import annotations
 

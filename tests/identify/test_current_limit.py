@@ -113,9 +113,10 @@ def test_the_sensitivities_are_the_responses_own_derivatives(share):
         down[i] -= step
         if i == 3 and up[i] > 1.0:
             up[i], down[i], step = x[i], x[i] - 1e-8, 0.5e-8
-        (a_up, w_up), (a_down, w_down) = limit_response(*up[:5], duty, t, up[5]), limit_response(*down[:5], duty, t,
-                                                                                                down[5])
-        for ours, diff in ((d_angle[:, i], (a_up - a_down) / (2 * step)), (d_speed[:, i], (w_up - w_down) / (2 * step))):
+        a_up, w_up = limit_response(*up[:5], duty, t, up[5])
+        a_down, w_down = limit_response(*down[:5], duty, t, down[5])
+        for ours, diff in ((d_angle[:, i], (a_up - a_down) / (2 * step)),
+                           (d_speed[:, i], (w_up - w_down) / (2 * step))):
             assert np.max(np.abs(ours - diff)) <= 1e-6 * np.max(np.abs(diff)), i
 
 
