@@ -26,7 +26,6 @@ bound (:func:`identify.checks.uncertainty.cramer_rao_bound`).
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
 from typing import TYPE_CHECKING, Callable
@@ -361,22 +360,25 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
     """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
     (with ``refine=False`` on long data, only its first steps: see :func:`identify.comparison.refine`).
 
-    Kept by what it depends on (:data:`_KEPT`): the digest of ``segs``, the delay, the bias, ``refine``, the
-    recordings' sample period and regression start.  The default's selection, its delay scans and the friction fit's
-    check each asked for the same fit on the same rows (72 fits, 44 distinct, on a 12-count encoder's file); a kept
-    one is handed back as new objects and arrays."""
+    Within :func:`identify.fits.variable_projection.shared_work` (the default's selection), kept by what it depends
+    on: the digest of ``segs``, the delay, the bias, ``refine``, the recordings' sample period and regression start.
+    The selection, its delay scans and the friction fit's check each asked for the same fit on the same rows (72
+    fits, 44 distinct, on a 12-count encoder's file); a kept one is handed back as new objects and arrays."""
     from .start import _digest, regression_guess
+    from .variable_projection import shared_store
+    kept = shared_store("linear candidates")
+    if kept is None:
+        return _linear_candidate(recs, segs, delay, with_bias, refine)
     key = (_digest(segs), delay, bool(with_bias), bool(refine), len(recs), float(recs[0].sample_period),
            regression_guess(recs))
-    found = _KEPT.get(key)
+    found = kept.get(key)
     if found is not None:
-        _KEPT.move_to_end(key)
         return _copied(found)
     found = _linear_candidate(recs, segs, delay, with_bias, refine)
-    _KEPT[key] = _copied(found)
-    held = sum(0 if f.residuals is None else f.residuals.nbytes for f in _KEPT.values())
-    while held > KEPT_BYTES and len(_KEPT) > 1:
-        _, old = _KEPT.popitem(last=False)
+    kept[key] = _copied(found)
+    held = sum(0 if f.residuals is None else f.residuals.nbytes for f in kept.values())
+    while held > KEPT_BYTES and len(kept) > 1:
+        old = kept.pop(next(iter(kept)))
         held -= 0 if old.residuals is None else old.residuals.nbytes
     return found
 
@@ -384,7 +386,6 @@ def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, wit
 #: The most bytes of residuals the linear candidates kept hold (:func:`linear_candidate`): the last few hundred fits
 #: of a file of ten thousand rows, the last one or two of a million rows.
 KEPT_BYTES = 16 * 2**20
-_KEPT: collections.OrderedDict = collections.OrderedDict()
 
 
 def _copied(fit: CandidateFit) -> CandidateFit:
