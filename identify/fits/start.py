@@ -85,13 +85,6 @@ def initial_guess(recordings: Sequence[Recording], segments: Sequence[Segment]) 
     return grid_guess(segments)
 
 
-#: :func:`grid_guess`'s answers kept by the digest of the segments they were found on (the most recent
-#: :data:`GRID_GUESSES_KEPT`): where the regression finds no start (a coarse encoder), the default's linear
-#: candidates at every delay, with and without a bias, their refinement and the friction fit's linear start each asked
-#: for it again on the same rows (141 grids of 40 responses on a 12-count encoder's file, about 8 distinct).
-_GRID_GUESSES: dict[bytes, tuple[float, float]] = {}
-#: How many :func:`grid_guess` answers are kept.
-GRID_GUESSES_KEPT = 64
 
 
 def _digest(segments: Sequence[Segment]) -> bytes:
@@ -109,7 +102,10 @@ def _digest(segments: Sequence[Segment]) -> bytes:
 def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     """Best ``a`` on a log grid with ``b`` and initial states solved linearly (robust start).
 
-    Kept by the segments' contents (:data:`_GRID_GUESSES`): the same rows give the same start.
+    Within :func:`identify.fits.variable_projection.shared_work` (the default's selection), kept by the digest of
+    the segments' rows: where the regression finds no start (a coarse encoder), the default's linear candidates at
+    every delay, with and without a bias, their refinement and the friction fit's linear start each asked for it again
+    on the same rows (205 grids of 40 responses on a 12-count encoder's file, 28 distinct).
 
     Parameters
     ----------
@@ -121,13 +117,14 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     a, b : float
         Pole in 1/s and gain per input unit.
     """
+    from .variable_projection import shared_store
+    kept = shared_store("grid guesses")
+    if kept is None:
+        return _grid_guess(segments)
     key = _digest(segments)
-    found = _GRID_GUESSES.get(key)
+    found = kept.get(key)
     if found is None:
-        found = _grid_guess(segments)
-        if len(_GRID_GUESSES) >= GRID_GUESSES_KEPT:
-            _GRID_GUESSES.pop(next(iter(_GRID_GUESSES)))
-        _GRID_GUESSES[key] = found
+        found = kept[key] = _grid_guess(segments)
     return found
 
 
