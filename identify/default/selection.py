@@ -73,7 +73,7 @@ from ..estimate import Estimate
 from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
 from ..fits.variable_projection import shared_work
 from ..sums import sum_squares
-from .consistency import PartCheck, consistency, widened_range
+from .consistency import PartCheck, blind_check, consistency, widened_range
 from .disturbance import disturbance_follows_input
 from .evidence import on_evidence
 from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
@@ -762,6 +762,14 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
     for name, x in wider.items():
         value, half = float(est.value(name)), 1.959963984540054 * x
         ranges[name] = (min(ranges[name][0], value - half), max(ranges[name][1], value + half))
+    blind = blind_check(parts, float(est.a), float(est.b)) if selection.clear else None
+    if blind is not None:
+        check, name, width = blind
+        selection = doubted(selection, f"the part checks cannot vouch for the model: {check.split} could not tell its "
+                                       f"parts' {name} apart by less than {100 * width:.3g} % of its value (95 %), so "
+                                       "a structure that misfits this recording would pass them as this one does; "
+                                       "this is not a clear choice", "a finer encoder or a longer, richer run would "
+                                       "let them check it")
     if not (differ or wider):
         return est, selection, parts
     est = dataclasses.replace(est, model_range=widened_range(ranges, differ))
