@@ -64,6 +64,7 @@ from motorsim.checks import ParameterError, ParameterTypeError, check_bool, chec
 from motorsim.fixed_point import ControlLoop, gains_from_wire, reference_values
 from motorsim.knobs import Knob, knob, knobs_of
 from motorsim.plant import Motor, Plant, Stepper, further_parameters, named_plant, registered_structures
+from motorsim.ranges import check_bench_values
 from motorsim.rig import bench_knobs
 from motorsim.sensors import Encoder
 
@@ -746,6 +747,9 @@ def parse_fake_url(url: str) -> FakeDevice:
 
     plant_keys = [k.name for k in knobs_of(Motor)] + [k.name for k in _structure_knobs()[1:]]
     given = {name: values[name] for name in plant_keys if name in values}
+    # the ranges motorid simulate holds its flags to; the run's sample period and length come later, from the host:
+    # the rules in sample periods wait for them, and the speeds are the steady ones (motorsim.ranges)
+    check_bench_values({**_MOTOR_DEFAULTS, **values}, lambda name: f"fake:// url key {name!r}")
     motor = named_plant(values.get("structure", ""), {**_MOTOR_DEFAULTS, **given}, registered_structures())
     return FakeDevice(motor, Encoder(**fields_of(Encoder)), FaultPlan(**fields_of(FaultPlan)),
                       speed=values.get("speed", 1.0), queue_size=values.get("queue", 16),

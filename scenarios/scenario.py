@@ -47,10 +47,11 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
-from motorsim.checks import check_int, is_int
+from motorsim.checks import ParameterError, check_int, is_int
 from motorsim.excitation import Excitation, Sine, parse_excitation
 from motorsim.knobs import knobs_of
 from motorsim.plant import Motor, Plant, further_parameters, named_plant
+from motorsim.ranges import check_bench_values
 from motorsim.rig import Experiment, SimRig, bench_knobs
 from motorsim.sensors import Encoder
 from motorsim.text import control_characters, printable
@@ -359,11 +360,26 @@ def _setting(values: Mapping) -> Setting:
         except (TypeError, ValueError) as exc:
             raise ScenarioError(f"excitation: {exc}") from None
     kw["excitation"] = spec
+    where = ", ".join(f"{k} = {v!r}" for k, v in values.items() if not k.startswith("excitation"))
     try:
-        return Setting(**kw)
+        setting = Setting(**kw)
     except (TypeError, ValueError) as exc:
-        where = ", ".join(f"{k} = {v!r}" for k, v in values.items() if not k.startswith("excitation"))
         raise ScenarioError(f"{exc} (in the setting {where})") from None
+    try:            # the ranges motorid simulate holds its flags to (motorsim.ranges.BENCH_RULES)
+        check_bench_values({n: getattr(setting, n) for n in RANGE_KEYS}, _key)
+    except ParameterError as exc:
+        raise ScenarioError(f"{exc} (in the setting {where})") from None
+    return setting
+
+
+#: The keys held to the bench's ranges (:func:`motorsim.ranges.check_bench_values`).
+RANGE_KEYS = ("sample_period", "duration", "a", "b", "duty_limit", "bias", "initial_speed", "counts_per_rev",
+              "friction", "static_friction", "dead_zone", "electrical_time_constant", "angle_noise")
+
+
+def _key(name: str) -> str:
+    """A knob as a scenario names it, ``section.key``."""
+    return next(f"{section}.{name}" for section, keys in SETTING_KEYS.items() if name in keys)
 
 
 def _check_printable(data: Mapping, source: str) -> None:

@@ -12,8 +12,10 @@ initial states (and the angle's offset) are projected out by least squares
 (:meth:`~identify.model_structures.ModelStructure.segment_output`); ``scipy.optimize.least_squares``
 moves the parameters within their bounds from each start, the best kept.  The covariance is
 :func:`identify.checks.uncertainty.robust_covariance`'s on the Jacobian at the optimum (central
-differences), the initial states counted as nuisance parameters.  The input delay is searched as
-every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`, :func:`identify.comparison.choose_delay`).
+differences), the initial states counted as nuisance parameters; a fit that ends on a parameter's bound
+(closer to it than the differences' step) is refused by a :class:`~identify.errors.NotIdentifiableError` naming
+it.  The input delay is searched as every estimator's (:data:`identify.data.DEFAULT_INPUT_DELAY`,
+:func:`identify.comparison.choose_delay`).
 """
 from __future__ import annotations
 
@@ -95,6 +97,27 @@ def _full(structure: ModelStructure, segs: list[Segment], x0: np.ndarray) -> tup
     return (x, r) if r @ r <= r0 @ r0 else (x0, r0)
 
 
+def _steps(x: np.ndarray) -> np.ndarray:
+    """The covariance's central-difference steps: relative, ``1e-6`` of each value (``1e-12`` near 0)."""
+    return 1e-6 * np.maximum(np.abs(x), 1e-6)
+
+
+def _check_inside(structure: ModelStructure, x: np.ndarray, steps: np.ndarray) -> None:
+    """A :class:`~identify.errors.NotIdentifiableError` naming each parameter the fit left on a bound (closer to
+    it than its difference step): the best fit the structure allows lies at the edge of its range, the data asking
+    for a value outside it (a shaft's damping below 0, a load's inertia at 0), so the structure does not describe
+    the recording and no interval can be given for it.  The estimators' own error for data that do not determine a
+    structure, which the default and the comparison of methods report as such."""
+    low, high = _bounds(structure)
+    pinned = [f"{p.name} = {v:.6g} (its bound {lo if v - st < lo else hi:.6g})"
+              for p, v, st, lo, hi in zip(structure.parameters, x, steps, low, high) if v - st < lo or v + st > hi]
+    if pinned:
+        raise NotIdentifiableError(
+            f"the {structure.name} fit ended on the edge of the structure's range: {', '.join(pinned)}; the data ask "
+            f"for a value outside it, so the {structure.name} structure does not describe this recording (fit a "
+            "simpler structure, or record where the parts it adds show)")
+
+
 def fit_linear_structure(recordings: Recording | list[Recording], *, structure: str,
                          input_delay: int | str = DEFAULT_INPUT_DELAY) -> Estimate:
     """Output error of the registered linear ``structure`` (module docstring).
@@ -147,13 +170,14 @@ def fit_linear_structure(recordings: Recording | list[Recording], *, structure: 
     n, k = len(r), s.n_params + nuisance
     if n <= k + 1:
         raise NotIdentifiableError(f"recording is too short: {n} samples for {k} parameters")
+    steps = _steps(x)
+    _check_inside(s, x, steps)
     J = np.empty((n, s.n_params))
     for i in range(s.n_params):                     # central differences, relative steps
-        step = 1e-6 * max(abs(x[i]), 1e-6)
         up, down = x.copy(), x.copy()
-        up[i] += step
-        down[i] -= step
-        J[:, i] = (_residuals(down, s, segs) - _residuals(up, s, segs)) / (2 * step)
+        up[i] += steps[i]
+        down[i] -= steps[i]
+        J[:, i] = (_residuals(down, s, segs) - _residuals(up, s, segs)) / (2 * steps[i])
     s2 = float(r @ r) / (n - k)
     cov, how = robust_covariance(J, r, s2, s.n_params)
     values = dict(zip(s.param_names, (float(v) for v in x)))

@@ -8,7 +8,14 @@ import pytest
 import identify
 from identify import fit
 from identify.default.evidence import CURRENT_LIMIT, RULES
-from identify.fits.limit_response import _compiled, limit_run_python
+from identify.fits.limit_response import (
+    _compiled,
+    _compiled_sensitivity,
+    limit_response,
+    limit_run_python,
+    limit_sensitivities,
+    limit_sensitivity_run_python,
+)
 from motorid.bench.misfits import current_limit
 from motorsim import Recording
 from motorsim.checks import ParameterError
@@ -82,6 +89,74 @@ def test_the_compiled_loop_and_the_python_loop_agree():
         out.append((speed, angle))
     np.testing.assert_allclose(out[0][0], out[1][0], rtol=0, atol=1e-12 * np.max(np.abs(out[0][0])))
     np.testing.assert_allclose(out[0][1], out[1][1], rtol=0, atol=1e-12 * np.max(np.abs(out[0][1])))
+
+
+@pytest.mark.parametrize("share", [0.8, 1.0])
+def test_the_sensitivities_are_the_responses_own_derivatives(share):
+    # central differences of the response at steps of 1e-5 of each value: their own error (truncation ~ step^2,
+    # rounding ~ 1e-16 / step) is below 1e-8 of the largest sensitivity; 1e-6 leaves a margin of 100.  The share at
+    # its bound 1 is differenced one-sided, at a step of 1e-8 (truncation ~ 1e-8, rounding ~ 1e-8)
+    rng = np.random.default_rng(4)
+    n = 2500
+    t = np.cumsum(np.r_[0.0, DT * (1 + 0.2 * rng.uniform(-1, 1, n - 1))])
+    duty = _steps(n) + rng.integers(-20, 21, n)
+    x = np.array([25.0, 3.0, 400.0, share, -2.0, 1.5])
+    angle, speed, d_angle, d_speed = limit_sensitivities(*x[:5], duty, t, x[5])
+    exact = limit_response(*x[:5], duty, t, x[5])
+    assert np.array_equal(angle, exact[0]) and np.array_equal(speed, exact[1])
+    asked = np.abs(x[1] * duty[:-1] - x[3] * x[0] * speed[:-1])
+    assert 0.05 < np.mean(asked > x[2]) < 0.5        # the limit acts on part of the run: both regions differentiated
+    for i in range(6):
+        step = 1e-5 * abs(x[i])
+        up, down = x.copy(), x.copy()
+        up[i] += step
+        down[i] -= step
+        if i == 3 and up[i] > 1.0:
+            up[i], down[i], step = x[i], x[i] - 1e-8, 0.5e-8
+        a_up, w_up = limit_response(*up[:5], duty, t, up[5])
+        a_down, w_down = limit_response(*down[:5], duty, t, down[5])
+        for ours, diff in ((d_angle[:, i], (a_up - a_down) / (2 * step)),
+                           (d_speed[:, i], (w_up - w_down) / (2 * step))):
+            assert np.max(np.abs(ours - diff)) <= 1e-6 * np.max(np.abs(diff)), i
+
+
+def test_the_compiled_sensitivities_are_the_python_loops():
+    kernel = _compiled_sensitivity()
+    if kernel is None:
+        pytest.skip("numba is not installed here")
+    n = 1500
+    h = np.full(n - 1, DT)
+    u = _steps(n).astype(float)[:-1]
+    out = []
+    for run in (limit_sensitivity_run_python, kernel):
+        speed, angle, sw, sth = np.zeros(n), np.zeros(n), np.zeros((n, 6)), np.zeros((n, 6))
+        speed[0], sw[0, 5] = 4.0, 1.0
+        run(25.0, 0.8, u, 3.0, 400.0, -2.0, h, speed, angle, sw, sth)
+        out.append(np.column_stack([speed, angle, sw, sth]))
+    np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-12 * np.max(np.abs(out[0])))
+
+
+def test_a_loose_pole_on_a_coarse_speed_column_is_fitted_to_its_minimum():
+    # a 48-count speed column at 1 ms (steps of 131 rad/s) leaves a loose along b / a; the fit must still end where
+    # no Gauss-Newton step lowers the cost: each parameter's step under 1e-5 of its value (the solver's tolerance
+    # on the cost is 1e-14, on a of this flat valley that is ~1e-7)
+    from identify.data import prepare_segments
+    from identify.fits.current_limit import _residual_jacobian, _residuals
+    from identify.fits.limit_response import initial_speed_fit
+    rng = np.random.default_rng(1)
+    h, n = 0.001, 6000
+    t = np.arange(n) * h
+    duty = np.repeat(rng.choice([-200, -150, -60, 60, 150, 200], n // 300 + 1), 300)[:n]
+    angle = SHAPE.response(TRUTH, duty, t).angle
+    counts = np.floor(angle * 48 / (2 * np.pi) + rng.uniform(0, 1)).astype(np.int64)
+    speed = np.round(np.r_[0.0, np.diff(counts)] * 2 * np.pi / 48 / h, 2)
+    rec = Recording(time=t, duty=duty, sample_period=h, speed=speed)
+    est = fit(rec, "oe-current-limit", input_delay=0)
+    segments = prepare_segments([rec], 0)
+    theta = np.array([est.value(n) for n in ("a", "b", "current_limit", "emf_share", "bias")])
+    x = np.concatenate([theta, [initial_speed_fit(theta, seg) for seg in segments]])
+    step = np.linalg.lstsq(_residual_jacobian(x, segments), -_residuals(x, segments), rcond=None)[0]
+    assert np.all(np.abs(step[:5]) <= 1e-5 * np.abs(theta)), step[:5] / theta
 
 
 @pytest.mark.parametrize("delay", [0, 2])

@@ -135,3 +135,15 @@ def test_a_load_far_lighter_than_the_motor_is_the_rigid_motor_not_a_division_by_
     light = simulate(TwoMassPlant(25.0, 3.0, 1e-20, 150.0, 0.1), u, t)
     rigid = simulate(Motor(25.0, 3.0), u, t)
     assert np.max(np.abs(light.speed - rigid.speed)) <= 1e-9 * np.max(np.abs(rigid.speed))
+
+
+def test_a_fit_that_ends_on_a_bound_is_not_identifiable_and_names_the_parameter():
+    # a rigid motor on a 100-count encoder: the best two-mass fit asks for a damping below 0 and stops on its
+    # bound, where the covariance's central differences stepped outside the range (a ParameterError from deep
+    # inside the plant); the estimators' error for data that do not determine a structure is NotIdentifiableError
+    from identify import NotIdentifiableError
+    rigid = SimRig(Motor(25.0, 3.0), Encoder(100), rng=np.random.default_rng(3)).run(EXPERIMENT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(NotIdentifiableError, match=r"shaft_damping = .* \(its bound 0\)"):
+            identify.fit(rigid, "oe-two-mass", input_delay=0)
