@@ -90,7 +90,7 @@ from .check_columns import (
 from .selection_report import PartCheck, _g
 
 __all__ = ["PartCheck", "part_checks", "Consistency", "consistency", "COLOURED", "SPLITS", "PART_LEVEL",
-           "MIN_PART_SHARE", "MAX_ROWS", "BLIND", "blind_check", "KNEES", "MIN_TURN_RANGE"]
+           "MIN_PART_SHARE", "MAX_ROWS", "KNEES", "MIN_TURN_RANGE"]
 
 #: The splits, in the order they are made and reported: name and the two parts' names.
 SPLITS: dict[str, tuple[str, str]] = {
@@ -757,47 +757,3 @@ def _hint(name: str, a: tuple[float, float], b: tuple[float, float], parts: tupl
     if big_b:
         return f"the gain changes with speed (b {_g(b[0])} {p}, {_g(b[1])} {q}): a current limit the model misses?"
     return "friction that changes with speed?"
-
-
-#: Smallest difference between a check's two parts, relative to the answer's value, that the check must be able to
-#: find (its 95 % half-width) for it to vouch for the answer.  A check blind to a larger one passes a model that
-#: misfits by that much as readily as a right one: on the random rigs past our structures whose answers were clear
-#: and wrong on a 12-48 count encoder or under Stribeck's friction, the blindest check could not tell its parts
-#: apart by 68-380 % of the value; on the right-model classes of ``motorid bench coverage`` it always could by 2 %.
-BLIND = 0.5
-
-
-def blind_check(checks: Sequence[PartCheck], a: float, b: float) -> tuple[PartCheck, str, float] | None:
-    """The check least able to tell its parts apart, if it cannot by :data:`BLIND` of ``a`` or ``b``: the check,
-    the parameter and the 95 % half-width of its parts' difference relative to the value (the parts' own
-    half-widths in quadrature; infinite where a part has no finite interval).  ``None`` where every check can.  A
-    check whose test could not be formed (its p-value not a number: a split whose part columns repeat the model's
-    own, as by direction under a binary input) is no check and is not counted."""
-    worst: tuple[PartCheck, str, float] | None = None
-    for check in checks:
-        if not math.isfinite(check.p_value):
-            continue
-        for name, intervals, value in (("a", check.a_interval, a), ("b", check.b_interval, b)):
-            halves = [(x1 - x0) / 2 for x0, x1 in intervals]
-            if not value:
-                continue
-            width = (math.hypot(*halves) / abs(value) if all(math.isfinite(h) for h in halves) else math.inf)
-            if width > BLIND and (worst is None or width > worst[2]):
-                worst = (check, name, width)
-    return worst
-
-
-def widened_range(ranges: Mapping[str, tuple[float, float]],
-                  checks: Sequence[PartCheck]) -> dict[str, tuple[float, float]]:
-    """``ranges`` (``a`` and ``b`` intervals) widened to hold every disagreeing part's own 95 % interval."""
-    out = dict(ranges)
-    for check in checks:
-        if check.agree:
-            continue
-        for name, intervals in (("a", check.a_interval), ("b", check.b_interval)):
-            lo, hi = out[name]
-            for x0, x1 in intervals:
-                if math.isfinite(x0) and math.isfinite(x1):
-                    lo, hi = min(lo, x0), max(hi, x1)
-            out[name] = (lo, hi)
-    return out

@@ -72,9 +72,9 @@ from ..errors import NotIdentifiableError
 from ..estimate import Estimate
 from ..fits.friction import speed_reverses
 from ..fits.prediction_error import PredictionErrorFit, estimate_from, solve_prediction_error
-from .consistency import ANGLE, BESIDE_HINTS, CURVE, SPEED_CURVE, SPLITS, _hint, widened_range
+from .consistency import ANGLE, BESIDE_HINTS, CURVE, SPEED_CURVE, SPLITS, _hint
 from .innovation_checks import innovation_checks
-from .selection_report import PartCheck, SelectionReport
+from .selection_report import PartCheck, SelectionReport, widened_range
 
 __all__ = ["feedback_evidence", "feedback_share", "fit_closed_loop", "fit_changing_torque", "halves_checked",
            "parts_checked", "parts_beyond", "beyond_note", "BEYOND_CHECKS", "SUGGESTIVE",

@@ -73,11 +73,11 @@ from ..estimate import Estimate
 from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
 from ..fits.variable_projection import shared_work
 from ..sums import sum_squares
-from .consistency import PartCheck, blind_check, consistency, widened_range
+from .consistency import PartCheck, consistency
 from .disturbance import disturbance_follows_input
 from .evidence import on_evidence
 from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
-from .selection_report import SelectionReport, doubted
+from .selection_report import SelectionReport, blind_check, doubted, widened_range
 
 __all__ = ["fit_selected", "select_model", "residual_checks", "sign_correlation_p", "SCREEN_LEVEL", "SCREEN_SHARE"]
 

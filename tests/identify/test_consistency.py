@@ -221,7 +221,7 @@ def _two_parts(half_a: float, half_b: float) -> PartCheck:
 
 
 def test_a_check_that_can_tell_its_parts_apart_by_half_the_value_vouches_for_the_answer():
-    from identify.default.consistency import BLIND, blind_check
+    from identify.default.selection_report import BLIND, blind_check
     # the parts' difference has the half-width of the two in quadrature: 0.35 * sqrt 2 = 0.495 of the value
     assert blind_check([_two_parts(0.35 * A, 0.01 * B)], A, B) is None
     check, name, width = blind_check([_two_parts(0.01 * A, 0.36 * B)], A, B)
