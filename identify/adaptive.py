@@ -13,7 +13,9 @@ bench, the emulated or the real Arduino) in rounds:
    choice and the runs would hold ``a`` and ``b`` within the target even with a driver lag or a dead
    time left free (:func:`lag_free_reach`), stop. Otherwise choose the next block: two lines
    (:data:`_SHAPES`: the second at 3-15 times the first; frequency and shape, the largest amplitude
-   the duty limit and the budgets allow) whose predicted intervals, with the lag free, reach the
+   the duty limit and the budgets allow) or, once a run of more than one duty magnitude is in and
+   no travel budget is set, a PRBS of the largest duty the speed budget allows (the bit's hold
+   chosen; :func:`_blocks`), whose predicted intervals, with the lag free, reach the
    target soonest, judged over the plausible ``a`` of the interval so far; the block lasts as long
    as the prediction says it takes (at most three times the motor time so far, and the budget left).
    While the choice of structure is not clear, every other block is an odd multisine over ``a/10 ...
@@ -72,8 +74,7 @@ from .fits.sensitivity import zoh_response
 
 __all__ = ["run_until", "UntilResult", "UntilRound", "join_runs", "information", "DEFAULT_MAX_TIME",
            "STOP_REASONS", "check_target", "lag_free_reach", "judge", "Judgement", "sub_sample_lag", "simultaneous",
-           "lag_widened",
-           "SIMULTANEOUS"]
+           "lag_widened", "SIMULTANEOUS", "FixedDesign", "design_fixed", "fixed_design_time"]
 
 #: Default motor-time budget in s.
 DEFAULT_MAX_TIME = 60.0
@@ -938,17 +939,10 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
     share = bool(last.clear)
     hi_f = 0.8 * math.pi / dt
     best = None
-    for f, (ratio, upper) in ((f, shape) for f in np.geomspace(max(0.2, min(a_set) / 20), hi_f, 28)
-                              for shape in _SHAPES):
-        amp = _amplitude(a, b, f, duty_limit, max_speed, max_travel)
-        if breakaway is not None and amp <= breakaway:
-            continue
-        unit = max(min_block, 2 * 2 * math.pi / f, 1.0 / a)     # two periods, the transient
-        if unit > left or (ratio > 3 and ratio * f >= hi_f):
-            continue
-        n = max(int(round(unit / dt)), 20)
-        ex = _two_tone(float(f"{f:.4g}"), amp, hi_f, ratio, upper)
-        duty = ex.duty(n, dt, duty_limit)
+    for ex, amp, unit in _blocks(a, b, max(0.2, min(a_set) / 20), dt, duty_limit, max_speed, max_travel,
+                                 min_block, left, breakaway, 1 + (97 * len(state.runs)) % 4095,
+                                 prbs=any(not d.startswith("prbs:") for d in state.descriptions[state.fitted_from:])):
+        duty = ex.duty(max(int(round(unit / dt)), 20), dt, duty_limit)
         worst_time, worst_reach = 0.0, np.zeros(2)
         for aa, past in zip(a_set, pasts):
             blk = information(aa, b * aa / a, duty, dt, delay, lag=True, nuisance=extra)
@@ -981,6 +975,51 @@ def _design_block(state: _State, last: UntilRound, a: float, b: float, target: f
                                         reach_now,
                                         target, length, lagged, fixed=True)[1] for aa, p in zip(a_set, pasts)], axis=0)
     return ex, length, {k: float(r) for k, r in zip(_PARAMS, reach)}, why
+
+
+def _blocks(a: float, b: float, lowest: float, dt: float, duty_limit: int, max_speed: float | None,
+            max_travel: float | None, min_block: float, left: float, breakaway: float | None, seed: int = 1,
+            sines: bool = False, frequencies: int = 28, prbs: bool = True):
+    """The blocks a round may run, each with its amplitude and the length its information is judged on.
+
+    Two lines of each shape (:data:`_SHAPES`; with ``sines``, one line too) on a logarithmic grid from
+    ``lowest`` to 0.8 of the Nyquist frequency, at the largest amplitude the duty limit and the budgets
+    allow, judged on two periods (and the transient, ``1/a``); and a PRBS of the largest level the duty
+    limit and the speed budget allow, each bit held :data:`_PRBS_HOLDS` samples, judged on 40 bits.  The
+    PRBS carries twice the RMS duty of two lines of half the duty each and steps that show a lag: over
+    the loop's rigs it pins ``a`` and ``b`` with the lag free in a third to a tenth of the time.  A
+    travel budget leaves it out (its angle wanders as a random walk), and so does ``prbs`` False: the loop
+    runs one only after a run of more than one duty magnitude, since one magnitude cannot tell the gain from
+    the default's dead-zone candidate (after a PRBS alone, `b` +-5.7 % and not clear where `a` was +-0.4 %).
+    """
+    from motorsim.excitation import PRBS
+    hi_f = 0.8 * math.pi / dt
+    for f in np.geomspace(lowest, hi_f, frequencies):
+        amp = _amplitude(a, b, f, duty_limit, max_speed, max_travel)
+        unit = max(min_block, 2 * 2 * math.pi / f, 1.0 / a)     # two periods, the transient
+        if (breakaway is not None and amp <= breakaway) or unit > left:
+            continue
+        for ratio, upper in (((1, 0.0),) if sines else ()) + _SHAPES:
+            if ratio > 3 and ratio * f >= hi_f:
+                continue
+            line = float(f"{f:.4g}")
+            yield (Sine(line, amp) if ratio == 1 else _two_tone(line, amp, hi_f, ratio, upper)), amp, unit
+    if max_travel is not None or not prbs:
+        return
+    level = float(duty_limit - 2 if duty_limit > 10 else duty_limit)
+    if max_speed is not None:
+        level = min(level, max_speed * a / abs(b))
+    level_i = int(max(1, min(duty_limit, math.floor(level))))
+    if breakaway is not None and level_i <= breakaway:
+        return
+    for hold in _PRBS_HOLDS:
+        unit = max(min_block, 1.0 / a, 40 * hold * dt)
+        if unit <= left:
+            yield PRBS(level_i, -level_i, 12, hold, seed), level_i, unit
+
+
+#: Samples each bit of a PRBS block is held.
+_PRBS_HOLDS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
 
 
 def _plausible_poles(est: Any, last: UntilRound, a: float) -> list[float]:
@@ -1024,7 +1063,94 @@ def _two_tone(frequency: float, amplitude: int, highest: float, ratio: int = 3, 
     return Multisine((frequency, upper_freq), (amplitude - up, up), (0.0, 0.0))
 
 
+# --------------------------------------------------------------------------------------------- fixed experiments
+
+@dataclasses.dataclass(frozen=True)
+class FixedDesign:
+    """The fixed experiment :func:`design_fixed` chooses for a known motor.
+
+    Attributes
+    ----------
+    excitation : Excitation
+        A sine, or two lines of one of the loop's shapes (:data:`_SHAPES`).
+    duration : float
+        The run's length in s.
+    reach : dict
+        The Cramér-Rao reach of ``a`` and ``b`` (%): the 95 % half-widths for both at once
+        (:data:`SIMULTANEOUS`) with a driver lag left free, from the angle noise and the encoder's rounding.
+    """
+
+    excitation: Excitation
+    duration: float
+    reach: Mapping[str, float]
+
+
+def design_fixed(a: float, b: float, sample_period: float, duration: float, *, input_delay: int = 0,
+                 nuisance: Sequence[str] = (), duty_limit: int = 255, angle_noise: float = 0.0,
+                 counts_per_rev: int | None = None, sines: bool = False) -> FixedDesign:
+    """The one fixed experiment of the loop's family that pins ``a`` and ``b`` best in ``duration`` s.
+
+    The family is what :func:`run_until` may run as a first block: two lines of one of its shapes
+    (:data:`_SHAPES`), at the largest amplitude the duty limit allows (with ``sines``, one line too: one line
+    fits a first-order model whatever the plant behind it, so the default seldom calls its structure clear on
+    it, though the bound, which knows the structure, may prefer it; a PRBS, which the loop runs only after
+    a run of more than one duty magnitude, cannot tell the gain from a dead zone alone); the frequency on a logarithmic
+    grid from two periods per run to 0.8 of the Nyquist frequency.  The criterion is the stopping
+    rule's: the larger relative Cramér-Rao standard error of ``a`` and ``b`` with a driver lag left free
+    and ``nuisance`` (:data:`NUISANCE`) unknown (:func:`information`, the run's initial state profiled
+    out).  Runs longer than 8 s are judged on their first 8 s, the information scaled by the length.
+    """
+    a = check_real("a", a, positive=True)
+    b = check_real("b", b)
+    dt = check_real("sample_period", sample_period, positive=True)
+    duration = check_real("duration", duration, positive=True)
+    if b == 0:
+        raise ParameterError(f"b must be nonzero, got {b!r}")
+    n_all = max(int(round(duration / dt)), 20)
+    n = min(n_all, max(int(round(8.0 / dt)), 20))
+    best = None
+    for ex, _, _ in _blocks(a, b, max(2 * 2 * math.pi / (n_all * dt), min(0.2, a / 20)), dt, duty_limit, None, None,
+                            0.0, math.inf, None, sines=sines, frequencies=40, prbs=False):
+        info = information(a, b, ex.duty(n, dt, duty_limit), dt, input_delay, lag=True, nuisance=nuisance)
+        var = _variances(_profiled(info * (n_all / n)))
+        worst = float(np.max(var / np.square([a, b]))) if np.all(np.isfinite(var)) and np.all(var > 0) else math.inf
+        if best is None or worst < best[0]:
+            best = (worst, ex, var)
+    assert best is not None
+    _, ex, var = best
+    sigma2 = angle_noise ** 2 + ((2 * math.pi / counts_per_rev) ** 2 / 12 if counts_per_rev else 0.0)
+    reach = {k: 100 * _Z * SIMULTANEOUS * math.sqrt(sigma2 * v) / abs(x) if math.isfinite(v) and v > 0 else math.inf
+             for k, v, x in zip(_PARAMS, var, (a, b))}
+    return FixedDesign(ex, n_all * dt, reach)
+
+
+def fixed_design_time(a: float, b: float, sample_period: float, target: float, longest: float,
+                      **options: Any) -> FixedDesign:
+    """The shortest :func:`design_fixed` predicted to reach ``target`` % (at most ``longest`` s).
+
+    The length is bisected on a logarithmic scale, each length's experiment designed for it (the
+    best frequency and shape change with the length: a short run spends its information on the
+    transient); ``longest`` s's design where even that is predicted short of the target.
+    """
+    lo, hi = max(40 * sample_period, 0.2), float(longest)
+    d = design_fixed(a, b, sample_period, hi, **options)
+    if not max(d.reach.values()) <= target:
+        return d
+    for _ in range(12):
+        mid = math.sqrt(lo * hi)
+        m = design_fixed(a, b, sample_period, mid, **options)
+        if max(m.reach.values()) <= target:
+            hi, d = mid, m
+        else:
+            lo = mid
+        if hi / lo < 1.03:
+            break
+    return d
+
 def _what(ex: Excitation) -> str:
+    from motorsim.excitation import PRBS
+    if isinstance(ex, PRBS):
+        return f"a PRBS of duty ±{ex.high}, bits held {ex.hold} samples"
     freqs: tuple = getattr(ex, "frequencies", ())
     amps: tuple = getattr(ex, "amplitudes", ())
     if len(freqs) == 1:

@@ -52,6 +52,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .quantiles import kth_smallest
+
 __all__ = ["ImplausibleSample", "implausible_samples", "spike_rows", "saturated_runs", "SPEED_FACTOR",
            "INTERVAL_FACTOR", "DUTY_SPIKE_FACTOR", "angle_unit_doubt", "AngleUnitDoubt", "MAX_SPEED",
            "MIN_CORRELATION"]
@@ -113,12 +115,12 @@ def spike_rows(values: np.ndarray, threshold: float) -> list[int]:
 
 def _speed_rows(speed: np.ndarray, seq: np.ndarray, speed_floor: float) -> list[ImplausibleSample]:
     magnitude = np.abs(speed)
-    magnitude = magnitude[np.isfinite(magnitude)]
-    if len(magnitude) < 10:
+    finite = int(np.count_nonzero(np.isfinite(magnitude)))
+    if finite < 10:
         return []
-    top = len(magnitude) - 1 - max(3, len(magnitude) // 100)    # leave out the largest 1 %, at least 3
-    magnitude.partition(top)
-    scale = max(float(magnitude[top]), speed_floor)
+    # the finite magnitudes' order statistic, taken among all: inf and nan sort after every finite value
+    top = finite - 1 - max(3, finite // 100)    # leave out the largest 1 %, at least 3
+    scale = max(float(kth_smallest(magnitude, top)), speed_floor)
     del magnitude
     if scale == 0:
         return []
@@ -132,7 +134,10 @@ def _interval_rows(time: np.ndarray, seq: np.ndarray, sample_period: float) -> l
     if len(time) < 2:
         return []
     per_step = np.diff(time)
-    per_step /= np.diff(seq)
+    steps = np.diff(seq)
+    if not np.all(steps == 1):      # a division by whole steps of one changes nothing, and costs a conversion
+        per_step /= steps
+    del steps
     per_step /= sample_period
     return [ImplausibleSample(k, int(seq[k]),
                               f"time step {time[k] - time[k - 1]:.6g} s is {per_step[k - 1]:.3g} sample "
@@ -154,8 +159,7 @@ def _duty_rows(duty: np.ndarray, seq: np.ndarray, duty_limit: float | None) -> l
     # and duty[k] - duty[k+1] = -step[k] of one sign (checked only where both are large: few rows)
     size = np.minimum(magnitude[:-1], magnitude[1:])
     top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
-    magnitude.partition(top)            # in place: the steps are not needed in order any more
-    scale = max(float(magnitude[top]), 1.0)
+    scale = max(float(kth_smallest(magnitude, top)), 1.0)
     del magnitude
     limit = DUTY_SPIKE_FACTOR * scale
     large = np.flatnonzero(size > limit)
@@ -183,6 +187,8 @@ def saturated_runs(duty: np.ndarray, duty_limit: float) -> list[tuple[int, int]]
     [(1, 3)]
     """
     duty = np.asarray(duty)
+    if not len(duty) or max(float(duty.max()), -float(duty.min())) < duty_limit * (1 - 2e-9):
+        return []                           # no sample reaches the limit: two reductions, no pass building masks
     if duty.dtype.kind in "iu" and float(duty_limit).is_integer():     # exact: no float pass
         at = (duty == int(duty_limit)) | (duty == -int(duty_limit))
     else:
@@ -366,7 +372,7 @@ def _beyond_any_motor(rate: np.ndarray) -> AngleUnitDoubt | None:
     if len(magnitude) < 10:
         return None
     top = len(magnitude) - 1 - max(3, len(magnitude) // 100)
-    sustained = float(np.partition(magnitude, top)[top])
+    sustained = float(kth_smallest(magnitude, top))
     if sustained <= MAX_SPEED:
         return None
     return AngleUnitDoubt(f"its speed reaches {sustained:.4g} rad/s ({sustained * 60 / (2 * math.pi):.3g} rpm) "

@@ -2,9 +2,11 @@
 
 Two parsers read the same format and refuse the same files.  A large file (at least
 :data:`FAST_PATH_MIN_BYTES`) goes to a fast columnar parser (pyarrow, block by block) when the
-file is plain; anything it cannot vouch for -- blank lines, odd cells, a broken rule -- falls
+file is plain; anything it cannot vouch for -- odd cells, a broken rule, a NUL byte -- falls
 back to the careful parser, which reads line by line and names the file, the line and the
-rule of every error (``RecordingFormatError``).
+rule of every error (``RecordingFormatError``).  The fast parser reads the file once: its head
+(metadata, header, a byte-order mark or NUL byte refused at once), then its rows; the lines of
+rows no motor can produce are counted only for a file refused for them.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import numpy as np
 
 from .checks import ParameterError
 from .files import InputFileError, open_input
+from .plausibility import ImplausibleSample
 from .recording import (
     COLUMNS,
     FORMAT_HEADER,
@@ -50,10 +53,10 @@ def read_recording(path: str | os.PathLike, *, check_samples: bool = True) -> Re
         For every broken rule, naming the file, the line and the rule.
     """
     path = Path(path)
-    scan = _scan_file(path)
-    parsed = _parse_fast(path, scan) if scan.size >= FAST_PATH_MIN_BYTES else None
+    head = _read_head(path)
+    parsed = _parse_fast(path, head) if head.size >= FAST_PATH_MIN_BYTES else None
     if parsed is not None:
-        rec = _build_fast(parsed, str(path), check_samples)
+        rec = _build_fast(parsed, path, check_samples)
         if rec is not None:
             return rec
     data = _read_bounded(path)
@@ -78,42 +81,36 @@ def _check_bytes(data: bytes, path: Path) -> None:
                                    f"(at byte {at}): binary data or a corrupted file, not a recording")
 
 
-class _FileScan(NamedTuple):
-    """One pass over a file in blocks: its first block, its number of newlines, whether it ends with one."""
+class _Head(NamedTuple):
+    """A file's first block (its bytes checked), its size, and whether it ends with a newline."""
 
-    head: bytes
-    newlines: int
-    ends_with_newline: bool
+    data: bytes
     size: int
+    ends_with_newline: bool
 
 
-#: Bytes read per block when a file is scanned.
-_SCAN_BLOCK_BYTES = 1 << 20
+#: Bytes read as a file's head: the metadata and the header row must lie within it for the fast reader.
+_HEAD_BYTES = 1 << 20
 
 
-def _scan_file(path: Path) -> _FileScan:
-    """Check a file block by block (regular, size, BOM, NUL) without holding it in memory."""
-    head, newlines, last = b"", 0, b""
+def _read_head(path: Path) -> _Head:
+    """The head of a regular file of at most :data:`MAX_RECORDING_BYTES`, refused at once for a BOM or a NUL byte.
+
+    The rest of the file is not read here: the fast reader refuses a NUL byte as a cell that is not a number,
+    and the careful parser then names its line.
+    """
     try:
         with _open_recording(path) as f:
-            total = 0
-            while block := f.read(_SCAN_BLOCK_BYTES):
-                if not head:
-                    head = block
-                    _check_bytes(block, path)
-                elif b"\0" in block:
-                    line = newlines + block.count(b"\n", 0, block.index(b"\0")) + 1
-                    raise RecordingFormatError(f"{path}, line {line}: contains a NUL byte: binary data or a "
-                                               "corrupted file, not a recording")
-                newlines += block.count(b"\n")
-                total += len(block)
-                last = block[-1:]
-                if total > MAX_RECORDING_BYTES:
-                    raise RecordingFormatError(f"{path}: over the {MAX_RECORDING_BYTES} bytes a recording may have; "
-                                               "split it")
+            size = os.fstat(f.fileno()).st_size
+            data = f.read(_HEAD_BYTES)
+            last = data[-1:]
+            if len(data) < size:
+                f.seek(size - 1)
+                last = f.read(1)
     except OSError as exc:
         raise RecordingFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    return _FileScan(head, newlines, last == b"\n", total)
+    _check_bytes(data, path)
+    return _Head(data, size, last == b"\n")
 
 
 def _split_head(data: bytes) -> tuple[list[str], int] | None:
@@ -138,8 +135,8 @@ def _split_head(data: bytes) -> tuple[list[str], int] | None:
 _FAST_BLOCK_BYTES = 1 << 21
 
 
-def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
-    """The file from byte ``offset`` in blocks of whole lines of at most :data:`_FAST_BLOCK_BYTES`.
+def _blocks(path: Path, offset: int, size: int) -> Iterator[memoryview]:
+    """The file from byte ``offset`` to ``size`` in blocks of whole lines of at most :data:`_FAST_BLOCK_BYTES`.
 
     Every block is a view of one reused buffer, valid until the next is asked for; the last
     one keeps whatever follows the last newline.  A line longer than the buffer raises
@@ -148,9 +145,11 @@ def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
     buffer = bytearray(_FAST_BLOCK_BYTES)
     view = memoryview(buffer)
     kept = 0
+    left = size - offset             # the size the file had when it was checked: a file that grows is read as it was
     with open(path, "rb", buffering=0) as f:
         f.seek(offset)
-        while got := f.readinto(view[kept:]):
+        while left > 0 and (got := f.readinto(view[kept:kept + min(left, len(buffer) - kept)])):
+            left -= got
             end = kept + got
             cut = buffer.rfind(b"\n", 0, end) + 1
             if not cut:
@@ -172,13 +171,14 @@ def _blocks(path: Path, offset: int) -> Iterator[memoryview]:
 _THREADS = False
 
 
-def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int) -> dict[str, np.ndarray] | None:
-    """The data rows (from byte ``offset``) by column, parsed by pyarrow's CSV reader; None when it fails.
+def _read_columns_fast(path: Path, offset: int, header: list[str], size: int) -> dict[str, np.ndarray] | None:
+    """The data rows (bytes ``offset`` to ``size``) by column, parsed by pyarrow's CSV reader; None when it fails.
 
-    Blocks of whole lines are parsed one at a time and copied into arrays of ``max_rows``
-    (the number of lines), so the working memory is the columns plus one block.  pyarrow parses floats correctly
-    rounded: a file written by :func:`write_recording` reads back bit for bit.  None also when
-    pyarrow is not installed.
+    Blocks of whole lines are parsed one at a time and copied into arrays sized from the first
+    block's bytes per row (grown if the rows get shorter), so the working memory is the columns
+    plus one block, and the file is read once.  pyarrow parses floats correctly rounded: a file
+    written by :func:`write_recording` reads back bit for bit.  Blank lines are skipped (the
+    careful parser skips them too).  None also when pyarrow is not installed.
     """
     try:
         import pyarrow
@@ -189,26 +189,40 @@ def _read_columns_fast(path: Path, offset: int, header: list[str], max_rows: int
     convert_options = pyarrow.csv.ConvertOptions(
         column_types={h: pyarrow.int64() if h in INTEGER_COLUMNS else pyarrow.float64() for h in header},
         null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
-    values = {h: np.empty(max_rows, dtype=np.int64 if h in INTEGER_COLUMNS else np.float64)
-              for h in header if h in COLUMNS}
-    n = 0
+    dtypes = {h: np.int64 if h in INTEGER_COLUMNS else np.float64 for h in header if h in COLUMNS}
+    values: dict[str, np.ndarray] = {}
+    n = read = 0
     try:
-        for block in _blocks(path, offset):
+        for block in _blocks(path, offset, size):
             table = pyarrow.csv.read_csv(pyarrow.py_buffer(block), read_options=read_options,
                                          convert_options=convert_options, memory_pool=pyarrow.system_memory_pool())
             k = table.num_rows
-            if n + k > max_rows:
-                return None
+            read += len(block)
+            if n + k > len(values.get("time_s", ())):
+                # rows so far plus the rest at the bytes per row seen so far, and a margin; untouched pages of an
+                # array this size cost no memory
+                capacity = max(n + k, math.ceil((n + k) * (1 + (size - offset - read) / max(read, 1)) * 1.05) + 64)
+                values = {h: _grown(values.get(h), capacity, n, dtype) for h, dtype in dtypes.items()}
             for h, column in values.items():
                 _copy_column(table.column(h), column[n:n + k])
             n += k
             del table       # before the buffer under ``block`` is refilled
     except Exception:   # any failure of the fast path: the careful parser names the line and the rule
         return None
-    values = {h: v if n == max_rows else v[:n] for h, v in values.items()}
+    if not n:
+        return None
     for v in values.values():
-        v.setflags(write=False)     # owned by nobody else: the Recording keeps them without a copy
-    return values if n else None
+        v.resize(n, refcheck=False)     # in place (no other reference to it is left): an array of its own
+        v.setflags(write=False)         # owned by nobody else: the Recording keeps them without a copy
+    return values
+
+
+def _grown(column: np.ndarray | None, capacity: int, n: int, dtype: type) -> np.ndarray:
+    """An array of ``capacity`` rows whose first ``n`` are those of ``column``."""
+    out: np.ndarray = np.empty(capacity, dtype=dtype)
+    if column is not None and n:
+        out[:n] = column[:n]
+    return out
 
 
 def _copy_column(column, out: np.ndarray) -> None:
@@ -229,25 +243,26 @@ def _copy_column(column, out: np.ndarray) -> None:
 
 
 class _FastParse(NamedTuple):
-    """What the fast reader found: metadata, the header's line, the columns, each row's line (if known)."""
+    """What the fast reader found: metadata, the header's line and byte offset after it, the bytes read, the columns."""
 
     meta: dict[str, str]
     header_line: int
+    offset: int
+    size: int
     counts_per_rev: int | None
     values: dict[str, np.ndarray]
-    row_lines: range | None
 
 
-def _parse_fast(path: Path, scan: _FileScan) -> _FastParse | None:
+def _parse_fast(path: Path, head: _Head) -> _FastParse | None:
     """``path`` parsed by pyarrow's CSV reader, or None for the careful parser to name what is wrong.
 
     Only a well-formed file takes this path: every row complete, every cell a number of its
     column's type, a final newline (the Recording then checks the values).
     """
-    head = _split_head(scan.head) if scan.ends_with_newline else None
-    if head is None:
+    split = _split_head(head.data) if head.ends_with_newline else None
+    if split is None:
         return None
-    lines, offset = head
+    lines, offset = split
     fail = _Failer(str(path))
     meta, header_index = _parse_metadata(lines, fail)
     header = [h.strip() for h in next(csv.reader([lines[header_index]]))]
@@ -255,17 +270,15 @@ def _parse_fast(path: Path, scan: _FileScan) -> _FastParse | None:
     cpr = _counts_per_rev(meta, fail)
     if "counts" in header and cpr is None:
         fail(header_index + 1, "column 'counts' needs the metadata line '# counts_per_rev: N'")
-    n_lines = scan.newlines - scan.head.count(b"\n", 0, offset)
-    values = _read_columns_fast(path, offset, header, n_lines)
+    values = _read_columns_fast(path, offset, header, head.size)
     if values is None:
         return None
-    n = len(values["time_s"])
-    row_lines = range(header_index + 2, header_index + 2 + n) if n_lines == n else None   # no array: 8 bytes a row
-    return _FastParse(meta, header_index + 1, cpr, values, row_lines)
+    return _FastParse(meta, header_index + 1, offset, head.size, cpr, values)
 
 
-def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording | None:
+def _build_fast(parsed: _FastParse, path: Path, check_samples: bool) -> Recording | None:
     """The Recording of a fast parse; None when a rule is broken, for the careful parser to name the line."""
+    name = str(path)
     fail = _Failer(name)
     values = parsed.values
     sp = _sample_period(parsed.meta, values["time_s"], fail)
@@ -279,11 +292,28 @@ def _build_fast(parsed: _FastParse, name: str, check_samples: bool) -> Recording
     except (ValueError, TypeError):
         return None    # a row breaks a rule (not finite, not increasing): the careful parser names its line
     if check_samples:
-        if parsed.row_lines is None:
-            return None if rec.implausible_samples() else rec   # blank lines: the careful parser knows the lines
-        _refuse_implausible(rec, parsed.row_lines, fail)
+        bad = rec.implausible_samples()
+        if bad:
+            lines = _row_lines(path, parsed.offset, parsed.size, parsed.header_line, len(rec))
+            if lines is None:
+                return None     # blank lines or lone carriage returns: the careful parser knows the lines
+            _refuse_implausible(bad, lines, fail)
         _warn_about_angle_unit(rec, name)
     return rec
+
+
+def _row_lines(path: Path, offset: int, size: int, header_line: int, rows: int) -> range | None:
+    """The line of every data row when each is one line (no blank line, no lone carriage return), else None.
+
+    Read again, only to name the lines of a file that is refused.
+    """
+    newlines = 0
+    for block in _blocks(path, offset, size):
+        data = block.tobytes()
+        newlines += data.count(b"\n")
+        if data.count(b"\r") != data.count(b"\r\n"):
+            return None
+    return range(header_line + 1, header_line + 1 + rows) if newlines == rows else None
 
 
 #: Largest recording file read, in bytes (about 40 million rows of seq,time_s,duty,counts).
@@ -341,7 +371,9 @@ def _parse(text: str, name: str, check_samples: bool = True) -> Recording:
     except (ValueError, TypeError) as exc:
         raise RecordingFormatError(f"{name}: {exc}") from None
     if check_samples:
-        _refuse_implausible(rec, [line for line, _ in cols["time_s"]], fail)
+        bad = rec.implausible_samples()
+        if bad:
+            _refuse_implausible(bad, [line for line, _ in cols["time_s"]], fail)
         _warn_about_angle_unit(rec, name)
     return rec
 
@@ -354,15 +386,13 @@ def _warn_about_angle_unit(rec: Recording, name: str) -> None:
                       AngleUnitWarning, stacklevel=4)
 
 
-def _refuse_implausible(rec: Recording, lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:
-    """Refuse the file when rows no motor can produce are found, naming their lines."""
-    bad = rec.implausible_samples()
-    if bad:
-        others = "" if len(bad) == 1 else f" (and {len(bad) - 1} more, lines " + ", ".join(
-            str(lines[s.row]) for s in bad[1:6]) + (", ..." if len(bad) > 6 else "") + ")"
-        fail(lines[bad[0].row], f"implausible sample (seq {bad[0].seq}): {bad[0].reason}{others}; "
-                                  "a corrupted row? remove it, or drop such rows as gaps "
-                                  "(motorid identify --drop-outliers)")
+def _refuse_implausible(bad: Sequence[ImplausibleSample], lines: Sequence[int] | np.ndarray, fail: _Failer) -> None:
+    """Refuse the file for rows no motor can produce (``bad``, not empty), naming their lines."""
+    others = "" if len(bad) == 1 else f" (and {len(bad) - 1} more, lines " + ", ".join(
+        str(lines[s.row]) for s in bad[1:6]) + (", ..." if len(bad) > 6 else "") + ")"
+    fail(lines[bad[0].row], f"implausible sample (seq {bad[0].seq}): {bad[0].reason}{others}; "
+                              "a corrupted row? remove it, or drop such rows as gaps "
+                              "(motorid identify --drop-outliers)")
 
 
 class _Failer:

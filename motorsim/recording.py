@@ -54,6 +54,7 @@ from numpy.typing import ArrayLike
 from .checks import ParameterError, ParameterTypeError, check_int, check_real, real_array
 from .lazy import lazy_attributes
 from .plausibility import AngleUnitDoubt, ImplausibleSample, angle_unit_doubt, implausible_samples, saturated_runs
+from .quantiles import median
 from .sensors import backward_difference, counts_to_angle
 from .units import SPEED_UNITS
 
@@ -141,7 +142,7 @@ def _check_finite(name: str, arr: np.ndarray | None) -> None:
     if not np.all(np.isfinite(arr)):
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ParameterError(f"{name} must be finite, got {arr[k]!r} at sample {k}")
-    if name != "time" and len(arr) and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+    if name != "time" and len(arr) and max(float(arr.max()), -float(arr.min())) > MAX_MAGNITUDE:
         k = int(np.argmax(np.abs(arr)))
         raise ParameterError(f"{name} must be within +-{MAX_MAGNITUDE:g} (no motor gives more), got {arr[k]!r} "
                              f"at sample {k}")
@@ -184,13 +185,18 @@ def _refuse_unit_metadata(metadata: Mapping[str, str]) -> None:
                                  f"{column}:{given.strip()} ...")
 
 
-def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) -> None:
-    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period``."""
+def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float,
+                     intervals: np.ndarray | None = None) -> None:
+    """Refuse a time column whose median interval per ``seq`` step is not ``sample_period`` (``intervals``:
+    ``np.diff(time)`` when the caller has it)."""
     if len(time) < 3:
         return
-    per_step = np.diff(time)
-    per_step /= np.maximum(np.diff(seq), 1)
-    interval = float(np.median(per_step, overwrite_input=True))
+    per_step = np.diff(time) if intervals is None else intervals
+    # seq strictly increasing (checked first) from seq[0] to seq[0] + n - 1 steps by ones: a division by them
+    # would change nothing, and costs a conversion
+    if int(seq[-1]) - int(seq[0]) != len(seq) - 1:
+        per_step = per_step / np.maximum(np.diff(seq), 1)
+    interval = median(per_step)
     del per_step
     ratio = interval / sample_period
     if abs(ratio - 1) > TIME_BASE_TOLERANCE:
@@ -200,9 +206,10 @@ def _check_time_base(time: np.ndarray, seq: np.ndarray, sample_period: float) ->
             f"(allowed: within {TIME_BASE_TOLERANCE:.0%}); is time in seconds, and is the period right?")
 
 
-def _check_increasing(time: np.ndarray, seq: np.ndarray) -> None:
-    if len(time) > 1 and np.any(np.diff(time) <= 0):
-        k = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 1
+def _check_increasing(time: np.ndarray, seq: np.ndarray, intervals: np.ndarray | None = None) -> None:
+    intervals = np.diff(time) if intervals is None else intervals
+    if len(time) > 1 and np.any(intervals <= 0):
+        k = int(np.flatnonzero(intervals <= 0)[0]) + 1
         raise ParameterError(f"time must be strictly increasing, got {time[k]!r} after {time[k-1]!r} at sample {k}")
     if len(seq) > 1 and np.any(np.diff(seq) <= 0):
         raise ParameterError("seq must be strictly increasing")
@@ -289,8 +296,10 @@ class Recording:
         object.__setattr__(self, "counts_per_rev", counts_per_rev)
         for name in ("time", "duty", "angle", "speed", "reference"):
             _check_finite(name, columns[name])
-        _check_increasing(t, seq_array)
-        _check_time_base(t, seq_array, self.sample_period)
+        intervals = np.diff(t)           # once, for both checks of the clock
+        _check_increasing(t, seq_array, intervals)
+        _check_time_base(t, seq_array, self.sample_period, intervals)
+        del intervals
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):
@@ -444,18 +453,26 @@ class Recording:
         speed = self.__dict__.get("_measured_speed")
         if speed is None:
             speed = backward_difference(self.measured_angle(), self.time)
-            speed[1:][np.diff(self.seq) != 1] = np.nan
+            speed[np.asarray(self._gaps(), dtype=np.intp)] = np.nan
             speed.setflags(write=False)
             object.__setattr__(self, "_measured_speed", speed)
         return speed.copy()
 
     def segments(self) -> list["Recording"]:
         """Split at gaps in ``seq`` into gap-free recordings (one if there is no gap)."""
-        cuts = np.flatnonzero(np.diff(self.seq) != 1) + 1
-        if len(cuts) == 0:
+        cuts = self._gaps()
+        if not cuts:
             return [self]
-        bounds = [0, *cuts.tolist(), len(self)]
+        bounds = [0, *cuts, len(self)]
         return [self.slice(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
+
+    def _gaps(self) -> list[int]:
+        """The rows after a gap in ``seq`` (found once: the recording never changes, and every fit asks)."""
+        cuts = self.__dict__.get("_cuts")
+        if cuts is None:
+            cuts = (np.flatnonzero(np.diff(self.seq) != 1) + 1).tolist()
+            object.__setattr__(self, "_cuts", cuts)
+        return list(cuts)
 
     def slice(self, start: int, stop: int) -> "Recording":
         """Rows ``start:stop`` as a new Recording."""
@@ -567,7 +584,7 @@ class Recording:
     @property
     def has_gaps(self) -> bool:
         """True when ``seq`` shows dropped samples."""
-        return bool(np.any(np.diff(self.seq) != 1))
+        return bool(self._gaps())
 
 
 #: Names that moved out of this module, and where to (old imports warn for one release).

@@ -85,20 +85,33 @@ def residual_outliers(estimate: Estimate, recording: Recording, residual: np.nda
             raise ParameterError(f"residual must have one value per row of the recording ({len(recording)}), "
                                  f"got shape {residual.shape}")
         measured = recording.measured_speed()
-    defined = np.isfinite(residual)
+    defined = finite_rows(residual)
     finite = residual[defined]
     if len(finite) < 10:
         return []
     spread = finite[::-(-len(finite) // SCALE_SAMPLES)]     # evenly spaced, at most SCALE_SAMPLES
     sigma = 1.4826 * float(np.median(np.abs(spread - np.median(spread))))
-    speed = measured[defined]
-    speed = speed[np.isfinite(speed)]
+    speed = measured[finite_rows(residual, measured)]
     speed_rms = float(np.sqrt(np.mean(speed ** 2))) if len(speed) else 0.0
+    del speed
     limit = max(RESIDUAL_FACTOR * sigma, 1e-3 * speed_rms)
-    step = ROUNDING_FACTOR * rounding_step(recording)
-    rows = [k for k in spike_rows(residual, limit)
-            if abs(_local_deviation(residual, k)) > max(limit, step[k]) and abs(residual[k]) > step[k]]
+    candidates = spike_rows(residual, limit)
+    step = ROUNDING_FACTOR * _rounding_step_at(recording, candidates)
+    rows = [k for k, s in zip(candidates, step)
+            if abs(_local_deviation(residual, k)) > max(limit, s) and abs(residual[k]) > s]
     return rows if len(rows) <= max(2, ISOLATED_SHARE * len(finite)) else []
+
+
+def finite_rows(*columns: np.ndarray) -> slice | np.ndarray:
+    """The rows where every column is finite: a slice when the others are the first rows (a differenced speed's
+    first sample), so that ``column[finite_rows(...)]`` is a view and not a copy; else a boolean mask."""
+    ok = np.isfinite(columns[0])
+    for column in columns[1:]:
+        ok &= np.isfinite(column)
+    bad = np.flatnonzero(~ok)
+    if not len(bad) or bad[-1] == len(bad) - 1:
+        return slice(len(bad), None)
+    return ok
 
 
 def rounding_step(recording: Recording) -> np.ndarray:
@@ -122,6 +135,18 @@ def rounding_step(recording: Recording) -> np.ndarray:
     multiples = changes / grid
     on_grid = np.mean(np.abs(multiples - np.round(multiples)) <= GRID_TOLERANCE * np.maximum(multiples, 1.0))
     return np.full(n, grid if on_grid >= GRID_SHARE else 0.0)
+
+
+def _rounding_step_at(recording: Recording, rows: list[int]) -> np.ndarray:
+    """``rounding_step(recording)[rows]``, the same numbers, computed at ``rows`` alone on an encoder."""
+    if recording.counts is not None and recording.counts_per_rev:
+        at = np.asarray(rows, dtype=np.int64)
+        time = recording.time
+        dt = np.where(at > 0, time[at] - time[np.maximum(at - 1, 0)], np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = 2 * np.pi / recording.counts_per_rev / dt
+        return np.nan_to_num(step, nan=0.0, posinf=0.0)
+    return rounding_step(recording)[rows]
 
 
 def _local_deviation(residual: np.ndarray, row: int) -> float:

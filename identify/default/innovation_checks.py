@@ -40,13 +40,15 @@ from motorsim.plant import first_order_coefficients
 from ..comparison import _block_starts
 from ..data import Segment
 from ..fits.prediction_error import (
-    DIFFUSE,
     LOG_RATIO_LIMIT,
     PredictionErrorFit,
     _friction_mode,
     _Problem,
-    _settled,
-    covariance_step,
+    compiled_steps,
+    gain_step,
+    initial_covariance,
+    next_covariance,
+    with_compiled,
 )
 from .consistency import (
     ANGLE,
@@ -86,8 +88,8 @@ def extra_input_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p
     ``(n, K)``) the derivatives of ``eps`` with respect to extra accelerations ``θ_j z[:, j]`` (held over each
     interval, entering where the duty does) at ``θ = 0``: the inputs' responses carried through the predictor and
     corrected by its gain, which they do not change.  An interval in which friction holds the shaft passes none of
-    an extra acceleration on, and one in which friction stops (or reverses) the shaft passes it on exactly, the
-    through the instant it stops: :func:`_event_sensitivity`).
+    an extra acceleration on, and one in which friction stops (or reverses) the shaft passes it on exactly
+    (through the instant it stops: :func:`_event_sensitivity`).
     Returns the sum of the logarithms of the innovations' variances."""
     n = len(u)
     k_cols = z.shape[1]
@@ -97,20 +99,14 @@ def extra_input_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p
     sth = np.zeros(k_cols)
     sw = np.zeros(k_cols)
     sd = np.zeros(k_cols)
-    p00 = 1.0 if not speed_kind else 0.0
-    p01 = p02 = p12 = 0.0
-    p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
-    p22 = DIFFUSE / (h * h) / (h * h)
+    p00, p01, p02, p11, p12, p22 = initial_covariance(h, speed_kind)
     log_det = 0.0
     settled = steady = False
     s_var = k0 = k1 = k2 = scale = 1.0
     g0 = g1 = g2 = 0.0
     for k in range(n):
         if not steady:
-            s_var = (p11 if speed_kind else p00) + 1.0
-            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
-            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
-            scale = 1.0 / math.sqrt(s_var)
+            s_var, g0, g1, g2, k0, k1, k2, scale = gain_step(p00, p01, p02, p11, p12, speed_kind)
             log_det += (n - k if settled else 1) * math.log(s_var)
             steady = settled
         ek = y[k] - (w if speed_kind else th)
@@ -145,10 +141,8 @@ def extra_input_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p
         d = phi * d
         if steady:
             continue
-        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
-                                                       phi, ratio, speed_kind)
-        settled = _settled(n00, n01, n02, n11, n12, n22, p00, p01, p02, p11, p12, p22)
-        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
+        p00, p01, p02, p11, p12, p22, settled = next_covariance(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2,
+                                                                e, p, q, phi, ratio, speed_kind)
     return log_det
 
 
@@ -184,12 +178,7 @@ def compiled_extra_input_pass() -> Callable[..., float] | None:
     jit = numba_jit()
     if jit is None:
         return None
-    import types
-
-    from ..fits.prediction_error import _compiled_friction_mode
-    scope = dict(extra_input_pass.__globals__, covariance_step=jit(covariance_step), _settled=jit(_settled),
-                 _friction_mode=_compiled_friction_mode(jit), _event_sensitivity=jit(_event_sensitivity))
-    return jit(types.FunctionType(extra_input_pass.__code__, scope, extra_input_pass.__name__))
+    return with_compiled(extra_input_pass, jit, **compiled_steps(), _event_sensitivity=jit(_event_sensitivity))
 
 
 def _windows(segments: Sequence[Segment]) -> tuple[list[Segment], list[int], int]:

@@ -73,7 +73,7 @@ from ..estimate import Estimate
 from ..fits.friction import FrictionScan, friction_candidate, segments_reverse
 from ..fits.variable_projection import shared_work
 from ..sums import sum_squares
-from .consistency import PartCheck, consistency, widened_range
+from .consistency import PartCheck, blind_check, consistency, widened_range
 from .disturbance import disturbance_follows_input
 from .evidence import on_evidence
 from .feedback import ClosedLoopFit, feedback_evidence, fit_changing_torque, fit_closed_loop
@@ -609,8 +609,8 @@ def _load_or_drive(recs: list[Recording], est: Estimate) -> Estimate:
 
 def _one_magnitude(recs: list[Recording]) -> float | None:
     """The input's one magnitude where it takes one both ways (a binary PRBS, a square wave), else None."""
-    moving = np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
-    moving = moving[moving != 0]
+    pooled = recs[0].duty if len(recs) == 1 else np.concatenate([np.asarray(r.duty, dtype=float) for r in recs])
+    moving = pooled[pooled != 0]
     if not len(moving) or not (np.any(moving > 0) and np.any(moving < 0)):
         return None
     top = float(np.max(np.abs(moving)))
@@ -765,6 +765,14 @@ def _check_parts(recs: list[Recording], est: Estimate, selection: Selection,
     for name, x in wider.items():
         value, half = float(est.value(name)), 1.959963984540054 * x
         ranges[name] = (min(ranges[name][0], value - half), max(ranges[name][1], value + half))
+    blind = blind_check(parts, float(est.a), float(est.b)) if selection.clear else None
+    if blind is not None:
+        check, name, width = blind
+        selection = doubted(selection, f"the part checks cannot vouch for the model: {check.split} could not tell its "
+                                       f"parts' {name} apart by less than {100 * width:.3g} % of its value (95 %), so "
+                                       "a structure that misfits this recording would pass them as this one does; "
+                                       "this is not a clear choice", "a finer encoder or a longer, richer run would "
+                                       "let them check it")
     if not (differ or wider):
         return est, selection, parts
     est = dataclasses.replace(est, model_range=widened_range(ranges, differ))
@@ -1155,12 +1163,14 @@ def residual_checks(estimate: Estimate, recording: Recording) -> dict[str, float
 
 def _sign_p(measured: np.ndarray, simulated: np.ndarray) -> float:
     """p-value of the speed residual's correlation with the sign of the model's speed (batch means)."""
-    ok = np.isfinite(measured) & np.isfinite(simulated)
-    residual = (measured - simulated)[ok]
+    from ..checks.outliers import finite_rows
+    ok = finite_rows(measured, simulated)   # a slice past the first rows where only they are undefined: no copies
+    residual = measured[ok] - simulated[ok]
     sign = np.sign(simulated[ok])          # the model's: a coarse encoder's speed is often 0
-    sign = sign - sign.mean()
-    scores = block_sums(sign * residual)
-    return block_mean_p(scores) if len(scores) > 2 and float(sign @ sign) > 0 and np.any(scores) else math.nan
+    sign -= sign.mean()
+    spread = float(sign @ sign)
+    scores = block_sums(np.multiply(sign, residual, out=residual))     # in place: 8 MB a row of 10^6 not allocated
+    return block_mean_p(scores) if len(scores) > 2 and spread > 0 and np.any(scores) else math.nan
 
 
 def sign_correlation_p(estimate: Estimate, recording: Recording, residual: np.ndarray | None = None) -> float:

@@ -61,7 +61,8 @@ from .friction_kernel import _COMPLEX_STEP, _event_value, event_interval
 from .start import initial_guess
 
 __all__ = ["fit_prediction_error", "solve_prediction_error", "PredictionErrorFit", "innovations", "PARAMETERS",
-           "filter_pass", "covariance_step", "compiled_filter_pass",
+           "filter_pass", "covariance_step", "initial_covariance", "gain_step", "next_covariance",
+           "compiled_filter_pass", "compiled_steps", "with_compiled",
            "filter_pass_sensitivities", "compiled_sensitivity_pass",
            "DIFFUSE", "STEADY", "START_POLES", "START_LOG_RATIOS"]
 
@@ -94,20 +95,14 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
     w = w0 if not speed_kind else y[0]
     d = 0.0
     # the covariance of (angle, speed, disturbance), symmetric: six numbers
-    p00 = 1.0 if not speed_kind else 0.0
-    p01 = p02 = p12 = 0.0
-    p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
-    p22 = DIFFUSE / (h * h) / (h * h)
+    p00, p01, p02, p11, p12, p22 = initial_covariance(h, speed_kind)
     log_det = 0.0
     settled = steady = False
     s_var = k0 = k1 = k2 = scale = 1.0
     g0 = g1 = g2 = 0.0
     for k in range(n):
         if not steady:
-            s_var = (p11 if speed_kind else p00) + 1.0
-            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
-            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
-            scale = 1.0 / math.sqrt(s_var)
+            s_var, g0, g1, g2, k0, k1, k2, scale = gain_step(p00, p01, p02, p11, p12, speed_kind)
             # once settled, this gain and this variance hold for the rest of the segment
             log_det += (n - k if settled else 1) * math.log(s_var)
             steady = settled
@@ -123,11 +118,37 @@ def filter_pass(u: np.ndarray, y: np.ndarray, speed_kind: bool, e: float, p: flo
         d = phi * d
         if steady:
             continue
-        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
-                                                       phi, ratio, speed_kind)
-        settled = _settled(n00, n01, n02, n11, n12, n22, p00, p01, p02, p11, p12, p22)
-        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
+        p00, p01, p02, p11, p12, p22, settled = next_covariance(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2,
+                                                                e, p, q, phi, ratio, speed_kind)
     return log_det
+
+
+def initial_covariance(h: float, speed_kind: bool) -> tuple[float, float, float, float, float, float]:
+    """The filter's covariance of (angle, speed, disturbance) at a segment's start (six numbers of the symmetric
+    ``P``, in units of the measurement's variance): the first measurement known to one sample's noise, the speed
+    and the disturbance diffuse (:data:`DIFFUSE` times what one sample can tell of them)."""
+    p00 = 1.0 if not speed_kind else 0.0
+    p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
+    return p00, 0.0, 0.0, p11, 0.0, DIFFUSE / (h * h) / (h * h)
+
+
+def gain_step(p00: float, p01: float, p02: float, p11: float, p12: float,
+              speed_kind: bool) -> tuple[float, float, float, float, float, float, float, float]:
+    """The Kalman gain of one measurement (the angle, or the speed): the innovation's variance ``s = H P H^T + 1``,
+    ``g = P H^T``, the gain ``k = g / s`` and ``1 / sqrt(s)``, which scales the innovation; every pass's gain."""
+    s_var = (p11 if speed_kind else p00) + 1.0
+    g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
+    return s_var, g0, g1, g2, g0 / s_var, g1 / s_var, g2 / s_var, 1.0 / math.sqrt(s_var)
+
+
+def next_covariance(p00: float, p01: float, p02: float, p11: float, p12: float, p22: float, g0: float, g1: float,
+                    g2: float, k0: float, k1: float, k2: float, e: float, p: float, q: float, phi: float, ratio: float,
+                    speed_kind: bool) -> tuple[float, float, float, float, float, float, bool]:
+    """The covariance one sample on (:func:`covariance_step`) and whether it has settled (:func:`_settled`: the
+    gain is then held for the rest of the segment)."""
+    n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
+                                                   phi, ratio, speed_kind)
+    return n00, n01, n02, n11, n12, n22, _settled(n00, n01, n02, n11, n12, n22, p00, p01, p02, p11, p12, p22)
 
 
 def covariance_step(p00: float, p01: float, p02: float, p11: float, p12: float, p22: float, g0: float, g1: float,
@@ -291,10 +312,7 @@ def filter_pass_sensitivities(u: np.ndarray, y: np.ndarray, speed_kind: bool, e:
     th = y[0] if not speed_kind else 0.0
     w = w0 if not speed_kind else y[0]
     d = 0.0
-    p00 = 1.0 if not speed_kind else 0.0
-    p01 = p02 = p12 = 0.0
-    p11 = DIFFUSE / (h * h) if not speed_kind else 1.0
-    p22 = DIFFUSE / (h * h) / (h * h)
+    p00, p01, p02, p11, p12, p22 = initial_covariance(h, speed_kind)
     # the derivatives of the covariance along a, phi and ratio (rows), six numbers each; of the state along all six
     dcov = np.zeros((3, 6))
     sth = np.zeros(6)
@@ -313,10 +331,7 @@ def filter_pass_sensitivities(u: np.ndarray, y: np.ndarray, speed_kind: bool, e:
     g0 = g1 = g2 = 0.0
     for k in range(n):
         if not steady:
-            s_var = (p11 if speed_kind else p00) + 1.0
-            g0, g1, g2 = (0.0, p11, p12) if speed_kind else (p00, p01, p02)
-            k0, k1, k2 = g0 / s_var, g1 / s_var, g2 / s_var
-            scale = 1.0 / math.sqrt(s_var)
+            s_var, g0, g1, g2, k0, k1, k2, scale = gain_step(p00, p01, p02, p11, p12, speed_kind)
             weight = (n - k if settled else 1)
             log_det += weight * math.log(s_var)
             _gain_derivatives(dcov, dk, dscale, dlog_det, k0, k1, k2, s_var, scale, weight, speed_kind)
@@ -348,12 +363,11 @@ def filter_pass_sensitivities(u: np.ndarray, y: np.ndarray, speed_kind: bool, e:
         d = phi * d
         if steady:
             continue
-        n00, n01, n02, n11, n12, n22 = covariance_step(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q,
-                                                       phi, ratio, speed_kind)
+        # the derivatives first: they are taken at this step's covariance
         _covariance_derivatives(dcov, dk, p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2, e, p, q, phi, de, dpp,
                                 dq, speed_kind)
-        settled = _settled(n00, n01, n02, n11, n12, n22, p00, p01, p02, p11, p12, p22)
-        p00, p01, p02, p11, p12, p22 = n00, n01, n02, n11, n12, n22
+        p00, p01, p02, p11, p12, p22, settled = next_covariance(p00, p01, p02, p11, p12, p22, g0, g1, g2, k0, k1, k2,
+                                                                e, p, q, phi, ratio, speed_kind)
     return log_det
 
 
@@ -404,24 +418,33 @@ def _settled(n00: float, n01: float, n02: float, n11: float, n12: float, n22: fl
             and abs(n12 - p12) <= STEADY * abs(n12) and abs(n22 - p22) <= STEADY * abs(n22))
 
 
+def with_compiled(function: Callable[..., Any], jit: Callable[..., Any], **names: Any) -> Callable[..., Any]:
+    """``function`` compiled by ``jit``, the globals ``names`` it calls replaced by theirs (compiled: numba calls
+    only compiled functions)."""
+    import types
+    return jit(types.FunctionType(function.__code__, dict(function.__globals__, **names), function.__name__))
+
+
+@functools.cache
+def compiled_steps() -> dict[str, Callable[..., Any]]:
+    """The steps every filter pass shares (its start, gain, covariance and friction steps) compiled by numba, by the
+    name the passes call them; empty without numba or with ``MOTORID_NUMBA=0``."""
+    jit = numba_jit()
+    if jit is None:
+        return {}
+    return dict(initial_covariance=jit(initial_covariance), gain_step=jit(gain_step),
+                next_covariance=with_compiled(next_covariance, jit, covariance_step=jit(covariance_step),
+                                              _settled=jit(_settled)),
+                _friction_mode=with_compiled(_friction_mode, jit, event_interval=jit(event_interval)))
+
+
 @functools.cache
 def compiled_filter_pass() -> Callable[..., float] | None:
     """:func:`filter_pass` compiled by numba (cached on disk); None without numba or with ``MOTORID_NUMBA=0``."""
     jit = numba_jit()
     if jit is None:
         return None
-    import types
-    scope = dict(filter_pass.__globals__, covariance_step=jit(covariance_step), _settled=jit(_settled),
-                 _friction_mode=_compiled_friction_mode(jit))
-    return jit(types.FunctionType(filter_pass.__code__, scope, filter_pass.__name__))
-
-
-def _compiled_friction_mode(jit: Callable[..., Any]) -> Callable[..., Any]:
-    """:func:`_friction_mode` compiled by ``jit`` with the event interval it calls."""
-    import types
-    return jit(types.FunctionType(_friction_mode.__code__,
-                                  dict(_friction_mode.__globals__, event_interval=jit(event_interval)),
-                                  _friction_mode.__name__))
+    return with_compiled(filter_pass, jit, **compiled_steps())
 
 
 @functools.cache
@@ -431,21 +454,14 @@ def compiled_sensitivity_pass() -> Callable[..., float] | None:
     jit = numba_jit()
     if jit is None:
         return None
-    import types
-    function = filter_pass_sensitivities
-    event_step = types.FunctionType(_event_step_sensitivities.__code__,
-                                    dict(_event_step_sensitivities.__globals__, _event_value=jit(_event_value)),
-                                    _event_step_sensitivities.__name__)
-    scope = dict(function.__globals__, event_interval=jit(event_interval), covariance_step=jit(covariance_step),
-                 _covariance_derivatives=jit(types.FunctionType(
-                     _covariance_derivatives.__code__,
-                     dict(_covariance_derivatives.__globals__, _covariance_derivative=jit(_covariance_derivative)),
-                     _covariance_derivatives.__name__)),
-                 _gain_derivatives=jit(_gain_derivatives), _moving_step_sensitivities=jit(_moving_step_sensitivities),
-                 _coefficient_derivatives=jit(_coefficient_derivatives), _event_step_sensitivities=jit(event_step),
-                 _innovation_sensitivities=jit(_innovation_sensitivities), _settled=jit(_settled),
-                 _friction_mode=_compiled_friction_mode(jit))
-    return jit(types.FunctionType(function.__code__, scope, function.__name__))
+    return with_compiled(
+        filter_pass_sensitivities, jit, **compiled_steps(),
+        _covariance_derivatives=with_compiled(_covariance_derivatives, jit,
+                                              _covariance_derivative=jit(_covariance_derivative)),
+        _gain_derivatives=jit(_gain_derivatives), _moving_step_sensitivities=jit(_moving_step_sensitivities),
+        _coefficient_derivatives=jit(_coefficient_derivatives),
+        _event_step_sensitivities=with_compiled(_event_step_sensitivities, jit, _event_value=jit(_event_value)),
+        _innovation_sensitivities=jit(_innovation_sensitivities))
 
 
 #: Start values of the disturbance's pole per sample and of ``log(Q/R)`` tried before the fit (the

@@ -129,7 +129,8 @@ BENCHMARKS: dict[str, Benchmark] = {
                                      "torque): coverage over 100 seeds; --until: the adaptive runs' "
                                      "coverage under their stopping rule"),
     "until": Benchmark(_until, "motor time until the 95 per cent intervals of a and b are within 1 per cent: "
-                               "motorid live --until's adaptive run against the best fixed sine, the article's "
-                               "four sines and a PRBS, on 100 seeded rigs; its coverage"),
+                               "motorid live --until's adaptive run against the oracle (the loop's own two-line "
+                               "blocks designed for the true motor), the best fixed sine, the article's four sines "
+                               "and a PRBS, on 100 seeded rigs; its coverage"),
 }
 

@@ -58,9 +58,11 @@ OE_FRICTION_OWN_GOAL = Goal("oe-friction / one oe fit, 10^4-sample multisine, 30
 OE_FRICTION_GOAL = Goal("oe-friction / one oe fit, worst of the family with friction (5-40 %)", 8.0)
 POSITION_LOOP_GOAL = Goal("identify FILE, 15 000-sample position loop with friction (worst of 3)", 3.0, "s")
 TORQUE_LOOP_GOAL = Goal("identify FILE, 15 000-sample 1 ms position loop, fed-back torque (worst of 3)", 3.0, "s")
-#: Open: measured 5.4 x in CPU time beside two busy processes (6.2-8.0 x before the fits ran BLAS on one thread and
-#: the part checks took the fit's own model); the gate holds it at 6.5 x meanwhile.
-FILE_GOAL = Goal("identify FILE / pandas.read_csv, 10^6 rows", 3.0, held=6.5)
+#: Open: 2.75-3.10 x in CPU time on a 2-core machine at load 10-21 (3.45-4.5 x before the reader read each file
+#: once and its checks stopped partitioning and copying whole columns; 5.4 x, and 6.2-8.0 x before the fits ran BLAS
+#: on one thread and the part checks took the fit's own model): about 3 x, not within it with a margin on a busy
+#: machine, so the gate holds it at 3.5 x meanwhile.
+FILE_GOAL = Goal("identify FILE / pandas.read_csv, 10^6 rows", 3.0, held=3.5)
 FILE_MEMORY_GOAL = Goal("motorid identify FILE / pandas.read_csv, peak memory of the process, 10^6 rows", 2.0)
 GOALS = (FIT_GOAL, FRICTION_FIT_GOAL, FIT_FAMILY_GOAL, OE_FRICTION_LINEAR_GOAL, OE_FRICTION_OWN_GOAL, OE_FRICTION_GOAL,
          POSITION_LOOP_GOAL, TORQUE_LOOP_GOAL, FILE_GOAL, FILE_MEMORY_GOAL)

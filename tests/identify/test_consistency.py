@@ -212,3 +212,34 @@ def test_a_split_that_cannot_be_tested_says_so_instead_of_showing_its_values():
                       math.nan, True, False)
     text = check.describe()
     assert "not testable" in text and "-181" not in text
+
+
+def _two_parts(half_a: float, half_b: float) -> PartCheck:
+    """A check that agrees, its parts at 25 and 3 with 95 % half-widths ``half_a`` and ``half_b`` each."""
+    return PartCheck("early / late", SPLITS["early / late"], (A, A), (B, B),
+                     ((A - half_a, A + half_a),) * 2, ((B - half_b, B + half_b),) * 2, 0.5, True, False)
+
+
+def test_a_check_that_can_tell_its_parts_apart_by_half_the_value_vouches_for_the_answer():
+    from identify.default.consistency import BLIND, blind_check
+    # the parts' difference has the half-width of the two in quadrature: 0.35 * sqrt 2 = 0.495 of the value
+    assert blind_check([_two_parts(0.35 * A, 0.01 * B)], A, B) is None
+    check, name, width = blind_check([_two_parts(0.01 * A, 0.36 * B)], A, B)
+    assert name == "b" and width == pytest.approx(0.36 * math.sqrt(2)) and width > BLIND
+    # a part with no finite interval can tell nothing apart
+    blind = _two_parts(0.01 * A, 0.01 * B)
+    blind = PartCheck(blind.split, blind.parts, blind.a, blind.b, ((A, A), (-math.inf, math.inf)), blind.b_interval,
+                      0.5, True, False)
+    assert blind_check([_two_parts(0.01 * A, 0.01 * B), blind], A, B)[1:] == ("a", math.inf)
+
+
+def test_an_answer_its_checks_cannot_vouch_for_is_not_clear():
+    # Stribeck's friction on a 360-count encoder at 1 ms under a multisine, fitted with Coulomb's: a 10.7 [9.3, 12.2]
+    # for 19.8.  The residual is 27 times the encoder's rounding, and every check passes, because none can tell its
+    # parts apart by less than several times the value: they cannot vouch for it, so it is not clear
+    rec, (a_range, b_range) = misfits.random_rig(1)
+    assert rec.metadata["plant"].startswith("Stribeck")
+    est = _fit(rec)
+    assert all(c.agree for c in est.selection.checks)
+    assert not _covers(est, a_range, b_range)
+    assert not est.selection.clear and "cannot vouch" in est.selection.doubt

@@ -184,3 +184,56 @@ def test_a_right_closed_loop_answer_stays_clear_and_shows_its_checks():
     assert _covers(est, (A, A), (B, B))
     document = est.to_dict()
     assert [c["split"] for c in document["selection"]["checks"]] == [c.split for c in checks]
+
+
+def _part_check(split, a, b, p, half_width=0.1):
+    from identify.default.selection_report import PartCheck
+    return PartCheck(split, ("first", "second"), a, b, tuple((x - half_width * x, x + half_width * x) for x in a),
+                     tuple((x - half_width * x, x + half_width * x) for x in b), p, True, False)
+
+
+def test_a_part_outside_the_answers_interval_is_found_though_its_check_agrees():
+    from identify.default.feedback import parts_beyond
+    ci = {"a": (24.0, 26.0), "b": (2.9, 3.1)}
+    inside = _part_check("early / late", (24.5, 25.5), (2.95, 3.05), 0.5)
+    outside = _part_check("forward / reverse", (25.0, 25.2), (3.4, 3.0), 0.01)
+    untested = _part_check("slow / fast", (10.0, 40.0), (1.0, 5.0), math.nan)      # no finite p: shows nothing
+    found = parts_beyond([inside, outside, untested], ci)
+    assert [(c.split, name, i, value) for c, name, i, value, _ in found] == [("forward / reverse", "b", 0, 3.4)]
+    assert found[0][4] == pytest.approx((3.06, 3.74))           # the part's own interval, which the answer's holds
+
+
+def test_parts_beyond_the_interval_widen_it_and_three_checks_of_them_make_it_unclear():
+    # a right answer (the plain plant) whose interval is then made narrow by hand: its parts' values fall outside,
+    # the intervals widen to hold each such value (and the part's own interval where its check's p < 0.05), and
+    # where three checks have one, inside a loop, it is no longer clear
+    import dataclasses
+
+    from identify.default import feedback
+    rec = _loop(_plain, 0, "position")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fit(rec)
+    assert est.selection.clear
+    tight = dataclasses.replace(est, covariance=est.covariance * 1e-6, model_range={})
+    checks = est.selection.checks
+    found = feedback.parts_beyond(checks, tight.confidence_interval(0.95))
+    assert len({c.split for c, *_ in found}) >= feedback.BEYOND_CHECKS
+    from identify.fits.prediction_error import solve_prediction_error as solve
+    segs = prepare_segments([rec], est.input_delay)
+    v = est.values()
+    fitted = solve([rec], segs, friction="friction" in est.param_names,
+                   start=(v["a"], v["b"], v.get("friction", 0.0), v.get("bias", 0.0)),
+                   noise_start=(est.extra["disturbance_pole"], est.extra["log_disturbance_ratio"]))
+    checked = feedback.parts_checked(tight, fitted)
+    ci = checked.confidence_interval(0.95)
+    for check, name, _, value, (lo, hi) in feedback.parts_beyond(checked.selection.checks, tight.confidence_interval()):
+        assert ci[name][0] <= value <= ci[name][1]
+        if check.p_value < feedback.SUGGESTIVE:
+            assert ci[name][0] <= lo and hi <= ci[name][1]
+    assert not checked.selection.clear and "not a clear choice" in checked.selection.doubt
+    assert "outside its interval" in checked.notes[0]
+    # an open-loop run fitted with a torque disturbance: widened alike, but its own interval is the fit's, which parts
+    # fall outside of by chance: no count makes it unclear
+    opened = feedback.parts_checked(tight, fitted, in_loop=False)
+    assert opened.selection.clear and opened.confidence_interval(0.95) == ci

@@ -32,6 +32,9 @@ from identify.fits.prediction_error import (
     filter_pass,
     filter_pass_sensitivities,
     fit_prediction_error,
+    gain_step,
+    initial_covariance,
+    next_covariance,
     solve_prediction_error,
 )
 from motorsim import PRBS, Chirp, Encoder, Experiment, Motor, Multisine, Recording, SimRig, Sine, Step
@@ -146,6 +149,73 @@ def test_compiled_sensitivity_pass_equals_the_python_one(loops):
     plain = np.empty(n)
     assert filter_pass(*args, plain) == log_dets[1]          # the innovations are filter_pass's, bit for bit
     np.testing.assert_array_equal(plain, outs[1][0])
+
+
+@pytest.mark.parametrize("friction", [0.0, 55.0])
+def test_the_checks_extra_input_pass_shares_the_filters_gain_step(loops, friction):
+    # the part checks' pass (identify.default.innovation_checks.extra_input_pass) runs the filter's own start, gain
+    # and covariance steps: its innovations and log-determinant are filter_pass's to the bit, compiled or not; and
+    # the compiled pass equals the Python one (to 1e-12 of each output's largest value, as the passes above)
+    from identify.default.innovation_checks import compiled_extra_input_pass, extra_input_pass
+    seg = prepare_segments([loops[0]], 0)[0]
+    a, h = 24.0, 0.001
+    e = math.exp(-a * h)
+    p = -math.expm1(-a * h) / a
+    args = (seg.drive, seg.output, False, e, p, (h - p) / a, a, h, 2.9, friction, 1.0, 0.98, 3e6, 0.0)
+    n = len(seg.time)
+    z = np.column_stack([np.sin(0.01 * np.arange(n)), np.random.default_rng(0).normal(size=n)])
+    paths = [(extra_input_pass, filter_pass)]
+    if compiled_extra_input_pass() is not None:
+        paths.append((compiled_extra_input_pass(), compiled_filter_pass()))
+    outs = []
+    for extra, plain_pass in paths:
+        eps, speed, deps, plain = np.empty(n), np.empty(n), np.empty((n, 2)), np.empty(n)
+        log_det = extra(*args, z, eps, speed, deps)
+        assert plain_pass(*args, plain) == log_det
+        np.testing.assert_array_equal(eps, plain)
+        outs.append((eps, speed, deps))
+    if len(outs) == 1:
+        pytest.skip("numba is not installed: the Python pass is the only one")
+    for got, want in zip(outs[1], outs[0]):
+        assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+
+
+@pytest.mark.parametrize("kind", ["angle", "speed"])
+@pytest.mark.parametrize("pole, log_ratio", [(0.0, 5.0), (0.95, 3.0), (0.999, 15.0)])
+def test_the_shared_gain_step_settles_on_the_riccati_equations_solution(kind, pole, log_ratio):
+    # every pass's gain comes from initial_covariance, gain_step and next_covariance: run from the diffuse start
+    # until they settle, the predicted covariance solves the discrete algebraic Riccati equation of the filter's
+    # model (scipy's solver, a reference written elsewhere), and the gain is its Kalman gain.  The recursion
+    # stops once a step moves no entry by 1e-13 of itself; it then sits within about 1e-13 / (1 - its contraction)
+    # of the fixed point (measured at most 1e-9 relative here); 1e-7 allowed
+    from scipy.linalg import solve_discrete_are
+    a, h = 24.0, 0.001
+    e = math.exp(-a * h)
+    p = -math.expm1(-a * h) / a
+    q = (h - p) / a
+    ratio = math.exp(log_ratio)
+    speed_kind = kind == "speed"
+    cov = initial_covariance(h, speed_kind)
+    for _ in range(10**6):
+        s_var, g0, g1, g2, k0, k1, k2, _scale = gain_step(*cov[:5], speed_kind)
+        *cov, settled = next_covariance(*cov, g0, g1, g2, k0, k1, k2, e, p, q, pole, ratio, speed_kind)
+        if settled:
+            break
+    assert settled
+    full = np.array([[cov[0], cov[1], cov[2]], [cov[1], cov[3], cov[4]], [cov[2], cov[4], cov[5]]])
+    if speed_kind:          # the angle is not measured: the filter's state is the speed and the disturbance
+        F, H, P = np.array([[e, p], [0.0, pole]]), np.array([[1.0, 0.0]]), full[1:, 1:]
+    else:
+        F, H, P = np.array([[1.0, p, q], [0.0, e, p], [0.0, 0.0, pole]]), np.array([[1.0, 0.0, 0.0]]), full
+    Q = np.zeros_like(F)
+    Q[-1, -1] = ratio
+    want = solve_discrete_are(F.T, H.T, Q, np.eye(1))
+    np.testing.assert_allclose(P, want, rtol=1e-7, atol=1e-7 * np.max(np.abs(want)))
+    s_var, *_, k0, k1, k2, scale = gain_step(*cov[:5], speed_kind)
+    gain = want @ H.T / (H @ want @ H.T + 1.0)
+    np.testing.assert_allclose([k1, k2] if speed_kind else [k0, k1, k2], gain[:, 0], rtol=1e-7,
+                               atol=1e-12 * np.max(np.abs(gain)))       # a white disturbance's gain is 0
+    assert scale == pytest.approx(1.0 / math.sqrt((H @ want @ H.T).item() + 1.0), rel=1e-7)
 
 
 @pytest.mark.parametrize("pole", [0.0, 0.9, 0.99, 1.0])
@@ -291,13 +361,15 @@ def test_default_on_a_closed_loop_covers_the_motor_and_says_why(loops):
 def test_default_covers_a_delay_the_closed_loop_cannot_pin_down():
     # a duty acting 2 samples after it is logged: in this stiff loop the prediction errors hardly tell delays
     # 0-3 apart (measured: within 0.02 % of each other), and a falls from 24.9 to 22.8 as the delay assumed
-    # shrinks; the interval must hold the truth, and the choice is not clear
+    # shrinks; the interval must hold the truth, and the choice is not clear.  It also holds what the run's parts
+    # show: the run's end gives a 16.7 [12.7, 20.7] (early / late, p = 0.006, within the checks' level of 0.01 / 7),
+    # so a's interval reaches down to 12.7 (16.96 before it held the parts): a half-width of 7.2, under 0.3 A
     rec = position_loop(3, samples=8000, delay=2, reference=False)
     est = fit(rec)
     assert est.method == "pem-disturbance"
     ci = est.confidence_interval(0.95)
     assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1]
-    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.25 * A
+    assert (ci["a"][1] - ci["a"][0]) / 2 < 0.3 * A
     assert not est.selection.clear
 
 

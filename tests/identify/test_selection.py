@@ -290,7 +290,10 @@ def test_the_range_carries_each_candidates_own_interval():
     lo, hi = est.confidence_interval(0.95)["b"]
     spanned = [c.b for c in est.selection.candidates if c.within_noise]
     assert hi > max(spanned) and lo < min(spanned)
-    assert not _accepted(est, {"a": A, "b": B}), est.notes
+    # the chosen dead zone at delay 0 is refuted by the friction-by-speed check (a drag's column), whose parts
+    # widen a's interval beyond a quarter of a: covered, not clear, which is the honest answer here
+    ci = est.confidence_interval(0.95)
+    assert ci["a"][0] <= A <= ci["a"][1] and ci["b"][0] <= B <= ci["b"][1], est.notes
     assert any(c.structure == "friction" and c.input_delay == 2 and c.within_noise
                for c in est.selection.candidates)
 

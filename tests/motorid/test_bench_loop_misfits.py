@@ -44,3 +44,22 @@ def test_the_loop_classes_truth_spans_the_plants_values():
     (a, b) = TRUTH["past: gain sagging with the duty, speed loop"]
     assert a == (25.0, 25.0) and b == pytest.approx((2.25, 3.0), rel=1e-12)
     assert "past: Stribeck friction, position loop" not in TRUTH      # a = 25, b = 3
+
+
+@pytest.mark.slow          # 10 s: two 15 000-sample loops integrated by RK4 in Python, and the default on each
+def test_a_warming_motor_and_an_asymmetric_gain_are_never_clear_with_an_interval_that_misses_them():
+    # both were "a clear choice" missing the plant's range: warming (a 25 -> 23, b 3 -> 2.76), seed 8, a [23.49,
+    # 26.07] b [2.892, 3.193]: its end part gave a 21.3, b 2.56 (early / late, p = 0.16, within the checks' level);
+    # a forward gain 15 % above the reverse one, seed 16, a 22.2 [21.3, 24.2]: five checks had a part outside it
+    import warnings
+
+    from identify import fit
+    for name, seed in (("motor warming, position loop", 8), ("forward gain 15 % above reverse, position loop", 16)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            est = fit(CLASSES[f"past: {name}"](seed))
+        (a_lo, a_hi), (b_lo, b_hi) = TRUTH[f"past: {name}"]
+        ci = est.confidence_interval(0.95)
+        covered = ci["a"][0] <= a_lo and a_hi <= ci["a"][1] and ci["b"][0] <= b_lo and b_hi <= ci["b"][1]
+        assert covered or not est.selection.clear, (name, ci)
+        assert any("outside its interval" in note for note in est.notes)

@@ -43,3 +43,24 @@ def test_the_best_sine_is_the_one_designed_for_the_true_motor_and_one_line_leave
 def test_a_rule_not_known_is_refused():
     with pytest.raises(ValueError, match="rule"):
         fixed_time(0, "best", 1.0, rule="loose")
+
+
+def test_the_oracle_is_the_loops_two_lines_designed_for_the_true_motor_at_the_predicted_length():
+    from identify.adaptive import _SHAPES
+    from motorid.bench.until import oracle_design
+    d = oracle_design(0, 1.0)
+    lines = d.excitation
+    assert isinstance(lines, Multisine) and len(lines.frequencies) == 2
+    ratio = lines.frequencies[1] / lines.frequencies[0]
+    assert any(abs(ratio - r) < 0.01 for r, _ in _SHAPES)
+    # measured 1.27 s for rig 0 (a = 20.4): within the target by the bound, and 1.32 s measured by the loop's rule
+    assert max(d.reach.values()) <= 1.0 and 0.5 < d.duration < 3.0
+
+
+def test_the_fixed_experiments_asked_for_are_checked():
+    import argparse
+
+    from motorid.bench.until import _kinds
+    assert _kinds("oracle, article") == ("oracle", "article")
+    with pytest.raises(argparse.ArgumentTypeError, match="oracle,best,article,prbs"):
+        _kinds("oracle,sine")

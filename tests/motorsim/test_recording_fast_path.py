@@ -105,3 +105,90 @@ def test_a_row_longer_than_a_block_is_left_to_the_careful_parser(written, monkey
     back = read_recording(path)
     assert returned == [None]
     np.testing.assert_array_equal(back.counts, rec.counts)
+
+
+def _rows_file(tmp_path, rows, name="rows.csv"):
+    lines = [reading.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    path = tmp_path / name
+    path.write_text("\n".join(lines + rows) + "\n", encoding="utf-8")
+    return path
+
+
+def _fast_calls(monkeypatch):
+    returned = []
+    fast = reading._read_columns_fast
+    monkeypatch.setattr(reading, "_read_columns_fast", lambda *a: returned.append(fast(*a)) or returned[-1])
+    return returned
+
+
+def test_a_nul_byte_past_the_head_is_named_by_its_line(tmp_path, monkeypatch):
+    # only the head is searched for NUL bytes before parsing; the fast reader refuses one as a cell that is no number
+    monkeypatch.setattr(reading, "_HEAD_BYTES", 256)
+    rows = [f"{k},{k * 0.1!r},1,{k}" for k in range(200)]
+    rows[150] = "150,15.0,1,\0" + "150"
+    path = _rows_file(tmp_path, rows)
+    returned = _fast_calls(monkeypatch)
+    with pytest.raises(RecordingFormatError, match=r"rows\.csv, line 155: contains a NUL byte"):
+        read_recording(path)
+    assert returned == [None]
+
+
+def test_rows_shorter_than_the_first_blocks_grow_the_columns(tmp_path, monkeypatch):
+    # the columns are sized from the first block's bytes per row: later, shorter rows outgrow them
+    monkeypatch.setattr(reading, "_FAST_BLOCK_BYTES", 4096)
+    padded = "0" * 40 + "1"
+    rows = [f"{k},{k * 0.1!r},{padded if k < 300 else 1},{k}" for k in range(3000)]
+    path = _rows_file(tmp_path, rows)
+    returned = _fast_calls(monkeypatch)
+    fast = read_recording(path)
+    assert returned[0] is not None
+    _careful(monkeypatch)
+    careful = read_recording(path)
+    for name in ("time", "duty", "counts", "seq"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(careful, name), err_msg=name)
+    assert len(fast) == 3000
+
+
+def test_blank_lines_are_read_by_the_fast_path(tmp_path, monkeypatch):
+    rows = [f"{k},{k * 0.1!r},1,{k * 3}" for k in range(40)]
+    path = _rows_file(tmp_path, rows[:10] + ["", "", "\r"] + rows[10:])
+    returned = _fast_calls(monkeypatch)
+    rec = read_recording(path)
+    assert returned[0] is not None
+    np.testing.assert_array_equal(rec.counts, np.arange(40) * 3)
+
+
+@pytest.mark.parametrize("ending", ["\r", "\r\n"])
+def test_carriage_returns_keep_the_line_numbers_of_an_implausible_row(tmp_path, ending):
+    # a lone carriage return ends a line as a newline does; the line named is the careful parser's
+    rows = [f"{k},{k * 0.1!r},1,{k * 3}" for k in range(40)]
+    rows[20] = f"20,2.0,1,{1 << 40}"
+    lines = [reading.FORMAT_HEADER, "# sample_period: 0.1", "# counts_per_rev: 400", "seq,time_s,duty,counts"]
+    path = tmp_path / "cr.csv"
+    path.write_bytes(("\n".join(lines + rows[:10]) + "\n" + ending.join(rows[10:]) + "\n").encode())
+    with pytest.raises(RecordingFormatError, match=r"line 25: implausible sample \(seq 20\)"):
+        read_recording(path)
+
+
+def test_an_implausible_row_is_named_without_the_careful_parser(tmp_path, monkeypatch):
+    rows = [f"{k},{k * 0.1!r},1,{k * 3}" for k in range(40)]
+    rows[20] = f"20,2.0,1,{1 << 40}"
+    path = _rows_file(tmp_path, rows)
+    monkeypatch.setattr(reading, "_parse", lambda *a, **k: pytest.fail("the careful parser was asked"))
+    with pytest.raises(RecordingFormatError, match=r"rows\.csv, line 25: implausible sample \(seq 20\)"):
+        read_recording(path)
+
+
+def test_a_plain_file_is_read_once(written, monkeypatch):
+    # the head, then the rows block by block: no pass over the file before the parse
+    rec, path = written
+    passes = []
+    blocks = reading._blocks
+    monkeypatch.setattr(reading, "_blocks", lambda *a: passes.append(a) or blocks(*a))
+    opened = []
+    read_head = reading._read_head
+    monkeypatch.setattr(reading, "_read_head", lambda p: opened.append(p) or read_head(p))
+    back = read_recording(path)
+    assert len(passes) == 1 and len(opened) == 1
+    assert passes[0][2] == path.stat().st_size
+    np.testing.assert_array_equal(back.counts, rec.counts)
