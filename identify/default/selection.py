@@ -139,13 +139,16 @@ def _screen_nonlinear(segs: list[Segment], base: Candidate, bias: float) -> tupl
         r, J, starts = problem.evaluate(x, jacobian=True)
     columns = []
     for seg, w0 in zip(segs, starts):
-        resp = zoh_response(base.a, base.b, seg.drive, seg.time, float(w0), bias=bias, uniform=seg.uniform)
+        # the speed and the initial-speed column alone; with a bias the response takes the same path (the same
+        # numbers) without its other sensitivities, which nothing here reads
+        resp = zoh_response(base.a, base.b, seg.drive, seg.time, float(w0), bias=bias, uniform=seg.uniform,
+                            sensitivities=bias == 0)
         moving = np.append(-np.sign(resp.speed[:-1] + resp.speed[1:]), 0.0)
         outputs = []
         for drive, gain in ((moving, 1.0), (-np.sign(seg.drive), base.b)):
             g = zoh_response(base.a, gain, drive, seg.time, 0.0, uniform=seg.uniform, sensitivities=False)
             outputs.append(g.angle if seg.kind == "angle" else g.speed)
-        s0 = (resp.angle_sensitivity if seg.kind == "angle" else resp.speed_sensitivity)[:, 2]
+        s0 = resp.angle_initial_speed if seg.kind == "angle" else resp.speed_initial_speed
         columns.append(np.column_stack(project_out_initial_state(s0, seg.kind == "angle", *outputs)))
     G = np.vstack(columns)
     if J is None or not (np.all(np.isfinite(G)) and np.all(np.isfinite(J)) and np.all(np.isfinite(r))):

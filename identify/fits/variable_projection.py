@@ -217,9 +217,12 @@ class _Segment:
     every product with a centred vector needs only those samples.
     """
 
-    def __init__(self, seg: Segment, with_bias: bool = False):
+    def __init__(self, seg: Segment, with_bias: bool = False, source: tuple[list[Segment], int] | None = None):
         n = len(seg.time)
         self.n = n
+        # the segments list and the index this one's rows begin (its first ``n`` rows): within shared_work, the
+        # columns at an ``a`` already evaluated on the same rows are taken as made (:func:`_columns`)
+        self.source = source
         self.h = float(seg.time[1] - seg.time[0])
         self.u = seg.drive[:-1]
         self.h_sum = np.empty(n)                     # h S_k
@@ -248,10 +251,24 @@ class _Segment:
 DECAYED = 40.0
 
 
-def _columns(s: _Segment, a: float, direction: bool) -> None:
-    """``B*`` (centred), ``D`` on its support, the filtered drive ``F`` and, with ``direction``, ``G``."""
+def _columns(s: _Segment, a: float, direction: bool, keep: bool = False) -> None:
+    """``B*`` (centred), ``D`` on its support, the filtered drive ``F`` and, with ``direction``, ``G``.
+
+    Within :func:`shared_work`, with ``keep``, they are kept for the segment's rows and ``a`` (the first step of
+    a candidate's coarse phase): the ``linear`` and ``bias`` candidates of a delay make their first step at the same
+    start on the same rows (the same numbers, copied).  Only those: copies of every step's columns, or of a long
+    run's, cost more in the cache than the passes they save."""
     h = s.h
     e, p, dp = _coefficients(a, h)
+    source = s.source[0] if s.source is not None and _SHARED is not None else None
+    key = None if s.source is None or source is None else ("columns", id(source), s.source[1], s.n, a)
+    if key is not None:
+        found, kept = _shared(key, source)
+        if found:
+            _restore_columns(s, kept, e, direction)
+            if direction and kept[1] is None:
+                _share(key, source, (kept[0], s.g_col.copy(), *kept[2:]))
+            return
     s.factors = (p, dp, h * e * p)
     first_order_filter(e, s.u, out=s.f_col)      # F_k = e F_{k-1} + u_k (zero initial state)
     if direction:
@@ -266,6 +283,22 @@ def _columns(s: _Segment, a: float, direction: bool) -> None:
     s.d_mean = float(s.d_col.sum()) / s.n
     centred = s.d_col - s.d_mean
     s.d_norm2 = _dot(centred, centred) + (s.n - support) * s.d_mean ** 2
+    if key is not None and keep:
+        _share(key, source, (s.f_col.copy(), s.g_col.copy() if direction else None, b.copy(), s.d_col,
+                                  s.d_mean, s.d_norm2, s.factors))
+
+
+def _restore_columns(s: _Segment, kept: tuple, e: float, direction: bool) -> None:
+    """:func:`_columns`' results kept for these rows and ``a`` (their ``G`` filtered from ``F`` where only the
+    residual had been formed there), written into ``s``."""
+    f_col, g_col, b_col, s.d_col, s.d_mean, s.d_norm2, s.factors = kept
+    np.copyto(s.f_col, f_col)
+    np.copyto(s.b_col, b_col)
+    if direction:
+        if g_col is None:
+            first_order_filter(e, s.f_col, out=s.g_col)
+        else:
+            np.copyto(s.g_col, g_col)
 
 
 def _dot_d(s: _Segment, x: np.ndarray) -> float:
@@ -314,19 +347,20 @@ class _Point:
         return self.beta * self.a
 
 
-def _evaluate(segs: list[_Segment], a: float, direction: bool = True) -> _Point:
+def _evaluate(segs: list[_Segment], a: float, direction: bool = True, keep: bool = False) -> _Point:
     """Linear parameters at ``a`` and, with ``direction``, the Gauss--Newton step; else the residuals in ``r``.
 
     Per segment the offset is removed by centring and ``D`` by one Gram--Schmidt step;
     ``b`` is shared, so its column ``B~ = B* - (B*.D/D.D) D`` is projected out across
-    segments, and so is the ramp ``T~`` when the segments carry one (a bias).
+    segments, and so is the ramp ``T~`` when the segments carry one (a bias).  ``keep``: the columns kept within
+    :func:`shared_work` (:func:`_columns`).
     """
     ramp = segs[0].t_col is not None
     point = _Point(a, math.nan, np.full(len(segs), math.nan))
     by = ty = 0.0
     parts = []
     for s in segs:
-        _columns(s, a, direction)
+        _columns(s, a, direction, keep)
         dd = s.d_norm2
         bd = _dot_d(s, s.b_col) / dd
         yd = _dot_d(s, s.y) / dd
@@ -528,7 +562,7 @@ def separable_candidate(segments: list[Segment], a0: float, *, with_bias: bool =
     if not refine and sum(len(seg.time) for seg in segments) >= 4 * coarse_samples:
         coarse = _coarse_steps(segments, float(a0), with_bias, ceiling, coarse_samples, COARSE_BUDGET)
         if coarse is not None:
-            return _candidate([_Segment(seg, with_bias) for seg in segments], coarse[0], False)
+            return _candidate(_work_segments(segments, with_bias), coarse[0], False)
     solved = _solve_pole(segments, a0, ceiling, with_bias=with_bias, coarse_samples=coarse_samples, share=True)
     if solved is None:
         return None
@@ -549,9 +583,9 @@ def _coarse_steps(segments: list[Segment], a0: float, with_bias: bool, ceiling: 
     start on the same segments is made once: a later call resumes where an earlier one stopped at its budget (each
     step depends on its ``a`` alone, so the steps are the ones an unbroken run makes).  Only the phase's result is
     kept, not its work arrays: arrays held between fits cost more in the cache than making them again."""
-    segs = [_Segment(s, with_bias) for s in first_rows(segments, coarse_samples)]
+    segs = _work_segments(segments, with_bias, coarse_samples)
     if not share:
-        return _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget)
+        return _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget, keep_first=True)
     key = ("coarse", id(segments), with_bias, a0, ceiling, coarse_samples)
     found, done = _shared(key, segments)
     if found:
@@ -559,7 +593,7 @@ def _coarse_steps(segments: list[Segment], a0: float, with_bias: bool, ceiling: 
             return None if done is None else done[:3]
         coarse = _iterate(segs, done[0], COARSE_RTOL, ceiling, budget=budget, evaluations=done[2])
     else:
-        coarse = _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget)
+        coarse = _iterate(segs, a0, COARSE_RTOL, ceiling, budget=budget, keep_first=True)
     if coarse is None:
         return _share(key, segments, None)
     a, point, count = coarse
@@ -567,6 +601,13 @@ def _coarse_steps(segments: list[Segment], a0: float, with_bias: bool, ceiling: 
     finished = a == ceiling or abs(point.step) <= COARSE_RTOL * abs(a)
     _share(key, segments, (a, point, count, finished))
     return coarse
+
+
+def _work_segments(segments: list[Segment], with_bias: bool, rows: int | None = None) -> list[_Segment]:
+    """The work segments of ``segments`` (their first ``rows`` in all, :func:`identify.data.first_rows`), each
+    knowing where its rows come from (:func:`_columns` shares what it computes on them within :func:`shared_work`)."""
+    kept = segments if rows is None else first_rows(segments, rows)
+    return [_Segment(s, with_bias, (segments, i)) for i, s in enumerate(kept)]
 
 
 def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: bool,
@@ -579,7 +620,7 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: b
         coarse = _coarse_steps(segments, float(a0), with_bias, ceiling, coarse_samples, None, share)
         if coarse is not None:
             a0, evaluations = coarse[0], coarse[2]
-    segs = [_Segment(s, with_bias) for s in segments]
+    segs = _work_segments(segments, with_bias) if share else [_Segment(s, with_bias) for s in segments]
     fine = _iterate(segs, float(a0), STEP_RTOL, ceiling)
     if fine is None:
         return None
@@ -588,15 +629,19 @@ def _solve_pole(segments: list[Segment], a0: float, ceiling: float, with_bias: b
 
 
 def _iterate(segs: list[_Segment], a: float, rtol: float, ceiling: float = math.inf,
-             budget: int | None = None, evaluations: int = 0) -> tuple[float, _Point, int] | None:
+             budget: int | None = None, evaluations: int = 0, keep_first: bool = False
+             ) -> tuple[float, _Point, int] | None:
     """Gauss--Newton steps from ``a`` until one is below ``rtol`` relative, or ``a`` passes ``ceiling``
     (then ``a = ceiling``): ``(a, last point, evaluations)``.  With a ``budget``, the ``a`` reached
     after that many evaluations is returned even when not converged.  ``evaluations``: those made before
-    ``a`` (a run resumed), counted towards :data:`MAX_ITERATIONS` and the budget."""
+    ``a`` (a run resumed), counted towards :data:`MAX_ITERATIONS` and the budget.  ``keep_first``: the first step's
+    columns kept within :func:`shared_work` (a coarse phase's start, which the other candidates of its delay share)."""
+    keep = keep_first and evaluations == 0
     while True:
         if not (a > 0 and math.isfinite(a)) or evaluations == MAX_ITERATIONS:
             return None
-        point = _evaluate(segs, a)
+        point = _evaluate(segs, a, keep=keep)
+        keep = False
         evaluations += 1
         if not math.isfinite(point.step):
             return None

@@ -5,12 +5,18 @@ Two clocks: the wall clock (:func:`time.perf_counter`) and the process's CPU tim
 (:mod:`motorid.bench.goals`) are CPU times where the work is single-threaded: on a
 machine whose cores other processes share, a wall-clock time counts the waits for a
 core, which have nothing to do with the code, while the CPU time of the same work
-moves only by what the neighbours do to the caches.
+moves only by what the neighbours do to the caches.  Timed on :data:`cpu_clock`, every call
+runs with BLAS on one thread (:func:`identify.sums.single_threaded_blas`, as every fit runs):
+a BLAS helper thread that waits for a core spins, and its spinning is CPU time of the process
+that the work did not need (the frequency response of 10^6 samples: 0.125 s on one thread,
+0.128-0.174 s of CPU with OpenBLAS's two beside other work, 0.117 and 0.150 s in two runs of
+the gate).
 """
 from __future__ import annotations
 
+import contextlib
 import time
-from typing import Callable, Sequence
+from typing import Callable, ContextManager, Sequence
 
 import numpy as np
 
@@ -18,6 +24,14 @@ __all__ = ["median_time", "interleaved_times", "interleaved_rounds", "median_rat
 
 #: The clock of the gate's figures: CPU seconds of this process, all threads.
 cpu_clock: Callable[[], float] = time.process_time
+
+
+def _single_threaded(clock: Callable[[], float]) -> ContextManager[None]:
+    """BLAS on one thread while timing on :data:`cpu_clock` (module docstring); nothing changed on another clock."""
+    if clock is not cpu_clock:
+        return contextlib.nullcontext()
+    from identify.sums import single_threaded_blas
+    return single_threaded_blas()
 
 
 def median_time(func: Callable[[], object], repeats: int = 5) -> float:
@@ -32,17 +46,19 @@ def median_time(func: Callable[[], object], repeats: int = 5) -> float:
 
 
 def least_time(func: Callable[[], object], repeats: int = 3, clock: Callable[[], float] = cpu_clock) -> float:
-    """The least seconds of ``func()`` on ``clock`` over ``repeats`` calls (after one warm-up call).
+    """The least seconds of ``func()`` on ``clock`` over ``repeats`` calls (after one warm-up call; on
+    :data:`cpu_clock` with BLAS on one thread, as the module docstring says).
 
     The least, not the median: a busy machine only ever adds to a call's time (cache
     misses, a core shared with a neighbour), so the least is the steadiest figure of the work.
     """
-    func()
-    times = []
-    for _ in range(repeats):
-        t0 = clock()
+    with _single_threaded(clock):
         func()
-        times.append(clock() - t0)
+        times = []
+        for _ in range(repeats):
+            t0 = clock()
+            func()
+            times.append(clock() - t0)
     return float(min(times))
 
 
@@ -52,20 +68,22 @@ def interleaved_rounds(funcs: Sequence[Callable[[], object]], repeats: int = 5, 
 
     Each round times every function once in turn, a short one over as many calls as
     fill about ``batch_seconds``, so a change in the machine's load between rounds
-    hits all of them alike and the ratios within a round are fair.
+    hits all of them alike and the ratios within a round are fair.  On :data:`cpu_clock`,
+    with BLAS on one thread (module docstring).
     """
     calls = []
-    for func in funcs:
-        t0 = clock()
-        func()                                            # warm-up, and the size of a batch
-        calls.append(max(1, int(batch_seconds / max(clock() - t0, 1e-9))))
     times = np.empty((repeats, len(funcs)))
-    for r in range(repeats):
-        for i, (func, k) in enumerate(zip(funcs, calls)):
+    with _single_threaded(clock):
+        for func in funcs:
             t0 = clock()
-            for _ in range(k):
-                func()
-            times[r, i] = (clock() - t0) / k
+            func()                                        # warm-up, and the size of a batch
+            calls.append(max(1, int(batch_seconds / max(clock() - t0, 1e-9))))
+        for r in range(repeats):
+            for i, (func, k) in enumerate(zip(funcs, calls)):
+                t0 = clock()
+                for _ in range(k):
+                    func()
+                times[r, i] = (clock() - t0) / k
     return times
 
 

@@ -150,8 +150,8 @@ def test_shared_work_resumes_the_coarse_steps_and_changes_no_number(monkeypatch,
     alone = [linear_candidate([rec], segs, 1, with_bias, refine=refine) for refine in (False, True)]
     coarse_rows = []
     evaluate = vp._evaluate
-    monkeypatch.setattr(vp, "_evaluate", lambda s, a, direction=True: coarse_rows.append(s[0].n) or evaluate(
-        s, a, direction))
+    monkeypatch.setattr(vp, "_evaluate", lambda s, a, direction=True, **kept: coarse_rows.append(s[0].n) or evaluate(
+        s, a, direction, **kept))
     with vp.shared_work():
         first = linear_candidate([rec], segs, 1, with_bias, refine=False)
         made = len(coarse_rows)
@@ -163,3 +163,32 @@ def test_shared_work_resumes_the_coarse_steps_and_changes_no_number(monkeypatch,
     # the coarse steps run on the first rows (1000 of the run's 5999): the full fit's evaluations are all on every row
     assert 0 < sum(n < 2000 for n in coarse_rows[:made]) and not any(n < 2000 for n in coarse_rows[made:])
     assert vp._SHARED is None                       # forgotten on exit
+
+
+def test_shared_work_reuses_the_columns_made_on_the_same_rows_and_changes_no_number(monkeypatch):
+    """Within ``shared_work`` the ``linear`` and ``bias`` candidates of a delay take their first step's columns from
+    one another (the same start on the same rows): every number as each candidate gives it alone, bit for bit, with
+    fewer filter passes."""
+    from identify.fits import variable_projection as vp
+    from identify.fits.output_error import linear_candidate
+    from motorsim.excitation import Multisine
+    rec = SimRig(Motor(25.0, 3.0, bias=2.0), Encoder(16667, angle_noise=1e-4), rng=np.random.default_rng(4)).run(
+        Experiment(Multisine((5.0, 17.0, 41.0, 90.0), (60, 60, 50, 40), (0, 1, 2, 3)), 0.005, 30.0))
+    segs = prepare_segments([rec], 1, skip=2)
+    order = [(False, False), (True, False), (False, True), (True, True)]        # (with_bias, refine)
+    alone = [linear_candidate([rec], segs, 1, bias, refine=refine) for bias, refine in order]
+    passes = []
+    filter_pass = vp.first_order_filter
+    monkeypatch.setattr(vp, "first_order_filter", lambda *a, **k: passes.append(1) or filter_pass(*a, **k))
+    for bias, refine in order:
+        linear_candidate([rec], segs, 1, bias, refine=refine)
+    apart = len(passes)
+    passes.clear()
+    with vp.shared_work():
+        shared = [linear_candidate([rec], segs, 1, bias, refine=refine) for bias, refine in order]
+    for got, want in zip(shared, alone):
+        assert got.candidate.a == want.candidate.a and got.candidate.b == want.candidate.b
+        assert got.bias == want.bias and np.array_equal(got.residuals, want.residuals)
+    # the coarse steps resumed save 16 passes (two full fits, four evaluations of F and G each); the bias candidate's
+    # first step, its F and G taken as the linear candidate made them, 2 more
+    assert len(passes) <= apart - 18

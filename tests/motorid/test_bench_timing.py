@@ -63,3 +63,23 @@ def test_the_memory_probe_reports_the_childs_own_peak():
     assert idle < 60 * 2**20
     with pytest.raises(RuntimeError, match="failed"):
         peak_memory("-c", "raise SystemExit(3)")
+
+
+def test_cpu_time_is_taken_with_blas_on_one_thread():
+    # a BLAS helper thread waiting for a core spins on the process's CPU clock: the gate's CPU timings run the work
+    # on one BLAS thread, and leave the setting as it was after; a timing on another clock changes nothing
+    from threadpoolctl import threadpool_info
+
+    from motorid.bench.timing import cpu_clock
+
+    def blas_threads():
+        return max((pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"), default=1)
+    before = blas_threads()
+    seen = []
+    least_time(lambda: seen.append(blas_threads()), repeats=2, clock=cpu_clock)
+    interleaved_rounds([lambda: seen.append(blas_threads())], repeats=2, batch_seconds=0.0, clock=cpu_clock)
+    assert seen and set(seen) == {1}
+    assert blas_threads() == before
+    clock = FakeClock()
+    least_time(lambda: seen.append(blas_threads()) or clock.work("f", [0.1])(), repeats=1, clock=clock)
+    assert seen[-1] == before
