@@ -7,15 +7,30 @@ model's own columns and test them against zero.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import TYPE_CHECKING
+from typing import Callable
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .consistency import _Rows
-
 __all__ = ["MIN_TURN_RANGE", "KNEES"]
+
+
+@dataclasses.dataclass
+class _Rows:
+    """The chosen model on every segment, what the checks need, segments concatenated."""
+
+    residual: np.ndarray          # measured less model output (angle or speed)
+    speed: np.ndarray             # model speed over each interval (held like the drive; last row 0)
+    drive: np.ndarray             # the drive the gain multiplies, over each interval
+    order: np.ndarray             # the row's place in the run, 0 ... 1
+    respond: list[Callable[..., np.ndarray]]   # per segment: x (its rows) -> projected response
+    angle: np.ndarray             # measured angle (integrated from a speed column), rad
+    bounds: list[tuple[int, int]]  # per segment: its rows
+    friction: bool
+    output_rms: float             # of the measured output less each segment's first value
+    interval: np.ndarray | None = None   # each row's sample interval, s (last row 0); None on uniform clocks
+    push: np.ndarray | None = None       # the model's acceleration over each interval, b v - a w (last row 0)
 
 
 def _push_curve_inputs(rows: _Rows) -> list[np.ndarray]:

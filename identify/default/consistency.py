@@ -85,6 +85,7 @@ from .check_columns import (
     _drag_inputs,
     _friction_curve_inputs,
     _push_curve_inputs,
+    _Rows,
     _three_magnitudes,
 )
 from .selection_report import PartCheck, _g
@@ -334,23 +335,6 @@ def _own_inputs(rows: _Rows) -> list[np.ndarray]:
     """The inputs whose responses are the chosen model's own directions: ``a``, ``b``, ``d`` (and friction)."""
     w = rows.speed
     return [-w, rows.drive, np.ones(len(w))] + ([-np.sign(w)] if rows.friction else [])
-
-
-@dataclasses.dataclass
-class _Rows:
-    """The chosen model on every segment, what the checks need, segments concatenated."""
-
-    residual: np.ndarray          # measured less model output (angle or speed)
-    speed: np.ndarray             # model speed over each interval (held like the drive; last row 0)
-    drive: np.ndarray             # the drive the gain multiplies, over each interval
-    order: np.ndarray             # the row's place in the run, 0 ... 1
-    respond: list[Callable[..., np.ndarray]]   # per segment: x (its rows) -> projected response
-    angle: np.ndarray             # measured angle (integrated from a speed column), rad
-    bounds: list[tuple[int, int]]  # per segment: its rows
-    friction: bool
-    output_rms: float             # of the measured output less each segment's first value
-    interval: np.ndarray | None = None   # each row's sample interval, s (last row 0); None on uniform clocks
-    push: np.ndarray | None = None       # the model's acceleration over each interval, b v - a w (last row 0)
 
 
 def _rows(estimate: Any, recordings: Sequence[Recording]) -> _Rows | None:
