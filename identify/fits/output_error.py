@@ -358,48 +358,7 @@ def select_delay(recordings: Recording | list[Recording], max_delay: int = MAX_A
 def linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
                 refine: bool = True) -> CandidateFit:
     """The ``oe`` fit (with or without a bias) on ``segs``: what ``fit_output_error`` computes
-    (with ``refine=False`` on long data, only its first steps: see :func:`identify.comparison.refine`).
-
-    Within :func:`identify.fits.variable_projection.shared_work` (the default's selection), kept by what it depends
-    on: the rows of ``segs`` (their ends looked up, every row compared where those match), the delay, the bias,
-    ``refine``, the recordings' sample period and regression start.  The selection, its delay scans and the friction
-    fit's check each asked for the same fit on the same rows (72 fits, 44 distinct, on a 12-count encoder's file); a
-    kept one is handed back as new objects and arrays."""
-    from .start import regression_guess
-    from .variable_projection import shared_store
-    kept = shared_store("linear candidates")
-    if kept is None:
-        return _linear_candidate(recs, segs, delay, with_bias, refine)
-    key = (tuple((s.kind, s.uniform, len(s.time), float(s.time[0]), float(s.time[-1]), float(s.output[0]),
-                  float(s.output[-1]), float(s.drive[0]), float(s.drive[-1])) for s in segs),
-           delay, bool(with_bias), bool(refine), len(recs), float(recs[0].sample_period), regression_guess(recs))
-    entry = kept.get(key)
-    if entry is not None and all(np.array_equal(x.time, y.time) and np.array_equal(x.drive, y.drive)
-                                 and np.array_equal(x.output, y.output) for x, y in zip(entry[0], segs)):
-        return _copied(entry[1])
-    found = _linear_candidate(recs, segs, delay, with_bias, refine)
-    kept[key] = (list(segs), _copied(found))
-    held = sum(0 if f.residuals is None else f.residuals.nbytes for _, f in kept.values())
-    while held > KEPT_BYTES and len(kept) > 1:
-        _, old = kept.pop(next(iter(kept)))
-        held -= 0 if old.residuals is None else old.residuals.nbytes
-    return found
-
-
-#: The most bytes of residuals the linear candidates kept hold (:func:`linear_candidate`): the last few hundred fits
-#: of a file of ten thousand rows, the last one or two of a million rows.
-KEPT_BYTES = 16 * 2**20
-
-
-def _copied(fit: CandidateFit) -> CandidateFit:
-    """``fit`` as new objects: its candidate and its residuals copied."""
-    residuals = None if fit.residuals is None else fit.residuals.copy()
-    return dataclasses.replace(fit, candidate=dataclasses.replace(fit.candidate), residuals=residuals)
-
-
-def _linear_candidate(recs: list[Recording], segs: list[Segment], delay: int, with_bias: bool,
-                      refine: bool = True) -> CandidateFit:
-    """:func:`linear_candidate`, computed."""
+    (with ``refine=False`` on long data, only its first steps: see :func:`identify.comparison.refine`)."""
     name = "bias" if with_bias else "linear"
     if is_separable(segs, False):
         ceiling = static_gain_ceiling(segs)

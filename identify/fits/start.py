@@ -85,27 +85,8 @@ def initial_guess(recordings: Sequence[Recording], segments: Sequence[Segment]) 
     return grid_guess(segments)
 
 
-
-
-def _digest(segments: Sequence[Segment]) -> bytes:
-    """A digest of what :func:`grid_guess` reads of ``segments``: each one's kind, clock, drive and output."""
-    import hashlib
-    h = hashlib.blake2b(digest_size=20)
-    for seg in segments:
-        h.update(f"{seg.kind}|{seg.uniform}|{len(seg.time)}|".encode())
-        for values in (seg.time, seg.drive, seg.output):
-            arr = np.ascontiguousarray(values, dtype=float)
-            h.update(arr.tobytes())
-    return h.digest()
-
-
 def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     """Best ``a`` on a log grid with ``b`` and initial states solved linearly (robust start).
-
-    Within :func:`identify.fits.variable_projection.shared_work` (the default's selection), kept by the digest of
-    the segments' rows: where the regression finds no start (a coarse encoder), the default's linear candidates at
-    every delay, with and without a bias, their refinement and the friction fit's linear start each asked for it again
-    on the same rows (205 grids of 40 responses on a 12-count encoder's file, 28 distinct).
 
     Parameters
     ----------
@@ -117,19 +98,6 @@ def grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
     a, b : float
         Pole in 1/s and gain per input unit.
     """
-    from .variable_projection import shared_store
-    kept = shared_store("grid guesses")
-    if kept is None:
-        return _grid_guess(segments)
-    key = _digest(segments)
-    found = kept.get(key)
-    if found is None:
-        found = kept[key] = _grid_guess(segments)
-    return found
-
-
-def _grid_guess(segments: Sequence[Segment]) -> tuple[float, float]:
-    """:func:`grid_guess`, computed."""
     dt = float(np.median(np.concatenate([np.diff(s.time) for s in segments])))
     span = max(s.time[-1] - s.time[0] for s in segments)
     best = (math.inf, 1.0, 1.0)

@@ -88,14 +88,6 @@ def shared_work() -> Iterator[None]:
             _SHARED = None
 
 
-def shared_store(name: str) -> dict | None:
-    """A dict that lives as long as the outermost :func:`shared_work` (one per ``name``), None outside it: for work
-    kept by what it depends on rather than by the object it was made from."""
-    if _SHARED is None:
-        return None
-    return _SHARED.setdefault(("store", name), (None, {}))[1]
-
-
 def _shared(key: tuple, made_from: Any) -> tuple[bool, Any]:
     """``(True, value)`` for ``key`` when :func:`shared_work` holds it for the very object ``made_from``."""
     entry = None if _SHARED is None else _SHARED.get(key)

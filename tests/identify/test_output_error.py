@@ -222,28 +222,3 @@ def test_one_scan_over_all_segments_equals_segment_by_segment(reference, kind):
     for got, want in zip(batched.evaluate(x), looped.evaluate(x)):
         # the carried-in state is projected out exactly; only rounding differs
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.max(np.abs(want)))
-
-
-def test_a_kept_linear_candidate_is_the_fit_itself_as_new_objects(monkeypatch):
-    # the second ask on equal rows computes nothing and hands back the same numbers in objects of its own: changing
-    # what one caller got changes nothing another gets; another delay is fitted anew
-    import identify.fits.output_error as oe
-    from identify.data import prepare_segments
-    from identify.fits.variable_projection import shared_work
-    from motorsim import Encoder, Experiment, Motor, SimRig, Sine
-    rec = SimRig(Motor(25.0, 3.0), Encoder(1000, angle_noise=1e-4), rng=np.random.default_rng(8)).run(
-        Experiment(Sine(15.0, 150), 0.005, 2.0))
-    computed = []
-    real = oe._linear_candidate
-    monkeypatch.setattr(oe, "_linear_candidate", lambda *args: computed.append(args[2]) or real(*args))
-    with shared_work():
-        first = oe.linear_candidate([rec], prepare_segments([rec], 0), 0, True)
-        kept = first.residuals.copy()
-        first.residuals[:] = 0.0
-        second = oe.linear_candidate([rec], prepare_segments([rec], 0), 0, True)
-        assert computed == [0] and second.candidate == first.candidate and second.candidate is not first.candidate
-        assert np.array_equal(second.residuals, kept) and second.bias == first.bias
-        oe.linear_candidate([rec], prepare_segments([rec], 1), 1, True)
-        assert computed == [0, 1]
-    oe.linear_candidate([rec], prepare_segments([rec], 0), 0, True)       # forgotten with the shared work
-    assert computed == [0, 1, 0]

@@ -62,23 +62,3 @@ def test_the_regression_guess_is_kept_with_its_recording(monkeypatch):
     assert computed == [1, 1, 2, 2, 2]            # each recording once, the pooled pair every time
     again = pickle.loads(pickle.dumps(runs[0]))
     assert start.regression_guess([again]) == fresh[0] and computed[-1] == 2
-
-
-def test_the_grid_is_computed_once_per_set_of_rows_and_any_change_of_them_computes_it_again(monkeypatch):
-    import dataclasses
-
-    import identify.fits.start as start
-    rig = SimRig(Motor(25.0, 3.0), Encoder(360, angle_noise=1e-3), rng=np.random.default_rng(5))
-    segments = prepare_segments([rig.run(Experiment(Sine(20.0, 150), 0.005, 2.0))], 0)
-    from identify.fits.variable_projection import shared_work
-    computed = []
-    monkeypatch.setattr(start, "_grid_guess", lambda segs: computed.append(1) or _dense_grid_guess(segs))
-    with shared_work():
-        first = grid_guess(segments)
-        again = grid_guess([dataclasses.replace(s, output=s.output.copy()) for s in segments])   # equal rows
-        assert again == first and len(computed) == 1
-        moved = [dataclasses.replace(s, output=s.output + 1e-12 * (i == 0)) for i, s in enumerate(segments)]
-        grid_guess(moved)
-        assert len(computed) == 2
-    grid_guess(segments)                    # forgotten with the shared work
-    assert len(computed) == 3
