@@ -59,6 +59,19 @@ def _dphi(alpha: float, t: float) -> tuple[float, float]:
     return t * t * g1, t * t * t * g2
 
 
+def _first_region(ae: float, bu: float, limit: float, w: float) -> tuple[float, float, int]:
+    """The speeds ``up`` and ``lo`` between which the torque is within the limit (linear where ``up <= w <= lo``)
+    and the region the speed ``w`` starts in: 1 held at ``+limit``, -1 at ``-limit``, 0 linear."""
+    if ae > 0.0:
+        up, lo = (bu - limit) / ae, (bu + limit) / ae
+        if w < up:
+            return up, lo, 1
+        if w > lo:
+            return up, lo, -1
+        return up, lo, 0
+    return 0.0, 0.0, (1 if bu > limit else (-1 if bu < -limit else 0))
+
+
 def limit_interval(ae: float, am: float, bu: float, limit: float, d: float, w: float, th: float,
                    h: float) -> tuple[float, float]:
     """Exact solution over ``h`` s of ``w' = sat_limit(bu - ae w) - am w + d`` from speed ``w``, angle ``th``.
@@ -66,17 +79,7 @@ def limit_interval(ae: float, am: float, bu: float, limit: float, d: float, w: f
     Returns the speed and the angle at the interval's end (module docstring: at most two crossings between the
     linear and the saturated regions; the field is continuous, so the motion keeps its direction across one).
     """
-    if ae > 0.0:
-        up, lo = (bu - limit) / ae, (bu + limit) / ae      # linear where up <= w <= lo
-        if w < up:
-            reg = 1
-        elif w > lo:
-            reg = -1
-        else:
-            reg = 0
-    else:
-        up = lo = 0.0
-        reg = 1 if bu > limit else (-1 if bu < -limit else 0)
+    up, lo, reg = _first_region(ae, bu, limit, w)
     remaining = h
     for _ in range(4):
         if reg == 0:
@@ -151,17 +154,7 @@ def limit_interval_sensitivity(a: float, s: float, u: float, b: float, limit: fl
     ``dw`` and the angle ``dth`` with respect to ``(a, b, L, s, d, w0)`` (updated in place; ``dal``, ``dc``, ``df``
     are scratch of the same length): each piece differentiated at its own length (module docstring)."""
     ae, am, bu = s * a, (1.0 - s) * a, b * u
-    if ae > 0.0:
-        up, lo = (bu - limit) / ae, (bu + limit) / ae
-        if w < up:
-            reg = 1
-        elif w > lo:
-            reg = -1
-        else:
-            reg = 0
-    else:
-        up = lo = 0.0
-        reg = 1 if bu > limit else (-1 if bu < -limit else 0)
+    up, lo, reg = _first_region(ae, bu, limit, w)
     remaining = h
     for _ in range(4):
         alpha, c = _piece(reg, a, s, ae, am, u, bu, limit, d, dal, dc)
@@ -234,7 +227,7 @@ def _compiled() -> Callable[..., None] | None:
     jit = numba_jit()
     if jit is None:
         return None
-    interval = jit(_rebound(limit_interval, _phi=jit(_phi)))
+    interval = jit(_rebound(limit_interval, _phi=jit(_phi), _first_region=jit(_first_region)))
     return jit(_rebound(limit_run_python, limit_interval=interval))
 
 
@@ -246,7 +239,7 @@ def _compiled_sensitivity() -> Callable[..., None] | None:
     if jit is None:
         return None
     interval = jit(_rebound(limit_interval_sensitivity, _phi=jit(_phi), _dphi=jit(_dphi), _piece=jit(_piece),
-                            _next_region=jit(_next_region)))
+                            _next_region=jit(_next_region), _first_region=jit(_first_region)))
     return jit(_rebound(limit_sensitivity_run_python, limit_interval_sensitivity=interval))
 
 
